@@ -1,0 +1,204 @@
+"""The estimator's math (SPEC section 2) as plain functions on floats and arrays.
+
+This module is the single definition of the motion model, its Jacobians, the
+process noise, the measurement models, the Kalman update and the uncertainty
+ellipse. The live estimator (``guidance.estimator``) and the Monte Carlo study
+engine (``hal_sim.engine``) both call these functions; they are compiled with
+numba so the study engine can run them inside one compiled trial loop.
+
+Frames and units (SPEC section 7): x east, y north, metres; heading ``theta``
+counter-clockwise from east, radians. Compass degrees appear only in
+``compass_to_heading`` / ``heading_to_compass``, which the drivers call at the
+input edge.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+from numba import njit
+
+# Chi-square quantiles with 2 degrees of freedom: P(d^2 <= k) = 1 - exp(-k / 2).
+# A "2-sigma ellipse" (d^2 = 4) holds 1 - e^-2 = 86.47% of the mass, not 95%.
+CHI2_2D_2SIGMA = 4.0
+CHI2_2D_P95 = 5.991464547107979
+CHI2_2D_P99 = 9.21034037197618
+# One degree of freedom (heading residual): P(d^2 <= 6.635) = 0.99.
+CHI2_1D_P99 = 6.634896601021214
+CHI2_1D_P999 = 10.827566170662733
+
+STATE_X = 0
+STATE_Y = 1
+STATE_THETA = 2
+N_STATE = 3
+
+
+@njit(cache=True)
+def wrap_angle(a: float) -> float:
+    """Wrap an angle to (-pi, pi]."""
+    w = (a + math.pi) % (2.0 * math.pi)
+    if w == 0.0:
+        w = 2.0 * math.pi
+    return w - math.pi
+
+
+@njit(cache=True)
+def odometry_increment(d_left_m: float, d_right_m: float, track_m: float) -> tuple[float, float]:
+    """Distance and heading change from rear-wheel distance increments (SPEC 2).
+
+    Distance is the mean of the two wheels; the heading change is the
+    differential distance over the track width (counter-clockwise positive).
+    """
+    return 0.5 * (d_left_m + d_right_m), (d_right_m - d_left_m) / track_m
+
+
+@njit(cache=True)
+def motion_predict(
+    x: float, y: float, theta: float, d: float, dtheta: float
+) -> tuple[float, float, float]:
+    """Move the rear-axle centre by distance ``d`` while turning by ``dtheta``.
+
+    Second-order (mid-point) odometry model: the chord is travelled at the mean
+    heading of the interval, which is exact for a circular arc up to the chord
+    length factor sin(dtheta/2)/(dtheta/2) (below 1e-4 relative for the
+    heading changes of one odometry interval).
+    """
+    mid = theta + 0.5 * dtheta
+    return x + d * math.cos(mid), y + d * math.sin(mid), wrap_angle(theta + dtheta)
+
+
+@njit(cache=True)
+def motion_jacobians(
+    theta: float, d_left_m: float, d_right_m: float, track_m: float
+) -> tuple[np.ndarray, np.ndarray]:
+    """State Jacobian F (3x3) and input Jacobian G (3x2, w.r.t. left/right wheel distance)."""
+    d = 0.5 * (d_left_m + d_right_m)
+    dtheta = (d_right_m - d_left_m) / track_m
+    mid = theta + 0.5 * dtheta
+    c = math.cos(mid)
+    s = math.sin(mid)
+    F = np.eye(3)
+    F[0, 2] = -d * s
+    F[1, 2] = d * c
+    # d(d)/d(dl) = 1/2, d(dtheta)/d(dl) = -1/b; d(mid)/d(dl) = -1/(2b); symmetric for dr.
+    G = np.empty((3, 2))
+    G[0, 0] = 0.5 * c + d * s / (2.0 * track_m)
+    G[0, 1] = 0.5 * c - d * s / (2.0 * track_m)
+    G[1, 0] = 0.5 * s - d * c / (2.0 * track_m)
+    G[1, 1] = 0.5 * s + d * c / (2.0 * track_m)
+    G[2, 0] = -1.0 / track_m
+    G[2, 1] = 1.0 / track_m
+    return F, G
+
+
+@njit(cache=True)
+def wheel_noise_var(d_wheel_m: float, quantum_m: float, slip_frac: float) -> float:
+    """Variance of one wheel's distance increment (SPEC 2).
+
+    Quantisation of +-1/2 count is uniform, variance quantum^2 / 12; slip has a
+    standard deviation proportional to the distance travelled.
+    """
+    slip = slip_frac * d_wheel_m
+    return quantum_m * quantum_m / 12.0 + slip * slip
+
+
+@njit(cache=True)
+def process_noise(G: np.ndarray, var_left: float, var_right: float) -> np.ndarray:
+    """Q = G diag(var_l, var_r) G^T: wheel noise propagated through the input Jacobian."""
+    Q = np.empty((3, 3))
+    for i in range(3):
+        for j in range(3):
+            Q[i, j] = G[i, 0] * var_left * G[j, 0] + G[i, 1] * var_right * G[j, 1]
+    return Q
+
+
+@njit(cache=True)
+def predict_covariance(P: np.ndarray, F: np.ndarray, Q: np.ndarray) -> np.ndarray:
+    """P' = F P F^T + Q."""
+    return F @ P @ F.T + Q
+
+
+@njit(cache=True)
+def kalman_update(
+    x: np.ndarray, P: np.ndarray, y: np.ndarray, H: np.ndarray, R: np.ndarray
+) -> tuple[np.ndarray, np.ndarray, float]:
+    """Kalman update with residual ``y`` in Joseph form (as filterpy's EKF computes it).
+
+    Returns the new state, the new covariance and the squared Mahalanobis
+    distance of the residual (the gate statistic).
+    """
+    PHt = P @ H.T
+    S = H @ PHt + R
+    S_inv = np.linalg.inv(S)
+    K = PHt @ S_inv
+    x_new = x + K @ y
+    x_new[2] = wrap_angle(x_new[2])
+    I_KH = np.eye(P.shape[0]) - K @ H
+    P_new = I_KH @ P @ I_KH.T + K @ R @ K.T
+    d2 = float(y @ S_inv @ y)
+    return x_new, P_new, d2
+
+
+@njit(cache=True)
+def mahalanobis_sq(y: np.ndarray, H: np.ndarray, P: np.ndarray, R: np.ndarray) -> float:
+    """Squared Mahalanobis distance of residual ``y`` with S = H P H^T + R."""
+    S = H @ P @ H.T + R
+    return float(y @ np.linalg.solve(S, y))
+
+
+@njit(cache=True)
+def heading_residual(z_theta: float, theta: float) -> float:
+    """Compass residual, wrapped to (-pi, pi]."""
+    return wrap_angle(z_theta - theta)
+
+
+@njit(cache=True)
+def compass_to_heading(compass_deg: float, declination_deg: float) -> float:
+    """Magnetic compass degrees (clockwise from north) to filter heading (rad, CCW from east).
+
+    True bearing = magnetic + declination (east positive); the filter heading is
+    90 degrees minus the true bearing.
+    """
+    true_deg = compass_deg + declination_deg
+    return wrap_angle(math.radians(90.0 - true_deg))
+
+
+@njit(cache=True)
+def heading_to_compass(theta: float, declination_deg: float) -> float:
+    """Filter heading (rad) to magnetic compass degrees in [0, 360)."""
+    deg = 90.0 - math.degrees(theta) - declination_deg
+    deg = deg % 360.0
+    if deg >= 360.0:  # -1e-17 % 360.0 rounds to 360.0
+        deg = 0.0
+    return deg
+
+
+@njit(cache=True)
+def two_sigma_deg_to_var(two_sigma_deg: float) -> float:
+    """Variance (rad^2) of a sensor specified by its 2-sigma error in degrees."""
+    s = math.radians(two_sigma_deg) / 2.0
+    return s * s
+
+
+@njit(cache=True)
+def ellipse_axes(pxx: float, pxy: float, pyy: float, k2: float) -> tuple[float, float, float]:
+    """Semi-axes (major, minor) and orientation (rad from x) of {d^2 <= k2}.
+
+    For the 2-sigma ellipse use ``k2 = CHI2_2D_2SIGMA`` (=4): the semi-axes are
+    2 * sqrt(eigenvalues of the x-y covariance).
+    """
+    tr = 0.5 * (pxx + pyy)
+    diff = 0.5 * (pxx - pyy)
+    rad = math.sqrt(diff * diff + pxy * pxy)
+    l1 = max(tr + rad, 0.0)
+    l2 = max(tr - rad, 0.0)
+    angle = 0.5 * math.atan2(2.0 * pxy, pxx - pyy)
+    return math.sqrt(k2 * l1), math.sqrt(k2 * l2), angle
+
+
+@njit(cache=True)
+def major_axis_m(P: np.ndarray) -> float:
+    """Full length of the major axis of the 2-sigma position ellipse (SPEC 2)."""
+    a, _, _ = ellipse_axes(P[0, 0], P[0, 1], P[1, 1], CHI2_2D_2SIGMA)
+    return 2.0 * a
