@@ -82,3 +82,21 @@ class EstimateState:
     ellipse: Ellipse
     lost: bool
     healthy: bool
+
+
+@dataclass(frozen=True, slots=True, eq=False)
+class CameraFrame:
+    """One camera image (BGR or grey ``numpy`` array) with its capture time."""
+
+    t_s: float
+    image: object  # numpy.ndarray; kept as object so this module needs no numpy import
+    source: str = ""
+
+
+@dataclass(frozen=True, slots=True)
+class TurnCompleted:
+    """The driver took an exit: reported by the co-driver or detected from the heading change."""
+
+    t_s: float
+    heading_change_rad: float
+    source: str = "detected"
