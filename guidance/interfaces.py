@@ -1,4 +1,4 @@
-"""One interface per kind of device (HOUSE_STYLE): real drivers and simulated devices implement these.
+"""One interface per kind of device (HOUSE_STYLE); real and simulated devices implement them.
 
 A source owns its blocking I/O on its own thread and hands each message to the
 ``sink`` it was started with; the application's sink forwards it to the event

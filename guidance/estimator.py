@@ -1,0 +1,288 @@
+"""Pose estimator: an extended Kalman filter on filterpy (SPEC section 2).
+
+Plain synchronous code with one entry point, ``process(msg)``, which takes a
+timestamped input and returns what happened. No I/O, no clock reads: time comes
+from the messages, so live driving, accelerated simulation and replay run the
+same code. The math lives in ``guidance.model`` (shared with the study engine);
+this module adds bookkeeping: time ordering, gates, counters, health, resets.
+"""
+
+from __future__ import annotations
+
+import math
+from collections import Counter
+from dataclasses import dataclass
+
+import numpy as np
+from filterpy.kalman import ExtendedKalmanFilter
+
+from guidance import model
+from guidance.messages import Ellipse, EstimateState, LandmarkFix, WheelOdometry
+
+
+@dataclass(frozen=True, slots=True)
+class HeadingFix:
+    """A heading measurement already in the filter frame (rad, CCW from east).
+
+    Drivers convert compass degrees with ``guidance.model.compass_to_heading``
+    (declination and mounting offset applied there, at the input edge).
+    """
+
+    t_s: float
+    theta_rad: float
+
+
+Input = WheelOdometry | HeadingFix | LandmarkFix
+
+
+@dataclass(frozen=True, slots=True)
+class EstimatorConfig:
+    """Sensor noise and gate settings. Defaults: the reference car (2007 Tahoe)."""
+
+    track_m: float = 1.72
+    """Rear track width, m (Tahoe GMT900: 1.72 m)."""
+    wheel_quantum_m: float = 0.02
+    """Distance resolution of one wheel increment, m (one encoder count)."""
+    wheel_slip_frac: float = 0.01
+    """1-sigma slip as a fraction of each wheel increment."""
+    compass_two_sigma_deg: float | None = 30.0
+    """Compass 2-sigma error, degrees; None when no compass is fitted."""
+    compass_gate_chi2: float = model.CHI2_1D_P999
+    """Heading gate: residual d^2 above this (1 dof, P = 0.999) is rejected."""
+    landmark_gate_chi2: float = model.CHI2_2D_P99
+    """Landmark gate: d^2 above this (2 dof, P = 0.99) is rejected."""
+    lost_major_axis_m: float = 100.0
+    """Lost when the full 2-sigma major axis exceeds this (about one city block)."""
+    initial_position_sigma_m: float = 1.0
+    initial_heading_sigma_deg: float = 1.0
+    max_wheel_step_m: float = 20.0
+    """Sanity limit: a single odometry increment above this is rejected."""
+
+
+@dataclass(frozen=True, slots=True)
+class StepResult:
+    """What one input did to the estimate."""
+
+    kind: str
+    accepted: bool
+    reason: str | None = None
+    mahalanobis_sq: float | None = None
+
+
+class _Ekf(ExtendedKalmanFilter):
+    """filterpy's EKF with the odometry motion model as its state transition."""
+
+    x: np.ndarray
+
+    def predict_x(self, u: np.ndarray) -> None:
+        x, y, th = model.motion_predict(self.x[0], self.x[1], self.x[2], u[0], u[1])
+        self.x = np.array([x, y, th])
+
+
+def _h_heading(x: np.ndarray) -> np.ndarray:
+    return np.array([x[2]])
+
+
+def _H_heading(_x: np.ndarray) -> np.ndarray:
+    return _H_HEADING
+
+
+def _h_position(x: np.ndarray) -> np.ndarray:
+    return np.array([x[0], x[1]])
+
+
+def _H_position(_x: np.ndarray) -> np.ndarray:
+    return _H_POSITION
+
+
+def _heading_residual(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    return np.array([model.heading_residual(float(a[0]), float(b[0]))])
+
+
+_H_HEADING = np.array([[0.0, 0.0, 1.0]])
+_H_POSITION = np.array([[1.0, 0.0, 0.0], [0.0, 1.0, 0.0]])
+
+
+class PoseEstimator:
+    """EKF over (x, y, theta) of the rear-axle centre."""
+
+    def __init__(
+        self,
+        config: EstimatorConfig | None = None,
+        x_m: float = 0.0,
+        y_m: float = 0.0,
+        heading_rad: float = 0.0,
+    ) -> None:
+        self.config = config or EstimatorConfig()
+        self._kf = _Ekf(dim_x=3, dim_z=1)
+        self.rejections: Counter[str] = Counter()
+        self.accepted: Counter[str] = Counter()
+        self.resets = 0
+        self.healthy = True
+        self._last_t: float | None = None
+        self.set_pose(x_m, y_m, heading_rad)
+
+    # -- state -------------------------------------------------------------
+    def set_pose(
+        self,
+        x_m: float,
+        y_m: float,
+        heading_rad: float,
+        covariance: np.ndarray | None = None,
+    ) -> None:
+        """Put the car at a known pose (start, or a checkpoint) with the given covariance."""
+        cfg = self.config
+        self._kf.x = np.array([x_m, y_m, model.wrap_angle(heading_rad)], dtype=float)
+        if covariance is None:
+            sp = cfg.initial_position_sigma_m
+            sh = math.radians(cfg.initial_heading_sigma_deg)
+            covariance = np.diag([sp * sp, sp * sp, sh * sh])
+        self._kf.P = np.array(covariance, dtype=float).reshape(3, 3)
+
+    def reset(self, x_m: float = 0.0, y_m: float = 0.0, heading_rad: float = 0.0) -> None:
+        """Start over at a known pose, forgetting time order and counters."""
+        self.set_pose(x_m, y_m, heading_rad)
+        self._last_t = None
+        self.rejections.clear()
+        self.accepted.clear()
+        self.resets = 0
+        self.healthy = True
+
+    @property
+    def x(self) -> np.ndarray:
+        return np.array(self._kf.x, dtype=float)
+
+    @property
+    def P(self) -> np.ndarray:
+        return np.array(self._kf.P, dtype=float)
+
+    @property
+    def last_t_s(self) -> float | None:
+        return self._last_t
+
+    def ellipse(self) -> Ellipse:
+        P = self._kf.P
+        a, b, ang = model.ellipse_axes(P[0, 0], P[0, 1], P[1, 1], model.CHI2_2D_2SIGMA)
+        return Ellipse(a, b, ang, 2.0 * a)
+
+    @property
+    def major_axis_m(self) -> float:
+        return float(model.major_axis_m(self._kf.P))
+
+    @property
+    def lost(self) -> bool:
+        return self.major_axis_m > self.config.lost_major_axis_m
+
+    def state(self) -> EstimateState:
+        x = self._kf.x
+        P = self._kf.P
+        return EstimateState(
+            t_s=self._last_t if self._last_t is not None else 0.0,
+            x_m=float(x[0]),
+            y_m=float(x[1]),
+            heading_rad=float(x[2]),
+            covariance=tuple((float(r[0]), float(r[1]), float(r[2])) for r in P),
+            ellipse=self.ellipse(),
+            lost=self.lost,
+            healthy=self.healthy,
+        )
+
+    # -- the one entry point ------------------------------------------------
+    def process(self, msg: Input) -> StepResult:
+        """Apply one timestamped input; out-of-order and bad inputs are rejected and counted."""
+        kind = type(msg).__name__
+        if not math.isfinite(msg.t_s):
+            return self._reject(kind, "non_finite_time")
+        if self._last_t is not None and msg.t_s < self._last_t:
+            return self._reject(kind, "out_of_order")
+        x_before, P_before = self._kf.x.copy(), self._kf.P.copy()
+        if isinstance(msg, WheelOdometry):
+            result = self._predict(msg)
+        elif isinstance(msg, HeadingFix):
+            result = self._update_heading(msg)
+        elif isinstance(msg, LandmarkFix):
+            result = self._update_landmark(msg)
+        else:  # pragma: no cover - typing forbids it
+            return self._reject(kind, "unknown_input")
+        if result.accepted:
+            self._last_t = msg.t_s
+            self.accepted[kind] += 1
+            if not self._check_finite(x_before, P_before):
+                return StepResult(kind, False, "non_finite_state_reset", result.mahalanobis_sq)
+            if kind != "WheelOdometry":
+                self.healthy = True  # an absolute measurement re-anchored the estimate
+        return result
+
+    # -- internals ------------------------------------------------------------
+    def _reject(self, kind: str, reason: str, d2: float | None = None) -> StepResult:
+        self.rejections[reason] += 1
+        return StepResult(kind, False, reason, d2)
+
+    def _predict(self, msg: WheelOdometry) -> StepResult:
+        cfg = self.config
+        dl, dr = msg.d_left_m, msg.d_right_m
+        kind = "WheelOdometry"
+        if not (math.isfinite(dl) and math.isfinite(dr)):
+            return self._reject(kind, "non_finite_input")
+        if abs(dl) > cfg.max_wheel_step_m or abs(dr) > cfg.max_wheel_step_m:
+            return self._reject(kind, "implausible_odometry")
+        d, dth = model.odometry_increment(dl, dr, cfg.track_m)
+        F, G = model.motion_jacobians(self._kf.x[2], dl, dr, cfg.track_m)
+        var_l = model.wheel_noise_var(dl, cfg.wheel_quantum_m, cfg.wheel_slip_frac)
+        var_r = model.wheel_noise_var(dr, cfg.wheel_quantum_m, cfg.wheel_slip_frac)
+        self._kf.F = F
+        self._kf.Q = model.process_noise(G, var_l, var_r)
+        self._kf.predict(u=np.array([d, dth]))
+        return StepResult(kind, True)
+
+    def _update_heading(self, msg: HeadingFix) -> StepResult:
+        cfg = self.config
+        kind = "HeadingFix"
+        if cfg.compass_two_sigma_deg is None:
+            return self._reject(kind, "no_compass_configured")
+        if not math.isfinite(msg.theta_rad):
+            return self._reject(kind, "non_finite_input")
+        R = np.array([[model.two_sigma_deg_to_var(cfg.compass_two_sigma_deg)]])
+        y = np.array([model.heading_residual(msg.theta_rad, float(self._kf.x[2]))])
+        d2 = model.mahalanobis_sq(y, _H_HEADING, self._kf.P, R)
+        if d2 > cfg.compass_gate_chi2:
+            return self._reject(kind, "compass_gate", d2)
+        self._kf.update(
+            np.array([msg.theta_rad]), _H_heading, _h_heading, R=R, residual=_heading_residual
+        )
+        self._kf.x[2] = model.wrap_angle(float(self._kf.x[2]))
+        return StepResult(kind, True, None, d2)
+
+    def _update_landmark(self, msg: LandmarkFix) -> StepResult:
+        cfg = self.config
+        kind = "LandmarkFix"
+        if not (
+            math.isfinite(msg.x_m)
+            and math.isfinite(msg.y_m)
+            and math.isfinite(msg.sigma_m)
+            and msg.sigma_m > 0.0
+        ):
+            return self._reject(kind, "non_finite_input")
+        R = np.eye(2) * msg.sigma_m**2
+        z = np.array([msg.x_m, msg.y_m])
+        y = z - _h_position(self._kf.x)
+        d2 = model.mahalanobis_sq(y, _H_POSITION, self._kf.P, R)
+        if d2 > cfg.landmark_gate_chi2:
+            return self._reject(kind, "landmark_gate", d2)
+        self._kf.update(z, _H_position, _h_position, R=R)
+        self._kf.x[2] = model.wrap_angle(float(self._kf.x[2]))
+        return StepResult(kind, True, None, d2)
+
+    def _check_finite(self, x_before: np.ndarray, P_before: np.ndarray) -> bool:
+        """After a non-finite result, go back to the last finite pose with a "lost" covariance."""
+        if np.all(np.isfinite(self._kf.x)) and np.all(np.isfinite(self._kf.P)):
+            return True
+        big = self.config.lost_major_axis_m**2
+        cov = np.diag([big, big, math.pi**2])
+        if np.all(np.isfinite(P_before)):
+            cov = np.maximum(cov, P_before)
+        self.set_pose(float(x_before[0]), float(x_before[1]), float(x_before[2]), cov)
+        self.resets += 1
+        self.healthy = False
+        self.rejections["non_finite_state_reset"] += 1
+        return False

@@ -1,0 +1,219 @@
+"""Estimator tests: consistency (NEES), growth, updates, gates, conversions."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+from scipy.stats import chi2
+
+from guidance import model
+from guidance.estimator import EstimatorConfig, HeadingFix, PoseEstimator
+from guidance.messages import LandmarkFix, WheelOdometry
+
+TRACK = 1.72
+
+
+def _drive(
+    rng: np.random.Generator,
+    cfg: EstimatorConfig,
+    turn_rate_rad_per_m: float,
+    steps: int = 600,
+    step_m: float = 1.0,
+) -> np.ndarray:
+    """Seeded drive: truth from the wheel model with noise drawn as the sensors make it.
+
+    Returns the NEES of every step.
+    """
+    x0 = np.array([0.0, 0.0, 0.3])
+    est = PoseEstimator(cfg, *x0)
+    truth = x0 + rng.multivariate_normal(np.zeros(3), est.P)
+    nees = np.empty(steps)
+    compass_var = (
+        None
+        if cfg.compass_two_sigma_deg is None
+        else model.two_sigma_deg_to_var(cfg.compass_two_sigma_deg)
+    )
+    for k in range(steps):
+        t = 0.1 * (k + 1)
+        # True wheel distances for a path with the given curvature (switching sign every 150 m).
+        sign = 1.0 if (k * step_m) // 150 % 2 == 0 else -1.0
+        dth = sign * turn_rate_rad_per_m * step_m
+        dl_true = step_m - 0.5 * TRACK * dth
+        dr_true = step_m + 0.5 * TRACK * dth
+        d, dtheta = model.odometry_increment(dl_true, dr_true, TRACK)
+        truth[:] = model.motion_predict(truth[0], truth[1], truth[2], d, dtheta)
+        # Measured wheel distances: slip (proportional) and quantisation noise.
+        meas = []
+        for dw in (dl_true, dr_true):
+            sd = math.sqrt(model.wheel_noise_var(dw, cfg.wheel_quantum_m, cfg.wheel_slip_frac))
+            meas.append(dw + rng.normal(0.0, sd))
+        est.process(WheelOdometry(t, meas[0], meas[1]))
+        if compass_var is not None and k % 2 == 0:
+            z = model.wrap_angle(truth[2] + rng.normal(0.0, math.sqrt(compass_var)))
+            est.process(HeadingFix(t, z))
+        e = truth - est.x
+        e[2] = model.wrap_angle(e[2])
+        nees[k] = float(e @ np.linalg.solve(est.P, e))
+    return nees
+
+
+@pytest.mark.parametrize(
+    ("compass", "steps"),
+    # Without a compass the drive stops at 150 m (major axis ~40 m): closer to "lost" the
+    # heading error makes the position distribution banana-shaped and no EKF stays consistent.
+    [(None, 150), (20.0, 600)],
+)
+@pytest.mark.parametrize("turn", [0.0, 0.004])
+def test_nees_within_95pct_bounds_in_90pct_of_steps(
+    compass: float | None, steps: int, turn: float
+) -> None:
+    cfg = EstimatorConfig(compass_two_sigma_deg=compass)
+    lo, hi = chi2.ppf([0.025, 0.975], df=3)
+    inside = []
+    mean_nees = []
+    for run in range(50):
+        rng = np.random.default_rng(1000 + run)
+        nees = _drive(rng, cfg, turn, steps=steps)
+        inside.append(np.mean((nees >= lo) & (nees <= hi)))
+        mean_nees.append(nees.mean())
+    frac = float(np.mean(inside))
+    assert frac >= 0.90, f"NEES inside [{lo:.2f}, {hi:.2f}] in only {frac:.1%} of steps"
+    # and on average the filter is neither optimistic nor very pessimistic
+    assert 2.0 < float(np.mean(mean_nees)) < 4.0
+
+
+def test_major_axis_grows_much_faster_without_compass() -> None:
+    def grow(compass: float | None) -> float:
+        est = PoseEstimator(EstimatorConfig(compass_two_sigma_deg=compass))
+        for k in range(2000):
+            est.process(WheelOdometry(0.1 * k, 1.0, 1.0))
+            if compass is not None:
+                est.process(HeadingFix(0.1 * k, 0.0))
+        return est.major_axis_m
+
+    without, with_compass = grow(None), grow(20.0)
+    assert without > 10 * with_compass
+    assert PoseEstimator(EstimatorConfig(compass_two_sigma_deg=None)).lost is False
+
+
+def test_landmark_update_shrinks_ellipse() -> None:
+    est = PoseEstimator(EstimatorConfig(compass_two_sigma_deg=None))
+    for k in range(400):
+        est.process(WheelOdometry(0.1 * k, 1.0, 1.0))
+    before = est.ellipse()
+    r = est.process(LandmarkFix(41.0, 7, 400.0, 0.0, 5.0))
+    after = est.ellipse()
+    assert r.accepted
+    assert after.major_axis_m < before.major_axis_m
+    assert after.semi_minor_m <= before.semi_minor_m
+    assert after.major_axis_m <= 4 * 5.0 + 1e-9
+
+
+def test_compass_outlier_of_180_degrees_is_rejected_and_counted() -> None:
+    est = PoseEstimator(EstimatorConfig(compass_two_sigma_deg=20.0), heading_rad=0.5)
+    for k in range(50):
+        est.process(WheelOdometry(0.1 * k, 1.0, 1.0))
+        est.process(HeadingFix(0.1 * k, 0.5))
+    x_before = est.x
+    r = est.process(HeadingFix(10.0, model.wrap_angle(0.5 + math.pi)))
+    assert not r.accepted and r.reason == "compass_gate"
+    assert r.mahalanobis_sq is not None and r.mahalanobis_sq > est.config.compass_gate_chi2
+    assert est.rejections["compass_gate"] == 1
+    np.testing.assert_array_equal(est.x, x_before)
+
+
+def test_landmark_far_outside_ellipse_is_rejected() -> None:
+    est = PoseEstimator()
+    r = est.process(LandmarkFix(1.0, 1, 500.0, 500.0, 5.0))
+    assert not r.accepted and r.reason == "landmark_gate"
+
+
+@pytest.mark.parametrize("deg", [0.0, 90.0, 180.0, 270.0, 359.9])
+@pytest.mark.parametrize("decl", [-15.0, 0.0, 15.0])
+def test_compass_degrees_round_trip(deg: float, decl: float) -> None:
+    theta = model.compass_to_heading(deg, decl)
+    assert -math.pi < theta <= math.pi
+    back = model.heading_to_compass(theta, decl)
+    assert abs(model.wrap_angle(math.radians(back - deg))) < 1e-9
+
+
+def test_compass_convention() -> None:
+    # magnetic north with +10 deg (east) declination is true bearing 10 deg: 80 deg CCW from east
+    assert model.compass_to_heading(0.0, 10.0) == pytest.approx(math.radians(80.0))
+    assert model.compass_to_heading(90.0, 0.0) == pytest.approx(0.0, abs=1e-12)
+    assert model.compass_to_heading(180.0, 0.0) == pytest.approx(-math.pi / 2)
+
+
+def test_out_of_order_inputs_are_rejected_and_counted() -> None:
+    est = PoseEstimator()
+    assert est.process(WheelOdometry(2.0, 1.0, 1.0)).accepted
+    r = est.process(WheelOdometry(1.0, 1.0, 1.0))
+    assert not r.accepted and r.reason == "out_of_order"
+    assert est.rejections["out_of_order"] == 1
+    assert est.x[0] == pytest.approx(1.0)
+
+
+def test_non_finite_inputs_never_corrupt_the_estimate() -> None:
+    est = PoseEstimator()
+    est.process(WheelOdometry(1.0, 1.0, 1.0))
+    for bad in (math.nan, math.inf):
+        assert not est.process(WheelOdometry(2.0, bad, 1.0)).accepted
+        assert not est.process(HeadingFix(2.0, bad)).accepted
+        assert not est.process(LandmarkFix(2.0, 1, bad, 0.0, 5.0)).accepted
+    assert not est.process(WheelOdometry(math.nan, 1.0, 1.0)).accepted
+    assert np.all(np.isfinite(est.x)) and np.all(np.isfinite(est.P))
+
+
+def test_non_finite_state_resets_with_health_flag() -> None:
+    est = PoseEstimator()
+    est.process(WheelOdometry(1.0, 1.0, 1.0))
+    # A covariance that overflows on the next predict.
+    est.set_pose(1.0, 0.0, 0.0, np.diag([1.0, 1e308, 1e308]))
+    r = est.process(WheelOdometry(2.0, 1.0, 1.0))
+    assert not r.accepted and r.reason == "non_finite_state_reset"
+    assert est.resets == 1 and not est.healthy
+    assert np.all(np.isfinite(est.x)) and np.all(np.isfinite(est.P))
+    assert est.lost
+
+
+def test_ellipse_geometry() -> None:
+    est = PoseEstimator()
+    est.set_pose(0.0, 0.0, 0.0, np.diag([100.0, 25.0, 0.01]))
+    e = est.ellipse()
+    assert e.semi_major_m == pytest.approx(20.0)
+    assert e.semi_minor_m == pytest.approx(10.0)
+    assert e.major_axis_m == pytest.approx(40.0)
+    assert e.orientation_rad == pytest.approx(0.0)
+    est.set_pose(0.0, 0.0, 0.0, np.diag([700.0, 1.0, 0.01]))
+    assert est.lost  # 2 * 2 * sqrt(700) = 105.8 m > 100 m
+
+
+def test_chi2_constants_match_their_documented_probabilities() -> None:
+    assert chi2.cdf(model.CHI2_2D_2SIGMA, 2) == pytest.approx(1 - math.exp(-2))  # 86.5 %
+    assert chi2.cdf(model.CHI2_2D_P99, 2) == pytest.approx(0.99)
+    assert chi2.cdf(model.CHI2_1D_P999, 1) == pytest.approx(0.999)
+
+
+def test_reset_forgets_time_order() -> None:
+    est = PoseEstimator()
+    est.process(WheelOdometry(5.0, 1.0, 1.0))
+    est.reset(10.0, 20.0, 1.0)
+    assert est.process(WheelOdometry(1.0, 1.0, 1.0)).accepted
+    assert est.x[0] == pytest.approx(10.0 + math.cos(1.0))
+
+
+def test_kalman_update_matches_filterpy() -> None:
+    """The engine's update (guidance.model) and filterpy's give the same covariance."""
+    est = PoseEstimator(EstimatorConfig(compass_two_sigma_deg=20.0))
+    for k in range(100):
+        est.process(WheelOdometry(0.1 * k, 1.0, 1.01))
+    x, P = est.x, est.P
+    R = np.array([[model.two_sigma_deg_to_var(20.0)]])
+    H = np.array([[0.0, 0.0, 1.0]])
+    y = np.array([model.heading_residual(0.2, x[2])])
+    x2, P2, _ = model.kalman_update(x, P, y, H, R)
+    est.process(HeadingFix(10.0, 0.2))
+    np.testing.assert_allclose(est.P, P2, rtol=0, atol=1e-12)
+    np.testing.assert_allclose(est.x, x2, rtol=0, atol=1e-12)

@@ -1,0 +1,88 @@
+"""Table-driven tests of prompt phrasing, rounding and units."""
+
+from __future__ import annotations
+
+import math
+
+import pytest
+
+from guidance import prompts
+from guidance.prompts import Units
+
+M, IMP = Units.METRIC, Units.IMPERIAL
+
+
+@pytest.mark.parametrize(
+    ("metres", "units", "text"),
+    [
+        (3.0, M, "10 metres"),
+        (10.0, M, "10 metres"),
+        (44.0, M, "40 metres"),
+        (96.0, M, "100 metres"),
+        (180.0, M, "200 metres"),
+        (230.0, M, "250 metres"),
+        (960.0, M, "950 metres"),
+        (980.0, M, "1 kilometre"),
+        (1000.0, M, "1 kilometre"),
+        (1460.0, M, "1.5 kilometres"),
+        (12400.0, M, "12 kilometres"),
+        (30.0, IMP, "100 feet"),
+        (100.0, IMP, "350 feet"),
+        (290.0, IMP, "950 feet"),
+        (320.0, IMP, "0.2 miles"),
+        (1609.344, IMP, "1 mile"),
+        (2500.0, IMP, "1.6 miles"),
+        (20000.0, IMP, "12 miles"),
+    ],
+)
+def test_format_distance(metres: float, units: Units, text: str) -> None:
+    assert prompts.format_distance(metres, units) == text
+
+
+@pytest.mark.parametrize(
+    ("turn_deg", "distance", "units", "text"),
+    [
+        (90.0, None, M, "At the next intersection, turn left"),
+        (-90.0, None, M, "At the next intersection, turn right"),
+        (0.0, None, M, "Continue straight"),
+        (5.0, None, M, "Continue straight"),
+        (-90.0, 200.0, M, "In 200 metres, turn right"),
+        (90.0, 180.0, IMP, "In 600 feet, turn left"),
+        (40.0, None, M, "At the next intersection, bear left"),
+        (-150.0, None, M, "At the next intersection, turn sharp right"),
+        (180.0, 50.0, M, "In 50 metres, make a U-turn"),
+        (0.0, 400.0, M, "In 400 metres, continue straight"),
+    ],
+)
+def test_turn_prompt(turn_deg: float, distance: float | None, units: Units, text: str) -> None:
+    assert prompts.turn_prompt(math.radians(turn_deg), distance, units) == text
+
+
+@pytest.mark.parametrize(
+    ("gap_m", "text"),
+    [
+        (80.0, "In 200 metres, turn left, then turn right"),
+        (400.0, "In 200 metres, turn left"),
+    ],
+)
+def test_then_form_for_two_close_turns(gap_m: float, text: str) -> None:
+    assert (
+        prompts.turn_prompt(math.pi / 2, 200.0, M, then_turn_rad=-math.pi / 2, then_gap_m=gap_m)
+        == text
+    )
+
+
+def test_event_phrases() -> None:
+    assert prompts.landmark_confirmed("Town Hall") == "Landmark confirmed: Town Hall"
+    assert prompts.landmark_confirmed() == "Landmark confirmed"
+    assert prompts.position_uncertain(83.0) == "Position uncertain, within 80 metres"
+    assert prompts.position_uncertain(83.0, IMP) == "Position uncertain, within 250 feet"
+    assert prompts.arrived() == "You have arrived at your destination"
+    assert prompts.lost().startswith("Position lost")
+    assert prompts.sensor_warning("compass", "is silent") == "Warning: compass is silent"
+
+
+@pytest.mark.parametrize("bad", [-1.0, math.nan, math.inf])
+def test_bad_distance_is_an_error(bad: float) -> None:
+    with pytest.raises(ValueError):
+        prompts.format_distance(bad)
