@@ -227,11 +227,13 @@ class PoseEstimator:
         if abs(dl) > cfg.max_wheel_step_m or abs(dr) > cfg.max_wheel_step_m:
             return self._reject(kind, "implausible_odometry")
         d, dth = model.odometry_increment(dl, dr, cfg.track_m)
-        F, G = model.motion_jacobians(self._kf.x[2], dl, dr, cfg.track_m)
+        F, G, Q = np.empty((3, 3)), np.empty((3, 2)), np.empty((3, 3))
+        model.motion_jacobians(float(self._kf.x[2]), dl, dr, cfg.track_m, F, G)
         var_l = model.wheel_noise_var(dl, cfg.wheel_quantum_m, cfg.wheel_slip_frac)
         var_r = model.wheel_noise_var(dr, cfg.wheel_quantum_m, cfg.wheel_slip_frac)
+        model.process_noise(G, var_l, var_r, Q)
         self._kf.F = F
-        self._kf.Q = model.process_noise(G, var_l, var_r)
+        self._kf.Q = Q
         self._kf.predict(u=np.array([d, dth]))
         return StepResult(kind, True)
 
@@ -242,9 +244,10 @@ class PoseEstimator:
             return self._reject(kind, "no_compass_configured")
         if not math.isfinite(msg.theta_rad):
             return self._reject(kind, "non_finite_input")
-        R = np.array([[model.two_sigma_deg_to_var(cfg.compass_two_sigma_deg)]])
-        y = np.array([model.heading_residual(msg.theta_rad, float(self._kf.x[2]))])
-        d2 = model.mahalanobis_sq(y, _H_HEADING, self._kf.P, R)
+        var = model.two_sigma_deg_to_var(cfg.compass_two_sigma_deg)
+        R = np.array([[var]])
+        y, S = model.heading_innovation(self._kf.x, self._kf.P, msg.theta_rad, var)
+        d2 = y * y / S
         if d2 > cfg.compass_gate_chi2:
             return self._reject(kind, "compass_gate", d2)
         self._kf.update(
@@ -263,10 +266,10 @@ class PoseEstimator:
             and msg.sigma_m > 0.0
         ):
             return self._reject(kind, "non_finite_input")
-        R = np.eye(2) * msg.sigma_m**2
+        var = msg.sigma_m**2
+        R = np.eye(2) * var
         z = np.array([msg.x_m, msg.y_m])
-        y = z - _h_position(self._kf.x)
-        d2 = model.mahalanobis_sq(y, _H_POSITION, self._kf.P, R)
+        d2 = model.mahalanobis_sq_2d(*model.position_innovation(self._kf.x, self._kf.P, *z, var))
         if d2 > cfg.landmark_gate_chi2:
             return self._reject(kind, "landmark_gate", d2)
         self._kf.update(z, _H_position, _h_position, R=R)

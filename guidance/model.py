@@ -70,26 +70,33 @@ def motion_predict(
 
 @njit(cache=True)
 def motion_jacobians(
-    theta: float, d_left_m: float, d_right_m: float, track_m: float
-) -> tuple[np.ndarray, np.ndarray]:
-    """State Jacobian F (3x3) and input Jacobian G (3x2, w.r.t. left/right wheel distance)."""
+    theta: float, d_left_m: float, d_right_m: float, track_m: float, F: np.ndarray, G: np.ndarray
+) -> None:
+    """Fill the state Jacobian F (3x3) and the input Jacobian G (3x2, w.r.t. wheel distances).
+
+    Outputs are caller-provided arrays so the compiled study loop allocates nothing per step.
+    """
     d = 0.5 * (d_left_m + d_right_m)
     dtheta = (d_right_m - d_left_m) / track_m
     mid = theta + 0.5 * dtheta
     c = math.cos(mid)
     s = math.sin(mid)
-    F = np.eye(3)
+    F[0, 0] = 1.0
+    F[0, 1] = 0.0
     F[0, 2] = -d * s
+    F[1, 0] = 0.0
+    F[1, 1] = 1.0
     F[1, 2] = d * c
-    # d(d)/d(dl) = 1/2, d(dtheta)/d(dl) = -1/b; d(mid)/d(dl) = -1/(2b); symmetric for dr.
-    G = np.empty((3, 2))
+    F[2, 0] = 0.0
+    F[2, 1] = 0.0
+    F[2, 2] = 1.0
+    # d(d)/d(dl) = 1/2, d(dtheta)/d(dl) = -1/b, d(mid)/d(dl) = -1/(2b); symmetric for dr.
     G[0, 0] = 0.5 * c + d * s / (2.0 * track_m)
     G[0, 1] = 0.5 * c - d * s / (2.0 * track_m)
     G[1, 0] = 0.5 * s - d * c / (2.0 * track_m)
     G[1, 1] = 0.5 * s + d * c / (2.0 * track_m)
     G[2, 0] = -1.0 / track_m
     G[2, 1] = 1.0 / track_m
-    return F, G
 
 
 @njit(cache=True)
@@ -104,47 +111,110 @@ def wheel_noise_var(d_wheel_m: float, quantum_m: float, slip_frac: float) -> flo
 
 
 @njit(cache=True)
-def process_noise(G: np.ndarray, var_left: float, var_right: float) -> np.ndarray:
-    """Q = G diag(var_l, var_r) G^T: wheel noise propagated through the input Jacobian."""
-    Q = np.empty((3, 3))
+def process_noise(G: np.ndarray, var_left: float, var_right: float, Q: np.ndarray) -> None:
+    """Fill Q = G diag(var_l, var_r) G^T: wheel noise propagated through the input Jacobian."""
     for i in range(3):
         for j in range(3):
             Q[i, j] = G[i, 0] * var_left * G[j, 0] + G[i, 1] * var_right * G[j, 1]
-    return Q
 
 
 @njit(cache=True)
-def predict_covariance(P: np.ndarray, F: np.ndarray, Q: np.ndarray) -> np.ndarray:
-    """P' = F P F^T + Q."""
-    return F @ P @ F.T + Q
+def predict_covariance(P: np.ndarray, F: np.ndarray, Q: np.ndarray, out: np.ndarray) -> None:
+    """Fill out = F P F^T + Q (``out`` must not alias ``P``)."""
+    for i in range(3):
+        for j in range(3):
+            acc = Q[i, j]
+            for k in range(3):
+                fik = F[i, k]
+                if fik == 0.0:
+                    continue
+                for m in range(3):
+                    acc += fik * P[k, m] * F[j, m]
+            out[i, j] = acc
 
 
 @njit(cache=True)
-def kalman_update(
-    x: np.ndarray, P: np.ndarray, y: np.ndarray, H: np.ndarray, R: np.ndarray
-) -> tuple[np.ndarray, np.ndarray, float]:
-    """Kalman update with residual ``y`` in Joseph form (as filterpy's EKF computes it).
-
-    Returns the new state, the new covariance and the squared Mahalanobis
-    distance of the residual (the gate statistic).
-    """
-    PHt = P @ H.T
-    S = H @ PHt + R
-    S_inv = np.linalg.inv(S)
-    K = PHt @ S_inv
-    x_new = x + K @ y
-    x_new[2] = wrap_angle(x_new[2])
-    I_KH = np.eye(P.shape[0]) - K @ H
-    P_new = I_KH @ P @ I_KH.T + K @ R @ K.T
-    d2 = float(y @ S_inv @ y)
-    return x_new, P_new, d2
+def heading_innovation(x: np.ndarray, P: np.ndarray, z_theta: float, var: float) -> tuple[float, float]:
+    """Compass measurement model h(x) = theta: wrapped residual y and its variance S."""
+    return wrap_angle(z_theta - x[2]), P[2, 2] + var
 
 
 @njit(cache=True)
-def mahalanobis_sq(y: np.ndarray, H: np.ndarray, P: np.ndarray, R: np.ndarray) -> float:
-    """Squared Mahalanobis distance of residual ``y`` with S = H P H^T + R."""
-    S = H @ P @ H.T + R
-    return float(y @ np.linalg.solve(S, y))
+def heading_update(x: np.ndarray, P: np.ndarray, y: float, S: float, var: float) -> None:
+    """Kalman update for h(x) = theta, in place, Joseph form (as filterpy computes it)."""
+    k0 = P[0, 2] / S
+    k1 = P[1, 2] / S
+    k2 = P[2, 2] / S
+    p02, p12, p22 = P[0, 2], P[1, 2], P[2, 2]
+    x[0] += k0 * y
+    x[1] += k1 * y
+    x[2] = wrap_angle(x[2] + k2 * y)
+    K = (k0, k1, k2)
+    pc = (p02, p12, p22)
+    for i in range(3):
+        for j in range(i, 3):
+            v = P[i, j] - K[i] * pc[j] - K[j] * (pc[i] - K[i] * p22) + K[i] * K[j] * var
+            P[i, j] = v
+            P[j, i] = v
+
+
+@njit(cache=True)
+def position_innovation(
+    x: np.ndarray, P: np.ndarray, zx: float, zy: float, var: float
+) -> tuple[float, float, float, float, float]:
+    """Landmark measurement model h(x) = (x, y): residual (y0, y1) and S = (s00, s01, s11)."""
+    return zx - x[0], zy - x[1], P[0, 0] + var, P[0, 1], P[1, 1] + var
+
+
+@njit(cache=True)
+def mahalanobis_sq_2d(y0: float, y1: float, s00: float, s01: float, s11: float) -> float:
+    """y^T S^-1 y for a 2-vector and a symmetric 2x2 S."""
+    det = s00 * s11 - s01 * s01
+    return (s11 * y0 * y0 - 2.0 * s01 * y0 * y1 + s00 * y1 * y1) / det
+
+
+@njit(cache=True)
+def position_update(
+    x: np.ndarray,
+    P: np.ndarray,
+    y0: float,
+    y1: float,
+    s00: float,
+    s01: float,
+    s11: float,
+    var: float,
+    work: np.ndarray,
+) -> None:
+    """Kalman update for h(x) = (x, y), in place, Joseph form. ``work``: 3x3 scratch."""
+    det = s00 * s11 - s01 * s01
+    i00, i01, i11 = s11 / det, -s01 / det, s00 / det
+    for i in range(3):
+        for j in range(3):
+            work[i, j] = P[i, j]
+    # K = P H^T S^-1, with P H^T the first two columns of P.
+    ka = (
+        work[0, 0] * i00 + work[0, 1] * i01,
+        work[1, 0] * i00 + work[1, 1] * i01,
+        work[2, 0] * i00 + work[2, 1] * i01,
+    )
+    kb = (
+        work[0, 0] * i01 + work[0, 1] * i11,
+        work[1, 0] * i01 + work[1, 1] * i11,
+        work[2, 0] * i01 + work[2, 1] * i11,
+    )
+    x[0] += ka[0] * y0 + kb[0] * y1
+    x[1] += ka[1] * y0 + kb[1] * y1
+    x[2] = wrap_angle(x[2] + ka[2] * y0 + kb[2] * y1)
+    # (I - K H) P (I - K H)^T + K R K^T with H = [I2 0] and R = var I2:
+    # AP[i, j] = P[i, j] - ka[i] P[0, j] - kb[i] P[1, j]; out = AP (I - K H)^T + var K K^T.
+    for i in range(3):
+        ap0 = work[i, 0] - ka[i] * work[0, 0] - kb[i] * work[1, 0]
+        ap1 = work[i, 1] - ka[i] * work[0, 1] - kb[i] * work[1, 1]
+        for j in range(i, 3):
+            apj = work[i, j] - ka[i] * work[0, j] - kb[i] * work[1, j]
+            v = apj - ap0 * ka[j] - ap1 * kb[j] + var * (ka[i] * ka[j] + kb[i] * kb[j])
+            P[i, j] = v
+            P[j, i] = v
 
 
 @njit(cache=True)

@@ -204,16 +204,21 @@ def test_reset_forgets_time_order() -> None:
     assert est.x[0] == pytest.approx(10.0 + math.cos(1.0))
 
 
-def test_kalman_update_matches_filterpy() -> None:
-    """The engine's update (guidance.model) and filterpy's give the same covariance."""
+def test_model_updates_match_filterpy() -> None:
+    """The engine's in-place updates (guidance.model) and filterpy's give the same covariance."""
     est = PoseEstimator(EstimatorConfig(compass_two_sigma_deg=20.0))
     for k in range(100):
         est.process(WheelOdometry(0.1 * k, 1.0, 1.01))
     x, P = est.x, est.P
-    R = np.array([[model.two_sigma_deg_to_var(20.0)]])
-    H = np.array([[0.0, 0.0, 1.0]])
-    y = np.array([model.heading_residual(0.2, x[2])])
-    x2, P2, _ = model.kalman_update(x, P, y, H, R)
+    var = model.two_sigma_deg_to_var(20.0)
+    y, S = model.heading_innovation(x, P, 0.2, var)
+    model.heading_update(x, P, y, S, var)
     est.process(HeadingFix(10.0, 0.2))
-    np.testing.assert_allclose(est.P, P2, rtol=0, atol=1e-12)
-    np.testing.assert_allclose(est.x, x2, rtol=0, atol=1e-12)
+    np.testing.assert_allclose(est.P, P, rtol=0, atol=1e-12)
+    np.testing.assert_allclose(est.x, x, rtol=0, atol=1e-12)
+    # and a landmark fix
+    inn = model.position_innovation(x, P, 95.0, 25.0, 25.0)
+    model.position_update(x, P, *inn, 25.0, np.empty((3, 3)))
+    assert est.process(LandmarkFix(11.0, 1, 95.0, 25.0, 5.0)).accepted
+    np.testing.assert_allclose(est.P, P, rtol=0, atol=1e-12)
+    np.testing.assert_allclose(est.x, x, rtol=0, atol=1e-12)

@@ -1,0 +1,327 @@
+"""The fast study engine: one Monte Carlo trial as one numba-compiled loop.
+
+It steps ``hal_sim.world`` and runs the estimator math of ``guidance.model``
+and the navigator math of ``guidance.law`` — the same functions the in-car
+application uses — without Python in the loop. ``hal_sim.reference`` runs the
+same trial through the filterpy estimator and the ``Navigator`` class; the
+benchmark ``benchmarks/study_speed.py`` checks that the two agree.
+
+A trial (SPEC section 5):
+
+* range study (``study=STUDY_RANGE``): drive to random goals one after the
+  other (field protocol) until lost or ``range_cap_km`` driven;
+* landmark study (``study=STUDY_LANDMARKS``): one goal; success is arriving
+  without ever being lost; timeout at ``cap_factor * Manhattan + extra``.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+from numba import njit
+
+from guidance import law, model
+from hal_sim import world
+from hal_sim.params import (
+    I_AREA_MAX,
+    I_AREA_MIN,
+    I_ARRIVE,
+    I_BLOCK_MAX,
+    I_BLOCK_MIN,
+    I_COMPASS_GATE,
+    I_COMPASS_PERIOD,
+    I_COMPASS_SIGMA,
+    I_DEAD_FRAC,
+    I_DETECT,
+    I_EXIT_TOL,
+    I_HYBRID_SWITCH,
+    I_INIT_HEAD_SIGMA,
+    I_INIT_POS_SIGMA,
+    I_LM_CAP_EXTRA,
+    I_LM_CAP_FACTOR,
+    I_LM_GATE,
+    I_LM_PASS,
+    I_LM_SIGMA,
+    I_LOOKAHEAD,
+    I_LOST,
+    I_MAX_WHEEL_STEP,
+    I_ONEWAY_FRAC,
+    I_QUANTUM,
+    I_RANGE_CAP,
+    I_REVISIT_FLOOR,
+    I_REVISIT_GATE,
+    I_SAMPLE_EVERY,
+    I_SLIP,
+    I_TABU,
+    I_TRACK,
+)
+
+STUDY_RANGE = 0
+STUDY_LANDMARKS = 1
+
+OUTCOME_ARRIVED = 0
+OUTCOME_LOST = 1
+OUTCOME_TIMEOUT = 2
+OUTCOME_NAMES = ("arrived", "lost", "timeout")
+
+# Result vector.
+(
+    RES_OUTCOME,
+    RES_DRIVEN_M,
+    RES_EUCLID_M,
+    RES_MANHATTAN_M,
+    RES_LOST_AT_M,
+    RES_LANDMARK_UPDATES,
+    RES_TURNS,
+    RES_FINAL_ERR_M,
+    RES_GOALS,
+    RES_STEPS,
+    RES_AREA_KM2,
+    RES_N_LANDMARKS,
+    RES_COMPASS_REJECTS,
+    RES_LANDMARK_REJECTS,
+    N_RESULT,
+) = range(15)
+RESULT_NAMES = (
+    "outcome",
+    "driven_m",
+    "euclid_m",
+    "manhattan_m",
+    "lost_at_m",
+    "landmark_updates",
+    "turns",
+    "final_error_m",
+    "goals_reached",
+    "steps",
+    "area_km2",
+    "n_landmarks",
+    "compass_rejects",
+    "landmark_rejects",
+)
+
+MAX_MEMORY = 4096
+MAX_EXITS = 4
+
+
+@njit(cache=True)
+def setup_trial(
+    trial_seed: int, study: int, density: float, p: np.ndarray
+) -> tuple[
+    np.ndarray,
+    np.ndarray,
+    np.ndarray,
+    np.ndarray,
+    np.ndarray,
+    np.ndarray,
+    np.ndarray,
+    np.ndarray,
+    np.ndarray,
+    int,
+    float,
+]:
+    """Seed, build the city and landmarks, place the car; return the world and the first goal."""
+    world.seed(trial_seed)
+    area = math.exp(np.random.uniform(math.log(p[I_AREA_MIN]), math.log(p[I_AREA_MAX])))
+    aspect = np.random.uniform(0.7, 1.4)
+    xs, ys, adj, net = world.make_city(
+        area, aspect, p[I_BLOCK_MIN], p[I_BLOCK_MAX], p[I_DEAD_FRAC], p[I_ONEWAY_FRAC]
+    )
+    lm_xy, node_start, node_lms = world.place_landmarks(xs, ys, adj, net, density)
+    start = world.random_node(net)
+    goal = world.random_node(net)
+    while goal == start:
+        goal = world.random_node(net)
+    ts, ns = world.init_truth(xs, ys, adj, start, p)
+    return xs, ys, adj, net, lm_xy, node_start, node_lms, ts, ns, goal, area
+
+
+@njit(cache=True)
+def run_trial(
+    trial_seed: int,
+    study: int,
+    method: int,
+    density: float,
+    p: np.ndarray,
+    samples: np.ndarray,
+) -> np.ndarray:
+    """Run one trial; fill ``samples`` with the major axis every ``I_SAMPLE_EVERY`` metres."""
+    xs, ys, adj, net, lm_xy, node_start, node_lms, ts, ns, goal, area = setup_trial(
+        trial_seed, study, density, p
+    )
+    res = np.full(N_RESULT, math.nan)
+    nx = xs.shape[0]
+    gx, gy = xs[goal % nx], ys[goal // nx]
+    sx, sy = ts[world.T_X], ts[world.T_Y]
+    res[RES_EUCLID_M] = math.hypot(gx - sx, gy - sy)
+    res[RES_MANHATTAN_M] = abs(gx - sx) + abs(gy - sy)
+    res[RES_AREA_KM2] = area
+    res[RES_N_LANDMARKS] = lm_xy.shape[0]
+    if study == STUDY_RANGE:
+        cap = p[I_RANGE_CAP]
+    else:
+        cap = p[I_LM_CAP_FACTOR] * res[RES_MANHATTAN_M] + p[I_LM_CAP_EXTRA]
+
+    # Estimator state.
+    x = np.array([sx, sy, ts[world.T_TH]])
+    sp = p[I_INIT_POS_SIGMA]
+    sh = p[I_INIT_HEAD_SIGMA]
+    P = np.diag(np.array([sp * sp, sp * sp, sh * sh]))
+    P_next = np.empty((3, 3))
+    F = np.empty((3, 3))
+    G = np.empty((3, 2))
+    Q = np.empty((3, 3))
+    work = np.empty((3, 3))
+    track = p[I_TRACK]
+    lm_var = p[I_LM_SIGMA] ** 2
+    compass_var = p[I_COMPASS_SIGMA] ** 2
+    has_compass = p[I_COMPASS_SIGMA] > 0.0
+    # Navigator state.
+    mem_xy = np.zeros((MAX_MEMORY, 2))
+    mem_h = np.zeros((MAX_MEMORY, MAX_EXITS))
+    mem_c = np.zeros((MAX_MEMORY, MAX_EXITS), dtype=np.int64)
+    n_mem = 0
+    passed = np.zeros(lm_xy.shape[0], dtype=np.bool_)
+    mode = law.MODE_LANDMARK if method == law.METHOD_LANDMARK_TO_LANDMARK else law.MODE_GOAL
+    lm_seen = -np.ones(lm_xy.shape[0], dtype=np.int64)
+    events = np.zeros(8)
+    dirs = np.empty(4, dtype=np.int64)
+    headings = np.empty(4)
+    penalties = np.empty(4)
+    costs = np.empty(4)
+    period = p[I_COMPASS_PERIOD]
+    n_samples = samples.shape[0]
+    for i in range(n_samples):
+        samples[i] = math.nan
+    next_sample = 0
+    lm_updates = 0
+    goals = 0
+    c_rej = 0
+    l_rej = 0
+    outcome = OUTCOME_TIMEOUT
+    step = 0
+    while True:
+        world.world_step(
+            ts, ns, xs, ys, lm_xy, node_start, node_lms, lm_seen, p,
+            math.floor((step + 1) / period) > math.floor(step / period), p[I_DETECT], events,
+        )
+        step += 1
+        dl, dr = events[0], events[1]
+        if abs(dl) <= p[I_MAX_WHEEL_STEP] and abs(dr) <= p[I_MAX_WHEEL_STEP]:
+            # Predict (SPEC 2): the same functions the live estimator hands to filterpy.
+            d, dth = model.odometry_increment(dl, dr, track)
+            model.motion_jacobians(x[2], dl, dr, track, F, G)
+            model.process_noise(
+                G,
+                model.wheel_noise_var(dl, p[I_QUANTUM], p[I_SLIP]),
+                model.wheel_noise_var(dr, p[I_QUANTUM], p[I_SLIP]),
+                Q,
+            )
+            x[0], x[1], x[2] = model.motion_predict(x[0], x[1], x[2], d, dth)
+            model.predict_covariance(P, F, Q, P_next)
+            P, P_next = P_next, P
+        if has_compass and not math.isnan(events[2]):
+            y, S = model.heading_innovation(x, P, events[2], compass_var)
+            if y * y / S <= p[I_COMPASS_GATE]:
+                model.heading_update(x, P, y, S, compass_var)
+            else:
+                c_rej += 1
+        landmark_update = False
+        if events[3] >= 0.0:
+            k = int(events[3])
+            y0, y1, s00, s01, s11 = model.position_innovation(
+                x, P, lm_xy[k, 0], lm_xy[k, 1], lm_var
+            )
+            if model.mahalanobis_sq_2d(y0, y1, s00, s01, s11) <= p[I_LM_GATE]:
+                model.position_update(x, P, y0, y1, s00, s01, s11, lm_var, work)
+                lm_updates += 1
+                passed[k] = True
+                landmark_update = True
+            else:
+                l_rej += 1
+        major = model.major_axis_m(P)
+        mode = law.next_mode(method, mode, major, p[I_HYBRID_SWITCH], landmark_update)
+        driven = ts[world.T_DRIVEN]
+        while next_sample < n_samples and driven >= next_sample * p[I_SAMPLE_EVERY]:
+            samples[next_sample] = major
+            next_sample += 1
+        if major > p[I_LOST]:
+            res[RES_LOST_AT_M] = driven
+            outcome = OUTCOME_LOST
+            break
+        if math.hypot(x[0] - gx, x[1] - gy) <= p[I_ARRIVE]:
+            goals += 1
+            if study == STUDY_LANDMARKS:
+                outcome = OUTCOME_ARRIVED
+                break
+            new_goal = world.random_node(net)
+            while new_goal == goal:
+                new_goal = world.random_node(net)
+            goal = new_goal
+            gx, gy = xs[goal % nx], ys[goal // nx]
+            passed[:] = False
+        if driven >= cap:
+            outcome = OUTCOME_TIMEOUT
+            break
+        if events[4] > 0.0:
+            # The intersection ahead: project the estimate to it, then decide.
+            b = ns[world.R_B]
+            n_exits = world.exits_at(adj, b, ns[world.R_A], dirs)
+            to_b = events[5]
+            ix = x[0] + to_b * math.cos(x[2])
+            iy = x[1] + to_b * math.sin(x[2])
+            for e in range(n_exits):
+                headings[e] = world.DIR_HEADING[dirs[e]]
+            hs = headings[:n_exits]
+            kk = law.match_intersection(
+                ix, iy, P[0, 0], P[0, 1], P[1, 1], mem_xy, n_mem,
+                p[I_REVISIT_GATE], p[I_REVISIT_FLOOR] ** 2,
+            )
+            if kk < 0:
+                if n_mem >= MAX_MEMORY:
+                    half = n_mem // 2
+                    mem_xy[: n_mem - half] = mem_xy[half:n_mem]
+                    mem_h[: n_mem - half] = mem_h[half:n_mem]
+                    mem_c[: n_mem - half] = mem_c[half:n_mem]
+                    mem_c[n_mem - half : n_mem] = 0
+                    n_mem -= half
+                kk = n_mem
+                mem_xy[kk, 0] = ix
+                mem_xy[kk, 1] = iy
+                n_mem += 1
+            law.exit_penalties(hs, mem_h, mem_c, kk, p[I_TABU], p[I_EXIT_TOL], penalties)
+            tx, ty = gx, gy
+            if mode == law.MODE_LANDMARK and lm_xy.shape[0] > 0:
+                r2 = p[I_LM_PASS] ** 2
+                for m in range(lm_xy.shape[0]):
+                    if (lm_xy[m, 0] - ix) ** 2 + (lm_xy[m, 1] - iy) ** 2 <= r2:
+                        passed[m] = True
+                t = law.landmark_target(ix, iy, gx, gy, lm_xy, passed)
+                if t >= 0:
+                    tx, ty = lm_xy[t, 0], lm_xy[t, 1]
+            best = law.exit_costs(ix, iy, hs, tx, ty, penalties, p[I_LOOKAHEAD], costs)
+            law.record_exit(mem_h, mem_c, kk, hs[best], p[I_EXIT_TOL])
+            ns[world.R_C] = adj[b, dirs[best]]
+    res[RES_OUTCOME] = outcome
+    res[RES_DRIVEN_M] = ts[world.T_DRIVEN]
+    res[RES_LANDMARK_UPDATES] = lm_updates
+    res[RES_TURNS] = ns[world.R_TURNS]
+    res[RES_FINAL_ERR_M] = math.hypot(ts[world.T_X] - x[0], ts[world.T_Y] - x[1])
+    res[RES_GOALS] = goals
+    res[RES_STEPS] = step
+    res[RES_COMPASS_REJECTS] = c_rej
+    res[RES_LANDMARK_REJECTS] = l_rej
+    return res
+
+
+@njit(cache=True)
+def run_batch(
+    seeds: np.ndarray, study: int, method: int, density: float, p: np.ndarray, n_samples: int
+) -> tuple[np.ndarray, np.ndarray]:
+    """Run many trials in one compiled call: (results [n, N_RESULT], samples [n, n_samples])."""
+    n = seeds.shape[0]
+    out = np.empty((n, N_RESULT))
+    samples = np.empty((n, n_samples))
+    for i in range(n):
+        out[i] = run_trial(seeds[i], study, method, density, p, samples[i])
+    return out, samples
