@@ -37,6 +37,8 @@ N_STATE = 3
 @njit(cache=True)
 def wrap_angle(a: float) -> float:
     """Wrap an angle to (-pi, pi]."""
+    if -math.pi < a <= math.pi:  # the common case, without a division
+        return a
     w = (a + math.pi) % (2.0 * math.pi)
     if w == 0.0:
         w = 2.0 * math.pi

@@ -44,7 +44,9 @@ DIR_HEADING = np.array([0.0, math.pi / 2, math.pi, -math.pi / 2])
 T_X, T_Y, T_TH, T_V = 0, 1, 2, 3
 T_CUM_L, T_CUM_R, T_CNT_L, T_CNT_R = 4, 5, 6, 7
 T_PID_INT, T_PID_PREV, T_TYRE, T_DRIVEN, T_STEP = 8, 9, 10, 11, 12
-N_TRUTH = 13
+T_SEG_H, T_SEG_UX, T_SEG_UY = 13, 14, 15
+"""Heading and unit vector of the street being followed (a -> b), cached at each switch."""
+N_TRUTH = 16
 # Route state vector ``ns`` (ints): following a -> b, then c (-1 until decided).
 R_A, R_B, R_C, R_PASS, R_TURNS = 0, 1, 2, 3, 4
 N_ROUTE = 5
@@ -248,19 +250,20 @@ def bicycle_step(
 
 
 @njit(cache=True)
-def cross_track(x: float, y: float, ax: float, ay: float, bx: float, by: float) -> float:
-    """Signed distance of (x, y) from the line a -> b, positive to its left."""
-    h = math.atan2(by - ay, bx - ax)
-    return -(x - ax) * math.sin(h) + (y - ay) * math.cos(h)
+def cross_track(x: float, y: float, ax: float, ay: float, ux: float, uy: float) -> float:
+    """Signed distance of (x, y) from the line through a along unit vector u, positive left."""
+    return -(x - ax) * uy + (y - ay) * ux
 
 
 @njit(cache=True)
 def steer_pid(
-    ts: np.ndarray, ax: float, ay: float, bx: float, by: float, p: np.ndarray
+    ts: np.ndarray, ax: float, ay: float, h: float, ux: float, uy: float, p: np.ndarray
 ) -> float:
-    """PID steering on heading error plus a Stanley cross-track term, clipped to the steering limit."""
-    h = math.atan2(by - ay, bx - ax)
-    e = cross_track(ts[T_X], ts[T_Y], ax, ay, bx, by)
+    """PID steering on heading error plus a Stanley cross-track term, clipped to the steering limit.
+
+    Follows the line through ``(ax, ay)`` with heading ``h`` (unit vector ``(ux, uy)``).
+    """
+    e = cross_track(ts[T_X], ts[T_Y], ax, ay, ux, uy)
     err = wrap_angle(h - ts[T_TH]) - math.atan(CROSS_TRACK_GAIN * e / (ts[T_V] + 1.0))
     dt = p[I_DT]
     ts[T_PID_INT] = min(max(ts[T_PID_INT] + err * dt, -1.0), 1.0)
@@ -319,7 +322,19 @@ def init_truth(
     ns[R_A] = start
     ns[R_B] = adj[start, d]
     ns[R_C] = -1
+    _set_segment(ts, xs, ys, start, ns[R_B])
     return ts, ns
+
+
+@njit(cache=True)
+def _set_segment(ts: np.ndarray, xs: np.ndarray, ys: np.ndarray, a: int, b: int) -> None:
+    nx = xs.shape[0]
+    dx = xs[b % nx] - xs[a % nx]
+    dy = ys[b // nx] - ys[a // nx]
+    seg = math.hypot(dx, dy)
+    ts[T_SEG_H] = math.atan2(dy, dx)
+    ts[T_SEG_UX] = dx / seg
+    ts[T_SEG_UY] = dy / seg
 
 
 @njit(cache=True)
@@ -361,11 +376,14 @@ def world_step(
     ax, ay = xs[ns[R_A] % nx], ys[ns[R_A] // nx]
     bx, by = xs[ns[R_B] % nx], ys[ns[R_B] // nx]
     # Along-track distance left to node b.
-    h_ab = math.atan2(by - ay, bx - ax)
-    to_b = (bx - ts[T_X]) * math.cos(h_ab) + (by - ts[T_Y]) * math.sin(h_ab)
+    h_ab, ux, uy = ts[T_SEG_H], ts[T_SEG_UX], ts[T_SEG_UY]
+    to_b = (bx - ts[T_X]) * ux + (by - ts[T_Y]) * uy
     c = ns[R_C]
     turning = False
-    if c >= 0:
+    v = ts[T_V]
+    brake = (v * v - p[I_TURN_V] ** 2) / (2.0 * p[I_MAX_ACCEL]) + 10.0
+    near = to_b <= max(brake, 0.0) + 5.0
+    if c >= 0 and (near or to_b <= SWITCH_RADIUS_M):
         cx, cy = xs[c % nx], ys[c // nx]
         h_bc = math.atan2(cy - by, cx - bx)
         turning = abs(wrap_angle(h_bc - h_ab)) > 0.3
@@ -373,6 +391,7 @@ def world_step(
         if abs(wrap_angle(h_bc - h_ab)) > 3.0:
             switch = 0.0  # U-turn at a dead end: drive to the end first
         if to_b <= switch:
+            _set_segment(ts, xs, ys, ns[R_B], c)
             ns[R_A] = ns[R_B]
             ns[R_B] = c
             ns[R_C] = -1
@@ -381,8 +400,9 @@ def world_step(
                 ns[R_TURNS] += 1
             events[6] = 1.0
             ax, ay, bx, by = bx, by, cx, cy
-            h_ab = h_bc
-            to_b = (bx - ts[T_X]) * math.cos(h_ab) + (by - ts[T_Y]) * math.sin(h_ab)
+            h_ab, ux, uy = ts[T_SEG_H], ts[T_SEG_UX], ts[T_SEG_UY]
+            to_b = (bx - ts[T_X]) * ux + (by - ts[T_Y]) * uy
+            near = True
             c = -1
             turning = False
         else:
@@ -393,13 +413,11 @@ def world_step(
     events[4] = 1.0 if (c < 0 and to_b <= p[I_DECISION_DIST]) else 0.0
     events[5] = to_b
     # Speed: slow for turns (and while the next exit is not known yet).
-    v = ts[T_V]
     v_target = p[I_CRUISE]
-    brake = (v * v - p[I_TURN_V] ** 2) / (2.0 * p[I_MAX_ACCEL]) + 10.0
     if to_b <= max(brake, 0.0) + 5.0 and (c < 0 or turning):
         v_target = p[I_TURN_V]
     a = speed_pid(v, v_target, p)
-    delta = steer_pid(ts, ax, ay, bx, by, p)
+    delta = steer_pid(ts, ax, ay, h_ab, ux, uy, p)
     x, y, th, v2, dth = bicycle_step(
         ts[T_X], ts[T_Y], ts[T_TH], v, a, delta, p[I_DT], p[I_WHEELBASE]
     )
