@@ -18,7 +18,8 @@ from collections.abc import Sequence
 from guidance.errors import UserError
 
 _COMMAND_MODULES = (
-    "hal_sim.cli",  # sim, study
+    "hal_sim.cli",  # study
+    "hal_sim.drive",  # sim
     "drivers.cli",  # odometry, compass
     "guidance.app",  # run
     "guidance.monitor",  # monitor

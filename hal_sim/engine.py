@@ -51,7 +51,7 @@ from hal_sim.params import (
     I_RANGE_CAP,
     I_REVISIT_FLOOR,
     I_REVISIT_GATE,
-    I_SAMPLE_EVERY,
+    I_SAMPLE_FIRST,
     I_SLIP,
     I_TABU,
     I_TRACK,
@@ -105,6 +105,13 @@ MAX_EXITS = 4
 
 
 @njit(cache=True)
+def sample_distance_m(i: int, n: int, p: np.ndarray) -> float:
+    """Where sample i of n is taken: log-spaced from the first sample distance to the range cap."""
+    first = p[I_SAMPLE_FIRST]
+    return first * (p[I_RANGE_CAP] / first) ** (i / (n - 1))
+
+
+@njit(cache=True)
 def setup_trial(
     trial_seed: int, study: int, density: float, p: np.ndarray
 ) -> tuple[
@@ -120,18 +127,31 @@ def setup_trial(
     int,
     float,
 ]:
-    """Seed, build the city and landmarks, place the car; return the world and the first goal."""
+    """Seed, build the city and landmarks, place the car; return the world and the first goal.
+
+    Range study: city area log-uniform, goals uniform over the city. Landmark
+    study: city area uniform (more large cities, so long trips occur), and the
+    goal is the node nearest a point at a distance drawn uniformly between
+    0.2 km and 0.9 of the city's diagonal, in a random direction: success can
+    then be read against distance evenly.
+    """
     world.seed(trial_seed)
-    area = math.exp(np.random.uniform(math.log(p[I_AREA_MIN]), math.log(p[I_AREA_MAX])))
+    if study == STUDY_RANGE:
+        area = math.exp(np.random.uniform(math.log(p[I_AREA_MIN]), math.log(p[I_AREA_MAX])))
+    else:
+        area = np.random.uniform(p[I_AREA_MIN], p[I_AREA_MAX])
     aspect = np.random.uniform(0.7, 1.4)
     xs, ys, adj, net = world.make_city(
         area, aspect, p[I_BLOCK_MIN], p[I_BLOCK_MAX], p[I_DEAD_FRAC], p[I_ONEWAY_FRAC]
     )
     lm_xy, node_start, node_lms = world.place_landmarks(xs, ys, adj, net, density)
     start = world.random_node(net)
-    goal = world.random_node(net)
-    while goal == start:
+    if study == STUDY_RANGE:
         goal = world.random_node(net)
+        while goal == start:
+            goal = world.random_node(net)
+    else:
+        goal = world.node_at_distance(xs, ys, net, start, 200.0, 0.9)
     ts, ns = world.init_truth(xs, ys, adj, start, p)
     return xs, ys, adj, net, lm_xy, node_start, node_lms, ts, ns, goal, area
 
@@ -145,7 +165,7 @@ def run_trial(
     p: np.ndarray,
     samples: np.ndarray,
 ) -> np.ndarray:
-    """Run one trial; fill ``samples`` with the major axis every ``I_SAMPLE_EVERY`` metres."""
+    """Run one trial; fill ``samples`` with the major axis at ``sample_distance_m``."""
     xs, ys, adj, net, lm_xy, node_start, node_lms, ts, ns, goal, area = setup_trial(
         trial_seed, study, density, p
     )
@@ -242,7 +262,7 @@ def run_trial(
         major = model.major_axis_m(P)
         mode = law.next_mode(method, mode, major, p[I_HYBRID_SWITCH], landmark_update)
         driven = ts[world.T_DRIVEN]
-        while next_sample < n_samples and driven >= next_sample * p[I_SAMPLE_EVERY]:
+        while next_sample < n_samples and driven >= sample_distance_m(next_sample, n_samples, p):
             samples[next_sample] = major
             next_sample += 1
         if major > p[I_LOST]:

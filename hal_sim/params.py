@@ -116,12 +116,13 @@ class SimParams:
     I_RANGE_CAP,
     I_LM_CAP_FACTOR,
     I_LM_CAP_EXTRA,
-    I_SAMPLE_EVERY,
+    I_SAMPLE_FIRST,
     N_PARAMS,
 ) = range(44)
 
-SAMPLE_EVERY_M = 250.0
-"""The major axis is recorded every this many metres driven (fig3)."""
+SAMPLE_FIRST_M = 10.0
+N_SAMPLES = 120
+"""The major axis is recorded at N_SAMPLES distances, log-spaced from SAMPLE_FIRST_M to the cap."""
 
 
 def estimator_config(sim: SimParams, compass_two_sigma_deg: float | None) -> EstimatorConfig:
@@ -197,5 +198,5 @@ def pack(
     p[I_RANGE_CAP] = sim.range_cap_km * 1000.0
     p[I_LM_CAP_FACTOR] = sim.landmark_cap_factor
     p[I_LM_CAP_EXTRA] = sim.landmark_cap_extra_km * 1000.0
-    p[I_SAMPLE_EVERY] = SAMPLE_EVERY_M
+    p[I_SAMPLE_FIRST] = SAMPLE_FIRST_M
     return p

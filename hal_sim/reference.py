@@ -26,7 +26,6 @@ from hal_sim.params import (
     I_LM_CAP_FACTOR,
     I_LM_SIGMA,
     I_RANGE_CAP,
-    I_SAMPLE_EVERY,
 )
 
 
@@ -93,7 +92,9 @@ def run_trial(
         else:
             nav.update_mode(major)
         driven = float(ts[world.T_DRIVEN])
-        while next_sample < n_samples and driven >= next_sample * p[I_SAMPLE_EVERY]:
+        while next_sample < n_samples and driven >= engine.sample_distance_m(
+            next_sample, n_samples, p
+        ):
             samples[next_sample] = major
             next_sample += 1
         x = est.x

@@ -179,6 +179,34 @@ def random_node(in_network: np.ndarray) -> int:
 
 
 @njit(cache=True)
+def node_at_distance(
+    xs: np.ndarray, ys: np.ndarray, in_network: np.ndarray, start: int, min_m: float, frac: float
+) -> int:
+    """A network node near a point at a random distance (uniform in [min_m, frac * diagonal])."""
+    nx = xs.shape[0]
+    sx, sy = xs[start % nx], ys[start // nx]
+    diag = math.hypot(xs[-1] - xs[0], ys[-1] - ys[0])
+    dist = np.random.uniform(min(min_m, frac * diag), frac * diag)
+    best = -1
+    for _ in range(20):
+        phi = np.random.uniform(-math.pi, math.pi)
+        px, py = sx + dist * math.cos(phi), sy + dist * math.sin(phi)
+        if xs[0] <= px <= xs[-1] and ys[0] <= py <= ys[-1]:
+            break
+    px = min(max(px, xs[0]), xs[-1])
+    py = min(max(py, ys[0]), ys[-1])
+    best_d = math.inf
+    for n in range(in_network.shape[0]):
+        if not in_network[n] or n == start:
+            continue
+        d = (xs[n % nx] - px) ** 2 + (ys[n // nx] - py) ** 2
+        if d < best_d:
+            best_d = d
+            best = n
+    return best
+
+
+@njit(cache=True)
 def place_landmarks(
     xs: np.ndarray, ys: np.ndarray, adj: np.ndarray, in_network: np.ndarray, density_per_km2: float
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:

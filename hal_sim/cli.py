@@ -1,0 +1,112 @@
+"""``guidance study``: the Monte Carlo studies."""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+from pathlib import Path
+from typing import Any
+
+from guidance.errors import UserError
+
+
+def register(sub: Any) -> None:
+    study = sub.add_parser(
+        "study",
+        help="run a Monte Carlo study (range without a map, or landmarks)",
+        description="Monte Carlo studies of SPEC section 5; resumable, reproducible from --seed.",
+    )
+    study.add_argument("which", choices=("range", "landmarks"), help="which study")
+    study.add_argument(
+        "--trials-per-condition",
+        type=int,
+        default=None,
+        help="trials per condition (default: 1000 for range, 700 for landmarks)",
+    )
+    study.add_argument("--out", type=Path, default=None, help="output folder (default out/<study>)")
+    study.add_argument("--seed", type=int, default=1, help="study seed (default 1)")
+    study.add_argument(
+        "--workers", type=int, default=os.cpu_count() or 1, help="local worker processes"
+    )
+    study.add_argument(
+        "--scheduler", default=None, metavar="ADDRESS", help="run on a Dask distributed scheduler"
+    )
+    study.add_argument("--no-progress", action="store_true", help="no progress bar")
+    study.add_argument("--json", action="store_true", help="print summary.json at the end")
+    study.set_defaults(func=_study)
+
+
+def _study(args: argparse.Namespace) -> int:
+    from rich.console import Console
+    from rich.progress import (
+        BarColumn,
+        MofNCompleteColumn,
+        Progress,
+        TextColumn,
+        TimeElapsedColumn,
+        TimeRemainingColumn,
+    )
+    from rich.table import Table
+
+    from hal_sim.studies import DEFAULT_TRIALS, StudyRun
+
+    trials = args.trials_per_condition or DEFAULT_TRIALS[args.which]
+    if args.seed < 0:
+        raise UserError("--seed must be a non-negative integer")
+    if args.workers < 1:
+        raise UserError("--workers must be at least 1")
+    out = args.out or Path("out") / args.which
+    run = StudyRun(args.which, out, trials, args.seed, args.workers, args.scheduler)
+    console = Console(stderr=True)
+    if args.no_progress:
+        summary = run.run()
+    else:
+        with Progress(
+            TextColumn(f"[bold]{args.which} study[/]"),
+            BarColumn(),
+            MofNCompleteColumn(),
+            TextColumn("chunks"),
+            TimeElapsedColumn(),
+            TextColumn("ETA"),
+            TimeRemainingColumn(),
+            console=console,
+        ) as progress:
+            bar = progress.add_task(args.which, total=None)
+
+            def hook(done: int, total: int) -> None:
+                progress.update(bar, completed=done, total=total)
+
+            summary = run.run(hook)
+    if args.json:
+        print(json.dumps(summary))
+        return 0
+    _print_summary(console, summary, out, Table)
+    return 0
+
+
+def _print_summary(console: Any, summary: dict[str, Any], out: Path, table_cls: Any) -> None:
+    t = table_cls(title=f"{summary['study']} study ({summary['wall_s']:.0f} s)")
+    if summary["study"] == "range":
+        for col in ("compass 2σ", "trials", "mean lost km", "never lost", "fit lost km"):
+            t.add_column(col, justify="right")
+        for c in summary["conditions"]:
+            comp = "none" if c["compass_2sigma_deg"] is None else f"±{c['compass_2sigma_deg']:g}°"
+            mean = "-" if c["mean_lost_km"] is None else f"{c['mean_lost_km']:.2f}"
+            fit = "-" if c["fit_lost_km"] is None else f"{c['fit_lost_km']:.1f}"
+            t.add_row(comp, str(c["trials"]), mean, f"{c['never_lost_fraction']:.0%}", fit)
+    else:
+        for col in ("method", "density/km²", "detection", "success", "range@80% km", "driven km"):
+            t.add_column(col, justify="right")
+        for c in summary["conditions"]:
+            rng = f"{c['range_km_at_80pct']:.1f}" + ("+" if c["range_censored"] else "")
+            t.add_row(
+                c["method"],
+                f"{c['density_per_km2']:g}",
+                f"{c['detection_rate']:.0%}",
+                f"{c['success_rate']:.0%}",
+                rng,
+                f"{c['mean_driven_km']:.1f}",
+            )
+    console.print(t)
+    console.print(f"results in {out}/ (summary.json, trials.csv, figures)")

@@ -1,0 +1,514 @@
+"""Monte Carlo studies (SPEC section 5): conditions, seeding, parallel runs, resume, outputs.
+
+Trials are grouped in chunks; each chunk is one call of the compiled engine and
+is saved to ``OUT/chunks/`` as soon as it finishes, so an interrupted study
+resumes where it stopped. Every trial's seed is derived from (study seed,
+condition, trial index) alone, so results do not depend on the number of
+workers or on where a chunk ran (local processes or a Dask cluster).
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import os
+import time
+from collections.abc import Callable, Iterable, Sequence
+from concurrent.futures import FIRST_COMPLETED, Future, ProcessPoolExecutor, wait
+from dataclasses import asdict, dataclass, field
+from multiprocessing import get_context
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from guidance.errors import UserError
+from guidance.navigator import Method, NavigatorConfig
+from hal_sim import engine, params
+from hal_sim.params import SimParams
+
+RANGE_COMPASS_DEG: tuple[float | None, ...] = (10.0, 20.0, 30.0, None)
+LANDMARK_COMPASS_DEG = 30.0
+LANDMARK_DENSITIES = (0.5, 1.0, 2.0, 5.0, 10.0)
+LANDMARK_DETECTION_RATES = (0.2, 0.4, 0.6, 0.8, 1.0)
+LANDMARK_METHODS = (Method.STRAIGHT_TO_GOAL, Method.LANDMARK_TO_LANDMARK, Method.HYBRID)
+DEFAULT_TRIALS = {"range": 1000, "landmarks": 700}
+CHUNK_TRIALS = 25
+SUCCESS_TARGET = 0.8
+LOSS_LINE_M = 100.0
+
+
+@dataclass(frozen=True, slots=True)
+class Condition:
+    index: int
+    key: str
+    study: str
+    method: Method
+    compass_two_sigma_deg: float | None
+    density_per_km2: float
+    detection_rate: float
+
+
+def range_conditions() -> list[Condition]:
+    return [
+        Condition(
+            i,
+            f"compass_{'none' if c is None else f'{c:g}'}",
+            "range",
+            Method.STRAIGHT_TO_GOAL,
+            c,
+            0.0,
+            0.0,
+        )
+        for i, c in enumerate(RANGE_COMPASS_DEG)
+    ]
+
+
+def landmark_conditions() -> list[Condition]:
+    out = []
+    for m in LANDMARK_METHODS:
+        for d in LANDMARK_DENSITIES:
+            for r in LANDMARK_DETECTION_RATES:
+                out.append(
+                    Condition(
+                        len(out),
+                        f"{m.value}_d{d:g}_p{r:g}",
+                        "landmarks",
+                        m,
+                        LANDMARK_COMPASS_DEG,
+                        d,
+                        r,
+                    )
+                )
+    return out
+
+
+def trial_seeds(base_seed: int, condition: int, first: int, count: int) -> np.ndarray:
+    """One 32-bit seed per trial from (study seed, condition, trial index) only."""
+    return np.array(
+        [
+            np.random.SeedSequence([base_seed, condition, t]).generate_state(1)[0]
+            for t in range(first, first + count)
+        ],
+        dtype=np.int64,
+    )
+
+
+@dataclass(frozen=True, slots=True)
+class ChunkTask:
+    condition: Condition
+    chunk: int
+    seeds: np.ndarray = field(compare=False)
+    p: np.ndarray = field(compare=False)
+    n_samples: int
+
+    @property
+    def name(self) -> str:
+        return f"{self.condition.key}/{self.chunk:05d}"
+
+
+def run_chunk(task: ChunkTask) -> tuple[np.ndarray, np.ndarray]:
+    """Run one chunk in the compiled engine (top-level so processes and Dask can call it)."""
+    study = engine.STUDY_RANGE if task.condition.study == "range" else engine.STUDY_LANDMARKS
+    out: tuple[np.ndarray, np.ndarray] = engine.run_batch(
+        task.seeds,
+        study,
+        task.condition.method.code,
+        task.condition.density_per_km2,
+        task.p,
+        task.n_samples,
+    )
+    return out
+
+
+def sample_distances_km(p: np.ndarray, n: int) -> np.ndarray:
+    return np.array([engine.sample_distance_m(i, n, p) for i in range(n)]) / 1000.0
+
+
+def make_tasks(
+    conditions: Sequence[Condition], trials: int, seed: int, sim: SimParams
+) -> list[ChunkTask]:
+    nav = NavigatorConfig()
+    tasks = []
+    n_samples = params.N_SAMPLES
+    for cond in conditions:
+        est = params.estimator_config(sim, cond.compass_two_sigma_deg)
+        p = params.pack(sim, est, nav, cond.detection_rate)
+        for chunk, first in enumerate(range(0, trials, CHUNK_TRIALS)):
+            count = min(CHUNK_TRIALS, trials - first)
+            tasks.append(
+                ChunkTask(cond, chunk, trial_seeds(seed, cond.index, first, count), p, n_samples)
+            )
+    return tasks
+
+
+# ----------------------------------------------------------------------------- storage
+class ChunkStore:
+    """Completed chunks on disk: one .npz per chunk, written atomically."""
+
+    def __init__(self, out: Path) -> None:
+        self.dir = out / "chunks"
+        self.dir.mkdir(parents=True, exist_ok=True)
+
+    def path(self, task: ChunkTask) -> Path:
+        return self.dir / f"{task.condition.key}__{task.chunk:05d}.npz"
+
+    def has(self, task: ChunkTask) -> bool:
+        return self.path(task).exists()
+
+    def save(self, task: ChunkTask, results: np.ndarray, samples: np.ndarray) -> None:
+        final = self.path(task)
+        tmp = final.with_suffix(".tmp.npz")
+        np.savez(tmp, results=results, samples=samples.astype(np.float32), seeds=task.seeds)
+        os.replace(tmp, final)
+
+    def load(self, task: ChunkTask) -> tuple[np.ndarray, np.ndarray]:
+        with np.load(self.path(task)) as z:
+            if not np.array_equal(z["seeds"], task.seeds):
+                raise UserError(f"{self.path(task)} was made with other seeds; use a fresh --out")
+            return z["results"], z["samples"].astype(float)
+
+
+def _check_manifest(out: Path, manifest: dict[str, Any]) -> None:
+    path = out / "study.json"
+    if path.exists():
+        old = json.loads(path.read_text())
+        if old != manifest:
+            raise UserError(
+                f"{out} holds a study with other settings ({path}); use another --out to start over"
+            )
+    else:
+        path.write_text(json.dumps(manifest, indent=2))
+
+
+# ----------------------------------------------------------------------------- running
+ProgressHook = Callable[[int, int], None]
+
+
+def _warm_up(sim: SimParams) -> None:
+    """Compile (or load from cache) once before workers start, so they only load."""
+    task = make_tasks(range_conditions()[-1:], 1, 0, sim)[0]
+    run_chunk(task)
+
+
+def execute(
+    tasks: Sequence[ChunkTask],
+    store: ChunkStore,
+    workers: int,
+    scheduler: str | None,
+    on_progress: ProgressHook | None = None,
+) -> None:
+    """Run the chunks not yet on disk, saving each as it completes."""
+    todo = [t for t in tasks if not store.has(t)]
+    done = len(tasks) - len(todo)
+    if on_progress:
+        on_progress(done, len(tasks))
+    if not todo:
+        return
+    if scheduler:
+        _execute_dask(todo, store, scheduler, done, len(tasks), on_progress)
+        return
+    if workers <= 1:
+        for t in todo:
+            store.save(t, *run_chunk(t))
+            done += 1
+            if on_progress:
+                on_progress(done, len(tasks))
+        return
+    ctx = get_context("spawn")
+    with ProcessPoolExecutor(max_workers=workers, mp_context=ctx) as pool:
+        pending: dict[Future[tuple[np.ndarray, np.ndarray]], ChunkTask] = {}
+        queue = list(reversed(todo))
+        while queue or pending:
+            while queue and len(pending) < 2 * workers:
+                t = queue.pop()
+                pending[pool.submit(run_chunk, t)] = t
+            finished, _ = wait(pending, return_when=FIRST_COMPLETED)
+            for f in finished:
+                t = pending.pop(f)
+                store.save(t, *f.result())
+                done += 1
+                if on_progress:
+                    on_progress(done, len(tasks))
+
+
+def _execute_dask(
+    todo: Sequence[ChunkTask],
+    store: ChunkStore,
+    scheduler: str,
+    done: int,
+    total: int,
+    on_progress: ProgressHook | None,
+) -> None:
+    from distributed import Client, as_completed
+
+    try:
+        client = Client(scheduler, timeout="10s")
+    except OSError as exc:
+        raise UserError(f"cannot reach the Dask scheduler at {scheduler}: {exc}") from exc
+    try:
+        futures = {client.submit(run_chunk, t, pure=False): t for t in todo}
+        for f in as_completed(futures):
+            t = futures[f]
+            store.save(t, *f.result())
+            done += 1
+            if on_progress:
+                on_progress(done, total)
+    finally:
+        client.close()
+
+
+# ----------------------------------------------------------------------------- results
+@dataclass
+class StudyData:
+    conditions: list[Condition]
+    results: dict[str, np.ndarray]
+    samples: dict[str, np.ndarray]
+    sample_km: np.ndarray
+
+
+def collect(tasks: Iterable[ChunkTask], store: ChunkStore, conditions: list[Condition]) -> StudyData:
+    res: dict[str, list[np.ndarray]] = {c.key: [] for c in conditions}
+    smp: dict[str, list[np.ndarray]] = {c.key: [] for c in conditions}
+    sample_km = np.zeros(0)
+    for t in tasks:
+        sample_km = sample_distances_km(t.p, t.n_samples)
+        r, s = store.load(t)
+        res[t.condition.key].append(r)
+        smp[t.condition.key].append(s)
+    return StudyData(
+        conditions,
+        {k: np.vstack(v) for k, v in res.items()},
+        {k: np.vstack(v) for k, v in smp.items()},
+        sample_km,
+    )
+
+
+def fit_growth(
+    distance_km: np.ndarray, major_m: np.ndarray
+) -> tuple[float, float, float, float] | None:
+    """Fit major^2 = c0 + c1 d + c2 d^2 + c3 d^3 (m^2, d in km), coefficients >= 0.
+
+    The position variance grows linearly with distance while the compass bounds
+    the heading error, with d^2 from an initial heading error, and with d^3 when
+    the heading error random-walks (no compass); c0 is the starting
+    uncertainty. Relative errors are minimised, so short and long distances
+    count alike. Returns None when there is nothing to fit.
+    """
+    ok = np.isfinite(major_m) & (distance_km > 0) & (major_m > 0)
+    if ok.sum() < 4:
+        return None
+    d = distance_km[ok]
+    y = major_m[ok] ** 2
+    w = 1.0 / y
+    basis = np.column_stack([np.ones_like(d), d, d**2, d**3])
+    best: tuple[float, np.ndarray] | None = None
+    for bits in range(1, 16):
+        cols = [k for k in range(4) if bits >> k & 1]
+        coef, *_ = np.linalg.lstsq(basis[:, cols] * w[:, None], y * w, rcond=None)
+        if np.any(coef < 0):
+            continue
+        full = np.zeros(4)
+        full[cols] = coef
+        err = float(np.sum(((basis @ full - y) * w) ** 2))
+        if best is None or err < best[0]:
+            best = (err, full)
+    if best is None:
+        return None
+    c = best[1]
+    return float(c[0]), float(c[1]), float(c[2]), float(c[3])
+
+
+def growth_curve(coef: tuple[float, float, float, float], distance_km: np.ndarray) -> np.ndarray:
+    c0, c1, c2, c3 = coef
+    return np.sqrt(c0 + c1 * distance_km + c2 * distance_km**2 + c3 * distance_km**3)
+
+
+def fitted_lost_km(
+    coef: tuple[float, float, float, float], limit_m: float = 100.0
+) -> float | None:
+    """Where the fitted major axis crosses ``limit_m`` (None if it never grows)."""
+    if max(coef[1:]) <= 0:
+        return None
+    lo, hi = 0.0, 1.0
+    while growth_curve(coef, np.array([hi]))[0] < limit_m:
+        hi *= 2.0
+        if hi > 1e6:
+            return None
+    for _ in range(100):
+        mid = 0.5 * (lo + hi)
+        if growth_curve(coef, np.array([mid]))[0] < limit_m:
+            lo = mid
+        else:
+            hi = mid
+    return 0.5 * (lo + hi)
+
+
+def range_at_success(
+    distance_km: np.ndarray, success: np.ndarray, target: float = SUCCESS_TARGET
+) -> tuple[float, bool]:
+    """Distance at which a logistic fit of success against distance falls to ``target``.
+
+    Returns (km, censored): censored is True when the success rate stays above
+    the target over all distances tried (the figure is then the largest one).
+    """
+    d = np.asarray(distance_km, dtype=float)
+    y = np.asarray(success, dtype=float)
+    if len(d) == 0:
+        return 0.0, False
+    if y.mean() >= 0.999:
+        return float(d.max()), True
+    if y.mean() <= 0.001:
+        return 0.0, False
+    # Logistic regression y ~ sigmoid(w0 + w1 d) by Newton's method (2 parameters).
+    X = np.column_stack([np.ones_like(d), d])
+    w = np.array([math.log(max(y.mean(), 1e-3) / max(1 - y.mean(), 1e-3)), 0.0])
+    for _ in range(50):
+        z = np.clip(X @ w, -30, 30)
+        pr = 1.0 / (1.0 + np.exp(-z))
+        grad = X.T @ (y - pr)
+        H = (X * (pr * (1 - pr))[:, None]).T @ X + 1e-9 * np.eye(2)
+        step = np.linalg.solve(H, grad)
+        w = w + step
+        if np.abs(step).max() < 1e-10:
+            break
+    if w[1] >= 0:  # success does not fall with distance
+        return (float(d.max()), True) if y.mean() >= target else (0.0, False)
+    km = (math.log(target / (1 - target)) - w[0]) / w[1]
+    if km > d.max():
+        return float(d.max()), True
+    return max(0.0, float(km)), False
+
+
+def summarise_range(data: StudyData, sim: SimParams) -> dict[str, Any]:
+    conds = []
+    for c in data.conditions:
+        r = data.results[c.key]
+        lost_m = r[:, engine.RES_LOST_AT_M]
+        lost = np.isfinite(lost_m)
+        s = data.samples[c.key]
+        dist = np.broadcast_to(data.sample_km, s.shape)
+        fit = fit_growth(dist.ravel(), s.ravel())
+        fit_lost = None if fit is None else fitted_lost_km(fit, LOSS_LINE_M)
+        conds.append(
+            {
+                "compass_2sigma_deg": c.compass_two_sigma_deg,
+                "trials": int(len(r)),
+                "mean_lost_km": float(lost_m[lost].mean() / 1000.0) if lost.any() else None,
+                "median_lost_km": float(np.median(lost_m[lost]) / 1000.0) if lost.any() else None,
+                "never_lost_fraction": float(1.0 - lost.mean()),
+                "cap_km": sim.range_cap_km,
+                "fit_major_axis_sq": None
+                if fit is None
+                else dict(zip(("c0_m2", "c1_m2_per_km", "c2_m2_per_km2", "c3_m2_per_km3"), fit)),
+                "fit_lost_km": fit_lost,
+                "mean_turns_per_km": float(
+                    np.mean(r[:, engine.RES_TURNS] / np.maximum(r[:, engine.RES_DRIVEN_M], 1) * 1e3)
+                ),
+                "compass_rejections_per_trial": float(r[:, engine.RES_COMPASS_REJECTS].mean()),
+            }
+        )
+    return {"study": "range", "conditions": conds}
+
+
+def summarise_landmarks(data: StudyData) -> dict[str, Any]:
+    conds = []
+    for c in data.conditions:
+        r = data.results[c.key]
+        success = r[:, engine.RES_OUTCOME] == engine.OUTCOME_ARRIVED
+        km, censored = range_at_success(r[:, engine.RES_EUCLID_M] / 1000.0, success)
+        conds.append(
+            {
+                "method": c.method.value,
+                "density_per_km2": c.density_per_km2,
+                "detection_rate": c.detection_rate,
+                "trials": int(len(r)),
+                "success_rate": float(success.mean()),
+                "range_km_at_80pct": km,
+                "range_censored": censored,
+                "mean_driven_km": float(r[:, engine.RES_DRIVEN_M].mean() / 1000.0),
+                "lost_fraction": float((r[:, engine.RES_OUTCOME] == engine.OUTCOME_LOST).mean()),
+                "timeout_fraction": float(
+                    (r[:, engine.RES_OUTCOME] == engine.OUTCOME_TIMEOUT).mean()
+                ),
+                "mean_landmark_updates": float(r[:, engine.RES_LANDMARK_UPDATES].mean()),
+            }
+        )
+    per_method = {}
+    for m in LANDMARK_METHODS:
+        rs = [data.results[c.key] for c in data.conditions if c.method is m]
+        if rs:
+            allr = np.vstack(rs)
+            per_method[m.value] = {
+                "mean_driven_km": float(allr[:, engine.RES_DRIVEN_M].mean() / 1000.0),
+                "success_rate": float((allr[:, engine.RES_OUTCOME] == 0).mean()),
+            }
+    return {"study": "landmarks", "conditions": conds, "methods": per_method}
+
+
+def write_trials_csv(data: StudyData, path: Path) -> None:
+    """Per-trial results, one row per trial, with the condition's columns first."""
+    cols = ["condition", "method", "compass_2sigma_deg", "density_per_km2", "detection_rate"]
+    with path.open("w") as f:
+        f.write(",".join([*cols, *engine.RESULT_NAMES]) + "\n")
+        for c in data.conditions:
+            head = [
+                c.key,
+                c.method.value,
+                "" if c.compass_two_sigma_deg is None else f"{c.compass_two_sigma_deg:g}",
+                f"{c.density_per_km2:g}",
+                f"{c.detection_rate:g}",
+            ]
+            for row in data.results[c.key]:
+                vals = [
+                    engine.OUTCOME_NAMES[int(v)] if i == engine.RES_OUTCOME else
+                    ("" if not math.isfinite(v) else f"{v:.6g}")
+                    for i, v in enumerate(row)
+                ]  # fmt: skip
+                f.write(",".join(head + vals) + "\n")
+
+
+def study_manifest(name: str, trials: int, seed: int, sim: SimParams) -> dict[str, Any]:
+    return {"study": name, "trials_per_condition": trials, "seed": seed, "sim": asdict(sim)}
+
+
+@dataclass
+class StudyRun:
+    name: str
+    out: Path
+    trials: int
+    seed: int
+    workers: int
+    scheduler: str | None = None
+    sim: SimParams = field(default_factory=SimParams)
+
+    def conditions(self) -> list[Condition]:
+        return range_conditions() if self.name == "range" else landmark_conditions()
+
+    def run(self, on_progress: ProgressHook | None = None) -> dict[str, Any]:
+        if self.trials < 1:
+            raise UserError("--trials-per-condition must be at least 1")
+        self.out.mkdir(parents=True, exist_ok=True)
+        _check_manifest(self.out, study_manifest(self.name, self.trials, self.seed, self.sim))
+        conditions = self.conditions()
+        tasks = make_tasks(conditions, self.trials, self.seed, self.sim)
+        store = ChunkStore(self.out)
+        t0 = time.monotonic()
+        if any(not store.has(t) for t in tasks) and not self.scheduler:
+            _warm_up(self.sim)
+        execute(tasks, store, self.workers, self.scheduler, on_progress)
+        data = collect(tasks, store, conditions)
+        from hal_sim import figures
+
+        if self.name == "range":
+            summary = summarise_range(data, self.sim)
+            figures.fig3(data, self.out / "fig3.png")
+        else:
+            summary = summarise_landmarks(data)
+            figures.fig4(data, self.out / "fig4.png")
+            figures.write_range_table(summary, self.out / "range_at_80pct.csv")
+        summary["seed"] = self.seed
+        summary["wall_s"] = time.monotonic() - t0
+        write_trials_csv(data, self.out / "trials.csv")
+        (self.out / "summary.json").write_text(json.dumps(summary, indent=2))
+        return summary
