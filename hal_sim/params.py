@@ -27,9 +27,9 @@ class SimParams:
     block_m_max: float = 300.0
     """Each street's distance to the next, drawn uniformly in [min, max] m."""
     dead_end_frac: float = 0.04
-    """Fraction of street segments removed (both ways): they leave dead ends behind."""
+    """Fraction of intersections made dead ends: they keep one street and lose the others."""
     one_way_frac: float = 0.12
-    """Fraction of the remaining segments made one-way (random direction)."""
+    """Fraction of the remaining street segments made one-way (random direction)."""
     # --- vehicle: 2007 Chevrolet Tahoe (GMT900) ------------------------------------
     wheelbase_m: float = 2.946
     track_m: float = 1.72

@@ -132,17 +132,25 @@ def make_city(
                 ii, jj = i + DIR_DX[d], j + DIR_DY[d]
                 if 0 <= ii < nx and 0 <= jj < ny:
                     adj[u, d] = jj * nx + ii
-    # Remove segments (dead ends), then make some one-way; each undirected segment once (E, N).
+    # Dead ends: some nodes keep one street and lose the others (both ways).
+    for u in range(n):
+        if np.random.random() >= dead_frac:
+            continue
+        keep = np.random.randint(0, 4)
+        while adj[u, keep] < 0:
+            keep = (keep + 1) % 4
+        for d in range(4):
+            v = adj[u, d]
+            if d != keep and v >= 0:
+                adj[u, d] = -1
+                adj[v, (d + 2) % 4] = -1
+    # One-way streets: each remaining segment once (E and N of each node).
     for u in range(n):
         for d in range(2):
             v = adj[u, d]
-            if v < 0:
+            if v < 0 or adj[v, d + 2] != u:
                 continue
-            r = np.random.random()
-            if r < dead_frac:
-                adj[u, d] = -1
-                adj[v, d + 2] = -1
-            elif np.random.random() < oneway_frac:
+            if np.random.random() < oneway_frac:
                 if np.random.random() < 0.5:
                     adj[u, d] = -1
                 else:
