@@ -1,0 +1,284 @@
+"""``guidance monitor``: fleet view, snapshot PNG, and the command against a live publisher."""
+
+from __future__ import annotations
+
+import json
+import os
+import signal
+import socket
+import subprocess
+import sys
+import time
+from collections.abc import Callable, Iterator
+from pathlib import Path
+from typing import Any
+
+import pytest
+
+from guidance.monitor import FleetView, car_row, health_summary, write_snapshot
+from guidance.telemetry import Telemetry, TelemetryConfig, TelemetryEvent
+
+REPO = Path(__file__).resolve().parents[2]
+
+PUBLISHER = r"""
+import math, sys, time
+from guidance.messages import Ellipse, EstimateState
+from guidance.telemetry import InputHealth, Telemetry, TelemetryConfig
+port, vid = int(sys.argv[1]), sys.argv[2]
+tel = Telemetry(TelemetryConfig(vehicle_id=vid, listen=(f"tcp/127.0.0.1:{port}",)))
+tel.start()
+i, next_t = 0, time.monotonic()
+while True:
+    t = i * 0.02
+    a = 3.0 + t
+    cov = ((a * a / 4, 0.0, 0.0), (0.0, 1.0, 0.0), (0.0, 0.0, 0.01))
+    st = EstimateState(t, 10.0 * t, 5.0 * math.sin(t), 0.3, cov, Ellipse(a, 1.0, 0.2, 2 * a),
+                       False, True)
+    tel.publish_state(st, speed_mps=10.0, target=(300.0, 0.0, "goal", None), goal=(300.0, 0.0))
+    if i % 25 == 0:
+        tel.publish_prompt(t, f"In 200 metres, turn left ({i})", kind="turn")
+        tel.publish_health(t, {"odometry": InputHealth(True, True, 50.0, 0.02)})
+    i += 1
+    next_t += 0.02
+    time.sleep(max(0.0, next_t - time.monotonic()))
+"""
+
+
+def free_port() -> int:
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return int(s.getsockname()[1])
+
+
+@pytest.fixture
+def publisher() -> Iterator[Callable[[str], int]]:
+    procs: list[subprocess.Popen[bytes]] = []
+
+    def start(vehicle_id: str = "car1") -> int:
+        port = free_port()
+        procs.append(
+            subprocess.Popen(
+                [sys.executable, "-c", PUBLISHER, str(port), vehicle_id],
+                cwd=REPO,
+                stdout=subprocess.DEVNULL,
+                stderr=subprocess.DEVNULL,
+            )
+        )
+        return port
+
+    yield start
+    for p in procs:
+        p.kill()
+        p.wait(5)
+
+
+def monitor(*args: str, timeout: float = 30.0) -> subprocess.CompletedProcess[str]:
+    return subprocess.run(
+        [sys.executable, "-m", "guidance.cli", "monitor", *args],
+        cwd=REPO,
+        capture_output=True,
+        text=True,
+        timeout=timeout,
+    )
+
+
+# -- fleet view (no zenoh) -----------------------------------------------------------------------
+def event(
+    kind: str, vid: str = "car1", late: bool = False, at: float = 100.0, **msg: Any
+) -> TelemetryEvent:
+    return TelemetryEvent(kind, vid, f"guidance/{vid}/{kind}", msg or None, at, late)
+
+
+def state(seq: int, x: float, y: float, t_s: float) -> dict[str, Any]:
+    return {
+        "seq": seq,
+        "t_s": t_s,
+        "x_m": x,
+        "y_m": y,
+        "heading_deg": 90.0,
+        "lost": False,
+        "ellipse": {
+            "semi_major_m": 5.0,
+            "semi_minor_m": 2.0,
+            "orientation_rad": 0.0,
+            "major_axis_m": 10.0,
+        },
+        "target": {"x_m": x + 30.0, "y_m": y + 40.0, "kind": "landmark", "id": 2},
+        "goal": {"x_m": 500.0, "y_m": 500.0},
+    }
+
+
+def test_fleet_view_rows_gaps_late_join_and_vanishing_cars() -> None:
+    view = FleetView()
+    view.apply(event("alive"))
+    view.apply(event("state", at=100.0, **state(1, 0.0, 0.0, 0.0)))
+    view.apply(event("state", at=101.0, **state(4, 10.0, 0.0, 12.0)))  # 2 and 3 lost
+    assert not view.apply(event("state", late=True, **state(4, 10.0, 0.0, 12.0)))  # duplicate
+    view.apply(event("prompt", at=101.0, seq=1, t_s=12.0, text="Turn right"))
+    view.apply(
+        event(
+            "health",
+            at=101.0,
+            seq=1,
+            t_s=12.0,
+            ok=False,
+            inputs={
+                "compass": {"alive": False, "valid": False},
+                "odometry": {"alive": True, "valid": True},
+            },
+            components={"telemetry": {"dropped": {"superseded": 3}}},
+        )
+    )
+    car = view.cars["car1"]
+    assert car.gaps == 2 and list(car.track) == [(0.0, 0.0), (10.0, 0.0)]
+    assert len(car.ellipses) == 2  # t_s 0 and 12 are more than 10 s apart
+    row = car_row(car, now_s=103.5)
+    assert row["x_m"] == "10.0" and row["major_axis_m"] == "10.0"
+    assert row["distance_m"] == "50" and row["target"] == "landmark (40, 40)"
+    assert row["prompt"] == "Turn right" and row["age_s"] == "2.5"
+    assert row["health"] == "compass down (3 dropped)"
+    view.apply(event("gone"))
+    assert "car1" not in view.cars and "car1" in view.gone
+    view.apply(event("alive"))
+    assert view.cars["car1"].track  # a car that comes back keeps its track
+
+
+def test_health_summary_without_health() -> None:
+    assert health_summary(None) == "-"
+    assert health_summary({"inputs": {"cam": {"alive": True, "valid": False}}}) == "cam invalid"
+
+
+def test_snapshot_png_has_tracks_and_labelled_axes(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    import matplotlib.figure
+
+    view = FleetView()
+    for vid, dy in (("car1", 0.0), ("car2", 50.0)):
+        view.apply(event("alive", vid))
+        for i in range(30):
+            view.apply(event("state", vid, **state(i + 1, 10.0 * i, dy + i, 1.0 * i)))
+    view.apply(event("gone", "car2"))
+    saved: list[matplotlib.figure.Figure] = []
+    real_savefig = matplotlib.figure.Figure.savefig
+
+    def spy(self: matplotlib.figure.Figure, *a: Any, **k: Any) -> None:
+        saved.append(self)
+        real_savefig(self, *a, **k)
+
+    monkeypatch.setattr(matplotlib.figure.Figure, "savefig", spy)
+    path = write_snapshot(view, tmp_path / "snap" / "tracks.png")
+    assert path.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n" and path.stat().st_size > 10_000
+    ax = saved[0].axes[0]
+    assert ax.get_xlabel() == "x east (m)" and ax.get_ylabel() == "y north (m)"
+    legend = ax.get_legend()
+    assert legend is not None
+    labels = [t.get_text() for t in legend.get_texts()]
+    assert {"car1 track", "car2 (gone) track", "2-sigma ellipse", "target", "goal"} <= set(labels)
+
+
+# -- the command ---------------------------------------------------------------------------------
+def test_json_count_prints_messages_and_exits_0(
+    publisher: Callable[[str], int], tmp_path: Path
+) -> None:
+    port = publisher("van7")
+    png = tmp_path / "tracks.png"
+    r = monitor(
+        "--connect",
+        f"tcp/127.0.0.1:{port}",
+        "--json",
+        "--count",
+        "20",
+        "--timeout",
+        "20",
+        "--snapshot",
+        str(png),
+    )
+    assert r.returncode == 0, r.stderr
+    lines = [json.loads(line) for line in r.stdout.splitlines()]
+    data = [m for m in lines if m["schema"] != "guidance.liveliness/1"]
+    assert len(data) == 20
+    assert {"schema": "guidance.liveliness/1", "vehicle_id": "van7", "alive": True} in lines
+    states = [m for m in data if m["schema"] == "guidance.state/1"]
+    assert states and all(m["vehicle_id"] == "van7" for m in data)
+    assert {"x_m", "y_m", "heading_deg", "ellipse", "target", "t_s"} <= set(states[0])
+    assert png.read_bytes()[:4] == b"\x89PNG"
+
+
+def test_vehicle_filter_and_timeout_with_nothing_exits_1(publisher: Callable[[str], int]) -> None:
+    port = publisher("car1")
+    r = monitor(
+        "--connect", f"tcp/127.0.0.1:{port}", "--vehicle", "car2", "--json", "--timeout", "1.5"
+    )
+    assert r.returncode == 1 and r.stdout == ""
+    assert r.stderr.startswith("guidance monitor: no messages received from")
+    assert "Traceback" not in r.stderr and len(r.stderr.strip().splitlines()) == 1
+
+
+def test_bad_endpoint_is_one_clear_line() -> None:
+    r = monitor("--connect", "127.0.0.1:7447", "--json", "--timeout", "1")
+    assert r.returncode == 2
+    assert r.stderr.strip() == (
+        "guidance monitor: error: bad zenoh endpoint '127.0.0.1:7447': expected "
+        "<protocol>/<address>, e.g. tcp/127.0.0.1:7447 or tls/localhost:7447"
+    )
+    r = monitor("--connect", "tcp/127.0.0.1:7447", "--zenoh-config", "/nonexistent.json5")
+    assert r.returncode == 2 and "zenoh config file not found" in r.stderr
+    assert "Traceback" not in r.stderr
+
+
+def test_live_view_table_and_sigusr1_snapshot(
+    publisher: Callable[[str], int], tmp_path: Path
+) -> None:
+    port = publisher("car1")
+    png = tmp_path / "live.png"
+    proc = subprocess.Popen(
+        [
+            sys.executable,
+            "-m",
+            "guidance.cli",
+            "monitor",
+            "--connect",
+            f"tcp/127.0.0.1:{port}",
+            "--timeout",
+            "4",
+            "--snapshot",
+            str(png),
+        ],
+        cwd=REPO,
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+        env={**os.environ, "COLUMNS": "200"},
+    )
+    try:
+        deadline = time.monotonic() + 3.0
+        while time.monotonic() < deadline and not png.exists():
+            time.sleep(1.0)
+            os.kill(proc.pid, signal.SIGUSR1)  # ask for a snapshot while it runs
+            time.sleep(0.3)
+        assert png.exists() and proc.poll() is None, "no snapshot on SIGUSR1"
+        out, err = proc.communicate(timeout=20)
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+            proc.wait()
+    assert proc.returncode == 0, err
+    assert "car1" in out and "major axis m" in out and "turn left" in out
+    assert "snapshot written" in out
+
+
+def test_send_goal_reaches_a_car_that_allows_it() -> None:
+    port = free_port()
+    goals: list[tuple[float, float]] = []
+    cfg = TelemetryConfig(
+        vehicle_id="car3", listen=(f"tcp/127.0.0.1:{port}",), allow_remote_goal=True
+    )
+    with Telemetry(cfg, on_goal=lambda x, y: goals.append((x, y))):
+        r = monitor(
+            "--connect", f"tcp/127.0.0.1:{port}", "--vehicle", "car3", "--send-goal", "120", "-45.5"
+        )
+    assert r.returncode == 0, r.stderr
+    assert goals == [(120.0, -45.5)]
+    r = monitor("--connect", f"tcp/127.0.0.1:{port}", "--send-goal", "1", "2")
+    assert r.returncode == 2 and "--send-goal needs --vehicle ID" in r.stderr
