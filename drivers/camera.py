@@ -20,6 +20,7 @@ from typing import Any
 
 import cv2
 
+from drivers.health import DeviceHealth, HealthTracker
 from guidance.errors import UserError
 from guidance.messages import CameraFrame
 
@@ -46,6 +47,8 @@ class CameraConfig:
     """Consecutive failed reads that mean 'camera gone'."""
     reconnect_initial_s: float = 0.5
     reconnect_max_s: float = 10.0
+    stale_after_s: float = 2.0
+    """No frame for this long: ``health()`` says 'silent'."""
 
     def __post_init__(self) -> None:
         if isinstance(self.source, bool) or not isinstance(self.source, int | str):
@@ -54,7 +57,7 @@ class CameraConfig:
             raise UserError("source must not be empty")
         if not (isinstance(self.failures_before_reopen, int) and self.failures_before_reopen > 0):
             raise UserError("failures_before_reopen must be a positive integer")
-        for name in ("reconnect_initial_s", "reconnect_max_s"):
+        for name in ("reconnect_initial_s", "reconnect_max_s", "stale_after_s"):
             value = getattr(self, name)
             if not (isinstance(value, int | float) and value > 0):
                 raise UserError(f"{name} must be a positive number of seconds, not {value!r}")
@@ -64,8 +67,20 @@ class CameraConfig:
         return isinstance(self.source, str) and Path(self.source).is_file()
 
 
+WARNINGS = {
+    "silent": "Camera stopped. Landmarks cannot be recognised.",
+    "invalid": "Camera images are failing. Landmarks cannot be recognised.",
+    "disconnected": "Camera lost. Landmarks cannot be recognised.",
+}
+"""Spoken when ``health()`` turns bad (docs/reliability.md)."""
+
+
 class OpenCvCamera:
-    """``CameraSource`` backed by ``cv2.VideoCapture``."""
+    """``CameraSource`` backed by ``cv2.VideoCapture``.
+
+    A camera that disappears is a ``health()`` status ('disconnected'), not an exception; the
+    app goes on without landmark fixes, so the estimate only grows less certain.
+    """
 
     def __init__(
         self,
@@ -77,6 +92,9 @@ class OpenCvCamera:
         self.config = config or CameraConfig()
         self.name = name
         self._clock = clock
+        self._tracker = HealthTracker(
+            name, stale_after_s=self.config.stale_after_s, clock=clock, warnings=WARNINGS
+        )
         self._stop = threading.Event()
         self._lock = threading.Lock()
         self._new_frame = threading.Condition(self._lock)
@@ -95,6 +113,7 @@ class OpenCvCamera:
             raise RuntimeError(f"{self.name} already started")
         self._stop.clear()
         self.ended.clear()
+        self._tracker.started()
         self._threads = [
             threading.Thread(target=self._capture, name=f"{self.name}-capture", daemon=True),
             threading.Thread(
@@ -113,6 +132,11 @@ class OpenCvCamera:
             if t.is_alive():  # pragma: no cover - a driver read hung past its timeout
                 log.error("%s: thread %s did not stop", self.name, t.name)
         self._threads = []
+        self._tracker.stopped()
+
+    def health(self) -> DeviceHealth:
+        """alive: frames arriving; 'disconnected' while the camera cannot be opened or read."""
+        return self._tracker.evaluate(self.stats())
 
     def stats(self) -> dict[str, int]:
         with self._lock:
@@ -163,6 +187,7 @@ class OpenCvCamera:
 
     def _health(self, healthy: bool, detail: str = "") -> None:
         """Log once when the camera goes and once when it comes back."""
+        self._tracker.connected(healthy, detail)
         if healthy == self._healthy:
             return
         was, self._healthy = self._healthy, healthy
@@ -221,6 +246,7 @@ class OpenCvCamera:
                 continue
             failures += 1
             self._count("read_failures")
+            self._tracker.error(f"{failures} frame reads failed in a row")
             if failures >= self.config.failures_before_reopen:
                 self._health(False, f"{failures} failed reads")
                 cap.release()
@@ -240,6 +266,7 @@ class OpenCvCamera:
                     ok, image = cap.read()
                 if not ok or image is None:
                     log.info("%s: end of %s", self.name, self.config.source)
+                    self._tracker.ended()
                     self.ended.set()
                     self._stop.wait()  # a file that ended stays ended until stop()
                     return cap
@@ -255,6 +282,7 @@ class OpenCvCamera:
 
     def _publish(self, image: Any) -> None:
         frame = CameraFrame(t_s=self._clock(), image=image, source=str(self.config.source))
+        self._tracker.data(True, frame.t_s)
         with self._new_frame:
             self._counts["frames"] += 1
             if self._latest is not None:

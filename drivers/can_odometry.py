@@ -28,6 +28,7 @@ from typing import Any
 
 import can
 
+from drivers.health import DeviceHealth, HealthTracker
 from drivers.profiles import CHECKSUMS, VehicleProfile, WheelSignals, get_profile, load_dbc
 from guidance.errors import UserError
 from guidance.messages import WheelOdometry
@@ -126,6 +127,9 @@ class WheelSpeedDecoder:
         self.max_speed_seen_mps = 0.0
         self.t_first: float | None = None
         self.t_last: float | None = None
+        self.last_outcome = "none"
+        """What the last ``feed`` did: "ignored" (not a wheel-speed frame), "ok" (decoded and
+        usable: integrated or an anchor), or the reason it was rejected."""
 
     # -- counters ------------------------------------------------------------------------------
 
@@ -154,12 +158,14 @@ class WheelSpeedDecoder:
 
     def _reject(self, reason: str) -> None:
         self.rejected_by_reason[reason] += 1
+        self.last_outcome = reason
 
     # -- decoding ------------------------------------------------------------------------------
 
     def feed(self, msg: can.Message) -> WheelOdometry | None:
         """Take one frame; return a distance increment when it closes a valid interval."""
         self.frames += 1
+        self.last_outcome = "ok"
         t = float(msg.timestamp)
         if math.isfinite(t):
             self.t_first = t if self.t_first is None else min(self.t_first, t)
@@ -173,6 +179,7 @@ class WheelSpeedDecoder:
             or (fid != p.rear.frame_id and fid != p.front.frame_id)
         ):
             self.ignored += 1
+            self.last_outcome = "ignored"
             return None
         is_rear = fid == p.rear.frame_id
         spec = self._rear_msg if is_rear else self._front_msg
@@ -345,13 +352,21 @@ class CanOdometryConfig:
     """Ask the bus (the kernel, for socketcan) for the wheel-speed ids only."""
     bus_options: Mapping[str, Any] = field(default_factory=dict)
     """Extra keyword arguments for ``can.Bus`` (e.g. ``preserve_timestamps`` for virtual)."""
+    stale_after_s: float = MAX_GAP_S
+    """No wheel-speed frame for this long: ``health()`` says 'silent' (not alive)."""
 
     def __post_init__(self) -> None:
         """Reject bad values at start, naming the field (the app prefixes its config section)."""
         get_profile(self.profile)
         if self.clock not in ("wall", "frame"):
             raise UserError(f"clock must be 'wall' or 'frame', not {self.clock!r}")
-        for name in ("max_gap_s", "receive_timeout_s", "reconnect_initial_s", "reconnect_max_s"):
+        for name in (
+            "max_gap_s",
+            "receive_timeout_s",
+            "reconnect_initial_s",
+            "reconnect_max_s",
+            "stale_after_s",
+        ):
             value = getattr(self, name)
             if not (isinstance(value, int | float) and value > 0):
                 raise UserError(f"{name} must be a positive number of seconds, not {value!r}")
@@ -359,12 +374,34 @@ class CanOdometryConfig:
             raise UserError(f"bitrate must be a positive integer (bit/s), not {self.bitrate!r}")
 
 
-class CanOdometry:
-    """``OdometrySource`` on a python-can bus: reader thread, decoder, reconnect with backoff."""
+WARNINGS = {
+    "silent": "Wheel speed signal lost. Position is getting less certain.",
+    "invalid": "Wheel speed data is unreliable. Position is getting less certain.",
+    "disconnected": "Wheel speed bus disconnected. Position is getting less certain.",
+}
+"""Spoken when ``health()`` turns bad (docs/reliability.md)."""
 
-    def __init__(self, config: CanOdometryConfig | None = None, name: str = "can_odometry") -> None:
+
+class CanOdometry:
+    """``OdometrySource`` on a python-can bus: reader thread, decoder, reconnect with backoff.
+
+    Bad frames (wrong length, checksum, fault bits, implausible speeds, spikes, time going
+    backwards) are counted and never reach the sink; a silence longer than ``max_gap_s`` is not
+    integrated (``health()`` counts it in ``gap_s``). ``clock`` times arrivals for ``health()``:
+    ``time.monotonic`` live, the simulation's clock with ``clock="frame"``.
+    """
+
+    def __init__(
+        self,
+        config: CanOdometryConfig | None = None,
+        name: str = "can_odometry",
+        clock: Callable[[], float] = time.monotonic,
+    ) -> None:
         self.config = config or CanOdometryConfig()
         self.name = name
+        self._health = HealthTracker(
+            name, stale_after_s=self.config.stale_after_s, clock=clock, warnings=WARNINGS
+        )
         self.decoder = WheelSpeedDecoder(self.config.profile, max_gap_s=self.config.max_gap_s)
         self._bus: can.BusABC | None = None
         self._thread: threading.Thread | None = None
@@ -382,6 +419,7 @@ class CanOdometry:
             raise RuntimeError(f"{self.name} already started")
         self._stop.clear()
         self._resync_clock()
+        self._health.started()
         try:
             self._bus = self._open_bus()
         except (can.CanInterfaceNotImplementedError, ImportError, TypeError, ValueError) as exc:
@@ -404,12 +442,20 @@ class CanOdometry:
                 log.error("%s: reader thread did not stop", self.name)
             self._thread = None
         self._close_bus()
+        self._health.stopped()
 
     def stats(self) -> dict[str, int]:
         with self._lock:
             out = self.decoder.stats()
             out.update(self._counts)
         return out
+
+    def health(self) -> DeviceHealth:
+        """alive: wheel-speed frames arriving; valid: most of the recent ones usable."""
+        counters = self.stats()
+        with self._lock:
+            counters["gap_ms"] = round(self.decoder.gap_s * 1000.0)
+        return self._health.evaluate(counters)
 
     def __enter__(self) -> CanOdometry:
         return self
@@ -447,6 +493,7 @@ class CanOdometry:
             self.decoder.clock_offset_s = time.monotonic() - time.time()
 
     def _went_offline(self, exc: BaseException) -> None:
+        self._health.connected(False, f"{type(exc).__name__}: {exc}")
         with self._lock:
             self._counts["bus_errors"] += 1
         if not self._offline:
@@ -473,6 +520,7 @@ class CanOdometry:
                     continue
                 with self._lock:
                     self._counts["reconnects"] += 1
+                self._health.connected(True)
             try:
                 msg = self._bus.recv(timeout=self.config.receive_timeout_s)
             except (can.CanError, OSError) as exc:
@@ -480,6 +528,7 @@ class CanOdometry:
                 self._close_bus()
                 continue
             if msg is None:
+                self._health.evaluate()  # notices (and logs) a silence while nothing arrives
                 continue
             if self._offline:
                 self._offline = False
@@ -489,8 +538,15 @@ class CanOdometry:
                 lag = time.monotonic() - (msg.timestamp + self.decoder.clock_offset_s)
                 if abs(lag) > CLOCK_RESYNC_S:  # the wall clock was stepped (NTP)
                     self._resync_clock()
+            if msg.is_error_frame:
+                with self._lock:
+                    self._counts["error_frames"] += 1
+                self._health.error(f"CAN error frame (id 0x{msg.arbitration_id:X})")
             with self._lock:
                 out = self.decoder.feed(msg)
+                outcome = self.decoder.last_outcome
+            if outcome != "ignored":
+                self._health.data(outcome in ("ok", "gap"))
             if out is not None:
                 self._deliver(sink, out)
 

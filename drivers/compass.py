@@ -39,6 +39,7 @@ from typing import Any
 import pynmea2
 import serial
 
+from drivers.health import DeviceHealth, HealthTracker
 from guidance.errors import UserError
 from guidance.messages import CompassHeading
 
@@ -122,6 +123,8 @@ class NmeaCompassParser:
         self.apply_hdg_deviation = apply_hdg_deviation
         self.max_line_bytes = max_line_bytes
         self.lines = 0
+        self.last_outcome = "none"
+        """What the last ``feed_line`` did: "ok", or the reason the line was rejected."""
         self.headings = 0
         self.true_headings = 0
         self.resynced = 0
@@ -149,11 +152,13 @@ class NmeaCompassParser:
         """Count one line rejected outside ``feed_line`` (e.g. too long to assemble)."""
         self.lines += 1
         self.rejected_by_reason[reason] += 1
+        self.last_outcome = reason
 
     def feed_line(self, line: bytes, t_s: float | None = None) -> CompassHeading | None:
         """Parse one line; ``t_s`` is its arrival time (``time.monotonic()`` now if omitted)."""
         self.lines += 1
         reason, heading = self._parse(line.strip())
+        self.last_outcome = reason or "ok"
         if reason is not None:
             self.rejected_by_reason[reason] += 1
             return None
@@ -351,13 +356,15 @@ class SerialCompassConfig:
     max_line_bytes: int = MAX_LINE_BYTES
     serial_options: dict[str, Any] = field(default_factory=dict)
     """Extra keyword arguments for ``serial.Serial`` (parity, rtscts...)."""
+    stale_after_s: float = 3.0
+    """No line for this long: ``health()`` says 'silent'. Compasses send at 1-20 Hz."""
 
     def __post_init__(self) -> None:
         if not isinstance(self.port, str) or not self.port:
             raise UserError(f"port must be a device path such as /dev/ttyUSB0, not {self.port!r}")
         if not (isinstance(self.baudrate, int) and self.baudrate > 0):
             raise UserError(f"baudrate must be a positive integer, not {self.baudrate!r}")
-        for name in ("read_timeout_s", "reconnect_initial_s", "reconnect_max_s"):
+        for name in ("read_timeout_s", "reconnect_initial_s", "reconnect_max_s", "stale_after_s"):
             value = getattr(self, name)
             if not (isinstance(value, int | float) and value > 0):
                 raise UserError(f"{name} must be a positive number of seconds, not {value!r}")
@@ -365,8 +372,24 @@ class SerialCompassConfig:
             raise UserError(f"max_line_bytes must be an integer >= 82, not {self.max_line_bytes!r}")
 
 
+WARNINGS = {
+    "silent": "Compass silent. Heading is getting less certain.",
+    "invalid": "Compass data is unreliable. Heading is getting less certain.",
+    "disconnected": "Compass disconnected. Heading is getting less certain.",
+}
+"""Spoken when ``health()`` turns bad (docs/reliability.md)."""
+
+NEUTRAL_REASONS = frozenset({"unknown_type"})
+"""Rejections that say nothing about the compass: other sentences of a multi-sentence device."""
+
+
 class SerialCompass:
-    """``CompassSource`` on a serial port (USB adapter, pty in simulation)."""
+    """``CompassSource`` on a serial port (USB adapter, pty in simulation).
+
+    Only lines that parse to a heading reach the sink; garbage, broken checksums and
+    out-of-range values are counted by reason. ``health()`` reports the device lost, silent or
+    sending mostly bad lines.
+    """
 
     def __init__(
         self,
@@ -379,6 +402,9 @@ class SerialCompass:
         self.config = config or SerialCompassConfig()
         self.name = name
         self._clock = clock
+        self._health = HealthTracker(
+            name, stale_after_s=self.config.stale_after_s, clock=clock, warnings=WARNINGS
+        )
         self.parser = NmeaCompassParser(
             allow_missing_checksum=self.config.allow_missing_checksum,
             apply_hdg_deviation=self.config.apply_hdg_deviation,
@@ -399,6 +425,7 @@ class SerialCompass:
         if self._thread is not None:
             raise RuntimeError(f"{self.name} already started")
         self._stop.clear()
+        self._health.started()
         self._thread = threading.Thread(
             target=self._run, args=(sink,), name=f"{self.name}-reader", daemon=True
         )
@@ -411,12 +438,17 @@ class SerialCompass:
             if self._thread.is_alive():  # pragma: no cover - a read ignored its timeout
                 log.error("%s: reader thread did not stop", self.name)
             self._thread = None
+        self._health.stopped()
 
     def stats(self) -> dict[str, int]:
         with self._lock:
             out = self.parser.stats()
             out.update(self._counts)
         return out
+
+    def health(self) -> DeviceHealth:
+        """alive: lines arriving; valid: most recent lines were good headings."""
+        return self._health.evaluate(self.stats())
 
     @property
     def connected(self) -> bool:
@@ -438,6 +470,7 @@ class SerialCompass:
 
     def _state(self, connected: bool, detail: object = "") -> None:
         """Log once per flip: lost (or never found) and back."""
+        self._health.connected(connected, str(detail) if detail else "")
         if connected == self._connected:
             return
         was = self._connected
@@ -492,11 +525,14 @@ class SerialCompass:
         def too_long() -> None:
             with self._lock:
                 self.parser.reject("too_long")
+            self._health.data(False)
+            self._health.error("line longer than max_line_bytes")
 
         assembler = LineAssembler(self.config.max_line_bytes, too_long)
         while not self._stop.is_set():
             chunk = port.read(max(1, min(port.in_waiting, 4096)))
             if not chunk:
+                self._health.evaluate()  # notices (and logs) a silence
                 continue
             t_s = self._clock()
             self._got_data = True
@@ -505,6 +541,10 @@ class SerialCompass:
             for line in assembler.feed(chunk):
                 with self._lock:
                     out = self.parser.feed_line(line, t_s)
+                    outcome = self.parser.last_outcome
+                if outcome != "ok":
+                    self._health.error(f"rejected line ({outcome}): {line[:40]!r}")
+                self._health.data(None if outcome in NEUTRAL_REASONS else outcome == "ok", t_s)
                 if out is not None:
                     self._deliver(sink, out)
 

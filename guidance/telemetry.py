@@ -730,6 +730,9 @@ def open_session(conf: zenoh.Config) -> zenoh.Session:
 
 
 # -- the car side ---------------------------------------------------------------------------------
+TELEMETRY_DOWN_WARNING = "Remote monitoring is offline."
+
+
 @dataclass(frozen=True, slots=True)
 class TelemetryHealth:
     """What ``Telemetry.health()`` reports (and the health message carries)."""
@@ -745,9 +748,35 @@ class TelemetryHealth:
     goals_accepted: int
     goals_refused: int
     last_error: str
+    client_mode: bool = False
+
+    @property
+    def alive(self) -> bool:
+        """The zenoh session is open."""
+        return self.status == "up"
+
+    @property
+    def valid(self) -> bool:
+        """Messages can leave the car: peer mode with a session, or client mode with a router."""
+        return self.alive and (self.connected or not self.client_mode)
+
+    @property
+    def ok(self) -> bool:
+        return self.alive and self.valid
+
+    @property
+    def warning(self) -> str:
+        """Shown to the operator, not worth interrupting the driver for (telemetry is optional)."""
+        if self.status == "down" or (self.status == "up" and not self.valid):
+            return TELEMETRY_DOWN_WARNING
+        return ""
 
     def as_dict(self) -> dict[str, Any]:
         return {
+            "alive": self.alive,
+            "valid": self.valid,
+            "ok": self.ok,
+            "warning": self.warning,
             "status": self.status,
             "connected": self.connected,
             "peers": self.peers,
@@ -968,6 +997,7 @@ class Telemetry:
             goals_accepted=self._goals_accepted,
             goals_refused=self._goals_refused,
             last_error=self._last_error,
+            client_mode=self.config.mode == "client",
         )
 
     @property

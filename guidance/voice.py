@@ -28,10 +28,10 @@ import threading
 import time
 import wave
 from collections.abc import Callable, Collection, Mapping
-from dataclasses import dataclass, replace
+from dataclasses import dataclass, field, replace
 from enum import IntEnum
 from pathlib import Path
-from typing import Literal, Protocol, TextIO
+from typing import Any, Literal, Protocol, TextIO
 
 from guidance.interfaces import Speaker
 
@@ -262,6 +262,66 @@ class PromptQueue:
         return best
 
 
+# ------------------------------------------------------------------------ health
+
+SPEECH_FAILED_WARNING = "Voice prompts failed. Prompts are shown as text."
+"""Shown (it cannot be spoken) when the speech engine is missing or fails."""
+
+
+@dataclass(frozen=True, slots=True)
+class SpeakerHealth:
+    """A speaker's health, with the same keys as the drivers' (docs/reliability.md).
+
+    ``alive``: prompts reach the driver (spoken, or shown as text after a failure);
+    ``valid``: they are spoken as configured. ``status`` is "ok", "text_fallback" (the
+    engine failed or never started) or "stopped".
+    """
+
+    name: str
+    status: str
+    alive: bool
+    valid: bool
+    age_s: float | None = None
+    counters: Mapping[str, int] = field(default_factory=dict)
+    last_error: str = ""
+    warning: str = ""
+
+    @property
+    def ok(self) -> bool:
+        return self.alive and self.valid
+
+    def as_dict(self) -> dict[str, Any]:
+        return {
+            "name": self.name,
+            "status": self.status,
+            "alive": self.alive,
+            "valid": self.valid,
+            "ok": self.ok,
+            "age_s": self.age_s,
+            "counters": dict(self.counters),
+            "last_error": self.last_error,
+            "warning": self.warning,
+        }
+
+
+def _speaker_health(
+    name: str, failed_reason: str | None, counters: Mapping[str, int], closed: bool = False
+) -> SpeakerHealth:
+    if failed_reason is not None:
+        return SpeakerHealth(
+            name,
+            "text_fallback",
+            alive=True,
+            valid=False,
+            counters=counters,
+            last_error=failed_reason,
+            warning=SPEECH_FAILED_WARNING,
+        )
+    return SpeakerHealth(
+        name, "stopped" if closed else "ok", alive=not closed, valid=not closed, counters=counters
+    )
+
+
 # ------------------------------------------------------------------------ speakers
 
 
@@ -269,12 +329,20 @@ class TextSpeaker:
     """Shows prompts as text lines: the backend when no speech engine exists.
 
     Writes at once (nothing to queue); ``stream`` defaults to stderr at call
-    time, so stdout stays for the app's own output (``--json``).
+    time, so stdout stays for the app's own output (``--json``). ``fallback_reason``
+    says why text was chosen when speech was asked for (``make_speaker``); the
+    health then reports the fallback.
     """
 
-    def __init__(self, stream: TextIO | None = None, clock: Clock = time.monotonic) -> None:
+    def __init__(
+        self,
+        stream: TextIO | None = None,
+        clock: Clock = time.monotonic,
+        fallback_reason: str | None = None,
+    ) -> None:
         self._stream = stream
         self._clock = clock
+        self.fallback_reason = fallback_reason
         self._lock = threading.Lock()
         self._counts = {"said": 0, "shown": 0}
 
@@ -300,6 +368,9 @@ class TextSpeaker:
     def stats(self) -> dict[str, int]:
         with self._lock:
             return dict(self._counts)
+
+    def health(self) -> SpeakerHealth:
+        return _speaker_health("voice", self.fallback_reason, self.stats())
 
 
 class _Failover:
@@ -464,6 +535,13 @@ class Pyttsx3Speaker:
     def stats(self) -> dict[str, int]:
         with self._lock:
             return {**self._queue.stats(), **self._counts, "failed": int(self.failed)}
+
+    def health(self) -> SpeakerHealth:
+        """'text_fallback' after the engine failed; the prompts go on as text."""
+        counters = self.stats()
+        if self._failover.failed:
+            counters["shown_as_text"] = _shown(self._failover.speaker)
+        return _speaker_health("voice", self._failover.reason, counters)
 
     def _run(self, engine_factory: Callable[[], _Engine]) -> None:
         try:
@@ -686,6 +764,13 @@ class WavSpeaker:
         with self._cond:
             return {**self._queue.stats(), **self._counts, "failed": int(self.failed)}
 
+    def health(self) -> SpeakerHealth:
+        """'text_fallback' after the renderer failed; the WAV keeps what was recorded."""
+        counters = self.stats()
+        if self._failover.failed:
+            counters["shown_as_text"] = _shown(self._failover.speaker)
+        return _speaker_health("voice", self._failover.reason, counters)
+
     def _run(self) -> None:
         try:
             while True:
@@ -756,6 +841,12 @@ class WavSpeaker:
                 text.say(s, pr, t)
 
 
+def _shown(speaker: Speaker) -> int:
+    """Prompts a fallback speaker has shown (0 when it does not count them)."""
+    stats = getattr(speaker, "stats", None)
+    return int(stats().get("shown", 0)) if callable(stats) else 0
+
+
 # ---------------------------------------------------------------------------- choice
 
 SpeakerKind = Literal["auto", "voice", "wav", "text"]
@@ -797,7 +888,7 @@ def make_speaker(
             )
     except SpeechEngineError as e:
         log.warning("no speech engine (%s); prompts are shown as text%s", e, suffix)
-        return TextSpeaker(text_stream, clock)
+        return TextSpeaker(text_stream, clock, fallback_reason=str(e))
     raise ValueError(f"unknown speaker kind {kind!r}; expected auto, voice, wav or text")
 
 

@@ -1,0 +1,215 @@
+"""One health record per device (HOUSE_STYLE: every input has a health record).
+
+Every driver answers ``health()`` with a ``DeviceHealth``: is data arriving (``alive``), is what
+arrives usable (``valid``), a one-word ``status``, the age of the last accepted message, its
+counters, the last error, and ``warning``, a sentence the app can speak to the driver when the
+status is not "ok" (empty otherwise). docs/reliability.md lists what each fault does to these.
+
+``HealthTracker`` is the bookkeeping behind it, shared by the drivers: the reader thread reports
+each unit of data (a wheel-speed frame, an NMEA line, a camera frame) as accepted, rejected or
+neutral (someone else's NMEA sentence), connection changes and errors; ``evaluate`` turns that
+into a status on the driver's clock and logs each flip once, and the recovery once.
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+import threading
+from collections import deque
+from collections.abc import Callable, Mapping
+from dataclasses import dataclass, field
+from typing import Any
+
+log = logging.getLogger(__name__)
+
+STATUSES = ("starting", "ok", "silent", "disconnected", "invalid", "ended", "stopped")
+"""'starting': started, nothing yet and not overdue; 'silent': no data for ``stale_after_s``;
+'disconnected': the device cannot be opened or was lost; 'invalid': data arrives but too much of
+it is rejected; 'ended': a recorded source (file) reached its end; 'stopped': not running."""
+BAD_STATUSES = frozenset({"silent", "disconnected", "invalid"})
+
+VALIDITY_WINDOW = 20
+"""Recent units of data over which the rejection fraction is measured."""
+MAX_REJECTED_FRACTION = 0.5
+"""More rejected than this (of the window) makes the input invalid."""
+
+
+@dataclass(frozen=True, slots=True)
+class DeviceHealth:
+    """A driver's health at one moment (``health()``); ``as_dict`` for telemetry and logs."""
+
+    name: str
+    status: str
+    alive: bool
+    """Data arrived within the driver's ``stale_after_s``."""
+    valid: bool
+    """An accepted message arrived within ``stale_after_s`` and the recent rejection fraction
+    is at most ``MAX_REJECTED_FRACTION``."""
+    age_s: float | None
+    """Seconds since the last accepted message (driver clock); None before the first."""
+    counters: Mapping[str, int] = field(default_factory=dict)
+    last_error: str = ""
+    warning: str = ""
+    """What to tell the driver while the status is bad; empty when there is nothing to say."""
+
+    @property
+    def ok(self) -> bool:
+        return self.alive and self.valid
+
+    def as_dict(self) -> dict[str, Any]:
+        return {
+            "name": self.name,
+            "status": self.status,
+            "alive": self.alive,
+            "valid": self.valid,
+            "ok": self.ok,
+            "age_s": self.age_s,
+            "counters": dict(self.counters),
+            "last_error": self.last_error,
+            "warning": self.warning,
+        }
+
+
+class HealthTracker:
+    """Arrivals, outcomes and connection state of one input; thread-safe.
+
+    ``warnings`` maps a bad status to the sentence to speak; statuses without an entry get a
+    generic one. Times are on ``clock`` (the driver's clock: monotonic live, simulated or frame
+    time in simulation and replay).
+    """
+
+    def __init__(
+        self,
+        name: str,
+        *,
+        stale_after_s: float,
+        clock: Callable[[], float],
+        warnings: Mapping[str, str] | None = None,
+        window: int = VALIDITY_WINDOW,
+        max_rejected_fraction: float = MAX_REJECTED_FRACTION,
+    ) -> None:
+        if not (math.isfinite(stale_after_s) and stale_after_s > 0):
+            raise ValueError(f"stale_after_s must be positive, not {stale_after_s!r}")
+        self.name = name
+        self.stale_after_s = stale_after_s
+        self._clock = clock
+        self._warnings = dict(warnings or {})
+        self._max_rejected = max_rejected_fraction
+        self._lock = threading.Lock()
+        self._outcomes: deque[bool] = deque(maxlen=window)
+        self._started_t: float | None = None
+        self._running = False
+        self._connected = True
+        self._ended = False
+        self._last_data_t: float | None = None
+        self._last_good_t: float | None = None
+        self._last_error = ""
+        self._status = "stopped"
+        self.flips = 0
+        """Times the status went from good (ok/starting) to bad."""
+
+    # -- reports from the reader thread ----------------------------------------------------------
+
+    def started(self) -> None:
+        with self._lock:
+            self._running = True
+            self._ended = False
+            self._started_t = self._clock()
+            self._status = "starting"
+
+    def stopped(self) -> None:
+        with self._lock:
+            self._running = False
+            self._status = "stopped"
+
+    def ended(self) -> None:
+        with self._lock:
+            self._ended = True
+
+    def connected(self, up: bool, error: str = "") -> None:
+        with self._lock:
+            self._connected = up
+            if error:
+                self._last_error = error
+
+    def error(self, text: str) -> None:
+        with self._lock:
+            self._last_error = text
+
+    def data(self, accepted: bool | None, t: float | None = None) -> None:
+        """One unit of data arrived: accepted, rejected, or ``None`` (neutral: not ours)."""
+        now = self._clock() if t is None else t
+        with self._lock:
+            self._last_data_t = now
+            if accepted is None:
+                return
+            self._outcomes.append(accepted)
+            if accepted:
+                self._last_good_t = now
+
+    # -- evaluation ----------------------------------------------------------------------------
+
+    def evaluate(self, counters: Mapping[str, int] | None = None) -> DeviceHealth:
+        """The health now; logs a flip to a bad status once, and the recovery once."""
+        now = self._clock()
+        with self._lock:
+            alive = self._fresh(self._last_data_t, now)
+            rejected = sum(1 for ok in self._outcomes if not ok)
+            mostly_good = bool(self._outcomes) and rejected <= self._max_rejected * len(
+                self._outcomes
+            )
+            valid = self._fresh(self._last_good_t, now) and mostly_good
+            if not self._running:
+                status = "stopped"
+            elif self._ended:
+                status = "ended"
+            elif not self._connected:
+                status = "disconnected"
+            elif not alive:
+                overdue = self._last_data_t is not None or (
+                    self._started_t is not None and now - self._started_t > self.stale_after_s
+                )
+                status = "silent" if overdue else "starting"
+            elif not valid:
+                status = "invalid" if self._last_good_t is not None or rejected else "starting"
+            else:
+                status = "ok"
+            previous, self._status = self._status, status
+            age = None if self._last_good_t is None else max(0.0, now - self._last_good_t)
+            error = self._last_error
+        alive = alive and status not in ("disconnected", "stopped")
+        if status != previous:
+            self._log_flip(previous, status, error)
+        return DeviceHealth(
+            name=self.name,
+            status=status,
+            alive=alive,
+            valid=valid and alive,
+            age_s=age,
+            counters=dict(counters or {}),
+            last_error=error,
+            warning=self.warning_for(status),
+        )
+
+    def warning_for(self, status: str) -> str:
+        if status not in BAD_STATUSES:
+            return ""
+        return self._warnings.get(status) or f"{self.name} {status}."
+
+    def _fresh(self, t: float | None, now: float) -> bool:
+        return t is not None and now - t <= self.stale_after_s
+
+    def _log_flip(self, previous: str, status: str, error: str) -> None:
+        bad_before = previous in BAD_STATUSES
+        bad_now = status in BAD_STATUSES
+        if bad_now and not bad_before:
+            self.flips += 1
+        if "disconnected" in (previous, status):
+            return  # the driver logs losing and finding its device itself
+        if bad_now and not bad_before:
+            log.warning("%s: %s%s", self.name, status, f" (last error: {error})" if error else "")
+        elif bad_now:
+            log.warning("%s: now %s (was %s)", self.name, status, previous)
+        elif bad_before and status == "ok":
+            log.warning("%s: ok again (was %s)", self.name, previous)
