@@ -493,7 +493,8 @@ class CanOdometry:
             self.decoder.clock_offset_s = time.monotonic() - time.time()
 
     def _went_offline(self, exc: BaseException) -> None:
-        self._health.connected(False, f"{type(exc).__name__}: {exc}")
+        cfg = self.config
+        self._health.connected(False, f"{cfg.interface}/{cfg.channel}: {type(exc).__name__}: {exc}")
         with self._lock:
             self._counts["bus_errors"] += 1
         if not self._offline:

@@ -1,0 +1,243 @@
+"""Camera gone, Zenoh unreachable, speech engine failing, recorder disk full: real components.
+
+Each fault ends in a health record with a warning, the process going on, and nothing
+blocking the caller (docs/reliability.md).
+"""
+
+from __future__ import annotations
+
+import io
+import json
+import logging
+import os
+import subprocess
+import sys
+import time
+import wave
+from pathlib import Path
+
+import cv2
+import numpy as np
+import pytest
+from reliability_helpers import HEALTH_KEYS, REPO, closed_port, wait_until
+
+from drivers.camera import WARNINGS as CAMERA_WARNINGS
+from drivers.camera import CameraConfig, OpenCvCamera
+from guidance.messages import CameraFrame, Ellipse, EstimateState
+from guidance.recording import DISK_FULL_WARNING, Recorder, RecordingConfig
+from guidance.telemetry import TELEMETRY_DOWN_WARNING, Telemetry, TelemetryConfig
+from guidance.voice import (
+    SPEECH_FAILED_WARNING,
+    EspeakNgRenderer,
+    TextSpeaker,
+    WavSpeaker,
+    make_speaker,
+)
+
+ESPEAK = pytest.mark.skipif(
+    not any(
+        os.access(os.path.join(d, "espeak-ng"), os.X_OK)
+        for d in os.environ.get("PATH", "").split(os.pathsep)
+    ),
+    reason="espeak-ng not installed (Debian package espeak-ng)",
+)
+
+
+def state(t_s: float = 0.0) -> EstimateState:
+    return EstimateState(
+        t_s=t_s,
+        x_m=1.0,
+        y_m=2.0,
+        heading_rad=0.1,
+        covariance=((1.0, 0.0, 0.0), (0.0, 1.0, 0.0), (0.0, 0.0, 0.01)),
+        ellipse=Ellipse(2.0, 2.0, 0.0, 4.0),
+        lost=False,
+        healthy=True,
+    )
+
+
+# -- camera -------------------------------------------------------------------------------------
+def test_camera_gone_is_a_flag_with_a_warning_and_never_a_crash(tmp_path: Path) -> None:
+    """An image sequence opened as a live source: deleting it is a camera unplugged."""
+    for i in range(5):
+        cv2.imwrite(str(tmp_path / f"f_{i:03d}.png"), np.full((16, 16, 3), 40 * i, np.uint8))
+    cfg = CameraConfig(
+        source=str(tmp_path / "f_%03d.png"), reconnect_initial_s=0.05, reconnect_max_s=0.1
+    )
+    got: list[CameraFrame] = []
+    cam = OpenCvCamera(cfg)
+    cam.start(got.append)
+    try:
+        wait_until(lambda: cam.stats()["frames"] >= 10, what="frames")
+        for png in tmp_path.glob("*.png"):
+            png.unlink()
+        wait_until(lambda: cam.health().status == "disconnected", what="camera flagged")
+        h = cam.health()
+        assert (h.alive, h.valid) == (False, False)
+        assert h.warning == CAMERA_WARNINGS["disconnected"]
+        assert set(h.as_dict()) >= HEALTH_KEYS
+        frames = cam.stats()["frames"]
+        time.sleep(0.3)  # it keeps retrying, with backoff, without frames and without raising
+        assert cam.stats()["frames"] == frames and cam.stats()["open_failures"] >= 2
+        t0 = time.monotonic()
+    finally:
+        cam.stop()
+    assert time.monotonic() - t0 < 1.0
+    assert cam.health().status == "stopped"
+
+
+# -- zenoh ----------------------------------------------------------------------------------------
+def test_zenoh_unreachable_degrades_to_a_flag_and_publishing_never_blocks() -> None:
+    port = closed_port()
+    cfg = TelemetryConfig(
+        vehicle_id="rel1",
+        mode="client",
+        connect=(f"tcp/127.0.0.1:{port}",),
+        multicast_scouting=False,
+        retry_period_s=0.2,
+    )
+    tel = Telemetry(cfg)
+    tel.start()
+    try:
+        wait_until(lambda: tel.health().status == "down", 10.0, "telemetry down")
+        worst = 0.0
+        for i in range(1000):
+            t0 = time.perf_counter()
+            tel.publish_state(state(float(i)))
+            tel.publish_prompt(float(i), "Turn left")
+            tel.publish_health(float(i), {"can": {"alive": True, "valid": True}})
+            worst = max(worst, time.perf_counter() - t0)
+        h = tel.health()
+        assert (h.status, h.alive, h.valid, h.ok) == ("down", False, False, False)
+        assert h.warning == TELEMETRY_DOWN_WARNING and "connect" in h.last_error.lower()
+        assert set(h.as_dict()) >= HEALTH_KEYS
+        assert sum(h.dropped.values()) > 1500  # superseded or pushed out: counted
+    finally:
+        t0 = time.monotonic()
+        tel.close()
+    assert time.monotonic() - t0 < 3.0
+    assert worst < 0.005, f"publishing blocked for {worst * 1e3:.1f} ms"
+
+
+# -- speech ---------------------------------------------------------------------------------------
+def test_missing_speech_engine_falls_back_to_text_and_says_so(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch, caplog: pytest.LogCaptureFixture
+) -> None:
+    empty = tmp_path / "bin"
+    empty.mkdir()
+    monkeypatch.setenv("PATH", str(empty))  # no espeak-ng to be found
+    shown = io.StringIO()
+    with caplog.at_level(logging.WARNING, logger="guidance.voice"):
+        speaker = make_speaker("wav", tmp_path / "p.wav", text_stream=shown, clock=lambda: 0.0)
+    assert isinstance(speaker, TextSpeaker)
+    for i, text in enumerate(["Turn left", "Go straight", "Position lost"]):
+        speaker.say(text, priority=1, t_s=float(i))
+    speaker.close()
+    h = speaker.health()
+    assert (h.status, h.alive, h.valid) == ("text_fallback", True, False)
+    assert h.warning == SPEECH_FAILED_WARNING and "espeak-ng not found" in h.last_error
+    assert h.counters["shown"] == 3 and shown.getvalue().count("[prompt") == 3
+    assert not (tmp_path / "p.wav").exists()
+    assert sum("no speech engine" in r.getMessage() for r in caplog.records) == 1
+
+
+@ESPEAK
+def test_speech_engine_failing_mid_drive_keeps_the_wav_and_goes_to_text(
+    tmp_path: Path, caplog: pytest.LogCaptureFixture
+) -> None:
+    """The real espeak-ng behind a wrapper that starts failing when a flag file appears."""
+    flag = tmp_path / "broken"
+    wrapper = tmp_path / "espeak-ng"
+    wrapper.write_text(f'#!/bin/sh\n[ -e "{flag}" ] && exit 3\nexec espeak-ng "$@"\n')
+    wrapper.chmod(0o755)
+    shown = io.StringIO()
+    wav_path = tmp_path / "prompts.wav"
+    with caplog.at_level(logging.WARNING, logger="guidance.voice"):
+        speaker = WavSpeaker(
+            wav_path,
+            renderer=EspeakNgRenderer(executable=str(wrapper)),
+            clock=lambda: 0.0,
+            text_stream=shown,
+        )
+        speaker.say("Turn left", priority=1, t_s=0.0)
+        speaker.say("Go straight", priority=1, t_s=10.0)
+        wait_until(lambda: len(speaker.recorded) == 1, 20.0, "first prompt rendered")
+        flag.touch()
+        speaker.say("Turn right", priority=1, t_s=20.0)
+        wait_until(lambda: speaker.failed, 20.0, "failure noticed")
+        speaker.say("You have arrived", priority=1, t_s=30.0)
+        speaker.close()
+    h = speaker.health()
+    assert (h.status, h.alive, h.valid) == ("text_fallback", True, False)
+    assert h.warning == SPEECH_FAILED_WARNING and "exit status 3" in h.last_error
+    assert h.counters["spoken"] == 1 and h.counters["shown_as_text"] == 3
+    text = shown.getvalue()
+    assert all(p in text for p in ("Go straight", "Turn right", "You have arrived"))
+    with wave.open(str(wav_path)) as w:  # what was recorded before the failure is intact
+        assert w.getnframes() / w.getframerate() == pytest.approx(speaker.duration_s, abs=0.01)
+        assert speaker.duration_s > 0.3
+    assert sum("failed" in r.getMessage() for r in caplog.records) == 1
+
+
+# -- recorder -------------------------------------------------------------------------------------
+DISK_FULL_CHILD = r"""
+import json, resource, signal, sys, time
+signal.signal(signal.SIGXFSZ, signal.SIG_IGN)   # EFBIG instead of being killed, as on a full disk
+resource.setrlimit(resource.RLIMIT_FSIZE, (40_000, 40_000))
+from guidance.recording import Recorder, RecordingConfig
+rec = Recorder(RecordingConfig(directory=sys.argv[1], chunk_size_bytes=4096, compression="none"))
+rec.start()
+i = 0
+while not rec.health().disk_full and i < 100_000:
+    rec.record_nmea(i * 0.01, "$HCHDG,90.0,,,,*7C"); i += 1
+    if i % 100 == 0:
+        time.sleep(0.002)
+worst = 0.0
+for j in range(2000):                            # the drive goes on: recording calls stay cheap
+    t0 = time.perf_counter()
+    rec.record_nmea(1e3 + j, "$HCHDG,90.0,,,,*7C")
+    worst = max(worst, time.perf_counter() - t0)
+rec.close()
+print(json.dumps({"health": rec.health().as_dict(), "worst_s": worst, "went_on": j + 1}))
+"""
+
+
+def test_disk_full_stops_the_recording_flags_it_and_the_process_goes_on(tmp_path: Path) -> None:
+    r = subprocess.run(
+        [sys.executable, "-c", DISK_FULL_CHILD, str(tmp_path)],
+        cwd=REPO,
+        capture_output=True,
+        text=True,
+        timeout=60,
+    )
+    assert r.returncode == 0, r.stderr
+    out = json.loads(r.stdout)
+    h = out["health"]
+    assert set(h) >= HEALTH_KEYS
+    assert (h["status"], h["alive"], h["valid"], h["disk_full"]) == (
+        "disk_full",
+        False,
+        False,
+        True,
+    )
+    assert h["warning"] == DISK_FULL_WARNING and "File too large" in h["last_error"]
+    assert h["dropped"] >= 2000 and out["went_on"] == 2000 and out["worst_s"] < 0.005
+    assert r.stderr.count("recording stopped") == 1
+
+
+# -- every component answers health() with the same keys ----------------------------------------
+def test_components_share_the_health_keys(tmp_path: Path) -> None:
+    rec = Recorder(RecordingConfig(directory=str(tmp_path)))
+    rec.start()
+    rec.record_nmea(0.0, "x")
+    rec.close()
+    records = [
+        rec.health().as_dict(),
+        Telemetry(TelemetryConfig(enabled=False)).health().as_dict(),
+        TextSpeaker(io.StringIO()).health().as_dict(),
+        OpenCvCamera(CameraConfig(source=97)).health().as_dict(),
+    ]
+    for rec_dict in records:
+        assert set(rec_dict) >= HEALTH_KEYS, rec_dict
+        assert rec_dict["ok"] == (rec_dict["alive"] and rec_dict["valid"])
+        assert (rec_dict["warning"] == "") or not rec_dict["ok"]
