@@ -1,0 +1,135 @@
+"""Candidate gate (SPEC section 2): the 2-sigma ellipse enlarged by the camera's sighting range.
+
+The estimate is ``mean`` with x-y covariance ``P``. The gate ellipse is
+``E = {p : (p - mean)^T P^-1 (p - mean) <= k2}`` with ``k2 = guidance.model.CHI2_2D_2SIGMA``
+(= 4, the "2-sigma" ellipse: for 2 degrees of freedom it holds the true position with
+probability 1 - exp(-k2 / 2) = 0.865). A landmark is a candidate when the camera could
+see it from some point of ``E``: its Euclidean distance to ``E`` is at most the sighting
+range ``r``. That region is the Minkowski sum of ``E`` and a disc of radius ``r``; we test it
+exactly:
+
+1. the R*Tree returns the landmarks in its bounding box, the ellipse's box
+   (half-widths ``sqrt(k2 * Pxx)``, ``sqrt(k2 * Pyy)``) grown by ``r`` on every side;
+2. each of those is kept if it lies inside ``E`` or within ``r`` of its boundary. The
+   distance from a point to an ellipse uses the bisection of D. Eberly ("Distance from a
+   point to an ellipse, an ellipsoid, or a hyperellipsoid", Geometric Tools, 2013),
+   vectorised over the candidates.
+
+A cheaper, common shortcut (inflating P by ``r^2 / k2``) is *not* used: its semi-axes
+``sqrt(a^2 + r^2)`` fall short of the true reach ``a + r``.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Sequence
+
+import numpy as np
+
+from guidance.model import CHI2_2D_2SIGMA
+
+GATE_PROBABILITY_2SIGMA = 1.0 - math.exp(-CHI2_2D_2SIGMA / 2.0)
+"""P(chi-square, 2 dof <= 4) = 0.8647: the probability mass inside the 2-sigma ellipse."""
+
+_MIN_SEMI_AXIS_M = 1e-6
+_BISECTION_STEPS = 60
+
+
+def ellipse_axes(cov_xy: Sequence[Sequence[float]], k2: float) -> tuple[float, float, float]:
+    """Semi-axes (major, minor, metres) and orientation (rad from x) of ``d^T P^-1 d <= k2``."""
+    pxx, pxy, pyy = float(cov_xy[0][0]), float(cov_xy[0][1]), float(cov_xy[1][1])
+    tr = 0.5 * (pxx + pyy)
+    diff = 0.5 * (pxx - pyy)
+    rad = math.hypot(diff, pxy)
+    l1 = max(tr + rad, 0.0)
+    l2 = max(tr - rad, 0.0)
+    angle = 0.5 * math.atan2(2.0 * pxy, pxx - pyy)
+    return math.sqrt(k2 * l1), math.sqrt(k2 * l2), angle
+
+
+def gate_box(
+    mean_xy: Sequence[float], cov_xy: Sequence[Sequence[float]], k2: float, range_m: float
+) -> tuple[float, float, float, float]:
+    """(min_x, max_x, min_y, max_y) of the ellipse's bounding box grown by ``range_m``."""
+    hx = math.sqrt(max(k2 * float(cov_xy[0][0]), 0.0)) + range_m
+    hy = math.sqrt(max(k2 * float(cov_xy[1][1]), 0.0)) + range_m
+    mx, my = float(mean_xy[0]), float(mean_xy[1])
+    return mx - hx, mx + hx, my - hy, my + hy
+
+
+def distance_to_ellipse(
+    points_xy: np.ndarray,
+    mean_xy: Sequence[float],
+    cov_xy: Sequence[Sequence[float]],
+    k2: float,
+) -> np.ndarray:
+    """Euclidean distance (m) from each point (N x 2) to the filled ellipse; 0 inside."""
+    pts = np.asarray(points_xy, dtype=np.float64).reshape(-1, 2)
+    a, b, ang = ellipse_axes(cov_xy, k2)
+    e0 = max(a, _MIN_SEMI_AXIS_M)
+    e1 = max(b, _MIN_SEMI_AXIS_M)
+    c, s = math.cos(ang), math.sin(ang)
+    dx = pts[:, 0] - float(mean_xy[0])
+    dy = pts[:, 1] - float(mean_xy[1])
+    # Into the ellipse's axes, first quadrant (the problem is symmetric).
+    u = np.abs(c * dx + s * dy)
+    v = np.abs(-s * dx + c * dy)
+    inside = (u / e0) ** 2 + (v / e1) ** 2 <= 1.0
+    # Outside: the closest point is (e0^2 u / (t + e0^2), e1^2 v / (t + e1^2)) for the root
+    # t > 0 of F(t) = (e0 u / (t + e0^2))^2 + (e1 v / (t + e1^2))^2 - 1, which is decreasing;
+    # F(e0 |p|) <= 0, so bisect on [0, e0 |p|].
+    lo = np.zeros_like(u)
+    hi = e0 * np.hypot(u, v) + 1e-9
+    e0s, e1s = e0 * e0, e1 * e1
+    for _ in range(_BISECTION_STEPS):
+        t = 0.5 * (lo + hi)
+        f = (e0 * u / (t + e0s)) ** 2 + (e1 * v / (t + e1s)) ** 2 - 1.0
+        pos = f > 0.0
+        lo = np.where(pos, t, lo)
+        hi = np.where(pos, hi, t)
+    t = 0.5 * (lo + hi)
+    x0 = e0s * u / (t + e0s)
+    x1 = e1s * v / (t + e1s)
+    dist = np.hypot(u - x0, v - x1)
+    return np.where(inside, 0.0, dist)
+
+
+def mahalanobis_sq(
+    points_xy: np.ndarray, mean_xy: Sequence[float], cov_xy: Sequence[Sequence[float]]
+) -> np.ndarray:
+    """d^T P^-1 d for each point (N x 2); +inf where P is singular."""
+    pts = np.asarray(points_xy, dtype=np.float64).reshape(-1, 2)
+    pxx, pxy, pyy = float(cov_xy[0][0]), float(cov_xy[0][1]), float(cov_xy[1][1])
+    det = pxx * pyy - pxy * pxy
+    dx = pts[:, 0] - float(mean_xy[0])
+    dy = pts[:, 1] - float(mean_xy[1])
+    if not det > 0.0:
+        return np.full(len(pts), math.inf)
+    return (pyy * dx * dx - 2.0 * pxy * dx * dy + pxx * dy * dy) / det
+
+
+def in_gate(
+    points_xy: np.ndarray,
+    mean_xy: Sequence[float],
+    cov_xy: Sequence[Sequence[float]],
+    k2: float = CHI2_2D_2SIGMA,
+    range_m: float = 0.0,
+) -> tuple[np.ndarray, np.ndarray]:
+    """(mask, distance_m): which points are within ``range_m`` of the k2-ellipse, and how far
+    each is from the ellipse (0 inside)."""
+    dist = distance_to_ellipse(points_xy, mean_xy, cov_xy, k2)
+    return dist <= range_m, dist
+
+
+def valid_covariance(cov_xy: Sequence[Sequence[float]]) -> bool:
+    """Finite, symmetric enough, with non-negative eigenvalues."""
+    try:
+        pxx, pxy = float(cov_xy[0][0]), float(cov_xy[0][1])
+        pyx, pyy = float(cov_xy[1][0]), float(cov_xy[1][1])
+    except (TypeError, ValueError, IndexError):
+        return False
+    if not all(math.isfinite(v) for v in (pxx, pxy, pyx, pyy)):
+        return False
+    if abs(pxy - pyx) > 1e-6 * max(1.0, abs(pxx) + abs(pyy)):
+        return False
+    return pxx >= 0.0 and pyy >= 0.0 and pxx * pyy - pxy * pxy >= -1e-9 * (pxx * pyy + 1.0)

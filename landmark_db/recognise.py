@@ -1,0 +1,444 @@
+"""Camera landmark recognition: gate, match, verify, confirm (SPEC sections 2 and 6).
+
+``Recogniser.process(frame, state)`` runs one camera frame through:
+
+1. **gate** (``landmark_db.gate``): the landmarks within the sighting range of the
+   2-sigma ellipse, nearest first, at most ``max_candidates``; none -> ``no_candidate``
+   (and no image work at all);
+2. **match** (``landmark_db.matcher``): ORB on the frame, then per candidate k-NN Hamming
+   matching with the ratio test (``few_matches``) and a RANSAC homography with a minimum
+   inlier count (``failed_geometry``); two verified candidates whose inlier counts are within
+   ``ambiguity_ratio`` of each other -> ``ambiguous``;
+3. **confirm**: the same landmark verified in ``confirm_frames`` consecutive frames, each
+   within ``confirm_window_s`` of the previous (``not_consistent`` until then); a landmark
+   already fixed less than ``refix_interval_s`` ago -> ``repeat`` (one fix per pass, so the
+   filter does not count the same sighting many times).
+
+A confirmed match becomes a ``LandmarkFix`` at the landmark's surveyed position with
+``sigma_m = sqrt((sighting_range_m / 2)^2 + position_sigma_m^2)``: the car is somewhere
+within the sighting range, in an unknown direction (a uniform disc of radius r has a
+per-axis standard deviation of r / 2), and the landmark's own survey error adds to that.
+With the default 20 m range and an exactly known landmark, sigma = 10 m.
+
+Matching is CPU-heavy; run it off the event loop with ``recognise_async`` (a thread of the
+default executor: the OpenCV calls release the GIL) or in a ``RecogniserWorker`` process.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import math
+import threading
+import time
+from collections import Counter, OrderedDict
+from collections.abc import Mapping, Sequence
+from concurrent.futures import Executor, Future, ProcessPoolExecutor
+from dataclasses import dataclass, field
+from multiprocessing import get_context
+from pathlib import Path
+
+import numpy as np
+
+from guidance.messages import CameraFrame, EstimateState, LandmarkFix
+from guidance.model import CHI2_2D_2SIGMA
+from landmark_db.features import Features, OrbConfig, extract
+from landmark_db.gate import valid_covariance
+from landmark_db.matcher import (
+    FAILED_GEOMETRY,
+    FEW_MATCHES,
+    MatchConfig,
+    MatchEvidence,
+    PairMatcher,
+)
+from landmark_db.store import Candidate, LandmarkDb, open_db, query_gate
+
+FRAME_FEATURES = 700
+"""ORB features per camera frame: with 1000 per photo, a 1232x1616 frame against 5 candidates
+fits the 60 ms budget on the 2-core reference laptop (docs/landmarks.md)."""
+
+NO_CANDIDATE = "no_candidate"
+AMBIGUOUS = "ambiguous"
+NOT_CONSISTENT = "not_consistent"
+REPEAT = "repeat"
+BAD_INPUT = "bad_input"
+REASONS = (
+    NO_CANDIDATE,
+    FEW_MATCHES,
+    FAILED_GEOMETRY,
+    AMBIGUOUS,
+    NOT_CONSISTENT,
+    REPEAT,
+    BAD_INPUT,
+)
+"""Every rejection carries one of these (docs/landmarks.md explains each)."""
+
+
+@dataclass(frozen=True, slots=True)
+class RecogniserConfig:
+    """Settings of the recogniser; the defaults are the documented operating point."""
+
+    sighting_range_m: float = 20.0
+    """The camera recognises a landmark photo from at most this far (hal_sim uses the same)."""
+    gate_chi2: float = CHI2_2D_2SIGMA
+    """Gate ellipse d^2 <= this: 4 is the 2-sigma ellipse, P = 0.865 for 2 dof."""
+    max_candidates: int = 5
+    """At most this many gated landmarks, nearest to the ellipse first, are compared."""
+    confirm_frames: int = 2
+    """Consecutive frames that must verify the same landmark before a fix."""
+    confirm_window_s: float = 5.0
+    """Longest gap between two of those frames."""
+    refix_interval_s: float = 30.0
+    """No second fix from the same landmark within this time."""
+    ambiguity_ratio: float = 1.5
+    """The best verified candidate needs this many times the runner-up's inliers."""
+    frame_orb: OrbConfig = field(default_factory=lambda: OrbConfig(n_features=FRAME_FEATURES))
+    """ORB settings for camera frames (the photos' settings are stored in the database)."""
+    match: MatchConfig = field(default_factory=MatchConfig)
+    feature_cache: int = 512
+    """Landmark feature sets kept in memory (LRU)."""
+
+    def __post_init__(self) -> None:
+        if not (math.isfinite(self.sighting_range_m) and self.sighting_range_m >= 0.0):
+            raise ValueError("sighting_range_m must be a non-negative number")
+        if not self.gate_chi2 > 0.0:
+            raise ValueError("gate_chi2 must be positive")
+        if self.max_candidates < 1 or self.confirm_frames < 1 or self.feature_cache < 1:
+            raise ValueError("max_candidates, confirm_frames and feature_cache must be >= 1")
+
+
+@dataclass(frozen=True, slots=True)
+class RecognitionResult:
+    """What one frame gave: a fix, or a rejection ``reason`` with the evidence behind it."""
+
+    t_s: float
+    fix: LandmarkFix | None
+    reason: str | None
+    landmark_id: int | None
+    """The best verified landmark, also when it is not yet confirmed."""
+    candidates: tuple[Candidate, ...] = ()
+    evidence: tuple[MatchEvidence, ...] = ()
+    frame_features: int = 0
+    elapsed_s: float = 0.0
+    """Processing time (diagnostics only)."""
+
+    @property
+    def verified(self) -> bool:
+        return self.landmark_id is not None
+
+
+def fix_sigma_m(sighting_range_m: float, position_sigma_m: float) -> float:
+    """1-sigma of a landmark fix: sighting disc (r / 2 per axis) and the survey error."""
+    return math.hypot(0.5 * sighting_range_m, position_sigma_m)
+
+
+def state_xy(state: EstimateState) -> tuple[tuple[float, float], tuple[tuple[float, float], ...]]:
+    """Mean and x-y covariance of an ``EstimateState``."""
+    c = state.covariance
+    return (state.x_m, state.y_m), ((c[0][0], c[0][1]), (c[1][0], c[1][1]))
+
+
+class Recogniser:
+    """Recognises database landmarks in camera frames. Implements ``LandmarkRecogniser``.
+
+    Construct from an open database or with ``Recogniser.from_path(path)``, which opens the
+    file read-only and validates it. Calls are serialised by a lock, so it may be used from
+    an executor thread; the temporal-consistency state lives here.
+    """
+
+    def __init__(self, db: LandmarkDb, config: RecogniserConfig | None = None) -> None:
+        self.db = db
+        self.config = config or RecogniserConfig()
+        self._matcher = PairMatcher(self.config.match)
+        self._orb = self.config.frame_orb.create()
+        self._cache: OrderedDict[int, Features] = OrderedDict()
+        self._sigma_cache: dict[int, tuple[float, float, float]] = {}
+        self._lock = threading.Lock()
+        self._counts: Counter[str] = Counter()
+        self._streak_id: int | None = None
+        self._streak_n = 0
+        self._streak_t = -math.inf
+        self._last_fix_t: dict[int, float] = {}
+
+    @classmethod
+    def from_path(cls, path: str | Path, config: RecogniserConfig | None = None) -> Recogniser:
+        """Open ``path`` read-only (raises ``LandmarkDbError`` on a bad file) and wrap it."""
+        return cls(open_db(path, readonly=True), config)
+
+    def close(self) -> None:
+        self.db.close()
+
+    # --- LandmarkRecogniser protocol ---------------------------------------------------------
+
+    def recognise(
+        self,
+        frame: CameraFrame,
+        mean_xy: tuple[float, float],
+        cov_xy: Sequence[Sequence[float]],
+    ) -> LandmarkFix | None:
+        return self.process_xy(frame, mean_xy, cov_xy).fix
+
+    def stats(self) -> Mapping[str, int]:
+        """Frames, fixes, verified frames, candidates compared, and rejections by reason."""
+        with self._lock:
+            keys = ("frames", "fixes", "verified", "compared", *REASONS)
+            return {k: self._counts[k] for k in keys}
+
+    # --- main entry points -------------------------------------------------------------------
+
+    def process(self, frame: CameraFrame, state: EstimateState) -> RecognitionResult:
+        """One frame against the landmarks gated by the estimator's published state."""
+        mean, cov = state_xy(state)
+        return self.process_xy(frame, mean, cov)
+
+    def process_xy(
+        self,
+        frame: CameraFrame,
+        mean_xy: Sequence[float],
+        cov_xy: Sequence[Sequence[float]],
+    ) -> RecognitionResult:
+        """As ``process``, from a mean and a 2x2 covariance."""
+        with self._lock:
+            t0 = time.perf_counter()
+            result = self._process(frame, mean_xy, cov_xy)
+            self._counts["frames"] += 1
+            if result.fix is not None:
+                self._counts["fixes"] += 1
+            else:
+                assert result.reason is not None
+                self._counts[result.reason] += 1
+            if result.verified:
+                self._counts["verified"] += 1
+            self._counts["compared"] += len(result.evidence)
+            return _with_elapsed(result, time.perf_counter() - t0)
+
+    def reset(self) -> None:
+        """Forget the temporal state (after a relocalisation or a new drive)."""
+        with self._lock:
+            self._streak_id, self._streak_n, self._streak_t = None, 0, -math.inf
+            self._last_fix_t.clear()
+
+    # --- internals ---------------------------------------------------------------------------
+
+    def _landmark_features(self, lid: int) -> Features | None:
+        f = self._cache.get(lid)
+        if f is not None:
+            self._cache.move_to_end(lid)
+            return f
+        f = self.db.features(lid)
+        if f is None:
+            return None
+        self._cache[lid] = f
+        if len(self._cache) > self.config.feature_cache:
+            self._cache.popitem(last=False)
+        return f
+
+    def match_image(
+        self, image: np.ndarray, landmark_ids: Sequence[int] | None = None
+    ) -> RecognitionResult:
+        """Single-image check, no gate and no temporal state: ``image`` against the given
+        landmarks (all landmarks when None). ``fix`` stays None; ``landmark_id`` is the
+        verified match, if any. For the ``match`` command and the acceptance figures."""
+        ids = [lm.id for lm in self.db.landmarks()] if landmark_ids is None else list(landmark_ids)
+        with self._lock:
+            t0 = time.perf_counter()
+            if not isinstance(image, np.ndarray) or image.size == 0:
+                return RecognitionResult(0.0, None, BAD_INPUT, None)
+            if not ids:
+                return RecognitionResult(0.0, None, NO_CANDIDATE, None)
+            reason, lid, ev, n = self._match(image, ids)
+            return RecognitionResult(0.0, None, reason, lid, (), ev, n, time.perf_counter() - t0)
+
+    def _match(
+        self, image: np.ndarray, ids: Sequence[int]
+    ) -> tuple[str | None, int | None, tuple[MatchEvidence, ...], int]:
+        """(reason, verified id, evidence, frame feature count) for one image against ``ids``."""
+        try:
+            feats = extract(image, self.config.frame_orb, self._orb)
+        except ValueError:
+            return BAD_INPUT, None, (), 0
+        evidence = []
+        for lid in ids:
+            photo = self._landmark_features(lid)
+            if photo is None:  # removed since the query; check() reports such files
+                continue
+            evidence.append(self._matcher.verify(lid, feats, photo))
+        ev = tuple(evidence)
+        verified = sorted((e for e in ev if e.verified), key=lambda e: -e.inliers)
+        if not verified:
+            reason = (
+                FAILED_GEOMETRY if any(e.reason == FAILED_GEOMETRY for e in ev) else FEW_MATCHES
+            )
+            return reason, None, ev, len(feats)
+        best = verified[0]
+        if len(verified) > 1 and best.inliers < self.config.ambiguity_ratio * verified[1].inliers:
+            return AMBIGUOUS, None, ev, len(feats)
+        return None, best.landmark_id, ev, len(feats)
+
+    def _break_streak(self) -> None:
+        self._streak_id, self._streak_n = None, 0
+
+    def _process(
+        self, frame: CameraFrame, mean_xy: Sequence[float], cov_xy: Sequence[Sequence[float]]
+    ) -> RecognitionResult:
+        cfg = self.config
+        t = float(frame.t_s)
+        image = frame.image
+        if (
+            not isinstance(image, np.ndarray)
+            or image.size == 0
+            or not math.isfinite(t)
+            or not all(math.isfinite(float(v)) for v in mean_xy)
+            or not valid_covariance(cov_xy)
+        ):
+            self._break_streak()
+            return RecognitionResult(t, None, BAD_INPUT, None)
+        cands = query_gate(
+            self.db, mean_xy, cov_xy, cfg.sighting_range_m, cfg.gate_chi2, cfg.max_candidates
+        )
+        if not cands:
+            self._break_streak()
+            return RecognitionResult(t, None, NO_CANDIDATE, None)
+        reason, lid, ev, n_feats = self._match(image, [c.id for c in cands])
+        cands_t = tuple(cands)
+
+        def out(
+            reason: str | None, lid: int | None, fix: LandmarkFix | None = None
+        ) -> RecognitionResult:
+            return RecognitionResult(t, fix, reason, lid, cands_t, ev, n_feats)
+
+        if lid is None:
+            self._break_streak()
+            return out(reason, None)
+        if lid == self._streak_id and t - self._streak_t <= cfg.confirm_window_s:
+            self._streak_n += 1
+        else:
+            self._streak_id, self._streak_n = lid, 1
+        self._streak_t = t
+        if self._streak_n < cfg.confirm_frames:
+            return out(NOT_CONSISTENT, lid)
+        last = self._last_fix_t.get(lid)
+        if last is not None and t - last < cfg.refix_interval_s:
+            return out(REPEAT, lid)
+        landmark = self.db.get(lid)
+        if landmark is None:
+            self._break_streak()
+            return out(NO_CANDIDATE, None)
+        self._last_fix_t[lid] = t
+        fix = LandmarkFix(
+            t_s=t,
+            landmark_id=lid,
+            x_m=landmark.x_m,
+            y_m=landmark.y_m,
+            sigma_m=fix_sigma_m(cfg.sighting_range_m, landmark.position_sigma_m),
+        )
+        return out(None, lid, fix)
+
+
+def _with_elapsed(r: RecognitionResult, elapsed_s: float) -> RecognitionResult:
+    return RecognitionResult(
+        r.t_s,
+        r.fix,
+        r.reason,
+        r.landmark_id,
+        r.candidates,
+        r.evidence,
+        r.frame_features,
+        elapsed_s,
+    )
+
+
+class NullRecogniser:
+    """The default when no landmark database is configured: recognises nothing."""
+
+    def __init__(self) -> None:
+        self._frames = 0
+
+    def recognise(
+        self,
+        frame: CameraFrame,
+        mean_xy: tuple[float, float],
+        cov_xy: Sequence[Sequence[float]],
+    ) -> LandmarkFix | None:
+        self._frames += 1
+        return None
+
+    def process(self, frame: CameraFrame, state: EstimateState) -> RecognitionResult:
+        self._frames += 1
+        return RecognitionResult(frame.t_s, None, NO_CANDIDATE, None)
+
+    def stats(self) -> Mapping[str, int]:
+        return {"frames": self._frames, "fixes": 0, NO_CANDIDATE: self._frames}
+
+    def close(self) -> None:
+        return None
+
+
+async def recognise_async(
+    recogniser: Recogniser | NullRecogniser,
+    frame: CameraFrame,
+    state: EstimateState,
+    executor: Executor | None = None,
+) -> RecognitionResult:
+    """``recogniser.process`` in ``executor`` (default: the loop's thread pool).
+
+    The event loop keeps running meanwhile: ORB, k-NN matching and RANSAC are OpenCV
+    calls that release the GIL (tests/landmark_db/test_recognise_async.py measures it).
+    """
+    loop = asyncio.get_running_loop()
+    return await loop.run_in_executor(executor, recogniser.process, frame, state)
+
+
+# --- worker process --------------------------------------------------------------------------
+
+_worker: Recogniser | None = None
+
+
+def _worker_init(path: str, config: RecogniserConfig | None) -> None:
+    global _worker
+    _worker = Recogniser.from_path(path, config)
+
+
+def _worker_process(frame: CameraFrame, state: EstimateState) -> RecognitionResult:
+    assert _worker is not None, "worker not initialised"
+    return _worker.process(frame, state)
+
+
+def _worker_stats() -> dict[str, int]:
+    assert _worker is not None, "worker not initialised"
+    return dict(_worker.stats())
+
+
+class RecogniserWorker:
+    """A ``Recogniser`` in its own process, for when the GIL must not be shared at all.
+
+    One worker process (spawned, so no locks are inherited) opens the database read-only;
+    frames are pickled to it. ``process`` returns a future; ``process_async`` awaits it.
+    The worker's temporal state persists between calls, as in-process.
+    """
+
+    def __init__(self, db_path: str | Path, config: RecogniserConfig | None = None) -> None:
+        open_db(db_path, readonly=True).close()  # fail here, with a clear message, if bad
+        self._pool = ProcessPoolExecutor(
+            max_workers=1,
+            mp_context=get_context("spawn"),
+            initializer=_worker_init,
+            initargs=(str(db_path), config),
+        )
+
+    def process(self, frame: CameraFrame, state: EstimateState) -> Future[RecognitionResult]:
+        return self._pool.submit(_worker_process, frame, state)
+
+    async def process_async(self, frame: CameraFrame, state: EstimateState) -> RecognitionResult:
+        return await asyncio.wrap_future(self.process(frame, state))
+
+    def stats(self) -> Mapping[str, int]:
+        return self._pool.submit(_worker_stats).result()
+
+    def close(self) -> None:
+        self._pool.shutdown(wait=True, cancel_futures=True)
+
+    def __enter__(self) -> RecogniserWorker:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
