@@ -1,0 +1,264 @@
+"""The simulated world for ``guidance sim``, and the devices that only the world can provide.
+
+``SimWorld`` steps the compiled world of ``hal_sim.world`` (city, car, PID driver, encoders,
+compass noise, landmark sightings) with one seed, and exposes per step what the simulated
+hardware must send: rear-wheel speeds (for the CAN frames), the compass heading (for the NMEA
+sentences), a landmark sighting, and "an intersection is coming, with these exits".
+
+Two ``RoadwayScene``/source objects sit on top of it:
+
+* ``SimScene`` is the roadway scene from the city graph: it emits ``IntersectionScene`` with
+  the true exits and the distance to the intersection, and the simulated driver follows the
+  navigator's decision (``follow``);
+* ``SimSightings`` stands in for the camera and the landmark matcher until the image-based
+  recogniser is plugged in: each sighting event of the world (a landmark within the sighting
+  range, kept with the detection rate) becomes a ``LandmarkFix`` with ``sigma_m`` from the
+  sim parameters. It is labelled ``sim_sightings`` in logs and stats, never "camera".
+
+The route (decisions taken so far, by step) is kept, so a world can be rebuilt exactly after a
+crash by replaying the same seed and the same decisions (``replay_to``).
+"""
+
+from __future__ import annotations
+
+import math
+from collections import Counter
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass
+
+import numpy as np
+
+from guidance.estimator import EstimatorConfig
+from guidance.messages import IntersectionScene, LandmarkFix, TurnCompleted
+from guidance.navigator import Landmark, NavigatorConfig
+from hal_sim import world
+from hal_sim.params import I_COMPASS_PERIOD, I_DETECT, I_DT, SimParams, pack
+
+
+@dataclass(frozen=True, slots=True)
+class StepEvents:
+    """What the world's sensors produced in one step (time ``t_s`` at its end)."""
+
+    t_s: float
+    step: int
+    left_mps: float
+    right_mps: float
+    heading_rad: float | None
+    """Compass reading in the filter frame (truth + noise), None when none is due."""
+    landmark: int | None
+    decide: bool
+    to_intersection_m: float
+
+
+@dataclass(frozen=True, slots=True)
+class WorldSpec:
+    """How the city, start and goal are drawn (``guidance sim`` options)."""
+
+    seed: int = 7
+    area_km2: float = 9.0
+    goal_min_m: float = 1200.0
+    goal_max_m: float = 2500.0
+    density_per_km2: float = 1.0
+    detection_rate: float = 0.6
+
+
+class SimWorld:
+    """One seeded city and car, stepped by ``step``; the truth for plots and errors."""
+
+    def __init__(
+        self,
+        spec: WorldSpec,
+        sim: SimParams,
+        est: EstimatorConfig,
+        nav: NavigatorConfig,
+        true_compass_two_sigma_deg: float | None = -1.0,
+    ) -> None:
+        self.spec = spec
+        self.sim = sim
+        self.p = pack(sim, est, nav, spec.detection_rate, true_compass_two_sigma_deg)
+        world.seed(spec.seed)
+        aspect = float(np.random.default_rng(spec.seed).uniform(0.8, 1.25))
+        self.xs, self.ys, self.adj, self.net = world.make_city(
+            spec.area_km2, aspect, sim.block_m_min, sim.block_m_max, sim.dead_end_frac,
+            sim.one_way_frac,
+        )  # fmt: skip
+        self.lm_xy, self.node_start, self.node_lms = world.place_landmarks(
+            self.xs, self.ys, self.adj, self.net, spec.density_per_km2
+        )
+        self.start = world.random_node(self.net)
+        self.goal_node = self._pick_goal(spec)
+        self.ts, self.ns = world.init_truth(self.xs, self.ys, self.adj, self.start, self.p)
+        self.start_heading_rad = float(self.ts[world.T_TH])
+        self.lm_seen = -np.ones(len(self.lm_xy), dtype=np.int64)
+        self._events = np.zeros(8)
+        self._dirs = np.empty(4, dtype=np.int64)
+        self.step_count = 0
+        self.dt_s = float(self.p[I_DT])
+        self.route: list[tuple[int, int]] = []
+        """(step, node chosen) for each decision: with the seed, enough to rebuild the world."""
+        self._pending_dirs: list[int] = []
+
+    def _pick_goal(self, spec: WorldSpec) -> int:
+        """A network node between goal_min_m and goal_max_m from the start (Euclidean)."""
+        nx = self.xs.shape[0]
+        sx, sy = world.node_pos(self.xs, self.ys, self.start)
+        idx = np.nonzero(self.net)[0]
+        d = np.hypot(self.xs[idx % nx] - sx, self.ys[idx // nx] - sy)
+        ok = idx[(d >= spec.goal_min_m) & (d <= spec.goal_max_m)]
+        rng = np.random.default_rng(spec.seed + 1)
+        if len(ok) == 0:  # a small city: the farthest node
+            return int(idx[int(np.argmax(d))])
+        return int(ok[rng.integers(len(ok))])
+
+    # -- views --------------------------------------------------------------------------------
+    @property
+    def t_s(self) -> float:
+        return self.step_count * self.dt_s
+
+    @property
+    def truth(self) -> tuple[float, float, float]:
+        return float(self.ts[world.T_X]), float(self.ts[world.T_Y]), float(self.ts[world.T_TH])
+
+    @property
+    def driven_m(self) -> float:
+        return float(self.ts[world.T_DRIVEN])
+
+    @property
+    def start_pose(self) -> tuple[float, float, float]:
+        sx, sy = world.node_pos(self.xs, self.ys, self.start)
+        return float(sx), float(sy), self.start_heading_rad
+
+    @property
+    def goal_xy(self) -> tuple[float, float]:
+        gx, gy = world.node_pos(self.xs, self.ys, self.goal_node)
+        return float(gx), float(gy)
+
+    def landmarks(self) -> tuple[Landmark, ...]:
+        return tuple(
+            Landmark(k, float(self.lm_xy[k, 0]), float(self.lm_xy[k, 1]), f"landmark {k}")
+            for k in range(len(self.lm_xy))
+        )
+
+    def streets(self) -> list[tuple[float, float, float, float]]:
+        """Street segments (x0, y0, x1, y1) of the network, for plots."""
+        nx = self.xs.shape[0]
+        out = []
+        for u in range(self.adj.shape[0]):
+            for d in range(4):
+                v = int(self.adj[u, d])
+                if v > u or (v >= 0 and self.adj[v, (d + 2) % 4] != u):
+                    out.append(
+                        (float(self.xs[u % nx]), float(self.ys[u // nx]),
+                         float(self.xs[v % nx]), float(self.ys[v // nx]))
+                    )  # fmt: skip
+        return out
+
+    # -- stepping -------------------------------------------------------------------------------
+    def step(self) -> StepEvents:
+        """Advance one ``dt``; the car follows its route (decided exits) with the PID driver."""
+        period = float(self.p[I_COMPASS_PERIOD])
+        s = self.step_count
+        due = math.floor((s + 1) / period) > math.floor(s / period)
+        ev = self._events
+        world.world_step(
+            self.ts, self.ns, self.xs, self.ys, self.lm_xy, self.node_start, self.node_lms,
+            self.lm_seen, self.p, due, self.p[I_DETECT], ev,
+        )  # fmt: skip
+        self.step_count += 1
+        dt = self.dt_s
+        return StepEvents(
+            t_s=self.t_s,
+            step=self.step_count,
+            left_mps=float(ev[0]) / dt,
+            right_mps=float(ev[1]) / dt,
+            heading_rad=None if math.isnan(ev[2]) else float(ev[2]),
+            landmark=int(ev[3]) if ev[3] >= 0.0 else None,
+            decide=ev[4] > 0.0,
+            to_intersection_m=float(ev[5]),
+        )
+
+    def exits(self) -> list[float]:
+        """Headings (filter frame) of the exits of the intersection ahead."""
+        n = world.exits_at(self.adj, int(self.ns[world.R_B]), self.ns[world.R_A], self._dirs)
+        self._pending_dirs = [int(self._dirs[e]) for e in range(n)]
+        return [float(world.DIR_HEADING[d]) for d in self._pending_dirs]
+
+    def take_exit(self, index: int) -> None:
+        """The simulated driver commits to exit ``index`` of the last ``exits()``."""
+        b = int(self.ns[world.R_B])
+        node = int(self.adj[b, self._pending_dirs[index]])
+        self.ns[world.R_C] = node
+        self.route.append((self.step_count, node))
+
+    def replay_to(self, step: int, route: Sequence[Sequence[int]]) -> None:
+        """Rebuild the world at ``step`` from the seed and the route (checkpoint resume)."""
+        pending = {int(s): int(n) for s, n in route}
+        while self.step_count < step:
+            self.step()
+            node = pending.get(self.step_count)
+            if node is not None:
+                self.ns[world.R_C] = node
+                self.route.append((self.step_count, node))
+
+
+class SimScene:
+    """``RoadwayScene`` from the city graph: exits of the next intersection, with its distance."""
+
+    name = "sim_scene"
+
+    def __init__(self, world_: SimWorld) -> None:
+        self.world = world_
+        self._sink: Callable[[IntersectionScene | TurnCompleted], None] | None = None
+        self._counts: Counter[str] = Counter()
+
+    def start(self, sink: Callable[[IntersectionScene | TurnCompleted], None]) -> None:
+        self._sink = sink
+
+    def stop(self) -> None:
+        self._sink = None
+
+    def stats(self) -> dict[str, int]:
+        return dict(self._counts)
+
+    def announce(self, ev: StepEvents) -> IntersectionScene:
+        """Tell the app about the intersection ahead (call when ``ev.decide``)."""
+        exits = self.world.exits()
+        msg = IntersectionScene(ev.t_s, tuple(exits), ev.to_intersection_m)
+        self._counts["intersections"] += 1
+        if self._sink is not None:
+            self._sink(msg)
+        return msg
+
+    def follow(self, exit_index: int) -> None:
+        """The simulated driver does as told."""
+        self._counts["followed"] += 1
+        self.world.take_exit(exit_index)
+
+
+class SimSightings:
+    """Landmark fixes from the world's sighting events (a stand-in for camera + matcher)."""
+
+    name = "sim_sightings"
+
+    def __init__(self, world_: SimWorld) -> None:
+        self.world = world_
+        self.sigma_m = world_.sim.landmark_sigma_m
+        self._sink: Callable[[LandmarkFix], None] | None = None
+        self._counts: Counter[str] = Counter()
+
+    def start(self, sink: Callable[[LandmarkFix], None]) -> None:
+        self._sink = sink
+
+    def stop(self) -> None:
+        self._sink = None
+
+    def stats(self) -> dict[str, int]:
+        return dict(self._counts)
+
+    def sighted(self, t_s: float, k: int) -> LandmarkFix:
+        x, y = self.world.lm_xy[k]
+        fix = LandmarkFix(t_s, k, float(x), float(y), self.sigma_m)
+        self._counts["sightings"] += 1
+        if self._sink is not None:
+            self._sink(fix)
+        return fix
