@@ -1,0 +1,257 @@
+"""Survey mode: build a sparse landmark map in one drive (issue 5).
+
+While driving with a temporary position source, camera frames are saved as new landmarks
+at marked places (typically intersections). Inputs:
+
+* frames: a video file (timestamps from the container) or a folder of images (sorted by
+  name, one every ``1 / fps`` seconds);
+* positions: a GPS NMEA log (RMC/GGA fixes, pynmea2) and/or a marks CSV. A mark is a time
+  ``t_s`` (seconds from the first frame) with an optional position (``lat``/``lon`` or
+  ``x_m``/``y_m``) and name. A mark without a position takes the GPS position interpolated
+  at its time. With GPS and no marks, a frame is saved every ``every_m`` metres driven.
+
+The NMEA clock is aligned so that the first fix is at ``nmea_offset_s`` on the frame clock.
+"""
+
+from __future__ import annotations
+
+import csv
+import math
+from collections.abc import Iterator
+from dataclasses import dataclass
+from datetime import datetime
+from pathlib import Path
+
+import cv2
+import numpy as np
+import pynmea2
+
+from landmark_db.acceptance import IMAGE_EXTS
+from landmark_db.store import LandmarkDb, LandmarkDbError
+
+
+@dataclass(frozen=True, slots=True)
+class Mark:
+    """A place to save a frame: time on the frame clock, optional position and name."""
+
+    t_s: float
+    name: str = ""
+    lat_deg: float | None = None
+    lon_deg: float | None = None
+    x_m: float | None = None
+    y_m: float | None = None
+
+
+@dataclass(frozen=True, slots=True)
+class GpsTrack:
+    """GPS fixes: times (s, from the first fix) and lat/lon (degrees), sorted by time."""
+
+    t_s: np.ndarray
+    lat_deg: np.ndarray
+    lon_deg: np.ndarray
+
+    def at(self, t_s: float) -> tuple[float, float] | None:
+        """Position interpolated at ``t_s``; None outside the track."""
+        if len(self.t_s) == 0 or t_s < self.t_s[0] or t_s > self.t_s[-1]:
+            return None
+        return (
+            float(np.interp(t_s, self.t_s, self.lat_deg)),
+            float(np.interp(t_s, self.t_s, self.lon_deg)),
+        )
+
+
+def read_nmea(path: Path) -> GpsTrack:
+    """Valid RMC fixes (else GGA fixes with quality > 0) of an NMEA log; bad lines are skipped."""
+    rmc: list[tuple[datetime, float, float]] = []
+    gga: list[tuple[float, float, float]] = []
+    try:
+        lines = path.read_text(errors="replace").splitlines()
+    except OSError as exc:
+        raise LandmarkDbError(f"{path}: {exc.strerror}") from exc
+    for line in lines:
+        start = line.find("$")
+        if start < 0:
+            continue
+        try:
+            msg = pynmea2.parse(line[start:].strip(), check=True)
+        except (pynmea2.ParseError, ValueError, AttributeError):
+            continue
+        try:
+            if isinstance(msg, pynmea2.types.talker.RMC):
+                if msg.status == "A" and msg.datestamp and msg.timestamp:
+                    when = datetime.combine(msg.datestamp, msg.timestamp)
+                    rmc.append((when, float(msg.latitude), float(msg.longitude)))
+            elif (
+                isinstance(msg, pynmea2.types.talker.GGA)
+                and msg.gps_qual
+                and int(msg.gps_qual) > 0
+                and msg.timestamp
+            ):
+                ts = msg.timestamp
+                sod = ts.hour * 3600 + ts.minute * 60 + ts.second + ts.microsecond / 1e6
+                gga.append((sod, float(msg.latitude), float(msg.longitude)))
+        except (TypeError, ValueError):
+            continue
+    if rmc:
+        t0 = rmc[0][0]
+        rows = [((w - t0).total_seconds(), la, lo) for w, la, lo in rmc]
+    elif gga:
+        t0s = gga[0][0]
+        rows = [((s - t0s) % 86400.0, la, lo) for s, la, lo in gga]
+    else:
+        raise LandmarkDbError(f"{path}: no valid GPS fixes (RMC or GGA)")
+    arr = np.array(sorted(rows), dtype=np.float64)
+    return GpsTrack(arr[:, 0], arr[:, 1], arr[:, 2])
+
+
+def _opt_float(row: dict[str, str], *keys: str) -> float | None:
+    for k in keys:
+        v = (row.get(k) or "").strip()
+        if v:
+            return float(v)
+    return None
+
+
+def read_marks(path: Path) -> list[Mark]:
+    """Marks CSV: ``t_s`` required; ``name``, ``lat``/``lon`` or ``x_m``/``y_m`` optional."""
+    try:
+        with path.open(newline="") as fh:
+            rows = list(csv.DictReader(fh))
+    except OSError as exc:
+        raise LandmarkDbError(f"{path}: {exc.strerror}") from exc
+    marks = []
+    for i, row in enumerate(rows, start=2):
+        try:
+            t = _opt_float(row, "t_s", "t")
+            if t is None:
+                raise ValueError("no t_s")
+            marks.append(
+                Mark(
+                    t,
+                    (row.get("name") or "").strip(),
+                    _opt_float(row, "lat", "lat_deg"),
+                    _opt_float(row, "lon", "lon_deg"),
+                    _opt_float(row, "x_m", "x"),
+                    _opt_float(row, "y_m", "y"),
+                )
+            )
+        except ValueError as exc:
+            raise LandmarkDbError(f"{path}:{i}: bad mark ({exc})") from exc
+    return sorted(marks, key=lambda m: m.t_s)
+
+
+def marks_every(track: GpsTrack, every_m: float) -> list[Mark]:
+    """A mark each ``every_m`` metres along the GPS track (equirectangular distances)."""
+    if len(track.t_s) < 2:
+        return []
+    lat0 = math.radians(float(track.lat_deg[0]))
+    r = 6_371_000.0
+    dx = np.diff(np.radians(track.lon_deg)) * math.cos(lat0) * r
+    dy = np.diff(np.radians(track.lat_deg)) * r
+    s = np.concatenate([[0.0], np.cumsum(np.hypot(dx, dy))])
+    targets = np.arange(0.0, s[-1] + 1e-9, every_m)
+    return [Mark(float(np.interp(d, s, track.t_s))) for d in targets]
+
+
+def frames_from_video(path: Path) -> Iterator[tuple[float, np.ndarray]]:
+    """(t_s, image) of every frame of a video file."""
+    cap = cv2.VideoCapture(str(path))
+    if not cap.isOpened():
+        raise LandmarkDbError(f"{path}: cannot open video")
+    fps = cap.get(cv2.CAP_PROP_FPS) or 30.0
+    try:
+        i = 0
+        while True:
+            ok, image = cap.read()
+            if not ok or image is None:
+                return
+            ms = cap.get(cv2.CAP_PROP_POS_MSEC)
+            yield (ms / 1000.0 if ms and ms > 0 else i / fps), image
+            i += 1
+    finally:
+        cap.release()
+
+
+def frames_from_folder(path: Path, fps: float) -> Iterator[tuple[float, np.ndarray]]:
+    """(t_s, image) for the images of a folder, sorted by name, ``1 / fps`` apart."""
+    files = sorted(p for p in path.iterdir() if p.suffix.lower() in IMAGE_EXTS)
+    if not files:
+        raise LandmarkDbError(f"{path}: no images")
+    for i, p in enumerate(files):
+        image = cv2.imread(str(p), cv2.IMREAD_COLOR)
+        if image is None:
+            raise LandmarkDbError(f"{p}: cannot read image")
+        yield i / fps, image
+
+
+@dataclass(frozen=True, slots=True)
+class Saved:
+    landmark_id: int
+    name: str
+    t_s: float
+    frame_t_s: float
+
+
+def survey(
+    db: LandmarkDb,
+    frames: Iterator[tuple[float, np.ndarray]],
+    marks: list[Mark],
+    track: GpsTrack | None = None,
+    name_prefix: str = "survey",
+    max_gap_s: float = 1.0,
+    position_sigma_m: float = 5.0,
+) -> tuple[list[Saved], list[str]]:
+    """Save, for each mark, the frame nearest in time (within ``max_gap_s``) as a landmark.
+
+    Returns (saved landmarks, one-line notes on marks that were skipped).
+    """
+    pending = sorted(marks, key=lambda m: m.t_s)
+    saved: list[Saved] = []
+    notes: list[str] = []
+    prev: tuple[float, np.ndarray] | None = None
+    k = 0
+
+    def save(mark: Mark, t_f: float, image: np.ndarray) -> None:
+        nonlocal k
+        k += 1
+        name = mark.name or f"{name_prefix}-{k:04d}"
+        if abs(t_f - mark.t_s) > max_gap_s:
+            notes.append(f"{name}: no frame within {max_gap_s} s of t={mark.t_s:.2f}")
+            return
+        pos: dict[str, float] = {}
+        if mark.lat_deg is not None and mark.lon_deg is not None:
+            pos = {"lat_deg": mark.lat_deg, "lon_deg": mark.lon_deg}
+        elif mark.x_m is not None and mark.y_m is not None:
+            pos = {"x_m": mark.x_m, "y_m": mark.y_m}
+        elif track is not None and (ll := track.at(mark.t_s)) is not None:
+            pos = {"lat_deg": ll[0], "lon_deg": ll[1]}
+        else:
+            notes.append(f"{name}: no position at t={mark.t_s:.2f} (no mark position, no GPS)")
+            return
+        lid = db.add(
+            name,
+            image,
+            position_sigma_m=position_sigma_m,
+            source=f"survey t={mark.t_s:.2f}",
+            image_format=".jpg",
+            **pos,
+        )
+        saved.append(Saved(lid, name, mark.t_s, t_f))
+
+    for t, image in frames:
+        while pending and pending[0].t_s <= t:
+            mark = pending.pop(0)
+            # the nearer of the frames just before and at/after the mark
+            if prev is not None and mark.t_s - prev[0] < t - mark.t_s:
+                save(mark, *prev)
+            else:
+                save(mark, t, image)
+        prev = (t, image)
+        if not pending:
+            break
+    for mark in pending:
+        if prev is not None:
+            save(mark, *prev)
+        else:
+            notes.append(f"mark at t={mark.t_s:.2f}: no frames")
+    return saved, notes
