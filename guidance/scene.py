@@ -65,7 +65,7 @@ KEYPAD_DIGITS: dict[str, str] = {
 }
 
 _ANGLE_RE = re.compile(r"^([lr])(\d+(?:\.\d+)?)$")
-_NUMBER_RE = re.compile(r"^[+-]?\d+(?:\.\d+)?$")
+_NUMBER_RE = re.compile(r"^[+-]\d+(?:\.\d+)?$")
 _TURN_PREFIXES = ("turned", "took", "went", "t")
 
 
@@ -100,21 +100,22 @@ def _direction(token: str) -> tuple[float, str]:
         if deg > 180.0:
             raise SceneParseError(f"angle {token!r} is above 180 degrees")
         return math.radians(deg if m.group(1) == "l" else -deg), tok
-    if _NUMBER_RE.match(tok) and tok not in KEYPAD_DIGITS:
+    if _NUMBER_RE.match(tok):
         deg = float(tok)
         if abs(deg) > 180.0:
             raise SceneParseError(f"angle {token!r} is outside [-180, 180] degrees")
         return math.radians(deg), tok
     raise SceneParseError(
         f"unknown exit {token!r}: use s l r bl br hl hr u, keypad 8 4 6 7 9 1 3 2, "
-        "l30/r30, or degrees left-positive"
+        "l30/r30, or signed degrees left-positive (+30, -45)"
     )
 
 
 def parse_line(line: str) -> ExitsTyped | TurnTyped | None:
     """Parse one co-driver line; None for an empty line.
 
-    Exits: tokens separated by spaces or commas, or a run of single letters ("lsr").
+    Exits: tokens separated by spaces or commas, a run of single letters ("lsr"), keypad digits
+    ("846": each digit is one key), or signed angles in degrees, left positive ("+30 -90").
     Turn reports: "turned left", "took r", "t l", "tl", "went straight", "t 8".
     """
     text = line.strip().lower().replace(",", " ")
@@ -131,10 +132,9 @@ def parse_line(line: str) -> ExitsTyped | TurnTyped | None:
             )
         angle, label = _direction(rest[0])
         return TurnTyped(angle, label)
-    if len(words) == 1 and words[0].isalpha() and words[0] not in EXIT_TOKENS:
+    if len(words) == 1 and words[0] not in EXIT_TOKENS and set(words[0]) <= set("sflru"):
         words = list(words[0])  # "lsr"
-    elif len(words) == 1 and words[0].isdigit() and len(words[0]) > 1:
-        words = list(words[0])  # keypad "846"
+    words = [k for w in words for k in (list(w) if w.isdigit() else [w])]  # keypad "846"
     exits = [_direction(w) for w in words]
     return ExitsTyped(tuple(a for a, _ in exits), tuple(lab for _, lab in exits))
 

@@ -293,6 +293,8 @@ async def drive_async(
                 vehicle_id=opts.vehicle_id,
                 queue_size=1 << 17,
             )
+            if app_config is not None:  # the config's folder, rotation and caps
+                rcfg = replace(app_config.recording, prefix=rcfg.prefix, queue_size=1 << 17)
             recorder = Recorder(rcfg)
             recorder.start()
             recorder.record(

@@ -1,0 +1,183 @@
+"""The car's TOML configuration: the shipped examples load, and every bad value names its key."""
+
+from __future__ import annotations
+
+import math
+import tomllib
+from pathlib import Path
+from typing import Any
+
+import pytest
+
+from guidance.cli import main
+from guidance.config import load_config, parse_config
+from guidance.errors import UserError
+from guidance.navigator import Method
+
+REPO = Path(__file__).resolve().parents[2]
+TAHOE = REPO / "config" / "tahoe.toml"
+SIM = REPO / "config" / "sim.toml"
+
+
+def _tahoe() -> dict[str, Any]:
+    return tomllib.loads(TAHOE.read_text())
+
+
+def test_tahoe_config_loads_with_geodetic_start_and_goal() -> None:
+    cfg = load_config(TAHOE)
+    p = cfg.pipeline
+    assert cfg.vehicle_id == "tahoe1"
+    assert cfg.telemetry.vehicle_id == "tahoe1"
+    assert cfg.recording.vehicle_id == "tahoe1"
+    assert p.navigator.method is Method.HYBRID
+    assert p.start_xy_m == (0.0, 0.0)
+    # 42.4440 N -76.5019 -> 42.4534 N -76.4735: about 2.33 km east, 1.04 km north.
+    gx, gy = p.goal_xy_m
+    assert gx == pytest.approx(2334, abs=15)
+    assert gy == pytest.approx(1044, abs=15)
+    assert p.start_heading_rad is None  # from the first compass reading
+    assert -14.0 < p.declination_deg < -9.0  # WMM, Ithaca: about 11 degrees west
+    assert cfg.odometry is not None and cfg.odometry.backend == "can"
+    assert cfg.odometry.config.interface == "socketcan"
+    assert cfg.odometry.config.channel == "can0"
+    assert cfg.odometry.config.profile == "gm_global_a"
+    assert cfg.compass is not None and cfg.compass.config.port == "/dev/ttyUSB0"
+    assert cfg.camera is None
+    assert p.expected_rates_hz == {"odometry": 20.0, "compass": 5.0}
+    assert cfg.checkpoint.path == "/var/lib/guidance/checkpoint.json"
+
+
+def test_sim_config_loads_without_a_goal() -> None:
+    cfg = load_config(SIM, require_goal=False)
+    assert cfg.sim["seed"] == 7
+    assert cfg.odometry is not None and cfg.odometry.config.interface == "virtual"
+    assert cfg.odometry.config.clock == "frame"
+    assert Path(cfg.recording.directory).is_absolute()  # relative to the file's folder
+
+
+def test_local_metres_and_explicit_declination() -> None:
+    cfg = parse_config(
+        {
+            "start": {"x_m": 0.0, "y_m": 0.0, "heading_deg": 0.0},
+            "goal": {"x_m": 1500, "y_m": -200},
+            "compass": {"declination_deg": 3.5, "port": "/dev/ttyACM0"},
+            "estimator": {"compass_two_sigma_deg": 10},
+            "telemetry": {"enabled": False},
+            "recording": {"enabled": False},
+            "landmarks": [{"id": 3, "x_m": 100.0, "y_m": 5.0, "name": "church"}],
+        }
+    )
+    p = cfg.pipeline
+    assert p.goal_xy_m == (1500.0, -200.0)
+    assert p.declination_deg == 3.5
+    assert p.start_heading_rad == pytest.approx(math.pi / 2)  # north
+    assert p.estimator.compass_two_sigma_deg == 10.0
+    assert p.landmarks[0].name == "church"
+
+
+def test_no_compass_needs_a_start_heading() -> None:
+    doc = _tahoe()
+    doc["compass"] = {"enabled": False}
+    with pytest.raises(UserError, match=r"\[start\] heading_deg is required"):
+        parse_config(doc)
+    doc["start"]["heading_deg"] = 270.0
+    cfg = parse_config(doc)
+    assert cfg.compass is None
+    assert cfg.pipeline.estimator.compass_two_sigma_deg is None
+    assert cfg.pipeline.start_heading_rad == pytest.approx(math.radians(90 - 270))
+
+
+BAD = [
+    (("goal", "lat_deg"), 123.0, r"\[goal\] lat_deg must be within \[-90.0, 90.0\]"),
+    (("goal", "lon_deg"), "east", r"\[goal\] lon_deg must be a number"),
+    (("start", "heading_deg"), 400, r"\[start\] heading_deg must be within"),
+    (("navigation", "method"), "fastest", r"\[navigation\] method must be one of"),
+    (("navigation", "units"), "furlongs", r"\[navigation\] units must be one of"),
+    (("navigation", "arrival_radius_m"), -5, r"\[navigation\] arrival_radius_m must be > 0"),
+    (("navigation", "stop_at_arrival"), "yes", r"\[navigation\] stop_at_arrival must be true"),
+    (("estimator", "compass_two_sigma_deg"), 0, r"\[estimator\] compass_two_sigma_deg must be"),
+    (("estimator", "wheel_slip"), 0.1, r"\[estimator\] unknown key\(s\): wheel_slip"),
+    (("vehicle", "id"), "my car!", r"\[vehicle\] id"),
+    (("vehicle", "track_m"), math.inf, r"\[vehicle\] track_m must be finite"),
+    (("odometry", "bitrate"), -1, r"\[odometry\] bitrate must be a positive integer"),
+    (("odometry", "bitrate"), "fast", r"\[odometry\] bitrate must be int \| None"),
+    (("odometry", "profile"), "ford_t", r"\[odometry\] .*ford_t"),
+    (("odometry", "chanel"), "can1", r"\[odometry\] unknown key 'chanel'"),
+    (("odometry", "backend"), "lin", r"\[odometry\] backend must be one of can"),
+    (("odometry", "clock"), "sundial", r"\[odometry\] clock must be"),
+    (("odometry", "expected_rate_hz"), 0, r"\[odometry\] expected_rate_hz must be > 0"),
+    (("compass", "baudrate"), 0, r"\[compass\] baudrate must be a positive integer"),
+    (("compass", "port"), 7, r"\[compass\] port must be str"),
+    (("compass", "mounting_offset_deg"), 200, r"\[compass\] mounting_offset_deg must be within"),
+    (("compass", "date"), "yesterday", r"\[compass\] date must be a date"),
+    (("camera", "source"), [1], r"\[camera\]"),
+    (("voice", "backend"), "shout", r"\[voice\] backend must be one of"),
+    (("loop", "tick_hz"), 0, r"\[loop\] tick_hz must be > 0"),
+    (("checkpoint", "interval_s"), -1, r"\[checkpoint\] interval_s must be > 0"),
+    (("telemetry", "mode"), "broadcast", r"telemetry mode must be one of"),
+    (("telemetry", "listn"), [], r"\[telemetry\]: unknown key\(s\) listn"),
+    (("recording", "compression"), "zip", r"\[recording\] compression"),
+    (("health", "max_reject_fraction"), 2, r"\[health\] max_reject_fraction must be within"),
+]
+
+
+@pytest.mark.parametrize(("where", "value", "message"), BAD, ids=[".".join(b[0]) for b in BAD])
+def test_bad_value_names_its_key(where: tuple[str, str], value: object, message: str) -> None:
+    doc = _tahoe()
+    table, key = where
+    doc.setdefault(table, {})[key] = value
+    if table == "camera":
+        doc["camera"]["enabled"] = True
+    with pytest.raises(UserError, match=message) as info:
+        parse_config(doc)
+    assert "\n" not in str(info.value)
+
+
+@pytest.mark.parametrize(
+    ("change", "message"),
+    [
+        ({"goal": None}, r"\[goal\] is required"),
+        ({"gaol": {"x_m": 1}}, r"unknown table\(s\): \[gaol\]"),
+        ({"goal": {"lat_deg": 42.0}}, r"\[goal\] lon_deg is required"),
+        ({"goal": {"lat_deg": 42.0, "lon_deg": -76.0, "x_m": 3.0}}, r"not both"),
+        ({"start": {"x_m": 0.0}}, r"\[compass\] declination_deg is required"),
+        ({"landmarks": [{"id": 1, "x_m": 0}, {"id": 1, "x_m": 5}]}, r"\[landmarks.1\] id"),
+        ({"voice": {"backend": "wav"}}, r"\[voice\] wav_path is required"),
+    ],
+)
+def test_bad_structure_is_explained(change: dict[str, Any], message: str) -> None:
+    doc = _tahoe()
+    for table, value in change.items():
+        if value is None:
+            doc.pop(table)
+        else:
+            doc[table] = value
+    with pytest.raises(UserError, match=message):
+        parse_config(doc)
+
+
+def test_cli_reports_a_bad_config_in_one_line(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    bad = tmp_path / "car.toml"
+    bad.write_text(TAHOE.read_text().replace('channel = "can0"', "channel = 0"))
+    assert main(["run", "--config", str(bad), "--check"]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1
+    assert "[odometry] channel must be str" in err[0]
+
+
+def test_cli_reports_toml_syntax_and_missing_file(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    bad = tmp_path / "car.toml"
+    bad.write_text("[goal\nx_m = 1\n")
+    assert main(["run", "--config", str(bad), "--check"]) == 2
+    assert "not valid TOML" in capsys.readouterr().err
+    assert main(["run", "--config", str(tmp_path / "nope.toml")]) == 2
+    assert "config file not found" in capsys.readouterr().err
+
+
+def test_cli_check_accepts_the_tahoe_config(capsys: pytest.CaptureFixture[str]) -> None:
+    assert main(["run", "--config", str(TAHOE), "--check"]) == 0
+    assert "OK (vehicle tahoe1, method hybrid)" in capsys.readouterr().out
