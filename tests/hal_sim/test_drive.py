@@ -1,0 +1,141 @@
+"""End-to-end simulated drives: world -> CAN frames on a virtual bus -> CanOdometry, NMEA on a
+pty -> SerialCompass, city-graph scene -> Pipeline (estimator + navigator) -> prompts."""
+
+from __future__ import annotations
+
+import json
+import os
+import shutil
+import threading
+import time
+import wave
+from collections.abc import Iterator
+from dataclasses import replace
+from pathlib import Path
+
+import can.interfaces.virtual
+import pytest
+
+from guidance.cli import main
+from hal_sim.drive import DriveOptions, run_drive
+
+FAST = DriveOptions(seed=7, voice="none", telemetry=False, record=False, png=False)
+
+
+def _pty_fds() -> set[str]:
+    out = set()
+    for entry in Path("/proc/self/fd").iterdir():
+        try:
+            target = os.readlink(entry)
+        except OSError:
+            continue
+        if target.startswith(("/dev/pts/", "/dev/ptmx")):
+            out.add(target)
+    return out
+
+
+@pytest.fixture(autouse=True)
+def no_leaks() -> Iterator[None]:
+    """A drive must close its bus, its pty and every thread it started."""
+    threads = set(threading.enumerate())
+    ptys = _pty_fds()
+    yield
+    deadline = time.monotonic() + 3.0
+    while True:
+        extra = [t for t in threading.enumerate() if t not in threads and t.is_alive()]
+        if not extra or time.monotonic() > deadline:
+            break
+        time.sleep(0.02)
+    assert not extra, f"leaked threads: {extra}"
+    assert not can.interfaces.virtual.channels, "leaked virtual CAN bus"
+    assert not (_pty_fds() - ptys), "leaked pty"
+
+
+def test_seed_7_reaches_the_goal_through_the_real_drivers(tmp_path: Path) -> None:
+    lines: list[str] = []
+    opts = DriveOptions(seed=7, voice="none", telemetry=False, record=True, png=True,
+                        out=str(tmp_path))  # fmt: skip
+    r = run_drive(opts, lines.append)
+    assert r.outcome == "arrived"
+    assert 1.0 < r.driven_km < 5.0
+    assert r.final_error_m < 30.0  # within the arrival radius of the truth
+    # Odometry really went through CAN: two GM frames (0x348, 0x34A) per 0.1 s step...
+    steps = round(r.sim_s / 0.1)
+    assert r.frames_sent == 2 * steps
+    # ...and the compass through the pty at about 6 Hz.
+    assert r.compass_lines == pytest.approx(6 * r.sim_s, rel=0.05)
+    assert r.decisions >= 3
+    assert r.prompts == len(r.prompt_log) == len(lines)
+    assert lines[-1].endswith("You have arrived at your destination")
+    assert any("turn" in line for line in lines)
+    assert not r.health_warnings
+    png = Path(r.png or "")
+    assert png.is_file() and png.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+    assert png.stat().st_size > 20_000
+    assert r.recording and Path(r.recording[0]).is_file()
+
+
+def test_the_same_seed_gives_the_same_drive() -> None:
+    a = run_drive(FAST)
+    b = run_drive(FAST)
+    assert a.prompt_log == b.prompt_log
+    assert a.final_error_m == b.final_error_m
+    assert a.driven_km == b.driven_km
+
+
+def test_silent_can_is_flagged_spoken_and_survived() -> None:
+    """Five seconds without wheel-speed frames: odometry goes dead, the driver is warned, the
+    estimate is inflated for the distance missed, and the drive still reaches its goal."""
+    r = run_drive(replace(FAST, can_silent=(30.0, 5.0)))
+    warnings = [w for w in r.health_warnings if "odometry" in w]
+    assert warnings and "silent" in warnings[0]
+    t_warn = float(warnings[0].split()[0])
+    assert 30.9 <= t_warn <= 32.0  # dead after 1 s (min timeout), evaluated every step
+    spoken = [(t, text) for t, text in r.prompt_log if text == "Warning: odometry is silent"]
+    assert len(spoken) == 1
+    assert r.outcome == "arrived"
+    assert r.sim_s > 35.0
+
+
+def test_garbled_compass_is_flagged_and_survived() -> None:
+    r = run_drive(replace(FAST, compass_garbage=(20.0, 6.0)))
+    warnings = [w for w in r.health_warnings if "compass" in w]
+    assert warnings, r.health_warnings
+    assert any("Warning: compass" in text for _, text in r.prompt_log)
+    assert r.outcome == "arrived"
+
+
+def test_without_a_compass_the_car_gets_lost_and_says_so() -> None:
+    r = run_drive(replace(FAST, compass_deg=None, density_per_km2=0.0))
+    assert r.outcome == "lost"
+    assert r.prompt_log[-1][1].startswith("Position lost")
+    assert r.driven_km < 2.0
+
+
+def test_cli_json_is_the_last_line(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    rc = main(["sim", "--seed", "7", "--no-voice", "--no-telemetry", "--no-record", "--json",
+               "--out", str(tmp_path)])  # fmt: skip
+    assert rc == 0
+    out = capsys.readouterr().out.strip().splitlines()
+    summary = json.loads(out[-1])
+    for key in ("outcome", "driven_km", "final_error_m", "prompts", "landmark_updates", "png"):
+        assert key in summary
+    assert summary["outcome"] == "arrived"
+    assert Path(summary["png"]).is_file()
+    assert any(line.startswith("[") and " s] " in line for line in out)  # prompts with times
+    assert any(line.startswith("ARRIVED") for line in out)
+
+
+def test_cli_rejects_bad_options(capsys: pytest.CaptureFixture[str]) -> None:
+    assert main(["sim", "--detection-rate", "1.5", "--no-voice", "--no-telemetry"]) == 2
+    assert "--detection-rate must be within [0, 1]" in capsys.readouterr().err
+
+
+@pytest.mark.skipif(shutil.which("espeak-ng") is None, reason="espeak-ng not installed")
+def test_voice_to_records_the_prompts(tmp_path: Path) -> None:
+    wav = tmp_path / "prompts.wav"
+    r = run_drive(replace(FAST, voice_to=str(wav)))
+    assert r.outcome == "arrived"
+    with wave.open(str(wav)) as w:
+        seconds = w.getnframes() / w.getframerate()
+    assert seconds > r.prompts * 0.8  # about a second or more per prompt
