@@ -1,0 +1,191 @@
+"""The SQLite store: round trips, read-only opening, validation, migrations, integrity check."""
+
+from __future__ import annotations
+
+import sqlite3
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from hal_sim.sim_camera import facade
+from landmark_db.features import Features, OrbConfig, decode_image, encode_image
+from landmark_db.geo import Origin
+from landmark_db.store import (
+    SCHEMA_VERSION,
+    LandmarkDb,
+    LandmarkDbError,
+    create_db,
+    open_db,
+    query_radius,
+)
+
+ORIGIN = Origin(42.444, -76.5019)
+
+
+def _db(tmp_path: Path, n: int = 3) -> LandmarkDb:
+    db = create_db(tmp_path / "t.sqlite", ORIGIN, OrbConfig(n_features=300))
+    for i in range(n):
+        db.add(f"lm{i}", facade(100 + i), x_m=50.0 * i, y_m=-20.0 * i, facing_deg=90.0 * i)
+    return db
+
+
+def test_round_trip_positions_photo_and_features(tmp_path: Path) -> None:
+    db = _db(tmp_path)
+    lat, lon = ORIGIN.to_geodetic(120.0, -80.0)
+    photo = encode_image(facade(7), ".jpg")
+    lid = db.add("corner", photo, lat_deg=lat, lon_deg=lon, position_sigma_m=4.0)
+    db.close()
+    with open_db(tmp_path / "t.sqlite") as ro:
+        assert len(ro) == 4
+        lm = ro.get(lid)
+        assert lm is not None and lm.name == "corner" and lm.position_sigma_m == 4.0
+        assert lm.x_m == pytest.approx(120.0, abs=0.01) and lm.y_m == pytest.approx(-80.0, abs=0.01)
+        fmt, data = ro.image_bytes(lid) or ("", b"")
+        assert fmt == "jpeg" and data == photo
+        f = ro.features(lid)
+        assert f is not None and 50 < len(f) <= 300
+        assert f.descriptors.dtype == np.uint8 and f.descriptors.shape[1] == 32
+        assert ro.find("corner") == lm and ro.find(str(lid)) == lm
+        assert [x.name for x in ro.landmarks()] == ["lm0", "lm1", "lm2", "corner"]
+        assert ro.get(2) is not None and ro.get(2).facing_deg == 90.0  # type: ignore[union-attr]
+        assert ro.check().ok
+
+
+def test_local_frame_matches_pymap3d_over_a_city(tmp_path: Path) -> None:
+    for x, y in [(0.0, 0.0), (5000.0, 0.0), (0.0, -5000.0), (7000.0, 7000.0)]:
+        lat, lon = ORIGIN.to_geodetic(x, y)
+        bx, by = ORIGIN.to_local(lat, lon)
+        # lat/lon drop the height of the tangent plane (2 m at 5 km): round trip within 1 cm
+        assert abs(bx - x) < 0.01 and abs(by - y) < 0.01
+    # 1 degree of latitude is about 111 km
+    _, north = ORIGIN.to_local(ORIGIN.lat_deg + 0.01, ORIGIN.lon_deg)
+    assert north == pytest.approx(1111.0, rel=0.01)
+
+
+def test_read_only_open_refuses_writes(tmp_path: Path) -> None:
+    _db(tmp_path).close()
+    with open_db(tmp_path / "t.sqlite") as ro:
+        with pytest.raises(LandmarkDbError, match="read-only"):
+            ro.add("x", facade(1), x_m=0.0, y_m=0.0)
+        with pytest.raises(sqlite3.OperationalError, match="readonly"):
+            ro._conn.execute("DELETE FROM landmarks")
+
+
+@pytest.mark.parametrize(
+    "content",
+    [b"", b"this is not a database at all" * 100, b"SQLite format 3\x00" + b"\x00" * 80],
+)
+def test_bad_files_give_one_clear_error(tmp_path: Path, content: bytes) -> None:
+    p = tmp_path / "bad.sqlite"
+    p.write_bytes(content)
+    with pytest.raises(LandmarkDbError, match=r"bad\.sqlite"):
+        open_db(p)
+    with pytest.raises(LandmarkDbError, match="no such"):
+        open_db(tmp_path / "missing.sqlite")
+
+
+def test_other_sqlite_database_is_rejected(tmp_path: Path) -> None:
+    p = tmp_path / "other.sqlite"
+    c = sqlite3.connect(p)
+    c.execute("CREATE TABLE t (a)")
+    c.commit()
+    c.close()
+    with pytest.raises(LandmarkDbError, match="not a landmark database"):
+        open_db(p)
+
+
+def test_truncated_file_is_reported(tmp_path: Path) -> None:
+    _db(tmp_path, 4).close()
+    p = tmp_path / "t.sqlite"
+    data = p.read_bytes()
+    p.write_bytes(data[: len(data) // 2])
+    with pytest.raises(LandmarkDbError):
+        db = open_db(p)
+        report = db.check()
+        db.close()
+        if not report.ok:
+            raise LandmarkDbError("; ".join(report.problems))
+
+
+def test_check_finds_inconsistencies(tmp_path: Path) -> None:
+    db = _db(tmp_path)
+    assert db.check().ok
+    c = db._conn
+    with c:
+        c.execute("DELETE FROM landmark_index WHERE id = 1")
+        c.execute("UPDATE images SET data = x'00' WHERE landmark_id = 2")
+        c.execute("DELETE FROM features WHERE landmark_id = 3")
+        c.execute("INSERT INTO landmark_index VALUES (99, 1, 1, 1, 1)")
+    report = db.check()
+    text = "\n".join(report.problems)
+    assert not report.ok
+    assert "without an index box: 1" in text
+    assert "landmark 2: photo checksum mismatch" in text
+    assert "without features: 3" in text
+    assert "index box for no landmark: 99" in text
+    db.close()
+
+
+def test_remove_keeps_the_file_consistent(tmp_path: Path) -> None:
+    db = _db(tmp_path)
+    assert db.remove(2) and not db.remove(2)
+    assert len(db) == 2 and db.check().ok
+    assert [c.id for c in query_radius(db, 50.0, -20.0, 5.0)] == []
+    db.close()
+
+
+def test_migration_from_v1(tmp_path: Path) -> None:
+    db = _db(tmp_path)
+    with db._conn as c:  # make it a version-1 file, as written by the first release
+        c.execute("DROP INDEX landmarks_name")
+        c.execute("UPDATE schema_version SET version = 1")
+    db.close()
+    p = tmp_path / "t.sqlite"
+    with pytest.raises(LandmarkDbError, match="older than"):
+        open_db(p)  # the car never writes: it asks for a migration
+    open_db(p, readonly=False).close()
+    with open_db(p) as ro:
+        v = ro._conn.execute("SELECT version FROM schema_version").fetchone()[0]
+        idx = ro._conn.execute(
+            "SELECT name FROM sqlite_master WHERE type = 'index' AND name = 'landmarks_name'"
+        ).fetchall()
+        assert v == SCHEMA_VERSION and idx
+        assert len(ro) == 3 and ro.check().ok
+
+
+def test_newer_schema_is_refused(tmp_path: Path) -> None:
+    db = _db(tmp_path, 0)
+    with db._conn as c:
+        c.execute("UPDATE schema_version SET version = 99")
+    db.close()
+    with pytest.raises(LandmarkDbError, match="newer"):
+        open_db(tmp_path / "t.sqlite", readonly=False)
+
+
+def test_add_rejects_bad_input(tmp_path: Path) -> None:
+    db = _db(tmp_path, 0)
+    with pytest.raises(LandmarkDbError, match="position"):
+        db.add("x", facade(1))
+    with pytest.raises(LandmarkDbError, match="out of range"):
+        db.add("x", facade(1), lat_deg=95.0, lon_deg=0.0)
+    with pytest.raises(LandmarkDbError, match="finite"):
+        db.add("x", facade(1), x_m=float("nan"), y_m=0.0)
+    with pytest.raises(LandmarkDbError, match="decode"):
+        db.add("x", b"not an image", x_m=0.0, y_m=0.0)
+    assert len(db) == 0
+    db.close()
+    with pytest.raises(LandmarkDbError, match="exists"):
+        create_db(tmp_path / "t.sqlite", ORIGIN)
+
+
+def test_feature_blobs_round_trip_and_reject_garbage() -> None:
+    img = facade(3)
+    from landmark_db.features import extract
+
+    f = extract(img, OrbConfig(n_features=200))
+    g = Features.from_blobs(f.keypoint_blob(), f.descriptor_blob(), f.width, f.height)
+    assert np.array_equal(f.keypoints, g.keypoints) and np.array_equal(f.descriptors, g.descriptors)
+    with pytest.raises(ValueError):
+        Features.from_blobs(f.keypoint_blob()[:-4], f.descriptor_blob(), f.width, f.height)
+    assert decode_image(encode_image(img)).shape == img.shape
