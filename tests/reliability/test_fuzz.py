@@ -3,10 +3,10 @@
 Properties: nothing raises; every heading is finite in [0, 360); every odometry increment is
 finite and no longer than the fastest plausible car covers in the longest bridged gap; counts
 add up; and the real ``PoseEstimator``, fed whatever got through, stays finite. Per run
-(``N_*`` below, derandomized so CI sees the same inputs): about 17,000 NMEA lines (6,000 of
-arbitrary bytes, 5,000 near-valid sentences with correct checksums, 1,000 chunked streams),
-6,000 CAN sequences holding about 175,000 frames (about 41,000 of which close an interval and
-are integrated), and 300 replay-command runs; about 40 s on two cores.
+(``N_*`` below, derandomized so CI sees the same inputs): about 14,000 NMEA lines (6,000 of
+arbitrary bytes, 5,000 near-valid sentences, 1,000 chunked streams of about 3,000 lines), 6,000
+CAN sequences holding about 176,000 frames (about 41,000 of which close an interval and are
+integrated), and 300 replay-command runs; about 40 s on two cores.
 
 ``guidance odometry`` and ``guidance compass`` given arbitrary bytes end with a summary (exit 0)
 or one clear error line (exit 2), never a traceback: in process for many inputs, and as real
