@@ -22,6 +22,7 @@ from __future__ import annotations
 
 import argparse
 import asyncio
+import concurrent.futures
 import contextlib
 import json
 import logging
@@ -440,6 +441,9 @@ class App:
                 self.feed(fix)
 
     def _match(self, frame: CameraFrame, state: EstimateState) -> LandmarkFix | None:
+        """Run the recogniser (worker thread). Accepts ``process(frame, state)`` returning a
+        fix, a result with ``.fix``/``.reason`` (``landmark_db.recognise``) or a future of one
+        (a recogniser in its own process); or the ``LandmarkRecogniser`` protocol."""
         r = self.recogniser
         if hasattr(r, "process"):
             result = r.process(frame, state)
@@ -449,7 +453,15 @@ class App:
                 [state.covariance[1][0], state.covariance[1][1]],
             ]
             result = r.recognise(frame, (state.x_m, state.y_m), cov)
-        return result if isinstance(result, LandmarkFix) else None
+        if isinstance(result, concurrent.futures.Future):
+            result = result.result()
+        if result is None or isinstance(result, LandmarkFix):
+            return result
+        reason = getattr(result, "reason", None)
+        if reason:
+            self.counts[f"recognition_{reason}"] += 1
+        fix = getattr(result, "fix", None)
+        return fix if isinstance(fix, LandmarkFix) else None
 
     # -- figures ----------------------------------------------------------------------------------
     def lag_summary(self) -> dict[str, float | None]:
