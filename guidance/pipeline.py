@@ -399,8 +399,9 @@ class Pipeline:
         d = 0.5 * (msg.d_left_m + msg.d_right_m)
         if gap is not None and gap > 0:
             self.speed_mps = abs(d) / gap
-            timeout = self.health.timeout_s("odometry")
-            if self.config.resume_gap_inflation and gap > min(timeout, 0.5):
+            # Beyond the dead-input timeout (>= 1 s, the decoder's longest bridged gap) the
+            # distance driven meanwhile was not integrated: widen the estimate for it.
+            if self.config.resume_gap_inflation and gap > self.health.timeout_s("odometry"):
                 self._inflate_after_gap(gap, out)
         self._last_odo_t = msg.t_s
         self.odometer_m += abs(d)

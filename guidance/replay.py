@@ -1,0 +1,423 @@
+"""``guidance replay``: recorded inputs through the same pipeline (issue 6, docs/app.md).
+
+Two kinds of input:
+
+* an MCAP recording made by ``guidance run`` or ``guidance sim`` (``guidance.recording``):
+  its ``/session`` record rebuilds the ``PipelineConfig``, and its input topics
+  (``/odometry``, ``/compass``, ``/heading``, ``/landmark_fix``, ``/scene``, ``/goal``) are
+  fed to a fresh ``Pipeline`` in the order the app processed them. Because the pipeline is
+  pure and the recorded floats round-trip exactly through JSON, the replay reproduces the
+  recorded estimates and decisions bit for bit; ``compare_with_recording`` checks that;
+* raw logs from elsewhere: a CAN log (candump ``.log``, ``.asc``, ``.blf``... through
+  python-can's readers and the car's ``WheelSpeedDecoder``) and optionally an NMEA text file
+  (each line optionally prefixed by its time in seconds; otherwise spread at ``--nmea-rate``
+  from the start of the CAN log), merged by time. Start, goal and method come from
+  ``--config`` (the car's TOML) or sensible defaults.
+
+``--speed X`` paces the replay at X times the recorded rate; by default it runs flat out.
+"""
+
+from __future__ import annotations
+
+import argparse
+import heapq
+import json
+import math
+import re
+import sys
+import time
+from collections.abc import Callable, Iterable, Iterator, Mapping
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+from guidance.errors import UserError
+from guidance.estimator import EstimatorConfig, HeadingFix
+from guidance.messages import (
+    CompassHeading,
+    IntersectionScene,
+    LandmarkFix,
+    TurnCompleted,
+    WheelOdometry,
+)
+from guidance.navigator import Landmark, Method, NavigatorConfig
+from guidance.pipeline import GoalUpdate, HealthConfig, Input, Outputs, Pipeline, PipelineConfig
+from guidance.prompts import Units
+
+INPUT_TOPICS = ("/odometry", "/compass", "/heading", "/landmark_fix", "/scene", "/goal")
+
+
+# ----------------------------------------------------------------------------- MCAP
+
+
+def pipeline_config_from_session(session: Mapping[str, Any]) -> PipelineConfig:
+    """Rebuild the pipeline configuration from a recording's ``/session`` record."""
+    d = session.get("pipeline")
+    if not isinstance(d, Mapping):
+        raise UserError("the recording's /session record has no pipeline configuration")
+    est = EstimatorConfig(**d["estimator"])
+    nav_d = dict(d["navigator"])
+    nav_d["method"] = Method(nav_d["method"])
+    nav = NavigatorConfig(**nav_d)
+    heading = d.get("start_heading_rad")
+    return PipelineConfig(
+        estimator=est,
+        navigator=nav,
+        start_xy_m=(float(d["start_xy_m"][0]), float(d["start_xy_m"][1])),
+        goal_xy_m=(float(d["goal_xy_m"][0]), float(d["goal_xy_m"][1])),
+        start_heading_rad=None if heading is None else float(heading),
+        landmarks=tuple(Landmark(**lm) for lm in d.get("landmarks", [])),
+        declination_deg=float(d.get("declination_deg", 0.0)),
+        mounting_offset_deg=float(d.get("mounting_offset_deg", 0.0)),
+        units=Units(d.get("units", "metric")),
+        state_period_s=float(d.get("state_period_s", 0.1)),
+        expected_rates_hz=dict(d.get("expected_rates_hz", {})),
+        health=HealthConfig(),
+        straight_after_m=float(d.get("straight_after_m", 25.0)),
+        uncertain_warn_m=float(d.get("uncertain_warn_m", 50.0)),
+        stop_at_arrival=bool(d.get("stop_at_arrival", True)),
+    )
+
+
+def message_from_record(topic: str, data: Mapping[str, Any]) -> Input | None:
+    """One recorded input message back as the message the pipeline took."""
+    t = float(data["t_s"])
+    if topic == "/odometry":
+        return WheelOdometry(t, float(data["d_left_m"]), float(data["d_right_m"]))
+    if topic == "/compass":
+        return CompassHeading(t, float(data["heading_deg"]), bool(data.get("is_true", False)))
+    if topic == "/heading":
+        return HeadingFix(t, float(data["theta_rad"]))
+    if topic == "/landmark_fix":
+        return LandmarkFix(
+            t,
+            int(data["landmark_id"]),
+            float(data["x_m"]),
+            float(data["y_m"]),
+            float(data["sigma_m"]),
+        )
+    if topic == "/scene":
+        if data.get("kind") == "intersection":
+            dist = data.get("distance_m")
+            return IntersectionScene(
+                t,
+                tuple(float(h) for h in data["exit_headings_rad"]),
+                None if dist is None else float(dist),
+                tuple(str(x) for x in data.get("labels", [])),
+            )
+        if data.get("source") == "detected":
+            return None  # re-derived by the pipeline's own turn detector
+        return TurnCompleted(t, float(data["heading_change_rad"]), str(data.get("source", "")))
+    if topic == "/goal":
+        return GoalUpdate(t, float(data["x_m"]), float(data["y_m"]), str(data.get("source", "")))
+    return None
+
+
+def mcap_inputs(path: str | Path) -> tuple[dict[str, Any], Iterator[Input]]:
+    """The session record and the recorded inputs (in processing order) of a recording."""
+    from guidance.recording import Reader
+
+    sessions = list(Reader(path, topics=["/session"], log_time_order=False))
+    if not sessions:
+        raise UserError(f"{path}: no /session record; was it recorded by guidance run/sim?")
+    session = sessions[0].data
+
+    def inputs() -> Iterator[Input]:
+        for rec in Reader(path, topics=INPUT_TOPICS, log_time_order=False):
+            msg = message_from_record(rec.topic, rec.data)
+            if msg is not None:
+                yield msg
+
+    return session, inputs()
+
+
+def recorded_outputs(path: str | Path) -> dict[str, list[dict[str, Any]]]:
+    """The decisions and states the recording holds (what the live run computed)."""
+    from guidance.recording import Reader
+
+    out: dict[str, list[dict[str, Any]]] = {"/decision": [], "/state": []}
+    for rec in Reader(path, topics=list(out), log_time_order=False):
+        out[rec.topic].append(rec.data)
+    return out
+
+
+# ----------------------------------------------------------------------------- raw logs
+
+
+_STAMPED = re.compile(r"^\s*(\d+(?:\.\d*)?)[\s,;]+(.*)$")
+
+
+def nmea_inputs(path: Path, start_s: float, rate_hz: float) -> Iterator[CompassHeading]:
+    """Headings of an NMEA text file; a leading number on a line is its time (s)."""
+    from drivers.compass import NmeaCompassParser
+
+    parser = NmeaCompassParser()
+    t = start_s
+    try:
+        lines = path.read_bytes().splitlines()
+    except OSError as exc:
+        raise UserError(f"{path}: {exc.strerror or exc}") from None
+    for raw in lines:
+        text = raw.decode("ascii", errors="replace")
+        m = _STAMPED.match(text)
+        if m:
+            t_line, body = float(m.group(1)), m.group(2)
+        else:
+            t_line, body = t, text
+            t += 1.0 / rate_hz
+        out = parser.feed_line(body.encode("ascii", errors="replace"), t_line)
+        if out is not None:
+            yield out
+
+
+def can_inputs(path: Path, profile: str) -> Iterator[WheelOdometry]:
+    """Wheel odometry of a CAN log through the car's decoder (python-can readers)."""
+    from drivers.can_odometry import LogReadResult, WheelSpeedDecoder, read_can_log
+
+    if not path.is_file():
+        raise UserError(f"{path}: no such file")
+    decoder = WheelSpeedDecoder(profile)
+    for msg in read_can_log(path, LogReadResult()):
+        out = decoder.feed(msg)
+        if out is not None:
+            yield out
+
+
+def _first_can_time(path: Path) -> float:
+    from drivers.can_odometry import LogReadResult, read_can_log
+
+    for msg in read_can_log(path, LogReadResult()):
+        return float(msg.timestamp)
+    return 0.0
+
+
+# ----------------------------------------------------------------------------- running
+
+
+@dataclass
+class ReplayResult:
+    inputs: int = 0
+    decisions: list[dict[str, Any]] = field(default_factory=list)
+    prompts: list[tuple[float, str]] = field(default_factory=list)
+    states: list[dict[str, Any]] = field(default_factory=list)
+    first_t_s: float | None = None
+    last_t_s: float | None = None
+    odometer_m: float = 0.0
+    final: dict[str, Any] = field(default_factory=dict)
+    landmark_updates: int = 0
+
+    def expected(self) -> dict[str, Any]:
+        """The outputs a regression test compares (decisions, prompts, sampled states)."""
+        return {
+            "inputs": self.inputs,
+            "decisions": self.decisions,
+            "prompts": [list(p) for p in self.prompts],
+            "states": self.states[::10],
+            "final": self.final,
+        }
+
+
+def replay(
+    pipeline: Pipeline,
+    inputs: Iterable[Input],
+    *,
+    speed: float | None = None,
+    on_output: Callable[[Input, Outputs], None] | None = None,
+) -> ReplayResult:
+    """Feed ``inputs`` to ``pipeline``; collect decisions, prompts and published states."""
+    res = ReplayResult()
+    wall0 = time.monotonic()
+    for msg in inputs:
+        if res.first_t_s is None:
+            res.first_t_s = msg.t_s
+        if speed is not None:
+            ahead = (msg.t_s - res.first_t_s) / speed - (time.monotonic() - wall0)
+            if ahead > 0:
+                time.sleep(ahead)
+        out = pipeline.feed(msg)
+        res.inputs += 1
+        res.last_t_s = msg.t_s
+        for d in out.decisions:
+            res.decisions.append(
+                {
+                    "t_s": d.t_s,
+                    "exit_index": d.exit_index,
+                    "intersection_id": d.intersection_id,
+                    "exit_heading_rad": d.exit_heading_rad,
+                    "turn_rad": d.turn_rad,
+                    "target_kind": d.target_kind,
+                    "revisit": d.revisit,
+                }
+            )
+        for p in out.prompts:
+            res.prompts.append((p.t_s, p.text))
+        if out.state is not None:
+            s = out.state
+            res.states.append(
+                {
+                    "t_s": s.t_s,
+                    "x_m": s.x_m,
+                    "y_m": s.y_m,
+                    "heading_rad": s.heading_rad,
+                    "major_axis_m": s.ellipse.major_axis_m,
+                }
+            )
+        if on_output is not None:
+            on_output(msg, out)
+    st = pipeline.state()
+    res.odometer_m = pipeline.odometer_m
+    res.landmark_updates = pipeline.landmark_updates
+    res.final = {
+        "t_s": st.t_s,
+        "x_m": st.x_m,
+        "y_m": st.y_m,
+        "heading_rad": st.heading_rad,
+        "major_axis_m": st.ellipse.major_axis_m,
+        "odometer_m": pipeline.odometer_m,
+        "arrived": pipeline.arrived,
+        "lost": st.lost,
+    }
+    return res
+
+
+def compare_with_recording(
+    res: ReplayResult, recorded: Mapping[str, list[dict[str, Any]]]
+) -> list[str]:
+    """Differences between the replay and what the live run recorded (empty: identical)."""
+    problems = []
+    rec_d = recorded.get("/decision", [])
+    if len(rec_d) != len(res.decisions):
+        problems.append(f"{len(res.decisions)} decisions replayed, {len(rec_d)} recorded")
+    for i, (a, b) in enumerate(zip(res.decisions, rec_d, strict=False)):
+        if (a["t_s"], a["exit_index"], a["intersection_id"], a["exit_heading_rad"]) != (
+            b["t_s"],
+            b["exit_index"],
+            b["intersection_id"],
+            b["exit_heading_rad"],
+        ):
+            problems.append(f"decision {i} differs: replay {a} recorded {b}")
+    rec_s = recorded.get("/state", [])
+    if len(rec_s) != len(res.states):
+        problems.append(f"{len(res.states)} states replayed, {len(rec_s)} recorded")
+    for i, (a, b) in enumerate(zip(res.states, rec_s, strict=False)):
+        if (a["t_s"], a["x_m"], a["y_m"], a["heading_rad"]) != (
+            b["t_s"],
+            b["x_m"],
+            b["y_m"],
+            b["heading_rad"],
+        ):
+            problems.append(f"state {i} at t={a['t_s']} differs")
+            break
+    return problems
+
+
+def _raw_pipeline(config: str | None, start_heading_deg: float | None) -> PipelineConfig:
+    if config:
+        from guidance.config import load_config
+
+        return load_config(config, require_goal=False).pipeline
+    return PipelineConfig(
+        estimator=EstimatorConfig(),
+        navigator=NavigatorConfig(),
+        start_xy_m=(0.0, 0.0),
+        goal_xy_m=(1e7, 0.0),
+        start_heading_rad=(
+            None if start_heading_deg is None else math.radians(90.0 - start_heading_deg)
+        ),
+        expected_rates_hz={},
+        stop_at_arrival=False,
+    )
+
+
+# ----------------------------------------------------------------------------- CLI
+
+
+def register(sub: Any) -> None:
+    p = sub.add_parser(
+        "replay",
+        help="run a recording (MCAP) or raw CAN/NMEA logs through the pipeline",
+        description=(
+            "Replay an MCAP recording of guidance run/sim through the same pipeline (the "
+            "estimates and decisions are reproduced exactly and compared with the recorded "
+            "ones), or raw logs: a CAN log (candump .log, .asc, .blf via python-can) and/or "
+            "an NMEA text file."
+        ),
+    )
+    p.add_argument("file", type=Path, help="an .mcap recording (or folder), or a CAN log")
+    p.add_argument("--nmea", type=Path, default=None, help="an NMEA compass capture to merge")
+    p.add_argument("--profile", default="gm_global_a", help="vehicle profile for a CAN log")
+    p.add_argument("--config", default=None, help="car TOML for raw logs (start, goal, method)")
+    p.add_argument(
+        "--start-heading-deg",
+        type=float,
+        default=None,
+        help="raw logs without a compass: true heading at the start, clockwise from north",
+    )
+    p.add_argument("--nmea-rate", type=float, default=5.0, help="Hz, for unstamped NMEA lines")
+    p.add_argument("--speed", type=float, default=None, metavar="X", help="X times recorded rate")
+    p.add_argument("--json", action="store_true", help="last stdout line: the result as JSON")
+    p.add_argument("--write-expected", type=Path, default=None, help="write outputs as JSON")
+    p.set_defaults(func=_cli_replay)
+
+
+def _cli_replay(args: argparse.Namespace) -> int:
+    if args.speed is not None and args.speed <= 0:
+        raise UserError("--speed must be > 0")
+    path: Path = args.file
+    is_mcap = path.is_dir() or path.suffix.lower() == ".mcap"
+    problems: list[str] | None = None
+
+    def show(_msg: Input, out: Outputs) -> None:
+        if not args.json:
+            for pr in out.prompts:
+                sys.stdout.write(f"[{pr.t_s:9.2f} s] {pr.text}\n")
+
+    if is_mcap:
+        session, inputs = mcap_inputs(path)
+        pipeline = Pipeline(pipeline_config_from_session(session))
+        res = replay(pipeline, inputs, speed=args.speed, on_output=show)
+        problems = compare_with_recording(res, recorded_outputs(path))
+    else:
+        pcfg = _raw_pipeline(args.config, args.start_heading_deg)
+        if args.nmea is None and pcfg.start_heading_rad is None:
+            raise UserError("no compass log: give --start-heading-deg or a --config with one")
+        streams: list[Iterator[Any]] = [can_inputs(path, args.profile)]
+        if args.nmea is not None:
+            streams.append(nmea_inputs(args.nmea, _first_can_time(path), args.nmea_rate))
+        merged = heapq.merge(*streams, key=lambda m: m.t_s)
+        pipeline = Pipeline(pcfg)
+        res = replay(pipeline, merged, speed=args.speed, on_output=show)
+    if args.write_expected is not None:
+        args.write_expected.write_text(json.dumps(res.expected(), indent=1) + "\n")
+    f = res.final
+    dur = (res.last_t_s or 0.0) - (res.first_t_s or 0.0)
+    w = sys.stdout.write
+    w(
+        f"{res.inputs} inputs over {dur:.1f} s: {res.odometer_m:.1f} m driven, "
+        f"{len(res.decisions)} decisions, {len(res.prompts)} prompts\n"
+        f"final estimate x {f['x_m']:.1f} m, y {f['y_m']:.1f} m, heading "
+        f"{math.degrees(f['heading_rad']):.1f} deg, major axis {f['major_axis_m']:.1f} m\n"
+    )
+    if problems is not None:
+        w(
+            "matches the recording exactly\n"
+            if not problems
+            else f"DIFFERS from the recording: {problems[0]} ({len(problems)} differences)\n"
+        )
+    if args.json:
+        w(
+            json.dumps(
+                {
+                    "inputs": res.inputs,
+                    "duration_s": dur,
+                    "distance_m": res.odometer_m,
+                    "decisions": len(res.decisions),
+                    "prompts": len(res.prompts),
+                    "final": f,
+                    "matches_recording": None if problems is None else not problems,
+                    "differences": problems or [],
+                }
+            )
+            + "\n"
+        )
+    return 1 if problems else 0
