@@ -227,6 +227,18 @@ def test_bad_endpoint_is_one_clear_line() -> None:
     assert "Traceback" not in r.stderr
 
 
+def catches_sigusr1(pid: int) -> bool:
+    """The process has a handler for SIGUSR1 (the SigCgt mask in /proc/PID/status)."""
+    try:
+        status = Path(f"/proc/{pid}/status").read_text()
+    except OSError:
+        return False
+    for line in status.splitlines():
+        if line.startswith("SigCgt:"):
+            return bool(int(line.split()[1], 16) & (1 << (signal.SIGUSR1 - 1)))
+    return False
+
+
 def test_live_view_table_and_sigusr1_snapshot(
     publisher: Callable[[str], int], tmp_path: Path
 ) -> None:
@@ -252,13 +264,19 @@ def test_live_view_table_and_sigusr1_snapshot(
         env={**os.environ, "COLUMNS": "200"},
     )
     try:
-        deadline = time.monotonic() + 3.0
+        # Signal only once the handler is installed (SIGUSR1 would otherwise end the process):
+        # the start-up time of `guidance` depends on what its subcommands import.
+        deadline = time.monotonic() + 12.0
+        while not catches_sigusr1(proc.pid):
+            assert time.monotonic() < deadline and proc.poll() is None, "monitor did not start"
+            time.sleep(0.05)
+        time.sleep(1.0)  # let some messages arrive (the monitor runs 4 s from here)
+        deadline = time.monotonic() + 2.5
         while time.monotonic() < deadline and not png.exists():
-            time.sleep(1.0)
             os.kill(proc.pid, signal.SIGUSR1)  # ask for a snapshot while it runs
             time.sleep(0.3)
         assert png.exists() and proc.poll() is None, "no snapshot on SIGUSR1"
-        out, err = proc.communicate(timeout=20)
+        out, err = proc.communicate(timeout=30)
     finally:
         if proc.poll() is None:
             proc.kill()
