@@ -363,6 +363,9 @@ class App:
                 if self.camera is not None:
                     tasks.append(tg.create_task(self._recognise(), name="recogniser"))
                 try:
+                    if self.recorder is not None:
+                        for src in self.sources.values():
+                            tap_raw_inputs(src, self.recorder)
                     for name, src in self.sources.items():
                         src.start(self.sink)
                         self._started_sources.append(src)
@@ -470,6 +473,46 @@ class App:
             "loop_lag_p99_ms": _ms(_percentile(self.loop_lag_s, 99)),
             "loop_lag_max_ms": _ms(max(self.loop_lag_s) if self.loop_lag_s else None),
         }
+
+
+def tap_raw_inputs(source: Any, recorder: Any) -> bool:
+    """Record the raw bytes a driver reads (``/can`` frames, ``/nmea`` lines) as it reads them.
+
+    The CAN driver decodes in ``source.decoder.feed(msg)`` and the compass parses in
+    ``source.parser.feed_line(line, t_s)``, on their reader threads; this wraps those two
+    methods of the given instances (nothing else changes). Returns True when a tap was set.
+    """
+    decoder = getattr(source, "decoder", None)
+    if decoder is not None and callable(getattr(decoder, "feed", None)):
+        feed = decoder.feed
+        channel = str(getattr(getattr(source, "config", None), "channel", ""))
+        offset = decoder
+
+        def feed_can(msg: Any) -> Any:
+            recorder.record_can(
+                float(msg.timestamp) + float(getattr(offset, "clock_offset_s", 0.0)),
+                msg.arbitration_id,
+                bytes(msg.data),
+                is_extended_id=bool(msg.is_extended_id),
+                is_error_frame=bool(msg.is_error_frame),
+                channel=channel,
+            )
+            return feed(msg)
+
+        decoder.feed = feed_can
+        return True
+    parser = getattr(source, "parser", None)
+    if parser is not None and callable(getattr(parser, "feed_line", None)):
+        feed_line = parser.feed_line
+        port = str(getattr(getattr(source, "config", None), "port", ""))
+
+        def feed_nmea(line: bytes, t_s: float | None = None) -> Any:
+            recorder.record_nmea(time.monotonic() if t_s is None else t_s, line, port=port)
+            return feed_line(line, t_s)
+
+        parser.feed_line = feed_nmea
+        return True
+    return False
 
 
 def _percentile(values: Sequence[float] | deque[float], q: float) -> float | None:

@@ -113,8 +113,18 @@ def message_from_record(topic: str, data: Mapping[str, Any]) -> Input | None:
     return None
 
 
-def mcap_inputs(path: str | Path) -> tuple[dict[str, Any], Iterator[Input]]:
-    """The session record and the recorded inputs (in processing order) of a recording."""
+RAW_TOPICS = ("/can", "/nmea", "/heading", "/landmark_fix", "/scene", "/goal")
+
+
+def mcap_inputs(
+    path: str | Path, *, raw: bool = False, profile: str = "gm_global_a"
+) -> tuple[dict[str, Any], Iterator[Input]]:
+    """The session record and the recorded inputs (in processing order) of a recording.
+
+    ``raw=True`` decodes the raw ``/can`` frames and ``/nmea`` lines again with the car's
+    decoder (``profile``) and compass parser instead of taking the decoded ``/odometry`` and
+    ``/compass`` the app recorded: the drivers' decoding is then part of what is replayed.
+    """
     from guidance.recording import Reader
 
     sessions = list(Reader(path, topics=["/session"], log_time_order=False))
@@ -128,7 +138,39 @@ def mcap_inputs(path: str | Path) -> tuple[dict[str, Any], Iterator[Input]]:
             if msg is not None:
                 yield msg
 
-    return session, inputs()
+    def raw_inputs() -> Iterator[Input]:
+        import can
+
+        from drivers.can_odometry import WheelSpeedDecoder
+        from drivers.compass import NmeaCompassParser
+
+        decoder = WheelSpeedDecoder(profile)
+        parser = NmeaCompassParser()
+        for rec in Reader(path, topics=RAW_TOPICS, log_time_order=False):
+            d = rec.data
+            if rec.topic == "/can":
+                frame = can.Message(
+                    timestamp=float(d["t_s"]),
+                    arbitration_id=int(d["id"]),
+                    data=bytes.fromhex(str(d["data_hex"])),
+                    is_extended_id=bool(d.get("is_extended_id", False)),
+                    is_error_frame=bool(d.get("is_error_frame", False)),
+                )
+                odo = decoder.feed(frame)
+                if odo is not None:
+                    yield odo
+            elif rec.topic == "/nmea":
+                heading = parser.feed_line(
+                    str(d["line"]).encode("ascii", "replace"), float(d["t_s"])
+                )
+                if heading is not None:
+                    yield heading
+            else:
+                msg = message_from_record(rec.topic, d)
+                if msg is not None:
+                    yield msg
+
+    return session, raw_inputs() if raw else inputs()
 
 
 def recorded_outputs(path: str | Path) -> dict[str, list[dict[str, Any]]]:
@@ -355,6 +397,11 @@ def register(sub: Any) -> None:
     )
     p.add_argument("--nmea-rate", type=float, default=5.0, help="Hz, for unstamped NMEA lines")
     p.add_argument("--speed", type=float, default=None, metavar="X", help="X times recorded rate")
+    p.add_argument(
+        "--raw",
+        action="store_true",
+        help="MCAP: decode the raw /can frames and /nmea lines again (with --profile)",
+    )
     p.add_argument("--json", action="store_true", help="last stdout line: the result as JSON")
     p.add_argument("--write-expected", type=Path, default=None, help="write outputs as JSON")
     p.set_defaults(func=_cli_replay)
@@ -373,7 +420,7 @@ def _cli_replay(args: argparse.Namespace) -> int:
                 sys.stdout.write(f"[{pr.t_s:9.2f} s] {pr.text}\n")
 
     if is_mcap:
-        session, inputs = mcap_inputs(path)
+        session, inputs = mcap_inputs(path, raw=args.raw, profile=args.profile)
         pipeline = Pipeline(pipeline_config_from_session(session))
         res = replay(pipeline, inputs, speed=args.speed, on_output=show)
         problems = compare_with_recording(res, recorded_outputs(path))

@@ -88,6 +88,13 @@ def test_a_fresh_simulated_drive_replays_exactly(tmp_path: Path) -> None:
     assert compare_with_recording(res, recorded_outputs(path)) == []
     assert [p for _, p in res.prompts] == [p for _, p in r.prompt_log]
     assert res.final["odometer_m"] > 400.0
+    # The raw CAN frames and NMEA lines, decoded again by the drivers' decoder and parser,
+    # give the very same drive.
+    session, raw = mcap_inputs(path, raw=True, profile="gm_global_a")
+    res_raw = replay(Pipeline(pipeline_config_from_session(session)), raw)
+    assert compare_with_recording(res_raw, recorded_outputs(path)) == []
+    topics = Reader(path).channels()
+    assert topics["/can"] == "guidance.can_frame" and topics["/nmea"] == "guidance.nmea_line"
 
 
 def test_cli_replay_of_a_recording(capsys: pytest.CaptureFixture[str]) -> None:
