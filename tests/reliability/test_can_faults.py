@@ -55,12 +55,14 @@ class Rig:
         self.wheels.set_speeds(speed, speed)
         n = round((t1 - t0) / PERIOD_S)
         for i in range(n):
+            self.clock.t = t0 + i * PERIOD_S  # the health clock follows the frames' time
             self.wheels.send(t0 + i * PERIOD_S)
             self.sent += 2
-        self.clock.t = t0 + (n - 1) * PERIOD_S
         return t0 + n * PERIOD_S
 
     def raw(self, msg: can.Message) -> None:
+        if math.isfinite(msg.timestamp):
+            self.clock.t = max(self.clock.t, msg.timestamp)
         self.inject.send(msg)
         self.sent += 1
 
@@ -151,6 +153,7 @@ def test_bursty_timestamps_integrate_exactly(rig: Rig) -> None:
     t = 0.0
     for _burst in range(8):
         for _ in range(10):
+            rig.clock.t = t
             rig.wheels.send(t)
             rig.sent += 2
             t += 0.001
@@ -194,6 +197,7 @@ def test_unknown_ids_and_error_frames_are_ignored(rig: Rig) -> None:
     t = 0.0
     rig.wheels.set_speeds(SPEED_MPS, SPEED_MPS)
     for i in range(40):
+        rig.clock.t = t
         rig.wheels.send(t)
         rig.sent += 2
         for _ in range(10):  # a busy bus: ten other frames per wheel-speed pair
