@@ -72,6 +72,9 @@ class DriveOptions:
     """Fault: no CAN frames from t to t + duration (simulated seconds)."""
     compass_garbage: tuple[float, float] | None = None
     """Fault: garbage instead of NMEA sentences from t to t + duration."""
+    camera_hz: float | None = None
+    """Simulated camera (``hal_sim.sim_camera``) + the real landmark recogniser at this frame
+    rate (simulated time), instead of the world's sighting events."""
     cap_factor: float = 3.0
     cap_extra_m: float = 2000.0
     config: str | None = None
@@ -186,15 +189,23 @@ async def drive_async(
     est_cfg = estimator_config(sim, opts.compass_deg)
     nav_cfg = NavigatorConfig(method=method)
     spec = WorldSpec(
-        opts.seed, opts.area_km2, opts.goal_min_m, opts.goal_max_m, opts.density_per_km2,
+        opts.seed,
+        opts.area_km2,
+        opts.goal_min_m,
+        opts.goal_max_m,
+        opts.density_per_km2,
         opts.detection_rate,
-    )  # fmt: skip
+    )
     world = SimWorld(spec, sim, est_cfg, nav_cfg)
     origin = SIM_ORIGIN_LAT_LON
     if app_config is not None and app_config.origin_lat_lon_deg is not None:
         origin = app_config.origin_lat_lon_deg
     decl = declination_deg(origin[0], origin[1], _date(SIM_DATE))
     sx, sy, th0 = world.start_pose
+    landmarks = world.landmarks()
+    camera = recogniser = None
+    if opts.camera_hz is not None:
+        camera, recogniser, landmarks = _sim_camera(world, opts, out_dir_for(opts))
     gx, gy = world.goal_xy
     rates: dict[str, float | None] = {"odometry": 1.0 / world.dt_s}
     if opts.compass_deg is not None:
@@ -205,7 +216,7 @@ async def drive_async(
         start_xy_m=(sx, sy),
         goal_xy_m=(gx, gy),
         start_heading_rad=th0,
-        landmarks=world.landmarks(),
+        landmarks=landmarks,
         declination_deg=decl,
         expected_rates_hz=rates,
         stop_at_arrival=True,
@@ -214,7 +225,7 @@ async def drive_async(
     manhattan = abs(gx - sx) + abs(gy - sy)
     cap_m = opts.cap_factor * manhattan + opts.cap_extra_m
 
-    out_dir = Path(opts.out)
+    out_dir = out_dir_for(opts)
     track_truth: list[tuple[float, float]] = []
     track_est: list[tuple[float, float]] = []
     ellipses: list[tuple[float, float, list[list[float]]]] = []
@@ -255,10 +266,13 @@ async def drive_async(
         tx = SimCanWheels(channel, profile=opts.profile).open()
         odo = CanOdometry(
             CanOdometryConfig(
-                interface="virtual", channel=channel, profile=opts.profile, clock="frame",
+                interface="virtual",
+                channel=channel,
+                profile=opts.profile,
+                clock="frame",
                 bitrate=None,
             )
-        )  # fmt: skip
+        )
         sources: dict[str, Any] = {"odometry": odo}
         if opts.compass_deg is not None:
             pty = SimCompassPty()
@@ -308,6 +322,7 @@ async def drive_async(
         app = App(
             pipeline,
             sources=sources,
+            recogniser=recogniser,
             speaker=speaker,
             telemetry=telemetry,
             recorder=recorder,
@@ -333,6 +348,7 @@ async def drive_async(
         last_can_t: float | None = None
         next_track_t = world.t_s
         next_ellipse_m = pipeline.odometer_m
+        next_frame_t = world.t_s
         async with app.running():
             if compass is not None and not await app.wait_until(lambda: compass.connected, 5.0):
                 raise UserError("the simulated compass pty did not open")
@@ -373,7 +389,17 @@ async def drive_async(
                         log.warning("t=%.1f s: compass sentence not delivered", t)
                         expect_heading = app.counts["CompassHeading"]
                         expect_lines = compass.parser.lines
-                if ev.landmark is not None:
+                if camera is not None and recogniser is not None:
+                    if t >= next_frame_t:  # the real matcher, off the loop, in lockstep
+                        next_frame_t = t + 1.0 / (opts.camera_hz or 1.0)
+                        tx_, ty_, _ = world.truth
+                        frame = camera.frame_at(t, tx_, ty_)
+                        pipeline.health.observe("camera", t)
+                        loop = asyncio.get_running_loop()
+                        fix = await loop.run_in_executor(None, app._match, frame, pipeline.state())
+                        if fix is not None:
+                            app.feed(fix)
+                elif ev.landmark is not None:
                     sightings.sighted(t, ev.landmark)
                     await app.drained()
                 app.tick(t)
@@ -410,6 +436,8 @@ async def drive_async(
             app.save_checkpoint(world.t_s)
         lag = app.lag_summary()["loop_lag_p99_ms"]
     finally:
+        if recogniser is not None:
+            recogniser.close()
         for closer in (compass, odo):
             if closer is not None:
                 with contextlib.suppress(Exception):
@@ -453,6 +481,28 @@ async def drive_async(
         frames_sent=tx.frames_sent if tx is not None else 0,
         compass_lines=pty.sentences_written if pty is not None else 0,
     )
+
+
+def out_dir_for(opts: DriveOptions) -> Path:
+    return Path(opts.out)
+
+
+def _sim_camera(world: Any, opts: DriveOptions, out_dir: Path) -> tuple[Any, Any, Any]:
+    """The simulated camera, the real recogniser on a database of the city's landmarks, and
+    the navigator's landmark list with the database ids."""
+    from guidance.navigator import Landmark
+    from hal_sim.sim_camera import SimCamera, build_sim_landmark_db
+    from landmark_db.recognise import Recogniser, RecogniserConfig
+
+    out_dir.mkdir(parents=True, exist_ok=True)
+    path = out_dir / f"landmarks-seed{opts.seed}.sqlite"
+    for old in out_dir.glob(f"landmarks-seed{opts.seed}.sqlite*"):
+        old.unlink()
+    db, lms = build_sim_landmark_db(path, world.lm_xy, opts.seed)
+    recogniser = Recogniser(db, RecogniserConfig(sighting_range_m=world.sim.sighting_range_m))
+    camera = SimCamera(lms, opts.seed)
+    landmarks = tuple(Landmark(lm.id, lm.x_m, lm.y_m, f"landmark {lm.id}") for lm in lms)
+    return camera, recogniser, landmarks
 
 
 def _at_least(counts: Any, key: str, n: int) -> Callable[[], bool]:
@@ -513,9 +563,18 @@ def plot_drive(
     for i, (x, y, P) in enumerate(ellipses):
         a, b, ang = model.ellipse_axes(P[0][0], P[0][1], P[1][1], model.CHI2_2D_2SIGMA)
         ax.add_patch(
-            Ellipse((x, y), 2 * a, 2 * b, angle=math.degrees(ang), fill=False,
-                    ec="tab:red", lw=0.8, alpha=0.7, label="2σ ellipse" if i == 0 else None)
-        )  # fmt: skip
+            Ellipse(
+                (x, y),
+                2 * a,
+                2 * b,
+                angle=math.degrees(ang),
+                fill=False,
+                ec="tab:red",
+                lw=0.8,
+                alpha=0.7,
+                label="2σ ellipse" if i == 0 else None,
+            )
+        )
     lm = world.lm_xy
     if len(lm):
         ax.scatter(lm[:, 0], lm[:, 1], marker="^", s=30, c="tab:green", label="landmarks")
@@ -534,7 +593,7 @@ def plot_drive(
     margin = 250.0
     ax.set_xlim(pts[:, 0].min() - margin, pts[:, 0].max() + margin)
     ax.set_ylim(pts[:, 1].min() - margin, pts[:, 1].max() + margin)
-    ax.set_aspect("equal", adjustable="datalim")
+    ax.set_aspect("equal", adjustable="box")
     ax.legend(loc="best", fontsize=8)
     ax.grid(True, lw=0.3, alpha=0.5)
     fig.tight_layout()
@@ -613,17 +672,32 @@ def register(sub: Any) -> None:
         metavar="PATH",
         help="checkpoint file: resume from it if present, write it every 5 simulated seconds",
     )
+    p.add_argument(
+        "--camera",
+        type=float,
+        default=None,
+        metavar="HZ",
+        nargs="?",
+        const=2.0,
+        help="simulated camera frames at HZ (default 2) through the real landmark recogniser",
+    )
     p.add_argument("--no-telemetry", action="store_true", help="no Zenoh telemetry")
     p.add_argument("--no-record", action="store_true", help="no MCAP recording")
     p.add_argument("--no-png", action="store_true", help="no PNG")
     p.add_argument(
-        "--can-silent", type=_window, default=None, metavar="T:D",
+        "--can-silent",
+        type=_window,
+        default=None,
+        metavar="T:D",
         help="fault: no CAN frames for D simulated seconds from T",
-    )  # fmt: skip
+    )
     p.add_argument(
-        "--compass-garbage", type=_window, default=None, metavar="T:D",
+        "--compass-garbage",
+        type=_window,
+        default=None,
+        metavar="T:D",
         help="fault: garbage instead of NMEA for D simulated seconds from T",
-    )  # fmt: skip
+    )
     p.set_defaults(func=_cli_sim, compass_given=None)
 
 
@@ -643,6 +717,7 @@ def _cli_sim(args: argparse.Namespace) -> int:
         ("voice_to", "voice_to"),
         ("can_silent", "can_silent"),
         ("compass_garbage", "compass_garbage"),
+        ("camera", "camera_hz"),
     ):
         value = getattr(args, flag)
         if value is not None:

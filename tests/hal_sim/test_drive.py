@@ -53,8 +53,9 @@ def no_leaks() -> Iterator[None]:
 
 def test_seed_7_reaches_the_goal_through_the_real_drivers(tmp_path: Path) -> None:
     lines: list[str] = []
-    opts = DriveOptions(seed=7, voice="none", telemetry=False, record=True, png=True,
-                        out=str(tmp_path))  # fmt: skip
+    opts = DriveOptions(
+        seed=7, voice="none", telemetry=False, record=True, png=True, out=str(tmp_path)
+    )
     r = run_drive(opts, lines.append)
     assert r.outcome == "arrived"
     assert 1.0 < r.driven_km < 5.0
@@ -113,8 +114,19 @@ def test_without_a_compass_the_car_gets_lost_and_says_so() -> None:
 
 
 def test_cli_json_is_the_last_line(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
-    rc = main(["sim", "--seed", "7", "--no-voice", "--no-telemetry", "--no-record", "--json",
-               "--out", str(tmp_path)])  # fmt: skip
+    rc = main(
+        [
+            "sim",
+            "--seed",
+            "7",
+            "--no-voice",
+            "--no-telemetry",
+            "--no-record",
+            "--json",
+            "--out",
+            str(tmp_path),
+        ]
+    )
     assert rc == 0
     out = capsys.readouterr().out.strip().splitlines()
     summary = json.loads(out[-1])
@@ -139,3 +151,22 @@ def test_voice_to_records_the_prompts(tmp_path: Path) -> None:
     with wave.open(str(wav)) as w:
         seconds = w.getnframes() / w.getframerate()
     assert seconds > r.prompts * 0.8  # about a second or more per prompt
+
+
+@pytest.mark.slow
+def test_simulated_camera_through_the_real_recogniser(tmp_path: Path) -> None:
+    """Camera frames rendered at the true position, matched by landmark_db's recogniser off
+    the loop; its fixes reach the estimator (about 20 s)."""
+    opts = replace(
+        FAST,
+        seed=3,
+        goal_min_m=350.0,
+        goal_max_m=600.0,
+        density_per_km2=30.0,
+        camera_hz=2.0,
+        out=str(tmp_path),
+    )
+    r = run_drive(opts)
+    assert r.outcome == "arrived"
+    assert r.landmark_updates >= 1
+    assert any(text.startswith("Landmark confirmed") for _, text in r.prompt_log)
