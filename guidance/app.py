@@ -33,11 +33,10 @@ import time
 from collections import Counter, deque
 from collections.abc import AsyncIterator, Callable, Mapping, Sequence
 from pathlib import Path
-from typing import Any, Protocol
+from typing import TYPE_CHECKING, Any, Protocol
 
 from guidance.checkpoint import Checkpointer, load_checkpoint
 from guidance.errors import UserError
-from guidance.estimator import HeadingFix
 from guidance.interfaces import Speaker
 from guidance.messages import (
     CameraFrame,
@@ -48,7 +47,9 @@ from guidance.messages import (
     TurnCompleted,
     WheelOdometry,
 )
-from guidance.pipeline import GoalUpdate, Input, InputStatus, Outputs, Pipeline
+
+if TYPE_CHECKING:  # the estimator stack (filterpy, scipy, numba) loads on first use only
+    from guidance.pipeline import Input, InputStatus, Outputs, Pipeline
 
 log = logging.getLogger(__name__)
 
@@ -104,6 +105,11 @@ class App:
         max_loop_lag_s: float = 0.5,
         method: str = "",
     ) -> None:
+        from guidance.estimator import HeadingFix
+        from guidance.pipeline import GoalUpdate
+
+        self._heading_fix_type = HeadingFix
+        self._goal_type = GoalUpdate
         self.pipeline = pipeline
         self.sources = dict(sources or {})
         self.camera = camera
@@ -302,7 +308,7 @@ class App:
                 msg.t_s,
                 {"t_s": msg.t_s, "heading_deg": msg.heading_deg, "is_true": msg.is_true},
             )
-        elif isinstance(msg, HeadingFix):
+        elif isinstance(msg, self._heading_fix_type):
             rec.record("/heading", msg.t_s, {"t_s": msg.t_s, "theta_rad": msg.theta_rad})
         elif isinstance(msg, LandmarkFix):
             rec.record(
@@ -318,7 +324,7 @@ class App:
             )
         elif isinstance(msg, IntersectionScene | TurnCompleted):
             rec.record_scene(msg)
-        elif isinstance(msg, GoalUpdate):
+        elif isinstance(msg, self._goal_type):
             rec.record(
                 "/goal",
                 msg.t_s,
@@ -542,6 +548,7 @@ def build_speaker(backend: str, wav_path: str, clock: Callable[[], float]) -> Sp
 async def run_car(config_path: str, *, resume: bool = True) -> int:
     """``guidance run``: open the configured devices and guide until SIGINT/SIGTERM."""
     from guidance.config import load_config
+    from guidance.pipeline import GoalUpdate, Pipeline
     from guidance.recording import Recorder
     from guidance.scene import KeyboardScene
     from guidance.telemetry import Telemetry

@@ -29,10 +29,9 @@ import time
 from collections.abc import Callable, Iterable, Iterator, Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from guidance.errors import UserError
-from guidance.estimator import EstimatorConfig, HeadingFix
 from guidance.messages import (
     CompassHeading,
     IntersectionScene,
@@ -40,9 +39,9 @@ from guidance.messages import (
     TurnCompleted,
     WheelOdometry,
 )
-from guidance.navigator import Landmark, Method, NavigatorConfig
-from guidance.pipeline import GoalUpdate, HealthConfig, Input, Outputs, Pipeline, PipelineConfig
-from guidance.prompts import Units
+
+if TYPE_CHECKING:  # the estimator stack (filterpy, scipy, numba) loads on first use only
+    from guidance.pipeline import Input, Outputs, Pipeline, PipelineConfig
 
 INPUT_TOPICS = ("/odometry", "/compass", "/heading", "/landmark_fix", "/scene", "/goal")
 
@@ -52,6 +51,11 @@ INPUT_TOPICS = ("/odometry", "/compass", "/heading", "/landmark_fix", "/scene", 
 
 def pipeline_config_from_session(session: Mapping[str, Any]) -> PipelineConfig:
     """Rebuild the pipeline configuration from a recording's ``/session`` record."""
+    from guidance.estimator import EstimatorConfig
+    from guidance.navigator import Landmark, Method, NavigatorConfig
+    from guidance.pipeline import HealthConfig, PipelineConfig
+    from guidance.prompts import Units
+
     d = session.get("pipeline")
     if not isinstance(d, Mapping):
         raise UserError("the recording's /session record has no pipeline configuration")
@@ -81,6 +85,9 @@ def pipeline_config_from_session(session: Mapping[str, Any]) -> PipelineConfig:
 
 def message_from_record(topic: str, data: Mapping[str, Any]) -> Input | None:
     """One recorded input message back as the message the pipeline took."""
+    from guidance.estimator import HeadingFix
+    from guidance.pipeline import GoalUpdate
+
     t = float(data["t_s"])
     if topic == "/odometry":
         return WheelOdometry(t, float(data["d_left_m"]), float(data["d_right_m"]))
@@ -354,6 +361,10 @@ def compare_with_recording(
 
 
 def _raw_pipeline(config: str | None, start_heading_deg: float | None) -> PipelineConfig:
+    from guidance.estimator import EstimatorConfig
+    from guidance.navigator import NavigatorConfig
+    from guidance.pipeline import PipelineConfig
+
     if config:
         from guidance.config import load_config
 
@@ -408,6 +419,8 @@ def register(sub: Any) -> None:
 
 
 def _cli_replay(args: argparse.Namespace) -> int:
+    from guidance.pipeline import Pipeline
+
     if args.speed is not None and args.speed <= 0:
         raise UserError("--speed must be > 0")
     path: Path = args.file
