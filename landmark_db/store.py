@@ -30,7 +30,7 @@ import numpy as np
 from guidance.errors import UserError
 from guidance.model import CHI2_2D_2SIGMA
 from landmark_db.features import Features, OrbConfig, decode_image, encode_image, extract
-from landmark_db.gate import gate_box, in_gate
+from landmark_db.gate import gate_box, in_gate, mahalanobis_sq
 from landmark_db.geo import Origin
 
 SCHEMA_VERSION = 2
@@ -623,7 +623,8 @@ def query_gate(
     k2: float = CHI2_2D_2SIGMA,
     limit: int | None = None,
 ) -> list[Candidate]:
-    """Landmarks within ``range_m`` of the ``k2`` ellipse, nearest first (``landmark_db.gate``).
+    """Landmarks within ``range_m`` of the ``k2`` ellipse, nearest first (``landmark_db.gate``);
+    those inside the ellipse by Mahalanobis distance from the mean.
 
     R*Tree box first, then the exact distance-to-ellipse test on what the box returned.
     """
@@ -632,7 +633,9 @@ def query_gate(
         return []
     mask, dist = in_gate(xy, mean_xy, cov_xy, k2, range_m)
     keep = np.flatnonzero(mask)
-    keep = keep[np.lexsort((ids[keep], dist[keep]))]
+    # Nearest to the ellipse first; inside it (distance 0), most likely first (Mahalanobis).
+    d2 = mahalanobis_sq(xy[keep], mean_xy, cov_xy)
+    keep = keep[np.lexsort((ids[keep], d2, dist[keep]))]
     if limit is not None:
         keep = keep[:limit]
     return [Candidate(int(ids[i]), float(xy[i, 0]), float(xy[i, 1]), float(dist[i])) for i in keep]

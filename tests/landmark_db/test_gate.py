@@ -93,3 +93,25 @@ def test_rtree_query_equals_brute_force(tmp_path: Path) -> None:
         limited = query_gate(db, mean, cov, r, limit=5)
         assert [c.id for c in limited] == [c.id for c in got[:5]]
     db.close()
+
+
+def test_inside_the_ellipse_the_most_likely_come_first(tmp_path: Path) -> None:
+    """A lost estimate in a dense block: the 5 compared are the 5 nearest in Mahalanobis terms."""
+    db = create_db(tmp_path / "m.sqlite", Origin(0.0, 0.0))
+    f = Features(np.zeros((1, 6), np.float32), np.zeros((1, 32), np.uint8), 1, 1)
+    # Along x the ellipse is wide (sigma 100 m), along y narrow (sigma 10 m).
+    pts = [
+        (150.0, 0.0),
+        (0.0, 15.0),
+        (100.0, 0.0),
+        (0.0, 5.0),
+        (50.0, 0.0),
+        (0.0, 10.0),
+        (10.0, 0.0),
+        (0.0, 18.0),
+    ]
+    db.add_many_precomputed([(f"p{i}", x, y) for i, (x, y) in enumerate(pts)], f, b"x")
+    got = query_gate(db, (0.0, 0.0), _cov(100.0, 10.0, 0.0), 0.0, limit=5)
+    # d2: (10,0) 0.01, (50,0) 0.25, (0,5) 0.25, (100,0) 1, (0,10) 1, (0,15) 2.25, (150,0) 2.25
+    assert [c.id for c in got] == [7, 4, 5, 3, 6]
+    db.close()
