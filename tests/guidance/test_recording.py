@@ -274,18 +274,19 @@ def test_full_queue_drops_and_counts_without_blocking(tmp_path: Path) -> None:
     rec._write = slow  # type: ignore[method-assign]
     rec.start()
     try:
-        worst = 0.0
+        took = []
         accepted = 0
         for i in range(200):
             t0 = time.perf_counter()
             accepted += rec.record_can(float(i), 1, b"")
-            worst = max(worst, time.perf_counter() - t0)
+            took.append(time.perf_counter() - t0)
     finally:
         rec.close()
     h = rec.health()
     assert h.dropped == 200 - accepted and h.dropped > 150
     assert h.written == accepted
-    assert worst < 0.005
+    took.sort()  # the writer takes 10 ms per message: a blocking call would wait that long
+    assert took[int(0.99 * (len(took) - 1))] < 0.001 and took[-1] < 0.05
 
 
 def fill_until_full(rec: Recorder, limit: int = 200_000) -> int:

@@ -397,6 +397,15 @@ def test_goal_parsing_accepts_a_plain_goal() -> None:
     assert parse_goal(b'{"x_m": 3, "y_m": -4.5}', 1000.0) == (3.0, -4.5)
 
 
+def assert_never_blocks(took: list[float]) -> None:
+    """Calls that never wait for the network: 99% under 1 ms. The worst one is allowed the
+    thread-switch and scheduling jitter of a loaded two-core machine (a few ms), far below
+    any network wait (zenoh's connect timeout is seconds)."""
+    took = sorted(took)
+    p99, worst = took[int(0.99 * (len(took) - 1))], took[-1]
+    assert p99 < 0.001 and worst < 0.05, f"p99 {p99 * 1e3:.2f} ms, worst {worst * 1e3:.1f} ms"
+
+
 # -- unreachable zenoh, non-blocking publishing ----------------------------------------------------
 def test_unreachable_router_keeps_the_car_running_then_connects(car_port: int) -> None:
     cfg = TelemetryConfig(
@@ -408,13 +417,13 @@ def test_unreachable_router_keeps_the_car_running_then_connects(car_port: int) -
     try:
         assert wait_until(lambda: tel.health().status == "down", 5.0)
         assert "Unable to connect" in tel.health().last_error
-        worst = 0.0
+        took = []
         for i in range(500):
             t0 = time.perf_counter()
             tel.publish_state(make_state(t_s=float(i)))
             tel.publish_prompt(float(i), "p")
-            worst = max(worst, time.perf_counter() - t0)
-        assert worst < 0.005, f"publishing blocked for {worst * 1e3:.1f} ms"
+            took.append(time.perf_counter() - t0)
+        assert_never_blocks(took)
         dropped = tel.health().dropped
         assert dropped.get("superseded", 0) > 400 and dropped.get("fifo_full", 0) > 400
 

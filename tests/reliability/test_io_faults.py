@@ -100,13 +100,13 @@ def test_zenoh_unreachable_degrades_to_a_flag_and_publishing_never_blocks() -> N
     tel.start()
     try:
         wait_until(lambda: tel.health().status == "down", 10.0, "telemetry down")
-        worst = 0.0
+        took = []
         for i in range(1000):
             t0 = time.perf_counter()
             tel.publish_state(state(float(i)))
             tel.publish_prompt(float(i), "Turn left")
             tel.publish_health(float(i), {"can": {"alive": True, "valid": True}})
-            worst = max(worst, time.perf_counter() - t0)
+            took.append(time.perf_counter() - t0)
         h = tel.health()
         assert (h.status, h.alive, h.valid, h.ok) == ("down", False, False, False)
         assert h.warning == TELEMETRY_DOWN_WARNING and "connect" in h.last_error.lower()
@@ -116,7 +116,11 @@ def test_zenoh_unreachable_degrades_to_a_flag_and_publishing_never_blocks() -> N
         t0 = time.monotonic()
         tel.close()
     assert time.monotonic() - t0 < 3.0
-    assert worst < 0.005, f"publishing blocked for {worst * 1e3:.1f} ms"
+    # Never waits for the network (a connect attempt takes seconds): 99% of the rounds of three
+    # calls under 1 ms; the worst gets the thread-switch jitter of a loaded machine.
+    took.sort()
+    p99, worst = took[989], took[-1]
+    assert p99 < 0.001 and worst < 0.05, f"p99 {p99 * 1e3:.2f} ms, worst {worst * 1e3:.1f} ms"
 
 
 # -- speech ---------------------------------------------------------------------------------------
@@ -192,13 +196,15 @@ while not rec.health().disk_full and i < 100_000:
     rec.record_nmea(i * 0.01, "$HCHDG,90.0,,,,*7C"); i += 1
     if i % 100 == 0:
         time.sleep(0.002)
-worst = 0.0
+took = []
 for j in range(2000):                            # the drive goes on: recording calls stay cheap
     t0 = time.perf_counter()
     rec.record_nmea(1e3 + j, "$HCHDG,90.0,,,,*7C")
-    worst = max(worst, time.perf_counter() - t0)
+    took.append(time.perf_counter() - t0)
 rec.close()
-print(json.dumps({"health": rec.health().as_dict(), "worst_s": worst, "went_on": j + 1}))
+took.sort()
+print(json.dumps({"health": rec.health().as_dict(), "p99_s": took[1979], "worst_s": took[-1],
+                  "went_on": j + 1}))
 """
 
 
@@ -221,7 +227,8 @@ def test_disk_full_stops_the_recording_flags_it_and_the_process_goes_on(tmp_path
         True,
     )
     assert h["warning"] == DISK_FULL_WARNING and "File too large" in h["last_error"]
-    assert h["dropped"] >= 2000 and out["went_on"] == 2000 and out["worst_s"] < 0.005
+    assert h["dropped"] >= 2000 and out["went_on"] == 2000 and out["p99_s"] < 0.001
+    assert out["worst_s"] < 0.05
     assert r.stderr.count("recording stopped") == 1
 
 
