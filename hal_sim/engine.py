@@ -34,6 +34,7 @@ from hal_sim.params import (
     I_COMPASS_SIGMA,
     I_DEAD_FRAC,
     I_DETECT,
+    I_DT,
     I_EXIT_TOL,
     I_HYBRID_SWITCH,
     I_INIT_HEAD_SIGMA,
@@ -55,6 +56,7 @@ from hal_sim.params import (
     I_SLIP,
     I_TABU,
     I_TRACK,
+    I_TURN_V,
 )
 
 STUDY_RANGE = 0
@@ -63,7 +65,11 @@ STUDY_LANDMARKS = 1
 OUTCOME_ARRIVED = 0
 OUTCOME_LOST = 1
 OUTCOME_TIMEOUT = 2
-OUTCOME_NAMES = ("arrived", "lost", "timeout")
+OUTCOME_STUCK = 3
+OUTCOME_NAMES = ("arrived", "lost", "timeout", "stuck")
+# A trial that has not covered its distance cap after this many steps at the turn
+# speed is stuck (a controller fault, not a navigation result): it is ended and counted.
+STUCK_FACTOR = 3.0
 
 # Result vector.
 (
@@ -182,6 +188,7 @@ def run_trial(
     else:
         cap = p[I_LM_CAP_FACTOR] * res[RES_MANHATTAN_M] + p[I_LM_CAP_EXTRA]
 
+    max_steps = int(STUCK_FACTOR * cap / (p[I_TURN_V] * p[I_DT])) + 1000
     # Estimator state.
     x = np.array([sx, sy, ts[world.T_TH]])
     sp = p[I_INIT_POS_SIGMA]
@@ -282,6 +289,9 @@ def run_trial(
             passed[:] = False
         if driven >= cap:
             outcome = OUTCOME_TIMEOUT
+            break
+        if step >= max_steps:
+            outcome = OUTCOME_STUCK
             break
         if events[4] > 0.0:
             # The intersection ahead: project the estimate to it, then decide.

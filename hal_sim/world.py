@@ -137,8 +137,11 @@ def make_city(
         if np.random.random() >= dead_frac:
             continue
         keep = np.random.randint(0, 4)
-        while adj[u, keep] < 0:
+        for _ in range(4):
+            if adj[u, keep] >= 0:
+                break
             keep = (keep + 1) % 4
+        # (A node whose neighbours have all cut it off keeps nothing; SCC pruning drops it.)
         for d in range(4):
             v = adj[u, d]
             if d != keep and v >= 0:

@@ -36,6 +36,14 @@ def test_city_network_is_strongly_connected(seed: int) -> None:
     assert net[targets].all()
 
 
+def test_city_generation_terminates_when_dead_ends_isolate_a_node() -> None:
+    # A range-study trial once hung here: a dead-end node whose neighbours had
+    # already cut every street to it. Dense dead ends make that common.
+    for seed in range(300):
+        xs, ys, adj, net = _city(seed, area=1.0, dead=0.5)
+        assert net.sum() >= 2
+
+
 def test_city_blocks_area_dead_ends_and_one_ways() -> None:
     one_way = two_way = dead_ends = nodes = 0
     for seed in range(20):
