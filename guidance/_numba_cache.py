@@ -9,6 +9,7 @@ hash of every compiled module (and the numba version) rules that out. A
 
 from __future__ import annotations
 
+import contextlib
 import hashlib
 import os
 import sys
@@ -29,10 +30,8 @@ def configure() -> None:
     if "NUMBA_CACHE_DIR" in os.environ:
         return
     h = hashlib.sha256()
-    try:
+    with contextlib.suppress(PackageNotFoundError):  # numba is a dependency
         h.update(version("numba").encode())
-    except PackageNotFoundError:  # pragma: no cover - numba is a dependency
-        pass
     h.update(sys.version.encode())
     for rel in COMPILED_SOURCES:
         try:

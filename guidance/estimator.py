@@ -269,7 +269,10 @@ class PoseEstimator:
         var = msg.sigma_m**2
         R = np.eye(2) * var
         z = np.array([msg.x_m, msg.y_m])
-        d2 = model.mahalanobis_sq_2d(*model.position_innovation(self._kf.x, self._kf.P, *z, var))
+        y0, y1, s00, s01, s11 = model.position_innovation(
+            self._kf.x, self._kf.P, msg.x_m, msg.y_m, var
+        )
+        d2 = model.mahalanobis_sq_2d(y0, y1, s00, s01, s11)
         if d2 > cfg.landmark_gate_chi2:
             return self._reject(kind, "landmark_gate", d2)
         self._kf.update(z, _H_position, _h_position, R=R)

@@ -136,7 +136,9 @@ def predict_covariance(P: np.ndarray, F: np.ndarray, Q: np.ndarray, out: np.ndar
 
 
 @njit(cache=True)
-def heading_innovation(x: np.ndarray, P: np.ndarray, z_theta: float, var: float) -> tuple[float, float]:
+def heading_innovation(
+    x: np.ndarray, P: np.ndarray, z_theta: float, var: float
+) -> tuple[float, float]:
     """Compass measurement model h(x) = theta: wrapped residual y and its variance S."""
     return wrap_angle(z_theta - x[2]), P[2, 2] + var
 

@@ -9,10 +9,10 @@ from typing import TYPE_CHECKING, Any
 import matplotlib
 
 matplotlib.use("Agg")
-import matplotlib.pyplot as plt  # noqa: E402
-import numpy as np  # noqa: E402
+import matplotlib.pyplot as plt
+import numpy as np
 
-from hal_sim import engine  # noqa: E402
+from hal_sim import engine
 
 if TYPE_CHECKING:
     from hal_sim.studies import StudyData
@@ -88,15 +88,16 @@ def fig4(data: StudyData, path: Path) -> None:
 
     fig, axes = plt.subplots(1, 3, figsize=(16, 5.5), dpi=100, sharey=True)
     cmap = plt.get_cmap("viridis")
-    styles = {r: s for r, s in zip(LANDMARK_DETECTION_RATES, (":", "-.", "--", (0, (5, 1)), "-"))}
-    for ax, method in zip(axes, LANDMARK_METHODS):
+    styles = {
+        r: s
+        for r, s in zip(LANDMARK_DETECTION_RATES, (":", "-.", "--", (0, (5, 1)), "-"), strict=False)
+    }
+    for ax, method in zip(axes, LANDMARK_METHODS, strict=False):
         for c in data.conditions:
             if c.method is not method:
                 continue
             r = data.results[c.key]
-            x, y = success_curve(
-                r[:, engine.RES_EUCLID_M] / 1000.0, r[:, engine.RES_OUTCOME] == 0
-            )
+            x, y = success_curve(r[:, engine.RES_EUCLID_M] / 1000.0, r[:, engine.RES_OUTCOME] == 0)
             col = cmap(LANDMARK_DENSITIES.index(c.density_per_km2) / (len(LANDMARK_DENSITIES) - 1))
             ax.plot(
                 x, y, color=col, linestyle=styles[c.detection_rate], linewidth=1.3,
@@ -109,9 +110,7 @@ def fig4(data: StudyData, path: Path) -> None:
         ax.grid(True, alpha=0.3)
     axes[0].set_ylabel("Success rate (goal reached, never lost)")
     handles, labels = axes[0].get_legend_handles_labels()
-    fig.legend(
-        handles, labels, loc="center right", fontsize=7, title="density, detection", ncol=1
-    )
+    fig.legend(handles, labels, loc="center right", fontsize=7, title="density, detection", ncol=1)
     fig.suptitle("Landmark study: success against distance (compass ±30°, 2σ)")
     fig.tight_layout(rect=(0, 0, 0.88, 0.95))
     fig.savefig(path)

@@ -187,7 +187,9 @@ def pack(
         p[I_TRUE_COMPASS_SIGMA] = p[I_COMPASS_SIGMA]
     else:
         p[I_TRUE_COMPASS_SIGMA] = (
-            -1.0 if true_compass_two_sigma_deg is None else math.radians(true_compass_two_sigma_deg) / 2
+            -1.0
+            if true_compass_two_sigma_deg is None
+            else math.radians(true_compass_two_sigma_deg) / 2
         )
     p[I_AREA_MIN] = sim.area_km2_min
     p[I_AREA_MAX] = sim.area_km2_max

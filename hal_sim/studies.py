@@ -65,7 +65,7 @@ def range_conditions() -> list[Condition]:
 
 
 def landmark_conditions() -> list[Condition]:
-    out = []
+    out: list[Condition] = []
     for m in LANDMARK_METHODS:
         for d in LANDMARK_DENSITIES:
             for r in LANDMARK_DETECTION_RATES:
@@ -267,7 +267,9 @@ class StudyData:
     sample_km: np.ndarray
 
 
-def collect(tasks: Iterable[ChunkTask], store: ChunkStore, conditions: list[Condition]) -> StudyData:
+def collect(
+    tasks: Iterable[ChunkTask], store: ChunkStore, conditions: list[Condition]
+) -> StudyData:
     res: dict[str, list[np.ndarray]] = {c.key: [] for c in conditions}
     smp: dict[str, list[np.ndarray]] = {c.key: [] for c in conditions}
     sample_km = np.zeros(0)
@@ -324,9 +326,7 @@ def growth_curve(coef: tuple[float, float, float, float], distance_km: np.ndarra
     return np.sqrt(c0 + c1 * distance_km + c2 * distance_km**2 + c3 * distance_km**3)
 
 
-def fitted_lost_km(
-    coef: tuple[float, float, float, float], limit_m: float = 100.0
-) -> float | None:
+def fitted_lost_km(coef: tuple[float, float, float, float], limit_m: float = 100.0) -> float | None:
     """Where the fitted major axis crosses ``limit_m`` (None if it never grows)."""
     if max(coef[1:]) <= 0:
         return None
@@ -393,14 +393,20 @@ def summarise_range(data: StudyData, sim: SimParams) -> dict[str, Any]:
         conds.append(
             {
                 "compass_2sigma_deg": c.compass_two_sigma_deg,
-                "trials": int(len(r)),
+                "trials": len(r),
                 "mean_lost_km": float(lost_m[lost].mean() / 1000.0) if lost.any() else None,
                 "median_lost_km": float(np.median(lost_m[lost]) / 1000.0) if lost.any() else None,
                 "never_lost_fraction": float(1.0 - lost.mean()),
                 "cap_km": sim.range_cap_km,
                 "fit_major_axis_sq": None
                 if fit is None
-                else dict(zip(("c0_m2", "c1_m2_per_km", "c2_m2_per_km2", "c3_m2_per_km3"), fit)),
+                else dict(
+                    zip(
+                        ("c0_m2", "c1_m2_per_km", "c2_m2_per_km2", "c3_m2_per_km3"),
+                        fit,
+                        strict=False,
+                    )
+                ),
                 "fit_lost_km": fit_lost,
                 "mean_turns_per_km": float(
                     np.mean(r[:, engine.RES_TURNS] / np.maximum(r[:, engine.RES_DRIVEN_M], 1) * 1e3)
@@ -422,7 +428,7 @@ def summarise_landmarks(data: StudyData) -> dict[str, Any]:
                 "method": c.method.value,
                 "density_per_km2": c.density_per_km2,
                 "detection_rate": c.detection_rate,
-                "trials": int(len(r)),
+                "trials": len(r),
                 "success_rate": float(success.mean()),
                 "range_km_at_80pct": km,
                 "range_censored": censored,

@@ -117,7 +117,10 @@ def make_city(
     dead_frac: float,
     oneway_frac: float,
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-    """A random grid city: (xs, ys, adj, in_network). Every node in the network reaches every other."""
+    """A random grid city: (xs, ys, adj, in_network).
+
+    Every node in the network reaches every other.
+    """
     width = math.sqrt(area_km2 * aspect) * 1000.0
     height = area_km2 * 1e6 / width
     xs = _street_positions(width, block_min, block_max)

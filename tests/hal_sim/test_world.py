@@ -23,7 +23,7 @@ def _reach_all(adj: np.ndarray, nx: int, start: int, forward: bool) -> np.ndarra
 
 @pytest.mark.parametrize("seed", range(8))
 def test_city_network_is_strongly_connected(seed: int) -> None:
-    xs, ys, adj, net = _city(seed)
+    xs, _ys, adj, net = _city(seed)
     nx = len(xs)
     nodes = np.nonzero(net)[0]
     assert len(nodes) > 0.5 * adj.shape[0]
@@ -40,7 +40,7 @@ def test_city_generation_terminates_when_dead_ends_isolate_a_node() -> None:
     # A range-study trial once hung here: a dead-end node whose neighbours had
     # already cut every street to it. Dense dead ends make that common.
     for seed in range(300):
-        xs, ys, adj, net = _city(seed, area=1.0, dead=0.5)
+        _xs, _ys, _adj, net = _city(seed, area=1.0, dead=0.5)
         assert net.sum() >= 2
 
 
@@ -87,7 +87,7 @@ def test_landmark_density() -> None:
     for seed in range(30):
         xs, ys, adj, net = _city(seed, area=4.0)
         world.seed(1000 + seed)
-        lm, start, node_lms = world.place_landmarks(xs, ys, adj, net, 5.0)
+        lm, _start, node_lms = world.place_landmarks(xs, ys, adj, net, 5.0)
         counts.append(len(lm))
         areas.append((xs[-1] - xs[0]) * (ys[-1] - ys[0]) / 1e6)
         # each landmark lies on a street and is listed at both ends of it
@@ -137,7 +137,7 @@ def test_pid_keeps_the_car_within_a_lane_of_the_route() -> None:
     worst = 0.0
     turns = 0
     for seed in range(5):
-        xs, ys, adj, net, lm, ns0, nl, ts, ns, goal, _ = engine.setup_trial(seed, 0, 0.0, p)
+        xs, ys, adj, _net, lm, ns0, nl, ts, ns, _goal, _ = engine.setup_trial(seed, 0, 0.0, p)
         seen = -np.ones(len(lm), dtype=np.int64)
         ev = np.zeros(8)
         dirs = np.empty(4, dtype=np.int64)
@@ -176,7 +176,7 @@ def test_wheel_encoders_quantise_and_integrate() -> None:
     """Whole counts: the sum of increments equals the true distance within one count."""
     sim = SimParams(wheel_slip_frac=0.0)
     p = params.pack(sim, params.estimator_config(sim, 20.0), NavigatorConfig(), 1.0)
-    xs, ys, adj, net, lm, ns0, nl, ts, ns, goal, _ = engine.setup_trial(3, 0, 0.0, p)
+    xs, ys, _adj, _net, lm, ns0, nl, ts, ns, _goal, _ = engine.setup_trial(3, 0, 0.0, p)
     seen = -np.ones(len(lm), dtype=np.int64)
     ev = np.zeros(8)
     total = np.zeros(2)
