@@ -355,9 +355,12 @@ async def drive_async(
             if pipeline.finished:
                 outcome = "arrived" if pipeline.arrived else "lost"
             pace0_wall, pace0_sim = time.monotonic(), world.t_s
+            first_step = world.step_count
             while not pipeline.finished:
                 ev = world.step()
                 t = ev.t_s
+                if ev.step == first_step + 10:  # lag figures without the start-up (JIT load)
+                    app.loop_lag_s.clear()
                 # Wheel speeds -> CAN frames -> CanOdometry -> pipeline.
                 if not _in(opts.can_silent, t):
                     tx.set_speeds(ev.left_mps, ev.right_mps)

@@ -302,3 +302,104 @@ def test_app_writes_checkpoints_on_the_message_clock(tmp_path: Path) -> None:
     assert doc is not None and doc["extra"] == {"note": "x"}
     assert doc["pipeline"]["odometer_m"] == pytest.approx(31.0)
     assert not list(tmp_path.glob(".*.tmp"))
+
+
+# ----------------------------------------------------------------------------- guidance run
+
+
+def test_guidance_run_on_simulated_devices_with_systemd_notify(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """``run_car`` from a TOML file: wheel frames on a virtual bus, NMEA on a pty, READY and
+    watchdog pings to a fake systemd socket, checkpoints and an MCAP recording; SIGTERM stops
+    it cleanly."""
+    import signal
+    import socket
+
+    from guidance.app import run_car
+    from guidance.recording import Reader
+    from hal_sim.sim_compass import SimCompassPty
+
+    notify_path = tmp_path / "notify.sock"
+    notify = socket.socket(socket.AF_UNIX, socket.SOCK_DGRAM)
+    notify.bind(str(notify_path))
+    notify.settimeout(0.1)
+    messages: list[str] = []
+    listening = threading.Event()
+    listening.set()
+
+    def systemd() -> None:  # read as systemd does: a full datagram queue blocks the sender
+        while listening.is_set():
+            try:
+                messages.append(notify.recv(4096).decode())
+            except TimeoutError:
+                continue
+
+    reader = threading.Thread(target=systemd, name="fake-systemd")
+    reader.start()
+    monkeypatch.setenv("NOTIFY_SOCKET", str(notify_path))
+    monkeypatch.setenv("WATCHDOG_USEC", "200000")
+    monkeypatch.delenv("WATCHDOG_PID", raising=False)
+    channel = f"test-run-{os.getpid()}"
+    with SimCompassPty(rate_hz=10.0) as pty, SimCanWheels(channel, period_s=0.02) as wheels:
+        pty.set_heading(90.0)  # east
+        cfg = tmp_path / "car.toml"
+        cfg.write_text(
+            f"""
+[vehicle]
+id = "t1"
+[start]
+x_m = 0.0
+y_m = 0.0
+heading_deg = 90.0
+[goal]
+x_m = 5000.0
+y_m = 0.0
+[odometry]
+interface = "virtual"
+channel = "{channel}"
+expected_rate_hz = 50.0
+[compass]
+port = "{pty.port}"
+declination_deg = 0.0
+expected_rate_hz = 10.0
+[scene]
+keyboard = false
+[voice]
+backend = "none"
+[checkpoint]
+path = "ck.json"
+interval_s = 0.5
+[telemetry]
+enabled = false
+[recording]
+directory = "rec"
+"""
+        )
+        wheels.set_speeds(10.0, 10.0)
+
+        async def scenario() -> int:
+            task = asyncio.create_task(run_car(str(cfg)))
+            await asyncio.sleep(0.5)
+            wheels.start()
+            pty.start()
+            await asyncio.sleep(2.0)
+            os.kill(os.getpid(), signal.SIGTERM)
+            return await asyncio.wait_for(task, 10.0)
+
+        assert asyncio.run(scenario()) == 0
+    listening.clear()
+    reader.join()
+    notify.close()
+    assert messages[0].startswith("READY=1")
+    assert sum(m == "WATCHDOG=1" for m in messages) >= 5  # every 0.1 s while on time
+    assert messages[-1] == "STOPPING=1"
+    from guidance.checkpoint import load_checkpoint
+
+    doc = load_checkpoint(tmp_path / "ck.json")
+    assert doc is not None
+    x, y, _ = doc["pipeline"]["x"]
+    assert 10.0 < x < 25.0 and abs(y) < 3.0  # 10 m/s east for about 1.5-2 s
+    files = list((tmp_path / "rec").glob("*.mcap"))
+    topics = {m.topic for m in Reader(files)}
+    assert {"/session", "/can", "/nmea", "/odometry", "/compass", "/state", "/health"} <= topics
