@@ -32,7 +32,7 @@ METHOD_HYBRID = 2
 METHOD_NAMES = ("straight_to_goal", "landmark_to_landmark", "hybrid")
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def exit_costs(
     x: float,
     y: float,
@@ -59,7 +59,7 @@ def exit_costs(
     return best
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def match_intersection(
     x: float,
     y: float,
@@ -96,7 +96,7 @@ def match_intersection(
     return best
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def exit_penalties(
     exit_headings: np.ndarray,
     mem_headings: np.ndarray,
@@ -119,7 +119,7 @@ def exit_penalties(
                 break
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def record_exit(
     mem_headings: np.ndarray, mem_counts: np.ndarray, k: int, heading: float, match_tol_rad: float
 ) -> None:
@@ -137,7 +137,7 @@ def record_exit(
         mem_counts[k, free] = 1
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def landmark_target(
     x: float,
     y: float,
@@ -162,7 +162,7 @@ def landmark_target(
     return best
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def next_mode(
     method: int, mode: int, major_axis_m: float, switch_m: float, landmark_update: bool
 ) -> int:

@@ -34,7 +34,7 @@ STATE_THETA = 2
 N_STATE = 3
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def wrap_angle(a: float) -> float:
     """Wrap an angle to (-pi, pi]."""
     if -math.pi < a <= math.pi:  # the common case, without a division
@@ -45,7 +45,7 @@ def wrap_angle(a: float) -> float:
     return w - math.pi
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def odometry_increment(d_left_m: float, d_right_m: float, track_m: float) -> tuple[float, float]:
     """Distance and heading change from rear-wheel distance increments (SPEC 2).
 
@@ -55,7 +55,7 @@ def odometry_increment(d_left_m: float, d_right_m: float, track_m: float) -> tup
     return 0.5 * (d_left_m + d_right_m), (d_right_m - d_left_m) / track_m
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def motion_predict(
     x: float, y: float, theta: float, d: float, dtheta: float
 ) -> tuple[float, float, float]:
@@ -70,7 +70,7 @@ def motion_predict(
     return x + d * math.cos(mid), y + d * math.sin(mid), wrap_angle(theta + dtheta)
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def motion_jacobians(
     theta: float, d_left_m: float, d_right_m: float, track_m: float, F: np.ndarray, G: np.ndarray
 ) -> None:
@@ -101,7 +101,7 @@ def motion_jacobians(
     G[2, 1] = 1.0 / track_m
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def wheel_noise_var(d_wheel_m: float, quantum_m: float, slip_frac: float) -> float:
     """Variance of one wheel's distance increment (SPEC 2).
 
@@ -112,7 +112,7 @@ def wheel_noise_var(d_wheel_m: float, quantum_m: float, slip_frac: float) -> flo
     return quantum_m * quantum_m / 12.0 + slip * slip
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def process_noise(G: np.ndarray, var_left: float, var_right: float, Q: np.ndarray) -> None:
     """Fill Q = G diag(var_l, var_r) G^T: wheel noise propagated through the input Jacobian."""
     for i in range(3):
@@ -120,7 +120,7 @@ def process_noise(G: np.ndarray, var_left: float, var_right: float, Q: np.ndarra
             Q[i, j] = G[i, 0] * var_left * G[j, 0] + G[i, 1] * var_right * G[j, 1]
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def predict_covariance(P: np.ndarray, F: np.ndarray, Q: np.ndarray, out: np.ndarray) -> None:
     """Fill out = F P F^T + Q (``out`` must not alias ``P``)."""
     for i in range(3):
@@ -135,7 +135,7 @@ def predict_covariance(P: np.ndarray, F: np.ndarray, Q: np.ndarray, out: np.ndar
             out[i, j] = acc
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def heading_innovation(
     x: np.ndarray, P: np.ndarray, z_theta: float, var: float
 ) -> tuple[float, float]:
@@ -143,7 +143,7 @@ def heading_innovation(
     return wrap_angle(z_theta - x[2]), P[2, 2] + var
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def heading_update(x: np.ndarray, P: np.ndarray, y: float, S: float, var: float) -> None:
     """Kalman update for h(x) = theta, in place, Joseph form (as filterpy computes it)."""
     k0 = P[0, 2] / S
@@ -162,7 +162,7 @@ def heading_update(x: np.ndarray, P: np.ndarray, y: float, S: float, var: float)
             P[j, i] = v
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def position_innovation(
     x: np.ndarray, P: np.ndarray, zx: float, zy: float, var: float
 ) -> tuple[float, float, float, float, float]:
@@ -170,14 +170,14 @@ def position_innovation(
     return zx - x[0], zy - x[1], P[0, 0] + var, P[0, 1], P[1, 1] + var
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def mahalanobis_sq_2d(y0: float, y1: float, s00: float, s01: float, s11: float) -> float:
     """y^T S^-1 y for a 2-vector and a symmetric 2x2 S."""
     det = s00 * s11 - s01 * s01
     return (s11 * y0 * y0 - 2.0 * s01 * y0 * y1 + s00 * y1 * y1) / det
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def position_update(
     x: np.ndarray,
     P: np.ndarray,
@@ -221,13 +221,13 @@ def position_update(
             P[j, i] = v
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def heading_residual(z_theta: float, theta: float) -> float:
     """Compass residual, wrapped to (-pi, pi]."""
     return wrap_angle(z_theta - theta)
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def compass_to_heading(compass_deg: float, declination_deg: float) -> float:
     """Magnetic compass degrees (clockwise from north) to filter heading (rad, CCW from east).
 
@@ -238,7 +238,7 @@ def compass_to_heading(compass_deg: float, declination_deg: float) -> float:
     return wrap_angle(math.radians(90.0 - true_deg))
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def heading_to_compass(theta: float, declination_deg: float) -> float:
     """Filter heading (rad) to magnetic compass degrees in [0, 360)."""
     deg = 90.0 - math.degrees(theta) - declination_deg
@@ -248,14 +248,14 @@ def heading_to_compass(theta: float, declination_deg: float) -> float:
     return deg
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def two_sigma_deg_to_var(two_sigma_deg: float) -> float:
     """Variance (rad^2) of a sensor specified by its 2-sigma error in degrees."""
     s = math.radians(two_sigma_deg) / 2.0
     return s * s
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def ellipse_axes(pxx: float, pxy: float, pyy: float, k2: float) -> tuple[float, float, float]:
     """Semi-axes (major, minor) and orientation (rad from x) of {d^2 <= k2}.
 
@@ -271,7 +271,7 @@ def ellipse_axes(pxx: float, pxy: float, pyy: float, k2: float) -> tuple[float, 
     return math.sqrt(k2 * l1), math.sqrt(k2 * l2), angle
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def major_axis_m(P: np.ndarray) -> float:
     """Full length of the major axis of the 2-sigma position ellipse (SPEC 2)."""
     a, _, _ = ellipse_axes(P[0, 0], P[0, 1], P[1, 1], CHI2_2D_2SIGMA)

@@ -51,7 +51,11 @@ def _study(args: argparse.Namespace) -> int:
 
     from hal_sim.studies import DEFAULT_TRIALS, StudyRun
 
-    trials = args.trials_per_condition or DEFAULT_TRIALS[args.which]
+    trials = (
+        DEFAULT_TRIALS[args.which]
+        if args.trials_per_condition is None
+        else args.trials_per_condition
+    )
     if args.seed < 0:
         raise UserError("--seed must be a non-negative integer")
     if args.workers < 1:

@@ -110,14 +110,101 @@ MAX_MEMORY = 4096
 MAX_EXITS = 4
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def sample_distance_m(i: int, n: int, p: np.ndarray) -> float:
     """Where sample i of n is taken: log-spaced from the first sample distance to the range cap."""
     first = p[I_SAMPLE_FIRST]
     return first * (p[I_RANGE_CAP] / first) ** (i / (n - 1))
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
+def predict(
+    x: np.ndarray,
+    P: np.ndarray,
+    P_next: np.ndarray,
+    F: np.ndarray,
+    G: np.ndarray,
+    Q: np.ndarray,
+    dl: float,
+    dr: float,
+    track: float,
+    quantum: float,
+    slip: float,
+) -> None:
+    """EKF predict from wheel increments (SPEC 2), in place, with the functions filterpy gets."""
+    d, dth = model.odometry_increment(dl, dr, track)
+    model.motion_jacobians(x[2], dl, dr, track, F, G)
+    model.process_noise(
+        G, model.wheel_noise_var(dl, quantum, slip), model.wheel_noise_var(dr, quantum, slip), Q
+    )
+    x[0], x[1], x[2] = model.motion_predict(x[0], x[1], x[2], d, dth)
+    model.predict_covariance(P, F, Q, P_next)
+    P[:, :] = P_next
+
+
+@njit(cache=True, error_model="numpy")
+def compass_update(x: np.ndarray, P: np.ndarray, z: float, var: float, gate: float) -> bool:
+    """Gated compass update in place; False when the gate rejects it."""
+    y, S = model.heading_innovation(x, P, z, var)
+    if y * y / S > gate:
+        return False
+    model.heading_update(x, P, y, S, var)
+    return True
+
+
+@njit(cache=True, error_model="numpy")
+def landmark_update_xy(
+    x: np.ndarray,
+    P: np.ndarray,
+    zx: float,
+    zy: float,
+    var: float,
+    gate: float,
+    work: np.ndarray,
+) -> bool:
+    """Gated landmark position update in place; False when the gate rejects it."""
+    y0, y1, s00, s01, s11 = model.position_innovation(x, P, zx, zy, var)
+    if model.mahalanobis_sq_2d(y0, y1, s00, s01, s11) > gate:
+        return False
+    model.position_update(x, P, y0, y1, s00, s01, s11, var, work)
+    return True
+
+
+@njit(cache=True, error_model="numpy")
+def filter_sequence(
+    x0: np.ndarray, P0: np.ndarray, inputs: np.ndarray, p: np.ndarray
+) -> tuple[np.ndarray, np.ndarray]:
+    """Run the study engine's filter over fixed inputs; returns every step's (x, P).
+
+    ``inputs`` rows are (dl, dr, compass or NaN, landmark x or NaN, landmark y).
+    Used to check the engine against the app's filterpy estimator.
+    """
+    n = inputs.shape[0]
+    xs = np.empty((n, 3))
+    Ps = np.empty((n, 3, 3))
+    x = x0.copy()
+    P = P0.copy()
+    P_next = np.empty((3, 3))
+    F = np.empty((3, 3))
+    G = np.empty((3, 2))
+    Q = np.empty((3, 3))
+    work = np.empty((3, 3))
+    for i in range(n):
+        dl, dr = inputs[i, 0], inputs[i, 1]
+        if abs(dl) <= p[I_MAX_WHEEL_STEP] and abs(dr) <= p[I_MAX_WHEEL_STEP]:
+            predict(x, P, P_next, F, G, Q, dl, dr, p[I_TRACK], p[I_QUANTUM], p[I_SLIP])
+        if p[I_COMPASS_SIGMA] > 0.0 and not math.isnan(inputs[i, 2]):
+            compass_update(x, P, inputs[i, 2], p[I_COMPASS_SIGMA] ** 2, p[I_COMPASS_GATE])
+        if not math.isnan(inputs[i, 3]):
+            landmark_update_xy(
+                x, P, inputs[i, 3], inputs[i, 4], p[I_LM_SIGMA] ** 2, p[I_LM_GATE], work
+            )
+        xs[i] = x
+        Ps[i] = P
+    return xs, Ps
+
+
+@njit(cache=True, error_model="numpy")
 def setup_trial(
     trial_seed: int, study: int, density: float, p: np.ndarray
 ) -> tuple[
@@ -162,7 +249,7 @@ def setup_trial(
     return xs, ys, adj, net, lm_xy, node_start, node_lms, ts, ns, goal, area
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def run_trial(
     trial_seed: int,
     study: int,
@@ -221,6 +308,7 @@ def run_trial(
     for i in range(n_samples):
         samples[i] = math.nan
     next_sample = 0
+    next_sample_m = sample_distance_m(0, n_samples, p)
     lm_updates = 0
     goals = 0
     c_rej = 0
@@ -235,32 +323,17 @@ def run_trial(
         step += 1
         dl, dr = events[0], events[1]
         if abs(dl) <= p[I_MAX_WHEEL_STEP] and abs(dr) <= p[I_MAX_WHEEL_STEP]:
-            # Predict (SPEC 2): the same functions the live estimator hands to filterpy.
-            d, dth = model.odometry_increment(dl, dr, track)
-            model.motion_jacobians(x[2], dl, dr, track, F, G)
-            model.process_noise(
-                G,
-                model.wheel_noise_var(dl, p[I_QUANTUM], p[I_SLIP]),
-                model.wheel_noise_var(dr, p[I_QUANTUM], p[I_SLIP]),
-                Q,
-            )
-            x[0], x[1], x[2] = model.motion_predict(x[0], x[1], x[2], d, dth)
-            model.predict_covariance(P, F, Q, P_next)
-            P, P_next = P_next, P
-        if has_compass and not math.isnan(events[2]):
-            y, S = model.heading_innovation(x, P, events[2], compass_var)
-            if y * y / S <= p[I_COMPASS_GATE]:
-                model.heading_update(x, P, y, S, compass_var)
-            else:
-                c_rej += 1
+            predict(x, P, P_next, F, G, Q, dl, dr, track, p[I_QUANTUM], p[I_SLIP])
+        if (
+            has_compass
+            and not math.isnan(events[2])
+            and not compass_update(x, P, events[2], compass_var, p[I_COMPASS_GATE])
+        ):
+            c_rej += 1
         landmark_update = False
         if events[3] >= 0.0:
             k = int(events[3])
-            y0, y1, s00, s01, s11 = model.position_innovation(
-                x, P, lm_xy[k, 0], lm_xy[k, 1], lm_var
-            )
-            if model.mahalanobis_sq_2d(y0, y1, s00, s01, s11) <= p[I_LM_GATE]:
-                model.position_update(x, P, y0, y1, s00, s01, s11, lm_var, work)
+            if landmark_update_xy(x, P, lm_xy[k, 0], lm_xy[k, 1], lm_var, p[I_LM_GATE], work):
                 lm_updates += 1
                 passed[k] = True
                 landmark_update = True
@@ -269,9 +342,14 @@ def run_trial(
         major = model.major_axis_m(P)
         mode = law.next_mode(method, mode, major, p[I_HYBRID_SWITCH], landmark_update)
         driven = ts[world.T_DRIVEN]
-        while next_sample < n_samples and driven >= sample_distance_m(next_sample, n_samples, p):
+        while driven >= next_sample_m:
             samples[next_sample] = major
             next_sample += 1
+            next_sample_m = (
+                sample_distance_m(next_sample, n_samples, p)
+                if next_sample < n_samples
+                else math.inf
+            )
         if major > p[I_LOST]:
             res[RES_LOST_AT_M] = driven
             outcome = OUTCOME_LOST
@@ -344,7 +422,7 @@ def run_trial(
     return res
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def run_batch(
     seeds: np.ndarray, study: int, method: int, density: float, p: np.ndarray, n_samples: int
 ) -> tuple[np.ndarray, np.ndarray]:

@@ -61,7 +61,7 @@ SWITCH_RADIUS_M = 7.0
 """The controller starts following the next street this far before the corner."""
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def _street_positions(length_m: float, block_min: float, block_max: float) -> np.ndarray:
     n_max = int(length_m / block_min) + 2
     pos = np.empty(n_max)
@@ -76,7 +76,7 @@ def _street_positions(length_m: float, block_min: float, block_max: float) -> np
     return pos[:n].copy()
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def _reach(adj: np.ndarray, nx: int, seed: int, forward: bool) -> np.ndarray:
     n_nodes = adj.shape[0]
     seen = np.zeros(n_nodes, dtype=np.bool_)
@@ -108,7 +108,7 @@ def _reach(adj: np.ndarray, nx: int, seed: int, forward: bool) -> np.ndarray:
     return seen
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def make_city(
     area_km2: float,
     aspect: float,
@@ -180,19 +180,19 @@ def make_city(
     return xs, ys, adj, best
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def node_pos(xs: np.ndarray, ys: np.ndarray, n: int) -> tuple[float, float]:
     nx = xs.shape[0]
     return xs[n % nx], ys[n // nx]
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def random_node(in_network: np.ndarray) -> int:
     idx = np.nonzero(in_network)[0]
     return int(idx[np.random.randint(0, idx.shape[0])])
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def node_at_distance(
     xs: np.ndarray, ys: np.ndarray, in_network: np.ndarray, start: int, min_m: float, frac: float
 ) -> int:
@@ -220,7 +220,7 @@ def node_at_distance(
     return best
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def place_landmarks(
     xs: np.ndarray, ys: np.ndarray, adj: np.ndarray, in_network: np.ndarray, density_per_km2: float
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -266,7 +266,7 @@ def place_landmarks(
     return lm_xy, node_start, node_lms
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def bicycle_step(
     x: float, y: float, theta: float, v: float, a: float, delta: float, dt: float, wheelbase: float
 ) -> tuple[float, float, float, float, float]:
@@ -291,13 +291,13 @@ def bicycle_step(
     return x + dx * c - dy * s, y + dx * s + dy * c, theta + dth, v + a * dt, dth
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def cross_track(x: float, y: float, ax: float, ay: float, ux: float, uy: float) -> float:
     """Signed distance of (x, y) from the line through a along unit vector u, positive left."""
     return -(x - ax) * uy + (y - ay) * ux
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def steer_pid(
     ts: np.ndarray, ax: float, ay: float, h: float, ux: float, uy: float, p: np.ndarray
 ) -> float:
@@ -316,7 +316,7 @@ def steer_pid(
     return min(max(delta, -lim), lim)
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def speed_pid(v: float, v_target: float, p: np.ndarray) -> float:
     a = SPEED_KP * (v_target - v)
     lim = p[I_MAX_ACCEL]
@@ -326,7 +326,7 @@ def speed_pid(v: float, v_target: float, p: np.ndarray) -> float:
     return a
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def exits_at(adj: np.ndarray, b: int, a: int, out_dirs: np.ndarray) -> int:
     """Directions one may leave node b by, arriving from a; U-turn only at a dead end."""
     n = 0
@@ -346,7 +346,7 @@ def exits_at(adj: np.ndarray, b: int, a: int, out_dirs: np.ndarray) -> int:
     return n
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def init_truth(
     xs: np.ndarray, ys: np.ndarray, adj: np.ndarray, start: int, p: np.ndarray
 ) -> tuple[np.ndarray, np.ndarray]:
@@ -368,7 +368,7 @@ def init_truth(
     return ts, ns
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def _set_segment(ts: np.ndarray, xs: np.ndarray, ys: np.ndarray, a: int, b: int) -> None:
     nx = xs.shape[0]
     dx = xs[b % nx] - xs[a % nx]
@@ -379,7 +379,7 @@ def _set_segment(ts: np.ndarray, xs: np.ndarray, ys: np.ndarray, a: int, b: int)
     ts[T_SEG_UY] = dy / seg
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def _encoder(ts: np.ndarray, cum: int, cnt: int, d_true: float, p: np.ndarray) -> float:
     """One wheel: slip and tyre error on the true distance, then whole counts."""
     q = p[I_TRUE_QUANTUM]
@@ -392,7 +392,7 @@ def _encoder(ts: np.ndarray, cum: int, cnt: int, d_true: float, p: np.ndarray) -
     return inc
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def world_step(
     ts: np.ndarray,
     ns: np.ndarray,
@@ -494,7 +494,7 @@ def world_step(
                     events[3] = float(lm)
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def seed(s: int) -> None:
     """Seed numba's generator (one state per thread; independent of numpy's)."""
     np.random.seed(s)

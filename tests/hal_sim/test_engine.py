@@ -1,0 +1,97 @@
+"""The compiled study engine computes what the app's classes compute."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+from guidance.estimator import HeadingFix, PoseEstimator
+from guidance.messages import LandmarkFix, WheelOdometry
+from guidance.navigator import Method, NavigatorConfig
+from hal_sim import engine, params, reference, studies
+from hal_sim.params import SimParams
+
+
+def _inputs(n: int, seed: int) -> np.ndarray:
+    rng = np.random.default_rng(seed)
+    inputs = np.full((n, 5), math.nan)
+    inputs[:, 0] = np.round(rng.uniform(0.9, 1.2, n) / 0.02) * 0.02
+    inputs[:, 1] = inputs[:, 0] + np.round(rng.normal(0.0, 0.04, n) / 0.02) * 0.02
+    inputs[::3, 2] = rng.uniform(-math.pi, math.pi, len(inputs[::3]))  # some fail the gate
+    heading = np.cumsum((inputs[:, 1] - inputs[:, 0]) / 1.72)
+    inputs[1::3, 2] = np.angle(np.exp(1j * (heading[1::3] + rng.normal(0, 0.1, len(heading[1::3])))))
+    # Landmarks near the dead-reckoned track (accepted) and far from it (gated out).
+    step = 0.5 * (inputs[:, 0] + inputs[:, 1])
+    track = np.cumsum(np.stack([step * np.cos(heading), step * np.sin(heading)], 1), 0)
+    lm = np.arange(n) % 97 == 0
+    off = np.where(np.arange(lm.sum()) % 4 == 3, 2000.0, 10.0)
+    inputs[lm, 3] = track[lm, 0] + 10.0 + off * rng.normal(0.0, 1.0, lm.sum())
+    inputs[lm, 4] = track[lm, 1] - 5.0 + off * rng.normal(0.0, 1.0, lm.sum())
+    inputs[7, 0] = 50.0  # an implausible wheel step: both engines drop it
+    return inputs
+
+
+@pytest.mark.parametrize("compass_deg", [20.0, None])
+def test_filter_matches_filterpy_estimator_on_fixed_inputs(compass_deg: float | None) -> None:
+    sim = SimParams()
+    cfg = params.estimator_config(sim, compass_deg)
+    p = params.pack(sim, cfg, NavigatorConfig(), 1.0)
+    inputs = _inputs(2000, 1)
+    est = PoseEstimator(cfg, 10.0, -5.0, 0.3)
+    xs, Ps = engine.filter_sequence(est.x.copy(), est.P.copy(), inputs, p)
+    accepted_landmarks = 0
+    for i, row in enumerate(inputs):
+        t = 0.1 * (i + 1)
+        est.process(WheelOdometry(t, float(row[0]), float(row[1])))
+        if not math.isnan(row[2]):
+            est.process(HeadingFix(t, float(row[2])))
+        if not math.isnan(row[3]):
+            fix = LandmarkFix(t, i, float(row[3]), float(row[4]), sim.landmark_sigma_m)
+            accepted_landmarks += est.process(fix).accepted
+        np.testing.assert_allclose(est.P, Ps[i], rtol=0, atol=1e-9)
+        np.testing.assert_allclose(est.x, xs[i], rtol=0, atol=1e-9)
+    if compass_deg is not None:
+        assert est.rejections["compass_gate"] > 0  # the gate was exercised
+    assert accepted_landmarks > 0
+    assert est.rejections["landmark_gate"] > 0
+
+
+def _both(seed: int, study: int, method: Method, density: float, compass: float | None,
+          detect: float = 1.0) -> tuple[np.ndarray, np.ndarray]:
+    sim = SimParams()
+    est_cfg = params.estimator_config(sim, compass)
+    nav_cfg = NavigatorConfig()
+    p = params.pack(sim, est_cfg, nav_cfg, detect)
+    fast, _ = engine.run_batch(np.array([seed], dtype=np.int64), study, method.code, density, p, 120)
+    ref, _ = reference.run_trial(seed, study, method, density, p, est_cfg, nav_cfg, 120)
+    return fast[0], ref
+
+
+@pytest.mark.parametrize("seed", [11, 12, 13])
+def test_fast_and_reference_engines_agree_on_range_trials(seed: int) -> None:
+    fast, ref = _both(seed, engine.STUDY_RANGE, Method.STRAIGHT_TO_GOAL, 0.0, 30.0)
+    assert fast[engine.RES_OUTCOME] == engine.OUTCOME_LOST
+    np.testing.assert_allclose(fast, ref, rtol=1e-9, equal_nan=True)
+
+
+@pytest.mark.parametrize("method", list(Method))
+def test_fast_and_reference_engines_agree_on_landmark_trials(method: Method) -> None:
+    for seed in (21, 22):
+        fast, ref = _both(seed, engine.STUDY_LANDMARKS, method, 2.0, 20.0, detect=0.8)
+        np.testing.assert_allclose(fast, ref, rtol=1e-9, equal_nan=True)
+
+
+def test_landmark_trials_use_landmarks_and_arrive() -> None:
+    sim = SimParams()
+    p = params.pack(sim, params.estimator_config(sim, 20.0), NavigatorConfig(), 1.0)
+    seeds = studies.trial_seeds(5, 0, 0, 40)
+    res, _ = engine.run_batch(seeds, engine.STUDY_LANDMARKS, Method.HYBRID.code, 5.0, p, 120)
+    outcome = res[:, engine.RES_OUTCOME]
+    assert (outcome == engine.OUTCOME_ARRIVED).mean() > 0.5
+    assert res[:, engine.RES_LANDMARK_UPDATES].sum() > 0
+    assert not (outcome == engine.OUTCOME_STUCK).any()
+    # Manhattan distance driven is at least the straight-line distance.
+    arrived = outcome == engine.OUTCOME_ARRIVED
+    assert (res[arrived, engine.RES_DRIVEN_M] >= res[arrived, engine.RES_EUCLID_M] - 60.0).all()

@@ -1,0 +1,121 @@
+"""Studies at small N: well-formed outputs, resumption, worker and Dask independence, CLI."""
+
+from __future__ import annotations
+
+import csv
+import json
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from guidance.errors import UserError
+from hal_sim import engine, studies
+from hal_sim.studies import StudyRun
+
+
+def _rows(path: Path) -> list[dict[str, str]]:
+    with path.open() as f:
+        return list(csv.DictReader(f))
+
+
+def test_range_study_small_n_outputs(tmp_path: Path) -> None:
+    summary = StudyRun("range", tmp_path, 3, seed=4, workers=1).run()
+    on_disk = json.loads((tmp_path / "summary.json").read_text())
+    assert on_disk["conditions"] == summary["conditions"]
+    conds = summary["conditions"]
+    assert [c["compass_2sigma_deg"] for c in conds] == [10.0, 20.0, 30.0, None]
+    for c in conds:
+        assert c["trials"] == 3 and c["cap_km"] == 40.0
+        assert 0.0 <= c["never_lost_fraction"] <= 1.0
+    # Without a compass the car is lost within a few hundred metres.
+    assert 0.05 < conds[-1]["mean_lost_km"] < 1.5
+    rows = _rows(tmp_path / "trials.csv")
+    assert len(rows) == 12
+    assert {r["outcome"] for r in rows} <= set(engine.OUTCOME_NAMES)
+    png = (tmp_path / "fig3.png").read_bytes()
+    assert png[:8] == b"\x89PNG\r\n\x1a\n" and len(png) > 20_000
+
+
+def test_landmark_study_small_n_outputs(tmp_path: Path) -> None:
+    summary = StudyRun("landmarks", tmp_path, 2, seed=4, workers=1).run()
+    conds = summary["conditions"]
+    assert len(conds) == 75
+    assert {c["method"] for c in conds} == {"straight_to_goal", "landmark_to_landmark", "hybrid"}
+    for c in conds:
+        assert c["trials"] == 2
+        assert 0.0 <= c["success_rate"] <= 1.0
+        assert c["mean_driven_km"] > 0.0
+    assert len(_rows(tmp_path / "trials.csv")) == 150
+    assert (tmp_path / "fig4.png").stat().st_size > 20_000
+    table = _rows(tmp_path / "range_at_80pct.csv")
+    assert len(table) >= 75
+
+
+def test_results_do_not_depend_on_worker_count(tmp_path: Path) -> None:
+    StudyRun("range", tmp_path / "one", 30, seed=9, workers=1).run()
+    StudyRun("range", tmp_path / "two", 30, seed=9, workers=2).run()
+    a = (tmp_path / "one" / "trials.csv").read_text()
+    b = (tmp_path / "two" / "trials.csv").read_text()
+    assert a == b
+
+
+def test_interrupted_study_resumes_where_it_stopped(tmp_path: Path) -> None:
+    StudyRun("range", tmp_path / "full", 60, seed=2, workers=1).run()
+    out = tmp_path / "resumed"
+    StudyRun("range", out, 60, seed=2, workers=1).run()
+    chunks = sorted((out / "chunks").glob("*.npz"))
+    assert len(chunks) == 12
+    for c in chunks[::2]:  # as if the run had been killed before these finished
+        c.unlink()
+    (out / "chunks" / "compass_20__00001.npz.tmp").write_bytes(b"half a file")
+    seen: list[tuple[int, int]] = []
+    StudyRun("range", out, 60, seed=2, workers=1).run(lambda d, t: seen.append((d, t)))
+    assert seen[0] == (6, 12)  # the six chunks on disk were not run again
+    assert (out / "trials.csv").read_text() == (tmp_path / "full" / "trials.csv").read_text()
+
+
+def test_a_folder_from_another_study_is_refused(tmp_path: Path) -> None:
+    StudyRun("range", tmp_path, 2, seed=1, workers=1).run()
+    with pytest.raises(UserError):
+        StudyRun("range", tmp_path, 2, seed=2, workers=1).run()
+
+
+def test_dask_local_cluster_gives_the_same_results(tmp_path: Path) -> None:
+    distributed = pytest.importorskip("distributed")
+    StudyRun("range", tmp_path / "local", 25, seed=6, workers=1).run()
+    with distributed.LocalCluster(
+        n_workers=1, threads_per_worker=1, processes=True, host="127.0.0.1",
+        dashboard_address=None,
+    ) as cluster:  # fmt: skip
+        StudyRun("range", tmp_path / "dask", 25, seed=6, workers=1,
+                 scheduler=cluster.scheduler_address).run()  # fmt: skip
+    a = (tmp_path / "local" / "trials.csv").read_text()
+    assert a == (tmp_path / "dask" / "trials.csv").read_text()
+
+
+def test_trial_seeds_are_independent_of_chunking() -> None:
+    whole = studies.trial_seeds(3, 1, 0, 100)
+    parts = np.concatenate([studies.trial_seeds(3, 1, 0, 40), studies.trial_seeds(3, 1, 40, 60)])
+    assert (whole == parts).all()
+    assert len(set(whole.tolist())) == 100
+
+
+def test_cli_json_and_errors(tmp_path: Path) -> None:
+    guidance = [sys.executable, "-m", "guidance.cli"]
+    done = subprocess.run(
+        [*guidance, "study", "range", "--trials-per-condition", "2", "--out", str(tmp_path),
+         "--no-progress", "--json", "--workers", "1"],
+        capture_output=True, text=True, timeout=600, check=False,
+    )  # fmt: skip
+    assert done.returncode == 0, done.stderr
+    summary = json.loads(done.stdout.strip().splitlines()[-1])
+    assert summary["study"] == "range" and len(summary["conditions"]) == 4
+    bad = subprocess.run(
+        [*guidance, "study", "range", "--trials-per-condition", "0", "--out", str(tmp_path / "x")],
+        capture_output=True, text=True, timeout=120, check=False,
+    )  # fmt: skip
+    assert bad.returncode == 2
+    assert "Traceback" not in bad.stderr and "trials-per-condition" in bad.stderr
