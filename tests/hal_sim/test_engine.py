@@ -21,7 +21,9 @@ def _inputs(n: int, seed: int) -> np.ndarray:
     inputs[:, 1] = inputs[:, 0] + np.round(rng.normal(0.0, 0.04, n) / 0.02) * 0.02
     inputs[::3, 2] = rng.uniform(-math.pi, math.pi, len(inputs[::3]))  # some fail the gate
     heading = np.cumsum((inputs[:, 1] - inputs[:, 0]) / 1.72)
-    inputs[1::3, 2] = np.angle(np.exp(1j * (heading[1::3] + rng.normal(0, 0.1, len(heading[1::3])))))
+    inputs[1::3, 2] = np.angle(
+        np.exp(1j * (heading[1::3] + rng.normal(0, 0.1, len(heading[1::3]))))
+    )
     # Landmarks near the dead-reckoned track (accepted) and far from it (gated out).
     step = 0.5 * (inputs[:, 0] + inputs[:, 1])
     track = np.cumsum(np.stack([step * np.cos(heading), step * np.sin(heading)], 1), 0)
@@ -58,13 +60,21 @@ def test_filter_matches_filterpy_estimator_on_fixed_inputs(compass_deg: float | 
     assert est.rejections["landmark_gate"] > 0
 
 
-def _both(seed: int, study: int, method: Method, density: float, compass: float | None,
-          detect: float = 1.0) -> tuple[np.ndarray, np.ndarray]:
+def _both(
+    seed: int,
+    study: int,
+    method: Method,
+    density: float,
+    compass: float | None,
+    detect: float = 1.0,
+) -> tuple[np.ndarray, np.ndarray]:
     sim = SimParams()
     est_cfg = params.estimator_config(sim, compass)
     nav_cfg = NavigatorConfig()
     p = params.pack(sim, est_cfg, nav_cfg, detect)
-    fast, _ = engine.run_batch(np.array([seed], dtype=np.int64), study, method.code, density, p, 120)
+    fast, _ = engine.run_batch(
+        np.array([seed], dtype=np.int64), study, method.code, density, p, 120
+    )
     ref, _ = reference.run_trial(seed, study, method, density, p, est_cfg, nav_cfg, 120)
     return fast[0], ref
 
