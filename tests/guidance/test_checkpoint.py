@@ -88,14 +88,18 @@ def test_kill_9_at_20_random_points_still_reaches_the_goal(tmp_path: Path) -> No
     env = {**os.environ, "PYTHONPATH": str(REPO)}
     killed = 0
     progress: list[float] = []
-    for target in targets:
-        proc = subprocess.Popen(
-            _sim_cmd(ck, out), cwd=tmp_path, env=env,
-            stdout=subprocess.PIPE, stderr=subprocess.DEVNULL,
-        )  # fmt: skip
+    for i, target in enumerate(targets):
+        log = tmp_path / f"run{i:02d}.err"
+        with log.open("wb") as err:
+            proc = subprocess.Popen(
+                _sim_cmd(ck, out), cwd=tmp_path, env=env, stdout=subprocess.PIPE, stderr=err
+            )
         deadline = time.monotonic() + 60.0
         while proc.poll() is None and _checkpoint_t(ck) < target:
-            assert time.monotonic() < deadline, "the drive made no progress"
+            if time.monotonic() > deadline:
+                proc.kill()
+                proc.wait()
+                raise AssertionError(f"run {i} made no progress: {log.read_text()[-2000:]}")
             time.sleep(0.01)
         time.sleep(rng.uniform(0.0, 0.15))
         if proc.poll() is None:
