@@ -57,6 +57,17 @@ class EstimatorConfig:
     initial_heading_sigma_deg: float = 1.0
     max_wheel_step_m: float = 20.0
     """Sanity limit: a single odometry increment above this is rejected."""
+    interference_detection: bool = True
+    """Reject compass readings while their innovations say the field is disturbed.
+
+    Inflating their variance instead was tried: the heading still converges to
+    the biased field over a block (docs/reliability.md has the comparison)."""
+    interference_alpha: float = 0.15
+    """Weight of each reading in the NIS level (about 7 readings of memory)."""
+    interference_on_nis: float = 4.0
+    """Level above which the compass is considered disturbed (modelled value: 1)."""
+    interference_off_nis: float = 2.0
+    """Level below which it is trusted again."""
 
 
 @dataclass(frozen=True, slots=True)
@@ -120,6 +131,9 @@ class PoseEstimator:
         self.resets = 0
         self.healthy = True
         self._last_t: float | None = None
+        self.interference_level = 1.0
+        self.interference = False
+        """True while compass readings are judged magnetically disturbed (and rejected)."""
         self.set_pose(x_m, y_m, heading_rad)
 
     # -- state -------------------------------------------------------------
@@ -147,6 +161,8 @@ class PoseEstimator:
         self.accepted.clear()
         self.resets = 0
         self.healthy = True
+        self.interference_level = 1.0
+        self.interference = False
 
     @property
     def x(self) -> np.ndarray:
@@ -248,6 +264,17 @@ class PoseEstimator:
         R = np.array([[var]])
         y, S = model.heading_innovation(self._kf.x, self._kf.P, msg.theta_rad, var)
         d2 = y * y / S
+        if cfg.interference_detection:
+            self.interference_level, self.interference = model.interference_update(
+                self.interference_level,
+                self.interference,
+                d2,
+                cfg.interference_alpha,
+                cfg.interference_on_nis,
+                cfg.interference_off_nis,
+            )
+            if self.interference:
+                return self._reject(kind, "magnetic_interference", d2)
         if d2 > cfg.compass_gate_chi2:
             return self._reject(kind, "compass_gate", d2)
         self._kf.update(

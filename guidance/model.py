@@ -28,6 +28,24 @@ CHI2_2D_P99 = 9.21034037197618
 CHI2_1D_P99 = 6.634896601021214
 CHI2_1D_P999 = 10.827566170662733
 
+# Magnetic interference detector (SPEC 2 extension, docs/reliability.md): an
+# exponentially weighted mean of the compass normalised innovation squared
+# (NIS = y^2 / S, expected value 1 when the compass behaves as modelled). Each
+# reading's NIS is clipped so one outlier cannot trip it alone.
+NIS_CLIP = 16.0
+
+
+@njit(cache=True, error_model="numpy")
+def interference_update(
+    level: float, active: bool, nis: float, alpha: float, on: float, off: float
+) -> tuple[float, bool]:
+    """Update the NIS level with one compass reading; hysteresis between ``on`` and ``off``."""
+    level = (1.0 - alpha) * level + alpha * min(nis, NIS_CLIP)
+    if active:
+        return level, level > off
+    return level, level > on
+
+
 STATE_X = 0
 STATE_Y = 1
 STATE_THETA = 2

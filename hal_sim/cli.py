@@ -17,7 +17,11 @@ def register(sub: Any) -> None:
         help="run a Monte Carlo study (range without a map, or landmarks)",
         description="Monte Carlo studies of SPEC section 5; resumable, reproducible from --seed.",
     )
-    study.add_argument("which", choices=("range", "landmarks"), help="which study")
+    study.add_argument(
+        "which",
+        choices=("range", "landmarks", "interference"),
+        help="which study (interference: range with magnetic interference zones)",
+    )
     study.add_argument(
         "--trials-per-condition",
         type=int,
@@ -91,14 +95,32 @@ def _study(args: argparse.Namespace) -> int:
 
 def _print_summary(console: Any, summary: dict[str, Any], out: Path, table_cls: Any) -> None:
     t = table_cls(title=f"{summary['study']} study ({summary['wall_s']:.0f} s)")
-    if summary["study"] == "range":
-        for col in ("compass 2σ", "trials", "mean lost km", "never lost", "fit lost km"):
+    if summary["study"] in ("range", "interference"):
+        zones = summary["study"] == "interference"
+        cols = ["compass 2σ", "trials", "mean lost km", "never lost", "fit lost km"]
+        if zones:
+            cols[1:1] = ["zones", "detector", "rejected/trial"]
+            cols += ["truth > 50 m", "max error m", "lost by either km"]
+        for col in cols:
             t.add_column(col, justify="right")
         for c in summary["conditions"]:
             comp = "none" if c["compass_2sigma_deg"] is None else f"±{c['compass_2sigma_deg']:g}°"
             mean = "-" if c["mean_lost_km"] is None else f"{c['mean_lost_km']:.2f}"
             fit = "-" if c["fit_lost_km"] is None else f"{c['fit_lost_km']:.1f}"
-            t.add_row(comp, str(c["trials"]), mean, f"{c['never_lost_fraction']:.0%}", fit)
+            row = [comp, str(c["trials"]), mean, f"{c['never_lost_fraction']:.0%}", fit]
+            if zones:
+                row[1:1] = [
+                    f"{c['interference_frac']:.0%}",
+                    "on" if c["interference_detection"] else "off",
+                    f"{c['interference_rejects_per_trial']:.0f}",
+                ]
+                either = c["mean_lost_either_km"]
+                row += [
+                    f"{c['true_lost_fraction']:.0%}",
+                    f"{c['mean_max_true_error_m']:.0f}",
+                    "-" if either is None else f"{either:.2f}",
+                ]
+            t.add_row(*row)
     else:
         for col in ("method", "density/km²", "detection", "success", "range@80% km", "driven km"):
             t.add_column(col, justify="right")

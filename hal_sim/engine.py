@@ -46,6 +46,14 @@ from hal_sim.params import (
     I_LM_SIGMA,
     I_LOOKAHEAD,
     I_LOST,
+    I_MAG_ALPHA,
+    I_MAG_BIAS_MAX,
+    I_MAG_BIAS_MIN,
+    I_MAG_DETECT,
+    I_MAG_FRAC,
+    I_MAG_NOISE,
+    I_MAG_OFF,
+    I_MAG_ON,
     I_MAX_WHEEL_STEP,
     I_ONEWAY_FRAC,
     I_QUANTUM,
@@ -87,8 +95,13 @@ STUCK_FACTOR = 3.0
     RES_N_LANDMARKS,
     RES_COMPASS_REJECTS,
     RES_LANDMARK_REJECTS,
+    RES_INTERFERENCE_REJECTS,
+    RES_MAX_ERR_M,
+    RES_TRUE_LOST_AT_M,
     N_RESULT,
-) = range(15)
+) = range(18)
+# The truth is "lost" when the true position error exceeds half the lost major
+# axis (the radius of the ellipse at which the estimate declares itself lost).
 RESULT_NAMES = (
     "outcome",
     "driven_m",
@@ -104,6 +117,9 @@ RESULT_NAMES = (
     "n_landmarks",
     "compass_rejects",
     "landmark_rejects",
+    "interference_rejects",
+    "max_true_error_m",
+    "true_lost_at_m",
 )
 
 MAX_MEMORY = 4096
@@ -142,14 +158,36 @@ def predict(
     P[:, :] = P_next
 
 
+COMPASS_ACCEPTED = 0
+COMPASS_GATED = 1
+COMPASS_INTERFERENCE = 2
+
+
 @njit(cache=True, error_model="numpy")
-def compass_update(x: np.ndarray, P: np.ndarray, z: float, var: float, gate: float) -> bool:
-    """Gated compass update in place; False when the gate rejects it."""
+def compass_update(
+    x: np.ndarray, P: np.ndarray, z: float, var: float, p: np.ndarray, det: np.ndarray
+) -> int:
+    """Compass update in place, after the interference detector and the gate.
+
+    ``det`` holds the detector's (level, active) between calls. While it is
+    active readings are rejected: the heading is left to odometry and its
+    variance grows honestly, instead of being dragged by a biased field.
+    Returns COMPASS_ACCEPTED, COMPASS_GATED or COMPASS_INTERFERENCE.
+    """
     y, S = model.heading_innovation(x, P, z, var)
-    if y * y / S > gate:
-        return False
+    nis = y * y / S
+    if p[I_MAG_DETECT] > 0.0:
+        level, active = model.interference_update(
+            det[0], det[1] > 0.0, nis, p[I_MAG_ALPHA], p[I_MAG_ON], p[I_MAG_OFF]
+        )
+        det[0] = level
+        det[1] = 1.0 if active else 0.0
+        if active:
+            return COMPASS_INTERFERENCE
+    if nis > p[I_COMPASS_GATE]:
+        return COMPASS_GATED
     model.heading_update(x, P, y, S, var)
-    return True
+    return COMPASS_ACCEPTED
 
 
 @njit(cache=True, error_model="numpy")
@@ -189,12 +227,13 @@ def filter_sequence(
     G = np.empty((3, 2))
     Q = np.empty((3, 3))
     work = np.empty((3, 3))
+    det = np.array([1.0, 0.0])
     for i in range(n):
         dl, dr = inputs[i, 0], inputs[i, 1]
         if abs(dl) <= p[I_MAX_WHEEL_STEP] and abs(dr) <= p[I_MAX_WHEEL_STEP]:
             predict(x, P, P_next, F, G, Q, dl, dr, p[I_TRACK], p[I_QUANTUM], p[I_SLIP])
         if p[I_COMPASS_SIGMA] > 0.0 and not math.isnan(inputs[i, 2]):
-            compass_update(x, P, inputs[i, 2], p[I_COMPASS_SIGMA] ** 2, p[I_COMPASS_GATE])
+            compass_update(x, P, inputs[i, 2], p[I_COMPASS_SIGMA] ** 2, p, det)
         if not math.isnan(inputs[i, 3]):
             landmark_update_xy(
                 x, P, inputs[i, 3], inputs[i, 4], p[I_LM_SIGMA] ** 2, p[I_LM_GATE], work
@@ -219,6 +258,7 @@ def setup_trial(
     np.ndarray,
     int,
     float,
+    np.ndarray,
 ]:
     """Seed, build the city and landmarks, place the car; return the world and the first goal.
 
@@ -246,7 +286,8 @@ def setup_trial(
     else:
         goal = world.node_at_distance(xs, ys, net, start, 200.0, 0.9)
     ts, ns = world.init_truth(xs, ys, adj, start, p)
-    return xs, ys, adj, net, lm_xy, node_start, node_lms, ts, ns, goal, area
+    mag = world.make_interference(adj, p[I_MAG_FRAC], p[I_MAG_BIAS_MIN], p[I_MAG_BIAS_MAX])
+    return xs, ys, adj, net, lm_xy, node_start, node_lms, ts, ns, goal, area, mag
 
 
 @njit(cache=True, error_model="numpy")
@@ -259,7 +300,7 @@ def run_trial(
     samples: np.ndarray,
 ) -> np.ndarray:
     """Run one trial; fill ``samples`` with the major axis at ``sample_distance_m``."""
-    xs, ys, adj, net, lm_xy, node_start, node_lms, ts, ns, goal, area = setup_trial(
+    xs, ys, adj, net, lm_xy, node_start, node_lms, ts, ns, goal, area, mag = setup_trial(
         trial_seed, study, density, p
     )
     res = np.full(N_RESULT, math.nan)
@@ -313,23 +354,39 @@ def run_trial(
     goals = 0
     c_rej = 0
     l_rej = 0
+    i_rej = 0
+    max_err = 0.0
+    det = np.array([1.0, 0.0])
     outcome = OUTCOME_TIMEOUT
     step = 0
     while True:
         world.world_step(
-            ts, ns, xs, ys, lm_xy, node_start, node_lms, lm_seen, p,
-            math.floor((step + 1) / period) > math.floor(step / period), p[I_DETECT], events,
+            ts,
+            ns,
+            xs,
+            ys,
+            lm_xy,
+            node_start,
+            node_lms,
+            lm_seen,
+            p,
+            math.floor((step + 1) / period) > math.floor(step / period),
+            p[I_DETECT],
+            events,
         )
         step += 1
         dl, dr = events[0], events[1]
         if abs(dl) <= p[I_MAX_WHEEL_STEP] and abs(dr) <= p[I_MAX_WHEEL_STEP]:
             predict(x, P, P_next, F, G, Q, dl, dr, track, p[I_QUANTUM], p[I_SLIP])
-        if (
-            has_compass
-            and not math.isnan(events[2])
-            and not compass_update(x, P, events[2], compass_var, p[I_COMPASS_GATE])
-        ):
-            c_rej += 1
+        if has_compass and not math.isnan(events[2]):
+            z = events[2]
+            if p[I_MAG_FRAC] > 0.0:
+                z = world.disturb_compass(mag, adj, ns, z, p[I_MAG_NOISE])
+            code = compass_update(x, P, z, compass_var, p, det)
+            if code == COMPASS_GATED:
+                c_rej += 1
+            elif code == COMPASS_INTERFERENCE:
+                i_rej += 1
         landmark_update = False
         if events[3] >= 0.0:
             k = int(events[3])
@@ -339,6 +396,11 @@ def run_trial(
                 landmark_update = True
             else:
                 l_rej += 1
+        err = math.hypot(ts[world.T_X] - x[0], ts[world.T_Y] - x[1])
+        if err > max_err:
+            max_err = err
+            if err > 0.5 * p[I_LOST] and math.isnan(res[RES_TRUE_LOST_AT_M]):
+                res[RES_TRUE_LOST_AT_M] = ts[world.T_DRIVEN]
         major = model.major_axis_m(P)
         mode = law.next_mode(method, mode, major, p[I_HYBRID_SWITCH], landmark_update)
         driven = ts[world.T_DRIVEN]
@@ -382,8 +444,15 @@ def run_trial(
                 headings[e] = world.DIR_HEADING[dirs[e]]
             hs = headings[:n_exits]
             kk = law.match_intersection(
-                ix, iy, P[0, 0], P[0, 1], P[1, 1], mem_xy, n_mem,
-                p[I_REVISIT_GATE], p[I_REVISIT_FLOOR] ** 2,
+                ix,
+                iy,
+                P[0, 0],
+                P[0, 1],
+                P[1, 1],
+                mem_xy,
+                n_mem,
+                p[I_REVISIT_GATE],
+                p[I_REVISIT_FLOOR] ** 2,
             )
             if kk < 0:
                 if n_mem >= MAX_MEMORY:
@@ -419,6 +488,8 @@ def run_trial(
     res[RES_STEPS] = step
     res[RES_COMPASS_REJECTS] = c_rej
     res[RES_LANDMARK_REJECTS] = l_rej
+    res[RES_INTERFERENCE_REJECTS] = i_rej
+    res[RES_MAX_ERR_M] = max_err
     return res
 
 

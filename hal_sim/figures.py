@@ -18,11 +18,12 @@ if TYPE_CHECKING:
     from hal_sim.studies import StudyData
 
 
-def _label(compass: float | None) -> str:
-    return "no compass" if compass is None else f"compass ±{compass:g}° (2σ)"
-
-
-def fig3(data: StudyData, path: Path, max_lines: int = 400) -> None:
+def fig3(
+    data: StudyData,
+    path: Path,
+    max_lines: int = 400,
+    title: str = "Range without a map: uncertainty growth (thin: trials; thick: fitted growth)",
+) -> None:
     """Major axis against distance driven for every trial, a fitted curve per condition."""
     from hal_sim.studies import LOSS_LINE_M, fit_growth, growth_curve
 
@@ -43,7 +44,7 @@ def fig3(data: StudyData, path: Path, max_lines: int = 400) -> None:
             x_max = max(x_max, float(d[np.isfinite(s).any(axis=0)].max()))
         lost = data.results[c.key][:, engine.RES_LOST_AT_M]
         mean_lost = np.nanmean(lost) / 1000 if np.isfinite(lost).any() else None
-        label = _label(c.compass_two_sigma_deg)
+        label = c.label
         label += f": mean lost {mean_lost:.1f} km" if mean_lost is not None else ": never lost"
         if fit is not None:
             xx = np.geomspace(d[0], d[-1], 200)
@@ -57,7 +58,7 @@ def fig3(data: StudyData, path: Path, max_lines: int = 400) -> None:
     ax.set_ylim(1, 1000)
     ax.set_xlabel("Distance driven along the streets (Manhattan), km")
     ax.set_ylabel("Major axis of the 2σ position ellipse, m")
-    ax.set_title("Range without a map: uncertainty growth (thin: trials; thick: fitted growth)")
+    ax.set_title(title)
     ax.grid(True, which="both", alpha=0.25)
     ax.legend(loc="lower right", fontsize=9)
     fig.tight_layout()

@@ -54,6 +54,16 @@ class SimParams:
 
     Calibrated: with the paper's 2-sigma values this rate reproduces its lost
     distances (docs/simulation.md)."""
+    # --- magnetic interference (issue 7; off in the calibrated studies) -----------
+    interference_frac: float = 0.0
+    """Fraction of street blocks (per direction of travel) inside a magnetic interference
+    zone: tram lines, steel bridges, underground car parks. One zone covers one block
+    (50-300 m). ``guidance study interference`` uses 0.1."""
+    interference_bias_deg_min: float = 15.0
+    interference_bias_deg_max: float = 45.0
+    """Each zone biases the compass by a fixed angle, uniform in [min, max], random sign."""
+    interference_noise_deg: float = 10.0
+    """Extra 1-sigma compass noise inside a zone."""
     # --- landmarks ---------------------------------------------------------------
     sighting_range_m: float = 20.0
     """The camera recognises a landmark photo from at most this far."""
@@ -117,8 +127,16 @@ class SimParams:
     I_LM_CAP_FACTOR,
     I_LM_CAP_EXTRA,
     I_SAMPLE_FIRST,
+    I_MAG_DETECT,
+    I_MAG_ALPHA,
+    I_MAG_ON,
+    I_MAG_OFF,
+    I_MAG_FRAC,
+    I_MAG_BIAS_MIN,
+    I_MAG_BIAS_MAX,
+    I_MAG_NOISE,
     N_PARAMS,
-) = range(44)
+) = range(52)
 
 SAMPLE_FIRST_M = 10.0
 N_SAMPLES = 120
@@ -201,4 +219,12 @@ def pack(
     p[I_LM_CAP_FACTOR] = sim.landmark_cap_factor
     p[I_LM_CAP_EXTRA] = sim.landmark_cap_extra_km * 1000.0
     p[I_SAMPLE_FIRST] = SAMPLE_FIRST_M
+    p[I_MAG_DETECT] = 1.0 if est.interference_detection else 0.0
+    p[I_MAG_ALPHA] = est.interference_alpha
+    p[I_MAG_ON] = est.interference_on_nis
+    p[I_MAG_OFF] = est.interference_off_nis
+    p[I_MAG_FRAC] = sim.interference_frac
+    p[I_MAG_BIAS_MIN] = math.radians(sim.interference_bias_deg_min)
+    p[I_MAG_BIAS_MAX] = math.radians(sim.interference_bias_deg_max)
+    p[I_MAG_NOISE] = math.radians(sim.interference_noise_deg)
     return p

@@ -25,6 +25,8 @@ from hal_sim.params import (
     I_LM_CAP_EXTRA,
     I_LM_CAP_FACTOR,
     I_LM_SIGMA,
+    I_MAG_FRAC,
+    I_MAG_NOISE,
     I_RANGE_CAP,
 )
 
@@ -40,7 +42,7 @@ def run_trial(
     n_samples: int,
 ) -> tuple[np.ndarray, np.ndarray]:
     """One trial; returns (result vector as ``engine.RESULT_NAMES``, major-axis samples)."""
-    xs, ys, adj, net, lm_xy, node_start, node_lms, ts, ns, goal, area = engine.setup_trial(
+    xs, ys, adj, net, lm_xy, node_start, node_lms, ts, ns, goal, area, mag = engine.setup_trial(
         trial_seed, study, density, p
     )
     nx = xs.shape[0]
@@ -70,6 +72,7 @@ def run_trial(
     lm_updates = goals = 0
     outcome = engine.OUTCOME_TIMEOUT
     step = 0
+    max_err = 0.0
     while True:
         world.world_step(
             ts, ns, xs, ys, lm_xy, node_start, node_lms, lm_seen, p,
@@ -79,13 +82,24 @@ def run_trial(
         t = step * dt
         est.process(WheelOdometry(t, float(events[0]), float(events[1])))
         if not math.isnan(events[2]):
-            est.process(HeadingFix(t, float(events[2])))
+            z = float(events[2])
+            if p[I_MAG_FRAC] > 0.0:
+                z = world.disturb_compass(mag, adj, ns, z, p[I_MAG_NOISE])
+            est.process(HeadingFix(t, z))
         landmark_ok = False
         if events[3] >= 0.0:
             k = int(events[3])
             fix = LandmarkFix(t, k, float(lm_xy[k, 0]), float(lm_xy[k, 1]), lm_sigma)
             landmark_ok = est.process(fix).accepted
         major = est.major_axis_m
+        xe = est.x
+        err = math.hypot(float(ts[world.T_X]) - xe[0], float(ts[world.T_Y]) - xe[1])
+        if err > max_err:
+            max_err = err
+            if err > 0.5 * est.config.lost_major_axis_m and math.isnan(
+                res[engine.RES_TRUE_LOST_AT_M]
+            ):
+                res[engine.RES_TRUE_LOST_AT_M] = float(ts[world.T_DRIVEN])
         if landmark_ok:
             lm_updates += 1
             nav.on_landmark_fix(int(events[3]), major)
@@ -133,4 +147,6 @@ def run_trial(
     res[engine.RES_STEPS] = step
     res[engine.RES_COMPASS_REJECTS] = est.rejections["compass_gate"]
     res[engine.RES_LANDMARK_REJECTS] = est.rejections["landmark_gate"]
+    res[engine.RES_INTERFERENCE_REJECTS] = est.rejections["magnetic_interference"]
+    res[engine.RES_MAX_ERR_M] = max_err
     return res, samples

@@ -15,7 +15,7 @@ import os
 import time
 from collections.abc import Callable, Iterable, Sequence
 from concurrent.futures import FIRST_COMPLETED, Future, ProcessPoolExecutor, wait
-from dataclasses import asdict, dataclass, field
+from dataclasses import asdict, dataclass, field, replace
 from multiprocessing import get_context
 from pathlib import Path
 from typing import Any
@@ -32,7 +32,10 @@ LANDMARK_COMPASS_DEG = 30.0
 LANDMARK_DENSITIES = (0.5, 1.0, 2.0, 5.0, 10.0)
 LANDMARK_DETECTION_RATES = (0.2, 0.4, 0.6, 0.8, 1.0)
 LANDMARK_METHODS = (Method.STRAIGHT_TO_GOAL, Method.LANDMARK_TO_LANDMARK, Method.HYBRID)
-DEFAULT_TRIALS = {"range": 1000, "landmarks": 700}
+INTERFERENCE_COMPASS_DEG = (20.0, 30.0)
+INTERFERENCE_FRAC = 0.1
+"""Interference study: a tenth of the blocks (per direction) are magnetically disturbed."""
+DEFAULT_TRIALS = {"range": 1000, "landmarks": 700, "interference": 500}
 CHUNK_TRIALS = 25
 SUCCESS_TARGET = 0.8
 LOSS_LINE_M = 100.0
@@ -47,6 +50,17 @@ class Condition:
     compass_two_sigma_deg: float | None
     density_per_km2: float
     detection_rate: float
+    interference_frac: float = 0.0
+    interference_detection: bool = True
+
+    @property
+    def label(self) -> str:
+        c = self.compass_two_sigma_deg
+        text = "no compass" if c is None else f"compass ±{c:g}° (2σ)"
+        if self.study == "interference":
+            zones = "zones" if self.interference_frac > 0 else "no zones"
+            text += f", {zones}, detection {'on' if self.interference_detection else 'off'}"
+        return text
 
 
 def range_conditions() -> list[Condition]:
@@ -83,6 +97,18 @@ def landmark_conditions() -> list[Condition]:
     return out
 
 
+def interference_conditions() -> list[Condition]:
+    """Range with and without magnetic interference zones, detection on and off."""
+    out: list[Condition] = []
+    for c in INTERFERENCE_COMPASS_DEG:
+        for frac, detect in ((0.0, True), (INTERFERENCE_FRAC, False), (INTERFERENCE_FRAC, True)):
+            zones = "zones" if frac else "clean"
+            key = f"compass_{c:g}_{zones}_{'detect' if detect else 'nodetect'}"
+            cond = Condition(len(out), key, "interference", Method.STRAIGHT_TO_GOAL, c, 0.0, 0.0)
+            out.append(replace(cond, interference_frac=frac, interference_detection=detect))
+    return out
+
+
 def trial_seeds(base_seed: int, condition: int, first: int, count: int) -> np.ndarray:
     """One 32-bit seed per trial from (study seed, condition, trial index) only."""
     return np.array(
@@ -109,7 +135,7 @@ class ChunkTask:
 
 def run_chunk(task: ChunkTask) -> tuple[np.ndarray, np.ndarray]:
     """Run one chunk in the compiled engine (top-level so processes and Dask can call it)."""
-    study = engine.STUDY_RANGE if task.condition.study == "range" else engine.STUDY_LANDMARKS
+    study = engine.STUDY_LANDMARKS if task.condition.study == "landmarks" else engine.STUDY_RANGE
     out: tuple[np.ndarray, np.ndarray] = engine.run_batch(
         task.seeds,
         study,
@@ -132,8 +158,12 @@ def make_tasks(
     tasks = []
     n_samples = params.N_SAMPLES
     for cond in conditions:
-        est = params.estimator_config(sim, cond.compass_two_sigma_deg)
-        p = params.pack(sim, est, nav, cond.detection_rate)
+        sim_c = replace(sim, interference_frac=cond.interference_frac)
+        est = replace(
+            params.estimator_config(sim, cond.compass_two_sigma_deg),
+            interference_detection=cond.interference_detection,
+        )
+        p = params.pack(sim_c, est, nav, cond.detection_rate)
         for chunk, first in enumerate(range(0, trials, CHUNK_TRIALS)):
             count = min(CHUNK_TRIALS, trials - first)
             tasks.append(
@@ -380,6 +410,11 @@ def range_at_success(
     return max(0.0, float(km)), False
 
 
+def _mean_km(metres: np.ndarray) -> float | None:
+    ok = np.isfinite(metres)
+    return float(metres[ok].mean() / 1000.0) if ok.any() else None
+
+
 def summarise_range(data: StudyData, sim: SimParams) -> dict[str, Any]:
     conds = []
     for c in data.conditions:
@@ -412,6 +447,13 @@ def summarise_range(data: StudyData, sim: SimParams) -> dict[str, Any]:
                     np.mean(r[:, engine.RES_TURNS] / np.maximum(r[:, engine.RES_DRIVEN_M], 1) * 1e3)
                 ),
                 "compass_rejections_per_trial": float(r[:, engine.RES_COMPASS_REJECTS].mean()),
+                # The truth's view: how often the true error passed half the lost axis
+                # (the filter was wrong about itself), and the mean worst error.
+                "true_lost_fraction": float(np.isfinite(r[:, engine.RES_TRUE_LOST_AT_M]).mean()),
+                "mean_max_true_error_m": float(r[:, engine.RES_MAX_ERR_M].mean()),
+                "mean_lost_either_km": _mean_km(
+                    np.fmin(r[:, engine.RES_LOST_AT_M], r[:, engine.RES_TRUE_LOST_AT_M])
+                ),
             }
         )
     return {"study": "range", "conditions": conds}
@@ -489,7 +531,11 @@ class StudyRun:
     sim: SimParams = field(default_factory=SimParams)
 
     def conditions(self) -> list[Condition]:
-        return range_conditions() if self.name == "range" else landmark_conditions()
+        if self.name == "range":
+            return range_conditions()
+        if self.name == "interference":
+            return interference_conditions()
+        return landmark_conditions()
 
     def run(self, on_progress: ProgressHook | None = None) -> dict[str, Any]:
         if self.trials < 1:
@@ -509,6 +555,21 @@ class StudyRun:
         if self.name == "range":
             summary = summarise_range(data, self.sim)
             figures.fig3(data, self.out / "fig3.png")
+        elif self.name == "interference":
+            summary = summarise_range(data, self.sim)
+            summary["study"] = "interference"
+            for c, row in zip(conditions, summary["conditions"], strict=True):
+                row["interference_frac"] = c.interference_frac
+                row["interference_detection"] = c.interference_detection
+                r = data.results[c.key]
+                row["interference_rejects_per_trial"] = float(
+                    r[:, engine.RES_INTERFERENCE_REJECTS].mean()
+                )
+            figures.fig3(
+                data,
+                self.out / "fig_interference.png",
+                title="Range with magnetic interference zones, detector on and off",
+            )
         else:
             summary = summarise_landmarks(data)
             figures.fig4(data, self.out / "fig4.png")

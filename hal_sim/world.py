@@ -495,6 +495,38 @@ def world_step(
 
 
 @njit(cache=True, error_model="numpy")
+def make_interference(adj: np.ndarray, frac: float, bias_min: float, bias_max: float) -> np.ndarray:
+    """Magnetic interference zones: bias (rad) per directed block, NaN where there is none.
+
+    Drawn only when ``frac > 0`` so the calibrated studies keep their random streams.
+    """
+    mag = np.full(adj.shape, np.nan)
+    if frac <= 0.0:
+        return mag
+    for u in range(adj.shape[0]):
+        for d in range(4):
+            if adj[u, d] >= 0 and np.random.random() < frac:
+                b = np.random.uniform(bias_min, bias_max)
+                mag[u, d] = b if np.random.random() < 0.5 else -b
+    return mag
+
+
+@njit(cache=True, error_model="numpy")
+def disturb_compass(
+    mag: np.ndarray, adj: np.ndarray, ns: np.ndarray, reading: float, extra_sigma: float
+) -> float:
+    """The compass reading inside an interference zone on the current block (else unchanged)."""
+    a, b = ns[R_A], ns[R_B]
+    for d in range(4):
+        if adj[a, d] == b:
+            bias = mag[a, d]
+            if math.isnan(bias):
+                return reading
+            return wrap_angle(reading + bias + np.random.normal(0.0, 1.0) * extra_sigma)
+    return reading
+
+
+@njit(cache=True, error_model="numpy")
 def seed(s: int) -> None:
     """Seed numba's generator (one state per thread; independent of numpy's)."""
     np.random.seed(s)

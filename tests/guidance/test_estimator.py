@@ -222,3 +222,49 @@ def test_model_updates_match_filterpy() -> None:
     assert est.process(LandmarkFix(11.0, 1, 95.0, 25.0, 5.0)).accepted
     np.testing.assert_allclose(est.P, P, rtol=0, atol=1e-12)
     np.testing.assert_allclose(est.x, x, rtol=0, atol=1e-12)
+
+
+def _zone_drive(detect: bool, seed: int) -> tuple[PoseEstimator, list[bool], float]:
+    """Straight east 1.5 km; compass 2-sigma 20 deg at 6 Hz; 35 deg bias from 500 to 800 m."""
+    rng = np.random.default_rng(seed)
+    est = PoseEstimator(EstimatorConfig(compass_two_sigma_deg=20.0, interference_detection=detect))
+    flags: list[bool] = []
+    worst = 0.0
+    sigma = math.radians(10.0)
+    for i in range(1, 1400):
+        t = 0.1 * i
+        est.process(WheelOdometry(t, 1.1, 1.1))
+        if i % 2 == 0:
+            in_zone = 500 <= 1.1 * i <= 800
+            bias = math.radians(35.0) if in_zone else 0.0
+            est.process(HeadingFix(t, bias + rng.normal(0.0, sigma)))
+            flags.append(est.interference)
+        worst = max(worst, abs(float(est.x[2])))
+    return est, flags, worst
+
+
+def test_magnetic_interference_is_detected_and_compass_trusted_again_after() -> None:
+    for seed in range(5):
+        est, flags, worst = _zone_drive(True, seed)
+        zone = flags[230:360]  # readings well inside the zone
+        assert np.mean(zone) > 0.8
+        assert not any(flags[-100:])  # trusted again after the zone
+        assert np.mean(flags[:220]) < 0.05  # rare false alarms before it
+        assert est.rejections["magnetic_interference"] > 50
+        _, _, worst_off = _zone_drive(False, seed)
+        # Without detection the bias drags the heading; with it the error stays small.
+        assert worst < math.radians(12.0) < worst_off
+
+
+def test_interference_detector_never_trips_on_a_clean_compass() -> None:
+    rng = np.random.default_rng(3)
+    est = PoseEstimator(EstimatorConfig(compass_two_sigma_deg=30.0))
+    heading = 0.0
+    for i in range(1, 20000):
+        t = 0.1 * i
+        turn = 0.02 if (i // 300) % 2 else -0.02
+        heading = model.wrap_angle(heading + turn)
+        est.process(WheelOdometry(t, 1.1 - 0.86 * turn, 1.1 + 0.86 * turn))
+        if i % 2 == 0:
+            est.process(HeadingFix(t, model.wrap_angle(heading + rng.normal(0, math.radians(15)))))
+    assert est.rejections["magnetic_interference"] < 0.01 * est.accepted["HeadingFix"]

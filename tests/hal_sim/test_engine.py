@@ -19,11 +19,12 @@ def _inputs(n: int, seed: int) -> np.ndarray:
     inputs = np.full((n, 5), math.nan)
     inputs[:, 0] = np.round(rng.uniform(0.9, 1.2, n) / 0.02) * 0.02
     inputs[:, 1] = inputs[:, 0] + np.round(rng.normal(0.0, 0.04, n) / 0.02) * 0.02
-    inputs[::3, 2] = rng.uniform(-math.pi, math.pi, len(inputs[::3]))  # some fail the gate
     heading = np.cumsum((inputs[:, 1] - inputs[:, 0]) / 1.72)
     inputs[1::3, 2] = np.angle(
         np.exp(1j * (heading[1::3] + rng.normal(0, 0.1, len(heading[1::3]))))
     )
+    inputs[::41, 2] = rng.uniform(-math.pi, math.pi, len(inputs[::41]))  # some fail the gate
+    inputs[800:1100:3, 2] += 0.7  # a magnetic interference zone
     # Landmarks near the dead-reckoned track (accepted) and far from it (gated out).
     step = 0.5 * (inputs[:, 0] + inputs[:, 1])
     track = np.cumsum(np.stack([step * np.cos(heading), step * np.sin(heading)], 1), 0)
@@ -55,7 +56,9 @@ def test_filter_matches_filterpy_estimator_on_fixed_inputs(compass_deg: float | 
         np.testing.assert_allclose(est.P, Ps[i], rtol=0, atol=1e-9)
         np.testing.assert_allclose(est.x, xs[i], rtol=0, atol=1e-9)
     if compass_deg is not None:
-        assert est.rejections["compass_gate"] > 0  # the gate was exercised
+        # the gate and the interference detector were both exercised
+        assert est.rejections["compass_gate"] > 0
+        assert est.rejections["magnetic_interference"] > 0
     assert accepted_landmarks > 0
     assert est.rejections["landmark_gate"] > 0
 

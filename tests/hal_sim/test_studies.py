@@ -119,3 +119,20 @@ def test_cli_json_and_errors(tmp_path: Path) -> None:
     )  # fmt: skip
     assert bad.returncode == 2
     assert "Traceback" not in bad.stderr and "trials-per-condition" in bad.stderr
+
+
+def test_interference_study_detection_keeps_the_truth_closer(tmp_path: Path) -> None:
+    summary = StudyRun("interference", tmp_path, 40, seed=3, workers=1).run()
+    by = {
+        (c["compass_2sigma_deg"], c["interference_frac"] > 0, c["interference_detection"]): c
+        for c in summary["conditions"]
+    }
+    assert len(by) == 6
+    for compass in (20.0, 30.0):
+        clean, off, on = by[compass, False, True], by[compass, True, False], by[compass, True, True]
+        assert off["interference_rejects_per_trial"] == 0
+        assert on["interference_rejects_per_trial"] > 50
+        # Undetected zones corrupt the estimate silently: the truth wanders far from it.
+        assert off["mean_max_true_error_m"] > 1.5 * on["mean_max_true_error_m"]
+        assert off["mean_max_true_error_m"] > 3 * clean["mean_max_true_error_m"]
+    assert (tmp_path / "fig_interference.png").stat().st_size > 20_000

@@ -137,7 +137,7 @@ def test_pid_keeps_the_car_within_a_lane_of_the_route() -> None:
     worst = 0.0
     turns = 0
     for seed in range(5):
-        xs, ys, adj, _net, lm, ns0, nl, ts, ns, _goal, _ = engine.setup_trial(seed, 0, 0.0, p)
+        xs, ys, adj, _net, lm, ns0, nl, ts, ns, _goal, _, _ = engine.setup_trial(seed, 0, 0.0, p)
         seen = -np.ones(len(lm), dtype=np.int64)
         ev = np.zeros(8)
         dirs = np.empty(4, dtype=np.int64)
@@ -176,7 +176,7 @@ def test_wheel_encoders_quantise_and_integrate() -> None:
     """Whole counts: the sum of increments equals the true distance within one count."""
     sim = SimParams(wheel_slip_frac=0.0)
     p = params.pack(sim, params.estimator_config(sim, 20.0), NavigatorConfig(), 1.0)
-    xs, ys, _adj, _net, lm, ns0, nl, ts, ns, _goal, _ = engine.setup_trial(3, 0, 0.0, p)
+    xs, ys, _adj, _net, lm, ns0, nl, ts, ns, _goal, _, _ = engine.setup_trial(3, 0, 0.0, p)
     seen = -np.ones(len(lm), dtype=np.int64)
     ev = np.zeros(8)
     total = np.zeros(2)
