@@ -280,17 +280,22 @@ def ellipse_axes(pxx: float, pxy: float, pyy: float, k2: float) -> tuple[float, 
     For the 2-sigma ellipse use ``k2 = CHI2_2D_2SIGMA`` (=4): the semi-axes are
     2 * sqrt(eigenvalues of the x-y covariance).
     """
-    tr = 0.5 * (pxx + pyy)
-    diff = 0.5 * (pxx - pyy)
-    rad = math.sqrt(diff * diff + pxy * pxy)
-    l1 = max(tr + rad, 0.0)
-    l2 = max(tr - rad, 0.0)
+    l1, l2 = eigenvalues_2x2(pxx, pxy, pyy)
     angle = 0.5 * math.atan2(2.0 * pxy, pxx - pyy)
     return math.sqrt(k2 * l1), math.sqrt(k2 * l2), angle
 
 
 @njit(cache=True, error_model="numpy")
+def eigenvalues_2x2(pxx: float, pxy: float, pyy: float) -> tuple[float, float]:
+    """Eigenvalues (largest first, clipped at 0) of a symmetric 2x2 covariance."""
+    tr = 0.5 * (pxx + pyy)
+    diff = 0.5 * (pxx - pyy)
+    rad = math.sqrt(diff * diff + pxy * pxy)
+    return max(tr + rad, 0.0), max(tr - rad, 0.0)
+
+
+@njit(cache=True, error_model="numpy")
 def major_axis_m(P: np.ndarray) -> float:
     """Full length of the major axis of the 2-sigma position ellipse (SPEC 2)."""
-    a, _, _ = ellipse_axes(P[0, 0], P[0, 1], P[1, 1], CHI2_2D_2SIGMA)
-    return 2.0 * a
+    l1, _ = eigenvalues_2x2(P[0, 0], P[0, 1], P[1, 1])
+    return 2.0 * math.sqrt(CHI2_2D_2SIGMA * l1)

@@ -355,7 +355,9 @@ def run_trial(
     c_rej = 0
     l_rej = 0
     i_rej = 0
-    max_err = 0.0
+    max_err2 = 0.0
+    true_lost2 = (0.5 * p[I_LOST]) ** 2
+    arrive2 = p[I_ARRIVE] ** 2
     det = np.array([1.0, 0.0])
     outcome = OUTCOME_TIMEOUT
     step = 0
@@ -396,10 +398,11 @@ def run_trial(
                 landmark_update = True
             else:
                 l_rej += 1
-        err = math.hypot(ts[world.T_X] - x[0], ts[world.T_Y] - x[1])
-        if err > max_err:
-            max_err = err
-            if err > 0.5 * p[I_LOST] and math.isnan(res[RES_TRUE_LOST_AT_M]):
+        ex, ey = ts[world.T_X] - x[0], ts[world.T_Y] - x[1]
+        err2 = ex * ex + ey * ey
+        if err2 > max_err2:
+            max_err2 = err2
+            if err2 > true_lost2 and math.isnan(res[RES_TRUE_LOST_AT_M]):
                 res[RES_TRUE_LOST_AT_M] = ts[world.T_DRIVEN]
         major = model.major_axis_m(P)
         mode = law.next_mode(method, mode, major, p[I_HYBRID_SWITCH], landmark_update)
@@ -416,7 +419,7 @@ def run_trial(
             res[RES_LOST_AT_M] = driven
             outcome = OUTCOME_LOST
             break
-        if math.hypot(x[0] - gx, x[1] - gy) <= p[I_ARRIVE]:
+        if (x[0] - gx) ** 2 + (x[1] - gy) ** 2 <= arrive2:
             goals += 1
             if study == STUDY_LANDMARKS:
                 outcome = OUTCOME_ARRIVED
@@ -489,7 +492,7 @@ def run_trial(
     res[RES_COMPASS_REJECTS] = c_rej
     res[RES_LANDMARK_REJECTS] = l_rej
     res[RES_INTERFERENCE_REJECTS] = i_rej
-    res[RES_MAX_ERR_M] = max_err
+    res[RES_MAX_ERR_M] = math.sqrt(max_err2)
     return res
 
 
