@@ -111,9 +111,10 @@ class App:
         method: str = "",
     ) -> None:
         from guidance.estimator import HeadingFix
-        from guidance.pipeline import GoalUpdate
+        from guidance.pipeline import Approach, GoalUpdate
 
         self._heading_fix_type = HeadingFix
+        self._approach_type = Approach
         self._goal_type = GoalUpdate
         self.pipeline = pipeline
         self.sources = dict(sources or {})
@@ -329,6 +330,8 @@ class App:
             )
         elif isinstance(msg, IntersectionScene | TurnCompleted):
             rec.record_scene(msg)
+        elif isinstance(msg, self._approach_type):
+            rec.record("/approach", msg.t_s, {"t_s": msg.t_s, "distance_m": msg.distance_m})
         elif isinstance(msg, self._goal_type):
             rec.record(
                 "/goal",

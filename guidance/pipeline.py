@@ -59,6 +59,15 @@ class GoalUpdate:
     source: str = "operator"
 
 
+@dataclass(frozen=True, slots=True)
+class Approach:
+    """The distance to the intersection the pending decision is for (when it is known: the
+    simulator; a future map-free intersection detector). Drives the second announcement."""
+
+    t_s: float
+    distance_m: float
+
+
 Input = (
     WheelOdometry
     | CompassHeading
@@ -67,6 +76,7 @@ Input = (
     | IntersectionScene
     | TurnCompleted
     | GoalUpdate
+    | Approach
 )
 
 INPUT_KINDS: dict[type, str] = {
@@ -77,6 +87,7 @@ INPUT_KINDS: dict[type, str] = {
     IntersectionScene: "scene",
     TurnCompleted: "scene",
     GoalUpdate: "goal",
+    Approach: "scene",
 }
 """Which health record an input type feeds."""
 
@@ -298,6 +309,8 @@ class _Pending:
     decision: Decision
     heading_before_rad: float
     resolve_at_odometer_m: float
+    announced: set[str] = field(default_factory=set)
+    """Announcements made for it: "now" (distance unknown), "early", "before"."""
 
 
 class Pipeline:
@@ -366,6 +379,8 @@ class Pipeline:
             self._intersection(msg, out)
         elif isinstance(msg, TurnCompleted):
             self._turn(msg, out)
+        elif isinstance(msg, Approach):
+            self._approach(msg, out)
         self._health(t, out, force=False)
         return out
 
@@ -477,8 +492,36 @@ class Pipeline:
         self._pending = _Pending(
             decision, heading, self.odometer_m + ahead + self.config.straight_after_m
         )
-        text = prompts.decision_prompt(decision, to_b, self.config.units)
-        self._say(out, scene.t_s, text, GUIDANCE, "turn")
+        if to_b is None:  # in the car: say it now, right after the exits are known
+            self._pending.announced.add("now")
+            text = prompts.decision_prompt(decision, None, self.config.units)
+            self._say(out, scene.t_s, text, GUIDANCE, "turn")
+        else:
+            self._announce(scene.t_s, to_b, out)
+
+    def _approach(self, msg: Approach, out: Outputs) -> None:
+        if self._pending is not None and math.isfinite(msg.distance_m):
+            self._announce(msg.t_s, msg.distance_m, out)
+
+    def _announce(self, t: float, distance_m: float, out: Outputs) -> None:
+        """Early and just-before announcements, scaled by speed (``guidance.voice``'s Organic
+        Maps timing). A "continue straight" gets one announcement only."""
+        from guidance.voice import due_announcements
+
+        pending = self._pending
+        assert pending is not None
+        d = pending.decision
+        due = due_announcements(distance_m, self.speed_mps, pending.announced)
+        if not due:
+            return
+        kind = due[0]
+        straight = prompts.manoeuvre(d.turn_rad) == "continue straight"
+        if kind == "before" and straight and pending.announced:
+            pending.announced.add("before")
+            return
+        pending.announced.add(kind)
+        text = prompts.decision_prompt(d, max(0.0, distance_m), self.config.units)
+        self._say(out, t, text, GUIDANCE, "turn")
 
     def _turn(self, turn: TurnCompleted, out: Outputs) -> None:
         out.turns.append(turn)
@@ -629,6 +672,7 @@ class Pipeline:
                 "decision": _decision_to_dict(self._pending.decision),
                 "heading_before_rad": self._pending.heading_before_rad,
                 "resolve_at_odometer_m": self._pending.resolve_at_odometer_m,
+                "announced": sorted(self._pending.announced),
             }
         return {
             "x": est.x.tolist(),
@@ -684,6 +728,7 @@ class Pipeline:
                 _decision_from_dict(pending["decision"]),
                 float(pending["heading_before_rad"]),
                 float(pending["resolve_at_odometer_m"]),
+                set(pending.get("announced", [])),
             )
             self.last_decision = self._pending.decision
         if isinstance(last, int | float):

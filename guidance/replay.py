@@ -43,7 +43,15 @@ from guidance.messages import (
 if TYPE_CHECKING:  # the estimator stack (filterpy, scipy, numba) loads on first use only
     from guidance.pipeline import Input, Outputs, Pipeline, PipelineConfig
 
-INPUT_TOPICS = ("/odometry", "/compass", "/heading", "/landmark_fix", "/scene", "/goal")
+INPUT_TOPICS = (
+    "/odometry",
+    "/compass",
+    "/heading",
+    "/landmark_fix",
+    "/scene",
+    "/approach",
+    "/goal",
+)
 
 
 # ----------------------------------------------------------------------------- MCAP
@@ -86,7 +94,7 @@ def pipeline_config_from_session(session: Mapping[str, Any]) -> PipelineConfig:
 def message_from_record(topic: str, data: Mapping[str, Any]) -> Input | None:
     """One recorded input message back as the message the pipeline took."""
     from guidance.estimator import HeadingFix
-    from guidance.pipeline import GoalUpdate
+    from guidance.pipeline import Approach, GoalUpdate
 
     t = float(data["t_s"])
     if topic == "/odometry":
@@ -115,12 +123,14 @@ def message_from_record(topic: str, data: Mapping[str, Any]) -> Input | None:
         if data.get("source") == "detected":
             return None  # re-derived by the pipeline's own turn detector
         return TurnCompleted(t, float(data["heading_change_rad"]), str(data.get("source", "")))
+    if topic == "/approach":
+        return Approach(t, float(data["distance_m"]))
     if topic == "/goal":
         return GoalUpdate(t, float(data["x_m"]), float(data["y_m"]), str(data.get("source", "")))
     return None
 
 
-RAW_TOPICS = ("/can", "/nmea", "/heading", "/landmark_fix", "/scene", "/goal")
+RAW_TOPICS = ("/can", "/nmea", "/heading", "/landmark_fix", "/scene", "/approach", "/goal")
 
 
 def mcap_inputs(

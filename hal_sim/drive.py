@@ -75,6 +75,9 @@ class DriveOptions:
     camera_hz: float | None = None
     """Simulated camera (``hal_sim.sim_camera``) + the real landmark recogniser at this frame
     rate (simulated time), instead of the world's sighting events."""
+    decision_distance_m: float = 30.0
+    """The simulated co-driver announces the next intersection this far ahead (the studies'
+    value); with more, the navigator decides earlier and the driver hears two announcements."""
     cap_factor: float = 3.0
     cap_extra_m: float = 2000.0
     config: str | None = None
@@ -185,7 +188,7 @@ async def drive_async(
     if opts.speed is not None and opts.speed <= 0:
         raise UserError("--speed must be > 0")
 
-    sim = SimParams()
+    sim = SimParams(decision_distance_m=opts.decision_distance_m)
     est_cfg = estimator_config(sim, opts.compass_deg)
     nav_cfg = NavigatorConfig(method=method)
     spec = WorldSpec(
@@ -422,6 +425,7 @@ async def drive_async(
                 if world.driven_m >= cap_m:
                     outcome = "timeout"
                     break
+                scene.update(ev)
                 if ev.decide:
                     before = pipeline.navigator.decisions
                     scene.announce(ev)
@@ -684,6 +688,13 @@ def register(sub: Any) -> None:
         const=2.0,
         help="simulated camera frames at HZ (default 2) through the real landmark recogniser",
     )
+    p.add_argument(
+        "--decision-distance",
+        type=float,
+        default=None,
+        metavar="M",
+        help="the simulated co-driver reports the next intersection M metres ahead (30)",
+    )
     p.add_argument("--no-telemetry", action="store_true", help="no Zenoh telemetry")
     p.add_argument("--no-record", action="store_true", help="no MCAP recording")
     p.add_argument("--no-png", action="store_true", help="no PNG")
@@ -721,6 +732,7 @@ def _cli_sim(args: argparse.Namespace) -> int:
         ("can_silent", "can_silent"),
         ("compass_garbage", "compass_garbage"),
         ("camera", "camera_hz"),
+        ("decision_distance", "decision_distance_m"),
     ):
         value = getattr(args, flag)
         if value is not None:

@@ -25,12 +25,14 @@ import math
 from collections import Counter
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 
 from guidance.estimator import EstimatorConfig
-from guidance.messages import IntersectionScene, LandmarkFix, TurnCompleted
+from guidance.messages import IntersectionScene, LandmarkFix
 from guidance.navigator import Landmark, NavigatorConfig
+from guidance.pipeline import Approach
 from hal_sim import world
 from hal_sim.params import I_COMPASS_PERIOD, I_DETECT, I_DT, SimParams, pack
 
@@ -48,6 +50,8 @@ class StepEvents:
     landmark: int | None
     decide: bool
     to_intersection_m: float
+    passed: bool = False
+    """The car has just passed the intersection it was driving to."""
 
 
 @dataclass(frozen=True, slots=True)
@@ -175,6 +179,7 @@ class SimWorld:
             landmark=int(ev[3]) if ev[3] >= 0.0 else None,
             decide=ev[4] > 0.0,
             to_intersection_m=float(ev[5]),
+            passed=ev[6] > 0.0,
         )
 
     def exits(self) -> list[float]:
@@ -208,10 +213,12 @@ class SimScene:
 
     def __init__(self, world_: SimWorld) -> None:
         self.world = world_
-        self._sink: Callable[[IntersectionScene | TurnCompleted], None] | None = None
+        self._sink: Callable[[Any], None] | None = None
         self._counts: Counter[str] = Counter()
+        self.approaching = False
+        self._next_update_t = -math.inf
 
-    def start(self, sink: Callable[[IntersectionScene | TurnCompleted], None]) -> None:
+    def start(self, sink: Callable[[Any], None]) -> None:
         self._sink = sink
 
     def stop(self) -> None:
@@ -233,6 +240,18 @@ class SimScene:
         """The simulated driver does as told."""
         self._counts["followed"] += 1
         self.world.take_exit(exit_index)
+        self.approaching = True
+
+    def update(self, ev: StepEvents, every_s: float = 0.5) -> None:
+        """While driving up to a decided intersection, tell the app how far it is (the second
+        announcement is timed on it); stop once the car has passed it."""
+        if ev.passed:
+            self.approaching = False
+            return
+        if self.approaching and ev.t_s >= self._next_update_t:
+            self._next_update_t = ev.t_s + every_s
+            if self._sink is not None:
+                self._sink(Approach(ev.t_s, ev.to_intersection_m))
 
 
 class SimSightings:

@@ -19,7 +19,7 @@ import pytest
 
 from drivers.can_odometry import CanOdometry, CanOdometryConfig
 from guidance.app import App
-from guidance.estimator import EstimatorConfig
+from guidance.estimator import EstimatorConfig, HeadingFix
 from guidance.messages import (
     CameraFrame,
     EstimateState,
@@ -403,3 +403,40 @@ directory = "rec"
     files = list((tmp_path / "rec").glob("*.mcap"))
     topics = {m.topic for m in Reader(files)}
     assert {"/session", "/can", "/nmea", "/odometry", "/compass", "/state", "/health"} <= topics
+
+
+def test_known_distance_gives_an_early_and_a_just_before_announcement() -> None:
+    """Organic Maps timing: early (30 s ahead, 200 m at least) and again within 8 s."""
+    from guidance.pipeline import Approach
+
+    p = _pipeline(goal_xy_m=(0.0, 2000.0))
+    t = 0.0
+    for _ in range(20):  # cruise at 11 m/s
+        t += 0.1
+        p.feed(WheelOdometry(t, 1.1, 1.1))
+    out = p.feed(IntersectionScene(t, (math.pi / 2, 0.0), distance_m=400.0))
+    said = [pr.text for pr in out.prompts]
+    assert said == ["In 400 metres, turn left"]
+    distance = 400.0
+    while distance > 20.0:
+        t += 0.1
+        distance -= 1.1
+        said += [pr.text for pr in p.feed(WheelOdometry(t, 1.1, 1.1)).prompts]
+        said += [pr.text for pr in p.feed(HeadingFix(t, 0.0)).prompts]  # compass: east
+        said += [pr.text for pr in p.feed(Approach(t, distance)).prompts]
+    assert said == ["In 400 metres, turn left", "In 90 metres, turn left"]  # 8 s x 11 m/s
+
+
+def test_straight_on_is_announced_once() -> None:
+    from guidance.pipeline import Approach
+
+    p = _pipeline(goal_xy_m=(2000.0, 0.0))
+    for k in range(20):
+        p.feed(WheelOdometry(0.1 * (k + 1), 1.1, 1.1))
+    said = [pr.text for pr in p.feed(IntersectionScene(2.0, (math.pi / 2, 0.0), 300.0)).prompts]
+    for k in range(250):
+        t = 2.1 + 0.1 * k
+        said += [pr.text for pr in p.feed(WheelOdometry(t, 1.1, 1.1)).prompts]
+        said += [pr.text for pr in p.feed(HeadingFix(t, 0.0)).prompts]
+        said += [pr.text for pr in p.feed(Approach(t, 300.0 - 1.1 * k)).prompts]
+    assert said == ["In 300 metres, continue straight"]
