@@ -64,6 +64,8 @@ class SystemdNotifier:
         self._send_failed = False
         self._last_status: str | None = None
         self.interval_s: float | None = None
+        self.dropped = 0
+        """Messages that could not be sent (socket gone, or its queue full)."""
         self._notifier: sdnotify.SystemdNotifier | None = None
         address = os.environ.get("NOTIFY_SOCKET")
         if not address:
@@ -73,6 +75,12 @@ class SystemdNotifier:
         except Exception as e:
             log.warning("cannot reach systemd at NOTIFY_SOCKET=%s (%s); not notifying", address, e)
             return
+        sock = getattr(self._notifier, "socket", None)
+        if sock is not None:
+            # A datagram socket blocks its sender while the receiver's queue is full (systemd
+            # busy, or a test that stopped reading): that would stall the event loop, which
+            # calls us. Non-blocking, such a message fails, is counted and logged once.
+            sock.setblocking(False)
         self.interval_s = watchdog_interval_s()
 
     @property
@@ -136,6 +144,7 @@ class SystemdNotifier:
         try:
             self._notifier.notify(message)
         except Exception as e:
+            self.dropped += 1
             if not self._send_failed:
                 self._send_failed = True
                 log.warning("sd_notify failed (%s); will keep trying", e)

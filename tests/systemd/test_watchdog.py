@@ -134,3 +134,27 @@ def test_unreachable_notify_socket_disables_notifications(
     assert n.tick(0.0) is False
     [warning] = [r.getMessage() for r in caplog.records if r.levelno == logging.WARNING]
     assert "cannot reach systemd" in warning
+
+
+def test_a_full_notify_queue_never_blocks_the_caller(
+    notify_socket: socket.socket, caplog: pytest.LogCaptureFixture
+) -> None:
+    """A receiver that stops reading fills the datagram queue; sends then fail at once."""
+    import time
+
+    clock = FakeClock()
+    n = SystemdNotifier(clock=clock)
+    took = []
+    with caplog.at_level(logging.WARNING, logger="guidance.watchdog"):
+        for i in range(200):  # far more than a unix datagram queue holds (10 by default)
+            clock.now = float(i)
+            t0 = time.perf_counter()
+            n.tick(0.0)
+            n.status(f"driving {i}")
+            took.append(time.perf_counter() - t0)
+    assert max(took) < 0.5  # a blocking send would wait here forever
+    assert n.dropped > 300
+    assert sum("sd_notify failed" in r.getMessage() for r in caplog.records) == 1
+    assert len(received(notify_socket)) < 100
+    clock.now = 1000.0
+    assert n.tick(0.0) is True  # the queue was drained above: pings go through again
