@@ -170,3 +170,80 @@ def test_simulated_camera_through_the_real_recogniser(tmp_path: Path) -> None:
     assert r.outcome == "arrived"
     assert r.landmark_updates >= 1
     assert any(text.startswith("Landmark confirmed") for _, text in r.prompt_log)
+
+
+def test_a_monitor_in_another_process_follows_the_simulated_car(tmp_path: Path) -> None:
+    """Issue 6: ``guidance sim`` and a monitor on loopback. State arrives at the published
+    rate (10 Hz of simulated time, here paced at 2x: 20 Hz) with no sequence gaps, and the
+    car's liveliness goes within seconds of a SIGKILL."""
+    import signal
+    import socket
+    import subprocess
+    import sys
+
+    from guidance.telemetry import MonitorClient
+
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        port = s.getsockname()[1]
+    repo = Path(__file__).resolve().parents[2]
+    cfg = tmp_path / "sim.toml"
+    cfg.write_text(
+        (repo / "config" / "sim.toml")
+        .read_text()
+        .replace("tcp/127.0.0.1:7447", f"tcp/127.0.0.1:{port}")
+        .replace('vehicle_id = "sim1"', 'vehicle_id = "simmon"')
+        .replace('id = "sim1"', 'id = "simmon"')
+    )
+    proc = subprocess.Popen(
+        [
+            sys.executable,
+            "-m",
+            "guidance.cli",
+            "sim",
+            "--config",
+            str(cfg),
+            "--speed",
+            "2",
+            "--no-voice",
+            "--no-record",
+            "--no-png",
+            "--out",
+            str(tmp_path),
+        ],
+        cwd=tmp_path,
+        env={**os.environ, "PYTHONPATH": str(repo)},
+        stdout=subprocess.DEVNULL,
+        stderr=subprocess.DEVNULL,
+    )
+    try:
+        with MonitorClient([f"tcp/127.0.0.1:{port}"]) as mon:
+            deadline = time.monotonic() + 30.0
+            seqs: list[int] = []
+            t0 = None
+            while time.monotonic() < deadline:
+                e = mon.get(0.1)
+                if e is None or e.kind != "state" or e.late_join or not e.message:
+                    continue
+                assert e.vehicle_id == "simmon"
+                t0 = t0 or e.received_s
+                seqs.append(int(e.message["seq"]))
+                if e.received_s - t0 >= 3.0:
+                    break
+            assert t0 is not None, "no state received"
+            rate_hz = (len(seqs) - 1) / (time.monotonic() - t0)
+            assert seqs == list(range(seqs[0], seqs[0] + len(seqs))), "gaps in the state"
+            assert 14.0 < rate_hz < 26.0
+            os.kill(proc.pid, signal.SIGKILL)
+            killed = time.monotonic()
+            while time.monotonic() - killed < 10.0:
+                e = mon.get(0.1)
+                if e is not None and e.kind == "gone" and e.vehicle_id == "simmon":
+                    break
+            else:
+                raise AssertionError("the car's liveliness did not go")
+            assert time.monotonic() - killed < 5.0
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+        proc.wait()
