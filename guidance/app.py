@@ -569,9 +569,26 @@ async def run_car(config_path: str, *, resume: bool = True) -> int:
     if cfg.checkpoint.path:
         checkpointer = Checkpointer(cfg.checkpoint.path, cfg.checkpoint.interval_s)
         doc = load_checkpoint(cfg.checkpoint.path) if resume else None
-        if doc is not None:
-            pipeline.restore(doc["pipeline"])
-            log.warning("resumed from checkpoint %s (t=%.1f s)", cfg.checkpoint.path, doc["t_s"])
+        age_s = time.time() - float(doc.get("wall_time_unix_s", 0.0)) if doc else math.inf
+        if doc is not None and not 0.0 <= age_s <= cfg.checkpoint.max_age_s:
+            log.warning(
+                "checkpoint %s is %.0f s old (limit %.0f s): starting afresh",
+                cfg.checkpoint.path,
+                age_s,
+                cfg.checkpoint.max_age_s,
+            )
+        elif doc is not None:
+            # The laptop's monotonic clock may have restarted, and the car kept moving while
+            # the process was down: widen the position by what the last speed covers.
+            pipeline.restore(doc["pipeline"], same_clock=False)
+            spread = pipeline.speed_mps * age_s
+            pipeline.inflate_position(spread)
+            log.warning(
+                "resumed from checkpoint %s written %.1f s ago; position widened by %.0f m",
+                cfg.checkpoint.path,
+                age_s,
+                spread,
+            )
     # Devices are built (and their configs checked) before anything starts.
     sources: dict[str, Source] = {}
     if cfg.odometry is not None:

@@ -99,6 +99,8 @@ class CheckpointSettings:
     path: str = ""
     """Empty: no checkpoints."""
     interval_s: float = 5.0
+    max_age_s: float = 600.0
+    """An older checkpoint (wall clock) is not resumed: the car may be anywhere by now."""
 
 
 @dataclass(frozen=True, slots=True)
@@ -451,7 +453,11 @@ def parse_config(
     ck_path = ck.string("path", "")
     if ck_path and base_dir is not None and not Path(ck_path).is_absolute():
         ck_path = str(base_dir / ck_path)
-    checkpoint = CheckpointSettings(ck_path, ck.number("interval_s", 5.0, positive=True) or 5.0)
+    checkpoint = CheckpointSettings(
+        ck_path,
+        ck.number("interval_s", 5.0, positive=True) or 5.0,
+        ck.number("max_age_s", 600.0, positive=True) or 600.0,
+    )
     ck.done()
 
     tel_table = dict(data.get("telemetry", {}))

@@ -233,6 +233,8 @@ class HealthMonitor:
 
     def evaluate(self, t_s: float) -> list[HealthChange]:
         """Statuses whose alive/valid flags flipped since the last evaluation."""
+        if self._start is None:  # the clock starts at the first message or tick
+            self._start = t_s
         changes = []
         for name in self.expected:
             st = self.status(name, t_s)
@@ -429,16 +431,22 @@ class Pipeline:
 
     def _inflate_after_gap(self, gap_s: float, out: Outputs) -> None:
         """Odometry came back after a silence: the car may have moved meanwhile (issue 7)."""
-        est = self.estimator
         spread = max(self.speed_mps, 1.0) * gap_s  # 2-sigma: what the last speed covers
+        self.inflate_position(spread)
+        log.warning("odometry resumed after %.1f s: position inflated by %.0f m", gap_s, spread)
+        self.counts["gap_inflations"] += 1
+
+    def inflate_position(self, spread_m: float) -> None:
+        """Widen the position uncertainty by ``spread_m`` (a 2-sigma distance, both axes)."""
+        if not (math.isfinite(spread_m) and spread_m > 0):
+            return
+        est = self.estimator
         P = est.P
-        var = (spread / 2.0) ** 2
+        var = (spread_m / 2.0) ** 2
         P[0, 0] += var
         P[1, 1] += var
         x = est.x
         est.set_pose(float(x[0]), float(x[1]), float(x[2]), P)
-        log.warning("odometry resumed after %.1f s: position inflated by %.0f m", gap_s, spread)
-        self.counts["gap_inflations"] += 1
 
     def _heading(self, fix: HeadingFix, out: Outputs) -> None:
         est = self.estimator
@@ -694,12 +702,17 @@ class Pipeline:
             "counts": dict(self.counts),
         }
 
-    def restore(self, snap: Mapping[str, object]) -> None:
-        """Put the pipeline back where ``snapshot`` left it (after a crash)."""
+    def restore(self, snap: Mapping[str, object], *, same_clock: bool = True) -> None:
+        """Put the pipeline back where ``snapshot`` left it (after a crash).
+
+        ``same_clock``: the message clock continues from the snapshot's (the simulation, a
+        restart within one boot); False for the car in general, where the monotonic clock
+        may have restarted with the laptop, so the snapshot's times are not carried over.
+        """
         est = self.estimator
         x = np.asarray(snap["x"], dtype=float)
         est.set_pose(float(x[0]), float(x[1]), float(x[2]), np.asarray(snap["P"], dtype=float))
-        last = snap.get("last_t_s")
+        last = snap.get("last_t_s") if same_clock else None
         if isinstance(last, int | float):
             est._last_t = float(last)  # the estimator's time order survives the restart
         self.heading_known = bool(snap.get("heading_known", True))

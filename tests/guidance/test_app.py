@@ -440,3 +440,44 @@ def test_straight_on_is_announced_once() -> None:
         said += [pr.text for pr in p.feed(HeadingFix(t, 0.0)).prompts]
         said += [pr.text for pr in p.feed(Approach(t, 300.0 - 1.1 * k)).prompts]
     assert said == ["In 300 metres, continue straight"]
+
+
+def test_a_sensor_silent_from_the_start_is_reported() -> None:
+    """No CAN frame ever arrives (wrong channel, unplugged adapter): flagged after the timeout
+    on the loop's own clock, spoken once, and the loop keeps running."""
+    channel = f"test-app-silent-{os.getpid()}"
+    speech = io.StringIO()
+    pipeline = _pipeline()
+
+    async def scenario() -> App:
+        odo = CanOdometry(CanOdometryConfig(interface="virtual", channel=channel, bitrate=None))
+        app = App(pipeline, sources={"odometry": odo}, speaker=TextSpeaker(speech), tick_hz=50)
+        async with app.running():
+            await asyncio.sleep(1.6)
+        return app
+
+    app = asyncio.run(scenario())
+    assert speech.getvalue().count("Warning: odometry is silent") == 1
+    st = pipeline.statuses(time.monotonic())["odometry"]
+    assert not st.alive and st.detail == "silent since start"
+    assert len(app.loop_lag_s) > 50
+
+
+def test_restore_after_a_reboot_does_not_carry_the_old_clock() -> None:
+    """The laptop's monotonic clock restarts with it: a checkpoint's times must not make every
+    new input 'out of order'. Within one clock (the simulation) they are kept."""
+    a = _pipeline()
+    for k in range(30):
+        a.feed(WheelOdometry(1000.0 + 0.1 * k, 1.0, 1.0))
+    snap = a.snapshot()
+    rebooted = _pipeline()
+    rebooted.restore(snap, same_clock=False)
+    assert rebooted.feed(WheelOdometry(5.0, 1.0, 1.0)).accepted
+    assert rebooted.odometer_m == pytest.approx(31.0)
+    same = _pipeline()
+    same.restore(snap)
+    assert same.feed(WheelOdometry(5.0, 1.0, 1.0)).reason == "out_of_order"
+    before = rebooted.estimator.major_axis_m
+    rebooted.inflate_position(40.0)  # 4 s down at 10 m/s: 40 m more 2-sigma radius
+    major = rebooted.estimator.major_axis_m  # the full axis: twice the 2-sigma radius
+    assert major == pytest.approx(2 * math.hypot(before / 2, 40.0), rel=0.05)
