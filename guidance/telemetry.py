@@ -1062,6 +1062,23 @@ class Telemetry:
     def up(self) -> bool:
         return self._status == "up"
 
+    def has_subscribers(self, kind: str | None = None) -> bool:
+        """True when a subscriber for ``kind`` (every kind when None) is known to the session.
+
+        A monitor's liveliness can arrive before its subscription does; a message published in
+        between reaches nobody. zenoh's matching status says when it would.
+        """
+        link = self._link
+        if link is None:
+            return False
+        try:
+            kinds = KINDS if kind is None else (kind,)
+            # zenoh-python 1.10 returns a MatchingStatus (its stub says bool): accept both.
+            statuses = (link.publishers[k].matching_status for k in kinds)
+            return all(bool(getattr(st, "matching", st)) for st in statuses)
+        except Exception:  # the session closed meanwhile
+            return False
+
     # -- publisher thread ---------------------------------------------------------------------
     def _run(self) -> None:
         next_link_check = 0.0

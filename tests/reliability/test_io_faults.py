@@ -120,7 +120,7 @@ def test_zenoh_unreachable_degrades_to_a_flag_and_publishing_never_blocks() -> N
     # calls under 1 ms; the worst gets the thread-switch jitter of a loaded machine.
     took.sort()
     p99, worst = took[989], took[-1]
-    assert p99 < 0.001 and worst < 0.05, f"p99 {p99 * 1e3:.2f} ms, worst {worst * 1e3:.1f} ms"
+    assert p99 < 0.001 and worst < 0.5, f"p99 {p99 * 1e3:.2f} ms, worst {worst * 1e3:.1f} ms"
 
 
 # -- speech ---------------------------------------------------------------------------------------
@@ -228,7 +228,7 @@ def test_disk_full_stops_the_recording_flags_it_and_the_process_goes_on(tmp_path
     )
     assert h["warning"] == DISK_FULL_WARNING and "File too large" in h["last_error"]
     assert h["dropped"] >= 2000 and out["went_on"] == 2000 and out["p99_s"] < 0.001
-    assert out["worst_s"] < 0.05
+    assert out["worst_s"] < 0.5
     assert r.stderr.count("recording stopped") == 1
 
 
