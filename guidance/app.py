@@ -144,6 +144,8 @@ class App:
         self._sub_lock = threading.Lock()
         self._waiters: list[asyncio.Future[None]] = []
         self._frame: CameraFrame | None = None
+        self._frame_lock = threading.Lock()
+        self._frame_signalled = False
         self._frame_ready = asyncio.Event()
         self._next_health_pub = -math.inf
         self._next_counts_t = -math.inf
@@ -162,8 +164,11 @@ class App:
 
     def _on_message(self, msg: Any) -> None:
         try:
-            if isinstance(msg, CameraFrame):
-                self._on_frame(msg)
+            if isinstance(msg, CameraFrame):  # a camera handed to sink(): use the ring too
+                with self._frame_lock:
+                    self._frame = msg
+                    self.counts["frames"] += 1
+                self._on_frame()
             else:
                 self.feed(msg)
         except Exception:
@@ -209,13 +214,30 @@ class App:
         extra = dict(self.checkpoint_extra()) if self.checkpoint_extra is not None else {}
         return self.checkpointer.save(t_s, {"pipeline": self.pipeline.snapshot(), "extra": extra})
 
-    def _on_frame(self, frame: CameraFrame) -> None:
-        """Keep the latest frame only (a one-slot ring); the recogniser takes it when free."""
+    def camera_sink(self, frame: CameraFrame) -> None:
+        """The camera's sink (its thread): a one-slot ring, so a stalled loop or a slow matcher
+        holds at most one frame; the loop is woken once per batch of frames, not per frame."""
+        loop = self._loop
+        if loop is None:
+            raise RuntimeError("App.camera_sink used before run()")
+        with self._frame_lock:
+            if self._frame is not None:
+                self.counts["frames_dropped"] += 1
+            self._frame = frame
+            self.counts["frames"] += 1
+            wake = not self._frame_signalled
+            self._frame_signalled = True
+        if wake:
+            loop.call_soon_threadsafe(self._on_frame)
+
+    def _on_frame(self) -> None:
+        """On the loop: note the camera alive, record the frame, wake the recogniser."""
+        with self._frame_lock:
+            self._frame_signalled = False
+            frame = self._frame
+        if frame is None:
+            return
         self.pipeline.health.observe("camera", frame.t_s)
-        if self._frame is not None:
-            self.counts["frames_dropped"] += 1
-        self._frame = frame
-        self.counts["frames"] += 1
         self._frame_ready.set()
         if self.recorder is not None:
             self.recorder.record_camera(frame)
@@ -291,7 +313,11 @@ class App:
                 "resets": self.pipeline.estimator.resets,
                 "rejections": dict(self.pipeline.estimator.rejections),
             },
-            "loop": {"lag_p99_s": _percentile(self.loop_lag_s, 99)},
+            "loop": {
+                "lag_p99_s": _percentile(self.loop_lag_s, 99),
+                "backlog": self._submitted - self._processed,
+                "frames_dropped": self.counts["frames_dropped"],
+            },
         }
         if self.telemetry is not None:
             self.telemetry.publish_health(t_s, inputs, components=comps)
@@ -385,7 +411,7 @@ class App:
                         self._started_sources.append(src)
                         log.info("started %s (%s)", name, getattr(src, "name", name))
                     if self.camera is not None:
-                        self.camera.start(self.sink)
+                        self.camera.start(self.camera_sink)
                         self._started_sources.append(self.camera)
                     if self.notifier is not None:
                         self.notifier.ready("guidance running")
@@ -443,7 +469,8 @@ class App:
         while True:
             await self._frame_ready.wait()
             self._frame_ready.clear()
-            frame, self._frame = self._frame, None
+            with self._frame_lock:
+                frame, self._frame = self._frame, None
             if frame is None:
                 continue
             state = self.pipeline.state()
