@@ -277,7 +277,9 @@ class Navigator:
         self._passed[:] = np.asarray(memory["passed"], dtype=np.bool_)
         xy = np.asarray(memory["mem_xy"], dtype=float).reshape(-1, 2)
         n = len(xy)
+        width = self._mem_headings.shape[1]
         self._n_mem = n
         self._mem_xy[:n] = xy
-        self._mem_headings[:n] = np.asarray(memory["mem_headings"], dtype=float).reshape(n, -1)
-        self._mem_counts[:n] = np.asarray(memory["mem_counts"], dtype=np.int64).reshape(n, -1)
+        self._mem_headings[:n] = np.asarray(memory["mem_headings"], dtype=float).reshape(n, width)
+        self._mem_counts[:n] = np.asarray(memory["mem_counts"], dtype=np.int64).reshape(n, width)
+        self._mem_counts[n:] = 0

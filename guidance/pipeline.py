@@ -718,7 +718,7 @@ class Pipeline:
         self.heading_known = bool(snap.get("heading_known", True))
         nav = snap["navigator"]
         assert isinstance(nav, dict)
-        _restore_navigator(self.navigator, nav)
+        self.navigator.restore(nav)
         self.navigator.decisions = int(snap.get("decisions", 0))  # type: ignore[call-overload]
         turns = snap.get("turns")
         if isinstance(turns, dict):
@@ -747,24 +747,6 @@ class Pipeline:
         if isinstance(last, int | float):
             self._last_t = float(last)
             self._last_odo_t = float(last)
-
-
-def _restore_navigator(nav: Navigator, memory: dict[str, object]) -> None:
-    """``Navigator.restore``, also when no intersection is remembered yet.
-
-    ``Navigator.restore`` cannot reshape an empty memory (numpy refuses ``reshape(0, -1)``);
-    until that is fixed there, an empty memory is restored field by field here.
-    """
-    mem_xy = memory.get("mem_xy")
-    if mem_xy:
-        nav.restore(memory)
-        return
-    goal = memory["goal"]
-    assert isinstance(goal, list)
-    nav.goal = (float(goal[0]), float(goal[1]))
-    nav._mode = int(memory["mode"])  # type: ignore[call-overload]
-    nav._passed[:] = np.asarray(memory["passed"], dtype=np.bool_)
-    nav._n_mem = 0
 
 
 def _decision_to_dict(d: Decision) -> dict[str, object]:

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import json
 import math
 
 import numpy as np
@@ -186,3 +187,16 @@ def test_memory_round_trip() -> None:
 def test_no_exits_is_an_error() -> None:
     with pytest.raises(ValueError):
         Navigator((0.0, 0.0)).decide(0.0, np.zeros(3), _P(1.0), [])
+
+
+def test_empty_memory_round_trip() -> None:
+    # A checkpoint taken before the first intersection holds no memory at all.
+    nav = Navigator((0.0, 1000.0))
+    other = Navigator((5.0, 5.0))
+    other.restore(json.loads(json.dumps(nav.memory())))
+    assert other.memory() == nav.memory()
+    x = np.array([0.0, 0.0, NORTH])
+    assert (
+        other.decide(1.0, x, _P(2.0), [NORTH, EAST]).options
+        == nav.decide(1.0, x, _P(2.0), [NORTH, EAST]).options
+    )
