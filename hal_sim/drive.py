@@ -84,6 +84,9 @@ class DriveOptions:
     vehicle_id: str = "sim1"
     profile: str = "gm_global_a"
     print_prompts: bool = True
+    duration_s: float | None = None
+    """Field protocol (SPEC 5): on arrival a new random goal is set and driving goes on until
+    this much simulated time has passed; being lost does not stop it (soak runs)."""
 
 
 @dataclass
@@ -105,6 +108,8 @@ class DriveResult:
     health_warnings: list[str] = field(default_factory=list)
     prompt_log: list[tuple[float, str]] = field(default_factory=list)
     loop_lag_p99_ms: float | None = None
+    loop_lag_ms: dict[str, float | None] = field(default_factory=dict)
+    goals_reached: int = 0
     frames_sent: int = 0
     compass_lines: int = 0
 
@@ -126,6 +131,7 @@ class DriveResult:
             "resumed_at_s": self.resumed_at_s,
             "health_warnings": self.health_warnings,
             "loop_lag_p99_ms": self.loop_lag_p99_ms,
+            "goals_reached": self.goals_reached,
         }
 
 
@@ -157,8 +163,12 @@ async def drive_async(
     opts: DriveOptions,
     printer: Callable[[str], None] | None = None,
     app_config: Any = None,
+    on_progress: Callable[[float], None] | None = None,
 ) -> DriveResult:
-    """Run one simulated drive; ``printer`` receives one line per prompt."""
+    """Run one simulated drive; ``printer`` receives one line per prompt.
+
+    ``on_progress`` is called with the simulated time about once per simulated minute.
+    """
     from drivers.can_odometry import MAX_GAP_S, CanOdometry, CanOdometryConfig
     from drivers.compass import SerialCompass, SerialCompassConfig
     from drivers.magnetic import declination_deg
@@ -166,7 +176,7 @@ async def drive_async(
     from guidance.checkpoint import Checkpointer, load_checkpoint
     from guidance.model import heading_to_compass
     from guidance.navigator import Method, NavigatorConfig
-    from guidance.pipeline import Pipeline, PipelineConfig
+    from guidance.pipeline import GoalUpdate, Pipeline, PipelineConfig
     from hal_sim.params import SimParams, estimator_config
     from hal_sim.sim_can import SimCanWheels
     from hal_sim.sim_compass import SimCompassPty
@@ -187,6 +197,9 @@ async def drive_async(
         raise UserError("--detection-rate must be within [0, 1]")
     if opts.speed is not None and opts.speed <= 0:
         raise UserError("--speed must be > 0")
+    if opts.duration_s is not None and opts.duration_s <= 0:
+        raise UserError("--duration must be > 0 simulated seconds")
+    field_protocol = opts.duration_s is not None
 
     sim = SimParams(decision_distance_m=opts.decision_distance_m)
     est_cfg = estimator_config(sim, opts.compass_deg)
@@ -222,11 +235,13 @@ async def drive_async(
         landmarks=landmarks,
         declination_deg=decl,
         expected_rates_hz=rates,
-        stop_at_arrival=True,
+        stop_at_arrival=not field_protocol,
     )
     pipeline = Pipeline(pcfg)
     manhattan = abs(gx - sx) + abs(gy - sy)
-    cap_m = opts.cap_factor * manhattan + opts.cap_extra_m
+    cap_m = math.inf if field_protocol else opts.cap_factor * manhattan + opts.cap_extra_m
+    goals_reached = 0
+    next_progress_t = 0.0
 
     out_dir = out_dir_for(opts)
     track_truth: list[tuple[float, float]] = []
@@ -422,6 +437,19 @@ async def drive_async(
                 if pipeline.finished:
                     outcome = "arrived" if pipeline.arrived else "lost"
                     break
+                if on_progress is not None and t >= next_progress_t:
+                    next_progress_t = t + 60.0
+                    on_progress(t)
+                if field_protocol:
+                    if pipeline.arrived:  # the field protocol: a new random goal
+                        goals_reached += 1
+                        world.new_goal()
+                        ngx, ngy = world.goal_xy
+                        app.feed(GoalUpdate(t, ngx, ngy, "field_protocol"))
+                        await app.drained()
+                    if t >= (opts.duration_s or math.inf):
+                        outcome = "time_limit"
+                        break
                 if world.driven_m >= cap_m:
                     outcome = "timeout"
                     break
@@ -441,7 +469,8 @@ async def drive_async(
             track_truth.append((tx_, ty_))
             track_est.append((float(x[0]), float(x[1])))
             app.save_checkpoint(world.t_s)
-        lag = app.lag_summary()["loop_lag_p99_ms"]
+        lag_ms = app.lag_summary()
+        lag = lag_ms["loop_lag_p99_ms"]
     finally:
         if recogniser is not None:
             recogniser.close()
@@ -485,6 +514,8 @@ async def drive_async(
         health_warnings=health_warnings,
         prompt_log=result_prompts,
         loop_lag_p99_ms=lag,
+        loop_lag_ms=lag_ms,
+        goals_reached=goals_reached,
         frames_sent=tx.frames_sent if tx is not None else 0,
         compass_lines=pty.sentences_written if pty is not None else 0,
     )
@@ -609,9 +640,12 @@ def plot_drive(
 
 
 def run_drive(
-    opts: DriveOptions, printer: Callable[[str], None] | None = None, app_config: Any = None
+    opts: DriveOptions,
+    printer: Callable[[str], None] | None = None,
+    app_config: Any = None,
+    on_progress: Callable[[float], None] | None = None,
 ) -> DriveResult:
-    return asyncio.run(drive_async(opts, printer, app_config))
+    return asyncio.run(drive_async(opts, printer, app_config, on_progress))
 
 
 # ----------------------------------------------------------------------------- CLI
@@ -712,6 +746,13 @@ def register(sub: Any) -> None:
         metavar="T:D",
         help="fault: garbage instead of NMEA for D simulated seconds from T",
     )
+    p.add_argument(
+        "--duration",
+        type=float,
+        default=None,
+        metavar="S",
+        help="field protocol: a new random goal on each arrival until S simulated seconds",
+    )
     p.set_defaults(func=_cli_sim, compass_given=None)
 
 
@@ -733,6 +774,7 @@ def _cli_sim(args: argparse.Namespace) -> int:
         ("compass_garbage", "compass_garbage"),
         ("camera", "camera_hz"),
         ("decision_distance", "decision_distance_m"),
+        ("duration", "duration_s"),
     ):
         value = getattr(args, flag)
         if value is not None:
@@ -763,7 +805,9 @@ def _cli_sim(args: argparse.Namespace) -> int:
         f"\n{result.outcome.upper()}: drove {result.driven_km:.2f} km in {result.sim_s:.0f} s "
         f"simulated ({result.wall_s:.1f} s wall)\n"
         f"  final position error {result.final_error_m:.1f} m; {result.decisions} decisions, "
-        f"{result.prompts} prompts, {result.landmark_updates} landmark updates\n"
+        f"{result.prompts} prompts, {result.landmark_updates} landmark updates"
+        + (f", {result.goals_reached} goals reached" if opts.duration_s is not None else "")
+        + "\n"
     )
     if result.resumed_at_s is not None:
         w(f"  resumed from the checkpoint at {result.resumed_at_s:.1f} s\n")

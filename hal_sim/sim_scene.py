@@ -91,6 +91,7 @@ class SimWorld:
         )
         self.start = world.random_node(self.net)
         self.goal_node = self._pick_goal(spec)
+        self._goal_rng = np.random.default_rng([spec.seed, 2])
         self.ts, self.ns = world.init_truth(self.xs, self.ys, self.adj, self.start, self.p)
         self.start_heading_rad = float(self.ts[world.T_TH])
         self.lm_seen = -np.ones(len(self.lm_xy), dtype=np.int64)
@@ -113,6 +114,17 @@ class SimWorld:
         if len(ok) == 0:  # a small city: the farthest node
             return int(idx[int(np.argmax(d))])
         return int(ok[rng.integers(len(ok))])
+
+    def new_goal(self) -> None:
+        """The field protocol's next goal: a random network node away from the car."""
+        nx = self.xs.shape[0]
+        cx, cy, _ = self.truth
+        idx = np.nonzero(self.net)[0]
+        d = np.hypot(self.xs[idx % nx] - cx, self.ys[idx // nx] - cy)
+        ok = idx[(d >= self.spec.goal_min_m) & (d <= self.spec.goal_max_m)]
+        if len(ok) == 0:
+            ok = idx[d >= np.median(d)]
+        self.goal_node = int(ok[self._goal_rng.integers(len(ok))])
 
     # -- views --------------------------------------------------------------------------------
     @property

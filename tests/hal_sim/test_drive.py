@@ -247,3 +247,14 @@ def test_a_monitor_in_another_process_follows_the_simulated_car(tmp_path: Path) 
         if proc.poll() is None:
             proc.kill()
         proc.wait()
+
+
+def test_field_protocol_sets_new_goals_until_the_time_limit() -> None:
+    times: list[float] = []
+    r = run_drive(replace(FAST, seed=3, duration_s=420.0), None, None, times.append)
+    assert r.outcome == "time_limit"
+    assert 420.0 <= r.sim_s < 421.0
+    assert r.goals_reached >= 1  # seed 3 reaches its first goal in about 170 s
+    assert any("New destination" in text for _, text in r.prompt_log)
+    assert times[0] == pytest.approx(0.0, abs=0.2) and len(times) == 7  # once a simulated minute
+    assert r.loop_lag_ms["loop_lag_p99_ms"] is not None
