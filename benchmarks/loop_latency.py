@@ -45,6 +45,7 @@ from guidance.messages import CameraFrame, EstimateState, LandmarkFix
 from guidance.navigator import Method, NavigatorConfig
 from guidance.pipeline import Pipeline, PipelineConfig
 from hal_sim.sim_can import SimCanWheels
+from landmark_db.recognise import lower_priority
 
 
 def _texture(seed: int, h: int = 480, w: int = 640) -> np.ndarray:
@@ -121,7 +122,7 @@ class OrbMatcher:
     def __init__(self, worker: bool = True) -> None:
         self.pool = (
             ProcessPoolExecutor(
-                1, mp_context=get_context("spawn"), initializer=os.nice, initargs=(10,)
+                1, mp_context=get_context("spawn"), initializer=lower_priority
             )
             if worker
             else None

@@ -28,6 +28,7 @@ from __future__ import annotations
 
 import asyncio
 import math
+import os
 import threading
 import time
 from collections import Counter, OrderedDict
@@ -393,8 +394,24 @@ async def recognise_async(
 _worker: Recogniser | None = None
 
 
+def lower_priority() -> str:
+    """Make this process background work: ``SCHED_IDLE`` where Linux allows it, else nice 10.
+
+    Matching must never delay the odometry loop. With a nice level the kernel still lets
+    a running matcher finish its time slice before the woken loop runs (a millisecond or
+    more on two cores); a ``SCHED_IDLE`` process is preempted at once.
+    """
+    try:
+        os.sched_setscheduler(0, os.SCHED_IDLE, os.sched_param(0))
+        return "SCHED_IDLE"
+    except (AttributeError, OSError):
+        os.nice(10)
+        return "nice 10"
+
+
 def _worker_init(path: str, config: RecogniserConfig | None) -> None:
     global _worker
+    lower_priority()
     _worker = Recogniser.from_path(path, config)
 
 
