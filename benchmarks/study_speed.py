@@ -24,8 +24,7 @@ import time
 
 import numpy as np
 
-from guidance.estimator import HeadingFix, PoseEstimator
-from guidance.messages import LandmarkFix, WheelOdometry
+from guidance.estimator import PoseEstimator
 from guidance.navigator import Method, NavigatorConfig
 from hal_sim import engine, params, reference, studies
 from hal_sim.params import SimParams
@@ -57,18 +56,9 @@ def covariance_check(sim: SimParams, compass_deg: float, n: int) -> float:
     p = params.pack(sim, est_cfg, NavigatorConfig(), 1.0)
     inputs = fixed_inputs(n, 5)
     est = PoseEstimator(est_cfg, 0.0, 0.0, 0.0)
-    x0, P0 = est.x.copy(), est.P.copy()
-    xs, Ps = engine.filter_sequence(x0, P0, inputs, p)
-    worst = 0.0
-    for i, row in enumerate(inputs):
-        t = 0.1 * (i + 1)
-        est.process(WheelOdometry(t, float(row[0]), float(row[1])))
-        if not math.isnan(row[2]):
-            est.process(HeadingFix(t, float(row[2])))
-        if not math.isnan(row[3]):
-            est.process(LandmarkFix(t, i, float(row[3]), float(row[4]), sim.landmark_sigma_m))
-        worst = max(worst, float(np.abs(est.P - Ps[i]).max()), float(np.abs(est.x - xs[i]).max()))
-    return worst
+    xs, Ps = engine.filter_sequence(est.x.copy(), est.P.copy(), inputs, p)
+    xr, Pr = reference.filter_sequence(est, inputs, sim.landmark_sigma_m)
+    return max(float(np.abs(Pr - Ps).max()), float(np.abs(xr - xs).max()))
 
 
 def main() -> int:

@@ -150,3 +150,26 @@ def run_trial(
     res[engine.RES_INTERFERENCE_REJECTS] = est.rejections["magnetic_interference"]
     res[engine.RES_MAX_ERR_M] = max_err
     return res, samples
+
+
+def filter_sequence(
+    est: PoseEstimator, inputs: np.ndarray, landmark_sigma_m: float
+) -> tuple[np.ndarray, np.ndarray]:
+    """``engine.filter_sequence`` through the app's estimator: every step's (x, P).
+
+    ``inputs`` rows are (dl, dr, compass or NaN, landmark x or NaN, landmark y); step i
+    is stamped 0.1 (i + 1) s.
+    """
+    n = len(inputs)
+    xs = np.empty((n, 3))
+    Ps = np.empty((n, 3, 3))
+    for i, row in enumerate(inputs):
+        t = 0.1 * (i + 1)
+        est.process(WheelOdometry(t, float(row[0]), float(row[1])))
+        if not math.isnan(row[2]):
+            est.process(HeadingFix(t, float(row[2])))
+        if not math.isnan(row[3]):
+            est.process(LandmarkFix(t, i, float(row[3]), float(row[4]), landmark_sigma_m))
+        xs[i] = est.x
+        Ps[i] = est.P
+    return xs, Ps

@@ -7,8 +7,7 @@ import math
 import numpy as np
 import pytest
 
-from guidance.estimator import HeadingFix, PoseEstimator
-from guidance.messages import LandmarkFix, WheelOdometry
+from guidance.estimator import PoseEstimator
 from guidance.navigator import Method, NavigatorConfig
 from hal_sim import engine, params, reference, studies
 from hal_sim.params import SimParams
@@ -44,17 +43,10 @@ def test_filter_matches_filterpy_estimator_on_fixed_inputs(compass_deg: float | 
     inputs = _inputs(2000, 1)
     est = PoseEstimator(cfg, 10.0, -5.0, 0.3)
     xs, Ps = engine.filter_sequence(est.x.copy(), est.P.copy(), inputs, p)
-    accepted_landmarks = 0
-    for i, row in enumerate(inputs):
-        t = 0.1 * (i + 1)
-        est.process(WheelOdometry(t, float(row[0]), float(row[1])))
-        if not math.isnan(row[2]):
-            est.process(HeadingFix(t, float(row[2])))
-        if not math.isnan(row[3]):
-            fix = LandmarkFix(t, i, float(row[3]), float(row[4]), sim.landmark_sigma_m)
-            accepted_landmarks += est.process(fix).accepted
-        np.testing.assert_allclose(est.P, Ps[i], rtol=0, atol=1e-9)
-        np.testing.assert_allclose(est.x, xs[i], rtol=0, atol=1e-9)
+    xr, Pr = reference.filter_sequence(est, inputs, sim.landmark_sigma_m)
+    np.testing.assert_allclose(Pr, Ps, rtol=0, atol=1e-9)
+    np.testing.assert_allclose(xr, xs, rtol=0, atol=1e-9)
+    accepted_landmarks = est.accepted["LandmarkFix"]
     if compass_deg is not None:
         # the gate and the interference detector were both exercised
         assert est.rejections["compass_gate"] > 0
