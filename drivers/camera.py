@@ -9,10 +9,10 @@ and its recovery logged; nothing here raises into the application.
 
 from __future__ import annotations
 
+import functools
 import logging
 import threading
 import time
-from collections import Counter
 from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
@@ -20,7 +20,7 @@ from typing import Any
 
 import cv2
 
-from drivers.health import DeviceHealth, HealthTracker
+from drivers._reader import ThreadedSource
 from guidance.errors import UserError
 from guidance.messages import CameraFrame
 
@@ -75,12 +75,14 @@ WARNINGS = {
 """Spoken when ``health()`` turns bad (docs/reliability.md)."""
 
 
-class OpenCvCamera:
+class OpenCvCamera(ThreadedSource[CameraFrame]):
     """``CameraSource`` backed by ``cv2.VideoCapture``.
 
     A camera that disappears is a ``health()`` status ('disconnected'), not an exception; the
     app goes on without landmark fixes, so the estimate only grows less certain.
     """
+
+    sink_kind = "frame"
 
     def __init__(
         self,
@@ -90,53 +92,21 @@ class OpenCvCamera:
     ) -> None:
         """``clock`` stamps each frame: ``time.monotonic`` live, the world's clock in simulation."""
         self.config = config or CameraConfig()
-        self.name = name
-        self._clock = clock
-        self._tracker = HealthTracker(
-            name, stale_after_s=self.config.stale_after_s, clock=clock, warnings=WARNINGS
+        super().__init__(
+            name,
+            stale_after_s=self.config.stale_after_s,
+            clock=clock,
+            warnings=WARNINGS,
+            reconnect_max_s=self.config.reconnect_max_s,
         )
-        self._stop = threading.Event()
-        self._lock = threading.Lock()
+        self._device = f"camera {self.config.source!r}"
+        self._clock = clock
         self._new_frame = threading.Condition(self._lock)
         self._latest: CameraFrame | None = None
-        self._counts: Counter[str] = Counter()
-        self._threads: list[threading.Thread] = []
-        self._healthy: bool | None = None
-        self._sink_failing = False
         self.ended = threading.Event()
         """Set when a (non-looping) file source has been read to its end."""
 
     # CameraSource ------------------------------------------------------------------------------
-
-    def start(self, sink: Callable[[CameraFrame], None]) -> None:
-        if self._threads:
-            raise RuntimeError(f"{self.name} already started")
-        self._stop.clear()
-        self.ended.clear()
-        self._tracker.started()
-        self._threads = [
-            threading.Thread(target=self._capture, name=f"{self.name}-capture", daemon=True),
-            threading.Thread(
-                target=self._deliver, args=(sink,), name=f"{self.name}-deliver", daemon=True
-            ),
-        ]
-        for t in self._threads:
-            t.start()
-
-    def stop(self) -> None:
-        self._stop.set()
-        with self._new_frame:
-            self._new_frame.notify_all()
-        for t in self._threads:
-            t.join(timeout=5.0)
-            if t.is_alive():  # pragma: no cover - a driver read hung past its timeout
-                log.error("%s: thread %s did not stop", self.name, t.name)
-        self._threads = []
-        self._tracker.stopped()
-
-    def health(self) -> DeviceHealth:
-        """alive: frames arriving; 'disconnected' while the camera cannot be opened or read."""
-        return self._tracker.evaluate(self.stats())
 
     def stats(self) -> dict[str, int]:
         with self._lock:
@@ -153,11 +123,17 @@ class OpenCvCamera:
                 )
             }
 
-    def __enter__(self) -> OpenCvCamera:
-        return self
+    # threads -----------------------------------------------------------------------------------
 
-    def __exit__(self, *exc: object) -> None:
-        self.stop()
+    def _workers(self, sink: Callable[[CameraFrame], None]) -> list[tuple[str, Callable[[], None]]]:
+        return [("capture", self._capture), ("deliver", functools.partial(self._delivery, sink))]
+
+    def _on_start(self) -> None:
+        self.ended.clear()
+
+    def _wake(self) -> None:
+        with self._new_frame:
+            self._new_frame.notify_all()
 
     # capture thread ----------------------------------------------------------------------------
 
@@ -185,27 +161,6 @@ class OpenCvCamera:
             cap.set(cv2.CAP_PROP_FPS, cfg.fps)
         return cap
 
-    def _health(self, healthy: bool, detail: str = "") -> None:
-        """Log once when the camera goes and once when it comes back."""
-        self._tracker.connected(healthy, detail)
-        if healthy == self._healthy:
-            return
-        was, self._healthy = self._healthy, healthy
-        if healthy:
-            if was is False:
-                log.warning("%s: camera %r is back", self.name, self.config.source)
-        else:
-            log.warning(
-                "%s: camera %r unavailable (%s); retrying with backoff",
-                self.name,
-                self.config.source,
-                detail,
-            )
-
-    def _count(self, key: str, n: int = 1) -> None:
-        with self._lock:
-            self._counts[key] += n
-
     def _capture(self) -> None:
         cfg = self.config
         delay = cfg.reconnect_initial_s
@@ -218,14 +173,14 @@ class OpenCvCamera:
                     if tried:  # back off before every reopen, also after a lost camera
                         if self._stop.wait(delay):
                             break
-                        delay = min(2.0 * delay, cfg.reconnect_max_s)
+                        delay = self._backoff(delay)
                     tried = True
                     cap = self._open()
                     if cap is None:
                         self._count("open_failures")
-                        self._health(False, "cannot open")
+                        self._set_connected(False, "cannot open")
                         continue
-                    if self._healthy is False:
+                    if self._connected is False:
                         self._count("reopens")
                     opened_at = time.monotonic()
                 cap = self._play_file(cap) if cfg.is_file else self._read_live(cap)
@@ -241,14 +196,14 @@ class OpenCvCamera:
             ok, image = cap.read()
             if ok and image is not None:
                 failures = 0
-                self._health(True)
+                self._set_connected(True)
                 self._publish(image)
                 continue
             failures += 1
             self._count("read_failures")
-            self._tracker.error(f"{failures} frame reads failed in a row")
+            self._health.error(f"{failures} frame reads failed in a row")
             if failures >= self.config.failures_before_reopen:
-                self._health(False, f"{failures} failed reads")
+                self._set_connected(False, f"{failures} failed reads")
                 cap.release()
                 return None
             self._stop.wait(0.01)
@@ -266,11 +221,11 @@ class OpenCvCamera:
                     ok, image = cap.read()
                 if not ok or image is None:
                     log.info("%s: end of %s", self.name, self.config.source)
-                    self._tracker.ended()
+                    self._health.ended()
                     self.ended.set()
                     self._stop.wait()  # a file that ended stays ended until stop()
                     return cap
-            self._health(True)
+            self._set_connected(True)
             self._publish(image)
             deadline += period  # absolute deadlines: replay at the file's rate without drift
             wait = deadline - time.monotonic()
@@ -282,7 +237,7 @@ class OpenCvCamera:
 
     def _publish(self, image: Any) -> None:
         frame = CameraFrame(t_s=self._clock(), image=image, source=str(self.config.source))
-        self._tracker.data(True, frame.t_s)
+        self._health.data(True, frame.t_s)
         with self._new_frame:
             self._counts["frames"] += 1
             if self._latest is not None:
@@ -292,7 +247,7 @@ class OpenCvCamera:
 
     # delivery thread ---------------------------------------------------------------------------
 
-    def _deliver(self, sink: Callable[[CameraFrame], None]) -> None:
+    def _delivery(self, sink: Callable[[CameraFrame], None]) -> None:
         while True:
             with self._new_frame:
                 while self._latest is None and not self._stop.is_set():
@@ -301,15 +256,5 @@ class OpenCvCamera:
                     return
                 frame, self._latest = self._latest, None
             assert frame is not None
-            try:
-                sink(frame)
-            except Exception:
-                self._count("sink_errors")
-                if not self._sink_failing:
-                    self._sink_failing = True
-                    log.exception("%s: the frame sink raised; continuing", self.name)
-                continue
-            self._count("delivered")
-            if self._sink_failing:
-                self._sink_failing = False
-                log.warning("%s: the frame sink works again", self.name)
+            if self._deliver(sink, frame):
+                self._count("delivered")

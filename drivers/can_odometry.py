@@ -18,7 +18,6 @@ import gzip
 import io
 import logging
 import math
-import threading
 import time
 from collections import Counter
 from collections.abc import Callable, Iterator, Mapping
@@ -28,7 +27,8 @@ from typing import Any
 
 import can
 
-from drivers.health import DeviceHealth, HealthTracker
+from drivers._reader import ThreadedSource
+from drivers.health import DeviceHealth
 from drivers.profiles import CHECKSUMS, VehicleProfile, WheelSignals, get_profile, load_dbc
 from guidance.errors import UserError
 from guidance.messages import WheelOdometry
@@ -382,7 +382,7 @@ WARNINGS = {
 """Spoken when ``health()`` turns bad (docs/reliability.md)."""
 
 
-class CanOdometry:
+class CanOdometry(ThreadedSource[WheelOdometry]):
     """``OdometrySource`` on a python-can bus: reader thread, decoder, reconnect with backoff.
 
     Bad frames (wrong length, checksum, fault bits, implausible speeds, spikes, time going
@@ -391,6 +391,8 @@ class CanOdometry:
     ``time.monotonic`` live, the simulation's clock with ``clock="frame"``.
     """
 
+    sink_kind = "odometry"
+
     def __init__(
         self,
         config: CanOdometryConfig | None = None,
@@ -398,57 +400,18 @@ class CanOdometry:
         clock: Callable[[], float] = time.monotonic,
     ) -> None:
         self.config = config or CanOdometryConfig()
-        self.name = name
-        self._health = HealthTracker(
-            name, stale_after_s=self.config.stale_after_s, clock=clock, warnings=WARNINGS
+        super().__init__(
+            name,
+            stale_after_s=self.config.stale_after_s,
+            clock=clock,
+            warnings=WARNINGS,
+            reconnect_max_s=self.config.reconnect_max_s,
         )
         self.decoder = WheelSpeedDecoder(self.config.profile, max_gap_s=self.config.max_gap_s)
         self._bus: can.BusABC | None = None
-        self._thread: threading.Thread | None = None
-        self._stop = threading.Event()
-        self._lock = threading.Lock()
-        self._counts: Counter[str] = Counter()
         self._offline = False
-        self._sink_failing = False
 
     # OdometrySource ------------------------------------------------------------------------------
-
-    def start(self, sink: Callable[[WheelOdometry], None]) -> None:
-        """Open the bus and start the reader; a bus that is down now is retried, not fatal."""
-        if self._thread is not None:
-            raise RuntimeError(f"{self.name} already started")
-        self._stop.clear()
-        self._resync_clock()
-        self._health.started()
-        try:
-            self._bus = self._open_bus()
-        except (can.CanInterfaceNotImplementedError, ImportError, TypeError, ValueError) as exc:
-            raise UserError(
-                f"CAN interface {self.config.interface!r} channel {self.config.channel!r}: {exc}"
-            ) from exc
-        except (can.CanError, OSError) as exc:
-            self._went_offline(exc)
-        self._thread = threading.Thread(
-            target=self._run, args=(sink,), name=f"{self.name}-reader", daemon=True
-        )
-        self._thread.start()
-
-    def stop(self) -> None:
-        """Stop the reader and shut the bus down (idempotent)."""
-        self._stop.set()
-        if self._thread is not None:
-            self._thread.join(timeout=5.0)
-            if self._thread.is_alive():  # pragma: no cover - recv ignored its timeout
-                log.error("%s: reader thread did not stop", self.name)
-            self._thread = None
-        self._close_bus()
-        self._health.stopped()
-
-    def stats(self) -> dict[str, int]:
-        with self._lock:
-            out = self.decoder.stats()
-            out.update(self._counts)
-        return out
 
     def health(self) -> DeviceHealth:
         """alive: wheel-speed frames arriving; valid: most of the recent ones usable."""
@@ -457,13 +420,25 @@ class CanOdometry:
             counters["gap_ms"] = round(self.decoder.gap_s * 1000.0)
         return self._health.evaluate(counters)
 
-    def __enter__(self) -> CanOdometry:
-        return self
-
-    def __exit__(self, *exc: object) -> None:
-        self.stop()
-
     # internals ---------------------------------------------------------------------------------
+
+    def _source_stats(self) -> dict[str, int]:
+        return self.decoder.stats()
+
+    def _on_start(self) -> None:
+        """Open the bus; a bus that is down now is retried by the reader, not fatal."""
+        self._resync_clock()
+        try:
+            self._bus = self._open_bus()
+        except (can.CanInterfaceNotImplementedError, ImportError, TypeError, ValueError) as exc:
+            raise UserError(
+                f"CAN interface {self.config.interface!r} channel {self.config.channel!r}: {exc}"
+            ) from exc
+        except (can.CanError, OSError) as exc:
+            self._went_offline(exc)
+
+    def _on_stop(self) -> None:
+        self._close_bus()
 
     def _open_bus(self) -> can.BusABC:
         cfg = self.config
@@ -495,8 +470,7 @@ class CanOdometry:
     def _went_offline(self, exc: BaseException) -> None:
         cfg = self.config
         self._health.connected(False, f"{cfg.interface}/{cfg.channel}: {type(exc).__name__}: {exc}")
-        with self._lock:
-            self._counts["bus_errors"] += 1
+        self._count("bus_errors")
         if not self._offline:
             self._offline = True
             log.warning(
@@ -513,14 +487,13 @@ class CanOdometry:
             if self._bus is None:
                 if self._stop.wait(delay):
                     break
-                delay = min(2.0 * delay, self.config.reconnect_max_s)
+                delay = self._backoff(delay)
                 try:
                     self._bus = self._open_bus()
                 except (can.CanError, OSError, ValueError) as exc:
                     self._went_offline(exc)
                     continue
-                with self._lock:
-                    self._counts["reconnects"] += 1
+                self._count("reconnects")
                 self._health.connected(True)
             try:
                 msg = self._bus.recv(timeout=self.config.receive_timeout_s)
@@ -540,8 +513,7 @@ class CanOdometry:
                 if abs(lag) > CLOCK_RESYNC_S:  # the wall clock was stepped (NTP)
                     self._resync_clock()
             if msg.is_error_frame:
-                with self._lock:
-                    self._counts["error_frames"] += 1
+                self._count("error_frames")
                 self._health.error(f"CAN error frame (id 0x{msg.arbitration_id:X})")
             with self._lock:
                 out = self.decoder.feed(msg)
@@ -550,20 +522,6 @@ class CanOdometry:
                 self._health.data(outcome in ("ok", "gap"))
             if out is not None:
                 self._deliver(sink, out)
-
-    def _deliver(self, sink: Callable[[WheelOdometry], None], out: WheelOdometry) -> None:
-        try:
-            sink(out)
-        except Exception:
-            with self._lock:
-                self._counts["sink_errors"] += 1
-            if not self._sink_failing:
-                self._sink_failing = True
-                log.exception("%s: the odometry sink raised; continuing", self.name)
-            return
-        if self._sink_failing:
-            self._sink_failing = False
-            log.warning("%s: the odometry sink works again", self.name)
 
 
 # -- replaying logs ----------------------------------------------------------------------------

@@ -28,7 +28,6 @@ from __future__ import annotations
 import logging
 import math
 import re
-import threading
 import time
 from collections import Counter
 from collections.abc import Callable, Iterable, Sequence
@@ -39,7 +38,7 @@ from typing import Any
 import pynmea2
 import serial
 
-from drivers.health import DeviceHealth, HealthTracker
+from drivers._reader import ThreadedSource
 from guidance.errors import UserError
 from guidance.messages import CompassHeading
 
@@ -383,13 +382,16 @@ NEUTRAL_REASONS = frozenset({"unknown_type"})
 """Rejections that say nothing about the compass: other sentences of a multi-sentence device."""
 
 
-class SerialCompass:
+class SerialCompass(ThreadedSource[CompassHeading]):
     """``CompassSource`` on a serial port (USB adapter, pty in simulation).
 
     Only lines that parse to a heading reach the sink; garbage, broken checksums and
     out-of-range values are counted by reason. ``health()`` reports the device lost, silent or
-    sending mostly bad lines.
+    sending mostly bad lines (alive: lines arriving; valid: most recent lines were good headings).
     """
+
+    sink_kind = "compass"
+    announce_first_connect = True
 
     def __init__(
         self,
@@ -400,96 +402,38 @@ class SerialCompass:
         """``clock`` stamps line arrival: ``time.monotonic`` live, the world's clock in an
         accelerated simulation (so compass and CAN frame times share one time base)."""
         self.config = config or SerialCompassConfig()
-        self.name = name
-        self._clock = clock
-        self._health = HealthTracker(
-            name, stale_after_s=self.config.stale_after_s, clock=clock, warnings=WARNINGS
+        super().__init__(
+            name,
+            stale_after_s=self.config.stale_after_s,
+            clock=clock,
+            warnings=WARNINGS,
+            reconnect_max_s=self.config.reconnect_max_s,
         )
+        self._device = self.config.port
+        self._clock = clock
         self.parser = NmeaCompassParser(
             allow_missing_checksum=self.config.allow_missing_checksum,
             apply_hdg_deviation=self.config.apply_hdg_deviation,
             max_line_bytes=self.config.max_line_bytes,
         )
-        self._lock = threading.Lock()
-        self._counts: Counter[str] = Counter()
-        self._stop = threading.Event()
-        self._thread: threading.Thread | None = None
-        self._connected: bool | None = None  # None: never tried yet
         self._got_data = False
-        self._sink_failing = False
 
     # CompassSource -----------------------------------------------------------------------------
-
-    def start(self, sink: Callable[[CompassHeading], None]) -> None:
-        """Start the reader thread; a missing device is retried in the background, not fatal."""
-        if self._thread is not None:
-            raise RuntimeError(f"{self.name} already started")
-        self._stop.clear()
-        self._health.started()
-        self._thread = threading.Thread(
-            target=self._run, args=(sink,), name=f"{self.name}-reader", daemon=True
-        )
-        self._thread.start()
-
-    def stop(self) -> None:
-        self._stop.set()
-        if self._thread is not None:
-            self._thread.join(timeout=5.0)
-            if self._thread.is_alive():  # pragma: no cover - a read ignored its timeout
-                log.error("%s: reader thread did not stop", self.name)
-            self._thread = None
-        self._health.stopped()
-
-    def stats(self) -> dict[str, int]:
-        with self._lock:
-            out = self.parser.stats()
-            out.update(self._counts)
-        return out
-
-    def health(self) -> DeviceHealth:
-        """alive: lines arriving; valid: most recent lines were good headings."""
-        return self._health.evaluate(self.stats())
 
     @property
     def connected(self) -> bool:
         return bool(self._connected)
 
-    def __enter__(self) -> SerialCompass:
-        return self
-
-    def __exit__(self, *exc: object) -> None:
-        self.stop()
-
     # internals ---------------------------------------------------------------------------------
+
+    def _source_stats(self) -> dict[str, int]:
+        return self.parser.stats()
 
     def _open(self) -> serial.Serial:
         cfg = self.config
         return serial.Serial(
             port=cfg.port, baudrate=cfg.baudrate, timeout=cfg.read_timeout_s, **cfg.serial_options
         )
-
-    def _state(self, connected: bool, detail: object = "") -> None:
-        """Log once per flip: lost (or never found) and back."""
-        self._health.connected(connected, str(detail) if detail else "")
-        if connected == self._connected:
-            return
-        was = self._connected
-        self._connected = connected
-        if connected:
-            if was is None:
-                log.info("%s: reading %s", self.name, self.config.port)
-            else:
-                log.warning("%s: %s is back", self.name, self.config.port)
-        else:
-            with self._lock:
-                self._counts["disconnects"] += 1
-            log.warning(
-                "%s: %s unavailable (%s); retrying with backoff up to %.1f s",
-                self.name,
-                self.config.port,
-                detail,
-                self.config.reconnect_max_s,
-            )
 
     def _run(self, sink: Callable[[CompassHeading], None]) -> None:
         delay = self.config.reconnect_initial_s
@@ -501,25 +445,21 @@ class SerialCompass:
             try:
                 port = self._open()
             except (serial.SerialException, OSError, ValueError) as exc:
-                self._state(False, exc)
-                delay = min(2.0 * delay, self.config.reconnect_max_s)
+                self._set_connected(False, exc)
+                delay = self._backoff(delay)
                 continue
             if self._connected is False:
-                with self._lock:
-                    self._counts["reconnects"] += 1
-            self._state(True)
+                self._count("reconnects")
+            self._set_connected(True)
             self._got_data = False
             try:
                 self._read(port, sink)
             except (serial.SerialException, OSError) as exc:
-                self._state(False, exc)
+                self._set_connected(False, exc)
             finally:
                 port.close()
             # A device that delivered is retried quickly; one that fails at once backs off.
-            if self._got_data:
-                delay = self.config.reconnect_initial_s
-            else:
-                delay = min(2.0 * delay, self.config.reconnect_max_s)
+            delay = self.config.reconnect_initial_s if self._got_data else self._backoff(delay)
 
     def _read(self, port: serial.Serial, sink: Callable[[CompassHeading], None]) -> None:
         def too_long() -> None:
@@ -536,8 +476,7 @@ class SerialCompass:
                 continue
             t_s = self._clock()
             self._got_data = True
-            with self._lock:
-                self._counts["bytes"] += len(chunk)
+            self._count("bytes", len(chunk))
             for line in assembler.feed(chunk):
                 with self._lock:
                     out = self.parser.feed_line(line, t_s)
@@ -547,17 +486,3 @@ class SerialCompass:
                 self._health.data(None if outcome in NEUTRAL_REASONS else outcome == "ok", t_s)
                 if out is not None:
                     self._deliver(sink, out)
-
-    def _deliver(self, sink: Callable[[CompassHeading], None], out: CompassHeading) -> None:
-        try:
-            sink(out)
-        except Exception:
-            with self._lock:
-                self._counts["sink_errors"] += 1
-            if not self._sink_failing:
-                self._sink_failing = True
-                log.exception("%s: the compass sink raised; continuing", self.name)
-            return
-        if self._sink_failing:
-            self._sink_failing = False
-            log.warning("%s: the compass sink works again", self.name)

@@ -1,0 +1,177 @@
+"""The reader-thread machinery the live drivers share (CAN odometry, serial compass, camera).
+
+``ThreadedSource`` is what is the same in every live source around its own reading: the health
+tracker, the counters and their lock, starting and stopping the daemon thread(s), handing data to
+the sink without ever letting a failing sink stop the reader (counted as ``sink_errors``, logged
+once when it starts failing and once when it works again), the doubling reconnect backoff, and
+logging a device lost and found once per flip. A driver supplies the reading (``_run``, or
+``_workers`` for more than one thread) and, through small hooks, what it opens and closes.
+"""
+
+from __future__ import annotations
+
+import functools
+import logging
+import threading
+from collections import Counter
+from collections.abc import Callable, Mapping
+from typing import ClassVar, Generic, Self, TypeVar
+
+from drivers.health import DeviceHealth, HealthTracker
+
+T = TypeVar("T")
+
+JOIN_TIMEOUT_S = 5.0
+"""How long ``stop()`` waits for each thread (reads time out well within this)."""
+
+
+class ThreadedSource(Generic[T]):
+    """Base of the live sources: one or more daemon threads feeding a sink of ``T``.
+
+    Subclasses set ``sink_kind`` (named in the sink-failure log lines), ``_device`` (named in the
+    connection log lines) and implement ``_run(sink)``, or override ``_workers`` for several
+    threads. Counters go in ``_counts`` under ``_lock``; ``stats()`` is ``_source_stats()`` plus
+    them, and ``health()`` evaluates the tracker with ``stats()``.
+    """
+
+    sink_kind: ClassVar[str] = "data"
+    """'the <sink_kind> sink raised; continuing'."""
+    announce_first_connect: ClassVar[bool] = False
+    """Log (info) the first successful open, not only losing and finding the device again."""
+
+    def __init__(
+        self,
+        name: str,
+        *,
+        stale_after_s: float,
+        clock: Callable[[], float],
+        warnings: Mapping[str, str],
+        reconnect_max_s: float,
+    ) -> None:
+        self.name = name
+        self._log = logging.getLogger(type(self).__module__)
+        """The driver's own module logger: log configuration and tests select it by name."""
+        self._health = HealthTracker(
+            name, stale_after_s=stale_after_s, clock=clock, warnings=warnings
+        )
+        self._reconnect_max_s = reconnect_max_s
+        self._device = name
+        self._lock = threading.Lock()
+        self._counts: Counter[str] = Counter()
+        self._stop = threading.Event()
+        self._threads: list[threading.Thread] = []
+        self._connected: bool | None = None  # None: never tried yet
+        self._sink_failing = False
+
+    # the source --------------------------------------------------------------------------------
+
+    def start(self, sink: Callable[[T], None]) -> None:
+        """Start the thread(s); a device that is missing now is retried, not fatal."""
+        if self._threads:
+            raise RuntimeError(f"{self.name} already started")
+        self._stop.clear()
+        self._health.started()
+        self._on_start()
+        self._threads = [
+            threading.Thread(target=target, name=f"{self.name}-{role}", daemon=True)
+            for role, target in self._workers(sink)
+        ]
+        for t in self._threads:
+            t.start()
+
+    def stop(self) -> None:
+        """Stop the thread(s) and release the device (idempotent)."""
+        self._stop.set()
+        self._wake()
+        for t in self._threads:
+            t.join(timeout=JOIN_TIMEOUT_S)
+            if t.is_alive():  # pragma: no cover - a read ignored its timeout
+                role = t.name.removeprefix(f"{self.name}-")
+                self._log.error("%s: %s thread did not stop", self.name, role)
+        self._threads = []
+        self._on_stop()
+        self._health.stopped()
+
+    def stats(self) -> dict[str, int]:
+        with self._lock:
+            out = self._source_stats()
+            out.update(self._counts)
+        return out
+
+    def health(self) -> DeviceHealth:
+        """alive: data arriving; valid: most of the recent data usable (see the class)."""
+        return self._health.evaluate(self.stats())
+
+    def __enter__(self) -> Self:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.stop()
+
+    # hooks ---------------------------------------------------------------------------------------
+
+    def _workers(self, sink: Callable[[T], None]) -> list[tuple[str, Callable[[], None]]]:
+        """(role, target) of each thread; the thread is named '<name>-<role>'."""
+        return [("reader", functools.partial(self._run, sink))]
+
+    def _run(self, sink: Callable[[T], None]) -> None:  # pragma: no cover - abstract
+        raise NotImplementedError
+
+    def _source_stats(self) -> dict[str, int]:
+        """The parser's or decoder's counters (called under ``_lock``)."""
+        return {}
+
+    def _on_start(self) -> None:
+        """After the tracker is started, before the threads (open a device, sync a clock)."""
+
+    def _wake(self) -> None:
+        """Wake threads waiting on something other than ``_stop`` (a condition)."""
+
+    def _on_stop(self) -> None:
+        """After the threads have stopped (close the device)."""
+
+    # for the reader ------------------------------------------------------------------------------
+
+    def _count(self, key: str, n: int = 1) -> None:
+        with self._lock:
+            self._counts[key] += n
+
+    def _backoff(self, delay: float) -> float:
+        """The next reconnect delay: doubled, at most ``reconnect_max_s``."""
+        return min(2.0 * delay, self._reconnect_max_s)
+
+    def _deliver(self, sink: Callable[[T], None], out: T) -> bool:
+        """Hand ``out`` to the sink; a sink that raises is counted and logged, never fatal."""
+        try:
+            sink(out)
+        except Exception:
+            self._count("sink_errors")
+            if not self._sink_failing:
+                self._sink_failing = True
+                self._log.exception("%s: the %s sink raised; continuing", self.name, self.sink_kind)
+            return False
+        if self._sink_failing:
+            self._sink_failing = False
+            self._log.warning("%s: the %s sink works again", self.name, self.sink_kind)
+        return True
+
+    def _set_connected(self, up: bool, detail: object = "") -> None:
+        """Tell the tracker the device is up or down; log once per flip: lost and back."""
+        self._health.connected(up, str(detail) if detail else "")
+        if up == self._connected:
+            return
+        was, self._connected = self._connected, up
+        if up:
+            if was is False:
+                self._log.warning("%s: %s is back", self.name, self._device)
+            elif self.announce_first_connect:
+                self._log.info("%s: reading %s", self.name, self._device)
+        else:
+            self._count("disconnects")
+            self._log.warning(
+                "%s: %s unavailable (%s); retrying with backoff up to %.1f s",
+                self.name,
+                self._device,
+                detail,
+                self._reconnect_max_s,
+            )
