@@ -10,10 +10,10 @@ import os
 import threading
 import time
 from collections.abc import Callable, Iterator
+from contextlib import AbstractContextManager
 from pathlib import Path
 from typing import Any
 
-import can.interfaces.virtual
 import numpy as np
 import pytest
 
@@ -35,21 +35,10 @@ from hal_sim.sim_can import SimCanWheels
 
 
 @pytest.fixture(autouse=True)
-def no_leaks() -> Iterator[None]:
-    threads = set(threading.enumerate())
-    yield
-    deadline = time.monotonic() + 3.0
-    while True:
-        extra = [
-            t
-            for t in threading.enumerate()
-            if t not in threads and t.is_alive() and not t.name.startswith("asyncio_")
-        ]
-        if not extra or time.monotonic() > deadline:
-            break
-        time.sleep(0.02)
-    assert not extra, f"leaked threads: {extra}"
-    assert not can.interfaces.virtual.channels, "leaked virtual CAN bus"
+def no_leaks(leak_check: Callable[..., AbstractContextManager[None]]) -> Iterator[None]:
+    """Fail a test that leaves a thread running or a virtual CAN bus open."""
+    with leak_check(grace_s=3.0, ignore_threads=("asyncio_",), ptys=False):
+        yield
 
 
 def _pipeline(**kw: Any) -> Pipeline:

@@ -6,14 +6,13 @@ from __future__ import annotations
 import json
 import os
 import shutil
-import threading
 import time
 import wave
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
+from contextlib import AbstractContextManager
 from dataclasses import replace
 from pathlib import Path
 
-import can.interfaces.virtual
 import pytest
 
 from guidance.cli import main
@@ -22,33 +21,11 @@ from hal_sim.drive import DriveOptions, run_drive
 FAST = DriveOptions(seed=7, voice="none", telemetry=False, record=False, png=False)
 
 
-def _pty_fds() -> set[str]:
-    out = set()
-    for entry in Path("/proc/self/fd").iterdir():
-        try:
-            target = os.readlink(entry)
-        except OSError:
-            continue
-        if target.startswith(("/dev/pts/", "/dev/ptmx")):
-            out.add(target)
-    return out
-
-
 @pytest.fixture(autouse=True)
-def no_leaks() -> Iterator[None]:
+def no_leaks(leak_check: Callable[..., AbstractContextManager[None]]) -> Iterator[None]:
     """A drive must close its bus, its pty and every thread it started."""
-    threads = set(threading.enumerate())
-    ptys = _pty_fds()
-    yield
-    deadline = time.monotonic() + 3.0
-    while True:
-        extra = [t for t in threading.enumerate() if t not in threads and t.is_alive()]
-        if not extra or time.monotonic() > deadline:
-            break
-        time.sleep(0.02)
-    assert not extra, f"leaked threads: {extra}"
-    assert not can.interfaces.virtual.channels, "leaked virtual CAN bus"
-    assert not (_pty_fds() - ptys), "leaked pty"
+    with leak_check(grace_s=3.0):
+        yield
 
 
 def test_seed_7_reaches_the_goal_through_the_real_drivers(tmp_path: Path) -> None:

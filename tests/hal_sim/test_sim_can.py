@@ -2,12 +2,11 @@
 
 from __future__ import annotations
 
-import threading
 import time
 import uuid
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
+from contextlib import AbstractContextManager
 
-import can.interfaces.virtual
 import pytest
 
 from drivers.can_odometry import CanOdometry, CanOdometryConfig, WheelSpeedDecoder
@@ -17,19 +16,10 @@ from hal_sim.sim_can import SimCanWheels
 
 
 @pytest.fixture(autouse=True)
-def no_leaks() -> Iterator[None]:
+def no_leaks(leak_check: Callable[..., AbstractContextManager[None]]) -> Iterator[None]:
     """Fail a test that leaves a thread running or a virtual CAN bus open."""
-    before = set(threading.enumerate())
-    yield
-    deadline = time.monotonic() + 2.0
-    while (extra := [t for t in threading.enumerate() if t not in before and t.is_alive()]) and (
-        time.monotonic() < deadline
-    ):
-        time.sleep(0.01)
-    assert not extra, f"leaked threads: {extra}"
-    assert not can.interfaces.virtual.channels, (
-        f"leaked buses: {list(can.interfaces.virtual.channels)}"
-    )
+    with leak_check(grace_s=2.0, ptys=False):
+        yield
 
 
 def channel() -> str:

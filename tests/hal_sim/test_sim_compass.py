@@ -3,11 +3,9 @@
 from __future__ import annotations
 
 import logging
-import os
-import threading
 import time
 from collections.abc import Callable, Iterator
-from pathlib import Path
+from contextlib import AbstractContextManager
 
 import pytest
 
@@ -16,30 +14,11 @@ from guidance.messages import CompassHeading
 from hal_sim.sim_compass import SimCompassPty, hdg_body, nmea_sentence
 
 
-def _pty_fds() -> set[str]:
-    out = set()
-    for entry in Path("/proc/self/fd").iterdir():
-        try:
-            target = os.readlink(entry)
-        except OSError:
-            continue
-        if target.startswith(("/dev/pts/", "/dev/ptmx")):
-            out.add(f"{entry.name}->{target}")
-    return out
-
-
 @pytest.fixture(autouse=True)
-def no_leaks() -> Iterator[None]:
+def no_leaks(leak_check: Callable[..., AbstractContextManager[None]]) -> Iterator[None]:
     """Fail a test that leaves a thread running or a pty open."""
-    before, ptys = set(threading.enumerate()), _pty_fds()
-    yield
-    deadline = time.monotonic() + 2.0
-    while (extra := [t for t in threading.enumerate() if t not in before and t.is_alive()]) and (
-        time.monotonic() < deadline
-    ):
-        time.sleep(0.01)
-    assert not extra, f"leaked threads: {extra}"
-    assert not (_pty_fds() - ptys), f"leaked ptys: {_pty_fds() - ptys}"
+    with leak_check(grace_s=2.0, virtual_can=False):
+        yield
 
 
 def wait_until(cond: Callable[[], bool], timeout_s: float = 5.0) -> None:
