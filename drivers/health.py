@@ -46,7 +46,7 @@ class DeviceHealth:
     valid: bool
     """An accepted message arrived within ``stale_after_s`` and the recent rejection fraction
     is at most ``MAX_REJECTED_FRACTION``."""
-    age_s: float | None
+    age_s: float | None = None
     """Seconds since the last accepted message (driver clock); None before the first."""
     counters: Mapping[str, int] = field(default_factory=dict)
     last_error: str = ""

@@ -28,11 +28,12 @@ import threading
 import time
 import wave
 from collections.abc import Callable, Collection, Mapping
-from dataclasses import dataclass, field, replace
+from dataclasses import dataclass, replace
 from enum import IntEnum
 from pathlib import Path
-from typing import Any, Literal, Protocol, TextIO
+from typing import Literal, Protocol, TextIO
 
+from drivers.health import DeviceHealth
 from guidance.interfaces import Speaker
 
 log = logging.getLogger(__name__)
@@ -269,39 +270,13 @@ SPEECH_FAILED_WARNING = "Voice prompts failed. Prompts are shown as text."
 
 
 @dataclass(frozen=True, slots=True)
-class SpeakerHealth:
-    """A speaker's health, with the same keys as the drivers' (docs/reliability.md).
+class SpeakerHealth(DeviceHealth):
+    """A speaker's health: the drivers' record (same keys, docs/reliability.md).
 
     ``alive``: prompts reach the driver (spoken, or shown as text after a failure);
     ``valid``: they are spoken as configured. ``status`` is "ok", "text_fallback" (the
-    engine failed or never started) or "stopped".
+    engine failed or never started) or "stopped". ``age_s`` is always None.
     """
-
-    name: str
-    status: str
-    alive: bool
-    valid: bool
-    age_s: float | None = None
-    counters: Mapping[str, int] = field(default_factory=dict)
-    last_error: str = ""
-    warning: str = ""
-
-    @property
-    def ok(self) -> bool:
-        return self.alive and self.valid
-
-    def as_dict(self) -> dict[str, Any]:
-        return {
-            "name": self.name,
-            "status": self.status,
-            "alive": self.alive,
-            "valid": self.valid,
-            "ok": self.ok,
-            "age_s": self.age_s,
-            "counters": dict(self.counters),
-            "last_error": self.last_error,
-            "warning": self.warning,
-        }
 
 
 def _speaker_health(
