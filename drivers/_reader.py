@@ -14,8 +14,8 @@ import functools
 import logging
 import threading
 from collections import Counter
-from collections.abc import Callable, Mapping
-from typing import ClassVar, Generic, Self, TypeVar
+from collections.abc import Callable, Iterable, Mapping
+from typing import ClassVar, Generic, Protocol, Self, TypeVar
 
 from drivers.health import DeviceHealth, HealthTracker
 
@@ -23,6 +23,21 @@ T = TypeVar("T")
 
 JOIN_TIMEOUT_S = 5.0
 """How long ``stop()`` waits for each thread (reads time out well within this)."""
+
+
+class SourceTiming(Protocol):
+    """The part of a driver's configuration the base reads."""
+
+    @property
+    def stale_after_s(self) -> float: ...
+
+    @property
+    def reconnect_max_s(self) -> float: ...
+
+
+def rejection_counters(counts: Mapping[str, int], reasons: Iterable[str]) -> dict[str, int]:
+    """``rejected_<reason>`` for every reason of a parser or decoder, zeros included."""
+    return {f"rejected_{reason}": counts.get(reason, 0) for reason in reasons}
 
 
 class ThreadedSource(Generic[T]):
@@ -42,19 +57,19 @@ class ThreadedSource(Generic[T]):
     def __init__(
         self,
         name: str,
+        config: SourceTiming,
         *,
-        stale_after_s: float,
         clock: Callable[[], float],
         warnings: Mapping[str, str],
-        reconnect_max_s: float,
     ) -> None:
+        """``config`` gives ``stale_after_s`` (health) and ``reconnect_max_s`` (backoff)."""
         self.name = name
         self._log = logging.getLogger(type(self).__module__)
         """The driver's own module logger: log configuration and tests select it by name."""
         self._health = HealthTracker(
-            name, stale_after_s=stale_after_s, clock=clock, warnings=warnings
+            name, stale_after_s=config.stale_after_s, clock=clock, warnings=warnings
         )
-        self._reconnect_max_s = reconnect_max_s
+        self._reconnect_max_s = config.reconnect_max_s
         self._device = name
         self._lock = threading.Lock()
         self._counts: Counter[str] = Counter()

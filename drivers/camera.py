@@ -92,13 +92,7 @@ class OpenCvCamera(ThreadedSource[CameraFrame]):
     ) -> None:
         """``clock`` stamps each frame: ``time.monotonic`` live, the world's clock in simulation."""
         self.config = config or CameraConfig()
-        super().__init__(
-            name,
-            stale_after_s=self.config.stale_after_s,
-            clock=clock,
-            warnings=WARNINGS,
-            reconnect_max_s=self.config.reconnect_max_s,
-        )
+        super().__init__(name, self.config, clock=clock, warnings=WARNINGS)
         self._device = f"camera {self.config.source!r}"
         self._clock = clock
         self._new_frame = threading.Condition(self._lock)

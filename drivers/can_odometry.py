@@ -27,7 +27,7 @@ from typing import Any
 
 import can
 
-from drivers._reader import ThreadedSource
+from drivers._reader import ThreadedSource, rejection_counters
 from drivers.health import DeviceHealth
 from drivers.profiles import CHECKSUMS, VehicleProfile, WheelSignals, get_profile, load_dbc
 from guidance.errors import UserError
@@ -152,8 +152,7 @@ class WheelSpeedDecoder:
             "rejected": self.rejected,
             "front_fallback": self.front_fallback,
         }
-        for reason in REJECT_REASONS:
-            out[f"rejected_{reason}"] = self.rejected_by_reason[reason]
+        out.update(rejection_counters(self.rejected_by_reason, REJECT_REASONS))
         return out
 
     def _reject(self, reason: str) -> None:
@@ -400,13 +399,7 @@ class CanOdometry(ThreadedSource[WheelOdometry]):
         clock: Callable[[], float] = time.monotonic,
     ) -> None:
         self.config = config or CanOdometryConfig()
-        super().__init__(
-            name,
-            stale_after_s=self.config.stale_after_s,
-            clock=clock,
-            warnings=WARNINGS,
-            reconnect_max_s=self.config.reconnect_max_s,
-        )
+        super().__init__(name, self.config, clock=clock, warnings=WARNINGS)
         self.decoder = WheelSpeedDecoder(self.config.profile, max_gap_s=self.config.max_gap_s)
         self._bus: can.BusABC | None = None
         self._offline = False

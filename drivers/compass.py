@@ -38,7 +38,7 @@ from typing import Any
 import pynmea2
 import serial
 
-from drivers._reader import ThreadedSource
+from drivers._reader import ThreadedSource, rejection_counters
 from guidance.errors import UserError
 from guidance.messages import CompassHeading
 
@@ -143,8 +143,7 @@ class NmeaCompassParser:
             "resynced": self.resynced,
             "rejected": self.rejected,
         }
-        for reason in REJECT_REASONS:
-            out[f"rejected_{reason}"] = self.rejected_by_reason[reason]
+        out.update(rejection_counters(self.rejected_by_reason, REJECT_REASONS))
         return out
 
     def reject(self, reason: str) -> None:
@@ -402,13 +401,7 @@ class SerialCompass(ThreadedSource[CompassHeading]):
         """``clock`` stamps line arrival: ``time.monotonic`` live, the world's clock in an
         accelerated simulation (so compass and CAN frame times share one time base)."""
         self.config = config or SerialCompassConfig()
-        super().__init__(
-            name,
-            stale_after_s=self.config.stale_after_s,
-            clock=clock,
-            warnings=WARNINGS,
-            reconnect_max_s=self.config.reconnect_max_s,
-        )
+        super().__init__(name, self.config, clock=clock, warnings=WARNINGS)
         self._device = self.config.port
         self._clock = clock
         self.parser = NmeaCompassParser(

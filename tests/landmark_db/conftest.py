@@ -3,9 +3,8 @@
 from __future__ import annotations
 
 import os
-import threading
-import time
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
+from contextlib import AbstractContextManager
 from pathlib import Path
 
 import numpy as np
@@ -23,17 +22,10 @@ LANDMARK_XY = np.array([[0.0, 0.0], [300.0, 0.0], [0.0, 300.0], [300.0, 300.0], 
 
 
 @pytest.fixture(autouse=True)
-def no_leaked_threads() -> Iterator[None]:
+def no_leaked_threads(leak_check: Callable[..., AbstractContextManager[None]]) -> Iterator[None]:
     """Fail a test that leaves a thread running (executors must be shut down)."""
-    before = set(threading.enumerate())
-    yield
-    deadline = time.monotonic() + 2.0
-    while True:
-        extra = [t for t in threading.enumerate() if t not in before and t.is_alive()]
-        if not extra or time.monotonic() > deadline:
-            break
-        time.sleep(0.01)
-    assert not extra, f"leaked threads: {extra}"
+    with leak_check(grace_s=2.0, virtual_can=False, ptys=False):
+        yield
 
 
 @pytest.fixture(scope="session")
