@@ -13,13 +13,15 @@ config dataclass, imported on first use, so this module knows no hardware.
 
 from __future__ import annotations
 
+import contextlib
 import dataclasses
 import datetime as dt
 import importlib
 import math
+import re
 import tomllib
 import types
-from collections.abc import Mapping
+from collections.abc import Iterator, Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -128,6 +130,61 @@ class AppConfig:
 
 # ----------------------------------------------------------------------------- value checks
 
+_BARE_KEY = re.compile(r"[A-Za-z0-9_-]+")
+
+
+def _name(key: object) -> str:
+    """A key as a message shows it: bare, or quoted when it has odd characters (one line)."""
+    return key if isinstance(key, str) and _BARE_KEY.fullmatch(key) else repr(key)
+
+
+def _check_document(
+    node: object, table: tuple[str, ...] = (), key: tuple[str | int, ...] = ()
+) -> None:
+    """Checks of the whole document, also where no other check reads (``[sim]``, a disabled
+    device): NaN and infinities are rejected (``[goal] lat_deg must be finite, not nan``), as
+    are integers beyond 64 bits (TOML's limit; tomllib reads any size) and keys no table has
+    (every key here is a bare word; the message stays one line)."""
+    huge = isinstance(node, int) and not -(2**63) <= node < 2**63  # TOML: 64-bit integers
+    if huge or (isinstance(node, float) and not math.isfinite(node)):
+        where = _name(key[0]) + "".join(f"[{i}]" for i in key[1:])
+        if table:
+            where = f"[{'.'.join(_name(t) for t in table)}] {where}"
+        if huge:
+            raise UserError(f"{where} is out of range (TOML integers are 64-bit)")
+        raise UserError(f"{where} must be finite, not {node!r}")
+    if isinstance(node, Mapping):
+        inner = (*table, *(str(k) for k in key))
+        for k in node:
+            if not (isinstance(k, str) and _BARE_KEY.fullmatch(k)):
+                if not inner:
+                    raise UserError(f"unknown table(s): [{_name(k)}]")
+                raise UserError(f"[{'.'.join(map(_name, inner))}] unknown key(s): {_name(k)}")
+        for k, v in node.items():
+            _check_document(v, inner, (k,))
+    elif isinstance(node, list):
+        for i, v in enumerate(node):
+            _check_document(v, table, (*key, i))
+
+
+@contextlib.contextmanager
+def _in_table(name: str) -> Iterator[None]:
+    """A ``UserError`` from a table's own parser names the table (``[telemetry] bad zenoh
+    endpoint ''``)."""
+    try:
+        yield
+    except UserError as exc:
+        if str(exc).startswith(f"[{name}"):
+            raise
+        raise UserError(f"[{name}] {exc}") from None
+
+
+def _table(name: str, data: object) -> dict[str, Any]:
+    """A table handed on whole (``[telemetry]``, ``[recording]``), as a new dict."""
+    if not isinstance(data, Mapping):
+        raise UserError(f"[{name}] must be a table")
+    return dict(data)
+
 
 class _Table:
     """A TOML table being read: typed getters that name the key, and leftover-key detection."""
@@ -196,7 +253,7 @@ class _Table:
     def done(self) -> None:
         unknown = sorted(set(self.data) - self.used)
         if unknown:
-            raise UserError(f"[{self.name}] unknown key(s): {', '.join(unknown)}")
+            raise UserError(f"[{self.name}] unknown key(s): {', '.join(map(_name, unknown))}")
 
 
 def _check_type(value: Any, annotation: str, where: str) -> Any:
@@ -335,9 +392,10 @@ def parse_config(
 
     ``require_goal=False`` (the simulator, which draws its own goal) allows no ``[goal]``.
     """
+    _check_document(data)
     unknown = sorted(set(data) - set(TABLES))
     if unknown:
-        raise UserError(f"unknown table(s): {', '.join('[' + u + ']' for u in unknown)}")
+        raise UserError(f"unknown table(s): {', '.join('[' + _name(u) + ']' for u in unknown)}")
 
     vehicle = _Table("vehicle", data.get("vehicle", {}))
     vehicle_id = vehicle.string("id", "car1")
@@ -460,12 +518,14 @@ def parse_config(
     )
     ck.done()
 
-    tel_table = dict(data.get("telemetry", {}))
+    tel_table = _table("telemetry", data.get("telemetry", {}))
     tel_table.setdefault("vehicle_id", vehicle_id)
-    telemetry = TelemetryConfig.from_mapping(tel_table, base_dir)
-    rec_table = dict(data.get("recording", {}))
+    with _in_table("telemetry"):
+        telemetry = TelemetryConfig.from_mapping(tel_table, base_dir)
+    rec_table = _table("recording", data.get("recording", {}))
     rec_table.setdefault("vehicle_id", vehicle_id)
-    recording = RecordingConfig.from_mapping(rec_table, base_dir)
+    with _in_table("recording"):
+        recording = RecordingConfig.from_mapping(rec_table, base_dir)
 
     landmarks = _landmarks(data.get("landmarks", []), origin)
 

@@ -22,6 +22,7 @@ import sqlite3
 import threading
 import time
 from collections.abc import Iterator, Sequence
+from contextlib import contextmanager
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -42,6 +43,20 @@ DEFAULT_POSITION_SIGMA_M = 3.0
 
 class LandmarkDbError(UserError):
     """A landmark database that cannot be used: the message says why, in one line."""
+
+    def __init__(self, message: str) -> None:
+        # One line whatever it quotes: SQLite echoes a damaged schema's bytes, paths may hold
+        # newlines.
+        super().__init__(" ".join(str(message).split()))
+
+
+_READ_ERRORS = (sqlite3.DatabaseError, UnicodeDecodeError)
+"""What reading a damaged file raises (UnicodeDecodeError: text or an error message that is
+not UTF-8)."""
+
+_MAX_FLOAT = "1.7976931348623157e308"
+_FINITE_SQL = f"coalesce({{c}} BETWEEN -{_MAX_FLOAT} AND {_MAX_FLOAT}, 0)"
+"""SQL true for a finite number only: NULL, text, blobs and infinities fail it."""
 
 
 _V1 = """
@@ -160,12 +175,11 @@ class LandmarkDb:
     def _read_origin(self) -> Origin:
         meta = self._read_meta()
         try:
-            return Origin(
-                float(meta["origin_lat_deg"]),
-                float(meta["origin_lon_deg"]),
-                float(meta.get("origin_alt_m", "0")),
-            )
-        except (KeyError, ValueError) as exc:
+            alt = float(meta.get("origin_alt_m", "0"))
+            if not math.isfinite(alt):
+                raise ValueError(f"origin_alt_m {alt!r}")
+            return Origin(float(meta["origin_lat_deg"]), float(meta["origin_lon_deg"]), alt)
+        except (KeyError, ValueError, TypeError) as exc:
             raise LandmarkDbError(
                 f"{self.path}: missing or bad origin in metadata ({exc})"
             ) from exc
@@ -177,14 +191,41 @@ class LandmarkDb:
                 n_features=int(meta["orb_n_features"]),
                 max_side_px=int(meta["orb_max_side_px"]),
             )
-        except (KeyError, ValueError) as exc:
+        except (KeyError, ValueError, TypeError) as exc:
             raise LandmarkDbError(
                 f"{self.path}: missing or bad ORB parameters in metadata ({exc})"
             ) from exc
 
     def metadata(self) -> dict[str, str]:
-        with self._lock:
+        with self._reading():
             return self._read_meta()
+
+    @contextmanager
+    def _reading(self) -> Iterator[sqlite3.Connection]:
+        """The connection, under the lock; a damaged file's errors as ``LandmarkDbError``."""
+        with self._lock:
+            try:
+                yield self._conn
+            except _READ_ERRORS as exc:
+                raise LandmarkDbError(f"{self.path}: unreadable landmark database ({exc})") from exc
+
+    def _check_rows(self) -> None:
+        """Every landmark's position, facing and sigma, and every index box, are finite
+        numbers: one scan of each table at open, so a damaged row never becomes a fix."""
+        cols = ("lat_deg", "lon_deg", "x_m", "y_m", "position_sigma_m")
+        bad = " OR ".join(f"NOT {_FINITE_SQL.format(c=c)}" for c in cols)
+        bad += f" OR (facing_deg IS NOT NULL AND NOT {_FINITE_SQL.format(c='facing_deg')})"
+        box = " OR ".join(
+            f"NOT {_FINITE_SQL.format(c=c)}" for c in ("min_x", "max_x", "min_y", "max_y")
+        )
+        with self._reading() as c:
+            row = c.execute(f"SELECT {self._COLS} FROM landmarks WHERE {bad} LIMIT 1").fetchone()
+            if row is not None:
+                self._row(row)  # raises, naming the landmark and the column
+                raise LandmarkDbError(f"{self.path}: landmark {row[0]!r} has a bad position")
+            r = c.execute(f"SELECT id FROM landmark_index WHERE {box} LIMIT 1").fetchone()
+            if r is not None:
+                raise LandmarkDbError(f"{self.path}: index box of landmark {r[0]!r} is not finite")
 
     # --- writing ------------------------------------------------------------------------------
 
@@ -331,33 +372,41 @@ class LandmarkDb:
 
     _COLS = "id, name, lat_deg, lon_deg, x_m, y_m, facing_deg, position_sigma_m, added_utc, source"
 
-    @staticmethod
-    def _row(r: Sequence[object]) -> Landmark:
-        return Landmark(
-            int(r[0]),  # type: ignore[call-overload]
-            str(r[1]),
-            float(r[2]),  # type: ignore[arg-type]
-            float(r[3]),  # type: ignore[arg-type]
-            float(r[4]),  # type: ignore[arg-type]
-            float(r[5]),  # type: ignore[arg-type]
-            None if r[6] is None else float(r[6]),  # type: ignore[arg-type]
-            float(r[7]),  # type: ignore[arg-type]
-            str(r[8]),
-            str(r[9]),
-        )
+    _NUMBERS = ("lat_deg", "lon_deg", "x_m", "y_m", "facing_deg", "position_sigma_m")
+
+    def _row(self, r: Sequence[object]) -> Landmark:
+        """A landmark from a row of ``_COLS``; a value that is not a finite number (a damaged
+        file) raises ``LandmarkDbError`` naming the landmark and the column."""
+        lid = r[0]
+        if not isinstance(lid, int):
+            raise LandmarkDbError(f"{self.path}: landmark id {lid!r} is not an integer")
+        nums: list[float | None] = []
+        for col, v in zip(self._NUMBERS, r[2:8], strict=True):
+            if v is None and col == "facing_deg":
+                nums.append(None)
+            elif isinstance(v, int | float) and math.isfinite(v):
+                nums.append(float(v))
+            else:
+                raise LandmarkDbError(
+                    f"{self.path}: landmark {lid}: {col} is not a finite number ({v!r})"
+                )
+        lat, lon, x, y, facing, sigma = nums
+        assert lat is not None and lon is not None and x is not None and y is not None
+        assert sigma is not None
+        return Landmark(lid, str(r[1]), lat, lon, x, y, facing, sigma, str(r[8]), str(r[9]))
 
     def __len__(self) -> int:
-        with self._lock:
-            return int(self._conn.execute("SELECT count(*) FROM landmarks").fetchone()[0])
+        with self._reading() as c:
+            return int(c.execute("SELECT count(*) FROM landmarks").fetchone()[0])
 
     def landmarks(self) -> Iterator[Landmark]:
         """All landmarks by id."""
-        with self._lock:
-            rows = self._conn.execute(f"SELECT {self._COLS} FROM landmarks ORDER BY id").fetchall()
+        with self._reading() as c:
+            rows = c.execute(f"SELECT {self._COLS} FROM landmarks ORDER BY id").fetchall()
         return (self._row(r) for r in rows)
 
     def get(self, landmark_id: int) -> Landmark | None:
-        with self._lock:
+        with self._reading():
             r = self._conn.execute(
                 f"SELECT {self._COLS} FROM landmarks WHERE id = ?", (landmark_id,)
             ).fetchone()
@@ -367,7 +416,7 @@ class LandmarkDb:
         """A landmark by id (digits) or by exact name (the first such)."""
         if key.isdigit():
             return self.get(int(key))
-        with self._lock:
+        with self._reading():
             r = self._conn.execute(
                 f"SELECT {self._COLS} FROM landmarks WHERE name = ? ORDER BY id LIMIT 1", (key,)
             ).fetchone()
@@ -377,7 +426,7 @@ class LandmarkDb:
         self, min_x: float, max_x: float, min_y: float, max_y: float
     ) -> tuple[np.ndarray, np.ndarray]:
         """Ids (int64) and x/y (N x 2 float64) of the landmarks in an axis-aligned box (R*Tree)."""
-        with self._lock:
+        with self._reading():
             rows = self._conn.execute(
                 "SELECT id, min_x, min_y FROM landmark_index"
                 " WHERE max_x >= ? AND min_x <= ? AND max_y >= ? AND min_y <= ?",
@@ -385,19 +434,24 @@ class LandmarkDb:
             ).fetchall()
         if not rows:
             return np.zeros(0, np.int64), np.zeros((0, 2))
-        arr = np.asarray(rows, dtype=np.float64)
+        try:
+            arr = np.asarray(rows, dtype=np.float64)
+        except (TypeError, ValueError) as exc:  # not an R*Tree any more
+            raise LandmarkDbError(f"{self.path}: bad landmark index ({exc})") from exc
         return arr[:, 0].astype(np.int64), arr[:, 1:3]
 
     def image_bytes(self, landmark_id: int) -> tuple[str, bytes] | None:
         """(format, encoded bytes) of a landmark's photo."""
-        with self._lock:
+        with self._reading():
             r = self._conn.execute(
                 "SELECT format, data FROM images WHERE landmark_id = ?", (landmark_id,)
             ).fetchone()
-        return None if r is None else (str(r[0]), bytes(r[1]))
+        if r is not None and not isinstance(r[1], bytes):
+            raise LandmarkDbError(f"{self.path}: landmark {landmark_id}: photo is not a blob")
+        return None if r is None else (str(r[0]), r[1])
 
     def features(self, landmark_id: int) -> Features | None:
-        with self._lock:
+        with self._reading():
             r = self._conn.execute(
                 "SELECT width, height, keypoints, descriptors FROM features WHERE landmark_id = ?",
                 (landmark_id,),
@@ -405,7 +459,11 @@ class LandmarkDb:
         if r is None:
             return None
         try:
-            return Features.from_blobs(bytes(r[2]), bytes(r[3]), int(r[0]), int(r[1]))
+            if not (isinstance(r[2], bytes) and isinstance(r[3], bytes)):
+                raise ValueError("keypoints or descriptors are not blobs")
+            if not (isinstance(r[0], int) and isinstance(r[1], int)):
+                raise ValueError(f"image size {r[0]!r} x {r[1]!r} is not integer")
+            return Features.from_blobs(r[2], r[3], r[0], r[1])
         except ValueError as exc:
             raise LandmarkDbError(f"{self.path}: landmark {landmark_id}: {exc}") from exc
 
@@ -569,6 +627,9 @@ def create_db(
 def open_db(path: str | Path, *, readonly: bool = True) -> LandmarkDb:
     """Open and validate an existing database. Read-only (the car's mode) unless asked.
 
+    A read-only open also checks that every landmark's position, facing and sigma and every
+    index box are finite numbers, so no damaged row can become a landmark fix.
+
     Writable opens migrate an older schema to the current one; read-only opens of an
     older or newer schema raise ``LandmarkDbError`` saying what to do.
     """
@@ -596,8 +657,11 @@ def open_db(path: str | Path, *, readonly: bool = True) -> LandmarkDb:
         missing = {"metadata", "landmarks", "images", "features", "landmark_index"} - tables
         if missing:
             raise LandmarkDbError(f"{p}: not a landmark database (missing {sorted(missing)})")
-        return LandmarkDb(conn, p, readonly)
-    except sqlite3.DatabaseError as exc:
+        db = LandmarkDb(conn, p, readonly)
+        if readonly:  # the car's open; the tools may open a damaged file writable to mend it
+            db._check_rows()
+        return db
+    except _READ_ERRORS as exc:
         conn.close()
         raise LandmarkDbError(f"{p}: unreadable landmark database ({exc})") from exc
     except BaseException:
