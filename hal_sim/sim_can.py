@@ -23,6 +23,7 @@ from drivers.profiles import (
     honda_checksum,
     load_dbc,
 )
+from hal_sim._periodic import PeriodicThread
 
 log = logging.getLogger(__name__)
 
@@ -55,8 +56,7 @@ class SimCanWheels:
         self._lock = threading.Lock()
         self._speeds = (0.0, 0.0, 0.0, 0.0)  # rear left, rear right, front left, front right
         self._bus: can.BusABC | None = None
-        self._thread: threading.Thread | None = None
-        self._stop = threading.Event()
+        self._tx: PeriodicThread | None = None
         self.frames_sent = 0
         self.send_errors = 0
 
@@ -131,28 +131,14 @@ class SimCanWheels:
     def start(self) -> None:
         """Send at the profile's message rate on a thread until ``stop``."""
         self.open()
-        if self._thread is not None:
-            return
-        self._stop.clear()
-        self._thread = threading.Thread(target=self._run, name=f"{self.name}-tx", daemon=True)
-        self._thread.start()
+        if self._tx is None:
+            self._tx = PeriodicThread(f"{self.name}-tx", self.period_s, self.send)
+            self._tx.start()
 
     def stop(self) -> None:
-        self._stop.set()
-        if self._thread is not None:
-            self._thread.join(timeout=5.0)
-            self._thread = None
-
-    def _run(self) -> None:
-        deadline = time.monotonic()
-        while not self._stop.is_set():
-            self.send()
-            deadline += self.period_s
-            wait = deadline - time.monotonic()
-            if wait < -self.period_s:  # fell behind (a stalled machine): do not burst
-                deadline = time.monotonic()
-            elif wait > 0 and self._stop.wait(wait):
-                break
+        if self._tx is not None:
+            self._tx.stop()
+            self._tx = None
 
     # encoding ----------------------------------------------------------------------------------
 

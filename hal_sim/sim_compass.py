@@ -15,10 +15,11 @@ import logging
 import os
 import tempfile
 import threading
-import time
 import tty
 from collections.abc import Callable
 from pathlib import Path
+
+from hal_sim._periodic import PeriodicThread
 
 log = logging.getLogger(__name__)
 
@@ -80,8 +81,7 @@ class SimCompassPty:
         self._master: int | None = None
         self._slave: int | None = None
         self._lock = threading.Lock()
-        self._thread: threading.Thread | None = None
-        self._stop = threading.Event()
+        self._tx: PeriodicThread | None = None
         self.sentences_written = 0
         self.bytes_dropped = 0
         self.plug()
@@ -174,27 +174,15 @@ class SimCompassPty:
     # own thread at the device's rate -----------------------------------------------------------
 
     def start(self) -> None:
-        if self._thread is not None:
-            return
-        self._stop.clear()
-        self._thread = threading.Thread(target=self._run, name=f"{self.name}-tx", daemon=True)
-        self._thread.start()
+        if self._tx is None:
+            self._tx = PeriodicThread(f"{self.name}-tx", 1.0 / self.rate_hz, self._send_current)
+            self._tx.start()
 
     def stop(self) -> None:
-        self._stop.set()
-        if self._thread is not None:
-            self._thread.join(timeout=5.0)
-            self._thread = None
+        if self._tx is not None:
+            self._tx.stop()
+            self._tx = None
 
-    def _run(self) -> None:
-        period = 1.0 / self.rate_hz
-        deadline = time.monotonic()
-        while not self._stop.is_set():
-            heading = self._heading_fn() if self._heading_fn is not None else self._heading_deg
-            self.write_heading(heading)
-            deadline += period
-            wait = deadline - time.monotonic()
-            if wait < -period:
-                deadline = time.monotonic()
-            elif wait > 0 and self._stop.wait(wait):
-                break
+    def _send_current(self) -> None:
+        heading = self._heading_fn() if self._heading_fn is not None else self._heading_deg
+        self.write_heading(heading)
