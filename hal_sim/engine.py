@@ -100,8 +100,9 @@ STUCK_FACTOR = 3.0
     RES_TRUE_LOST_AT_M,
     N_RESULT,
 ) = range(18)
-# The truth is "lost" when the true position error exceeds half the lost major
-# axis (the radius of the ellipse at which the estimate declares itself lost).
+TRUE_LOST_FRACTION = 0.5
+"""The truth is "lost" when the true position error exceeds this fraction of the lost
+major axis (the radius of the ellipse at which the estimate declares itself lost)."""
 RESULT_NAMES = (
     "outcome",
     "driven_m",
@@ -356,7 +357,7 @@ def run_trial(
     l_rej = 0
     i_rej = 0
     max_err2 = 0.0
-    true_lost2 = (0.5 * p[I_LOST]) ** 2
+    true_lost2 = (TRUE_LOST_FRACTION * p[I_LOST]) ** 2
     arrive2 = p[I_ARRIVE] ** 2
     det = np.array([1.0, 0.0])
     outcome = OUTCOME_TIMEOUT

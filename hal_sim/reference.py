@@ -96,7 +96,7 @@ def run_trial(
         err = math.hypot(float(ts[world.T_X]) - xe[0], float(ts[world.T_Y]) - xe[1])
         if err > max_err:
             max_err = err
-            if err > 0.5 * est.config.lost_major_axis_m and math.isnan(
+            if err > engine.TRUE_LOST_FRACTION * est.config.lost_major_axis_m and math.isnan(
                 res[engine.RES_TRUE_LOST_AT_M]
             ):
                 res[engine.RES_TRUE_LOST_AT_M] = float(ts[world.T_DRIVEN])
