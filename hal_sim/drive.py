@@ -200,6 +200,7 @@ async def drive_async(
     if opts.duration_s is not None and opts.duration_s <= 0:
         raise UserError("--duration must be > 0 simulated seconds")
     field_protocol = opts.duration_s is not None
+    end_t = math.inf if opts.duration_s is None else opts.duration_s
 
     sim = SimParams(decision_distance_m=opts.decision_distance_m)
     est_cfg = estimator_config(sim, opts.compass_deg)
@@ -447,7 +448,7 @@ async def drive_async(
                         ngx, ngy = world.goal_xy
                         app.feed(GoalUpdate(t, ngx, ngy, "field_protocol"))
                         await app.drained()
-                    if t >= (opts.duration_s or math.inf):
+                    if t >= end_t:
                         outcome = "time_limit"
                         break
                 if world.driven_m >= cap_m:

@@ -104,27 +104,25 @@ class SimWorld:
         self._pending_dirs: list[int] = []
 
     def _pick_goal(self, spec: WorldSpec) -> int:
-        """A network node between goal_min_m and goal_max_m from the start (Euclidean)."""
-        nx = self.xs.shape[0]
+        """The first goal: a node between goal_min_m and goal_max_m from the start."""
         sx, sy = world.node_pos(self.xs, self.ys, self.start)
-        idx = np.nonzero(self.net)[0]
-        d = np.hypot(self.xs[idx % nx] - sx, self.ys[idx // nx] - sy)
-        ok = idx[(d >= spec.goal_min_m) & (d <= spec.goal_max_m)]
-        rng = np.random.default_rng(spec.seed + 1)
-        if len(ok) == 0:  # a small city: the farthest node
-            return int(idx[int(np.argmax(d))])
-        return int(ok[rng.integers(len(ok))])
+        return self._goal_around(float(sx), float(sy), np.random.default_rng(spec.seed + 1))
 
     def new_goal(self) -> None:
-        """The field protocol's next goal: a random network node away from the car."""
-        nx = self.xs.shape[0]
+        """The field protocol's next goal, around where the car is now."""
         cx, cy, _ = self.truth
+        self.goal_node = self._goal_around(cx, cy, self._goal_rng)
+
+    def _goal_around(self, x: float, y: float, rng: np.random.Generator) -> int:
+        """A random network node between goal_min_m and goal_max_m (Euclidean) from (x, y);
+        in a city too small for that, the farthest node."""
+        nx = self.xs.shape[0]
         idx = np.nonzero(self.net)[0]
-        d = np.hypot(self.xs[idx % nx] - cx, self.ys[idx // nx] - cy)
+        d = np.hypot(self.xs[idx % nx] - x, self.ys[idx // nx] - y)
         ok = idx[(d >= self.spec.goal_min_m) & (d <= self.spec.goal_max_m)]
         if len(ok) == 0:
-            ok = idx[d >= np.median(d)]
-        self.goal_node = int(ok[self._goal_rng.integers(len(ok))])
+            return int(idx[int(np.argmax(d))])
+        return int(ok[rng.integers(len(ok))])
 
     # -- views --------------------------------------------------------------------------------
     @property
