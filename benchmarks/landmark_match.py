@@ -62,7 +62,7 @@ def part1(tmp: Path, n_frames: int) -> None:
     with open_db(tmp / "five.sqlite") as ro:
         rec = Recogniser(ro)
         times, cpu, found, ncand = [], [], 0, []
-        from guidance.messages import CameraFrame
+        from guidance.core.messages import CameraFrame
 
         for k, img in enumerate(frames):
             c0 = time.process_time()
@@ -124,7 +124,7 @@ def part2(tmp: Path, sizes: list[int], density: float, n_frames: int) -> None:
         f" {'candidates':>10} {'ratio':>6}"
     )
     base = None
-    from guidance.messages import CameraFrame
+    from guidance.core.messages import CameraFrame
 
     for n in sizes:
         side = np.sqrt(n / density) * 1000.0

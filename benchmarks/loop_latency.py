@@ -39,11 +39,11 @@ import cv2
 import numpy as np
 
 from drivers.can_odometry import CanOdometry, CanOdometryConfig
-from guidance.app import GIL_SWITCH_INTERVAL_S, App
-from guidance.estimator import EstimatorConfig
-from guidance.messages import CameraFrame, EstimateState, LandmarkFix
-from guidance.navigator import Method, NavigatorConfig
-from guidance.pipeline import Pipeline, PipelineConfig
+from guidance.app.app import GIL_SWITCH_INTERVAL_S, App
+from guidance.core.estimator import EstimatorConfig
+from guidance.core.messages import CameraFrame, EstimateState, LandmarkFix
+from guidance.core.navigator import Method, NavigatorConfig
+from guidance.core.pipeline import Pipeline, PipelineConfig
 from hal_sim.sim_can import SimCanWheels
 from landmark_db.recognise import lower_priority
 
@@ -121,9 +121,7 @@ class OrbMatcher:
 
     def __init__(self, worker: bool = True) -> None:
         self.pool = (
-            ProcessPoolExecutor(
-                1, mp_context=get_context("spawn"), initializer=lower_priority
-            )
+            ProcessPoolExecutor(1, mp_context=get_context("spawn"), initializer=lower_priority)
             if worker
             else None
         )
@@ -171,7 +169,8 @@ async def _run(seconds: float, camera: bool, record: bool, worker: bool) -> dict
     recorder = None
     tmp = tempfile.TemporaryDirectory()
     if record:
-        from guidance.recording import Recorder, RecordingConfig
+        from guidance.recording.config import RecordingConfig
+        from guidance.recording.writer import Recorder
 
         recorder = Recorder(RecordingConfig(directory=tmp.name))
         recorder.start()

@@ -24,8 +24,8 @@ import time
 
 import numpy as np
 
-from guidance.estimator import PoseEstimator
-from guidance.navigator import Method, NavigatorConfig
+from guidance.core.estimator import PoseEstimator
+from guidance.core.navigator import Method, NavigatorConfig
 from hal_sim import engine, params, reference, studies
 from hal_sim.params import SimParams
 

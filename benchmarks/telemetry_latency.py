@@ -28,13 +28,14 @@ from pathlib import Path
 
 import numpy as np
 
-from guidance.telemetry import MonitorClient
+from guidance.telemetry.client import MonitorClient
 
 CAR = r"""
 import json, sys, time
 import numpy as np
-from guidance.messages import Ellipse, EstimateState
-from guidance.telemetry import Telemetry, TelemetryConfig
+from guidance.core.messages import Ellipse, EstimateState
+from guidance.telemetry.config import TelemetryConfig
+from guidance.telemetry.publisher import Telemetry
 port, rate, duration = int(sys.argv[1]), float(sys.argv[2]), float(sys.argv[3])
 tel = Telemetry(TelemetryConfig(vehicle_id="bench", listen=(f"tcp/127.0.0.1:{port}",)))
 tel.start()

@@ -17,7 +17,8 @@ from collections import Counter
 from collections.abc import Callable, Iterable, Mapping
 from typing import ClassVar, Generic, Protocol, Self, TypeVar
 
-from drivers.health import DeviceHealth, HealthTracker
+from drivers.health import HealthTracker
+from guidance.core.health import DeviceHealth
 
 T = TypeVar("T")
 

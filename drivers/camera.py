@@ -21,8 +21,8 @@ from typing import Any
 import cv2
 
 from drivers._reader import ThreadedSource
+from guidance.core.messages import CameraFrame
 from guidance.errors import UserError
-from guidance.messages import CameraFrame
 
 log = logging.getLogger(__name__)
 

@@ -28,10 +28,10 @@ from typing import Any
 import can
 
 from drivers._reader import ThreadedSource, rejection_counters
-from drivers.health import DeviceHealth
 from drivers.profiles import CHECKSUMS, VehicleProfile, WheelSignals, get_profile, load_dbc
+from guidance.core.health import DeviceHealth
+from guidance.core.messages import WheelOdometry
 from guidance.errors import UserError
-from guidance.messages import WheelOdometry
 
 log = logging.getLogger(__name__)
 

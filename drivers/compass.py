@@ -39,8 +39,8 @@ import pynmea2
 import serial
 
 from drivers._reader import ThreadedSource, rejection_counters
+from guidance.core.messages import CompassHeading
 from guidance.errors import UserError
-from guidance.messages import CompassHeading
 
 log = logging.getLogger(__name__)
 

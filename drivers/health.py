@@ -18,57 +18,10 @@ import math
 import threading
 from collections import deque
 from collections.abc import Callable, Mapping
-from dataclasses import dataclass, field
-from typing import Any
+
+from guidance.core.health import BAD_STATUSES, MAX_REJECTED_FRACTION, VALIDITY_WINDOW, DeviceHealth
 
 log = logging.getLogger(__name__)
-
-STATUSES = ("starting", "ok", "silent", "disconnected", "invalid", "ended", "stopped")
-"""'starting': started, nothing yet and not overdue; 'silent': no data for ``stale_after_s``;
-'disconnected': the device cannot be opened or was lost; 'invalid': data arrives but too much of
-it is rejected; 'ended': a recorded source (file) reached its end; 'stopped': not running."""
-BAD_STATUSES = frozenset({"silent", "disconnected", "invalid"})
-
-VALIDITY_WINDOW = 20
-"""Recent units of data over which the rejection fraction is measured."""
-MAX_REJECTED_FRACTION = 0.5
-"""More rejected than this (of the window) makes the input invalid."""
-
-
-@dataclass(frozen=True, slots=True)
-class DeviceHealth:
-    """A driver's health at one moment (``health()``); ``as_dict`` for telemetry and logs."""
-
-    name: str
-    status: str
-    alive: bool
-    """Data arrived within the driver's ``stale_after_s``."""
-    valid: bool
-    """An accepted message arrived within ``stale_after_s`` and the recent rejection fraction
-    is at most ``MAX_REJECTED_FRACTION``."""
-    age_s: float | None = None
-    """Seconds since the last accepted message (driver clock); None before the first."""
-    counters: Mapping[str, int] = field(default_factory=dict)
-    last_error: str = ""
-    warning: str = ""
-    """What to tell the driver while the status is bad; empty when there is nothing to say."""
-
-    @property
-    def ok(self) -> bool:
-        return self.alive and self.valid
-
-    def as_dict(self) -> dict[str, Any]:
-        return {
-            "name": self.name,
-            "status": self.status,
-            "alive": self.alive,
-            "valid": self.valid,
-            "ok": self.ok,
-            "age_s": self.age_s,
-            "counters": dict(self.counters),
-            "last_error": self.last_error,
-            "warning": self.warning,
-        }
 
 
 class HealthTracker:

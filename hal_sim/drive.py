@@ -141,7 +141,7 @@ def _in(window: tuple[float, float] | None, t: float) -> bool:
 
 def options_from_config(path: str, opts: DriveOptions) -> tuple[DriveOptions, Any]:
     """Read a sim TOML config (config/sim.toml); its [sim] table gives option defaults."""
-    from guidance.config import load_config
+    from guidance.app.config import load_config
 
     cfg = load_config(path, require_goal=False)
     known = {f for f in DriveOptions.__dataclass_fields__}
@@ -171,12 +171,13 @@ async def drive_async(
     """
     from drivers.can_odometry import MAX_GAP_S, CanOdometry, CanOdometryConfig
     from drivers.compass import SerialCompass, SerialCompassConfig
-    from drivers.magnetic import declination_deg
-    from guidance.app import App, build_speaker, session_record
-    from guidance.checkpoint import Checkpointer, load_checkpoint
-    from guidance.model import heading_to_compass
-    from guidance.navigator import Method, NavigatorConfig
-    from guidance.pipeline import GoalUpdate, Pipeline, PipelineConfig
+    from guidance.app.app import App, build_speaker, session_record
+    from guidance.app.checkpoint import Checkpointer, load_checkpoint
+    from guidance.app.magnetic import declination_deg
+    from guidance.core.messages import GoalUpdate
+    from guidance.core.model import heading_to_compass
+    from guidance.core.navigator import Method, NavigatorConfig
+    from guidance.core.pipeline import Pipeline, PipelineConfig
     from hal_sim.params import SimParams, estimator_config
     from hal_sim.sim_can import SimCanWheels
     from hal_sim.sim_compass import SimCompassPty
@@ -308,7 +309,8 @@ async def drive_async(
         elif opts.voice != "none":
             speaker = _live_voice(lambda: world.t_s)
         if opts.telemetry:
-            from guidance.telemetry import Telemetry, TelemetryConfig
+            from guidance.telemetry.config import TelemetryConfig
+            from guidance.telemetry.publisher import Telemetry
 
             tcfg = (
                 app_config.telemetry
@@ -318,7 +320,8 @@ async def drive_async(
             telemetry = Telemetry(tcfg)
             telemetry.start()
         if opts.record:
-            from guidance.recording import Recorder, RecordingConfig
+            from guidance.recording.config import RecordingConfig
+            from guidance.recording.writer import Recorder
 
             rcfg = RecordingConfig(
                 directory=str(out_dir / "recordings"),
@@ -529,7 +532,7 @@ def out_dir_for(opts: DriveOptions) -> Path:
 def _sim_camera(world: Any, opts: DriveOptions, out_dir: Path) -> tuple[Any, Any, Any]:
     """The simulated camera, the real recogniser on a database of the city's landmarks, and
     the navigator's landmark list with the database ids."""
-    from guidance.navigator import Landmark
+    from guidance.core.navigator import Landmark
     from hal_sim.sim_camera import SimCamera, build_sim_landmark_db
     from landmark_db.recognise import Recogniser, RecogniserConfig
 
@@ -560,7 +563,8 @@ def _date(text: str) -> Any:
 
 def _live_voice(clock: Callable[[], float]) -> Any:
     """A live voice if this machine can speak; None otherwise (the prompts are printed anyway)."""
-    from guidance.voice import TextSpeaker, make_speaker
+    from guidance.voice import make_speaker
+    from guidance.voice.speakers import TextSpeaker
 
     spk = make_speaker("voice", clock=clock, text_stream=io.StringIO())
     if isinstance(spk, TextSpeaker):
@@ -587,7 +591,7 @@ def plot_drive(
     from matplotlib.collections import LineCollection
     from matplotlib.patches import Ellipse
 
-    from guidance import model
+    from guidance.core import model
 
     Path(path).parent.mkdir(parents=True, exist_ok=True)
     fig, ax = plt.subplots(figsize=(8, 8), dpi=110)

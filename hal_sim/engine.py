@@ -1,7 +1,7 @@
 """The fast study engine: one Monte Carlo trial as one numba-compiled loop.
 
-It steps ``hal_sim.world`` and runs the estimator math of ``guidance.model``
-and the navigator math of ``guidance.law`` — the same functions the in-car
+It steps ``hal_sim.world`` and runs the estimator math of ``guidance.core.model``
+and the navigator math of ``guidance.core.law`` — the same functions the in-car
 application uses — without Python in the loop. ``hal_sim.reference`` runs the
 same trial through the filterpy estimator and the ``Navigator`` class; the
 benchmark ``benchmarks/study_speed.py`` checks that the two agree.
@@ -21,7 +21,7 @@ import math
 import numpy as np
 from numba import njit
 
-from guidance import law, model
+from guidance.core import law, model
 from hal_sim import world
 from hal_sim.params import (
     I_AREA_MAX,

@@ -13,8 +13,8 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
-from guidance.estimator import EstimatorConfig
-from guidance.navigator import NavigatorConfig
+from guidance.core.estimator import EstimatorConfig
+from guidance.core.navigator import NavigatorConfig
 
 
 @dataclass(frozen=True, slots=True)

@@ -30,7 +30,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from guidance.messages import CameraFrame
+from guidance.core.messages import CameraFrame
 from landmark_db.geo import Origin
 from landmark_db.store import LandmarkDb, create_db
 

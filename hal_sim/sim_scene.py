@@ -29,10 +29,9 @@ from typing import Any
 
 import numpy as np
 
-from guidance.estimator import EstimatorConfig
-from guidance.messages import IntersectionScene, LandmarkFix
-from guidance.navigator import Landmark, NavigatorConfig
-from guidance.pipeline import Approach
+from guidance.core.estimator import EstimatorConfig
+from guidance.core.messages import Approach, IntersectionScene, LandmarkFix
+from guidance.core.navigator import Landmark, NavigatorConfig
 from hal_sim import world
 from hal_sim.params import I_COMPASS_PERIOD, I_DETECT, I_DT, SimParams, pack
 

@@ -22,8 +22,8 @@ from typing import Any
 
 import numpy as np
 
+from guidance.core.navigator import Method, NavigatorConfig
 from guidance.errors import UserError
-from guidance.navigator import Method, NavigatorConfig
 from hal_sim import engine, params
 from hal_sim.params import SimParams
 

@@ -19,7 +19,7 @@ import math
 import numpy as np
 from numba import njit
 
-from guidance.model import wrap_angle
+from guidance.core.model import wrap_angle
 from hal_sim.params import (
     I_CRUISE,
     I_DECISION_DIST,

@@ -1,7 +1,7 @@
 """Candidate gate (SPEC section 2): the 2-sigma ellipse enlarged by the camera's sighting range.
 
 The estimate is ``mean`` with x-y covariance ``P``. The gate ellipse is
-``E = {p : (p - mean)^T P^-1 (p - mean) <= k2}`` with ``k2 = guidance.model.CHI2_2D_2SIGMA``
+``E = {p : (p - mean)^T P^-1 (p - mean) <= k2}`` with ``k2 = guidance.core.model.CHI2_2D_2SIGMA``
 (= 4, the "2-sigma" ellipse: for 2 degrees of freedom it holds the true position with
 probability 1 - exp(-k2 / 2) = 0.865). A landmark is a candidate when the camera could
 see it from some point of ``E``: its Euclidean distance to ``E`` is at most the sighting
@@ -26,7 +26,7 @@ from collections.abc import Sequence
 
 import numpy as np
 
-from guidance.model import CHI2_2D_2SIGMA
+from guidance.core.model import CHI2_2D_2SIGMA
 
 GATE_PROBABILITY_2SIGMA = 1.0 - math.exp(-CHI2_2D_2SIGMA / 2.0)
 """P(chi-square, 2 dof <= 4) = 0.8647: the probability mass inside the 2-sigma ellipse."""

@@ -40,8 +40,8 @@ from pathlib import Path
 
 import numpy as np
 
-from guidance.messages import CameraFrame, EstimateState, LandmarkFix
-from guidance.model import CHI2_2D_2SIGMA
+from guidance.core.messages import CameraFrame, EstimateState, LandmarkFix
+from guidance.core.model import CHI2_2D_2SIGMA
 from landmark_db.features import Features, OrbConfig, extract
 from landmark_db.gate import valid_covariance
 from landmark_db.matcher import (

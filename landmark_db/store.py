@@ -28,8 +28,8 @@ from pathlib import Path
 
 import numpy as np
 
+from guidance.core.model import CHI2_2D_2SIGMA
 from guidance.errors import UserError
-from guidance.model import CHI2_2D_2SIGMA
 from landmark_db.features import Features, OrbConfig, decode_image, encode_image, extract
 from landmark_db.gate import gate_box, in_gate, mahalanobis_sq
 from landmark_db.geo import Origin

@@ -24,9 +24,9 @@ from drivers.can_odometry import (
     WheelSpeedDecoder,
 )
 from drivers.profiles import PROFILES, get_profile, honda_checksum, load_dbc
+from guidance.app.ports import OdometrySource
+from guidance.core.messages import WheelOdometry
 from guidance.errors import UserError
-from guidance.interfaces import OdometrySource
-from guidance.messages import WheelOdometry
 
 KPH = 3.6
 

@@ -1,4 +1,4 @@
-"""``guidance odometry`` and ``guidance compass`` through guidance.cli.main."""
+"""``guidance odometry`` and ``guidance compass`` through guidance.tools.cli.main."""
 
 from __future__ import annotations
 
@@ -7,7 +7,7 @@ from pathlib import Path
 
 import pytest
 
-from guidance.cli import main
+from guidance.tools.cli import main
 
 DATA = Path(__file__).resolve().parents[1] / "data"
 RAV4 = DATA / "can" / "rav4_2020-02-03_bus0_wheelspeeds.log"

@@ -1,4 +1,4 @@
-"""Declination from the WMM (pygeomag) and compass readings -> filter heading via guidance.model."""
+"""Declination from the WMM (pygeomag); compass readings to filter heading (guidance.core.model)."""
 
 from __future__ import annotations
 
@@ -9,10 +9,10 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from drivers.magnetic import compass_heading_to_theta, declination_deg, wmm_model_for
+from guidance.app.magnetic import compass_heading_to_theta, declination_deg, wmm_model_for
+from guidance.core.messages import CompassHeading
+from guidance.core.model import heading_to_compass, wrap_angle
 from guidance.errors import UserError
-from guidance.messages import CompassHeading
-from guidance.model import heading_to_compass, wrap_angle
 
 
 def test_wmm2025_is_used_for_current_dates() -> None:

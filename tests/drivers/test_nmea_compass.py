@@ -18,9 +18,9 @@ from drivers.compass import (
     heading_stats,
     parse_capture,
 )
+from guidance.app.ports import CompassSource
+from guidance.core.messages import CompassHeading
 from guidance.errors import UserError
-from guidance.interfaces import CompassSource
-from guidance.messages import CompassHeading
 
 NMEA_DATA = Path(__file__).resolve().parents[1] / "data" / "nmea"
 

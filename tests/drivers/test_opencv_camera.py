@@ -14,9 +14,9 @@ import numpy as np
 import pytest
 
 from drivers.camera import CameraConfig, OpenCvCamera
+from guidance.app.ports import CameraSource
+from guidance.core.messages import CameraFrame
 from guidance.errors import UserError
-from guidance.interfaces import CameraSource
-from guidance.messages import CameraFrame
 
 N_FRAMES = 30
 

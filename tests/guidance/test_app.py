@@ -18,19 +18,21 @@ import numpy as np
 import pytest
 
 from drivers.can_odometry import CanOdometry, CanOdometryConfig
-from guidance.app import App
-from guidance.estimator import EstimatorConfig, HeadingFix
-from guidance.messages import (
+from drivers.keyboard import KeyboardScene
+from guidance.app.app import App
+from guidance.core.estimator import EstimatorConfig
+from guidance.core.messages import (
     CameraFrame,
     EstimateState,
+    GoalUpdate,
+    HeadingFix,
     IntersectionScene,
     LandmarkFix,
     WheelOdometry,
 )
-from guidance.navigator import Landmark, Method, NavigatorConfig
-from guidance.pipeline import GoalUpdate, Outputs, Pipeline, PipelineConfig
-from guidance.scene import KeyboardScene
-from guidance.voice import TextSpeaker
+from guidance.core.navigator import Landmark, Method, NavigatorConfig
+from guidance.core.pipeline import Outputs, Pipeline, PipelineConfig
+from guidance.voice.speakers import TextSpeaker
 from hal_sim.sim_can import SimCanWheels
 
 
@@ -277,7 +279,7 @@ def test_recogniser_runs_off_the_loop_on_the_latest_frame() -> None:
 
 
 def test_app_writes_checkpoints_on_the_message_clock(tmp_path: Path) -> None:
-    from guidance.checkpoint import Checkpointer, load_checkpoint
+    from guidance.app.checkpoint import Checkpointer, load_checkpoint
 
     pipeline = _pipeline()
     ck = Checkpointer(tmp_path / "ck.json", interval_s=1.0)
@@ -305,8 +307,8 @@ def test_guidance_run_on_simulated_devices_with_systemd_notify(
     import signal
     import socket
 
-    from guidance.app import run_car
-    from guidance.recording import Reader
+    from guidance.app.app import run_car
+    from guidance.recording.reader import Reader
     from hal_sim.sim_compass import SimCompassPty
 
     notify_path = tmp_path / "notify.sock"
@@ -383,11 +385,11 @@ directory = "rec"
     assert messages[0].startswith("READY=1")
     assert sum(m == "WATCHDOG=1" for m in messages) >= 5  # every 0.1 s while on time
     assert messages[-1] == "STOPPING=1"
-    from guidance.checkpoint import load_checkpoint
+    from guidance.app.checkpoint import load_checkpoint
 
     doc = load_checkpoint(tmp_path / "ck.json")
     assert doc is not None
-    x, y, _ = doc["pipeline"]["x"]
+    x, y = doc["pipeline"]["x"][:2]
     assert 10.0 < x < 25.0 and abs(y) < 3.0  # 10 m/s east for about 1.5-2 s
     files = list((tmp_path / "rec").glob("*.mcap"))
     topics = {m.topic for m in Reader(files)}
@@ -396,7 +398,7 @@ directory = "rec"
 
 def test_known_distance_gives_an_early_and_a_just_before_announcement() -> None:
     """Organic Maps timing: early (30 s ahead, 200 m at least) and again within 8 s."""
-    from guidance.pipeline import Approach
+    from guidance.core.messages import Approach
 
     p = _pipeline(goal_xy_m=(0.0, 2000.0))
     t = 0.0
@@ -417,7 +419,7 @@ def test_known_distance_gives_an_early_and_a_just_before_announcement() -> None:
 
 
 def test_straight_on_is_announced_once() -> None:
-    from guidance.pipeline import Approach
+    from guidance.core.messages import Approach
 
     p = _pipeline(goal_xy_m=(2000.0, 0.0))
     for k in range(20):

@@ -14,7 +14,7 @@ from pathlib import Path
 
 import pytest
 
-from guidance.checkpoint import Checkpointer, load_checkpoint, write_atomic
+from guidance.app.checkpoint import Checkpointer, load_checkpoint, write_atomic
 from guidance.errors import UserError
 
 REPO = Path(__file__).resolve().parents[2]
@@ -65,7 +65,7 @@ def _sim_cmd(ck: Path, out: Path) -> list[str]:
     return [
         sys.executable,
         "-m",
-        "guidance.cli",
+        "guidance.tools.cli",
         "sim",
         "--seed",
         "7",
@@ -147,7 +147,7 @@ def test_kill_9_at_20_random_points_still_reaches_the_goal(tmp_path: Path) -> No
     assert summary["resumed_at_s"] is not None
     assert summary["final_error_m"] < 30.0
     # Every recording (one per run) is readable up to its last complete chunk.
-    from guidance.recording import Reader
+    from guidance.recording.reader import Reader
 
     files = sorted((out / "recordings").glob("*.mcap"))
     assert files  # runs killed during start-up have not opened one yet

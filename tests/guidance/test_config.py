@@ -9,10 +9,10 @@ from typing import Any
 
 import pytest
 
-from guidance.cli import main
-from guidance.config import load_config, parse_config
+from guidance.app.config import load_config, parse_config
+from guidance.core.navigator import Method
 from guidance.errors import UserError
-from guidance.navigator import Method
+from guidance.tools.cli import main
 
 REPO = Path(__file__).resolve().parents[2]
 TAHOE = REPO / "config" / "tahoe.toml"

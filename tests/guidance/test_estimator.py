@@ -8,9 +8,9 @@ import numpy as np
 import pytest
 from scipy.stats import chi2
 
-from guidance import model
-from guidance.estimator import EstimatorConfig, HeadingFix, PoseEstimator
-from guidance.messages import LandmarkFix, WheelOdometry
+from guidance.core import model
+from guidance.core.estimator import EstimatorConfig, PoseEstimator
+from guidance.core.messages import HeadingFix, LandmarkFix, WheelOdometry
 
 TRACK = 1.72
 
@@ -205,7 +205,7 @@ def test_reset_forgets_time_order() -> None:
 
 
 def test_model_updates_match_filterpy() -> None:
-    """The engine's in-place updates (guidance.model) and filterpy's give the same covariance."""
+    """The engine's in-place updates (core.model) and filterpy's give the same covariance."""
     est = PoseEstimator(EstimatorConfig(compass_two_sigma_deg=20.0))
     for k in range(100):
         est.process(WheelOdometry(0.1 * k, 1.0, 1.01))

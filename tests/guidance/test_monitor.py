@@ -15,15 +15,19 @@ from typing import Any
 
 import pytest
 
-from guidance.monitor import FleetView, car_row, health_summary, write_snapshot
-from guidance.telemetry import Telemetry, TelemetryConfig, TelemetryEvent
+from guidance.telemetry.client import TelemetryEvent
+from guidance.telemetry.config import TelemetryConfig
+from guidance.telemetry.publisher import Telemetry
+from guidance.tools.monitor import FleetView, car_row, health_summary, write_snapshot
 
 REPO = Path(__file__).resolve().parents[2]
 
 PUBLISHER = r"""
 import math, sys, time
-from guidance.messages import Ellipse, EstimateState
-from guidance.telemetry import InputHealth, Telemetry, TelemetryConfig
+from guidance.core.messages import Ellipse, EstimateState
+from guidance.telemetry.config import TelemetryConfig
+from guidance.telemetry.messages import InputHealth
+from guidance.telemetry.publisher import Telemetry
 port, vid = int(sys.argv[1]), sys.argv[2]
 tel = Telemetry(TelemetryConfig(vehicle_id=vid, listen=(f"tcp/127.0.0.1:{port}",)))
 tel.start()
@@ -74,7 +78,7 @@ def publisher() -> Iterator[Callable[[str], int]]:
 
 def monitor(*args: str, timeout: float = 30.0) -> subprocess.CompletedProcess[str]:
     return subprocess.run(
-        [sys.executable, "-m", "guidance.cli", "monitor", *args],
+        [sys.executable, "-m", "guidance.tools.cli", "monitor", *args],
         cwd=REPO,
         capture_output=True,
         text=True,
@@ -248,7 +252,7 @@ def test_live_view_table_and_sigusr1_snapshot(
         [
             sys.executable,
             "-m",
-            "guidance.cli",
+            "guidance.tools.cli",
             "monitor",
             "--connect",
             f"tcp/127.0.0.1:{port}",

@@ -6,8 +6,8 @@ import math
 
 import pytest
 
-from guidance import prompts
-from guidance.prompts import Units
+from guidance.core import prompts
+from guidance.core.prompts import Units
 
 M, IMP = Units.METRIC, Units.IMPERIAL
 

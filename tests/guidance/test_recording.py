@@ -21,23 +21,19 @@ from mcap.reader import make_reader
 from mcap.records import Message
 from mcap.stream_reader import StreamReader
 
-from guidance.errors import UserError
-from guidance.messages import (
+from guidance.core.messages import (
     CameraFrame,
     Ellipse,
     EstimateState,
     IntersectionScene,
     TurnCompleted,
 )
-from guidance.recording import (
-    INPUT_TOPICS,
-    OUTPUT_TOPICS,
-    TOPICS,
-    Reader,
-    Recorder,
-    RecordingConfig,
-)
-from guidance.telemetry import InputHealth, LandmarkRejection
+from guidance.errors import UserError
+from guidance.recording.config import RecordingConfig
+from guidance.recording.reader import Reader
+from guidance.recording.topics import INPUT_TOPICS, OUTPUT_TOPICS, TOPICS
+from guidance.recording.writer import Recorder
+from guidance.telemetry.messages import InputHealth, LandmarkRejection
 
 REPO = Path(__file__).resolve().parents[2]
 
@@ -154,7 +150,8 @@ def test_write_order_and_topic_filter(tmp_path: Path) -> None:
 
 CHILD = r"""
 import sys, time
-from guidance.recording import Recorder, RecordingConfig
+from guidance.recording.config import RecordingConfig
+from guidance.recording.writer import Recorder
 directory, n, flush_s = sys.argv[1], int(sys.argv[2]), float(sys.argv[3])
 cfg = RecordingConfig(directory=directory, chunk_size_bytes=4096, flush_interval_s=flush_s)
 rec = Recorder(cfg)
@@ -337,7 +334,8 @@ RLIMIT_CHILD = r"""
 import json, resource, signal, sys, time
 signal.signal(signal.SIGXFSZ, signal.SIG_IGN)   # get EFBIG instead of being killed
 resource.setrlimit(resource.RLIMIT_FSIZE, (50_000, 50_000))
-from guidance.recording import Recorder, RecordingConfig
+from guidance.recording.config import RecordingConfig
+from guidance.recording.writer import Recorder
 rec = Recorder(RecordingConfig(directory=sys.argv[1], chunk_size_bytes=4096, compression="none"))
 rec.start()
 i = 0

@@ -11,10 +11,10 @@ from typing import Any
 import can
 import pytest
 
-from guidance.cli import main
-from guidance.pipeline import Pipeline
-from guidance.recording import Reader
-from guidance.replay import (
+from guidance.core.pipeline import Pipeline
+from guidance.recording.reader import Reader
+from guidance.tools.cli import main
+from guidance.tools.replay import (
     can_inputs,
     compare_with_recording,
     mcap_inputs,
@@ -131,9 +131,9 @@ def test_raw_can_logs_drive_the_pipeline(tmp_path: Path, suffix: str) -> None:
 
 
 def _raw_config() -> Any:
-    from guidance.replay import _raw_pipeline
+    from guidance.tools.replay import _default_pipeline
 
-    return _raw_pipeline(None, 0.0)
+    return _default_pipeline(0.0)
 
 
 def test_stamped_nmea_merges_with_can_by_time(tmp_path: Path) -> None:

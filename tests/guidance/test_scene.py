@@ -9,18 +9,12 @@ import threading
 import numpy as np
 import pytest
 
-from guidance.estimator import EstimatorConfig, HeadingFix, PoseEstimator
-from guidance.messages import IntersectionScene, TurnCompleted, WheelOdometry
-from guidance.model import wrap_angle
-from guidance.scene import (
-    ExitsTyped,
-    KeyboardScene,
-    SceneParseError,
-    TurnDetector,
-    TurnTyped,
-    parse_line,
-    to_scene,
-)
+from drivers.keyboard import KeyboardScene
+from guidance.core.co_driver import ExitsTyped, SceneParseError, TurnTyped, parse_line, to_scene
+from guidance.core.estimator import EstimatorConfig, PoseEstimator
+from guidance.core.messages import HeadingFix, IntersectionScene, TurnCompleted, WheelOdometry
+from guidance.core.model import wrap_angle
+from guidance.core.turns import TurnDetector
 
 DEG = math.pi / 180
 

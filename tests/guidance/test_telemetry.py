@@ -24,29 +24,23 @@ from pathlib import Path
 
 import pytest
 
+from guidance.core.messages import Ellipse, EstimateState, LandmarkFix
+from guidance.core.navigator import Decision, ExitOption
 from guidance.errors import UserError
-from guidance.messages import Ellipse, EstimateState, LandmarkFix
-from guidance.navigator import Decision, ExitOption
-from guidance.telemetry import (
-    InputHealth,
-    LandmarkRejection,
-    MonitorClient,
-    Telemetry,
-    TelemetryConfig,
-    TelemetryEvent,
-    TlsConfig,
-    open_session,
-    parse_goal,
-    session_config,
-)
+from guidance.telemetry.client import MonitorClient, TelemetryEvent
+from guidance.telemetry.config import TelemetryConfig, TlsConfig
+from guidance.telemetry.messages import InputHealth, LandmarkRejection
+from guidance.telemetry.publisher import Telemetry
+from guidance.telemetry.session import open_session, parse_goal, session_config
 
 REPO = Path(__file__).resolve().parents[2]
 ZENOH_EXAMPLES = REPO / "config" / "zenoh"
 
 PUBLISHER = r"""
 import sys, time
-from guidance.messages import Ellipse, EstimateState
-from guidance.telemetry import Telemetry, TelemetryConfig
+from guidance.core.messages import Ellipse, EstimateState
+from guidance.telemetry.config import TelemetryConfig
+from guidance.telemetry.publisher import Telemetry
 port, vid, rate = int(sys.argv[1]), sys.argv[2], float(sys.argv[3])
 tel = Telemetry(TelemetryConfig(vehicle_id=vid, listen=(f"tcp/127.0.0.1:{port}",)))
 tel.start()

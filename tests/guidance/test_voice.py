@@ -15,21 +15,18 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from guidance.interfaces import Speaker
-from guidance.voice import (
-    EARLY_TOO_CLOSE_M,
-    Priority,
-    PromptQueue,
+from guidance.app.ports import Speaker
+from guidance.core.announce import EARLY_TOO_CLOSE_M, announcement_distances_m, due_announcements
+from guidance.core.messages import Priority
+from guidance.voice import make_speaker
+from guidance.voice.queue import PromptQueue
+from guidance.voice.speakers import (
     Pyttsx3Speaker,
-    Renderer,
     SpeechEngineError,
     TextSpeaker,
-    WavSpeaker,
-    announcement_distances_m,
     check_audio_output,
-    due_announcements,
-    make_speaker,
 )
+from guidance.voice.wav import Renderer, WavSpeaker
 
 G, INFO, S = Priority.GUIDANCE, Priority.INFO, Priority.SAFETY
 
@@ -64,7 +61,7 @@ def warnings_from_voice(caplog: pytest.LogCaptureFixture) -> list[str]:
     return [
         r.getMessage()
         for r in caplog.records
-        if r.name == "guidance.voice" and r.levelno == logging.WARNING
+        if r.name.startswith("guidance.voice") and r.levelno == logging.WARNING
     ]
 
 

@@ -15,7 +15,7 @@ from pathlib import Path
 
 import pytest
 
-from guidance.cli import main
+from guidance.tools.cli import main
 from hal_sim.drive import DriveOptions, run_drive
 
 FAST = DriveOptions(seed=7, voice="none", telemetry=False, record=False, png=False)
@@ -158,7 +158,7 @@ def test_a_monitor_in_another_process_follows_the_simulated_car(tmp_path: Path) 
     import subprocess
     import sys
 
-    from guidance.telemetry import MonitorClient
+    from guidance.telemetry.client import MonitorClient
 
     with socket.socket() as s:
         s.bind(("127.0.0.1", 0))
@@ -176,7 +176,7 @@ def test_a_monitor_in_another_process_follows_the_simulated_car(tmp_path: Path) 
         [
             sys.executable,
             "-m",
-            "guidance.cli",
+            "guidance.tools.cli",
             "sim",
             "--config",
             str(cfg),

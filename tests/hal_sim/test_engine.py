@@ -7,8 +7,8 @@ import math
 import numpy as np
 import pytest
 
-from guidance.estimator import PoseEstimator
-from guidance.navigator import Method, NavigatorConfig
+from guidance.core.estimator import PoseEstimator
+from guidance.core.navigator import Method, NavigatorConfig
 from hal_sim import engine, params, reference, studies
 from hal_sim.params import SimParams
 

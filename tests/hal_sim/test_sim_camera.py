@@ -7,7 +7,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from guidance.messages import CameraFrame
+from guidance.core.messages import CameraFrame
 from hal_sim.sim_camera import (
     SimCamera,
     SimCameraConfig,

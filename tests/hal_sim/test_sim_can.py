@@ -11,7 +11,7 @@ import pytest
 
 from drivers.can_odometry import CanOdometry, CanOdometryConfig, WheelSpeedDecoder
 from drivers.profiles import PROFILES, get_profile
-from guidance.messages import WheelOdometry
+from guidance.core.messages import WheelOdometry
 from hal_sim.sim_can import SimCanWheels
 
 

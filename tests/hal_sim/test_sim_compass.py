@@ -10,7 +10,7 @@ from contextlib import AbstractContextManager
 import pytest
 
 from drivers.compass import NmeaCompassParser, SerialCompass, SerialCompassConfig
-from guidance.messages import CompassHeading
+from guidance.core.messages import CompassHeading
 from hal_sim.sim_compass import SimCompassPty, hdg_body, nmea_sentence
 
 

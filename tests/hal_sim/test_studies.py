@@ -104,7 +104,7 @@ def test_trial_seeds_are_independent_of_chunking() -> None:
 
 
 def test_cli_json_and_errors(tmp_path: Path) -> None:
-    guidance = [sys.executable, "-m", "guidance.cli"]
+    guidance = [sys.executable, "-m", "guidance.tools.cli"]
     done = subprocess.run(
         [*guidance, "study", "range", "--trials-per-condition", "2", "--out", str(tmp_path),
          "--no-progress", "--json", "--workers", "1"],

@@ -7,7 +7,7 @@ import math
 import numpy as np
 import pytest
 
-from guidance.navigator import NavigatorConfig
+from guidance.core.navigator import NavigatorConfig
 from hal_sim import engine, params, world
 from hal_sim.params import SimParams
 
@@ -164,9 +164,7 @@ def test_pid_keeps_the_car_within_a_lane_of_the_route() -> None:
             if turnaround:
                 continue
             cur = (int(ns[world.R_A]), int(ns[world.R_B]))
-            d = min(
-                _distance_to_segment(ts[0], ts[1], *pos(a), *pos(b)) for a, b in (cur, prev)
-            )
+            d = min(_distance_to_segment(ts[0], ts[1], *pos(a), *pos(b)) for a, b in (cur, prev))
             worst = max(worst, d)
     assert turns > 50
     assert worst < 3.5, f"car strayed {worst:.2f} m from the route"

@@ -9,9 +9,9 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from guidance.estimator import PoseEstimator
-from guidance.interfaces import LandmarkRecogniser
-from guidance.messages import CameraFrame, Ellipse, EstimateState, WheelOdometry
+from guidance.app.ports import LandmarkRecogniser
+from guidance.core.estimator import PoseEstimator
+from guidance.core.messages import CameraFrame, Ellipse, EstimateState, WheelOdometry
 from hal_sim.sim_camera import SimCamera, SimCameraConfig, SimLandmark, facade
 from landmark_db.recognise import (
     AMBIGUOUS,

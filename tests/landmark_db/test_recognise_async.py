@@ -9,7 +9,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from guidance.messages import CameraFrame, Ellipse, EstimateState
+from guidance.core.messages import CameraFrame, Ellipse, EstimateState
 from hal_sim.sim_camera import SimLandmark, facade
 from landmark_db.features import OrbConfig
 from landmark_db.geo import Origin

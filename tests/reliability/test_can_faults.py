@@ -28,8 +28,8 @@ from reliability_helpers import HEALTH_KEYS, FakeClock, wait_until
 
 from drivers.can_odometry import WARNINGS, CanOdometry, CanOdometryConfig
 from drivers.profiles import get_profile, load_dbc
-from guidance.estimator import PoseEstimator
-from guidance.messages import WheelOdometry
+from guidance.core.estimator import PoseEstimator
+from guidance.core.messages import WheelOdometry
 from hal_sim.sim_can import SimCanWheels
 
 SPEED_MPS = 10.0

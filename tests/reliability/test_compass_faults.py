@@ -21,9 +21,9 @@ import pytest
 from reliability_helpers import HEALTH_KEYS, FakeClock, wait_until
 
 from drivers.compass import WARNINGS, SerialCompass, SerialCompassConfig
-from drivers.magnetic import compass_heading_to_theta
-from guidance.estimator import EstimatorConfig, HeadingFix, PoseEstimator
-from guidance.messages import CompassHeading, WheelOdometry
+from guidance.app.magnetic import compass_heading_to_theta
+from guidance.core.estimator import EstimatorConfig, PoseEstimator
+from guidance.core.messages import CompassHeading, HeadingFix, WheelOdometry
 from hal_sim.sim_compass import SimCompassPty
 
 RATE_HZ = 10.0

@@ -29,10 +29,11 @@ from reliability_helpers import REPO
 
 from drivers.can_odometry import MAX_SPEED_MPS, REJECT_REASONS, WheelSpeedDecoder
 from drivers.compass import LineAssembler, NmeaCompassParser
-from drivers.magnetic import compass_heading_to_theta
 from drivers.profiles import PROFILES, get_profile, honda_checksum, load_dbc
-from guidance.cli import main as guidance_main
-from guidance.estimator import HeadingFix, PoseEstimator
+from guidance.app.magnetic import compass_heading_to_theta
+from guidance.core.estimator import PoseEstimator
+from guidance.core.messages import HeadingFix
+from guidance.tools.cli import main as guidance_main
 from hal_sim.sim_compass import nmea_checksum
 
 N_NMEA_BYTES = 6000
@@ -346,7 +347,7 @@ def test_replay_commands_in_a_real_process_on_random_bytes(
     rng = np.random.default_rng(11)
     path = tmp_path / f"random{suffix}"
     path.write_bytes(rng.integers(0, 256, 200_000, dtype=np.uint8).tobytes())
-    argv = [sys.executable, "-m", "guidance.cli", command, str(path)]
+    argv = [sys.executable, "-m", "guidance.tools.cli", command, str(path)]
     if command == "odometry":
         argv += ["--profile", "gm_global_a"]
     r = subprocess.run(argv, cwd=REPO, capture_output=True, text=True, timeout=120)

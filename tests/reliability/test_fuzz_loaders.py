@@ -1,5 +1,5 @@
 """Property and fuzz tests (hypothesis) of the two files the car reads at start: the TOML
-configuration (``guidance.config.load_config``, what ``guidance run --config`` calls) and the
+configuration (``guidance.app.config.load_config``, what ``guidance run --config`` calls) and the
 landmark database (``landmark_db.store.open_db``, read-only, what the recogniser opens).
 
 The property for both: every input either loads, or raises the project's own error
@@ -39,9 +39,9 @@ from hypothesis import HealthCheck, event, given, settings
 from hypothesis import strategies as st
 from reliability_helpers import REPO
 
-from guidance.config import AppConfig, load_config
+from guidance.app.config import AppConfig, load_config
+from guidance.core.messages import CameraFrame
 from guidance.errors import UserError
-from guidance.messages import CameraFrame
 from hal_sim.sim_camera import SIM_ORIGIN, facade
 from landmark_db.features import OrbConfig
 from landmark_db.recognise import Recogniser
@@ -397,7 +397,7 @@ def _bad_configs(folder: Path) -> list[Path]:
 def test_guidance_run_with_a_bad_config_exits_2_with_one_error_line(tmp_path: Path) -> None:
     procs = [
         subprocess.Popen(
-            [sys.executable, "-m", "guidance.cli", "run", "--config", str(p)],
+            [sys.executable, "-m", "guidance.tools.cli", "run", "--config", str(p)],
             cwd=REPO,
             stdin=subprocess.DEVNULL,
             stdout=subprocess.PIPE,

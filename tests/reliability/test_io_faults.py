@@ -23,16 +23,15 @@ from reliability_helpers import HEALTH_KEYS, REPO, closed_port, wait_until
 
 from drivers.camera import WARNINGS as CAMERA_WARNINGS
 from drivers.camera import CameraConfig, OpenCvCamera
-from guidance.messages import CameraFrame, Ellipse, EstimateState
-from guidance.recording import DISK_FULL_WARNING, Recorder, RecordingConfig
-from guidance.telemetry import TELEMETRY_DOWN_WARNING, Telemetry, TelemetryConfig
-from guidance.voice import (
-    SPEECH_FAILED_WARNING,
-    EspeakNgRenderer,
-    TextSpeaker,
-    WavSpeaker,
-    make_speaker,
-)
+from guidance.core.messages import CameraFrame, Ellipse, EstimateState
+from guidance.recording.config import RecordingConfig
+from guidance.recording.health import DISK_FULL_WARNING
+from guidance.recording.writer import Recorder
+from guidance.telemetry.config import TelemetryConfig
+from guidance.telemetry.publisher import TELEMETRY_DOWN_WARNING, Telemetry
+from guidance.voice import make_speaker
+from guidance.voice.speakers import SPEECH_FAILED_WARNING, TextSpeaker
+from guidance.voice.wav import EspeakNgRenderer, WavSpeaker
 
 ESPEAK = pytest.mark.skipif(
     not any(
@@ -188,7 +187,8 @@ DISK_FULL_CHILD = r"""
 import json, resource, signal, sys, time
 signal.signal(signal.SIGXFSZ, signal.SIG_IGN)   # EFBIG instead of being killed, as on a full disk
 resource.setrlimit(resource.RLIMIT_FSIZE, (40_000, 40_000))
-from guidance.recording import Recorder, RecordingConfig
+from guidance.recording.config import RecordingConfig
+from guidance.recording.writer import Recorder
 rec = Recorder(RecordingConfig(directory=sys.argv[1], chunk_size_bytes=4096, compression="none"))
 rec.start()
 i = 0

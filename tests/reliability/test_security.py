@@ -19,16 +19,11 @@ import pytest
 from reliability_helpers import REPO, closed_port, wait_until
 
 from guidance.errors import UserError
-from guidance.telemetry import (
-    REDACTED,
-    MonitorClient,
-    Telemetry,
-    TelemetryConfig,
-    health_message,
-    is_secret_name,
-    redact_secrets,
-    redact_text,
-)
+from guidance.telemetry.client import MonitorClient
+from guidance.telemetry.config import TelemetryConfig
+from guidance.telemetry.messages import health_message
+from guidance.telemetry.publisher import Telemetry
+from guidance.telemetry.redact import REDACTED, is_secret_name, redact_secrets, redact_text
 
 ZENOH_EXAMPLES = REPO / "config" / "zenoh"
 SECRET = "s3cret-Pa55-9f1c"

@@ -10,7 +10,7 @@ from pathlib import Path
 
 import pytest
 
-from guidance.watchdog import SystemdNotifier, watchdog_interval_s
+from guidance.app.watchdog import SystemdNotifier, watchdog_interval_s
 
 
 class FakeClock:
@@ -81,7 +81,7 @@ def test_watchdog_pings_at_half_the_period_only_while_the_loop_is_on_time(
                 sent.append(round(clock.now, 1))
     assert sent == [0.0, 1.0, 4.0, 5.0]  # none while late; at once when on time again
     assert received(notify_socket) == ["WATCHDOG=1"] * 4
-    messages = [r.getMessage() for r in caplog.records if r.name == "guidance.watchdog"]
+    messages = [r.getMessage() for r in caplog.records if r.name == "guidance.app.watchdog"]
     assert len(messages) == 2
     assert "withholding watchdog pings" in messages[0]
     assert "resumed" in messages[1]
@@ -145,7 +145,7 @@ def test_a_full_notify_queue_never_blocks_the_caller(
     clock = FakeClock()
     n = SystemdNotifier(clock=clock)
     took = []
-    with caplog.at_level(logging.WARNING, logger="guidance.watchdog"):
+    with caplog.at_level(logging.WARNING, logger="guidance.app.watchdog"):
         for i in range(200):  # far more than a unix datagram queue holds (10 by default)
             clock.now = float(i)
             t0 = time.perf_counter()

@@ -1,0 +1,1 @@
+"""The in-car application shell: ports, wiring, config, checkpoint, watchdog."""

@@ -1,0 +1,716 @@
+"""``guidance run``: the in-car application, one asyncio process (SPEC section 6, docs/app.md).
+
+``App`` wires the hardware abstraction layer to the pure ``Pipeline``:
+
+* each source (odometry, compass, scene, ...) runs its blocking I/O on its own thread and
+  hands messages over with ``loop.call_soon_threadsafe``; the pipeline processes them on the
+  loop in arrival order, and its outputs go to the speaker, Zenoh telemetry and the MCAP
+  recorder (all non-blocking);
+* camera frames go to a one-slot ring; a recogniser (``process(frame, state)`` or the
+  ``LandmarkRecogniser`` protocol) matches the latest one in a worker thread, off the loop,
+  and its fixes come back as pipeline inputs;
+* a ticker task at absolute monotonic deadlines measures loop lag, pings the systemd watchdog,
+  evaluates health (silent or garbled inputs), publishes health and writes checkpoints;
+* everything starts under one ``asyncio.TaskGroup`` and every device is released in a
+  ``finally``.
+
+The simulation (``hal_sim.drive``) builds the same ``App`` around simulated devices and
+steps it in lockstep with the simulated world; replay feeds the pipeline directly.
+"""
+
+from __future__ import annotations
+
+import argparse
+import asyncio
+import concurrent.futures
+import contextlib
+import json
+import logging
+import math
+import signal
+import sys
+import threading
+import time
+from collections import Counter, deque
+from collections.abc import AsyncIterator, Callable, Mapping, Sequence
+from pathlib import Path
+from typing import TYPE_CHECKING, Any, Protocol
+
+from guidance.app.checkpoint import Checkpointer, load_checkpoint
+from guidance.app.ports import Speaker
+from guidance.core.messages import (
+    CameraFrame,
+    CompassHeading,
+    EstimateState,
+    IntersectionScene,
+    LandmarkFix,
+    TurnCompleted,
+    WheelOdometry,
+)
+from guidance.errors import UserError
+
+if TYPE_CHECKING:  # the estimator stack (filterpy, scipy, numba) loads on first use only
+    from guidance.core.messages import InputStatus
+    from guidance.core.pipeline import Input, Outputs, Pipeline
+
+log = logging.getLogger(__name__)
+
+LATENCY_SAMPLES = 100_000
+GIL_SWITCH_INTERVAL_S = 0.001
+"""``sys.setswitchinterval`` in the car: a pure-Python thread (CAN and compass readers,
+recorder, telemetry) hands the GIL back to the loop within 1 ms instead of Python's 5 ms
+(benchmarks/loop_latency.py: loop lateness p99 4.8 -> 3.7 ms on a loaded 2-core machine)."""
+
+
+class Source(Protocol):
+    """What every device source offers (``guidance.interfaces``)."""
+
+    name: str
+
+    def start(self, sink: Callable[[Any], None]) -> None: ...
+    def stop(self) -> None: ...
+    def stats(self) -> Mapping[str, int]: ...
+
+
+class NullRecogniser:
+    """Recognises nothing: the default until a landmark matcher is configured."""
+
+    def process(self, frame: CameraFrame, state: EstimateState) -> LandmarkFix | None:
+        return None
+
+    def stats(self) -> dict[str, int]:
+        return {}
+
+
+def _read_rejected(stats: Mapping[str, int]) -> tuple[int, int]:
+    """(read, rejected) from a source's counters: CAN frames, NMEA lines, or nothing."""
+    read = stats.get("frames", stats.get("lines", 0))
+    return int(read), int(stats.get("rejected", 0))
+
+
+class App:
+    """The asyncio wiring around one ``Pipeline`` (see the module docstring)."""
+
+    def __init__(
+        self,
+        pipeline: Pipeline,
+        *,
+        sources: Mapping[str, Source] | None = None,
+        camera: Source | None = None,
+        recogniser: Any = None,
+        speaker: Speaker | None = None,
+        telemetry: Any = None,
+        recorder: Any = None,
+        notifier: Any = None,
+        checkpointer: Checkpointer | None = None,
+        checkpoint_extra: Callable[[], Mapping[str, Any]] | None = None,
+        clock: Callable[[], float] = time.monotonic,
+        tick_hz: float = 20.0,
+        external_ticks: bool = False,
+        health_publish_period_s: float = 1.0,
+        max_loop_lag_s: float = 0.5,
+        method: str = "",
+    ) -> None:
+        from guidance.core.messages import Approach, GoalUpdate, HeadingFix
+
+        self._heading_fix_type = HeadingFix
+        self._approach_type = Approach
+        self._goal_type = GoalUpdate
+        self.pipeline = pipeline
+        self.sources = dict(sources or {})
+        self.camera = camera
+        self.recogniser: Any = recogniser if recogniser is not None else NullRecogniser()
+        self.speaker = speaker
+        self.telemetry = telemetry
+        self.recorder = recorder
+        self.notifier = notifier
+        self.checkpointer = checkpointer
+        self.checkpoint_extra = checkpoint_extra
+        self.clock = clock
+        self.tick_hz = tick_hz
+        self.external_ticks = external_ticks
+        self.health_publish_period_s = health_publish_period_s
+        self.max_loop_lag_s = max_loop_lag_s
+        self.method = method or pipeline.config.navigator.method.value
+        self.listeners: list[Callable[[Input | None, Outputs], None]] = []
+        self.counts: Counter[str] = Counter()
+        self.loop_lag_s: deque[float] = deque(maxlen=LATENCY_SAMPLES)
+        self.odometry_latency_s: deque[float] = deque(maxlen=LATENCY_SAMPLES)
+        self.measure_latency = False
+        self.stop_event = asyncio.Event()
+        self._loop: asyncio.AbstractEventLoop | None = None
+        self._submitted = 0
+        self._processed = 0
+        self._sub_lock = threading.Lock()
+        self._waiters: list[asyncio.Future[None]] = []
+        self._frame: CameraFrame | None = None
+        self._frame_lock = threading.Lock()
+        self._frame_signalled = False
+        self._frame_ready = asyncio.Event()
+        self._next_health_pub = -math.inf
+        self._next_counts_t = -math.inf
+        self._lagging = False
+        self._started_sources: list[Source] = []
+
+    # -- input side (any thread) ----------------------------------------------------------------
+    def sink(self, msg: Any) -> None:
+        """Hand a message to the loop; callable from any thread (the sources' sink)."""
+        loop = self._loop
+        if loop is None:
+            raise RuntimeError("App.sink used before run()")
+        with self._sub_lock:
+            self._submitted += 1
+        loop.call_soon_threadsafe(self._on_message, msg)
+
+    def _on_message(self, msg: Any) -> None:
+        try:
+            if isinstance(msg, CameraFrame):  # a camera handed to sink(): use the ring too
+                with self._frame_lock:
+                    self._frame = msg
+                    self.counts["frames"] += 1
+                self._on_frame()
+            else:
+                self.feed(msg)
+        except Exception:
+            log.exception("processing %s failed; continuing", type(msg).__name__)
+        finally:
+            self._processed += 1
+            self._wake()
+
+    # -- the loop side ----------------------------------------------------------------------------
+    def feed(self, msg: Input) -> Outputs:
+        """Process one input on the loop: record it, run the pipeline, hand the outputs out."""
+        self._record_input(msg)
+        out = self.pipeline.feed(msg)
+        self.counts[type(msg).__name__] += 1
+        if self.measure_latency and isinstance(msg, WheelOdometry):
+            self.odometry_latency_s.append(self.clock() - msg.t_s)
+        self._handle(msg, out)
+        return out
+
+    def tick(self, now_s: float) -> Outputs:
+        """Time-driven work on the message clock: health, health publication, checkpoints."""
+        if now_s >= self._next_counts_t:
+            self._next_counts_t = now_s + 1.0
+            for name, src in self.sources.items():
+                try:
+                    read, rejected = _read_rejected(src.stats())
+                except Exception:  # a source's stats must never stop the loop
+                    log.exception("%s: stats() failed", name)
+                    continue
+                self.pipeline.update_source_counts(name, read, rejected)
+        out = self.pipeline.tick(now_s)
+        self._handle(None, out)
+        if now_s >= self._next_health_pub:
+            self._next_health_pub = now_s + self.health_publish_period_s
+            self._publish_health(now_s)
+        if self.checkpointer is not None and self.checkpointer.due(now_s):
+            self.save_checkpoint(now_s)
+        return out
+
+    def save_checkpoint(self, t_s: float) -> bool:
+        if self.checkpointer is None:
+            return False
+        extra = dict(self.checkpoint_extra()) if self.checkpoint_extra is not None else {}
+        return self.checkpointer.save(t_s, {"pipeline": self.pipeline.snapshot(), "extra": extra})
+
+    def camera_sink(self, frame: CameraFrame) -> None:
+        """The camera's sink (its thread): a one-slot ring, so a stalled loop or a slow matcher
+        holds at most one frame; the loop is woken once per batch of frames, not per frame."""
+        loop = self._loop
+        if loop is None:
+            raise RuntimeError("App.camera_sink used before run()")
+        with self._frame_lock:
+            if self._frame is not None:
+                self.counts["frames_dropped"] += 1
+            self._frame = frame
+            self.counts["frames"] += 1
+            wake = not self._frame_signalled
+            self._frame_signalled = True
+        if wake:
+            loop.call_soon_threadsafe(self._on_frame)
+
+    def _on_frame(self) -> None:
+        """On the loop: note the camera alive, record the frame, wake the recogniser."""
+        with self._frame_lock:
+            self._frame_signalled = False
+            frame = self._frame
+        if frame is None:
+            return
+        self.pipeline.health.observe("camera", frame.t_s)
+        self._frame_ready.set()
+        if self.recorder is not None:
+            self.recorder.record_camera(frame)
+
+    def _handle(self, msg: Input | None, out: Outputs) -> None:
+        p = self.pipeline
+        tel, rec, spk = self.telemetry, self.recorder, self.speaker
+        for prompt in out.prompts:
+            if spk is not None:
+                spk.say(prompt.text, prompt.priority, prompt.t_s)
+            if tel is not None:
+                tel.publish_prompt(
+                    prompt.t_s, prompt.text, kind=prompt.kind, priority=prompt.priority
+                )
+            if rec is not None:
+                rec.record_prompt(
+                    prompt.t_s, prompt.text, kind=prompt.kind, priority=prompt.priority
+                )
+        for decision in out.decisions:
+            if tel is not None:
+                tel.publish_decision(decision)
+            if rec is not None:
+                rec.record_decision(decision)
+        if out.landmark_updates or out.landmark_rejections:
+            from guidance.telemetry.messages import LandmarkRejection
+
+            t = (out.landmark_updates or [f for f, _ in out.landmark_rejections])[0].t_s
+            rejections = [
+                LandmarkRejection(reason, fix.landmark_id)
+                for fix, reason in out.landmark_rejections
+            ]
+            if tel is not None:
+                tel.publish_landmark(t, matches=out.landmark_updates, rejections=rejections)
+            if rec is not None:
+                rec.record_landmark(t, matches=out.landmark_updates, rejections=rejections)
+        if out.state is not None:
+            tx, ty, kind, tid = p.target()
+            kw: dict[str, Any] = {
+                "speed_mps": p.speed_mps,
+                "target": (tx, ty, kind, tid),
+                "goal": p.navigator.goal,
+                "method": self.method,
+                "mode": p.navigator.mode,
+            }
+            if tel is not None:
+                tel.publish_state(out.state, **kw)
+            if rec is not None:
+                rec.record_state(out.state, **kw)
+        if out.health and msg is None:
+            self._publish_health(out.health[0].t_s)
+        elif out.health:
+            self._next_health_pub = -math.inf  # publish at the next tick
+        for listener in self.listeners:
+            listener(msg, out)
+
+    def _inputs_health(self, t_s: float) -> dict[str, InputStatus]:
+        return self.pipeline.statuses(t_s)
+
+    def _publish_health(self, t_s: float) -> None:
+        if self.telemetry is None and self.recorder is None:
+            return
+        from guidance.telemetry.messages import InputHealth
+
+        inputs = {
+            name: InputHealth(
+                st.alive, st.valid, st.rate_hz, st.age_s, st.expected_rate_hz, st.detail
+            )
+            for name, st in self._inputs_health(t_s).items()
+        }
+        comps: dict[str, Mapping[str, Any]] = {
+            "estimator": {
+                "healthy": self.pipeline.estimator.healthy,
+                "resets": self.pipeline.estimator.resets,
+                "rejections": dict(self.pipeline.estimator.rejections),
+            },
+            "loop": {
+                "lag_p99_s": _percentile(self.loop_lag_s, 99),
+                "backlog": self._submitted - self._processed,
+                "frames_dropped": self.counts["frames_dropped"],
+            },
+        }
+        if self.telemetry is not None:
+            self.telemetry.publish_health(t_s, inputs, components=comps)
+        if self.recorder is not None:
+            self.recorder.record_health(t_s, inputs, components=comps)
+
+    def _record_input(self, msg: Input) -> None:
+        rec = self.recorder
+        if rec is None:
+            return
+        if isinstance(msg, WheelOdometry):
+            rec.record(
+                "/odometry",
+                msg.t_s,
+                {"t_s": msg.t_s, "d_left_m": msg.d_left_m, "d_right_m": msg.d_right_m},
+            )
+        elif isinstance(msg, CompassHeading):
+            rec.record(
+                "/compass",
+                msg.t_s,
+                {"t_s": msg.t_s, "heading_deg": msg.heading_deg, "is_true": msg.is_true},
+            )
+        elif isinstance(msg, self._heading_fix_type):
+            rec.record("/heading", msg.t_s, {"t_s": msg.t_s, "theta_rad": msg.theta_rad})
+        elif isinstance(msg, LandmarkFix):
+            rec.record(
+                "/landmark_fix",
+                msg.t_s,
+                {
+                    "t_s": msg.t_s,
+                    "landmark_id": msg.landmark_id,
+                    "x_m": msg.x_m,
+                    "y_m": msg.y_m,
+                    "sigma_m": msg.sigma_m,
+                },
+            )
+        elif isinstance(msg, IntersectionScene | TurnCompleted):
+            rec.record_scene(msg)
+        elif isinstance(msg, self._approach_type):
+            rec.record("/approach", msg.t_s, {"t_s": msg.t_s, "distance_m": msg.distance_m})
+        elif isinstance(msg, self._goal_type):
+            rec.record(
+                "/goal",
+                msg.t_s,
+                {"t_s": msg.t_s, "x_m": msg.x_m, "y_m": msg.y_m, "source": msg.source},
+            )
+
+    # -- waiting (the simulation's lockstep) ----------------------------------------------------
+    def _wake(self) -> None:
+        waiters, self._waiters = self._waiters, []
+        for fut in waiters:
+            if not fut.done():
+                fut.set_result(None)
+
+    async def wait_until(self, predicate: Callable[[], bool], timeout_s: float = 2.0) -> bool:
+        """Wait until ``predicate()`` holds (re-checked after each processed message)."""
+        loop = asyncio.get_running_loop()
+        deadline = loop.time() + timeout_s
+        while not predicate():
+            remaining = deadline - loop.time()
+            if remaining <= 0:
+                return False
+            fut: asyncio.Future[None] = loop.create_future()
+            self._waiters.append(fut)
+            with contextlib.suppress(TimeoutError):
+                await asyncio.wait_for(fut, min(remaining, 0.05))
+        return True
+
+    async def drained(self, timeout_s: float = 2.0) -> bool:
+        """Wait until every message handed to ``sink`` so far has been processed."""
+        with self._sub_lock:
+            target = self._submitted
+        return await self.wait_until(lambda: self._processed >= target, timeout_s)
+
+    # -- running --------------------------------------------------------------------------------
+    @contextlib.asynccontextmanager
+    async def running(self) -> AsyncIterator[App]:
+        """Start sources and the background tasks; stop and release everything on exit."""
+        self._loop = asyncio.get_running_loop()
+        try:
+            async with asyncio.TaskGroup() as tg:
+                tasks = [tg.create_task(self._ticker(), name="ticker")]
+                if self.camera is not None:
+                    tasks.append(tg.create_task(self._recognise(), name="recogniser"))
+                try:
+                    if self.recorder is not None:
+                        for src in self.sources.values():
+                            tap_raw_inputs(src, self.recorder)
+                    for name, src in self.sources.items():
+                        src.start(self.sink)
+                        self._started_sources.append(src)
+                        log.info("started %s (%s)", name, getattr(src, "name", name))
+                    if self.camera is not None:
+                        self.camera.start(self.camera_sink)
+                        self._started_sources.append(self.camera)
+                    if self.notifier is not None:
+                        self.notifier.ready("guidance running")
+                    yield self
+                finally:
+                    for task in tasks:
+                        task.cancel()
+        finally:
+            if self.notifier is not None:
+                self.notifier.stopping()
+            self._stop_sources()
+
+    def _stop_sources(self) -> None:
+        while self._started_sources:
+            src = self._started_sources.pop()
+            try:
+                src.stop()
+            except Exception:
+                log.exception("stopping %s failed", getattr(src, "name", src))
+
+    async def run_until_stopped(self) -> None:
+        """The car: run until ``stop_event`` is set (signal, end of the sim)."""
+        async with self.running():
+            await self.stop_event.wait()
+
+    async def _ticker(self) -> None:
+        """Fixed-rate housekeeping on absolute monotonic deadlines; reports lag (Ratekeeper)."""
+        period = 1.0 / self.tick_hz
+        deadline = time.monotonic() + period
+        while True:
+            await asyncio.sleep(max(0.0, deadline - time.monotonic()))
+            lag = time.monotonic() - deadline
+            self.loop_lag_s.append(lag)
+            late = lag > self.max_loop_lag_s
+            if late != self._lagging:
+                self._lagging = late
+                if late:
+                    log.warning("event loop %.0f ms behind its deadline", lag * 1e3)
+                else:
+                    log.warning("event loop on time again")
+            if self.notifier is not None:
+                self.notifier.tick(lag)
+            if not self.external_ticks:
+                try:
+                    self.tick(self.clock())
+                except Exception:
+                    log.exception("tick failed; continuing")
+            deadline += period
+            if time.monotonic() - deadline > 10 * period:  # stalled: do not burst to catch up
+                deadline = time.monotonic() + period
+
+    async def _recognise(self) -> None:
+        """Match the latest camera frame in a worker thread; fixes come back as inputs."""
+        loop = asyncio.get_running_loop()
+        while True:
+            await self._frame_ready.wait()
+            self._frame_ready.clear()
+            with self._frame_lock:
+                frame, self._frame = self._frame, None
+            if frame is None:
+                continue
+            state = self.pipeline.state()
+            try:
+                fix = await loop.run_in_executor(None, self._match, frame, state)
+            except Exception:
+                self.counts["recogniser_errors"] += 1
+                log.exception("landmark recogniser failed on a frame; continuing")
+                continue
+            self.counts["frames_matched"] += 1
+            if fix is not None:
+                self.feed(fix)
+
+    def _match(self, frame: CameraFrame, state: EstimateState) -> LandmarkFix | None:
+        """Run the recogniser (worker thread). Accepts ``process(frame, state)`` returning a
+        fix, a result with ``.fix``/``.reason`` (``landmark_db.recognise``) or a future of one
+        (a recogniser in its own process); or the ``LandmarkRecogniser`` protocol."""
+        r = self.recogniser
+        if hasattr(r, "process"):
+            result = r.process(frame, state)
+        else:
+            cov = [
+                [state.covariance[0][0], state.covariance[0][1]],
+                [state.covariance[1][0], state.covariance[1][1]],
+            ]
+            result = r.recognise(frame, (state.x_m, state.y_m), cov)
+        if isinstance(result, concurrent.futures.Future):
+            result = result.result()
+        if result is None or isinstance(result, LandmarkFix):
+            return result
+        reason = getattr(result, "reason", None)
+        if reason:
+            self.counts[f"recognition_{reason}"] += 1
+        fix = getattr(result, "fix", None)
+        return fix if isinstance(fix, LandmarkFix) else None
+
+    # -- figures ----------------------------------------------------------------------------------
+    def lag_summary(self) -> dict[str, float | None]:
+        return {
+            "loop_lag_p50_ms": _ms(_percentile(self.loop_lag_s, 50)),
+            "loop_lag_p99_ms": _ms(_percentile(self.loop_lag_s, 99)),
+            "loop_lag_max_ms": _ms(max(self.loop_lag_s) if self.loop_lag_s else None),
+        }
+
+
+def tap_raw_inputs(source: Any, recorder: Any) -> bool:
+    """Record the raw bytes a driver reads (``/can`` frames, ``/nmea`` lines) as it reads them.
+
+    The CAN driver decodes in ``source.decoder.feed(msg)`` and the compass parses in
+    ``source.parser.feed_line(line, t_s)``, on their reader threads; this wraps those two
+    methods of the given instances (nothing else changes). Returns True when a tap was set.
+    """
+    decoder = getattr(source, "decoder", None)
+    if decoder is not None and callable(getattr(decoder, "feed", None)):
+        feed = decoder.feed
+        channel = str(getattr(getattr(source, "config", None), "channel", ""))
+        offset = decoder
+
+        def feed_can(msg: Any) -> Any:
+            recorder.record_can(
+                float(msg.timestamp) + float(getattr(offset, "clock_offset_s", 0.0)),
+                msg.arbitration_id,
+                bytes(msg.data),
+                is_extended_id=bool(msg.is_extended_id),
+                is_error_frame=bool(msg.is_error_frame),
+                channel=channel,
+            )
+            return feed(msg)
+
+        decoder.feed = feed_can
+        return True
+    parser = getattr(source, "parser", None)
+    if parser is not None and callable(getattr(parser, "feed_line", None)):
+        feed_line = parser.feed_line
+        port = str(getattr(getattr(source, "config", None), "port", ""))
+
+        def feed_nmea(line: bytes, t_s: float | None = None) -> Any:
+            recorder.record_nmea(time.monotonic() if t_s is None else t_s, line, port=port)
+            return feed_line(line, t_s)
+
+        parser.feed_line = feed_nmea
+        return True
+    return False
+
+
+def _percentile(values: Sequence[float] | deque[float], q: float) -> float | None:
+    if not values:
+        return None
+    s = sorted(values)
+    k = min(len(s) - 1, max(0, math.ceil(q / 100.0 * len(s)) - 1))
+    return float(s[k])
+
+
+def _ms(v: float | None) -> float | None:
+    return None if v is None else v * 1e3
+
+
+# ----------------------------------------------------------------------------- building it
+
+
+def build_speaker(backend: str, wav_path: str, clock: Callable[[], float]) -> Speaker | None:
+    """The configured voice (``none`` for no speaker)."""
+    if backend == "none":
+        return None
+    from guidance.voice import make_speaker
+
+    return make_speaker(backend, wav_path or None, clock=clock)  # type: ignore[arg-type]
+
+
+async def run_car(config_path: str, *, resume: bool = True) -> int:
+    """``guidance run``: open the configured devices and guide until SIGINT/SIGTERM."""
+    from guidance.app.backends import SCENE_BACKENDS, import_backend
+    from guidance.app.config import load_config
+    from guidance.app.watchdog import SystemdNotifier
+    from guidance.core.messages import GoalUpdate
+    from guidance.core.pipeline import Pipeline
+    from guidance.recording.writer import Recorder
+    from guidance.telemetry.publisher import Telemetry
+
+    cfg = load_config(config_path)
+    sys.setswitchinterval(GIL_SWITCH_INTERVAL_S)
+    pipeline = Pipeline(cfg.pipeline)
+    checkpointer = None
+    if cfg.checkpoint.path:
+        checkpointer = Checkpointer(cfg.checkpoint.path, cfg.checkpoint.interval_s)
+        doc = load_checkpoint(cfg.checkpoint.path) if resume else None
+        age_s = time.time() - float(doc.get("wall_time_unix_s", 0.0)) if doc else math.inf
+        if doc is not None and not 0.0 <= age_s <= cfg.checkpoint.max_age_s:
+            log.warning(
+                "checkpoint %s is %.0f s old (limit %.0f s): starting afresh",
+                cfg.checkpoint.path,
+                age_s,
+                cfg.checkpoint.max_age_s,
+            )
+        elif doc is not None:
+            # The laptop's monotonic clock may have restarted, and the car kept moving while
+            # the process was down: widen the position by what the last speed covers.
+            pipeline.restore(doc["pipeline"], same_clock=False)
+            spread = pipeline.speed_mps * age_s
+            pipeline.inflate_position(spread)
+            log.warning(
+                "resumed from checkpoint %s written %.1f s ago; position widened by %.0f m",
+                cfg.checkpoint.path,
+                age_s,
+                spread,
+            )
+    # Devices are built (and their configs checked) before anything starts.
+    sources: dict[str, Source] = {}
+    if cfg.odometry is not None:
+        sources["odometry"] = cfg.odometry.build()
+    if cfg.compass is not None:
+        sources["compass"] = cfg.compass.build()
+    if cfg.keyboard:
+        keyboard = import_backend(SCENE_BACKENDS["keyboard"])
+        sources["scene"] = keyboard(lambda: float(pipeline.estimator.x[2]))
+    camera = cfg.camera.build() if cfg.camera is not None else None
+
+    speaker = build_speaker(cfg.voice.backend, cfg.voice.wav_path, time.monotonic)
+    telemetry = recorder = None
+    stop = asyncio.Event()
+    try:
+        loop = asyncio.get_running_loop()
+
+        def on_goal(x_m: float, y_m: float) -> None:
+            app.feed(GoalUpdate(time.monotonic(), x_m, y_m, "remote"))
+
+        telemetry = Telemetry(cfg.telemetry, on_goal=on_goal, loop=loop)
+        telemetry.start()
+        recorder = Recorder(cfg.recording)
+        recorder.start()
+        recorder.record("/session", time.monotonic(), session_record(pipeline, cfg.path))
+        app = App(
+            pipeline,
+            sources=sources,
+            camera=camera,
+            speaker=speaker,
+            telemetry=telemetry,
+            recorder=recorder,
+            notifier=SystemdNotifier(max_lag_s=cfg.max_loop_lag_s),
+            checkpointer=checkpointer,
+            tick_hz=cfg.tick_hz,
+            health_publish_period_s=cfg.health_publish_period_s,
+            max_loop_lag_s=cfg.max_loop_lag_s,
+        )
+        app.stop_event = stop
+        for sig in (signal.SIGINT, signal.SIGTERM):
+            loop.add_signal_handler(sig, stop.set)
+        await app.run_until_stopped()
+        log.warning("stopping: %s", json.dumps(app.lag_summary()))
+    finally:
+        if speaker is not None:
+            speaker.close()
+        if recorder is not None:
+            recorder.close()
+        if telemetry is not None:
+            telemetry.close()
+    return 0
+
+
+def session_record(pipeline: Pipeline, config_path: str = "", **extra: Any) -> dict[str, Any]:
+    """What replay needs to rebuild the pipeline: its configuration as plain data."""
+    return {
+        "schema": "guidance.session/1",
+        "config_path": config_path,
+        "pipeline": pipeline.config.describe(),
+        **extra,
+    }
+
+
+# ----------------------------------------------------------------------------- CLI
+
+
+def register(sub: Any) -> None:
+    run = sub.add_parser(
+        "run",
+        help="guide the driver: the in-car application",
+        description=(
+            "Run the in-car application: wheel odometry, compass and camera from the devices in "
+            "the TOML config, the pose estimator and navigator, voice prompts, Zenoh telemetry "
+            "and MCAP recording. Stop with Ctrl-C (or SIGTERM)."
+        ),
+    )
+    run.add_argument("--config", required=True, type=Path, help="the car's TOML configuration")
+    run.add_argument("--check", action="store_true", help="validate the configuration and exit")
+    run.add_argument(
+        "--fresh", action="store_true", help="ignore an existing checkpoint (start afresh)"
+    )
+    run.set_defaults(func=_cli_run)
+
+
+def _cli_run(args: argparse.Namespace) -> int:
+    if args.check:
+        from guidance.app.config import load_config
+
+        cfg = load_config(args.config)
+        print(  # noqa: T201  (the command output)
+            f"{args.config}: OK (vehicle {cfg.vehicle_id}, method "
+            f"{cfg.pipeline.navigator.method.value})"
+        )
+        return 0
+    if not args.config.is_file():
+        raise UserError(f"config file not found: {args.config}")
+    return asyncio.run(run_car(str(args.config), resume=not args.fresh))

@@ -1,0 +1,30 @@
+"""Device backends by name (python-can's interface table pattern, HOUSE_STYLE).
+
+``BACKENDS`` maps ``[odometry] backend = "can"`` to the driver class and its config dataclass,
+imported on first use, so the app imports no driver module: it names them here.
+"""
+
+from __future__ import annotations
+
+import importlib
+from typing import Any
+
+BACKENDS: dict[str, dict[str, tuple[str, str]]] = {
+    "odometry": {
+        "can": ("drivers.can_odometry:CanOdometry", "drivers.can_odometry:CanOdometryConfig"),
+    },
+    "compass": {
+        "nmea_serial": ("drivers.compass:SerialCompass", "drivers.compass:SerialCompassConfig"),
+    },
+    "camera": {
+        "opencv": ("drivers.camera:OpenCvCamera", "drivers.camera:CameraConfig"),
+    },
+}
+SCENE_BACKENDS: dict[str, str] = {"keyboard": "drivers.keyboard:KeyboardScene"}
+"""Co-driver input backends (``module:Class``), imported on first use."""
+
+
+def import_backend(path: str) -> Any:
+    """The class named by a ``module:Class`` backend string."""
+    module, _, name = path.partition(":")
+    return getattr(importlib.import_module(module), name)

@@ -1,0 +1,501 @@
+"""The car's TOML configuration, validated at start (docs/app.md, "Configuration").
+
+``load_config(path)`` reads the file with ``tomllib`` and returns an ``AppConfig``; any bad
+value raises ``UserError`` with one line that names the key (``[goal] lat_deg must be within
+[-90, 90], not 123.0``). Unknown tables and keys are errors too: a typo must not silently
+fall back to a default in a moving car.
+
+Start and goal are latitude/longitude (converted to the local east-north frame around the
+start with pymap3d) or local metres. Devices are chosen by name in the configuration only
+(HOUSE_STYLE): ``BACKENDS`` maps ``[odometry] backend = "can"`` to the driver class and its
+config dataclass, imported on first use, so this module knows no hardware.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import datetime as dt
+import math
+import tomllib
+import types
+from collections.abc import Mapping
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+from guidance.app.backends import BACKENDS, import_backend
+from guidance.app.tables import _check_document, _check_type, _in_table, _name, _Table, _table
+from guidance.core.estimator import EstimatorConfig, car_model
+from guidance.core.health import HealthConfig
+from guidance.core.navigator import Landmark, Method, NavigatorConfig
+from guidance.core.pipeline import PipelineConfig
+from guidance.core.prompts import Units
+from guidance.errors import UserError
+from guidance.recording.config import RecordingConfig
+from guidance.telemetry.config import TelemetryConfig
+from guidance.telemetry.keys import validate_vehicle_id
+
+"""Device kind -> backend name -> (``module:Class``, ``module:ConfigClass``)."""
+
+DEFAULT_RATES_HZ = {"odometry": 20.0, "compass": 5.0, "camera": 10.0}
+TABLES = (
+    "vehicle",
+    "start",
+    "goal",
+    "navigation",
+    "estimator",
+    "odometry",
+    "compass",
+    "camera",
+    "scene",
+    "voice",
+    "health",
+    "loop",
+    "checkpoint",
+    "telemetry",
+    "recording",
+    "landmarks",
+    "sim",
+)
+
+
+@dataclass(frozen=True, slots=True)
+class DeviceConfig:
+    """One device: its backend name, the driver's own config object and the expected rate."""
+
+    kind: str
+    backend: str
+    config: Any
+    expected_rate_hz: float | None
+
+    def build(self, **kwargs: Any) -> Any:
+        """Construct the driver (imports it now)."""
+        cls_path, _ = BACKENDS[self.kind][self.backend]
+        return import_backend(cls_path)(self.config, **kwargs)
+
+
+@dataclass(frozen=True, slots=True)
+class VoiceSettings:
+    backend: str = "auto"
+    """auto, voice, wav, text or none."""
+    wav_path: str = ""
+
+
+@dataclass(frozen=True, slots=True)
+class CheckpointSettings:
+    path: str = ""
+    """Empty: no checkpoints."""
+    interval_s: float = 5.0
+    max_age_s: float = 600.0
+    """An older checkpoint (wall clock) is not resumed: the car may be anywhere by now."""
+
+
+@dataclass(frozen=True, slots=True)
+class AppConfig:
+    """The validated configuration of one run."""
+
+    path: str
+    vehicle_id: str
+    pipeline: PipelineConfig
+    origin_lat_lon_deg: tuple[float, float] | None
+    odometry: DeviceConfig | None
+    compass: DeviceConfig | None
+    camera: DeviceConfig | None
+    keyboard: bool
+    voice: VoiceSettings
+    telemetry: TelemetryConfig
+    recording: RecordingConfig
+    checkpoint: CheckpointSettings
+    tick_hz: float = 20.0
+    health_publish_period_s: float = 1.0
+    max_loop_lag_s: float = 0.5
+    sim: Mapping[str, Any] = field(default_factory=dict)
+    """The ``[sim]`` table, read by ``guidance sim`` only."""
+
+
+def _device(
+    kind: str, data: object, *, default_backend: str, default_enabled: bool = True
+) -> DeviceConfig | None:
+    """A device table: ``backend``, ``enabled``, ``expected_rate_hz``, then the driver's keys."""
+    t = _Table(kind, data)
+    if not t.boolean("enabled", default_enabled):
+        t.used.update(t.data)
+        return None
+    backend = t.string("backend", default_backend, tuple(BACKENDS[kind]))
+    rate = t.number("expected_rate_hz", DEFAULT_RATES_HZ[kind], positive=True)
+    _, cfg_path = BACKENDS[kind][backend]
+    cfg_cls = import_backend(cfg_path)
+    ftypes = {f.name: str(f.type) for f in dataclasses.fields(cfg_cls)}
+    app_keys = {"enabled", "backend", "expected_rate_hz"} | _APP_DEVICE_KEYS.get(kind, set())
+    kwargs: dict[str, Any] = {}
+    for key, value in t.data.items():
+        if key in app_keys:
+            continue
+        if key not in ftypes:
+            raise UserError(
+                f"[{kind}] unknown key {key!r} for backend {backend!r}; "
+                f"known: {', '.join(sorted(set(ftypes) | app_keys))}"
+            )
+        kwargs[key] = _check_type(value, ftypes[key], t.key(key))
+    try:
+        config = cfg_cls(**kwargs)
+    except UserError as exc:
+        raise UserError(f"[{kind}] {exc}") from None
+    except (TypeError, ValueError) as exc:
+        raise UserError(f"[{kind}] {exc}") from None
+    return DeviceConfig(kind, backend, config, rate)
+
+
+_APP_DEVICE_KEYS = {
+    "compass": {
+        "mounting_offset_deg",
+        "declination_deg",
+        "date",
+        "deviation_deg",
+        "unusable_after_s",
+    }
+}
+
+
+def _point(
+    t: _Table, origin: tuple[float, float] | None
+) -> tuple[tuple[float, float], tuple[float, float] | None]:
+    """Local (x, y) of a [start]/[goal] table and its (lat, lon) when given."""
+    has_geo = t.has("lat_deg") or t.has("lon_deg")
+    has_xy = t.has("x_m") or t.has("y_m")
+    if has_geo and has_xy:
+        raise UserError(f"[{t.name}] give lat_deg/lon_deg or x_m/y_m, not both")
+    if has_geo:
+        lat = t.req_number("lat_deg", lo=-90.0, hi=90.0)
+        lon = t.req_number("lon_deg", lo=-180.0, hi=180.0)
+        if origin is None:
+            return (0.0, 0.0), (lat, lon)
+        return enu_m(lat, lon, origin), (lat, lon)
+    x = t.number("x_m", 0.0)
+    y = t.number("y_m", 0.0)
+    assert x is not None and y is not None
+    if t.name == "goal" and not has_xy:
+        raise UserError("[goal] needs lat_deg/lon_deg or x_m/y_m")
+    return (x, y), None
+
+
+def enu_m(lat_deg: float, lon_deg: float, origin: tuple[float, float]) -> tuple[float, float]:
+    """East and north metres of a point from the origin (WGS-84, pymap3d)."""
+    import pymap3d
+
+    e, n, _u = pymap3d.geodetic2enu(lat_deg, lon_deg, 0.0, origin[0], origin[1], 0.0)
+    return float(e), float(n)
+
+
+CAR_KEYS = (
+    "wheel_walk_var_m2_per_m",
+    "scale_sigma",
+    "diff_sigma",
+    "diff_walk_var_per_m",
+    "compass_bias_sigma_deg",
+    "compass_bias_walk_deg2_per_s",
+    "compass_bias_turn_deg2_per_rad",
+)
+"""The car model's settings in ``[estimator]`` (docs/estimation.md)."""
+
+
+def _deviation(value: object) -> tuple[float, ...]:
+    """``[compass] deviation_deg = [A, B, C, D, E]`` (``guidance calibrate`` writes it)."""
+    if value is None:
+        return ()
+    from guidance.core.compass_cal import CompassCalibration
+
+    if not isinstance(value, list) or len(value) != 5:
+        raise UserError("[compass] deviation_deg must be a list of 5 numbers [A, B, C, D, E]")
+    keys = ("a_deg", "b_deg", "c_deg", "d_deg", "e_deg")
+    try:
+        cal = CompassCalibration.from_mapping(dict(zip(keys, value, strict=True)))
+    except (TypeError, ValueError) as exc:
+        raise UserError(f"[compass] deviation_deg: {exc}") from None
+    return (cal.a_deg, cal.b_deg, cal.c_deg, cal.d_deg, cal.e_deg)
+
+
+def profile_track_m(profile: str) -> float:
+    """The rear track width of a CAN vehicle profile (named, imported on first use)."""
+    get_profile = import_backend("drivers.profiles:get_profile")
+    return float(get_profile(profile).track_width_m)
+
+
+def _date(value: object, where: str) -> dt.date:
+    if value is None:
+        return dt.datetime.now(dt.UTC).date()
+    if isinstance(value, dt.date):
+        return value
+    if isinstance(value, str):
+        try:
+            return dt.date.fromisoformat(value)
+        except ValueError:
+            pass
+    raise UserError(f"{where} must be a date (2026-05-01), not {value!r}")
+
+
+# ----------------------------------------------------------------------------- loading
+
+
+def load_config(
+    path: str | Path, *, require_goal: bool = True, default_date: dt.date | None = None
+) -> AppConfig:
+    """Read and validate a TOML configuration file."""
+    p = Path(path)
+    try:
+        text = p.read_bytes()
+    except FileNotFoundError:
+        raise UserError(f"config file not found: {p}") from None
+    except OSError as exc:
+        raise UserError(f"{p}: {exc.strerror or exc}") from None
+    try:
+        data = tomllib.loads(text.decode("utf-8"))
+    except (tomllib.TOMLDecodeError, UnicodeDecodeError) as exc:
+        raise UserError(f"{p}: not valid TOML: {exc}") from None
+    return parse_config(
+        data,
+        base_dir=p.resolve().parent,
+        path=str(p),
+        require_goal=require_goal,
+        default_date=default_date,
+    )
+
+
+def parse_config(
+    data: Mapping[str, Any],
+    *,
+    base_dir: Path | None = None,
+    path: str = "<config>",
+    require_goal: bool = True,
+    default_date: dt.date | None = None,
+) -> AppConfig:
+    """Validate a parsed TOML document (a dict) into an ``AppConfig``.
+
+    ``require_goal=False`` (the simulator, which draws its own goal) allows no ``[goal]``.
+    """
+    _check_document(data)
+    unknown = sorted(set(data) - set(TABLES))
+    if unknown:
+        raise UserError(f"unknown table(s): {', '.join('[' + _name(u) + ']' for u in unknown)}")
+
+    vehicle = _Table("vehicle", data.get("vehicle", {}))
+    vehicle_id = vehicle.string("id", "car1")
+    try:
+        validate_vehicle_id(vehicle_id)
+    except UserError as exc:
+        raise UserError(f"[vehicle] id: {exc}") from None
+    track = vehicle.number("track_m", None, positive=True)
+    vehicle.done()
+
+    start = _Table("start", data.get("start", {}))
+    (sx, sy), origin = _point(start, None)
+    start_heading = start.number("heading_deg", None, lo=0.0, hi=360.0)
+    """True heading, degrees clockwise from north (None: from the first compass reading)."""
+    start.done()
+
+    if "goal" not in data and require_goal:
+        raise UserError("[goal] is required (lat_deg/lon_deg or x_m/y_m)")
+    gx = gy = 0.0
+    if "goal" in data:
+        goal_t = _Table("goal", data["goal"])
+        (gx, gy), _ = _point(goal_t, origin)
+        goal_t.done()
+
+    nav = _Table("navigation", data.get("navigation", {}))
+    method = nav.string("method", "hybrid", tuple(m.value for m in Method))
+    units = nav.string("units", "metric", tuple(u.value for u in Units))
+    nav_kwargs: dict[str, Any] = {"method": Method(method)}
+    for key in ("arrival_radius_m", "hybrid_switch_m", "lookahead_m", "landmark_pass_radius_m"):
+        if nav.has(key):
+            nav_kwargs[key] = nav.number(key, positive=True)
+    if nav.has("tabu_step_deg"):
+        nav_kwargs["tabu_step_rad"] = math.radians(nav.number("tabu_step_deg", lo=0.0) or 0.0)
+    straight_after = nav.number("straight_after_m", 25.0, positive=True)
+    uncertain_warn = nav.number("uncertain_warn_m", 50.0, positive=True)
+    stop_at_arrival = nav.boolean("stop_at_arrival", False)
+    nav.done()
+
+    est = _Table("estimator", data.get("estimator", {}))
+    compass_sigma: float | None
+    raw_sigma = est.get("compass_two_sigma_deg", 30.0)
+    if raw_sigma is False:
+        compass_sigma = None
+    else:
+        compass_sigma = est.number("compass_two_sigma_deg", 30.0, positive=True)
+    noise_model = est.string("model", "car", ("car", "paper"))
+    est_kwargs: dict[str, Any] = {"compass_two_sigma_deg": compass_sigma}
+    for key in (
+        "wheel_quantum_m",
+        "wheel_slip_frac",
+        "lost_major_axis_m",
+        "initial_position_sigma_m",
+        "initial_heading_sigma_deg",
+        "max_wheel_step_m",
+    ):
+        if est.has(key):
+            est_kwargs[key] = est.number(key, positive=True)
+    car_overrides: dict[str, float] = {}
+    for key in CAR_KEYS:
+        if est.has(key):
+            if noise_model != "car":
+                raise UserError(f'[estimator] {key} needs model = "car"')
+            car_overrides[key] = est.number(key, lo=0.0) or 0.0
+    est.done()
+
+    odometry = _device("odometry", data.get("odometry", {}), default_backend="can")
+    compass_table = data.get("compass", {})
+    compass = _device("compass", compass_table, default_backend="nmea_serial", default_enabled=True)
+    if compass is None:
+        compass_sigma = None
+        est_kwargs["compass_two_sigma_deg"] = None
+    ct = _Table("compass", compass_table)
+    mounting = ct.number("mounting_offset_deg", 0.0, lo=-180.0, hi=180.0) or 0.0
+    declination = ct.number("declination_deg", None, lo=-180.0, hi=180.0)
+    deviation = _deviation(ct.get("deviation_deg"))
+    unusable_after = ct.number("unusable_after_s", 20.0, positive=True) or 20.0
+    when = (
+        default_date
+        if ct.get("date") is None and default_date
+        else _date(ct.get("date"), "[compass] date")
+    )
+    if declination is None:
+        if compass is not None and origin is None:
+            raise UserError(
+                "[compass] declination_deg is required when [start] has no lat_deg/lon_deg "
+                "(the World Magnetic Model needs the place)"
+            )
+        if origin is not None:
+            from guidance.app.magnetic import declination_deg
+
+            declination = declination_deg(origin[0], origin[1], when)
+    if compass is None and start_heading is None:
+        raise UserError("[start] heading_deg is required when there is no compass")
+    camera = _device("camera", data.get("camera", {}), default_backend="opencv",
+                     default_enabled=False)  # fmt: skip
+
+    scene = _Table("scene", data.get("scene", {}))
+    keyboard = scene.boolean("keyboard", True)
+    scene.done()
+
+    voice_t = _Table("voice", data.get("voice", {}))
+    voice = VoiceSettings(
+        voice_t.string("backend", "auto", ("auto", "voice", "wav", "text", "none")),
+        voice_t.string("wav_path", ""),
+    )
+    if voice.backend == "wav" and not voice.wav_path:
+        raise UserError("[voice] wav_path is required with backend = 'wav'")
+    voice_t.done()
+
+    health_t = _Table("health", data.get("health", {}))
+    health = HealthConfig(
+        silence_periods=health_t.number("silence_periods", 5.0, positive=True) or 5.0,
+        min_timeout_s=health_t.number("min_timeout_s", 1.0, positive=True) or 1.0,
+        max_reject_fraction=health_t.number("max_reject_fraction", 0.5, lo=0.0, hi=1.0) or 0.5,
+    )
+    health_t.done()
+
+    loop = _Table("loop", data.get("loop", {}))
+    tick_hz = loop.number("tick_hz", 20.0, positive=True) or 20.0
+    state_rate = loop.number("state_rate_hz", 10.0, positive=True) or 10.0
+    health_period = loop.number("health_publish_period_s", 1.0, positive=True) or 1.0
+    max_lag = loop.number("max_lag_s", 0.5, positive=True) or 0.5
+    loop.done()
+
+    ck = _Table("checkpoint", data.get("checkpoint", {}))
+    ck_path = ck.string("path", "")
+    if ck_path and base_dir is not None and not Path(ck_path).is_absolute():
+        ck_path = str(base_dir / ck_path)
+    checkpoint = CheckpointSettings(
+        ck_path,
+        ck.number("interval_s", 5.0, positive=True) or 5.0,
+        ck.number("max_age_s", 600.0, positive=True) or 600.0,
+    )
+    ck.done()
+
+    tel_table = _table("telemetry", data.get("telemetry", {}))
+    tel_table.setdefault("vehicle_id", vehicle_id)
+    with _in_table("telemetry"):
+        telemetry = TelemetryConfig.from_mapping(tel_table, base_dir)
+    rec_table = _table("recording", data.get("recording", {}))
+    rec_table.setdefault("vehicle_id", vehicle_id)
+    with _in_table("recording"):
+        recording = RecordingConfig.from_mapping(rec_table, base_dir)
+
+    landmarks = _landmarks(data.get("landmarks", []), origin)
+
+    rates: dict[str, float | None] = {}
+    if odometry is not None:
+        rates["odometry"] = odometry.expected_rate_hz
+    if compass is not None:
+        rates["compass"] = compass.expected_rate_hz
+    if camera is not None:
+        rates["camera"] = camera.expected_rate_hz
+    profile_name = getattr(odometry.config, "profile", None) if odometry else None
+    if track is None:  # the vehicle profile knows the car's track (issue 12)
+        track = profile_track_m(profile_name) if isinstance(profile_name, str) else 1.72
+    est_kwargs["track_m"] = track
+    est_config = EstimatorConfig(**est_kwargs)
+    if noise_model == "car":
+        calibrated = bool(any(deviation) or mounting)
+        est_config = car_model(est_config, calibrated=calibrated, **car_overrides)
+    pipeline = PipelineConfig(
+        estimator=est_config,
+        navigator=NavigatorConfig(**nav_kwargs),
+        start_xy_m=(sx, sy),
+        goal_xy_m=(gx, gy),
+        start_heading_rad=(None if start_heading is None else math.radians(90.0 - start_heading)),
+        landmarks=landmarks,
+        declination_deg=declination or 0.0,
+        mounting_offset_deg=mounting,
+        compass_deviation_deg=deviation,
+        compass_unusable_after_s=unusable_after,
+        units=Units(units),
+        state_period_s=1.0 / state_rate,
+        expected_rates_hz=rates,
+        health=health,
+        straight_after_m=straight_after or 25.0,
+        uncertain_warn_m=uncertain_warn or 50.0,
+        stop_at_arrival=stop_at_arrival,
+    )
+    sim = data.get("sim", {})
+    if not isinstance(sim, Mapping):
+        raise UserError("[sim] must be a table")
+    return AppConfig(
+        path=path,
+        vehicle_id=vehicle_id,
+        pipeline=pipeline,
+        origin_lat_lon_deg=origin,
+        odometry=odometry,
+        compass=compass,
+        camera=camera,
+        keyboard=keyboard,
+        voice=voice,
+        telemetry=telemetry,
+        recording=recording,
+        checkpoint=checkpoint,
+        tick_hz=tick_hz,
+        health_publish_period_s=health_period,
+        max_loop_lag_s=max_lag,
+        sim=types.MappingProxyType(dict(sim)),
+    )
+
+
+def _landmarks(items: object, origin: tuple[float, float] | None) -> tuple[Landmark, ...]:
+    """``[[landmarks]]`` entries: id, name, and lat_deg/lon_deg or x_m/y_m."""
+    if not isinstance(items, list):
+        raise UserError("[[landmarks]] must be an array of tables")
+    out = []
+    seen: set[int] = set()
+    for i, item in enumerate(items):
+        t = _Table(f"landmarks.{i}", item)
+        lid = t.get("id", i)
+        if not isinstance(lid, int) or isinstance(lid, bool) or lid in seen:
+            raise UserError(f"[landmarks.{i}] id must be a unique integer, not {lid!r}")
+        seen.add(lid)
+        name = t.string("name", "")
+        if (t.has("lat_deg") or t.has("lon_deg")) and origin is None:
+            raise UserError(f"[landmarks.{i}] lat_deg/lon_deg need [start] lat_deg/lon_deg")
+        (x, y), _ = _point(t, origin)
+        t.done()
+        out.append(Landmark(lid, x, y, name))
+    return tuple(out)

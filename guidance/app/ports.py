@@ -1,0 +1,87 @@
+"""One interface per kind of device (HOUSE_STYLE); real and simulated devices implement them.
+
+A source owns its blocking I/O on its own thread and hands each message to the
+``sink`` it was started with; the application's sink forwards it to the event
+loop with ``loop.call_soon_threadsafe``. Sources count what they read and what
+they rejected, by reason, in ``stats()``; a bad byte is a counted rejection,
+never an exception out of ``start``/``stop``.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Mapping, Sequence
+from typing import Protocol, runtime_checkable
+
+from guidance.core.messages import (
+    CameraFrame,
+    CompassHeading,
+    IntersectionScene,
+    LandmarkFix,
+    TurnCompleted,
+    WheelOdometry,
+)
+
+
+@runtime_checkable
+class OdometrySource(Protocol):
+    name: str
+
+    def start(self, sink: Callable[[WheelOdometry], None]) -> None: ...
+    def stop(self) -> None: ...
+    def stats(self) -> Mapping[str, int]: ...
+
+
+@runtime_checkable
+class CompassSource(Protocol):
+    name: str
+
+    def start(self, sink: Callable[[CompassHeading], None]) -> None: ...
+    def stop(self) -> None: ...
+    def stats(self) -> Mapping[str, int]: ...
+
+
+@runtime_checkable
+class CameraSource(Protocol):
+    name: str
+
+    def start(self, sink: Callable[[CameraFrame], None]) -> None: ...
+    def stop(self) -> None: ...
+    def stats(self) -> Mapping[str, int]: ...
+
+
+@runtime_checkable
+class RoadwayScene(Protocol):
+    """Tells the app that an intersection is coming and which exits it has, and what was taken."""
+
+    name: str
+
+    def start(self, sink: Callable[[IntersectionScene | TurnCompleted], None]) -> None: ...
+    def stop(self) -> None: ...
+    def stats(self) -> Mapping[str, int]: ...
+
+
+@runtime_checkable
+class LandmarkRecogniser(Protocol):
+    """Matches a camera frame against the landmarks gated by the current estimate.
+
+    ``mean_xy`` and ``cov_xy`` are the estimated position and its 2x2
+    covariance (row-major tuples). Returns a fix or None; reasons for
+    rejections are counted in ``stats()``.
+    """
+
+    def recognise(
+        self,
+        frame: CameraFrame,
+        mean_xy: tuple[float, float],
+        cov_xy: Sequence[Sequence[float]],
+    ) -> LandmarkFix | None: ...
+
+    def stats(self) -> Mapping[str, int]: ...
+
+
+@runtime_checkable
+class Speaker(Protocol):
+    """Speaks (or writes) driver prompts; never blocks the caller."""
+
+    def say(self, text: str, priority: int = 0, t_s: float | None = None) -> None: ...
+    def close(self) -> None: ...

@@ -1,0 +1,1 @@
+"""The pure core: messages, math, estimator, navigator, prompts, pipeline (no I/O)."""

@@ -1,0 +1,461 @@
+"""Pose estimator: an extended Kalman filter on filterpy (SPEC section 2).
+
+Plain synchronous code with one entry point, ``process(msg)``, which takes a
+timestamped input and returns what happened. No I/O, no clock reads: time comes
+from the messages, so live driving, accelerated simulation and replay run the
+same code. The math lives in ``guidance.model`` (shared with the study engine);
+this module adds bookkeeping: time ordering, gates, counters, health, resets.
+"""
+
+from __future__ import annotations
+
+import math
+from collections import Counter
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+from filterpy.kalman import ExtendedKalmanFilter
+
+from guidance.core import model
+from guidance.core.messages import Ellipse, EstimateState, HeadingFix, LandmarkFix, WheelOdometry
+
+Input = WheelOdometry | HeadingFix | LandmarkFix
+
+
+@dataclass(frozen=True, slots=True)
+class EstimatorConfig:
+    """Sensor noise and gate settings. Defaults: the reference car (2007 Tahoe)."""
+
+    track_m: float = 1.72
+    """Rear track width, m (Tahoe GMT900: 1.72 m)."""
+    wheel_quantum_m: float = 0.02
+    """Distance resolution of one wheel increment, m (one encoder count)."""
+    wheel_slip_frac: float = 0.01
+    """1-sigma slip as a fraction of each wheel increment."""
+    compass_two_sigma_deg: float | None = 30.0
+    """Compass 2-sigma error, degrees; None when no compass is fitted."""
+    compass_gate_chi2: float = model.CHI2_1D_P999
+    """Heading gate: residual d^2 above this (1 dof, P = 0.999) is rejected."""
+    landmark_gate_chi2: float = model.CHI2_2D_P99
+    """Landmark gate: d^2 above this (2 dof, P = 0.99) is rejected."""
+    lost_major_axis_m: float = 100.0
+    """Lost when the full 2-sigma major axis exceeds this (about one city block)."""
+    initial_position_sigma_m: float = 1.0
+    initial_heading_sigma_deg: float = 1.0
+    max_wheel_step_m: float = 20.0
+    """Sanity limit: a single odometry increment above this is rejected."""
+    interference_detection: bool = True
+    """Reject compass readings while their innovations say the field is disturbed.
+
+    Inflating their variance instead was tried: the heading still converges to
+    the biased field over a block (docs/reliability.md has the comparison)."""
+    interference_alpha: float = 0.15
+    """Weight of each reading in the NIS level (about 7 readings of memory)."""
+    interference_on_nis: float = 4.0
+    """Level above which the compass is considered disturbed (modelled value: 1)."""
+    interference_off_nis: float = 2.0
+    """Level below which it is trusted again."""
+    # -- the car model (docs/estimation.md); all zero = the paper's white-noise model ----------
+    wheel_walk_var_m2_per_m: float = 0.0
+    """Variance per metre of each wheel's distance (a random walk: independent of the rate)."""
+    scale_sigma: float = 0.0
+    """Prior 1-sigma of the common wheel-speed scale error, a fraction (a state when > 0)."""
+    diff_sigma: float = 0.0
+    """Prior 1-sigma of the right-minus-left wheel scale difference, a fraction."""
+    diff_walk_var_per_m: float = 0.0
+    """Random-walk variance of that difference per metre (tyre temperature, load, camber)."""
+    compass_bias_sigma_deg: float = 0.0
+    """Prior 1-sigma of the compass bias (uncalibrated: large; calibrated: the fit residual)."""
+    compass_bias_walk_deg2_per_s: float = 0.0
+    """Random-walk variance of the compass bias per second (drift of the car's own field)."""
+    compass_bias_turn_deg2_per_rad: float = 0.0
+    """Bias variance added per radian of heading change (the deviation curve left after
+    calibration changes with heading)."""
+
+    @property
+    def car_model(self) -> bool:
+        """True when the persistent errors are states (6-state filter)."""
+        return self.scale_sigma > 0.0 or self.diff_sigma > 0.0 or self.compass_bias_sigma_deg > 0.0
+
+    @property
+    def n_state(self) -> int:
+        return model.N_STATE_CAR if self.car_model else model.N_STATE
+
+
+CAR_MODEL: dict[str, float] = {
+    "wheel_quantum_m": 0.0,
+    "wheel_slip_frac": 0.0,
+    "wheel_walk_var_m2_per_m": 5e-6,
+    "scale_sigma": 0.01,
+    "diff_sigma": 3e-4,
+    "diff_walk_var_per_m": 1e-10,
+    "compass_bias_walk_deg2_per_s": 0.15,
+}
+"""The car model's defaults (``[estimator] model = "car"``); each value's reason and the
+real-drive figures behind it are in docs/estimation.md. Wheel speeds on CAN are speeds, not
+tick counts, so there is no per-increment quantisation; the random part of the wheel noise is
+a walk in distance (2.2 mm per sqrt(m) per wheel); a common scale error of 1 % (tyre wear and
+pressure; real drives: -0.9 %, +0.7 %) and a left/right difference of 0.03 % (0.1 mm of
+rolling radius; real drives: 0.039 %, 0.032 %) are states; the compass bias drifts 3 degrees
+a minute (real RAV4: about 3 degrees after the first 20 s)."""
+CAR_COMPASS_UNCALIBRATED = {"compass_bias_sigma_deg": 60.0, "compass_bias_turn_deg2_per_rad": 250.0}
+"""No deviation card: real in-car magnetometers read 40-90 degrees off, and the uncorrected
+deviation changes by about 20 degrees over a quarter turn."""
+CAR_COMPASS_CALIBRATED = {"compass_bias_sigma_deg": 5.0, "compass_bias_turn_deg2_per_rad": 16.0}
+"""With a deviation card from ``guidance calibrate``: about the fit's residual (2-5 degrees)."""
+
+
+def car_model(base: EstimatorConfig, *, calibrated: bool, **overrides: float) -> EstimatorConfig:
+    """``base`` with the car model's defaults, then the config's own values (``overrides``)."""
+    from dataclasses import replace
+
+    values: dict[str, Any] = dict(CAR_MODEL)
+    if base.compass_two_sigma_deg is not None:
+        values.update(CAR_COMPASS_CALIBRATED if calibrated else CAR_COMPASS_UNCALIBRATED)
+    values.update(overrides)
+    return replace(base, **values)
+
+
+BIAS_TURN_STEP_RAD = math.radians(10.0)
+"""The bias grows with heading changes counted in steps of this size, so that the wiggles of a
+straight drive (which cancel) do not add up as if they were turns."""
+
+
+@dataclass(frozen=True, slots=True)
+class StepResult:
+    """What one input did to the estimate."""
+
+    kind: str
+    accepted: bool
+    reason: str | None = None
+    mahalanobis_sq: float | None = None
+
+
+class _Ekf(ExtendedKalmanFilter):
+    """filterpy's EKF with the odometry motion model as its state transition."""
+
+    x: np.ndarray
+
+    def predict_x(self, u: np.ndarray) -> None:
+        x, y, th = model.motion_predict(self.x[0], self.x[1], self.x[2], u[0], u[1])
+        nxt = np.array(self.x, dtype=float)
+        nxt[0], nxt[1], nxt[2] = x, y, th
+        self.x = nxt
+
+
+def _h_heading(x: np.ndarray) -> np.ndarray:
+    if x.shape[0] > model.STATE_BIAS:
+        return np.array([x[2] + x[model.STATE_BIAS]])
+    return np.array([x[2]])
+
+
+def _H_heading(x: np.ndarray) -> np.ndarray:
+    if x.shape[0] > model.STATE_BIAS:
+        return _H_HEADING_CAR
+    return _H_HEADING
+
+
+def _h_position(x: np.ndarray) -> np.ndarray:
+    return np.array([x[0], x[1]])
+
+
+def _H_position(x: np.ndarray) -> np.ndarray:
+    if x.shape[0] > model.N_STATE:
+        return _H_POSITION_CAR
+    return _H_POSITION
+
+
+def _heading_residual(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    return np.array([model.heading_residual(float(a[0]), float(b[0]))])
+
+
+_H_HEADING = np.array([[0.0, 0.0, 1.0]])
+_H_POSITION = np.array([[1.0, 0.0, 0.0], [0.0, 1.0, 0.0]])
+_H_HEADING_CAR = np.array([[0.0, 0.0, 1.0, 0.0, 0.0, 1.0]])
+_H_POSITION_CAR = np.hstack([_H_POSITION, np.zeros((2, 3))])
+
+
+class PoseEstimator:
+    """EKF over (x, y, theta) of the rear-axle centre."""
+
+    def __init__(
+        self,
+        config: EstimatorConfig | None = None,
+        x_m: float = 0.0,
+        y_m: float = 0.0,
+        heading_rad: float = 0.0,
+    ) -> None:
+        self.config = config or EstimatorConfig()
+        self.n = self.config.n_state
+        self._kf = _Ekf(dim_x=self.n, dim_z=1)
+        self._kf.x = np.zeros(self.n)
+        self.rejections: Counter[str] = Counter()
+        self.accepted: Counter[str] = Counter()
+        self.resets = 0
+        self.healthy = True
+        self._last_t: float | None = None
+        self._turn_rad = 0.0
+        self.interference_level = 1.0
+        self.interference = False
+        """True while compass readings are judged magnetically disturbed (and rejected)."""
+        self.set_pose(x_m, y_m, heading_rad)
+
+    # -- state -------------------------------------------------------------
+    def set_pose(
+        self,
+        x_m: float,
+        y_m: float,
+        heading_rad: float,
+        covariance: np.ndarray | None = None,
+    ) -> None:
+        """Put the car at a known pose (start, or a checkpoint) with the given covariance."""
+        cfg = self.config
+        x = np.array(self._kf.x, dtype=float)
+        x[0], x[1], x[2] = x_m, y_m, model.wrap_angle(heading_rad)
+        self._kf.x = x
+        if covariance is None:
+            sp = cfg.initial_position_sigma_m
+            sh = math.radians(cfg.initial_heading_sigma_deg)
+            covariance = np.diag([sp * sp, sp * sp, sh * sh])
+        cov = np.array(covariance, dtype=float)
+        if cov.shape == (self.n, self.n):
+            self._kf.P = cov
+        else:  # a pose covariance for the car model: the error states keep their priors
+            P = self.prior_covariance()
+            P[:3, :3] = cov.reshape(3, 3)
+            self._kf.P = P
+
+    def prior_covariance(self) -> np.ndarray:
+        """The starting covariance of every state (pose block: the initial sigmas)."""
+        cfg = self.config
+        sp = cfg.initial_position_sigma_m
+        sh = math.radians(cfg.initial_heading_sigma_deg)
+        diag = [sp * sp, sp * sp, sh * sh]
+        if self.n > model.N_STATE:
+            sb = math.radians(cfg.compass_bias_sigma_deg)
+            diag += [cfg.scale_sigma**2, cfg.diff_sigma**2, sb * sb]
+        return np.diag(diag)
+
+    def set_state(self, x: np.ndarray, P: np.ndarray) -> None:
+        """Restore a whole state (a checkpoint); a pose-only (3-state) one is embedded."""
+        x = np.asarray(x, dtype=float).ravel()
+        P = np.asarray(P, dtype=float)
+        if x.shape[0] == self.n and P.shape == (self.n, self.n):
+            self._kf.x = x.copy()
+            self._kf.x[2] = model.wrap_angle(float(x[2]))
+            self._kf.P = P.copy()
+            return
+        if x.shape[0] < 3 or P.shape[0] < 3 or P.shape[0] != P.shape[1]:
+            raise ValueError(f"state of size {x.shape[0]} cannot fill a {self.n}-state filter")
+        self.set_pose(float(x[0]), float(x[1]), float(x[2]), P[:3, :3])
+
+    def heading_from_compass(self, theta_rad: float, compass_var: float) -> None:
+        """Take the heading from a compass reading (no heading known yet).
+
+        The compass measures heading + bias, so the heading inherits the bias uncertainty and
+        is anti-correlated with the bias state."""
+        x, P = self.x, self.P
+        if self.n > model.N_STATE:
+            b = model.STATE_BIAS
+            theta = model.wrap_angle(theta_rad - x[b])
+            P[2, :] = 0.0
+            P[:, 2] = 0.0
+            P[2, 2] = compass_var + P[b, b]
+            P[2, b] = P[b, 2] = -P[b, b]
+        else:
+            theta = theta_rad
+            P[2, 2] = compass_var
+        self.set_pose(float(x[0]), float(x[1]), theta, P)
+
+    def reset(self, x_m: float = 0.0, y_m: float = 0.0, heading_rad: float = 0.0) -> None:
+        """Start over at a known pose, forgetting time order and counters."""
+        self.set_pose(x_m, y_m, heading_rad)
+        self._last_t = None
+        self.rejections.clear()
+        self.accepted.clear()
+        self.resets = 0
+        self.healthy = True
+        self.interference_level = 1.0
+        self.interference = False
+
+    @property
+    def x(self) -> np.ndarray:
+        return np.array(self._kf.x, dtype=float)
+
+    @property
+    def P(self) -> np.ndarray:
+        return np.array(self._kf.P, dtype=float)
+
+    @property
+    def last_t_s(self) -> float | None:
+        return self._last_t
+
+    def ellipse(self) -> Ellipse:
+        P = self._kf.P
+        a, b, ang = model.ellipse_axes(P[0, 0], P[0, 1], P[1, 1], model.CHI2_2D_2SIGMA)
+        return Ellipse(a, b, ang, 2.0 * a)
+
+    @property
+    def major_axis_m(self) -> float:
+        return float(model.major_axis_m(self._kf.P))
+
+    @property
+    def lost(self) -> bool:
+        return self.major_axis_m > self.config.lost_major_axis_m
+
+    def state(self) -> EstimateState:
+        x = self._kf.x
+        P = self._kf.P
+        return EstimateState(
+            t_s=self._last_t if self._last_t is not None else 0.0,
+            x_m=float(x[0]),
+            y_m=float(x[1]),
+            heading_rad=float(x[2]),
+            covariance=tuple((float(r[0]), float(r[1]), float(r[2])) for r in P[:3]),
+            ellipse=self.ellipse(),
+            lost=self.lost,
+            healthy=self.healthy,
+        )
+
+    # -- the one entry point ------------------------------------------------
+    def process(self, msg: Input) -> StepResult:
+        """Apply one timestamped input; out-of-order and bad inputs are rejected and counted."""
+        kind = type(msg).__name__
+        if not math.isfinite(msg.t_s):
+            return self._reject(kind, "non_finite_time")
+        if self._last_t is not None and msg.t_s < self._last_t:
+            return self._reject(kind, "out_of_order")
+        x_before, P_before = self._kf.x.copy(), self._kf.P.copy()
+        if isinstance(msg, WheelOdometry):
+            result = self._predict(msg)
+        elif isinstance(msg, HeadingFix):
+            result = self._update_heading(msg)
+        elif isinstance(msg, LandmarkFix):
+            result = self._update_landmark(msg)
+        else:  # pragma: no cover - typing forbids it
+            return self._reject(kind, "unknown_input")
+        if result.accepted:
+            self._last_t = msg.t_s
+            self.accepted[kind] += 1
+            if not self._check_finite(x_before, P_before):
+                return StepResult(kind, False, "non_finite_state_reset", result.mahalanobis_sq)
+            if kind != "WheelOdometry":
+                self.healthy = True  # an absolute measurement re-anchored the estimate
+        return result
+
+    # -- internals ------------------------------------------------------------
+    def _reject(self, kind: str, reason: str, d2: float | None = None) -> StepResult:
+        self.rejections[reason] += 1
+        return StepResult(kind, False, reason, d2)
+
+    def _predict(self, msg: WheelOdometry) -> StepResult:
+        cfg = self.config
+        dl, dr = msg.d_left_m, msg.d_right_m
+        kind = "WheelOdometry"
+        if not (math.isfinite(dl) and math.isfinite(dr)):
+            return self._reject(kind, "non_finite_input")
+        if abs(dl) > cfg.max_wheel_step_m or abs(dr) > cfg.max_wheel_step_m:
+            return self._reject(kind, "implausible_odometry")
+        car = self.n > model.N_STATE
+        x = self._kf.x
+        raw_l, raw_r = dl, dr
+        if car:
+            dl, dr = model.corrected_wheels(dl, dr, float(x[model.STATE_SCALE]),
+                                            float(x[model.STATE_DIFF]))  # fmt: skip
+        d, dth = model.odometry_increment(dl, dr, cfg.track_m)
+        F, G, Q = np.empty((3, 3)), np.empty((3, 2)), np.empty((3, 3))
+        model.motion_jacobians(float(x[2]), dl, dr, cfg.track_m, F, G)
+        var_l = model.wheel_noise_var(dl, cfg.wheel_quantum_m, cfg.wheel_slip_frac)
+        var_r = model.wheel_noise_var(dr, cfg.wheel_quantum_m, cfg.wheel_slip_frac)
+        if cfg.wheel_walk_var_m2_per_m > 0.0:
+            var_l += model.wheel_walk_var(dl, cfg.wheel_walk_var_m2_per_m)
+            var_r += model.wheel_walk_var(dr, cfg.wheel_walk_var_m2_per_m)
+        model.process_noise(G, var_l, var_r, Q)
+        if car:
+            Fc, Qc = np.eye(self.n), np.zeros((self.n, self.n))
+            Fc[:3, :3] = F
+            model.scale_jacobian(G, raw_l, raw_r, Fc)
+            Qc[:3, :3] = Q
+            Qc[model.STATE_DIFF, model.STATE_DIFF] = cfg.diff_walk_var_per_m * abs(d)
+            dt = 0.0 if self._last_t is None else max(0.0, msg.t_s - self._last_t)
+            walk = cfg.compass_bias_walk_deg2_per_s * dt
+            self._turn_rad += dth
+            turn = 0.0
+            if abs(self._turn_rad) >= BIAS_TURN_STEP_RAD:  # a heading change, not a wiggle
+                turn = cfg.compass_bias_turn_deg2_per_rad * abs(self._turn_rad)
+                self._turn_rad = 0.0
+            Qc[model.STATE_BIAS, model.STATE_BIAS] = math.radians(1.0) ** 2 * (walk + turn)
+            F, Q = Fc, Qc
+        self._kf.F = F
+        self._kf.Q = Q
+        self._kf.predict(u=np.array([d, dth]))
+        return StepResult(kind, True)
+
+    def _update_heading(self, msg: HeadingFix) -> StepResult:
+        cfg = self.config
+        kind = "HeadingFix"
+        if cfg.compass_two_sigma_deg is None:
+            return self._reject(kind, "no_compass_configured")
+        if not math.isfinite(msg.theta_rad):
+            return self._reject(kind, "non_finite_input")
+        var = model.two_sigma_deg_to_var(cfg.compass_two_sigma_deg)
+        R = np.array([[var]])
+        y, S = model.heading_innovation(self._kf.x, self._kf.P, msg.theta_rad, var)
+        d2 = y * y / S
+        if cfg.interference_detection:
+            self.interference_level, self.interference = model.interference_update(
+                self.interference_level,
+                self.interference,
+                d2,
+                cfg.interference_alpha,
+                cfg.interference_on_nis,
+                cfg.interference_off_nis,
+            )
+            if self.interference:
+                return self._reject(kind, "magnetic_interference", d2)
+        if d2 > cfg.compass_gate_chi2:
+            return self._reject(kind, "compass_gate", d2)
+        self._kf.update(
+            np.array([msg.theta_rad]), _H_heading, _h_heading, R=R, residual=_heading_residual
+        )
+        self._kf.x[2] = model.wrap_angle(float(self._kf.x[2]))
+        return StepResult(kind, True, None, d2)
+
+    def _update_landmark(self, msg: LandmarkFix) -> StepResult:
+        cfg = self.config
+        kind = "LandmarkFix"
+        if not (
+            math.isfinite(msg.x_m)
+            and math.isfinite(msg.y_m)
+            and math.isfinite(msg.sigma_m)
+            and msg.sigma_m > 0.0
+        ):
+            return self._reject(kind, "non_finite_input")
+        var = msg.sigma_m**2
+        R = np.eye(2) * var
+        z = np.array([msg.x_m, msg.y_m])
+        y0, y1, s00, s01, s11 = model.position_innovation(
+            self._kf.x, self._kf.P, msg.x_m, msg.y_m, var
+        )
+        d2 = model.mahalanobis_sq_2d(y0, y1, s00, s01, s11)
+        if d2 > cfg.landmark_gate_chi2:
+            return self._reject(kind, "landmark_gate", d2)
+        self._kf.update(z, _H_position, _h_position, R=R)
+        self._kf.x[2] = model.wrap_angle(float(self._kf.x[2]))
+        return StepResult(kind, True, None, d2)
+
+    def _check_finite(self, x_before: np.ndarray, P_before: np.ndarray) -> bool:
+        """After a non-finite result, go back to the last finite pose with a "lost" covariance."""
+        if np.all(np.isfinite(self._kf.x)) and np.all(np.isfinite(self._kf.P)):
+            return True
+        big = self.config.lost_major_axis_m**2
+        cov = self.prior_covariance()
+        cov[0, 0], cov[1, 1], cov[2, 2] = big, big, math.pi**2
+        if np.all(np.isfinite(P_before)):
+            cov = np.maximum(cov, P_before)
+        self.set_pose(float(x_before[0]), float(x_before[1]), float(x_before[2]), cov)
+        self.resets += 1
+        self.healthy = False
+        self.rejections["non_finite_state_reset"] += 1
+        return False

@@ -1,0 +1,238 @@
+"""Input health on the message clock (SPEC section 6; openpilot's SubMaster alive/valid),
+and the drivers' device health record.
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+from collections import deque
+from collections.abc import Mapping
+from dataclasses import dataclass, field
+from typing import Any
+
+from guidance.core.messages import HealthChange, InputStatus
+
+log = logging.getLogger(__name__)
+
+# ----------------------------------------------------------------------------- health
+
+
+RATE_WINDOW_S = 2.0
+"""Input rates are measured over this much message time."""
+
+
+@dataclass(frozen=True, slots=True)
+class HealthConfig:
+    silence_periods: float = 5.0
+    """An input is dead after this many expected periods without a message..."""
+    min_timeout_s: float = 1.0
+    """...but never sooner than this."""
+    max_reject_fraction: float = 0.5
+    """Invalid when more than this fraction of what a source read was rejected recently."""
+    min_reads_for_validity: int = 5
+
+
+class HealthMonitor:
+    """Alive / valid / rate of each input, evaluated on the message clock (pure)."""
+
+    def __init__(
+        self, expected_rates_hz: Mapping[str, float | None], config: HealthConfig | None = None
+    ) -> None:
+        self.config = config or HealthConfig()
+        self.expected = dict(expected_rates_hz)
+        self._last: dict[str, float | None] = dict.fromkeys(self.expected)
+        self._times: dict[str, deque[float]] = {k: deque() for k in self.expected}
+        self._status: dict[str, InputStatus] = {}
+        self._counts: dict[str, tuple[int, int]] = {}
+        self._valid: dict[str, tuple[bool, str]] = {}
+        self._judged: dict[str, tuple[bool, str]] = {}
+        self._start: float | None = None
+
+    def observe(self, name: str, t_s: float) -> None:
+        if name not in self.expected:
+            return
+        if self._start is None:
+            self._start = t_s
+        self._last[name] = t_s
+        q = self._times[name]
+        q.append(t_s)
+        while q and q[0] < t_s - RATE_WINDOW_S:
+            q.popleft()
+
+    def update_counts(self, name: str, read: int, rejected: int) -> None:
+        """Cumulative counts from the source (``stats()``): validity from the recent fraction."""
+        if name not in self.expected:
+            return
+        prev_read, prev_rej = self._counts.get(name, (0, 0))
+        self._counts[name] = (read, rejected)
+        d_read, d_rej = read - prev_read, rejected - prev_rej
+        if d_read < self.config.min_reads_for_validity:
+            return
+        frac = d_rej / d_read if d_read else 0.0
+        ok = frac <= self.config.max_reject_fraction
+        self._valid[name] = (ok, "" if ok else f"garbled: {frac:.0%} rejected")
+
+    def judge(self, name: str, ok: bool, why: str = "") -> None:
+        """The consumer's verdict on an input's data (e.g. a compass the filter keeps
+        rejecting): invalid with ``why`` until judged ok again."""
+        if name in self.expected:
+            self._judged[name] = (ok, "" if ok else why)
+
+    def timeout_s(self, name: str) -> float:
+        rate = self.expected.get(name)
+        if not rate:
+            return math.inf
+        return max(self.config.min_timeout_s, self.config.silence_periods / rate)
+
+    def status(self, name: str, t_s: float) -> InputStatus:
+        last = self._last.get(name)
+        rate = self.expected.get(name)
+        q = self._times.get(name, deque())
+        window = min(RATE_WINDOW_S, t_s - self._start) if self._start is not None else 0.0
+        measured = len(q) / window if window > 0.5 else 0.0
+        age = None if last is None else max(0.0, t_s - last)
+        if rate is None:  # event-driven input (scene, landmarks): always alive
+            alive, detail = True, ""
+        elif last is None:
+            started = self._start is not None and t_s - self._start > self.timeout_s(name)
+            alive, detail = not started, ("silent since start" if started else "")
+        else:
+            alive = age is not None and age <= self.timeout_s(name)
+            detail = "" if alive else f"silent for {age:.1f} s"
+        valid, why = self._valid.get(name, (True, ""))
+        if not valid:
+            detail = f"{detail}; {why}" if detail else why
+        judged, why = self._judged.get(name, (True, ""))
+        if not judged:
+            valid = False
+            detail = f"{detail}; {why}" if detail else why
+        return InputStatus(name, alive, valid, measured, age, rate, detail)
+
+    def evaluate(self, t_s: float) -> list[HealthChange]:
+        """Statuses whose alive/valid flags flipped since the last evaluation."""
+        if self._start is None:  # the clock starts at the first message or tick
+            self._start = t_s
+        changes = []
+        for name in self.expected:
+            st = self.status(name, t_s)
+            old = self._status.get(name)
+            self._status[name] = st
+            if old is None:
+                if not (st.alive and st.valid):
+                    changes.append(HealthChange(t_s, st))
+            elif (old.alive, old.valid) != (st.alive, st.valid):
+                changes.append(HealthChange(t_s, st))
+        return changes
+
+    def statuses(self, t_s: float) -> dict[str, InputStatus]:
+        return {name: self.status(name, t_s) for name in self.expected}
+
+
+STATUSES = ("starting", "ok", "silent", "disconnected", "invalid", "ended", "stopped")
+"""'starting': started, nothing yet and not overdue; 'silent': no data for ``stale_after_s``;
+'disconnected': the device cannot be opened or was lost; 'invalid': data arrives but too much of
+it is rejected; 'ended': a recorded source (file) reached its end; 'stopped': not running."""
+BAD_STATUSES = frozenset({"silent", "disconnected", "invalid"})
+
+VALIDITY_WINDOW = 20
+"""Recent units of data over which the rejection fraction is measured."""
+MAX_REJECTED_FRACTION = 0.5
+"""More rejected than this (of the window) makes the input invalid."""
+
+
+@dataclass(frozen=True, slots=True)
+class DeviceHealth:
+    """A driver's health at one moment (``health()``); ``as_dict`` for telemetry and logs."""
+
+    name: str
+    status: str
+    alive: bool
+    """Data arrived within the driver's ``stale_after_s``."""
+    valid: bool
+    """An accepted message arrived within ``stale_after_s`` and the recent rejection fraction
+    is at most ``MAX_REJECTED_FRACTION``."""
+    age_s: float | None = None
+    """Seconds since the last accepted message (driver clock); None before the first."""
+    counters: Mapping[str, int] = field(default_factory=dict)
+    last_error: str = ""
+    warning: str = ""
+    """What to tell the driver while the status is bad; empty when there is nothing to say."""
+
+    @property
+    def ok(self) -> bool:
+        return self.alive and self.valid
+
+    def as_dict(self) -> dict[str, Any]:
+        return {
+            "name": self.name,
+            "status": self.status,
+            "alive": self.alive,
+            "valid": self.valid,
+            "ok": self.ok,
+            "age_s": self.age_s,
+            "counters": dict(self.counters),
+            "last_error": self.last_error,
+            "warning": self.warning,
+        }
+
+
+UNUSABLE = "unusable"
+"""Marks a status detail that says the consumer cannot use the input's data."""
+
+
+class CompassJudge:
+    """Is the compass usable? The fraction of its readings the filter rejected, over a window
+    of message time (issue 12: a real, uncalibrated compass was rejected 99-100 % of the time
+    while its health stayed alive and valid).
+
+    Unusable when more than ``on_fraction`` of the readings of the last ``window_s`` were
+    rejected (and the window is full); usable again when fewer than ``off_fraction`` were.
+    The reason names the dominant rejection: ``interference`` (the NIS detector), ``gated`` (the
+    chi-square gate), or ``uncalibrated`` when the car has no compass calibration at all.
+    """
+
+    def __init__(
+        self,
+        window_s: float = 20.0,
+        *,
+        calibrated: bool = False,
+        on_fraction: float = 0.8,
+        off_fraction: float = 0.5,
+    ) -> None:
+        self.window_s = window_s
+        self.calibrated = calibrated
+        self.on_fraction = on_fraction
+        self.off_fraction = off_fraction
+        self._log: deque[tuple[float, bool, str]] = deque()
+        self.unusable = False
+        self.reason = ""
+
+    def add(self, t_s: float, accepted: bool, reason: str | None) -> None:
+        self._log.append((t_s, accepted, reason or ""))
+        while self._log and self._log[0][0] < t_s - self.window_s:
+            self._log.popleft()
+
+    def verdict(self, t_s: float) -> tuple[bool, str]:
+        """(usable, why) after the readings so far."""
+        log_ = self._log
+        if len(log_) < 5 or t_s - log_[0][0] < 0.9 * self.window_s:
+            return (not self.unusable, self._why())
+        rejected = [r for _, ok, r in log_ if not ok]
+        frac = len(rejected) / len(log_)
+        if not self.unusable and frac > self.on_fraction:
+            self.unusable = True
+            top = max(set(rejected), key=rejected.count)
+            if not self.calibrated:
+                self.reason = "uncalibrated"
+            elif top == "magnetic_interference":
+                self.reason = "interference"
+            else:
+                self.reason = "gated"
+        elif self.unusable and frac < self.off_fraction:
+            self.unusable = False
+            self.reason = ""
+        return (not self.unusable, self._why())
+
+    def _why(self) -> str:
+        return f"{UNUSABLE}: {self.reason}" if self.unusable else ""

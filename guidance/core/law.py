@@ -1,0 +1,178 @@
+"""The intersection decision law and the navigator's bookkeeping math (SPEC section 3).
+
+Plain numba-compiled functions on floats and arrays: ``guidance.navigator``
+wraps them for the in-car app, and ``hal_sim.engine`` calls the very same
+functions inside its compiled trial loop.
+
+Decision law::
+
+    i* = argmin_i ( |wrap(theta_i - phi_i)| + gamma_i )
+
+``theta_i`` is the heading after taking exit i, ``phi_i`` the bearing from the
+estimated position just after the intersection (``lookahead_m`` along exit i)
+to the target, ``gamma_i`` the tabu penalty: ``step * (times exit i was already
+taken at this intersection)``.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+from numba import njit
+
+from guidance.core.model import wrap_angle
+
+MODE_GOAL = 0
+MODE_LANDMARK = 1
+
+METHOD_STRAIGHT_TO_GOAL = 0
+METHOD_LANDMARK_TO_LANDMARK = 1
+METHOD_HYBRID = 2
+METHOD_NAMES = ("straight_to_goal", "landmark_to_landmark", "hybrid")
+
+
+@njit(cache=True, error_model="numpy")
+def exit_costs(
+    x: float,
+    y: float,
+    exit_headings: np.ndarray,
+    target_x: float,
+    target_y: float,
+    penalties: np.ndarray,
+    lookahead_m: float,
+    out: np.ndarray,
+) -> int:
+    """Fill ``out[i]`` with the cost of exit i; return the index of the cheapest exit."""
+    best = -1
+    best_cost = math.inf
+    for i in range(exit_headings.shape[0]):
+        th = exit_headings[i]
+        px = x + lookahead_m * math.cos(th)
+        py = y + lookahead_m * math.sin(th)
+        phi = math.atan2(target_y - py, target_x - px)
+        c = abs(wrap_angle(th - phi)) + penalties[i]
+        out[i] = c
+        if c < best_cost:
+            best_cost = c
+            best = i
+    return best
+
+
+@njit(cache=True, error_model="numpy")
+def match_intersection(
+    x: float,
+    y: float,
+    pxx: float,
+    pxy: float,
+    pyy: float,
+    mem_xy: np.ndarray,
+    n_mem: int,
+    gate_chi2: float,
+    floor_var_m2: float,
+) -> int:
+    """Index of the remembered intersection this one is a revisit of, or -1.
+
+    A remembered intersection matches when its squared Mahalanobis distance from
+    the current estimate, under the current position covariance (plus a floor
+    for the size of an intersection), is within ``gate_chi2``; the nearest such
+    one wins. So recognition gets less selective as the ellipse grows.
+    """
+    a = pxx + floor_var_m2
+    b = pxy
+    c = pyy + floor_var_m2
+    det = a * c - b * b
+    if det <= 0.0:
+        return -1
+    best = -1
+    best_d2 = gate_chi2
+    for k in range(n_mem):
+        dx = mem_xy[k, 0] - x
+        dy = mem_xy[k, 1] - y
+        d2 = (c * dx * dx - 2.0 * b * dx * dy + a * dy * dy) / det
+        if d2 <= best_d2:
+            best_d2 = d2
+            best = k
+    return best
+
+
+@njit(cache=True, error_model="numpy")
+def exit_penalties(
+    exit_headings: np.ndarray,
+    mem_headings: np.ndarray,
+    mem_counts: np.ndarray,
+    k: int,
+    step_rad: float,
+    match_tol_rad: float,
+    out: np.ndarray,
+) -> None:
+    """Tabu penalty per exit: ``step * count`` of the same exit taken before at intersection k."""
+    for i in range(exit_headings.shape[0]):
+        out[i] = 0.0
+        if k < 0:
+            continue
+        for j in range(mem_headings.shape[1]):
+            if mem_counts[k, j] > 0 and abs(wrap_angle(exit_headings[i] - mem_headings[k, j])) <= (
+                match_tol_rad
+            ):
+                out[i] = step_rad * mem_counts[k, j]
+                break
+
+
+@njit(cache=True, error_model="numpy")
+def record_exit(
+    mem_headings: np.ndarray, mem_counts: np.ndarray, k: int, heading: float, match_tol_rad: float
+) -> None:
+    """Count one more use of the exit with ``heading`` at remembered intersection k."""
+    free = -1
+    for j in range(mem_headings.shape[1]):
+        if mem_counts[k, j] > 0:
+            if abs(wrap_angle(heading - mem_headings[k, j])) <= match_tol_rad:
+                mem_counts[k, j] += 1
+                return
+        elif free < 0:
+            free = j
+    if free >= 0:
+        mem_headings[k, free] = heading
+        mem_counts[k, free] = 1
+
+
+@njit(cache=True, error_model="numpy")
+def landmark_target(
+    x: float,
+    y: float,
+    goal_x: float,
+    goal_y: float,
+    lm_xy: np.ndarray,
+    passed: np.ndarray,
+) -> int:
+    """Nearest not-yet-passed landmark that is closer to the goal than the car, or -1 (the goal)."""
+    d_goal = math.hypot(goal_x - x, goal_y - y)
+    best = -1
+    best_d = math.inf
+    for k in range(lm_xy.shape[0]):
+        if passed[k]:
+            continue
+        if math.hypot(goal_x - lm_xy[k, 0], goal_y - lm_xy[k, 1]) >= d_goal:
+            continue
+        d = math.hypot(lm_xy[k, 0] - x, lm_xy[k, 1] - y)
+        if d < best_d:
+            best_d = d
+            best = k
+    return best
+
+
+@njit(cache=True, error_model="numpy")
+def next_mode(
+    method: int, mode: int, major_axis_m: float, switch_m: float, landmark_update: bool
+) -> int:
+    """Which target mode the method uses now (hybrid switches on the major axis)."""
+    if method == METHOD_STRAIGHT_TO_GOAL:
+        return MODE_GOAL
+    if method == METHOD_LANDMARK_TO_LANDMARK:
+        return MODE_LANDMARK
+    if mode == MODE_GOAL and major_axis_m > switch_m:
+        return MODE_LANDMARK
+    if mode == MODE_LANDMARK and landmark_update and major_axis_m <= switch_m:
+        return MODE_GOAL
+    return mode

@@ -1,0 +1,197 @@
+"""Messages that cross package boundaries: frozen, slotted dataclasses, SI units in field names.
+
+Drivers (real or simulated) produce the input messages; the estimator and the
+navigator consume them; telemetry, recording and prompts consume the outputs.
+Timestamps ``t_s`` are monotonic seconds taken from the message source (CAN
+frame time, NMEA line arrival, simulated clock), never read from a clock inside
+``guidance``.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from enum import IntEnum
+from typing import TYPE_CHECKING
+
+if TYPE_CHECKING:
+    from guidance.core.navigator import Decision
+
+
+@dataclass(frozen=True, slots=True)
+class WheelOdometry:
+    """Rear-wheel distance increments since the previous message (metres, signed)."""
+
+    t_s: float
+    d_left_m: float
+    d_right_m: float
+
+
+@dataclass(frozen=True, slots=True)
+class CompassHeading:
+    """A compass reading as it comes off the wire: degrees clockwise from north.
+
+    ``is_true`` is False for magnetic headings (HDG/HDM), which need the
+    declination added at the input edge; True for HDT.
+    """
+
+    t_s: float
+    heading_deg: float
+    is_true: bool = False
+
+
+@dataclass(frozen=True, slots=True)
+class LandmarkFix:
+    """A confirmed camera match: the landmark's known position measures the car's position."""
+
+    t_s: float
+    landmark_id: int
+    x_m: float
+    y_m: float
+    sigma_m: float
+
+
+@dataclass(frozen=True, slots=True)
+class IntersectionScene:
+    """An intersection the car is at (or approaching): the exits it offers.
+
+    ``exit_headings_rad`` are the headings (local frame, CCW from east) the car
+    will have after taking each exit. ``distance_m`` is the distance to it when
+    known (simulation), else None.
+    """
+
+    t_s: float
+    exit_headings_rad: tuple[float, ...]
+    distance_m: float | None = None
+    labels: tuple[str, ...] = field(default=())
+
+
+@dataclass(frozen=True, slots=True)
+class Ellipse:
+    """The 2-sigma position ellipse: semi-axes (m), orientation (rad from x) and full major axis."""
+
+    semi_major_m: float
+    semi_minor_m: float
+    orientation_rad: float
+    major_axis_m: float
+
+
+@dataclass(frozen=True, slots=True)
+class EstimateState:
+    """The estimator's published state."""
+
+    t_s: float
+    x_m: float
+    y_m: float
+    heading_rad: float
+    covariance: tuple[tuple[float, float, float], ...]
+    ellipse: Ellipse
+    lost: bool
+    healthy: bool
+
+
+@dataclass(frozen=True, slots=True, eq=False)
+class CameraFrame:
+    """One camera image (BGR or grey ``numpy`` array) with its capture time."""
+
+    t_s: float
+    image: object  # numpy.ndarray; kept as object so this module needs no numpy import
+    source: str = ""
+
+
+@dataclass(frozen=True, slots=True)
+class TurnCompleted:
+    """The driver took an exit: reported by the co-driver or detected from the heading change."""
+
+    t_s: float
+    heading_change_rad: float
+    source: str = "detected"
+
+
+@dataclass(frozen=True, slots=True)
+class HeadingFix:
+    """A heading measurement already in the filter frame (rad, CCW from east).
+
+    Drivers convert compass degrees with ``guidance.model.compass_to_heading``
+    (declination and mounting offset applied there, at the input edge).
+    """
+
+    t_s: float
+    theta_rad: float
+
+
+class Priority(IntEnum):
+    """Prompt tiers: a higher tier is spoken first and dropped last.
+
+    ``LOST`` is an alias of ``SAFETY``: "position lost" shares the top tier
+    with sensor and uncertainty warnings.
+    """
+
+    INFO = 0
+    GUIDANCE = 1
+    SAFETY = 2
+    LOST = 2
+
+    @classmethod
+    def of(cls, value: int) -> Priority:
+        """Clamp a plain int (the Speaker protocol's ``priority``) onto a tier."""
+        return cls(min(max(int(value), int(cls.INFO)), int(cls.SAFETY)))
+
+
+@dataclass(frozen=True, slots=True)
+class GoalUpdate:
+    """A new goal (local metres): from the operator, a remote monitor, or the field protocol."""
+
+    t_s: float
+    x_m: float
+    y_m: float
+    source: str = "operator"
+
+
+@dataclass(frozen=True, slots=True)
+class Approach:
+    """The distance to the intersection the pending decision is for (when it is known: the
+    simulator; a future map-free intersection detector). Drives the second announcement."""
+
+    t_s: float
+    distance_m: float
+
+
+@dataclass(frozen=True, slots=True)
+class Prompt:
+    """Something to tell the driver."""
+
+    t_s: float
+    text: str
+    priority: int
+    kind: str
+    """"turn", "landmark", "uncertain", "arrived", "lost", "sensor", "info"."""
+
+
+@dataclass(frozen=True, slots=True)
+class InputStatus:
+    """Health of one input (SPEC section 6; openpilot's SubMaster alive/valid)."""
+
+    name: str
+    alive: bool
+    valid: bool
+    rate_hz: float
+    age_s: float | None
+    expected_rate_hz: float | None
+    detail: str = ""
+
+
+@dataclass(frozen=True, slots=True)
+class HealthChange:
+    t_s: float
+    status: InputStatus
+
+
+@dataclass(frozen=True, slots=True)
+class ExitTaken:
+    """How a pending decision was resolved: which exit the driver actually took."""
+
+    t_s: float
+    decision: Decision
+    exit_index: int
+    followed: bool
+    source: str

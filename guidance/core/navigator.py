@@ -1,0 +1,285 @@
+"""Intersection navigator (SPEC section 3): which exit to take, toward which target, and why.
+
+The math (decision law, revisit matching, tabu penalties, landmark targets,
+hybrid switching) is in ``guidance.law`` and shared with the study engine; this
+class keeps the navigator's memory and returns each decision as a value that
+can be spoken, published and logged.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Sequence
+from dataclasses import dataclass
+from enum import StrEnum
+
+import numpy as np
+
+from guidance.core import law, model
+
+
+class Method(StrEnum):
+    STRAIGHT_TO_GOAL = "straight_to_goal"
+    LANDMARK_TO_LANDMARK = "landmark_to_landmark"
+    HYBRID = "hybrid"
+
+    @property
+    def code(self) -> int:
+        return law.METHOD_NAMES.index(self.value)
+
+
+@dataclass(frozen=True, slots=True)
+class NavigatorConfig:
+    method: Method = Method.STRAIGHT_TO_GOAL
+    tabu_step_rad: float = math.radians(60.0)
+    """Penalty added per earlier use of the same exit at the same intersection."""
+    lookahead_m: float = 10.0
+    """Bearings are taken from this far along each exit ("after the intersection")."""
+    arrival_radius_m: float = 30.0
+    hybrid_switch_m: float = 50.0
+    """Hybrid: landmarks when the major axis exceeds this, goal again after a fix below it."""
+    landmark_pass_radius_m: float = 20.0
+    """A landmark target counts as passed once the estimate comes this close (or it is seen)."""
+    revisit_gate_chi2: float = model.CHI2_2D_2SIGMA
+    """Revisit: a remembered intersection inside the current 2-sigma ellipse (86.5%)."""
+    revisit_floor_sigma_m: float = 8.0
+    """Floor on the revisit ellipse: an intersection is a patch of road, not a point."""
+    exit_match_tol_rad: float = math.radians(30.0)
+    max_intersections: int = 4096
+    max_exits: int = 8
+
+
+@dataclass(frozen=True, slots=True)
+class Landmark:
+    id: int
+    x_m: float
+    y_m: float
+    name: str = ""
+
+
+@dataclass(frozen=True, slots=True)
+class ExitOption:
+    index: int
+    heading_rad: float
+    turn_rad: float
+    """Turn relative to the current heading, CCW positive (left)."""
+    angle_cost_rad: float
+    penalty_rad: float
+    cost_rad: float
+
+
+@dataclass(frozen=True, slots=True)
+class Decision:
+    t_s: float
+    exit_index: int
+    exit_heading_rad: float
+    turn_rad: float
+    options: tuple[ExitOption, ...]
+    target_x_m: float
+    target_y_m: float
+    target_kind: str
+    """"goal" or "landmark"."""
+    target_id: int | None
+    intersection_id: int
+    revisit: bool
+    mode: str
+    reason: str
+
+
+class Navigator:
+    """Holds the goal, the landmarks, the intersection memory and the method's mode."""
+
+    def __init__(
+        self,
+        goal_xy: tuple[float, float],
+        config: NavigatorConfig | None = None,
+        landmarks: Sequence[Landmark] = (),
+    ) -> None:
+        self.config = config or NavigatorConfig()
+        self.goal = (float(goal_xy[0]), float(goal_xy[1]))
+        self.landmarks = tuple(landmarks)
+        self._lm_xy = np.array([[lm.x_m, lm.y_m] for lm in self.landmarks], dtype=float).reshape(
+            -1, 2
+        )
+        self._passed = np.zeros(len(self.landmarks), dtype=np.bool_)
+        n, k = self.config.max_intersections, self.config.max_exits
+        self._mem_xy = np.zeros((n, 2))
+        self._mem_headings = np.zeros((n, k))
+        self._mem_counts = np.zeros((n, k), dtype=np.int64)
+        self._n_mem = 0
+        self._mode = (
+            law.MODE_LANDMARK
+            if self.config.method is Method.LANDMARK_TO_LANDMARK
+            else (law.MODE_GOAL)
+        )
+        self.decisions = 0
+
+    # -- goal and landmarks ---------------------------------------------------
+    def set_goal(self, goal_xy: tuple[float, float]) -> None:
+        """A new goal (field protocol or a remote command): forget passed landmarks."""
+        self.goal = (float(goal_xy[0]), float(goal_xy[1]))
+        self._passed[:] = False
+
+    @property
+    def mode(self) -> str:
+        return "landmark" if self._mode == law.MODE_LANDMARK else "goal"
+
+    def arrived(self, x: np.ndarray) -> bool:
+        return math.hypot(self.goal[0] - x[0], self.goal[1] - x[1]) <= self.config.arrival_radius_m
+
+    def update_mode(self, major_axis_m: float, landmark_update: bool = False) -> None:
+        """Hybrid switching; call after each estimator step that matters (cheap)."""
+        self._mode = law.next_mode(
+            self.config.method.code,
+            self._mode,
+            major_axis_m,
+            self.config.hybrid_switch_m,
+            landmark_update,
+        )
+
+    def on_landmark_fix(self, landmark_id: int, major_axis_m: float) -> None:
+        """A landmark was seen: it is passed, and hybrid may return to the goal."""
+        for k, lm in enumerate(self.landmarks):
+            if lm.id == landmark_id:
+                self._passed[k] = True
+        self.update_mode(major_axis_m, landmark_update=True)
+
+    def target(self, x: np.ndarray) -> tuple[float, float, str, int | None]:
+        """The current target: (x, y, kind, landmark id or None)."""
+        if self._mode == law.MODE_LANDMARK and len(self.landmarks):
+            self._mark_passed(x)
+            k = law.landmark_target(
+                float(x[0]), float(x[1]), self.goal[0], self.goal[1], self._lm_xy, self._passed
+            )
+            if k >= 0:
+                lm = self.landmarks[k]
+                return lm.x_m, lm.y_m, "landmark", lm.id
+        return self.goal[0], self.goal[1], "goal", None
+
+    def _mark_passed(self, x: np.ndarray) -> None:
+        r = self.config.landmark_pass_radius_m
+        d = np.hypot(self._lm_xy[:, 0] - x[0], self._lm_xy[:, 1] - x[1])
+        self._passed |= d <= r
+
+    # -- the decision -------------------------------------------------------
+    def decide(
+        self, t_s: float, x: np.ndarray, P: np.ndarray, exit_headings: Sequence[float]
+    ) -> Decision:
+        """Choose an exit at an intersection reached at estimate ``x`` with covariance ``P``."""
+        cfg = self.config
+        if not exit_headings:
+            raise ValueError("an intersection needs at least one exit")
+        headings = np.array([model.wrap_angle(float(h)) for h in exit_headings])
+        self.update_mode(float(model.major_axis_m(P)))
+        k = law.match_intersection(
+            float(x[0]),
+            float(x[1]),
+            float(P[0, 0]),
+            float(P[0, 1]),
+            float(P[1, 1]),
+            self._mem_xy,
+            self._n_mem,
+            cfg.revisit_gate_chi2,
+            cfg.revisit_floor_sigma_m**2,
+        )
+        revisit = k >= 0
+        if not revisit:
+            k = self._remember(x)
+        penalties = np.zeros(len(headings))
+        law.exit_penalties(
+            headings,
+            self._mem_headings,
+            self._mem_counts,
+            k,
+            cfg.tabu_step_rad,
+            cfg.exit_match_tol_rad,
+            penalties,
+        )
+        tx, ty, kind, tid = self.target(x)
+        costs = np.zeros(len(headings))
+        best = law.exit_costs(
+            float(x[0]), float(x[1]), headings, tx, ty, penalties, cfg.lookahead_m, costs
+        )
+        law.record_exit(
+            self._mem_headings, self._mem_counts, k, headings[best], cfg.exit_match_tol_rad
+        )
+        self.decisions += 1
+        options = tuple(
+            ExitOption(
+                index=i,
+                heading_rad=float(h),
+                turn_rad=float(model.wrap_angle(h - float(x[2]))),
+                angle_cost_rad=float(costs[i] - penalties[i]),
+                penalty_rad=float(penalties[i]),
+                cost_rad=float(costs[i]),
+            )
+            for i, h in enumerate(headings)
+        )
+        chosen = options[best]
+        reason = (
+            f"exit {best} toward {kind}"
+            + (f" {tid}" if tid is not None else "")
+            + f": angle {math.degrees(chosen.angle_cost_rad):.0f} deg"
+            + (f" + tabu {math.degrees(chosen.penalty_rad):.0f} deg" if chosen.penalty_rad else "")
+            + (" (revisit)" if revisit else "")
+        )
+        return Decision(
+            t_s=t_s,
+            exit_index=best,
+            exit_heading_rad=chosen.heading_rad,
+            turn_rad=chosen.turn_rad,
+            options=options,
+            target_x_m=tx,
+            target_y_m=ty,
+            target_kind=kind,
+            target_id=tid,
+            intersection_id=int(k),
+            revisit=revisit,
+            mode=self.mode,
+            reason=reason,
+        )
+
+    def _remember(self, x: np.ndarray) -> int:
+        if self._n_mem >= self.config.max_intersections:
+            # Memory full: forget the oldest half (a long drive; those are far behind).
+            half = self._n_mem // 2
+            for arr in (self._mem_xy, self._mem_headings, self._mem_counts):
+                arr[: self._n_mem - half] = arr[half : self._n_mem]
+                arr[self._n_mem - half : self._n_mem] = 0
+            self._n_mem -= half
+        k = self._n_mem
+        self._mem_xy[k] = (x[0], x[1])
+        self._n_mem += 1
+        return k
+
+    @property
+    def remembered_intersections(self) -> int:
+        return self._n_mem
+
+    # -- checkpointing --------------------------------------------------------
+    def memory(self) -> dict[str, object]:
+        """The navigator's memory as plain data (for checkpoints)."""
+        n = self._n_mem
+        return {
+            "goal": list(self.goal),
+            "mode": self._mode,
+            "passed": self._passed.tolist(),
+            "mem_xy": self._mem_xy[:n].tolist(),
+            "mem_headings": self._mem_headings[:n].tolist(),
+            "mem_counts": self._mem_counts[:n].tolist(),
+        }
+
+    def restore(self, memory: dict[str, object]) -> None:
+        goal = memory["goal"]
+        assert isinstance(goal, list)
+        self.goal = (float(goal[0]), float(goal[1]))
+        self._mode = int(memory["mode"])  # type: ignore[call-overload]
+        self._passed[:] = np.asarray(memory["passed"], dtype=np.bool_)
+        xy = np.asarray(memory["mem_xy"], dtype=float).reshape(-1, 2)
+        n = len(xy)
+        width = self._mem_headings.shape[1]
+        self._n_mem = n
+        self._mem_xy[:n] = xy
+        self._mem_headings[:n] = np.asarray(memory["mem_headings"], dtype=float).reshape(n, width)
+        self._mem_counts[:n] = np.asarray(memory["mem_counts"], dtype=np.int64).reshape(n, width)
+        self._mem_counts[n:] = 0

@@ -1,0 +1,631 @@
+"""The in-car core as a pure, message-driven object: timestamped messages in, outputs out.
+
+``Pipeline.feed(msg)`` takes one input (wheel odometry, compass reading, heading fix,
+landmark fix, intersection scene, turn report, new goal) and returns what it caused:
+decisions, prompts, landmark updates, turns, health changes, and the state when it is due.
+No I/O, no clock reads, no asyncio: the time is the message's ``t_s``. The live app
+(``guidance.app``), the accelerated simulation (``hal_sim.drive``), replay
+(``guidance.replay``) and the tests all drive this same object, so they compute the same thing.
+
+The order of work inside one input follows the reference trial (``hal_sim.reference``):
+estimator step, navigator mode update, lost / arrival checks, then a decision if the input
+was an intersection. ``snapshot``/``restore`` give the whole state as plain data (checkpoints).
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+from collections import Counter
+from collections.abc import Mapping, Sequence
+from dataclasses import asdict, dataclass, field
+
+import numpy as np
+
+from guidance.core import prompts
+from guidance.core.announce import due_announcements
+from guidance.core.compass_cal import CompassCalibration
+from guidance.core.estimator import EstimatorConfig, PoseEstimator
+from guidance.core.health import UNUSABLE, CompassJudge, HealthConfig, HealthMonitor
+from guidance.core.messages import (
+    Approach,
+    CompassHeading,
+    EstimateState,
+    ExitTaken,
+    GoalUpdate,
+    HeadingFix,
+    HealthChange,
+    InputStatus,
+    IntersectionScene,
+    LandmarkFix,
+    Priority,
+    Prompt,
+    TurnCompleted,
+    WheelOdometry,
+)
+from guidance.core.model import compass_to_heading, wrap_angle
+from guidance.core.navigator import Decision, Landmark, Navigator, NavigatorConfig
+from guidance.core.prompts import Units
+from guidance.core.turns import TurnDetector, TurnDetectorConfig
+
+log = logging.getLogger(__name__)
+
+
+UNCERTAIN_HYSTERESIS = 0.8
+"""The uncertainty warning re-arms once the major axis is back below this fraction of it."""
+HEALTH_EVAL_PERIOD_S = 0.25
+"""Health is re-evaluated at most this often on the message clock."""
+
+
+Input = (
+    WheelOdometry
+    | CompassHeading
+    | HeadingFix
+    | LandmarkFix
+    | IntersectionScene
+    | TurnCompleted
+    | GoalUpdate
+    | Approach
+)
+
+INPUT_KINDS: dict[type, str] = {
+    WheelOdometry: "odometry",
+    CompassHeading: "compass",
+    HeadingFix: "compass",
+    LandmarkFix: "landmark",
+    IntersectionScene: "scene",
+    TurnCompleted: "scene",
+    GoalUpdate: "goal",
+    Approach: "scene",
+}
+"""Which health record an input type feeds."""
+
+
+@dataclass(slots=True)
+class Outputs:
+    """What one input (or tick) caused."""
+
+    accepted: bool = True
+    reason: str | None = None
+    decisions: list[Decision] = field(default_factory=list)
+    prompts: list[Prompt] = field(default_factory=list)
+    landmark_updates: list[LandmarkFix] = field(default_factory=list)
+    landmark_rejections: list[tuple[LandmarkFix, str]] = field(default_factory=list)
+    turns: list[TurnCompleted] = field(default_factory=list)
+    exits_taken: list[ExitTaken] = field(default_factory=list)
+    health: list[HealthChange] = field(default_factory=list)
+    state: EstimateState | None = None
+    """The estimate, when a state publication is due (``state_period_s`` of message time)."""
+    arrived: bool = False
+    lost: bool = False
+
+
+# ----------------------------------------------------------------------------- the pipeline
+
+
+@dataclass(frozen=True, slots=True)
+class PipelineConfig:
+    """Everything the core needs; built from the TOML config (``guidance.config``) or the sim."""
+
+    estimator: EstimatorConfig
+    navigator: NavigatorConfig
+    start_xy_m: tuple[float, float]
+    goal_xy_m: tuple[float, float]
+    start_heading_rad: float | None = None
+    """None: taken from the first compass reading."""
+    landmarks: tuple[Landmark, ...] = ()
+    declination_deg: float = 0.0
+    mounting_offset_deg: float = 0.0
+    compass_deviation_deg: tuple[float, ...] = ()
+    """The compass deviation card A..E (``guidance calibrate``); empty: not calibrated."""
+    compass_unusable_after_s: float = 20.0
+    """A compass whose readings are mostly rejected for this long is reported unusable."""
+    units: Units = Units.METRIC
+    state_period_s: float = 0.1
+    expected_rates_hz: Mapping[str, float | None] = field(
+        default_factory=lambda: {"odometry": 50.0, "compass": 5.0}
+    )
+    health: HealthConfig = field(default_factory=HealthConfig)
+    turn_detector: TurnDetectorConfig = field(default_factory=TurnDetectorConfig)
+    straight_after_m: float = 25.0
+    """A decision with no turn reported this far past the intersection was 'straight on'."""
+    uncertain_warn_m: float = 50.0
+    """Say "position uncertain" when the major axis grows past this."""
+    stop_at_arrival: bool = True
+    """Arrival ends guidance (the sim); otherwise the car waits for a new goal."""
+    resume_gap_inflation: bool = True
+    """After an odometry silence, inflate the position by the distance possibly driven."""
+
+    def describe(self) -> dict[str, object]:
+        """Plain data for the recording's session record and the checkpoint."""
+        return {
+            "estimator": asdict(self.estimator),
+            "navigator": {
+                k: (v.value if hasattr(v, "value") else v)
+                for k, v in asdict(self.navigator).items()
+            },
+            "start_xy_m": list(self.start_xy_m),
+            "goal_xy_m": list(self.goal_xy_m),
+            "start_heading_rad": self.start_heading_rad,
+            "landmarks": [asdict(lm) for lm in self.landmarks],
+            "declination_deg": self.declination_deg,
+            "mounting_offset_deg": self.mounting_offset_deg,
+            "compass_deviation_deg": list(self.compass_deviation_deg),
+            "compass_unusable_after_s": self.compass_unusable_after_s,
+            "units": self.units.value,
+            "state_period_s": self.state_period_s,
+            "expected_rates_hz": dict(self.expected_rates_hz),
+            "straight_after_m": self.straight_after_m,
+            "uncertain_warn_m": self.uncertain_warn_m,
+            "stop_at_arrival": self.stop_at_arrival,
+        }
+
+
+@dataclass(slots=True)
+class _Pending:
+    decision: Decision
+    heading_before_rad: float
+    resolve_at_odometer_m: float
+    announced: set[str] = field(default_factory=set)
+    """Announcements made for it: "now" (distance unknown), "early", "before"."""
+
+
+class Pipeline:
+    """Estimator + navigator + turn detector + health, driven by messages (see module doc)."""
+
+    def __init__(self, config: PipelineConfig) -> None:
+        self.config = config
+        heading = config.start_heading_rad
+        self.estimator = PoseEstimator(
+            config.estimator, config.start_xy_m[0], config.start_xy_m[1], heading or 0.0
+        )
+        self.heading_known = heading is not None
+        if not self.heading_known:
+            P = self.estimator.P
+            P[2, 2] = math.pi**2
+            P[0, 2] = P[2, 0] = P[1, 2] = P[2, 1] = 0.0
+            x = self.estimator.x
+            self.estimator.set_pose(float(x[0]), float(x[1]), 0.0, P)
+        self.navigator = Navigator(config.goal_xy_m, config.navigator, config.landmarks)
+        self.turns = TurnDetector(config.turn_detector)
+        self.health = HealthMonitor(config.expected_rates_hz, config.health)
+        dev = config.compass_deviation_deg
+        self._deviation = CompassCalibration(*dev) if any(dev) else None
+        self.compass_judge = CompassJudge(
+            config.compass_unusable_after_s,
+            calibrated=self._deviation is not None or config.mounting_offset_deg != 0.0,
+        )
+        self.counts: Counter[str] = Counter()
+        self.odometer_m = 0.0
+        self.speed_mps = 0.0
+        self.landmark_updates = 0
+        self.prompt_count = 0
+        self.arrived = False
+        self.finished = False
+        self.last_decision: Decision | None = None
+        self._pending: _Pending | None = None
+        self._last_t: float | None = None
+        self._last_odo_t: float | None = None
+        self._next_state_t = -math.inf
+        self._next_health_t = -math.inf
+        self._lost_said = False
+        self._uncertain_said = False
+        self._odometry_dead = False
+
+    # -- the one entry point ----------------------------------------------------------------
+    def feed(self, msg: Input) -> Outputs:
+        """Apply one timestamped input and return what it caused."""
+        out = Outputs()
+        t = msg.t_s
+        if not math.isfinite(t):
+            out.accepted, out.reason = False, "non_finite_time"
+            self.counts["rejected"] += 1
+            return out
+        kind = INPUT_KINDS.get(type(msg), "other")
+        self.counts[type(msg).__name__] += 1
+        self.health.observe(kind, t)
+        if self._last_t is None or t > self._last_t:
+            self._last_t = t
+        if isinstance(msg, GoalUpdate):
+            self._set_goal(msg, out)
+        elif self.finished:
+            out.accepted, out.reason = False, "finished"
+        elif isinstance(msg, WheelOdometry):
+            self._odometry(msg, out)
+        elif isinstance(msg, CompassHeading):
+            self._heading(self.compass_fix(msg), out)
+        elif isinstance(msg, HeadingFix):
+            self._heading(msg, out)
+        elif isinstance(msg, LandmarkFix):
+            self._landmark(msg, out)
+        elif isinstance(msg, IntersectionScene):
+            self._intersection(msg, out)
+        elif isinstance(msg, TurnCompleted):
+            self._turn(msg, out)
+        elif isinstance(msg, Approach):
+            self._approach(msg, out)
+        self._health(t, out, force=False)
+        return out
+
+    def tick(self, t_s: float) -> Outputs:
+        """Time passes with no input (a silent car): health only; the estimate is untouched."""
+        out = Outputs()
+        if math.isfinite(t_s):
+            self._health(t_s, out, force=True)
+        return out
+
+    def update_source_counts(self, name: str, read: int, rejected: int) -> None:
+        """Feed a source's cumulative read/rejected counts (garbled-input detection)."""
+        self.health.update_counts(name, read, rejected)
+
+    # -- inputs -------------------------------------------------------------------------------
+    def compass_fix(self, msg: CompassHeading) -> HeadingFix:
+        """A compass reading as a filter heading: mounting offset, then declination unless true."""
+        cfg = self.config
+        decl = 0.0 if msg.is_true else cfg.declination_deg
+        reading = msg.heading_deg
+        if self._deviation is not None:
+            reading = self._deviation.apply(reading)
+        return HeadingFix(msg.t_s, compass_to_heading(reading + cfg.mounting_offset_deg, decl))
+
+    def _odometry(self, msg: WheelOdometry, out: Outputs) -> None:
+        est = self.estimator
+        gap = None if self._last_odo_t is None else msg.t_s - self._last_odo_t
+        r = est.process(msg)
+        out.accepted, out.reason = r.accepted, r.reason
+        if not r.accepted:
+            return
+        d = 0.5 * (msg.d_left_m + msg.d_right_m)
+        if gap is not None and gap > 0:
+            self.speed_mps = abs(d) / gap
+            # Beyond the dead-input timeout (>= 1 s, the decoder's longest bridged gap) the
+            # distance driven meanwhile was not integrated: widen the estimate for it.
+            if self.config.resume_gap_inflation and gap > self.health.timeout_s("odometry"):
+                self._inflate_after_gap(gap, out)
+        self._last_odo_t = msg.t_s
+        self.odometer_m += abs(d)
+        x = est.x
+        turn = self.turns.update(msg.t_s, float(x[2]), self.odometer_m)
+        if turn is not None:
+            out.turns.append(turn)
+            self._resolve(turn.t_s, turn.heading_change_rad, "detected", out)
+        self._after_step(msg.t_s, out)
+
+    def _inflate_after_gap(self, gap_s: float, out: Outputs) -> None:
+        """Odometry came back after a silence: the car may have moved meanwhile (issue 7)."""
+        spread = max(self.speed_mps, 1.0) * gap_s  # 2-sigma: what the last speed covers
+        self.inflate_position(spread)
+        log.warning("odometry resumed after %.1f s: position inflated by %.0f m", gap_s, spread)
+        self.counts["gap_inflations"] += 1
+
+    def inflate_position(self, spread_m: float) -> None:
+        """Widen the position uncertainty by ``spread_m`` (a 2-sigma distance, both axes)."""
+        if not (math.isfinite(spread_m) and spread_m > 0):
+            return
+        est = self.estimator
+        P = est.P
+        var = (spread_m / 2.0) ** 2
+        P[0, 0] += var
+        P[1, 1] += var
+        x = est.x
+        est.set_pose(float(x[0]), float(x[1]), float(x[2]), P)
+
+    def _heading(self, fix: HeadingFix, out: Outputs) -> None:
+        est = self.estimator
+        if not self.heading_known and est.config.compass_two_sigma_deg is not None:
+            est.heading_from_compass(
+                fix.theta_rad, math.radians(est.config.compass_two_sigma_deg / 2.0) ** 2
+            )
+            self.heading_known = True
+            self.turns.reset()
+            log.info("initial heading from the compass: %.0f deg", math.degrees(fix.theta_rad))
+            self._after_step(fix.t_s, out)
+            return
+        r = est.process(fix)
+        out.accepted, out.reason = r.accepted, r.reason
+        self.compass_judge.add(fix.t_s, r.accepted, r.reason)
+        self.health.judge("compass", *self.compass_judge.verdict(fix.t_s))
+        self._after_step(fix.t_s, out)
+
+    def _landmark(self, fix: LandmarkFix, out: Outputs) -> None:
+        r = self.estimator.process(fix)
+        out.accepted, out.reason = r.accepted, r.reason
+        if r.accepted:
+            self.landmark_updates += 1
+            out.landmark_updates.append(fix)
+            self.navigator.on_landmark_fix(fix.landmark_id, self.estimator.major_axis_m)
+            name = next((lm.name for lm in self.config.landmarks if lm.id == fix.landmark_id), "")
+            self._say(out, fix.t_s, prompts.landmark_confirmed(name), Priority.INFO, "landmark")
+            self._after_step(fix.t_s, out, mode_done=True)
+        else:
+            out.landmark_rejections.append((fix, r.reason or "rejected"))
+            self._after_step(fix.t_s, out)
+
+    def _intersection(self, scene: IntersectionScene, out: Outputs) -> None:
+        if not scene.exit_headings_rad:
+            out.accepted, out.reason = False, "no_exits"
+            return
+        est = self.estimator
+        x = est.x
+        heading = float(x[2])
+        if self._pending is not None:  # a new intersection before the old one resolved
+            self._resolve(scene.t_s, None, "superseded", out)
+        to_b = scene.distance_m
+        if to_b is not None and math.isfinite(to_b):
+            at = np.array([x[0] + to_b * math.cos(x[2]), x[1] + to_b * math.sin(x[2]), x[2]])
+        else:
+            to_b = None
+            at = x
+        decision = self.navigator.decide(scene.t_s, at, est.P, scene.exit_headings_rad)
+        self.last_decision = decision
+        out.decisions.append(decision)
+        ahead = to_b or 0.0
+        self._pending = _Pending(
+            decision, heading, self.odometer_m + ahead + self.config.straight_after_m
+        )
+        if to_b is None:  # in the car: say it now, right after the exits are known
+            self._pending.announced.add("now")
+            text = prompts.decision_prompt(decision, None, self.config.units)
+            self._say(out, scene.t_s, text, Priority.GUIDANCE, "turn")
+        else:
+            self._announce(scene.t_s, to_b, out)
+
+    def _approach(self, msg: Approach, out: Outputs) -> None:
+        if self._pending is not None and math.isfinite(msg.distance_m):
+            self._announce(msg.t_s, msg.distance_m, out)
+
+    def _announce(self, t: float, distance_m: float, out: Outputs) -> None:
+        """Early and just-before announcements, scaled by speed (``guidance.voice``'s Organic
+        Maps timing). A "continue straight" gets one announcement only."""
+
+        pending = self._pending
+        assert pending is not None
+        d = pending.decision
+        due = due_announcements(distance_m, self.speed_mps, pending.announced)
+        if not due:
+            return
+        kind = due[0]
+        straight = prompts.manoeuvre(d.turn_rad) == "continue straight"
+        if kind == "before" and straight and pending.announced:
+            pending.announced.add("before")
+            return
+        pending.announced.add(kind)
+        text = prompts.decision_prompt(d, max(0.0, distance_m), self.config.units)
+        self._say(out, t, text, Priority.GUIDANCE, "turn")
+
+    def _turn(self, turn: TurnCompleted, out: Outputs) -> None:
+        out.turns.append(turn)
+        self._resolve(turn.t_s, turn.heading_change_rad, turn.source, out)
+        self.turns.reset()  # the co-driver's report replaces what the heading would show
+
+    def _set_goal(self, goal: GoalUpdate, out: Outputs) -> None:
+        if not (math.isfinite(goal.x_m) and math.isfinite(goal.y_m)):
+            out.accepted, out.reason = False, "non_finite_goal"
+            return
+        self.navigator.set_goal((goal.x_m, goal.y_m))
+        self.arrived = False
+        self.finished = False
+        self._say(out, goal.t_s, "New destination set", Priority.INFO, "info")
+
+    # -- after every estimator step -------------------------------------------------------------
+    def _after_step(self, t: float, out: Outputs, mode_done: bool = False) -> None:
+        est = self.estimator
+        major = est.major_axis_m
+        if not mode_done:
+            self.navigator.update_mode(major)
+        if self._pending is not None and self.odometer_m >= self._pending.resolve_at_odometer_m:
+            self._resolve(t, 0.0, "no_turn", out)
+        warn = self.config.uncertain_warn_m
+        if not self._uncertain_said and major > warn and not est.lost:
+            self._uncertain_said = True
+            self._say(out, t, prompts.position_uncertain(major, self.config.units), Priority.SAFETY,
+                      "uncertain")  # fmt: skip
+        elif self._uncertain_said and major < UNCERTAIN_HYSTERESIS * warn:
+            self._uncertain_said = False
+        if est.lost:
+            out.lost = True
+            if not self._lost_said:
+                self._lost_said = True
+                self._say(out, t, prompts.lost(), Priority.SAFETY, "lost")
+                if self.config.stop_at_arrival:
+                    self.finished = True
+        elif self._lost_said and major < UNCERTAIN_HYSTERESIS * est.config.lost_major_axis_m:
+            self._lost_said = False
+        if not est.lost and not self.arrived and self.navigator.arrived(est.x):
+            self.arrived = True
+            out.arrived = True
+            self._say(out, t, prompts.arrived(), Priority.GUIDANCE, "arrived")
+            if self.config.stop_at_arrival:
+                self.finished = True
+        if t >= self._next_state_t:
+            self._next_state_t = t + self.config.state_period_s
+            out.state = est.state()
+
+    def _resolve(self, t: float, change_rad: float | None, source: str, out: Outputs) -> None:
+        """Which exit did the driver take? Correct the navigator's memory if not the advised one."""
+        pending = self._pending
+        if pending is None:
+            if source != "no_turn":
+                log.info(
+                    "turn of %.0f deg with no intersection announced", math.degrees(change_rad or 0)
+                )
+            return
+        self._pending = None
+        d = pending.decision
+        if change_rad is None:  # superseded: assume the advice was followed
+            out.exits_taken.append(ExitTaken(t, d, d.exit_index, True, source))
+            return
+        actual_heading = wrap_angle(pending.heading_before_rad + change_rad)
+        best = min(d.options, key=lambda o: abs(wrap_angle(o.heading_rad - actual_heading))).index
+        followed = best == d.exit_index
+        out.exits_taken.append(ExitTaken(t, d, best, followed, source))
+        if not followed:
+            self.counts["advice_not_followed"] += 1
+            log.info(
+                "driver took exit %d, not the advised %d (%s): memory corrected",
+                best,
+                d.exit_index,
+                source,
+            )
+            self._correct_memory(d.intersection_id, d.exit_heading_rad, d.options[best].heading_rad)
+
+    def _correct_memory(self, k: int, advised_rad: float, taken_rad: float) -> None:
+        """Move one use at intersection k from the advised exit to the exit taken."""
+        mem = self.navigator.memory()
+        headings = mem["mem_headings"]
+        counts = mem["mem_counts"]
+        assert isinstance(headings, list) and isinstance(counts, list)
+        if not 0 <= k < len(counts):
+            return
+        tol = self.config.navigator.exit_match_tol_rad
+        row_h, row_c = headings[k], counts[k]
+        for j, (h, c) in enumerate(zip(row_h, row_c, strict=True)):
+            if c > 0 and abs(wrap_angle(advised_rad - h)) <= tol:
+                row_c[j] = c - 1
+                break
+        free = -1
+        for j, (h, c) in enumerate(zip(row_h, row_c, strict=True)):
+            if c > 0 and abs(wrap_angle(taken_rad - h)) <= tol:
+                row_c[j] = c + 1
+                break
+            if c <= 0 and free < 0:
+                free = j
+        else:
+            if free >= 0:
+                row_h[free] = taken_rad
+                row_c[free] = 1
+        self.navigator.restore(mem)
+
+    def _say(self, out: Outputs, t: float, text: str, priority: int, kind: str) -> None:
+        self.prompt_count += 1
+        out.prompts.append(Prompt(t, text, priority, kind))
+
+    def _health(self, t: float, out: Outputs, force: bool) -> None:
+        if not force and t < self._next_health_t:
+            return
+        self._next_health_t = t + HEALTH_EVAL_PERIOD_S
+        for change in self.health.evaluate(t):
+            out.health.append(change)
+            st = change.status
+            if st.alive and st.valid:
+                log.warning("%s is back (%.1f Hz)", st.name, st.rate_hz)
+                if st.name == "odometry":
+                    self._odometry_dead = False
+                continue
+            problem = "is silent" if not st.alive else "sends garbage"
+            log.warning("%s %s: %s", st.name, problem, st.detail)
+            text = prompts.sensor_warning(st.name, problem)
+            if st.alive and UNUSABLE in st.detail:
+                text = prompts.compass_unusable(st.detail)
+            self._say(out, t, text, Priority.SAFETY, "sensor")
+            if st.name == "odometry" and not st.alive:
+                self._odometry_dead = True
+
+    # -- views ----------------------------------------------------------------------------------
+    @property
+    def t_s(self) -> float | None:
+        return self._last_t
+
+    def state(self) -> EstimateState:
+        return self.estimator.state()
+
+    def target(self) -> tuple[float, float, str, int | None]:
+        return self.navigator.target(self.estimator.x)
+
+    def statuses(self, t_s: float) -> dict[str, InputStatus]:
+        return self.health.statuses(t_s)
+
+    # -- checkpoints ----------------------------------------------------------------------------
+    def snapshot(self) -> dict[str, object]:
+        """The whole state as JSON-able data (estimator, navigator memory, bookkeeping)."""
+        est = self.estimator
+        pending = None
+        if self._pending is not None:
+            pending = {
+                "decision": _decision_to_dict(self._pending.decision),
+                "heading_before_rad": self._pending.heading_before_rad,
+                "resolve_at_odometer_m": self._pending.resolve_at_odometer_m,
+                "announced": sorted(self._pending.announced),
+            }
+        return {
+            "x": est.x.tolist(),
+            "P": est.P.tolist(),
+            "last_t_s": est.last_t_s,
+            "heading_known": self.heading_known,
+            "navigator": self.navigator.memory(),
+            "turns": self.turns.snapshot(),
+            "odometer_m": self.odometer_m,
+            "speed_mps": self.speed_mps,
+            "landmark_updates": self.landmark_updates,
+            "prompt_count": self.prompt_count,
+            "decisions": self.navigator.decisions,
+            "arrived": self.arrived,
+            "finished": self.finished,
+            "pending": pending,
+            "lost_said": self._lost_said,
+            "uncertain_said": self._uncertain_said,
+            "counts": dict(self.counts),
+        }
+
+    def restore(self, snap: Mapping[str, object], *, same_clock: bool = True) -> None:
+        """Put the pipeline back where ``snapshot`` left it (after a crash).
+
+        ``same_clock``: the message clock continues from the snapshot's (the simulation, a
+        restart within one boot); False for the car in general, where the monotonic clock
+        may have restarted with the laptop, so the snapshot's times are not carried over.
+        """
+        est = self.estimator
+        est.set_state(np.asarray(snap["x"], dtype=float), np.asarray(snap["P"], dtype=float))
+        last = snap.get("last_t_s") if same_clock else None
+        if isinstance(last, int | float):
+            est._last_t = float(last)  # the estimator's time order survives the restart
+        self.heading_known = bool(snap.get("heading_known", True))
+        nav = snap["navigator"]
+        assert isinstance(nav, dict)
+        self.navigator.restore(nav)
+        self.navigator.decisions = int(snap.get("decisions", 0))  # type: ignore[call-overload]
+        turns = snap.get("turns")
+        if isinstance(turns, dict):
+            self.turns.restore(turns)
+        self.odometer_m = float(snap.get("odometer_m", 0.0))  # type: ignore[arg-type]
+        self.speed_mps = float(snap.get("speed_mps", 0.0))  # type: ignore[arg-type]
+        self.landmark_updates = int(snap.get("landmark_updates", 0))  # type: ignore[call-overload]
+        self.prompt_count = int(snap.get("prompt_count", 0))  # type: ignore[call-overload]
+        self.arrived = bool(snap.get("arrived", False))
+        self.finished = bool(snap.get("finished", False))
+        self._lost_said = bool(snap.get("lost_said", False))
+        self._uncertain_said = bool(snap.get("uncertain_said", False))
+        counts = snap.get("counts", {})
+        if isinstance(counts, dict):
+            self.counts = Counter({str(k): int(v) for k, v in counts.items()})
+        pending = snap.get("pending")
+        self._pending = None
+        if isinstance(pending, dict):
+            self._pending = _Pending(
+                _decision_from_dict(pending["decision"]),
+                float(pending["heading_before_rad"]),
+                float(pending["resolve_at_odometer_m"]),
+                set(pending.get("announced", [])),
+            )
+            self.last_decision = self._pending.decision
+        if isinstance(last, int | float):
+            self._last_t = float(last)
+            self._last_odo_t = float(last)
+
+
+def _decision_to_dict(d: Decision) -> dict[str, object]:
+    return asdict(d)
+
+
+def _decision_from_dict(data: object) -> Decision:
+    from guidance.core.navigator import ExitOption
+
+    assert isinstance(data, dict)
+    opts = tuple(ExitOption(**o) for o in data["options"])
+    fields_ = {k: v for k, v in data.items() if k != "options"}
+    return Decision(options=opts, **fields_)
+
+
+def exit_options_deg(decision: Decision) -> Sequence[float]:
+    """The turn of each option in degrees (for logs and the co-driver display)."""
+    return [math.degrees(o.turn_rad) for o in decision.options]

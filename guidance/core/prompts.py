@@ -1,0 +1,141 @@
+"""Driver phrases: pure functions from decisions and events to short spoken text.
+
+Speaking them is ``guidance.voice``'s job. Distances are rounded the way
+turn-by-turn voices round them (coarser as they grow), in metric or imperial.
+"""
+
+from __future__ import annotations
+
+import math
+from enum import StrEnum
+
+from guidance.core.navigator import Decision
+
+METRES_PER_FOOT = 0.3048
+METRES_PER_MILE = 1609.344
+
+THEN_MAX_GAP_M = 150.0
+"""Two turns closer than this are announced together ("..., then ...")."""
+
+
+class Units(StrEnum):
+    METRIC = "metric"
+    IMPERIAL = "imperial"
+
+
+def _round_to(value: float, step: float) -> float:
+    return max(step, math.floor(value / step + 0.5) * step)
+
+
+def _plural(n: float, one: str, many: str) -> str:
+    return one if n == 1 else many
+
+
+def format_distance(distance_m: float, units: Units = Units.METRIC) -> str:
+    """Round a distance for speech: '50 metres', '250 metres', '1.5 kilometres', '500 feet'."""
+    if not math.isfinite(distance_m) or distance_m < 0:
+        raise ValueError(f"distance must be finite and non-negative, got {distance_m}")
+    if units is Units.METRIC:
+        if distance_m < 100:
+            v = _round_to(distance_m, 10)
+            return f"{v:.0f} {_plural(v, 'metre', 'metres')}"
+        if distance_m < 975:
+            v = _round_to(distance_m, 50)
+            return f"{v:.0f} metres"
+        km = distance_m / 1000.0
+        if km < 9.95:
+            v = round(km, 1)
+            text = f"{v:.0f}" if v == int(v) else f"{v:.1f}"
+            return f"{text} {_plural(v, 'kilometre', 'kilometres')}"
+        v = float(round(km))
+        return f"{v:.0f} kilometres"
+    feet = distance_m / METRES_PER_FOOT
+    if feet < 1000:
+        v = _round_to(feet, 50)
+        return f"{v:.0f} feet"
+    miles = distance_m / METRES_PER_MILE
+    if miles < 9.95:
+        v = max(0.2, round(miles, 1))
+        text = f"{v:.0f}" if v == int(v) else f"{v:.1f}"
+        return f"{text} {_plural(v, 'mile', 'miles')}"
+    v = float(round(miles))
+    return f"{v:.0f} miles"
+
+
+def manoeuvre(turn_rad: float) -> str:
+    """Name a turn by its angle (CCW positive = left)."""
+    deg = math.degrees(turn_rad)
+    a = abs(deg)
+    side = "left" if deg > 0 else "right"
+    if a < 20:
+        return "continue straight"
+    if a < 60:
+        return f"bear {side}"
+    if a < 135:
+        return f"turn {side}"
+    if a < 170:
+        return f"turn sharp {side}"
+    return "make a U-turn"
+
+
+def turn_prompt(
+    turn_rad: float,
+    distance_m: float | None = None,
+    units: Units = Units.METRIC,
+    then_turn_rad: float | None = None,
+    then_gap_m: float | None = None,
+) -> str:
+    """'At the next intersection, turn left', 'In 200 metres, turn right', 'Continue straight'.
+
+    A second turn closer than ``THEN_MAX_GAP_M`` after the first is appended
+    ('..., then turn right').
+    """
+    action = manoeuvre(turn_rad)
+    if action == "continue straight" and distance_m is None:
+        text = "Continue straight"
+    elif distance_m is None:
+        text = f"At the next intersection, {action}"
+    else:
+        text = f"In {format_distance(distance_m, units)}, {action}"
+    if (
+        then_turn_rad is not None
+        and then_gap_m is not None
+        and then_gap_m <= THEN_MAX_GAP_M
+        and manoeuvre(then_turn_rad) != "continue straight"
+    ):
+        text += f", then {manoeuvre(then_turn_rad)}"
+    return text
+
+
+def decision_prompt(
+    decision: Decision, distance_m: float | None = None, units: Units = Units.METRIC
+) -> str:
+    """The phrase for a navigator decision."""
+    return turn_prompt(decision.turn_rad, distance_m, units)
+
+
+def landmark_confirmed(name: str = "") -> str:
+    return f"Landmark confirmed: {name}" if name else "Landmark confirmed"
+
+
+def position_uncertain(major_axis_m: float, units: Units = Units.METRIC) -> str:
+    return f"Position uncertain, within {format_distance(major_axis_m, units)}"
+
+
+def arrived() -> str:
+    return "You have arrived at your destination"
+
+
+def lost() -> str:
+    return "Position lost. Guidance is unreliable; stop when safe"
+
+
+def sensor_warning(sensor: str, problem: str) -> str:
+    return f"Warning: {sensor} {problem}"
+
+
+def compass_unusable(detail: str) -> str:
+    """The compass readings cannot be used (health detail ``unusable: <reason>``)."""
+    if "interference" in detail:
+        return "Compass unusable: magnetic interference. Steering by wheel odometry."
+    return "Compass unusable: calibrate it."

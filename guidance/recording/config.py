@@ -1,0 +1,94 @@
+"""The ``[recording]`` table."""
+
+from __future__ import annotations
+
+import logging
+import re
+from collections.abc import Mapping
+from dataclasses import dataclass, fields
+from pathlib import Path
+from typing import TYPE_CHECKING, Any
+
+from mcap.writer import CompressionType
+
+from guidance.errors import UserError
+
+if TYPE_CHECKING:
+    pass
+
+log = logging.getLogger(__name__)
+
+
+# -- configuration --------------------------------------------------------------------------------
+@dataclass(frozen=True, slots=True)
+class RecordingConfig:
+    """The ``[recording]`` table of the car's TOML config (docs/telemetry.md)."""
+
+    enabled: bool = True
+    directory: str = "recordings"
+    prefix: str = "drive"
+    vehicle_id: str = "car1"
+    chunk_size_bytes: int = 64 * 1024
+    flush_interval_s: float = 1.0
+    max_file_size_bytes: int = 64 * 1024 * 1024
+    max_file_duration_s: float = 600.0
+    max_total_size_bytes: int = 2 * 1024 * 1024 * 1024
+    queue_size: int = 4096
+    thumbnail_interval_s: float = 1.0
+    """At most one camera thumbnail this often (0: every frame; negative: none)."""
+    thumbnail_width_px: int = 160
+    compression: str = "zstd"
+    """"zstd", "lz4" or "none" (chunk compression; Foxglove reads all three)."""
+
+    def __post_init__(self) -> None:
+        if not re.match(r"^[A-Za-z0-9_.-]{1,64}$", self.prefix):
+            raise UserError(f"[recording] prefix {self.prefix!r}: use letters, digits, _ . -")
+        if self.compression not in ("zstd", "lz4", "none"):
+            raise UserError("[recording] compression must be zstd, lz4 or none")
+        positive = (
+            "chunk_size_bytes",
+            "flush_interval_s",
+            "max_file_size_bytes",
+            "max_file_duration_s",
+            "max_total_size_bytes",
+            "queue_size",
+            "thumbnail_width_px",
+        )
+        for name in positive:
+            if not getattr(self, name) > 0:
+                raise UserError(f"[recording] {name} must be > 0")
+        if self.max_total_size_bytes < self.max_file_size_bytes:
+            raise UserError("[recording] max_total_size_bytes must be >= max_file_size_bytes")
+
+    @classmethod
+    def from_mapping(
+        cls, table: Mapping[str, Any], base_dir: Path | None = None
+    ) -> RecordingConfig:
+        """Build from a parsed ``[recording]`` TOML table; ``directory`` is relative to base_dir."""
+        types = {f.name: f.type for f in fields(cls)}
+        unknown = sorted(set(table) - set(types))
+        if unknown:
+            raise UserError(f"[recording]: unknown key(s) {', '.join(unknown)}")
+        kwargs: dict[str, Any] = {}
+        for key, value in table.items():
+            want = types[key]
+            ok = {
+                "bool": isinstance(value, bool),
+                "int": isinstance(value, int) and not isinstance(value, bool),
+                "float": isinstance(value, int | float) and not isinstance(value, bool),
+                "str": isinstance(value, str),
+            }.get(str(want), False)
+            if not ok:
+                raise UserError(f"[recording] {key} must be {want}, not {value!r}")
+            kwargs[key] = float(value) if want == "float" else value
+        if base_dir is not None and "directory" in kwargs:
+            d = Path(kwargs["directory"])
+            kwargs["directory"] = str(d if d.is_absolute() else base_dir / d)
+        return cls(**kwargs)
+
+
+_COMPRESSION = {
+    "zstd": CompressionType.ZSTD,
+    "lz4": CompressionType.LZ4,
+    "none": CompressionType.NONE,
+}

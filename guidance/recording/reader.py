@@ -1,0 +1,180 @@
+"""Reading recordings, tolerant of damage."""
+
+from __future__ import annotations
+
+import heapq
+import json
+import logging
+import struct
+from collections.abc import Iterable, Iterator, Sequence
+from pathlib import Path
+from typing import TYPE_CHECKING, Any, NamedTuple
+
+from mcap.exceptions import McapError
+from mcap.reader import make_reader
+from mcap.records import Channel, Message, Schema
+from mcap.stream_reader import StreamReader
+
+from guidance.errors import UserError
+
+if TYPE_CHECKING:
+    pass
+
+log = logging.getLogger(__name__)
+
+
+# -- reading ------------------------------------------------------------------------------------
+class RecordedMessage(NamedTuple):
+    topic: str
+    t_s: float
+    data: dict[str, Any]
+
+
+def recording_files(source: str | Path | Sequence[str | Path]) -> list[Path]:
+    """The MCAP files of a recording: one file, a folder of rotated files, or a list."""
+    if isinstance(source, str | Path):
+        p = Path(source)
+        if p.is_dir():
+            files = sorted(p.glob("*.mcap"))
+            if not files:
+                raise UserError(f"no .mcap files in {p}")
+            return files
+        if not p.is_file():
+            raise UserError(f"recording not found: {p}")
+        return [p]
+    files = [Path(s) for s in source]
+    for p in files:
+        if not p.is_file():
+            raise UserError(f"recording not found: {p}")
+    return files
+
+
+class Reader:
+    """Messages of one MCAP file or a rotated set, as (topic, t_s, dict), in log-time order.
+
+    ``log_time_order=False`` gives them in the order they were written (the
+    order the application recorded them). Files cut short by a crash are read
+    up to the damage and listed in ``recovered``; messages that are not JSON
+    objects are skipped and counted in ``skipped``.
+    """
+
+    def __init__(
+        self,
+        source: str | Path | Sequence[str | Path],
+        *,
+        topics: Iterable[str] | None = None,
+        log_time_order: bool = True,
+    ) -> None:
+        self.files = recording_files(source)
+        self.topics = None if topics is None else frozenset(topics)
+        self.log_time_order = log_time_order
+        self.recovered: list[Path] = []
+        self.skipped = 0
+
+    def __iter__(self) -> Iterator[RecordedMessage]:
+        streams = [self._iter_file(p) for p in self.files]
+        if not self.log_time_order:
+            for stream in streams:
+                for _, msg in stream:
+                    yield msg
+            return
+        for _, msg in heapq.merge(*streams, key=lambda pair: pair[0]):
+            yield msg
+
+    def channels(self) -> dict[str, str]:
+        """Topic -> schema name over all files (readable summaries or a scan)."""
+        out: dict[str, str] = {}
+        for path in self.files:
+            with path.open("rb") as f:
+                summary = _summary(f)
+                if summary is not None:
+                    for ch in summary.channels.values():
+                        sch = summary.schemas.get(ch.schema_id)
+                        out.setdefault(ch.topic, sch.name if sch else "")
+                    continue
+                f.seek(0)
+                schemas: dict[int, str] = {}
+                for record in _records_until_damage(f):
+                    if isinstance(record, Schema):
+                        schemas[record.id] = record.name
+                    elif isinstance(record, Channel):
+                        out.setdefault(record.topic, schemas.get(record.schema_id, ""))
+        return out
+
+    def _iter_file(self, path: Path) -> Iterator[tuple[int, RecordedMessage]]:
+        with path.open("rb") as f:
+            summary = _summary(f)
+            if summary is not None and summary.chunk_indexes:
+                reader = make_reader(f)
+                for _schema_rec, channel, message in reader.iter_messages(
+                    topics=self.topics, log_time_order=self.log_time_order
+                ):
+                    rec = self._decode(channel.topic, message)
+                    if rec is not None:
+                        yield message.log_time, rec
+                return
+            if summary is None:
+                self.recovered.append(path)
+                log.info("recording %s has no summary (cut short?): reading up to the damage", path)
+            f.seek(0)
+            channels: dict[int, str] = {}
+            found: list[tuple[int, RecordedMessage]] = []
+            for record in _records_until_damage(f):
+                if isinstance(record, Channel):
+                    channels[record.id] = record.topic
+                elif isinstance(record, Message):
+                    topic = channels.get(record.channel_id)
+                    if topic is None or (self.topics is not None and topic not in self.topics):
+                        continue
+                    rec = self._decode(topic, record)
+                    if rec is not None:
+                        found.append((record.log_time, rec))
+            if self.log_time_order:
+                found.sort(key=lambda pair: pair[0])
+            yield from found
+
+    def _decode(self, topic: str, message: Message) -> RecordedMessage | None:
+        try:
+            data = json.loads(message.data)
+        except ValueError:
+            data = None
+        if not isinstance(data, dict):
+            self.skipped += 1
+            return None
+        t_s = data.get("t_s")
+        if not isinstance(t_s, int | float) or isinstance(t_s, bool):
+            t_s = message.log_time / 1e9
+        return RecordedMessage(topic, float(t_s), data)
+
+
+def read_messages(
+    source: str | Path | Sequence[str | Path], topics: Iterable[str] | None = None
+) -> Iterator[RecordedMessage]:
+    """Shortcut: ``Reader(source, topics=topics)`` iterated."""
+    return iter(Reader(source, topics=topics))
+
+
+def _summary(f: Any) -> Any:
+    """The file's summary section, or None when it has none or is cut short."""
+    try:
+        return make_reader(f).get_summary()
+    except Exception as exc:  # a cut-short file ends in arbitrary bytes: any parse error
+        log.debug("recording: no readable summary: %s", exc)
+        return None
+
+
+def _records_until_damage(f: Any) -> Iterator[Any]:
+    """MCAP records in file order, stopping quietly at a truncated or corrupt record."""
+    records = StreamReader(f, skip_magic=False).records
+    while True:
+        try:
+            record = next(records)
+        except StopIteration:
+            return
+        except (McapError, struct.error, ValueError, EOFError) as exc:
+            log.debug("recording: stopped at damaged record: %s", exc)
+            return
+        except Exception as exc:  # decompression errors come from zstd/lz4 with their own types
+            log.debug("recording: stopped at undecodable record: %s", exc)
+            return
+        yield record

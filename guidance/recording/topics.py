@@ -1,0 +1,109 @@
+"""Recording topics and their channel schemas."""
+
+from __future__ import annotations
+
+import errno
+import logging
+from collections.abc import Mapping, Sequence
+from typing import TYPE_CHECKING, Any
+
+from guidance.telemetry.messages import (
+    MESSAGE_SCHEMAS,
+)
+
+if TYPE_CHECKING:
+    pass
+
+log = logging.getLogger(__name__)
+
+
+LIBRARY = "guidance-recorder"
+_DISK_FULL_ERRNOS = {errno.ENOSPC, errno.EDQUOT, errno.EFBIG}
+
+
+# -- channel schemas ------------------------------------------------------------------------------
+def _schema(title: str, props: Mapping[str, Any], required: Sequence[str]) -> dict[str, Any]:
+    return {
+        "$schema": "http://json-schema.org/draft-07/schema#",
+        "title": title,
+        "type": "object",
+        "properties": dict(props),
+        "required": list(required),
+    }
+
+
+_T = {"type": "number", "description": "car monotonic clock (or simulated time), s"}
+INPUT_SCHEMAS: dict[str, dict[str, Any]] = {
+    "can": _schema(
+        "guidance.can_frame",
+        {
+            "t_s": _T,
+            "id": {"type": "integer", "description": "arbitration id"},
+            "data_hex": {"type": "string"},
+            "is_extended_id": {"type": "boolean"},
+            "is_error_frame": {"type": "boolean"},
+            "channel": {"type": "string"},
+        },
+        ["t_s", "id", "data_hex"],
+    ),
+    "nmea": _schema(
+        "guidance.nmea_line",
+        {"t_s": _T, "line": {"type": "string"}, "port": {"type": "string"}},
+        ["t_s", "line"],
+    ),
+    "camera": _schema(
+        "guidance.camera_frame",
+        {
+            "t_s": _T,
+            "source": {"type": "string"},
+            "width_px": {"type": ["integer", "null"]},
+            "height_px": {"type": ["integer", "null"]},
+            "file_ref": {"type": "string", "description": "path of the full frame, if saved"},
+            "thumbnail": {"type": "boolean", "description": "a /camera/thumbnail went with it"},
+        },
+        ["t_s"],
+    ),
+    "thumbnail": _schema(
+        "foxglove.CompressedImage",
+        {
+            "timestamp": {
+                "type": "object",
+                "properties": {"sec": {"type": "integer"}, "nsec": {"type": "integer"}},
+            },
+            "frame_id": {"type": "string"},
+            "data": {"type": "string", "contentEncoding": "base64"},
+            "format": {"type": "string"},
+            "t_s": _T,
+        },
+        ["timestamp", "frame_id", "data", "format"],
+    ),
+    "scene": _schema(
+        "guidance.scene",
+        {
+            "t_s": _T,
+            "kind": {"type": "string", "enum": ["intersection", "turn"]},
+            "exit_headings_rad": {"type": "array", "items": {"type": "number"}},
+            "distance_m": {"type": ["number", "null"]},
+            "labels": {"type": "array", "items": {"type": "string"}},
+            "heading_change_rad": {"type": ["number", "null"]},
+            "source": {"type": "string"},
+        },
+        ["t_s", "kind"],
+    ),
+}
+
+TOPICS: dict[str, dict[str, Any]] = {
+    "/can": INPUT_SCHEMAS["can"],
+    "/nmea": INPUT_SCHEMAS["nmea"],
+    "/camera": INPUT_SCHEMAS["camera"],
+    "/camera/thumbnail": INPUT_SCHEMAS["thumbnail"],
+    "/scene": INPUT_SCHEMAS["scene"],
+    "/state": MESSAGE_SCHEMAS["state"],
+    "/decision": MESSAGE_SCHEMAS["decision"],
+    "/prompt": MESSAGE_SCHEMAS["prompt"],
+    "/landmark": MESSAGE_SCHEMAS["landmark"],
+    "/health": MESSAGE_SCHEMAS["health"],
+}
+"""Topic -> JSON Schema (its ``title`` is the MCAP schema name). Other topics get a bare one."""
+INPUT_TOPICS = ("/can", "/nmea", "/camera", "/scene")
+OUTPUT_TOPICS = ("/state", "/decision", "/prompt", "/landmark", "/health")

@@ -1,0 +1,163 @@
+"""The ``[telemetry]`` table: endpoints, mode, TLS (no zenoh)."""
+
+from __future__ import annotations
+
+import logging
+from collections.abc import Mapping
+from dataclasses import dataclass, fields
+from pathlib import Path
+from typing import TYPE_CHECKING, Any
+
+from guidance.errors import UserError
+from guidance.telemetry.keys import _ENDPOINT_RE, _MODES, DEFAULT_LISTEN, validate_vehicle_id
+
+if TYPE_CHECKING:
+    pass
+
+log = logging.getLogger(__name__)
+
+
+# -- configuration --------------------------------------------------------------------------------
+@dataclass(frozen=True, slots=True)
+class TlsConfig:
+    """TLS for ``tls/`` endpoints: this node's certificate and the CA that signs its peers.
+
+    ``certificate``/``private_key`` are presented when listening and, with
+    ``mutual`` (mTLS), also when connecting; mTLS is what lets an access-control
+    policy name peers by certificate common name.
+    """
+
+    root_ca_certificate: str
+    certificate: str = ""
+    private_key: str = ""
+    mutual: bool = False
+    verify_name_on_connect: bool = True
+
+    def as_zenoh(self) -> dict[str, Any]:
+        tls: dict[str, Any] = {
+            "root_ca_certificate": self.root_ca_certificate,
+            "enable_mtls": self.mutual,
+            "verify_name_on_connect": self.verify_name_on_connect,
+        }
+        if self.certificate:
+            tls["listen_certificate"] = self.certificate
+            tls["listen_private_key"] = self.private_key
+            if self.mutual:
+                tls["connect_certificate"] = self.certificate
+                tls["connect_private_key"] = self.private_key
+        return tls
+
+
+@dataclass(frozen=True, slots=True)
+class TelemetryConfig:
+    """The ``[telemetry]`` table of the car's TOML config (docs/telemetry.md).
+
+    ``mode="peer"`` (default) listens on ``listen`` (loopback) and monitors
+    connect to it; ``mode="client"`` connects to a zenoh router at ``connect``.
+    ``zenoh_config`` names an optional zenoh JSON5 file loaded first, for what
+    this table does not cover (``access_control``, ``transport/auth``); the keys
+    of this table then override mode, endpoints, scouting and TLS.
+    """
+
+    enabled: bool = True
+    vehicle_id: str = "car1"
+    mode: str = "peer"
+    listen: tuple[str, ...] = (DEFAULT_LISTEN,)
+    connect: tuple[str, ...] = ()
+    multicast_scouting: bool = False
+    zenoh_config: str = ""
+    tls: TlsConfig | None = None
+    allow_remote_goal: bool = False
+    max_goal_range_m: float = 50_000.0
+    """Goals farther than this from the origin (the start) are refused."""
+    retry_period_s: float = 2.0
+    fifo_size: int = 32
+    """Decisions and prompts waiting to be sent, per kind; the oldest is dropped beyond."""
+
+    def __post_init__(self) -> None:
+        validate_vehicle_id(self.vehicle_id)
+        if self.mode not in _MODES:
+            raise UserError(f"telemetry mode must be one of {_MODES}, not {self.mode!r}")
+        for ep in (*self.listen, *self.connect):
+            check_endpoint(ep)
+        if self.mode == "client" and not self.connect:
+            raise UserError("telemetry mode 'client' needs connect endpoints (the router)")
+        if not (self.retry_period_s > 0 and self.max_goal_range_m > 0 and self.fifo_size > 0):
+            raise UserError("telemetry retry_period_s, max_goal_range_m, fifo_size must be > 0")
+
+    @classmethod
+    def from_mapping(
+        cls, table: Mapping[str, Any], base_dir: Path | None = None
+    ) -> TelemetryConfig:
+        """Build from a parsed ``[telemetry]`` TOML table; unknown keys and bad types are errors.
+
+        Relative file paths are taken relative to ``base_dir`` (the TOML file's folder).
+        """
+        known = {f.name for f in fields(cls)}
+        unknown = sorted(set(table) - known)
+        if unknown:
+            raise UserError(f"[telemetry]: unknown key(s) {', '.join(unknown)}")
+
+        def path(value: object, key: str) -> str:
+            if not isinstance(value, str):
+                raise UserError(f"[telemetry] {key} must be a string path")
+            if value and base_dir is not None and not Path(value).is_absolute():
+                return str(base_dir / value)
+            return value
+
+        kwargs: dict[str, Any] = {}
+        for key, value in table.items():
+            if key in ("listen", "connect"):
+                if isinstance(value, str):
+                    value = [value]
+                if not isinstance(value, list) or not all(isinstance(v, str) for v in value):
+                    raise UserError(f"[telemetry] {key} must be a list of endpoint strings")
+                kwargs[key] = tuple(value)
+            elif key == "tls":
+                if not isinstance(value, Mapping):
+                    raise UserError("[telemetry.tls] must be a table")
+                tls_known = {f.name for f in fields(TlsConfig)}
+                bad = sorted(set(value) - tls_known)
+                if bad or "root_ca_certificate" not in value:
+                    raise UserError(
+                        "[telemetry.tls] needs root_ca_certificate"
+                        + (f"; unknown key(s) {', '.join(bad)}" if bad else "")
+                    )
+                verify = value.get("verify_name_on_connect", True)
+                kwargs["tls"] = TlsConfig(
+                    root_ca_certificate=path(
+                        value["root_ca_certificate"], "tls.root_ca_certificate"
+                    ),
+                    certificate=path(value.get("certificate", ""), "tls.certificate"),
+                    private_key=path(value.get("private_key", ""), "tls.private_key"),
+                    mutual=_typed(value.get("mutual", False), bool, "tls.mutual"),
+                    verify_name_on_connect=_typed(verify, bool, "tls.verify_name_on_connect"),
+                )
+            elif key == "zenoh_config":
+                kwargs[key] = path(value, key)
+            elif key in ("enabled", "multicast_scouting", "allow_remote_goal"):
+                kwargs[key] = _typed(value, bool, key)
+            elif key in ("retry_period_s", "max_goal_range_m"):
+                kwargs[key] = float(_typed(value, (int, float), key))
+            elif key == "fifo_size":
+                kwargs[key] = _typed(value, int, key)
+            else:
+                kwargs[key] = _typed(value, str, key)
+        return cls(**kwargs)
+
+
+def _typed(value: Any, types: type | tuple[type, ...], key: str) -> Any:
+    if not isinstance(value, types) or (types is not bool and isinstance(value, bool)):
+        names = types.__name__ if isinstance(types, type) else "/".join(t.__name__ for t in types)
+        raise UserError(f"[telemetry] {key} must be {names}, not {value!r}")
+    return value
+
+
+def check_endpoint(endpoint: str) -> str:
+    """A zenoh endpoint looks like ``tcp/127.0.0.1:7447``; say so clearly if it does not."""
+    if not _ENDPOINT_RE.match(endpoint):
+        raise UserError(
+            f"bad zenoh endpoint {endpoint!r}: expected <protocol>/<address>, "
+            "e.g. tcp/127.0.0.1:7447 or tls/localhost:7447"
+        )
+    return endpoint

@@ -1,0 +1,435 @@
+"""Telemetry message encoders and their JSON Schemas (pure: no zenoh; shared with
+``guidance.recording``).
+"""
+
+from __future__ import annotations
+
+import json
+import logging
+import math
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass
+from typing import TYPE_CHECKING, Any
+
+from guidance.core.messages import EstimateState, LandmarkFix
+from guidance.telemetry.keys import schema_tag
+
+if TYPE_CHECKING:
+    from guidance.core.navigator import Decision
+
+log = logging.getLogger(__name__)
+
+
+# -- message encoders (pure functions, shared with guidance.recording) --------------------------
+def _num(value: float | None) -> float | None:
+    """A JSON-safe float: non-finite values become null (strict JSON has no NaN)."""
+    if value is None:
+        return None
+    f = float(value)
+    return f if math.isfinite(f) else None
+
+
+def _envelope(
+    kind: str, vehicle_id: str, seq: int, t_s: float, wall_time_unix_s: float | None
+) -> dict[str, Any]:
+    return {
+        "schema": schema_tag(kind),
+        "vehicle_id": vehicle_id,
+        "seq": seq,
+        "t_s": _num(t_s),
+        "wall_time_unix_s": _num(wall_time_unix_s),
+    }
+
+
+@dataclass(frozen=True, slots=True)
+class Target:
+    """Where the navigator is heading: the goal or a landmark."""
+
+    x_m: float
+    y_m: float
+    kind: str = "goal"
+    id: int | None = None
+
+
+TargetLike = Target | tuple[float, float, str, int | None] | tuple[float, float]
+
+
+def _target_dict(target: TargetLike | None) -> dict[str, Any] | None:
+    if target is None:
+        return None
+    if isinstance(target, Target):
+        x, y, kind, tid = target.x_m, target.y_m, target.kind, target.id
+    else:
+        x, y = target[0], target[1]
+        kind = str(target[2]) if len(target) > 2 else "goal"
+        tid = target[3] if len(target) > 3 else None
+    return {"x_m": _num(x), "y_m": _num(y), "kind": kind, "id": None if tid is None else int(tid)}
+
+
+def _wrap_deg(angle_rad: float) -> float | None:
+    deg = math.degrees(math.atan2(math.sin(angle_rad), math.cos(angle_rad)))
+    return _num(deg)
+
+
+def state_message(
+    state: EstimateState,
+    *,
+    vehicle_id: str,
+    seq: int = 0,
+    wall_time_unix_s: float | None = None,
+    speed_mps: float | None = None,
+    target: TargetLike | None = None,
+    goal: tuple[float, float] | None = None,
+    method: str | None = None,
+    mode: str | None = None,
+) -> dict[str, Any]:
+    """The ``guidance.state`` message (docs/telemetry.md)."""
+    e = state.ellipse
+    msg = _envelope("state", vehicle_id, seq, state.t_s, wall_time_unix_s)
+    msg.update(
+        {
+            "x_m": _num(state.x_m),
+            "y_m": _num(state.y_m),
+            "heading_rad": _num(state.heading_rad),
+            "heading_deg": _wrap_deg(state.heading_rad),
+            "covariance": [[_num(v) for v in row] for row in state.covariance],
+            "ellipse": {
+                "semi_major_m": _num(e.semi_major_m),
+                "semi_minor_m": _num(e.semi_minor_m),
+                "orientation_rad": _num(e.orientation_rad),
+                "major_axis_m": _num(e.major_axis_m),
+            },
+            "speed_mps": _num(speed_mps),
+            "target": _target_dict(target),
+            "goal": None if goal is None else {"x_m": _num(goal[0]), "y_m": _num(goal[1])},
+            "method": None if method is None else str(method),
+            "mode": mode,
+            "lost": bool(state.lost),
+            "healthy": bool(state.healthy),
+        }
+    )
+    return msg
+
+
+def decision_message(
+    decision: Decision,
+    *,
+    vehicle_id: str,
+    seq: int = 0,
+    wall_time_unix_s: float | None = None,
+) -> dict[str, Any]:
+    """The ``guidance.decision`` message from a ``guidance.navigator.Decision``."""
+    d = decision
+    msg = _envelope("decision", vehicle_id, seq, d.t_s, wall_time_unix_s)
+    msg.update(
+        {
+            "exit_index": int(d.exit_index),
+            "exit_heading_rad": _num(d.exit_heading_rad),
+            "turn_rad": _num(d.turn_rad),
+            "turn_deg": _wrap_deg(d.turn_rad),
+            "options": [
+                {
+                    "index": int(o.index),
+                    "heading_rad": _num(o.heading_rad),
+                    "turn_rad": _num(o.turn_rad),
+                    "angle_cost_rad": _num(o.angle_cost_rad),
+                    "penalty_rad": _num(o.penalty_rad),
+                    "cost_rad": _num(o.cost_rad),
+                }
+                for o in d.options
+            ],
+            "target": _target_dict((d.target_x_m, d.target_y_m, d.target_kind, d.target_id)),
+            "intersection_id": int(d.intersection_id),
+            "revisit": bool(d.revisit),
+            "mode": d.mode,
+            "reason": d.reason,
+        }
+    )
+    return msg
+
+
+def prompt_message(
+    t_s: float,
+    text: str,
+    *,
+    vehicle_id: str,
+    kind: str = "info",
+    priority: int = 0,
+    seq: int = 0,
+    wall_time_unix_s: float | None = None,
+) -> dict[str, Any]:
+    """The ``guidance.prompt`` message: what the driver was told."""
+    msg = _envelope("prompt", vehicle_id, seq, t_s, wall_time_unix_s)
+    msg.update({"text": text, "kind": kind, "priority": int(priority)})
+    return msg
+
+
+@dataclass(frozen=True, slots=True)
+class LandmarkMatch:
+    """A camera match accepted as a position fix."""
+
+    landmark_id: int
+    x_m: float
+    y_m: float
+    sigma_m: float
+    score: float | None = None
+    name: str = ""
+
+
+@dataclass(frozen=True, slots=True)
+class LandmarkRejection:
+    """A candidate (or a whole frame) that did not give a fix, and why.
+
+    ``reason`` is a short machine-readable word: "outside_gate", "too_few_matches",
+    "ratio_test", "geometry", "innovation_gate", "no_candidates", "camera_down"...
+    """
+
+    reason: str
+    landmark_id: int | None = None
+    detail: str = ""
+
+
+def landmark_message(
+    t_s: float,
+    *,
+    vehicle_id: str,
+    matches: Sequence[LandmarkMatch | LandmarkFix] = (),
+    rejections: Sequence[LandmarkRejection] = (),
+    gated: int | None = None,
+    seq: int = 0,
+    wall_time_unix_s: float | None = None,
+) -> dict[str, Any]:
+    """The ``guidance.landmark`` message: matches and rejections of one recognition pass."""
+    msg = _envelope("landmark", vehicle_id, seq, t_s, wall_time_unix_s)
+    msg.update(
+        {
+            "gated": gated,
+            "matches": [
+                {
+                    "landmark_id": int(m.landmark_id),
+                    "x_m": _num(m.x_m),
+                    "y_m": _num(m.y_m),
+                    "sigma_m": _num(m.sigma_m),
+                    "score": _num(m.score) if isinstance(m, LandmarkMatch) else None,
+                    "name": m.name if isinstance(m, LandmarkMatch) else "",
+                }
+                for m in matches
+            ],
+            "rejections": [
+                {
+                    "landmark_id": None if r.landmark_id is None else int(r.landmark_id),
+                    "reason": r.reason,
+                    "detail": r.detail,
+                }
+                for r in rejections
+            ],
+        }
+    )
+    return msg
+
+
+@dataclass(frozen=True, slots=True)
+class InputHealth:
+    """Health of one input (odometry, compass, camera, scene...)."""
+
+    alive: bool
+    valid: bool
+    rate_hz: float
+    age_s: float | None
+    expected_rate_hz: float | None = None
+    detail: str = ""
+
+
+def _input_dict(h: InputHealth | Mapping[str, Any]) -> dict[str, Any]:
+    if isinstance(h, InputHealth):
+        return {
+            "alive": h.alive,
+            "valid": h.valid,
+            "rate_hz": _num(h.rate_hz),
+            "age_s": _num(h.age_s),
+            "expected_rate_hz": _num(h.expected_rate_hz),
+            "detail": h.detail,
+        }
+    return {
+        "alive": bool(h.get("alive", False)),
+        "valid": bool(h.get("valid", False)),
+        "rate_hz": _num(h.get("rate_hz")),
+        "age_s": _num(h.get("age_s")),
+        "expected_rate_hz": _num(h.get("expected_rate_hz")),
+        "detail": str(h.get("detail", "")),
+    }
+
+
+def health_message(
+    t_s: float,
+    inputs: Mapping[str, InputHealth | Mapping[str, Any]],
+    *,
+    vehicle_id: str,
+    components: Mapping[str, Mapping[str, Any]] | None = None,
+    seq: int = 0,
+    wall_time_unix_s: float | None = None,
+) -> dict[str, Any]:
+    """The ``guidance.health`` message; ``ok`` is true when every input is alive and valid."""
+    ins = {name: _input_dict(h) for name, h in inputs.items()}
+    msg = _envelope("health", vehicle_id, seq, t_s, wall_time_unix_s)
+    msg.update(
+        {
+            "ok": all(v["alive"] and v["valid"] for v in ins.values()),
+            "inputs": ins,
+            "components": {k: dict(v) for k, v in (components or {}).items()},
+        }
+    )
+    return msg
+
+
+def encode(message: Mapping[str, Any]) -> bytes:
+    """JSON bytes of a message (compact, strict: no NaN)."""
+    return json.dumps(message, separators=(",", ":"), allow_nan=False).encode()
+
+
+# -- JSON Schemas (docs/telemetry.md; MCAP channel schemas) ------------------------------------
+_NUM = {"type": ["number", "null"]}
+_ENVELOPE_PROPS: dict[str, Any] = {
+    "schema": {"type": "string", "description": "name/version, e.g. guidance.state/1"},
+    "vehicle_id": {"type": "string"},
+    "seq": {"type": "integer", "description": "per vehicle and kind; gaps are drops"},
+    "t_s": {"type": ["number", "null"], "description": "car monotonic clock, s"},
+    "wall_time_unix_s": {"type": ["number", "null"], "description": "for logs only, s"},
+}
+_TARGET = {
+    "type": ["object", "null"],
+    "properties": {
+        "x_m": _NUM,
+        "y_m": _NUM,
+        "kind": {"type": "string", "enum": ["goal", "landmark"]},
+        "id": {"type": ["integer", "null"]},
+    },
+}
+
+
+def _obj(title: str, props: Mapping[str, Any]) -> dict[str, Any]:
+    return {
+        "$schema": "http://json-schema.org/draft-07/schema#",
+        "title": title,
+        "type": "object",
+        "properties": {**_ENVELOPE_PROPS, **props},
+        "required": ["schema", "vehicle_id", "seq", "t_s"],
+    }
+
+
+MESSAGE_SCHEMAS: dict[str, dict[str, Any]] = {
+    "state": _obj(
+        "guidance.state",
+        {
+            "x_m": _NUM,
+            "y_m": _NUM,
+            "heading_rad": _NUM,
+            "heading_deg": _NUM,
+            "covariance": {
+                "type": "array",
+                "description": "3x3 over (x_m, y_m, heading_rad)",
+                "items": {"type": "array", "items": _NUM},
+            },
+            "ellipse": {
+                "type": "object",
+                "properties": {
+                    "semi_major_m": _NUM,
+                    "semi_minor_m": _NUM,
+                    "orientation_rad": _NUM,
+                    "major_axis_m": _NUM,
+                },
+            },
+            "speed_mps": _NUM,
+            "target": _TARGET,
+            "goal": {"type": ["object", "null"], "properties": {"x_m": _NUM, "y_m": _NUM}},
+            "method": {"type": ["string", "null"]},
+            "mode": {"type": ["string", "null"]},
+            "lost": {"type": "boolean"},
+            "healthy": {"type": "boolean"},
+        },
+    ),
+    "decision": _obj(
+        "guidance.decision",
+        {
+            "exit_index": {"type": "integer"},
+            "exit_heading_rad": _NUM,
+            "turn_rad": _NUM,
+            "turn_deg": _NUM,
+            "options": {
+                "type": "array",
+                "items": {
+                    "type": "object",
+                    "properties": {
+                        "index": {"type": "integer"},
+                        "heading_rad": _NUM,
+                        "turn_rad": _NUM,
+                        "angle_cost_rad": _NUM,
+                        "penalty_rad": _NUM,
+                        "cost_rad": _NUM,
+                    },
+                },
+            },
+            "target": _TARGET,
+            "intersection_id": {"type": "integer"},
+            "revisit": {"type": "boolean"},
+            "mode": {"type": "string"},
+            "reason": {"type": "string"},
+        },
+    ),
+    "prompt": _obj(
+        "guidance.prompt",
+        {"text": {"type": "string"}, "kind": {"type": "string"}, "priority": {"type": "integer"}},
+    ),
+    "landmark": _obj(
+        "guidance.landmark",
+        {
+            "gated": {"type": ["integer", "null"]},
+            "matches": {
+                "type": "array",
+                "items": {
+                    "type": "object",
+                    "properties": {
+                        "landmark_id": {"type": "integer"},
+                        "x_m": _NUM,
+                        "y_m": _NUM,
+                        "sigma_m": _NUM,
+                        "score": _NUM,
+                        "name": {"type": "string"},
+                    },
+                },
+            },
+            "rejections": {
+                "type": "array",
+                "items": {
+                    "type": "object",
+                    "properties": {
+                        "landmark_id": {"type": ["integer", "null"]},
+                        "reason": {"type": "string"},
+                        "detail": {"type": "string"},
+                    },
+                },
+            },
+        },
+    ),
+    "health": _obj(
+        "guidance.health",
+        {
+            "ok": {"type": "boolean"},
+            "inputs": {
+                "type": "object",
+                "additionalProperties": {
+                    "type": "object",
+                    "properties": {
+                        "alive": {"type": "boolean"},
+                        "valid": {"type": "boolean"},
+                        "rate_hz": _NUM,
+                        "age_s": _NUM,
+                        "expected_rate_hz": _NUM,
+                        "detail": {"type": "string"},
+                    },
+                },
+            },
+            "components": {"type": "object"},
+        },
+    ),
+}

@@ -1,0 +1,523 @@
+"""The car side: ``Telemetry`` publishes on Zenoh (latest-value slots and FIFOs)."""
+
+from __future__ import annotations
+
+import logging
+import threading
+import time
+from collections import deque
+from collections.abc import Callable, Mapping, Sequence
+from dataclasses import dataclass, field
+from functools import partial
+from typing import TYPE_CHECKING, Any
+
+import zenoh
+
+from guidance.core.messages import EstimateState, LandmarkFix
+from guidance.errors import UserError
+from guidance.telemetry.config import TelemetryConfig
+from guidance.telemetry.keys import (
+    KEY_PREFIX,
+    KINDS,
+    LATEST_KINDS,
+    goal_key,
+    key_for,
+    liveliness_key,
+    schema_tag,
+)
+from guidance.telemetry.messages import (
+    InputHealth,
+    LandmarkMatch,
+    LandmarkRejection,
+    TargetLike,
+    decision_message,
+    encode,
+    health_message,
+    landmark_message,
+    prompt_message,
+    state_message,
+)
+from guidance.telemetry.redact import redact_text
+from guidance.telemetry.session import (
+    _close_at_exit,
+    _quiet_close,
+    open_session,
+    parse_goal,
+    session_config,
+)
+
+if TYPE_CHECKING:
+    import asyncio
+
+    from guidance.core.navigator import Decision
+
+log = logging.getLogger(__name__)
+
+# -- the car side ---------------------------------------------------------------------------------
+TELEMETRY_DOWN_WARNING = "Remote monitoring is offline."
+
+
+@dataclass(frozen=True, slots=True)
+class TelemetryHealth:
+    """What ``Telemetry.health()`` reports (and the health message carries)."""
+
+    status: str
+    """"disabled", "starting", "up", "down" (no session, retrying) or "closed"."""
+    connected: bool
+    """Peer mode: the session is open. Client mode: a router is connected."""
+    peers: int
+    routers: int
+    published: int
+    dropped: Mapping[str, int]
+    goals_accepted: int
+    goals_refused: int
+    last_error: str
+    client_mode: bool = False
+
+    @property
+    def alive(self) -> bool:
+        """The zenoh session is open."""
+        return self.status == "up"
+
+    @property
+    def valid(self) -> bool:
+        """Messages can leave the car: peer mode with a session, or client mode with a router."""
+        return self.alive and (self.connected or not self.client_mode)
+
+    @property
+    def ok(self) -> bool:
+        return self.alive and self.valid
+
+    @property
+    def warning(self) -> str:
+        """Shown to the operator, not worth interrupting the driver for (telemetry is optional)."""
+        if self.status == "down" or (self.status == "up" and not self.valid):
+            return TELEMETRY_DOWN_WARNING
+        return ""
+
+    def as_dict(self) -> dict[str, Any]:
+        return {
+            "alive": self.alive,
+            "valid": self.valid,
+            "ok": self.ok,
+            "warning": self.warning,
+            "status": self.status,
+            "connected": self.connected,
+            "peers": self.peers,
+            "routers": self.routers,
+            "published": self.published,
+            "dropped": dict(self.dropped),
+            "goals_accepted": self.goals_accepted,
+            "goals_refused": self.goals_refused,
+            "last_error": self.last_error,
+        }
+
+
+@dataclass(slots=True)
+class _Pending:
+    kind: str
+    build: Callable[[], dict[str, Any]]
+
+
+@dataclass(slots=True)
+class _Link:
+    """Zenoh entities of one open session (replaced as a whole on reconnect)."""
+
+    session: zenoh.Session
+    publishers: dict[str, zenoh.Publisher] = field(default_factory=dict)
+    others: list[Any] = field(default_factory=list)
+
+
+GoalCallback = Callable[[float, float], None]
+
+
+class Telemetry:
+    """The car's telemetry: one zenoh session, non-blocking ``publish_*`` calls.
+
+    ``on_goal(x_m, y_m)`` receives accepted remote goals (only with
+    ``allow_remote_goal``); with ``loop`` it is called on that event loop via
+    ``call_soon_threadsafe``, otherwise on a zenoh thread. ``clock`` gives
+    wall-clock time for the ``wall_time_unix_s`` field only.
+    """
+
+    def __init__(
+        self,
+        config: TelemetryConfig,
+        *,
+        on_goal: GoalCallback | None = None,
+        loop: asyncio.AbstractEventLoop | None = None,
+        clock: Callable[[], float] = time.time,
+    ) -> None:
+        self.config = config
+        self.vehicle_id = config.vehicle_id
+        self._on_goal = on_goal
+        self._loop = loop
+        self._clock = clock
+        self._lock = threading.Lock()
+        self._wake = threading.Event()
+        self._stop = threading.Event()
+        self._slots: dict[str, _Pending] = {}
+        self._fifos: dict[str, deque[_Pending]] = {
+            k: deque() for k in KINDS if k not in LATEST_KINDS
+        }
+        self._seq = dict.fromkeys(KINDS, 0)
+        self._latest: dict[str, bytes] = {}
+        self._dropped: dict[str, int] = {}
+        self._published = 0
+        self._goals_accepted = 0
+        self._goals_refused = 0
+        self._status = "disabled" if not config.enabled else "starting"
+        self._connected = False
+        self._peers = 0
+        self._routers = 0
+        self._last_error = ""
+        self._link: _Link | None = None
+        self._thread: threading.Thread | None = None
+
+    # -- lifecycle ----------------------------------------------------------------------------
+    def start(self) -> None:
+        """Start the publisher thread, which opens the session; returns at once."""
+        if not self.config.enabled or self._thread is not None:
+            return
+        self._thread = threading.Thread(
+            target=self._run, name=f"telemetry-{self.vehicle_id}", daemon=True
+        )
+        self._thread.start()
+        _close_at_exit(self)
+
+    def close(self, timeout_s: float = 3.0) -> None:
+        """Stop publishing, drop the liveliness token and close the session (idempotent)."""
+        self._stop.set()
+        self._wake.set()
+        thread, self._thread = self._thread, None
+        if thread is not None and thread is not threading.current_thread():
+            thread.join(timeout_s)
+            if thread.is_alive():
+                log.warning("telemetry: publisher thread did not stop within %.1f s", timeout_s)
+        self._close_link()
+        if self.config.enabled:
+            self._status = "closed"
+            self._connected = False
+
+    def __enter__(self) -> Telemetry:
+        self.start()
+        return self
+
+    def __exit__(self, *_exc: object) -> None:
+        self.close()
+
+    # -- publishing (any thread, never blocks) -----------------------------------------------
+    def publish_state(
+        self,
+        state: EstimateState,
+        *,
+        speed_mps: float | None = None,
+        target: TargetLike | None = None,
+        goal: tuple[float, float] | None = None,
+        method: str | None = None,
+        mode: str | None = None,
+    ) -> None:
+        self._put(
+            "state",
+            partial(
+                state_message,
+                state,
+                vehicle_id=self.vehicle_id,
+                speed_mps=speed_mps,
+                target=target,
+                goal=goal,
+                method=method,
+                mode=mode,
+            ),
+        )
+
+    def publish_decision(self, decision: Decision) -> None:
+        self._put("decision", partial(decision_message, decision, vehicle_id=self.vehicle_id))
+
+    def publish_prompt(
+        self, t_s: float, text: str, *, kind: str = "info", priority: int = 0
+    ) -> None:
+        self._put(
+            "prompt",
+            partial(
+                prompt_message, t_s, text, vehicle_id=self.vehicle_id, kind=kind, priority=priority
+            ),
+        )
+
+    def publish_landmark(
+        self,
+        t_s: float,
+        *,
+        matches: Sequence[LandmarkMatch | LandmarkFix] = (),
+        rejections: Sequence[LandmarkRejection] = (),
+        gated: int | None = None,
+    ) -> None:
+        self._put(
+            "landmark",
+            partial(
+                landmark_message,
+                t_s,
+                vehicle_id=self.vehicle_id,
+                matches=tuple(matches),
+                rejections=tuple(rejections),
+                gated=gated,
+            ),
+        )
+
+    def publish_health(
+        self,
+        t_s: float,
+        inputs: Mapping[str, InputHealth | Mapping[str, Any]],
+        *,
+        components: Mapping[str, Mapping[str, Any]] | None = None,
+    ) -> None:
+        """Publish input health; telemetry's own health is added under components.telemetry."""
+        comps = {**(components or {}), "telemetry": self.health().as_dict()}
+        self._put(
+            "health",
+            partial(
+                health_message, t_s, dict(inputs), vehicle_id=self.vehicle_id, components=comps
+            ),
+        )
+
+    def _put(self, kind: str, build: Callable[..., dict[str, Any]]) -> None:
+        if not self.config.enabled or self._stop.is_set():
+            return
+        wall = self._clock()
+        with self._lock:
+            seq = self._seq[kind] + 1
+            self._seq[kind] = seq
+            item = _Pending(kind, partial(build, seq=seq, wall_time_unix_s=wall))
+            if kind in LATEST_KINDS:
+                if kind in self._slots:
+                    self._count_drop_locked("superseded")
+                self._slots[kind] = item
+            else:
+                fifo = self._fifos[kind]
+                if len(fifo) >= self.config.fifo_size:
+                    fifo.popleft()
+                    self._count_drop_locked("fifo_full")
+                fifo.append(item)
+        self._wake.set()
+
+    def _count_drop_locked(self, reason: str) -> None:
+        self._dropped[reason] = self._dropped.get(reason, 0) + 1
+
+    def _count_drop(self, reason: str) -> None:
+        with self._lock:
+            self._count_drop_locked(reason)
+
+    # -- health -------------------------------------------------------------------------------
+    def health(self) -> TelemetryHealth:
+        with self._lock:
+            dropped = dict(self._dropped)
+        return TelemetryHealth(
+            status=self._status,
+            connected=self._connected,
+            peers=self._peers,
+            routers=self._routers,
+            published=self._published,
+            dropped=dropped,
+            goals_accepted=self._goals_accepted,
+            goals_refused=self._goals_refused,
+            last_error=self._last_error,
+            client_mode=self.config.mode == "client",
+        )
+
+    @property
+    def up(self) -> bool:
+        return self._status == "up"
+
+    def has_subscribers(self, kind: str | None = None) -> bool:
+        """True when a subscriber for ``kind`` (every kind when None) is known to the session.
+
+        A monitor's liveliness can arrive before its subscription does; a message published in
+        between reaches nobody. zenoh's matching status says when it would.
+        """
+        link = self._link
+        if link is None:
+            return False
+        try:
+            kinds = KINDS if kind is None else (kind,)
+            # zenoh-python 1.10 returns a MatchingStatus (its stub says bool): accept both.
+            statuses = (link.publishers[k].matching_status for k in kinds)
+            return all(bool(getattr(st, "matching", st)) for st in statuses)
+        except Exception:  # the session closed meanwhile
+            return False
+
+    # -- publisher thread ---------------------------------------------------------------------
+    def _run(self) -> None:
+        next_link_check = 0.0
+        while not self._stop.is_set():
+            try:
+                if self._link is None:
+                    if not self._try_open():
+                        self._stop.wait(self.config.retry_period_s)
+                        continue
+                    next_link_check = 0.0
+                now = time.monotonic()
+                if now >= next_link_check:
+                    self._check_link()
+                    next_link_check = now + 1.0
+                self._wake.wait(0.5)
+                self._wake.clear()
+                self._drain()
+            except Exception:  # keep publishing whatever went wrong once
+                log.exception("telemetry: publisher loop error")
+                self._stop.wait(0.5)
+        self._drain()
+
+    def _try_open(self) -> bool:
+        cfg = self.config
+        try:
+            conf = session_config(
+                mode=cfg.mode,
+                listen=cfg.listen,
+                connect=cfg.connect,
+                multicast_scouting=cfg.multicast_scouting,
+                zenoh_config=cfg.zenoh_config,
+                tls=cfg.tls,
+            )
+            session = open_session(conf)
+        except UserError as exc:
+            self._set_down(str(exc))
+            return False
+        except Exception as exc:  # zenoh may raise anything from its Rust side
+            self._set_down(f"{type(exc).__name__}: {exc}")
+            return False
+        link = _Link(session)
+        try:
+            for kind in KINDS:
+                link.publishers[kind] = session.declare_publisher(
+                    key_for(self.vehicle_id, kind),
+                    encoding=zenoh.Encoding.APPLICATION_JSON.with_schema(schema_tag(kind)),
+                    congestion_control=zenoh.CongestionControl.DROP,
+                    express=True,
+                )
+            link.others.append(session.liveliness().declare_token(liveliness_key(self.vehicle_id)))
+            link.others.append(
+                session.declare_queryable(
+                    f"{KEY_PREFIX}/{self.vehicle_id}/*", self._on_query, complete=True
+                )
+            )
+            if cfg.allow_remote_goal:
+                link.others.append(
+                    session.declare_subscriber(goal_key(self.vehicle_id), self._on_goal_sample)
+                )
+        except Exception as exc:
+            self._set_down(f"declaring telemetry entities failed: {exc}")
+            _quiet_close(session)
+            return False
+        self._link = link
+        self._status = "up"
+        self._last_error = ""
+        where = ", ".join(cfg.listen if cfg.mode == "peer" else cfg.connect)
+        log.info(
+            "telemetry up: vehicle %s, %s mode on %s%s",
+            self.vehicle_id,
+            cfg.mode,
+            where,
+            ", remote goal ENABLED" if cfg.allow_remote_goal else "",
+        )
+        return True
+
+    def _set_down(self, error: str) -> None:
+        error = redact_text(error)
+        if self._status != "down" or error != self._last_error:
+            log.warning(
+                "telemetry down (retrying every %.0f s): %s", self.config.retry_period_s, error
+            )
+        self._status = "down"
+        self._connected = False
+        self._last_error = error
+
+    def _check_link(self) -> None:
+        link = self._link
+        if link is None:
+            return
+        try:
+            info = link.session.info
+            self._peers = len(info.peers_zid())
+            self._routers = len(info.routers_zid())
+        except Exception as exc:
+            self._set_down(f"session lost: {exc}")
+            self._close_link()
+            return
+        connected = self._routers > 0 if self.config.mode == "client" else True
+        if connected != self._connected and self.config.mode == "client":
+            if connected:
+                log.info("telemetry: router connected")
+            else:
+                log.warning("telemetry: no router connected; zenoh keeps reconnecting")
+        self._connected = connected
+
+    def _drain(self) -> None:
+        with self._lock:
+            items = list(self._slots.values())
+            self._slots.clear()
+            for fifo in self._fifos.values():
+                items.extend(fifo)
+                fifo.clear()
+        link = self._link
+        for item in items:
+            try:
+                payload = encode(item.build())
+            except Exception as exc:  # a malformed message must not stop the publisher
+                log.error("telemetry: cannot encode a %s message: %r", item.kind, exc)
+                self._count_drop("encode_error")
+                continue
+            self._latest[item.kind] = payload
+            if link is None:
+                self._count_drop("session_down")
+                continue
+            try:
+                link.publishers[item.kind].put(payload)
+            except Exception as exc:
+                self._count_drop("put_error")
+                self._last_error = redact_text(f"put failed: {exc}")
+                continue
+            self._published += 1
+
+    def _close_link(self) -> None:
+        link, self._link = self._link, None
+        if link is not None:
+            _quiet_close(link.session)
+
+    # -- zenoh callbacks (zenoh threads) -------------------------------------------------------
+    def _on_query(self, query: zenoh.Query) -> None:
+        try:
+            for kind, payload in list(self._latest.items()):
+                key = key_for(self.vehicle_id, kind)
+                if zenoh.KeyExpr(key).intersects(query.key_expr):
+                    query.reply(
+                        key,
+                        payload,
+                        encoding=zenoh.Encoding.APPLICATION_JSON.with_schema(schema_tag(kind)),
+                    )
+        except Exception:
+            log.exception("telemetry: answering a query failed")
+
+    def _on_goal_sample(self, sample: zenoh.Sample) -> None:
+        try:
+            goal = parse_goal(sample.payload.to_bytes(), self.config.max_goal_range_m)
+        except ValueError as exc:
+            self._goals_refused += 1
+            if self._goals_refused <= 10 or self._goals_refused % 100 == 0:
+                log.warning(
+                    "telemetry: remote goal refused (%s); %d refused so far",
+                    exc,
+                    self._goals_refused,
+                )
+            return
+        self._goals_accepted += 1
+        log.info("telemetry: remote goal accepted: x %.1f m, y %.1f m", goal[0], goal[1])
+        callback = self._on_goal
+        if callback is None:
+            return
+        try:
+            if self._loop is not None:
+                self._loop.call_soon_threadsafe(callback, goal[0], goal[1])
+            else:
+                callback(goal[0], goal[1])
+        except Exception:
+            log.exception("telemetry: handing the remote goal to the application failed")

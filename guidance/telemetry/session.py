@@ -1,0 +1,128 @@
+"""Zenoh session lifecycle: config, open, quiet close at exit, remote goal parsing."""
+
+from __future__ import annotations
+
+import json
+import logging
+import math
+import threading
+import weakref
+from collections.abc import Sequence
+from pathlib import Path
+from typing import TYPE_CHECKING
+
+import zenoh
+
+from guidance.errors import UserError
+from guidance.telemetry.config import TlsConfig
+from guidance.telemetry.keys import GOAL_SCHEMA
+from guidance.telemetry.redact import _zenoh_error_text
+
+if TYPE_CHECKING:
+    from guidance.telemetry.client import MonitorClient
+    from guidance.telemetry.publisher import Telemetry
+
+log = logging.getLogger(__name__)
+
+
+def session_config(
+    *,
+    mode: str,
+    listen: Sequence[str] = (),
+    connect: Sequence[str] = (),
+    multicast_scouting: bool = False,
+    zenoh_config: str = "",
+    tls: TlsConfig | None = None,
+) -> zenoh.Config:
+    """A zenoh config: optional JSON5 file first, then mode, endpoints, scouting and TLS."""
+    try:
+        if zenoh_config:
+            if not Path(zenoh_config).is_file():
+                raise UserError(f"zenoh config file not found: {zenoh_config}")
+            conf = zenoh.Config.from_file(zenoh_config)
+        else:
+            conf = zenoh.Config()
+        conf.insert_json5("mode", json.dumps(mode))
+        conf.insert_json5("listen/endpoints", json.dumps(list(listen) if mode != "client" else []))
+        conf.insert_json5("connect/endpoints", json.dumps(list(connect)))
+        conf.insert_json5("scouting/multicast/enabled", json.dumps(multicast_scouting))
+        if tls is not None:
+            conf.insert_json5("transport/link/tls", json.dumps(tls.as_zenoh()))
+    except zenoh.ZError as exc:
+        raise UserError(f"bad zenoh configuration: {_zenoh_error_text(exc)}") from None
+    return conf
+
+
+def open_session(conf: zenoh.Config) -> zenoh.Session:
+    """Open a zenoh session; zenoh's failure becomes a one-line ``UserError``."""
+    try:
+        return zenoh.open(conf)
+    except zenoh.ZError as exc:
+        raise UserError(f"cannot open zenoh session: {_zenoh_error_text(exc)}") from None
+
+
+def parse_goal(payload: bytes, max_range_m: float) -> tuple[float, float]:
+    """Validate a goal command: a JSON object with finite ``x_m``, ``y_m`` within range."""
+    if len(payload) > 4096:
+        raise ValueError("payload larger than 4 KiB")
+    try:
+        obj = json.loads(payload)
+    except (UnicodeDecodeError, json.JSONDecodeError):
+        raise ValueError("not JSON") from None
+    if not isinstance(obj, dict):
+        raise ValueError("not a JSON object")
+    tag = obj.get("schema", GOAL_SCHEMA)
+    if tag != GOAL_SCHEMA:
+        raise ValueError(f"schema {tag!r} is not {GOAL_SCHEMA}")
+    try:
+        x, y = obj["x_m"], obj["y_m"]
+    except KeyError:
+        raise ValueError("x_m and y_m are required") from None
+    if not all(isinstance(v, int | float) and not isinstance(v, bool) for v in (x, y)):
+        raise ValueError("x_m and y_m must be numbers")
+    x, y = float(x), float(y)
+    if not (math.isfinite(x) and math.isfinite(y)):
+        raise ValueError("x_m and y_m must be finite")
+    if math.hypot(x, y) > max_range_m:
+        dist = math.hypot(x, y)
+        raise ValueError(f"goal {dist:.0f} m from the start exceeds {max_range_m:.0f} m")
+    return x, y
+
+
+def _quiet_close(session: zenoh.Session) -> None:
+    try:
+        session.close()
+    except Exception as exc:
+        log.debug("closing zenoh session: %s", exc)
+
+
+_OPEN: weakref.WeakSet[Telemetry | MonitorClient] = weakref.WeakSet()
+_EXIT_HOOK = threading.Lock()
+_exit_hook_installed = False
+
+
+def _close_all_at_exit() -> None:
+    for obj in list(_OPEN):
+        obj.close()
+
+
+def _close_at_exit(obj: Telemetry | MonitorClient) -> None:
+    """Close forgotten sessions before interpreter shutdown.
+
+    A zenoh session with Python callbacks still declared makes the interpreter
+    hang at exit (zenoh-python 1.10, measured here); ``atexit`` runs too late,
+    so the hook goes where ``concurrent.futures`` puts its own: before threads
+    are joined.
+    """
+    global _exit_hook_installed
+    _OPEN.add(obj)
+    with _EXIT_HOOK:
+        if _exit_hook_installed:
+            return
+        register = getattr(threading, "_register_atexit", None)
+        if register is not None:
+            try:
+                register(_close_all_at_exit)
+            except RuntimeError:  # already shutting down
+                return
+        _exit_hook_installed = True

@@ -1,0 +1,1 @@
+"""Tools around the product: the command line and offline tools (replay, monitor, evaluate)."""

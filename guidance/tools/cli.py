@@ -1,0 +1,79 @@
+"""The ``guidance`` command: one entry point, subcommands registered by the packages.
+
+Each package that adds subcommands exposes ``register(subparsers)`` in the module
+named in ``_COMMAND_MODULES``; the subparser sets ``func`` to a callable taking
+the parsed namespace and returning an exit code. Errors a user can cause (bad
+file, bad value) are raised as ``UserError`` and printed as one clear line, never
+as a traceback; ``--debug`` shows the traceback of unexpected failures.
+"""
+
+from __future__ import annotations
+
+import argparse
+import importlib
+import logging
+import sys
+from collections.abc import Sequence
+
+from guidance.errors import UserError
+
+_COMMAND_MODULES = (
+    "hal_sim.cli",  # study
+    "hal_sim.drive",  # sim
+    "drivers.cli",  # odometry, compass
+    "guidance.app.app",  # run
+    "guidance.tools.monitor",  # monitor
+    "guidance.tools.replay",  # replay
+    "guidance.tools.evaluate",  # evaluate
+)
+
+
+def build_parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(
+        prog="guidance",
+        description="Urban driver guidance without GPS or a road map.",
+    )
+    parser.add_argument("--debug", action="store_true", help="show tracebacks and debug logs")
+    sub = parser.add_subparsers(dest="command", metavar="COMMAND")
+    for name in _COMMAND_MODULES:
+        try:
+            module = importlib.import_module(name)
+        except ModuleNotFoundError as exc:
+            if exc.name == name:  # that package has not grown this command yet
+                continue
+            raise
+        module.register(sub)
+    return parser
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    parser = build_parser()
+    args = parser.parse_args(argv)
+    logging.basicConfig(
+        level=logging.DEBUG if args.debug else logging.WARNING,
+        format="%(asctime)s %(levelname)s %(name)s: %(message)s",
+    )
+    if not getattr(args, "func", None):
+        parser.print_help()
+        return 2
+    try:
+        return int(args.func(args) or 0)
+    except UserError as exc:
+        print(f"guidance {args.command}: error: {exc}", file=sys.stderr)
+        return 2
+    except KeyboardInterrupt:
+        print(f"guidance {args.command}: interrupted", file=sys.stderr)
+        return 130
+    except Exception as exc:
+        if args.debug:
+            raise
+        print(
+            f"guidance {args.command}: internal error: {type(exc).__name__}: {exc} "
+            "(run with --debug for the traceback)",
+            file=sys.stderr,
+        )
+        return 1
+
+
+if __name__ == "__main__":
+    sys.exit(main())

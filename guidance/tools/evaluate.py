@@ -1,0 +1,354 @@
+"""Evaluate an estimated track against a ground truth (``guidance evaluate``).
+
+The track is the CSV that ``guidance replay --track FILE.csv`` writes (time, east/north,
+heading and the 2x2 position covariance of the estimator); the truth is a CSV with
+``t,east_m,north_m`` and optionally ``heading_deg`` in the same local frame and time base.
+Each track row is compared with the truth linearly interpolated at its time; rows outside
+the truth's time span are counted and left out. There is no alignment: the estimator starts
+from the operator's start point in the truth's own frame.
+
+Position error statistics (APE, translation part) come from ``evo``; the consistency
+figures use the covariance: NEES = e^T P^-1 e with e = truth - estimate (2 dof), the
+fraction of steps whose truth lies inside the 2-sigma ellipse (NEES <= 4, 86.5 % for an
+honest filter), the mean NEES (2 for an honest filter) and the median ratio of the
+2-sigma semi-major axis to the true error.
+"""
+
+from __future__ import annotations
+
+import argparse
+import csv
+import json
+import math
+import sys
+from collections.abc import Sequence
+from dataclasses import dataclass, fields
+from pathlib import Path
+from typing import TextIO
+
+import numpy as np
+import numpy.typing as npt
+
+from guidance.errors import UserError
+
+FloatArray = npt.NDArray[np.float64]
+
+TRACK_COLUMNS = (
+    "t_s",
+    "east_m",
+    "north_m",
+    "heading_deg",
+    "var_east_m2",
+    "cov_east_north_m2",
+    "var_north_m2",
+    "major_axis_m",
+)
+TRUTH_COLUMNS = ("t", "east_m", "north_m")
+NEES_2SIGMA = 4.0  # d^2 bound of the 2-sigma ellipse, 2 dof
+INSIDE_2SIGMA_EXPECTED = 1.0 - math.exp(-NEES_2SIGMA / 2.0)  # 0.865 for an honest filter
+MEAN_NEES_EXPECTED = 2.0
+MIN_ERROR_M = 1e-6  # steps with a smaller true error are left out of the axis ratio
+
+
+@dataclass(frozen=True, eq=False)
+class Track:
+    """The estimator's output, one entry per track row (times in the logs' time base)."""
+
+    t_s: FloatArray
+    east_m: FloatArray
+    north_m: FloatArray
+    heading_deg: FloatArray
+    var_east_m2: FloatArray
+    cov_east_north_m2: FloatArray
+    var_north_m2: FloatArray
+    major_axis_m: FloatArray  # full 2-sigma major axis (2 x semi-major)
+
+
+@dataclass(frozen=True, eq=False)
+class Truth:
+    """The ground truth; ``heading_deg`` is None when the file has no such column."""
+
+    t_s: FloatArray
+    east_m: FloatArray
+    north_m: FloatArray
+    heading_deg: FloatArray | None = None
+
+
+@dataclass(frozen=True)
+class Evaluation:
+    """All figures of one evaluation; None: not defined for this drive."""
+
+    steps: int  # track rows inside the truth's time span
+    excluded_steps: int  # track rows outside it
+    t_start_s: float
+    duration_s: float
+    path_m: float  # truth path length over the evaluated span
+    ape_rmse_m: float
+    ape_mean_m: float
+    ape_median_m: float
+    ape_std_m: float
+    ape_min_m: float
+    ape_max_m: float
+    final_error_m: float
+    final_error_pct: float | None  # of path_m; None for a zero path
+    nees_steps: int  # steps with a usable (positive definite) covariance
+    inside_2sigma_frac: float | None
+    mean_nees: float | None
+    median_axis_ratio: float | None  # 2-sigma semi-major axis / true error
+    heading_mean_abs_err_deg: float | None = None
+    heading_final_err_deg: float | None = None  # estimate - truth, wrapped to +-180
+
+    def as_dict(self) -> dict[str, float | int]:
+        """The figures with stable snake_case keys; undefined ones (None) are left out."""
+        out: dict[str, float | int] = {}
+        for f in fields(self):
+            value = getattr(self, f.name)
+            if value is not None:
+                out[f.name] = value
+        return out
+
+
+def _read_columns(
+    path: Path, what: str, required: Sequence[str], optional: Sequence[str] = ()
+) -> tuple[dict[str, FloatArray], list[int]]:
+    """The wanted columns as arrays and the file line of each row; UserError on bad input."""
+    line = 1
+    try:
+        with path.open(newline="", encoding="utf-8-sig") as f:
+            reader = csv.reader(f)
+            header = next(reader, None)
+            if header is None:
+                raise UserError(f"{path}: empty {what} file (no header line)")
+            names = [h.strip() for h in header]
+            missing = [c for c in required if c not in names]
+            if missing:
+                raise UserError(f"{path}: line 1: the {what} header lacks {', '.join(missing)}")
+            index = {c: names.index(c) for c in (*required, *optional) if c in names}
+            values: dict[str, list[float]] = {c: [] for c in index}
+            lines: list[int] = []
+            for row in reader:
+                line = reader.line_num
+                if not any(cell.strip() for cell in row):
+                    continue
+                if len(row) != len(names):
+                    raise UserError(
+                        f"{path}: line {line}: {len(row)} fields, the header has {len(names)}"
+                    )
+                for col, i in index.items():
+                    try:
+                        v = float(row[i])
+                    except ValueError:
+                        raise UserError(
+                            f"{path}: line {line}: {col} is not a number: {row[i]!r}"
+                        ) from None
+                    if not math.isfinite(v):
+                        raise UserError(f"{path}: line {line}: {col} is not finite: {row[i]!r}")
+                    values[col].append(v)
+                lines.append(line)
+    except OSError as exc:
+        raise UserError(f"{path}: cannot read the {what} file: {exc.strerror or exc}") from None
+    except UnicodeDecodeError:
+        raise UserError(f"{path}: not UTF-8 text after line {line}: is it a CSV file?") from None
+    except csv.Error as exc:
+        raise UserError(f"{path}: line {line}: bad CSV: {exc}") from None
+    if not lines:
+        raise UserError(f"{path}: the {what} file has a header but no data rows")
+    return {c: np.asarray(v, dtype=np.float64) for c, v in values.items()}, lines
+
+
+def _check_time(path: Path, t: FloatArray, lines: list[int], strict: bool) -> None:
+    step = np.diff(t)
+    bad = np.flatnonzero(step <= 0 if strict else step < 0)
+    if bad.size:
+        k = int(bad[0]) + 1
+        how = "does not increase" if strict and t[k] == t[k - 1] else "goes back"
+        raise UserError(
+            f"{path}: line {lines[k]}: time {t[k]!r} {how} after {t[k - 1]!r} "
+            f"(line {lines[k - 1]}): the rows must be in time order"
+        )
+
+
+def read_track(path: Path) -> Track:
+    """Read a track CSV of ``guidance replay --track``; UserError naming file and line."""
+    cols, lines = _read_columns(path, "track", TRACK_COLUMNS)
+    _check_time(path, cols["t_s"], lines, strict=False)
+    for col in ("var_east_m2", "var_north_m2", "major_axis_m"):
+        bad = np.flatnonzero(cols[col] < 0)
+        if bad.size:
+            raise UserError(f"{path}: line {lines[int(bad[0])]}: {col} is negative")
+    return Track(**cols)
+
+
+def read_truth(path: Path) -> Truth:
+    """Read a truth CSV (``t,east_m,north_m[,heading_deg]``); UserError naming file and line."""
+    cols, lines = _read_columns(path, "truth", TRUTH_COLUMNS, ("heading_deg",))
+    _check_time(path, cols["t"], lines, strict=True)
+    return Truth(cols["t"], cols["east_m"], cols["north_m"], cols.get("heading_deg"))
+
+
+def _wrap_deg(a: FloatArray) -> FloatArray:
+    return np.asarray((a + 180.0) % 360.0 - 180.0, dtype=np.float64)
+
+
+def _ape(
+    t: FloatArray, ref: tuple[FloatArray, FloatArray], est: tuple[FloatArray, FloatArray]
+) -> tuple[dict[str, float], FloatArray]:
+    """evo's APE (translation part, no alignment): its statistics and the per-step errors."""
+    try:  # lazily: evo.core pulls in scipy, and the rest of the command line needs neither
+        from evo.core import metrics, trajectory
+    except ModuleNotFoundError as exc:
+        raise UserError(f"evaluate needs the evo package ({exc}): pip install evo") from None
+
+    unit_quat = np.tile([1.0, 0.0, 0.0, 0.0], (t.size, 1))  # unused by the translation part
+
+    def traj(xy: tuple[FloatArray, FloatArray]) -> trajectory.PoseTrajectory3D:
+        xyz = np.column_stack([xy[0], xy[1], np.zeros_like(xy[0])])
+        return trajectory.PoseTrajectory3D(
+            positions_xyz=xyz, orientations_quat_wxyz=unit_quat, timestamps=t
+        )
+
+    ape = metrics.APE(metrics.PoseRelation.translation_part)
+    ape.process_data((traj(ref), traj(est)))
+    kinds = ("rmse", "mean", "median", "std", "min", "max")
+    stats = {k: float(ape.get_statistic(metrics.StatisticsType(k))) for k in kinds}
+    return stats, np.asarray(ape.error, dtype=np.float64)
+
+
+def evaluate(track: Track, truth: Truth) -> Evaluation:
+    """Compare the track with the truth interpolated at the track's times."""
+    t_lo, t_hi = float(truth.t_s[0]), float(truth.t_s[-1])
+    sel = (track.t_s >= t_lo) & (track.t_s <= t_hi)
+    n = int(np.count_nonzero(sel))
+    if n < 2:
+        raise UserError(
+            f"only {n} of the {track.t_s.size} track rows fall inside the truth's time span "
+            f"{t_lo:.3f} to {t_hi:.3f} s "
+            f"(track: {track.t_s[0]:.3f} to {track.t_s[-1]:.3f} s); at least 2 are needed: "
+            "are both files in the same time base?"
+        )
+    t = track.t_s[sel]
+    tt, tq = truth.t_s - t_lo, t - t_lo  # small numbers for the interpolation
+    ref_e = np.interp(tq, tt, truth.east_m)
+    ref_n = np.interp(tq, tt, truth.north_m)
+    est_e, est_n = track.east_m[sel], track.north_m[sel]
+    stats, err = _ape(t, (ref_e, ref_n), (est_e, est_n))
+
+    # Truth path over the evaluated span: its own samples inside plus the interpolated ends.
+    inner = (truth.t_s > t[0]) & (truth.t_s < t[-1])
+    pe = np.concatenate([ref_e[:1], truth.east_m[inner], ref_e[-1:]])
+    pn = np.concatenate([ref_n[:1], truth.north_m[inner], ref_n[-1:]])
+    path_m = float(np.sum(np.hypot(np.diff(pe), np.diff(pn))))
+    final_m = float(err[-1])
+
+    # Consistency: NEES = e^T P^-1 e with the closed-form inverse of the 2x2 covariance.
+    ex, en = ref_e - est_e, ref_n - est_n
+    a, b, c = track.var_east_m2[sel], track.cov_east_north_m2[sel], track.var_north_m2[sel]
+    det = a * c - b * b
+    ok = (a > 0) & (c > 0) & (det > 1e-12 * a * c)
+    nees = (c[ok] * ex[ok] ** 2 - 2.0 * b[ok] * ex[ok] * en[ok] + a[ok] * en[ok] ** 2) / det[ok]
+    big = err >= MIN_ERROR_M
+    ratio = 0.5 * track.major_axis_m[sel][big] / err[big]
+
+    head_mean: float | None = None
+    head_final: float | None = None
+    if truth.heading_deg is not None:
+        ref_h = np.interp(tq, tt, np.unwrap(truth.heading_deg, period=360.0))
+        dh = _wrap_deg(track.heading_deg[sel] - ref_h)
+        head_mean, head_final = float(np.mean(np.abs(dh))), float(dh[-1])
+
+    return Evaluation(
+        steps=n,
+        excluded_steps=int(track.t_s.size - n),
+        t_start_s=float(t[0]),
+        duration_s=float(t[-1] - t[0]),
+        path_m=path_m,
+        ape_rmse_m=stats["rmse"],
+        ape_mean_m=stats["mean"],
+        ape_median_m=stats["median"],
+        ape_std_m=stats["std"],
+        ape_min_m=stats["min"],
+        ape_max_m=stats["max"],
+        final_error_m=final_m,
+        final_error_pct=100.0 * final_m / path_m if path_m > 0 else None,
+        nees_steps=int(nees.size),
+        inside_2sigma_frac=float(np.mean(nees <= NEES_2SIGMA)) if nees.size else None,
+        mean_nees=float(np.mean(nees)) if nees.size else None,
+        median_axis_ratio=float(np.median(ratio)) if ratio.size else None,
+        heading_mean_abs_err_deg=head_mean,
+        heading_final_err_deg=head_final,
+    )
+
+
+def _num(value: float | None, fmt: str) -> str:
+    return "n/a" if value is None else format(value, fmt)
+
+
+def format_report(ev: Evaluation) -> str:
+    """A readable, aligned text report with units (ends with a newline)."""
+
+    def row(label: str, value: str, unit: str = "", note: str = "") -> str:
+        return f"  {label:<26}{value:>10} {unit:<4}{note}".rstrip()
+
+    pct = "" if ev.final_error_pct is None else f"({ev.final_error_pct:.2f} % of the path)"
+    lines = [
+        f"{ev.steps} steps over {ev.duration_s:.1f} s from t = {ev.t_start_s:.3f} s "
+        f"({ev.excluded_steps} track rows outside the truth's time span left out)",
+        row("truth path length", f"{ev.path_m:.1f}", "m"),
+        "position error (APE, translation part, no alignment)",
+        row("rmse", f"{ev.ape_rmse_m:.2f}", "m"),
+        row("mean", f"{ev.ape_mean_m:.2f}", "m"),
+        row("median", f"{ev.ape_median_m:.2f}", "m"),
+        row("std", f"{ev.ape_std_m:.2f}", "m"),
+        row("min", f"{ev.ape_min_m:.2f}", "m"),
+        row("max", f"{ev.ape_max_m:.2f}", "m"),
+        row("final", f"{ev.final_error_m:.2f}", "m", pct),
+        f"consistency of the 2-sigma ellipse ({ev.nees_steps} steps with a usable covariance)",
+        row(
+            "truth inside the ellipse",
+            _num(None if ev.inside_2sigma_frac is None else 100 * ev.inside_2sigma_frac, ".1f"),
+            "%",
+        ),
+        row("mean NEES", _num(ev.mean_nees, ".2f")),
+        row("median semi-major / error", _num(ev.median_axis_ratio, ".2f")),
+        f"  an honest filter: {100 * INSIDE_2SIGMA_EXPECTED:.1f} % inside, mean NEES "
+        f"{MEAN_NEES_EXPECTED:.0f} (fewer inside or a larger NEES: overconfident),",
+        "  axis ratio about 1.7 for a round ellipse, more for a long one",
+    ]
+    if ev.heading_mean_abs_err_deg is not None:
+        lines += [
+            "heading error (estimate - truth)",
+            row("mean abs", f"{ev.heading_mean_abs_err_deg:.2f}", "deg"),
+            row("final", _num(ev.heading_final_err_deg, "+.2f"), "deg"),
+        ]
+    return "\n".join(lines) + "\n"
+
+
+def run(track_path: Path, truth_path: Path, *, as_json: bool, out: TextIO) -> int:
+    """Read, evaluate and write the report (then, with ``as_json``, one JSON line)."""
+    ev = evaluate(read_track(track_path), read_truth(truth_path))
+    out.write(format_report(ev).rstrip("\n") + "\n")
+    if as_json:
+        out.write(json.dumps(ev.as_dict()) + "\n")
+    return 0
+
+
+def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
+    """Add the ``evaluate`` subcommand."""
+    p = sub.add_parser(
+        "evaluate",
+        help="compare an estimated track with a ground truth (errors and consistency)",
+        description=(
+            "Compare a track CSV of 'guidance replay --track' with a ground-truth CSV "
+            "(t,east_m,north_m[,heading_deg]) in the same frame and time base: position "
+            "error statistics (APE, no alignment), final error, and the consistency of the "
+            "estimator's 2-sigma ellipse (fraction inside, NEES)."
+        ),
+    )
+    p.add_argument("--track", type=Path, required=True, metavar="FILE", help="track CSV")
+    p.add_argument("--truth", type=Path, required=True, metavar="FILE", help="truth CSV")
+    p.add_argument("--json", action="store_true", help="last stdout line: the figures as JSON")
+    p.set_defaults(func=_cli_evaluate)
+
+
+def _cli_evaluate(args: argparse.Namespace) -> int:
+    return run(args.track, args.truth, as_json=args.json, out=sys.stdout)

@@ -1,0 +1,531 @@
+"""``guidance monitor``: watch one car or a fleet live, print messages for scripts, plot tracks.
+
+Live view (default): a rich table of every car seen, with pose, major axis,
+target and distance to it, last prompt, health and the age of the last message;
+a car's row goes when its liveliness token goes (its process ended or the link
+dropped). Press ``s`` or send SIGUSR1 for a PNG snapshot of the tracks, ``q``
+to quit. ``--json`` prints each message as one JSON line instead (plus
+``guidance.liveliness/1`` lines when cars appear or vanish). ``--count`` and
+``--timeout`` end the run: exit 0 if any message arrived, 1 (with one line on
+stderr) if none did. All zenoh work goes through ``guidance.telemetry``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import contextlib
+import json
+import math
+import os
+import select
+import signal
+import sys
+import threading
+import time
+from collections import deque
+from collections.abc import Iterator, Mapping, Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+from types import FrameType
+from typing import Any
+
+from guidance.errors import UserError
+from guidance.telemetry.client import MonitorClient, TelemetryEvent
+from guidance.telemetry.config import check_endpoint
+from guidance.telemetry.keys import DEFAULT_CONNECT, KINDS
+
+LIVELINESS_SCHEMA = "guidance.liveliness/1"
+TRACK_POINTS = 20_000
+ELLIPSE_EVERY_S = 10.0
+"""Keep one past ellipse per car this often (car time) for the snapshot."""
+
+
+# -- what the monitor knows about each car (pure, no I/O) ------------------------------------
+@dataclass(slots=True)
+class CarView:
+    vehicle_id: str
+    alive: bool = True
+    state: Mapping[str, Any] | None = None
+    prompt: str = ""
+    health: Mapping[str, Any] | None = None
+    last_received_s: float | None = None
+    messages: int = 0
+    gaps: int = 0
+    """Messages missing from the sequence numbers (dropped by the car or the network)."""
+    track: deque[tuple[float, float]] = field(default_factory=lambda: deque(maxlen=TRACK_POINTS))
+    ellipses: list[tuple[float, float, float, float, float]] = field(default_factory=list)
+    """(x_m, y_m, semi_major_m, semi_minor_m, orientation_rad), one every ELLIPSE_EVERY_S."""
+    _last_seq: dict[str, int] = field(default_factory=dict)
+    _last_ellipse_t_s: float = -math.inf
+
+
+class FleetView:
+    """Folds telemetry events into one ``CarView`` per car."""
+
+    def __init__(self) -> None:
+        self.cars: dict[str, CarView] = {}
+        self.gone: dict[str, CarView] = {}
+        self.messages = 0
+
+    def apply(self, event: TelemetryEvent) -> bool:
+        """Fold one event in; False when it told nothing new (a repeated late-join reply)."""
+        vid = event.vehicle_id
+        if event.kind == "gone":
+            car = self.cars.pop(vid, None)
+            if car is not None:
+                car.alive = False
+                self.gone[vid] = car
+            return True
+        car = self.cars.get(vid)
+        if car is None:
+            car = self.gone.pop(vid, None) or CarView(vid)
+            car.alive = True
+            self.cars[vid] = car
+        if event.kind == "alive" or event.message is None:
+            return True
+        msg = event.message
+        seq = msg.get("seq")
+        if isinstance(seq, int):
+            last = car._last_seq.get(event.kind)
+            if event.late_join and last is not None:
+                return False  # live (or queried) messages already arrived; this one is older
+            if last is not None and seq > last + 1:
+                car.gaps += seq - last - 1
+            if last is None or seq > last or seq == 1:
+                car._last_seq[event.kind] = seq
+        self.messages += 1
+        car.messages += 1
+        car.last_received_s = event.received_s
+        if event.kind == "state":
+            self._apply_state(car, msg)
+        elif event.kind == "prompt":
+            car.prompt = str(msg.get("text", ""))
+        elif event.kind == "health":
+            car.health = msg
+        return True
+
+    @staticmethod
+    def _apply_state(car: CarView, msg: Mapping[str, Any]) -> None:
+        car.state = msg
+        x, y = msg.get("x_m"), msg.get("y_m")
+        if not (isinstance(x, int | float) and isinstance(y, int | float)):
+            return
+        car.track.append((float(x), float(y)))
+        t_s = msg.get("t_s")
+        ell = msg.get("ellipse") or {}
+        if isinstance(t_s, int | float) and t_s - car._last_ellipse_t_s >= ELLIPSE_EVERY_S:
+            axes = [ell.get(k) for k in ("semi_major_m", "semi_minor_m", "orientation_rad")]
+            nums = [float(v) for v in axes if isinstance(v, int | float)]
+            if len(nums) == 3:
+                car.ellipses.append((float(x), float(y), nums[0], nums[1], nums[2]))
+                car._last_ellipse_t_s = float(t_s)
+
+
+def _fmt(value: object, spec: str = ".1f", unit: str = "") -> str:
+    if isinstance(value, int | float) and math.isfinite(value):
+        return f"{value:{spec}}{unit}"
+    return "-"
+
+
+def health_summary(health: Mapping[str, Any] | None) -> str:
+    """ "ok", or the inputs that are down or invalid, e.g. "compass down, camera invalid"."""
+    if health is None:
+        return "-"
+    problems = []
+    for name, h in sorted((health.get("inputs") or {}).items()):
+        if not h.get("alive", False):
+            problems.append(f"{name} down")
+        elif not h.get("valid", False):
+            problems.append(f"{name} invalid")
+    tel = (health.get("components") or {}).get("telemetry") or {}
+    drops = sum((tel.get("dropped") or {}).values())
+    text = ", ".join(problems) if problems else "ok"
+    return f"{text} ({drops} dropped)" if drops else text
+
+
+def car_row(car: CarView, now_s: float) -> dict[str, str]:
+    """One table row as strings (also what tests check)."""
+    s = car.state or {}
+    target = s.get("target") or {}
+    dist = None
+    if all(isinstance(v, int | float) for v in (s.get("x_m"), s.get("y_m"))) and all(
+        isinstance(target.get(k), int | float) for k in ("x_m", "y_m")
+    ):
+        dist = math.hypot(target["x_m"] - s["x_m"], target["y_m"] - s["y_m"])
+    age = None if car.last_received_s is None else now_s - car.last_received_s
+    lost = s.get("lost")
+    return {
+        "car": car.vehicle_id,
+        "x_m": _fmt(s.get("x_m")),
+        "y_m": _fmt(s.get("y_m")),
+        "heading_deg": _fmt(s.get("heading_deg"), ".0f"),
+        "major_axis_m": _fmt((s.get("ellipse") or {}).get("major_axis_m"))
+        + (" LOST" if lost else ""),
+        "target": (
+            f"{target.get('kind', '?')} ({_fmt(target.get('x_m'), '.0f')}, "
+            f"{_fmt(target.get('y_m'), '.0f')})"
+            if target
+            else "-"
+        ),
+        "distance_m": _fmt(dist, ".0f"),
+        "prompt": car.prompt or "-",
+        "health": health_summary(car.health),
+        "age_s": _fmt(age, ".1f"),
+    }
+
+
+_COLUMNS = (
+    ("car", "car"),
+    ("x_m", "x m"),
+    ("y_m", "y m"),
+    ("heading_deg", "hdg °"),
+    ("major_axis_m", "major axis m"),
+    ("target", "target"),
+    ("distance_m", "to target m"),
+    ("prompt", "last prompt"),
+    ("health", "health"),
+    ("age_s", "age s"),
+)
+
+
+def render_table(view: FleetView, now_s: float, title: str) -> Any:
+    from rich.table import Table
+
+    table = Table(title=title, caption="s: snapshot PNG   q: quit", expand=False)
+    for _, header in _COLUMNS:
+        table.add_column(header, overflow="fold")
+    for vid in sorted(view.cars):
+        row = car_row(view.cars[vid], now_s)
+        style = "red" if "LOST" in row["major_axis_m"] else None
+        table.add_row(*(row[k] for k, _ in _COLUMNS), style=style)
+    if not view.cars:
+        table.add_row("(no car seen yet)", *([""] * (len(_COLUMNS) - 1)))
+    return table
+
+
+def write_snapshot(view: FleetView, path: Path) -> Path:
+    """PNG of every car's track, current 2-sigma ellipse, past ellipses, target and goal."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+    from matplotlib.patches import Ellipse as EllipsePatch
+
+    fig, ax = plt.subplots(figsize=(8, 8), dpi=100)
+    try:
+        cars = {**view.gone, **view.cars}
+        colours = plt.rcParams["axes.prop_cycle"].by_key()["color"]
+        drew_ellipse = drew_target = drew_goal = False
+        for i, vid in enumerate(sorted(cars)):
+            car, colour = cars[vid], colours[i % len(colours)]
+            label = vid if car.alive else f"{vid} (gone)"
+            if car.track:
+                xs, ys = zip(*car.track, strict=True)
+                ax.plot(xs, ys, "-", color=colour, lw=1.2, label=f"{label} track")
+                ax.plot(xs[-1:], ys[-1:], "o", color=colour, ms=6)
+            for x, y, a, b, th in car.ellipses:
+                ax.add_patch(
+                    EllipsePatch(
+                        (x, y),
+                        2 * a,
+                        2 * b,
+                        angle=math.degrees(th),
+                        fill=False,
+                        color=colour,
+                        lw=0.6,
+                        alpha=0.5,
+                    )
+                )
+            s = car.state or {}
+            ell = s.get("ellipse") or {}
+            if all(isinstance(v, int | float) for v in (s.get("x_m"), s.get("y_m"))) and all(
+                isinstance(ell.get(k), int | float)
+                for k in ("semi_major_m", "semi_minor_m", "orientation_rad")
+            ):
+                ax.add_patch(
+                    EllipsePatch(
+                        (s["x_m"], s["y_m"]),
+                        2 * ell["semi_major_m"],
+                        2 * ell["semi_minor_m"],
+                        angle=math.degrees(ell["orientation_rad"]),
+                        fill=False,
+                        color=colour,
+                        lw=1.5,
+                        label=None if drew_ellipse else "2-sigma ellipse",
+                    )
+                )
+                drew_ellipse = True
+            target, goal = s.get("target") or {}, s.get("goal") or {}
+            if isinstance(target.get("x_m"), int | float):
+                ax.plot(
+                    [target["x_m"]],
+                    [target["y_m"]],
+                    "x",
+                    color=colour,
+                    ms=9,
+                    mew=2,
+                    label=None if drew_target else "target",
+                )
+                drew_target = True
+            if isinstance(goal.get("x_m"), int | float):
+                ax.plot(
+                    [goal["x_m"]],
+                    [goal["y_m"]],
+                    "*",
+                    color=colour,
+                    ms=13,
+                    label=None if drew_goal else "goal",
+                )
+                drew_goal = True
+        ax.set_xlabel("x east (m)")
+        ax.set_ylabel("y north (m)")
+        ax.set_aspect("equal", adjustable="datalim")
+        ax.grid(True, alpha=0.3)
+        ax.set_title(
+            f"guidance monitor: {len(view.cars)} car(s) live, {time.strftime('%Y-%m-%d %H:%M:%S')}"
+        )
+        if ax.get_legend_handles_labels()[0]:
+            ax.legend(loc="best", fontsize="small")
+        else:
+            ax.text(0.5, 0.5, "no track received", ha="center", transform=ax.transAxes)
+        path.parent.mkdir(parents=True, exist_ok=True)
+        fig.savefig(path)
+    finally:
+        plt.close(fig)
+    return path
+
+
+# -- command line -----------------------------------------------------------------------------
+def register(subparsers: Any) -> None:
+    p = subparsers.add_parser(
+        "monitor",
+        help="watch cars' telemetry live (table, JSON lines, PNG snapshot)",
+        description=(
+            "Watch cars' telemetry: a live table (s: PNG snapshot, q: quit; SIGUSR1: snapshot), "
+            "or JSON lines for scripts. Exit 0 if messages arrived, 1 if none did."
+        ),
+    )
+    p.add_argument(
+        "--connect",
+        metavar="ENDPOINT",
+        action="append",
+        help=f"zenoh endpoint of a car or router, repeatable (default {DEFAULT_CONNECT})",
+    )
+    p.add_argument("--vehicle", default="all", metavar="ID|all", help="one car or all (default)")
+    p.add_argument("--json", action="store_true", help="print one JSON message per line")
+    p.add_argument("--count", type=_positive_int, metavar="N", help="exit after N messages")
+    p.add_argument("--timeout", type=_positive_float, metavar="S", help="exit after S seconds")
+    p.add_argument(
+        "--snapshot", type=Path, metavar="PNG", help="PNG of the tracks (on exit, s, SIGUSR1)"
+    )
+    p.add_argument(
+        "--zenoh-config",
+        metavar="JSON5",
+        default="",
+        help="zenoh config file for this monitor (TLS certificates, credentials): config/zenoh/",
+    )
+    p.add_argument(
+        "--send-goal",
+        nargs=2,
+        type=float,
+        metavar=("X_M", "Y_M"),
+        help="ask --vehicle ID to drive to a new goal (obeyed only if the car allows it)",
+    )
+    p.set_defaults(func=run)
+
+
+def _positive_int(text: str) -> int:
+    value = int(text)
+    if value <= 0:
+        raise argparse.ArgumentTypeError("must be > 0")
+    return value
+
+
+def _positive_float(text: str) -> float:
+    value = float(text)
+    if not (value > 0 and math.isfinite(value)):
+        raise argparse.ArgumentTypeError("must be > 0")
+    return value
+
+
+def run(args: argparse.Namespace) -> int:
+    endpoints: Sequence[str] = args.connect or [DEFAULT_CONNECT]
+    for ep in endpoints:
+        check_endpoint(ep)
+    client = MonitorClient(endpoints, vehicle=args.vehicle, zenoh_config=args.zenoh_config)
+    client.open()
+    try:
+        if args.send_goal is not None:
+            return _send_goal(client, args)
+        if args.json:
+            return _run_json(client, args)
+        return _run_live(client, args)
+    finally:
+        client.close()
+
+
+def _send_goal(client: MonitorClient, args: argparse.Namespace) -> int:
+    if args.vehicle == "all":
+        raise UserError("--send-goal needs --vehicle ID")
+    deadline = time.monotonic() + (args.timeout or 5.0)
+    while client.peers() == 0 and time.monotonic() < deadline:
+        time.sleep(0.05)
+    if client.peers() == 0:
+        print(
+            f"guidance monitor: no zenoh peer reachable at {', '.join(client.connect)}",
+            file=sys.stderr,
+        )
+        return 1
+    time.sleep(0.2)  # let the car's subscription reach us
+    x_m, y_m = args.send_goal
+    client.send_goal(args.vehicle, x_m, y_m)
+    time.sleep(0.2)
+    print(
+        f"goal ({x_m:.1f}, {y_m:.1f}) m sent to {args.vehicle}; "
+        "the car applies it only if its config and access control allow remote goals"
+    )
+    return 0
+
+
+def _events(
+    client: MonitorClient, deadline: float | None, stop: threading.Event
+) -> Iterator[TelemetryEvent | None]:
+    """Events as they come; None every 0.25 s of quiet so the caller can refresh."""
+    while not stop.is_set():
+        wait = 0.25 if deadline is None else min(0.25, deadline - time.monotonic())
+        if wait <= 0:
+            return
+        yield client.get(wait)
+
+
+def _no_messages(client: MonitorClient, timeout: float | None) -> int:
+    within = f" within {timeout:g} s" if timeout else ""
+    print(
+        f"guidance monitor: no messages received from {', '.join(client.connect)}{within} "
+        "(is the car running, and are the endpoint and certificates right?)",
+        file=sys.stderr,
+    )
+    return 1
+
+
+def _run_json(client: MonitorClient, args: argparse.Namespace) -> int:
+    view = FleetView()
+    stop = threading.Event()
+    deadline = None if args.timeout is None else time.monotonic() + args.timeout
+    client.query_latest()
+    out = sys.stdout
+    try:
+        for event in _events(client, deadline, stop):
+            if event is None:
+                continue
+            if event.kind == "alive" and event.vehicle_id not in view.cars:
+                client.query_latest(event.vehicle_id)
+            if not view.apply(event):
+                continue
+            if event.kind in ("alive", "gone"):
+                line: Mapping[str, Any] = {
+                    "schema": LIVELINESS_SCHEMA,
+                    "vehicle_id": event.vehicle_id,
+                    "alive": event.kind == "alive",
+                }
+            elif event.kind in KINDS and event.message is not None:
+                line = event.message
+            else:
+                continue
+            out.write(json.dumps(line, separators=(",", ":")) + "\n")
+            out.flush()
+            if args.count is not None and view.messages >= args.count:
+                break
+    except BrokenPipeError:  # e.g. piped into head
+        with contextlib.suppress(OSError):
+            sys.stdout = open(os.devnull, "w")  # noqa: SIM115 - silence the exit-time flush
+    if args.snapshot is not None:
+        write_snapshot(view, args.snapshot)
+    return 0 if view.messages else _no_messages(client, args.timeout)
+
+
+def _run_live(client: MonitorClient, args: argparse.Namespace) -> int:
+    from rich.console import Console
+    from rich.live import Live
+
+    console = Console(stderr=False)
+    view = FleetView()
+    stop = threading.Event()
+    snap = threading.Event()
+    deadline = None if args.timeout is None else time.monotonic() + args.timeout
+    snapshot_path: Path = args.snapshot or Path(
+        f"guidance-monitor-{time.strftime('%Y%m%d-%H%M%S')}.png"
+    )
+    title = f"guidance monitor: {', '.join(client.connect)}"
+    client.query_latest()
+
+    def on_usr1(_sig: int, _frame: FrameType | None) -> None:
+        snap.set()
+
+    old_usr1 = signal.signal(signal.SIGUSR1, on_usr1) if hasattr(signal, "SIGUSR1") else None
+    status = ""
+    try:
+        with (
+            _keys() as read_key,
+            Live(
+                render_table(view, time.monotonic(), title),
+                console=console,
+                refresh_per_second=4,
+                transient=False,
+            ) as live,
+        ):
+            next_draw = 0.0
+            for event in _events(client, deadline, stop):
+                if event is not None:
+                    if event.kind == "alive" and event.vehicle_id not in view.cars:
+                        client.query_latest(event.vehicle_id)
+                    view.apply(event)
+                    if args.count is not None and view.messages >= args.count:
+                        stop.set()
+                key = read_key()
+                if key in ("q", "Q"):
+                    stop.set()
+                elif key in ("s", "S"):
+                    snap.set()
+                if snap.is_set():
+                    snap.clear()
+                    status = f"snapshot written: {write_snapshot(view, snapshot_path)}"
+                now = time.monotonic()
+                if now >= next_draw or stop.is_set():
+                    table = render_table(view, now, title)
+                    if status:
+                        table.caption = f"{status}   (s: snapshot   q: quit)"
+                    live.update(table)
+                    next_draw = now + 0.25
+    finally:
+        if old_usr1 is not None:
+            signal.signal(signal.SIGUSR1, old_usr1)
+    if args.snapshot is not None:
+        console.print(f"snapshot written: {write_snapshot(view, args.snapshot)}")
+    if deadline is not None or args.count is not None:
+        return 0 if view.messages else _no_messages(client, args.timeout)
+    return 0
+
+
+@contextlib.contextmanager
+def _keys() -> Iterator[Any]:
+    """Single key presses from a terminal without waiting for Enter; no-op when not a TTY."""
+    stdin = sys.stdin
+    if stdin is None or not stdin.isatty():
+        yield lambda: None
+        return
+    import termios
+    import tty
+
+    fd = stdin.fileno()
+    saved = termios.tcgetattr(fd)
+    try:
+        tty.setcbreak(fd)
+
+        def read_key() -> str | None:
+            ready, _, _ = select.select([fd], [], [], 0)
+            return os.read(fd, 1).decode(errors="replace") if ready else None
+
+        yield read_key
+    finally:
+        termios.tcsetattr(fd, termios.TCSADRAIN, saved)

@@ -1,0 +1,569 @@
+"""``guidance replay``: recorded inputs through the same pipeline (issue 6, docs/app.md).
+
+Two kinds of input:
+
+* an MCAP recording made by ``guidance run`` or ``guidance sim`` (``guidance.recording``):
+  its ``/session`` record rebuilds the ``PipelineConfig``, and its input topics
+  (``/odometry``, ``/compass``, ``/heading``, ``/landmark_fix``, ``/scene``, ``/goal``) are
+  fed to a fresh ``Pipeline`` in the order the app processed them. Because the pipeline is
+  pure and the recorded floats round-trip exactly through JSON, the replay reproduces the
+  recorded estimates and decisions bit for bit; ``compare_with_recording`` checks that;
+* raw logs from elsewhere: a CAN log (candump ``.log``, ``.asc``, ``.blf``... through
+  python-can's readers and the car's ``WheelSpeedDecoder``) and optionally an NMEA text file
+  (each line optionally prefixed by its time in seconds; otherwise spread at ``--nmea-rate``
+  from the start of the CAN log), merged by time. Start, goal and method come from
+  ``--config`` (the car's TOML) or sensible defaults.
+
+``--speed X`` paces the replay at X times the recorded rate; by default it runs flat out.
+"""
+
+from __future__ import annotations
+
+import argparse
+import datetime as dt
+import heapq
+import json
+import math
+import re
+import sys
+import time
+from collections.abc import Callable, Iterable, Iterator, Mapping
+from dataclasses import dataclass, field, replace
+from pathlib import Path
+from typing import TYPE_CHECKING, Any
+
+from guidance.core.messages import (
+    CompassHeading,
+    IntersectionScene,
+    LandmarkFix,
+    TurnCompleted,
+    WheelOdometry,
+)
+from guidance.errors import UserError
+from guidance.tools.track import TrackWriter
+
+if TYPE_CHECKING:  # the estimator stack (filterpy, scipy, numba) loads on first use only
+    from guidance.core.pipeline import Input, Outputs, Pipeline, PipelineConfig
+
+DEFAULT_PROFILE = "gm_global_a"
+
+INPUT_TOPICS = (
+    "/odometry",
+    "/compass",
+    "/heading",
+    "/landmark_fix",
+    "/scene",
+    "/approach",
+    "/goal",
+)
+
+
+# ----------------------------------------------------------------------------- MCAP
+
+
+def pipeline_config_from_session(session: Mapping[str, Any]) -> PipelineConfig:
+    """Rebuild the pipeline configuration from a recording's ``/session`` record."""
+    from guidance.core.estimator import EstimatorConfig
+    from guidance.core.health import HealthConfig
+    from guidance.core.navigator import Landmark, Method, NavigatorConfig
+    from guidance.core.pipeline import PipelineConfig
+    from guidance.core.prompts import Units
+
+    d = session.get("pipeline")
+    if not isinstance(d, Mapping):
+        raise UserError("the recording's /session record has no pipeline configuration")
+    est = EstimatorConfig(**d["estimator"])
+    nav_d = dict(d["navigator"])
+    nav_d["method"] = Method(nav_d["method"])
+    nav = NavigatorConfig(**nav_d)
+    heading = d.get("start_heading_rad")
+    return PipelineConfig(
+        estimator=est,
+        navigator=nav,
+        start_xy_m=(float(d["start_xy_m"][0]), float(d["start_xy_m"][1])),
+        goal_xy_m=(float(d["goal_xy_m"][0]), float(d["goal_xy_m"][1])),
+        start_heading_rad=None if heading is None else float(heading),
+        landmarks=tuple(Landmark(**lm) for lm in d.get("landmarks", [])),
+        declination_deg=float(d.get("declination_deg", 0.0)),
+        mounting_offset_deg=float(d.get("mounting_offset_deg", 0.0)),
+        units=Units(d.get("units", "metric")),
+        state_period_s=float(d.get("state_period_s", 0.1)),
+        expected_rates_hz=dict(d.get("expected_rates_hz", {})),
+        health=HealthConfig(),
+        straight_after_m=float(d.get("straight_after_m", 25.0)),
+        uncertain_warn_m=float(d.get("uncertain_warn_m", 50.0)),
+        stop_at_arrival=bool(d.get("stop_at_arrival", True)),
+    )
+
+
+def message_from_record(topic: str, data: Mapping[str, Any]) -> Input | None:
+    """One recorded input message back as the message the pipeline took."""
+    from guidance.core.messages import Approach, GoalUpdate, HeadingFix
+
+    t = float(data["t_s"])
+    if topic == "/odometry":
+        return WheelOdometry(t, float(data["d_left_m"]), float(data["d_right_m"]))
+    if topic == "/compass":
+        return CompassHeading(t, float(data["heading_deg"]), bool(data.get("is_true", False)))
+    if topic == "/heading":
+        return HeadingFix(t, float(data["theta_rad"]))
+    if topic == "/landmark_fix":
+        return LandmarkFix(
+            t,
+            int(data["landmark_id"]),
+            float(data["x_m"]),
+            float(data["y_m"]),
+            float(data["sigma_m"]),
+        )
+    if topic == "/scene":
+        if data.get("kind") == "intersection":
+            dist = data.get("distance_m")
+            return IntersectionScene(
+                t,
+                tuple(float(h) for h in data["exit_headings_rad"]),
+                None if dist is None else float(dist),
+                tuple(str(x) for x in data.get("labels", [])),
+            )
+        if data.get("source") == "detected":
+            return None  # re-derived by the pipeline's own turn detector
+        return TurnCompleted(t, float(data["heading_change_rad"]), str(data.get("source", "")))
+    if topic == "/approach":
+        return Approach(t, float(data["distance_m"]))
+    if topic == "/goal":
+        return GoalUpdate(t, float(data["x_m"]), float(data["y_m"]), str(data.get("source", "")))
+    return None
+
+
+RAW_TOPICS = ("/can", "/nmea", "/heading", "/landmark_fix", "/scene", "/approach", "/goal")
+
+
+def mcap_inputs(
+    path: str | Path, *, raw: bool = False, profile: str = "gm_global_a"
+) -> tuple[dict[str, Any], Iterator[Input]]:
+    """The session record and the recorded inputs (in processing order) of a recording.
+
+    ``raw=True`` decodes the raw ``/can`` frames and ``/nmea`` lines again with the car's
+    decoder (``profile``) and compass parser instead of taking the decoded ``/odometry`` and
+    ``/compass`` the app recorded: the drivers' decoding is then part of what is replayed.
+    """
+    from guidance.recording.reader import Reader
+
+    sessions = list(Reader(path, topics=["/session"], log_time_order=False))
+    if not sessions:
+        raise UserError(f"{path}: no /session record; was it recorded by guidance run/sim?")
+    session = sessions[0].data
+
+    def inputs() -> Iterator[Input]:
+        for rec in Reader(path, topics=INPUT_TOPICS, log_time_order=False):
+            msg = message_from_record(rec.topic, rec.data)
+            if msg is not None:
+                yield msg
+
+    def raw_inputs() -> Iterator[Input]:
+        import can
+
+        from drivers.can_odometry import WheelSpeedDecoder
+        from drivers.compass import NmeaCompassParser
+
+        decoder = WheelSpeedDecoder(profile)
+        parser = NmeaCompassParser()
+        for rec in Reader(path, topics=RAW_TOPICS, log_time_order=False):
+            d = rec.data
+            if rec.topic == "/can":
+                frame = can.Message(
+                    timestamp=float(d["t_s"]),
+                    arbitration_id=int(d["id"]),
+                    data=bytes.fromhex(str(d["data_hex"])),
+                    is_extended_id=bool(d.get("is_extended_id", False)),
+                    is_error_frame=bool(d.get("is_error_frame", False)),
+                )
+                odo = decoder.feed(frame)
+                if odo is not None:
+                    yield odo
+            elif rec.topic == "/nmea":
+                heading = parser.feed_line(
+                    str(d["line"]).encode("ascii", "replace"), float(d["t_s"])
+                )
+                if heading is not None:
+                    yield heading
+            else:
+                msg = message_from_record(rec.topic, d)
+                if msg is not None:
+                    yield msg
+
+    return session, raw_inputs() if raw else inputs()
+
+
+def recorded_outputs(path: str | Path) -> dict[str, list[dict[str, Any]]]:
+    """The decisions and states the recording holds (what the live run computed)."""
+    from guidance.recording.reader import Reader
+
+    out: dict[str, list[dict[str, Any]]] = {"/decision": [], "/state": []}
+    for rec in Reader(path, topics=list(out), log_time_order=False):
+        out[rec.topic].append(rec.data)
+    return out
+
+
+# ----------------------------------------------------------------------------- raw logs
+
+
+_STAMPED = re.compile(r"^\s*(\d+(?:\.\d*)?)[\s,;]+(.*)$")
+
+
+def nmea_inputs(path: Path, start_s: float, rate_hz: float) -> Iterator[CompassHeading]:
+    """Headings of an NMEA text file; a leading number on a line is its time (s)."""
+    from drivers.compass import NmeaCompassParser
+
+    parser = NmeaCompassParser()
+    t = start_s
+    try:
+        lines = path.read_bytes().splitlines()
+    except OSError as exc:
+        raise UserError(f"{path}: {exc.strerror or exc}") from None
+    for raw in lines:
+        text = raw.decode("ascii", errors="replace")
+        m = _STAMPED.match(text)
+        if m:
+            t_line, body = float(m.group(1)), m.group(2)
+        else:
+            t_line, body = t, text
+            t += 1.0 / rate_hz
+        out = parser.feed_line(body.encode("ascii", errors="replace"), t_line)
+        if out is not None:
+            yield out
+
+
+def can_inputs(path: Path, profile: str) -> Iterator[WheelOdometry]:
+    """Wheel odometry of a CAN log through the car's decoder (python-can readers)."""
+    from drivers.can_odometry import LogReadResult, WheelSpeedDecoder, read_can_log
+
+    if not path.is_file():
+        raise UserError(f"{path}: no such file")
+    decoder = WheelSpeedDecoder(profile)
+    for msg in read_can_log(path, LogReadResult()):
+        out = decoder.feed(msg)
+        if out is not None:
+            yield out
+
+
+def _first_can_time(path: Path) -> float:
+    from drivers.can_odometry import LogReadResult, read_can_log
+
+    for msg in read_can_log(path, LogReadResult()):
+        return float(msg.timestamp)
+    return 0.0
+
+
+# ----------------------------------------------------------------------------- running
+
+
+@dataclass
+class ReplayResult:
+    inputs: int = 0
+    decisions: list[dict[str, Any]] = field(default_factory=list)
+    prompts: list[tuple[float, str]] = field(default_factory=list)
+    states: list[dict[str, Any]] = field(default_factory=list)
+    first_t_s: float | None = None
+    last_t_s: float | None = None
+    odometer_m: float = 0.0
+    final: dict[str, Any] = field(default_factory=dict)
+    landmark_updates: int = 0
+
+    def expected(self) -> dict[str, Any]:
+        """The outputs a regression test compares (decisions, prompts, sampled states)."""
+        return {
+            "inputs": self.inputs,
+            "decisions": self.decisions,
+            "prompts": [list(p) for p in self.prompts],
+            "states": self.states[::10],
+            "final": self.final,
+        }
+
+
+def replay(
+    pipeline: Pipeline,
+    inputs: Iterable[Input],
+    *,
+    speed: float | None = None,
+    on_output: Callable[[Input, Outputs], None] | None = None,
+) -> ReplayResult:
+    """Feed ``inputs`` to ``pipeline``; collect decisions, prompts and published states."""
+    res = ReplayResult()
+    wall0 = time.monotonic()
+    for msg in inputs:
+        if res.first_t_s is None:
+            res.first_t_s = msg.t_s
+        if speed is not None:
+            ahead = (msg.t_s - res.first_t_s) / speed - (time.monotonic() - wall0)
+            if ahead > 0:
+                time.sleep(ahead)
+        out = pipeline.feed(msg)
+        res.inputs += 1
+        res.last_t_s = msg.t_s
+        for d in out.decisions:
+            res.decisions.append(
+                {
+                    "t_s": d.t_s,
+                    "exit_index": d.exit_index,
+                    "intersection_id": d.intersection_id,
+                    "exit_heading_rad": d.exit_heading_rad,
+                    "turn_rad": d.turn_rad,
+                    "target_kind": d.target_kind,
+                    "revisit": d.revisit,
+                }
+            )
+        for p in out.prompts:
+            res.prompts.append((p.t_s, p.text))
+        if out.state is not None:
+            s = out.state
+            res.states.append(
+                {
+                    "t_s": s.t_s,
+                    "x_m": s.x_m,
+                    "y_m": s.y_m,
+                    "heading_rad": s.heading_rad,
+                    "major_axis_m": s.ellipse.major_axis_m,
+                }
+            )
+        if on_output is not None:
+            on_output(msg, out)
+    st = pipeline.state()
+    res.odometer_m = pipeline.odometer_m
+    res.landmark_updates = pipeline.landmark_updates
+    res.final = {
+        "t_s": st.t_s,
+        "x_m": st.x_m,
+        "y_m": st.y_m,
+        "heading_rad": st.heading_rad,
+        "major_axis_m": st.ellipse.major_axis_m,
+        "odometer_m": pipeline.odometer_m,
+        "arrived": pipeline.arrived,
+        "lost": st.lost,
+    }
+    return res
+
+
+def compare_with_recording(
+    res: ReplayResult, recorded: Mapping[str, list[dict[str, Any]]]
+) -> list[str]:
+    """Differences between the replay and what the live run recorded (empty: identical)."""
+    problems = []
+    rec_d = recorded.get("/decision", [])
+    if len(rec_d) != len(res.decisions):
+        problems.append(f"{len(res.decisions)} decisions replayed, {len(rec_d)} recorded")
+    for i, (a, b) in enumerate(zip(res.decisions, rec_d, strict=False)):
+        if (a["t_s"], a["exit_index"], a["intersection_id"], a["exit_heading_rad"]) != (
+            b["t_s"],
+            b["exit_index"],
+            b["intersection_id"],
+            b["exit_heading_rad"],
+        ):
+            problems.append(f"decision {i} differs: replay {a} recorded {b}")
+    rec_s = recorded.get("/state", [])
+    if len(rec_s) != len(res.states):
+        problems.append(f"{len(res.states)} states replayed, {len(rec_s)} recorded")
+    for i, (a, b) in enumerate(zip(res.states, rec_s, strict=False)):
+        if (a["t_s"], a["x_m"], a["y_m"], a["heading_rad"]) != (
+            b["t_s"],
+            b["x_m"],
+            b["y_m"],
+            b["heading_rad"],
+        ):
+            problems.append(f"state {i} at t={a['t_s']} differs")
+            break
+    return problems
+
+
+@dataclass(frozen=True)
+class RawSetup:
+    """What a car TOML gives a raw-log replay: the pipeline and the CAN profile."""
+
+    pipeline: PipelineConfig
+    profile: str
+    notes: tuple[str, ...] = ()
+
+
+def _log_date(path: Path) -> dt.date | None:
+    """The date of a log whose times are Unix seconds (for the declination), else None."""
+    t = _first_can_time(path)
+    if t > 1e9:  # after 2001-09-09: a Unix time, not a monotonic clock
+        return dt.datetime.fromtimestamp(t, dt.UTC).date()
+    return None
+
+
+def raw_setup(
+    config: str | None, profile: str | None, start_heading_deg: float | None, log: Path
+) -> RawSetup:
+    """Pipeline and profile for raw logs: everything in the config, the CLI flags on top."""
+    if config:
+        from guidance.app.config import load_config
+
+        date = _log_date(log)
+        cfg = load_config(config, require_goal=False, default_date=date)
+        pcfg = cfg.pipeline
+        cfg_profile = getattr(cfg.odometry.config, "profile", None) if cfg.odometry else None
+        if start_heading_deg is not None:
+            pcfg = replace(pcfg, start_heading_rad=math.radians(90.0 - start_heading_deg))
+        notes = (f"declination {pcfg.declination_deg:+.2f} deg for {date}",) if date else ()
+        if pcfg.goal_xy_m == pcfg.start_xy_m:  # no [goal]: evaluate the estimate, never arrive
+            pcfg = replace(pcfg, goal_xy_m=(pcfg.start_xy_m[0] + 1e7, pcfg.start_xy_m[1]),
+                           stop_at_arrival=False)  # fmt: skip
+        return RawSetup(pcfg, profile or cfg_profile or DEFAULT_PROFILE, notes)
+    note = "no --config: no declination, no calibration, the paper's noise model"
+    return RawSetup(_default_pipeline(start_heading_deg), profile or DEFAULT_PROFILE, (note,))
+
+
+def _default_pipeline(start_heading_deg: float | None) -> PipelineConfig:
+    from guidance.core.estimator import EstimatorConfig
+    from guidance.core.navigator import NavigatorConfig
+    from guidance.core.pipeline import PipelineConfig
+
+    return PipelineConfig(
+        estimator=EstimatorConfig(),
+        navigator=NavigatorConfig(),
+        start_xy_m=(0.0, 0.0),
+        goal_xy_m=(1e7, 0.0),
+        start_heading_rad=(
+            None if start_heading_deg is None else math.radians(90.0 - start_heading_deg)
+        ),
+        expected_rates_hz={},
+        stop_at_arrival=False,
+    )
+
+
+# ----------------------------------------------------------------------------- CLI
+
+
+def register(sub: Any) -> None:
+    p = sub.add_parser(
+        "replay",
+        help="run a recording (MCAP) or raw CAN/NMEA logs through the pipeline",
+        description=(
+            "Replay an MCAP recording of guidance run/sim through the same pipeline (the "
+            "estimates and decisions are reproduced exactly and compared with the recorded "
+            "ones), or raw logs: a CAN log (candump .log, .asc, .blf via python-can) and/or "
+            "an NMEA text file."
+        ),
+    )
+    p.add_argument("file", type=Path, help="an .mcap recording (or folder), or a CAN log")
+    p.add_argument("--nmea", type=Path, default=None, help="an NMEA compass capture to merge")
+    p.add_argument(
+        "--profile",
+        default=None,
+        help=f"vehicle profile for a CAN log (default: the config's, else {DEFAULT_PROFILE})",
+    )
+    p.add_argument(
+        "--config",
+        default=None,
+        help="car TOML for raw logs: profile, start, declination, compass calibration, model",
+    )
+    p.add_argument(
+        "--track",
+        type=Path,
+        default=None,
+        metavar="FILE.csv",
+        help="write the estimate at every odometry step (for guidance evaluate)",
+    )
+    p.add_argument(
+        "--start-heading-deg",
+        type=float,
+        default=None,
+        help="raw logs without a compass: true heading at the start, clockwise from north",
+    )
+    p.add_argument("--nmea-rate", type=float, default=5.0, help="Hz, for unstamped NMEA lines")
+    p.add_argument("--speed", type=float, default=None, metavar="X", help="X times recorded rate")
+    p.add_argument(
+        "--raw",
+        action="store_true",
+        help="MCAP: decode the raw /can frames and /nmea lines again (with --profile)",
+    )
+    p.add_argument("--json", action="store_true", help="last stdout line: the result as JSON")
+    p.add_argument("--write-expected", type=Path, default=None, help="write outputs as JSON")
+    p.set_defaults(func=_cli_replay)
+
+
+def _cli_replay(args: argparse.Namespace) -> int:
+    from guidance.core.pipeline import Pipeline
+
+    if args.speed is not None and args.speed <= 0:
+        raise UserError("--speed must be > 0")
+    path: Path = args.file
+    is_mcap = path.is_dir() or path.suffix.lower() == ".mcap"
+    problems: list[str] | None = None
+
+    def show(_msg: Input, out: Outputs) -> None:
+        if not args.json:
+            for pr in out.prompts:
+                sys.stdout.write(f"[{pr.t_s:9.2f} s] {pr.text}\n")
+
+    track = TrackWriter(args.track) if args.track is not None else None
+
+    def on_output(msg: Input, out: Outputs) -> None:
+        show(msg, out)
+        if track is not None and isinstance(msg, WheelOdometry) and out.accepted:
+            track.write(pipeline.state())
+
+    if is_mcap:
+        session, inputs = mcap_inputs(path, raw=args.raw, profile=args.profile or DEFAULT_PROFILE)
+        pipeline = Pipeline(pipeline_config_from_session(session))
+        try:
+            res = replay(pipeline, inputs, speed=args.speed, on_output=on_output)
+        finally:
+            if track is not None:
+                track.close()
+        problems = compare_with_recording(res, recorded_outputs(path))
+    else:
+        setup = raw_setup(args.config, args.profile, args.start_heading_deg, path)
+        pcfg = setup.pipeline
+        if args.nmea is None and pcfg.start_heading_rad is None:
+            raise UserError("no compass log: give --start-heading-deg or a --config with one")
+        if not args.json:
+            for note in setup.notes:
+                sys.stdout.write(f"note: {note}\n")
+        if args.nmea is None and "compass" in pcfg.expected_rates_hz:  # not replayed: not silent
+            rates = {k: v for k, v in pcfg.expected_rates_hz.items() if k != "compass"}
+            pcfg = replace(pcfg, expected_rates_hz=rates)
+        streams: list[Iterator[Any]] = [can_inputs(path, setup.profile)]
+        if args.nmea is not None:
+            streams.append(nmea_inputs(args.nmea, _first_can_time(path), args.nmea_rate))
+        merged = heapq.merge(*streams, key=lambda m: m.t_s)
+        pipeline = Pipeline(pcfg)
+        try:
+            res = replay(pipeline, merged, speed=args.speed, on_output=on_output)
+        finally:
+            if track is not None:
+                track.close()
+    if args.write_expected is not None:
+        args.write_expected.write_text(json.dumps(res.expected(), indent=1) + "\n")
+    f = res.final
+    dur = (res.last_t_s or 0.0) - (res.first_t_s or 0.0)
+    w = sys.stdout.write
+    w(
+        f"{res.inputs} inputs over {dur:.1f} s: {res.odometer_m:.1f} m driven, "
+        f"{len(res.decisions)} decisions, {len(res.prompts)} prompts\n"
+        f"final estimate x {f['x_m']:.1f} m, y {f['y_m']:.1f} m, heading "
+        f"{math.degrees(f['heading_rad']):.1f} deg, major axis {f['major_axis_m']:.1f} m\n"
+    )
+    if problems is not None:
+        w(
+            "matches the recording exactly\n"
+            if not problems
+            else f"DIFFERS from the recording: {problems[0]} ({len(problems)} differences)\n"
+        )
+    if args.json:
+        w(
+            json.dumps(
+                {
+                    "inputs": res.inputs,
+                    "duration_s": dur,
+                    "distance_m": res.odometer_m,
+                    "decisions": len(res.decisions),
+                    "prompts": len(res.prompts),
+                    "final": f,
+                    "matches_recording": None if problems is None else not problems,
+                    "differences": problems or [],
+                }
+            )
+            + "\n"
+        )
+    return 1 if problems else 0
