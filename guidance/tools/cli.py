@@ -25,6 +25,7 @@ _COMMAND_MODULES = (
     "guidance.tools.monitor",  # monitor
     "guidance.tools.replay",  # replay
     "guidance.tools.evaluate",  # evaluate
+    "guidance.tools.calibrate",  # calibrate
 )
 
 

@@ -1,0 +1,167 @@
+"""``guidance calibrate``: fit the compass deviation card from a recorded calibration drive.
+
+The drive (a candump CAN log and a time-stamped NMEA capture, the inputs ``guidance replay``
+takes) starts with the car standing at a known true heading (``[start] heading_deg`` in the
+car's TOML, or ``--start-heading-deg``); wheel odometry carries that heading through the drive
+as the reference, and ``guidance.core.compass_cal`` fits ``deviation = A + B sin h + C cos h +
+D sin 2h + E cos 2h`` to the readings (docs/estimation.md, "Calibrating the compass"). With
+``--write`` the card goes into the TOML as ``[compass] deviation_deg = [A, B, C, D, E]``; the
+car then applies it to every reading before the declination.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import re
+import sys
+import tempfile
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from guidance.core.compass_cal import (
+    FitResult,
+    calibrate_from_drive,
+    reference_headings_from_odometry,
+)
+from guidance.errors import UserError
+from guidance.tools.replay import can_inputs, nmea_inputs, raw_setup
+
+
+def calibrate(
+    log: Path, nmea: Path, config: str, *, profile: str | None, start_heading_deg: float | None
+) -> FitResult:
+    """The deviation card of one calibration drive (see the module docstring)."""
+    setup = raw_setup(config, profile, start_heading_deg, log)
+    pcfg = setup.pipeline
+    if pcfg.start_heading_rad is None:
+        raise UserError("the start heading is needed: [start] heading_deg or --start-heading-deg")
+    start_true_deg = (90.0 - np.degrees(pcfg.start_heading_rad)) % 360.0
+    odo = list(can_inputs(log, setup.profile))
+    if len(odo) < 2:
+        raise UserError(f"{log}: no wheel odometry decoded with profile {setup.profile!r}")
+    readings = [h for h in nmea_inputs(nmea, odo[0].t_s, 5.0) if not h.is_true]
+    if not readings:
+        raise UserError(f"{nmea}: no magnetic compass readings (HDG/HDM)")
+    # The card must give reading + deviation + mounting = magnetic: fit against magnetic -
+    # mounting, i.e. shift the reference by the mounting offset as if it were declination.
+    ref = reference_headings_from_odometry(
+        [m.t_s for m in odo],
+        [m.d_left_m for m in odo],
+        [m.d_right_m for m in odo],
+        track_m=pcfg.estimator.track_m,
+        start_true_heading_deg=float(start_true_deg),
+        declination_deg=pcfg.declination_deg + pcfg.mounting_offset_deg,
+    )
+    try:
+        return calibrate_from_drive(
+            [h.t_s for h in readings], [h.heading_deg for h in readings], ref
+        )
+    except ValueError as exc:
+        raise UserError(str(exc)) from None
+
+
+def card(result: FitResult) -> list[float]:
+    c = result.calibration
+    return [round(v, 2) for v in (c.a_deg, c.b_deg, c.c_deg, c.d_deg, c.e_deg)]
+
+
+_COMPASS_HEADER = re.compile(r"^\s*\[compass\]\s*(#.*)?$")
+_TABLE_HEADER = re.compile(r"^\s*\[")
+_DEVIATION_LINE = re.compile(r"^\s*deviation_deg\s*=")
+
+
+def write_card(config: Path, values: list[float]) -> None:
+    """Put ``deviation_deg = [...]`` into the ``[compass]`` table, keeping everything else."""
+    lines = config.read_text(encoding="utf-8").splitlines(keepends=True)
+    entry = f"deviation_deg = {json.dumps(values)}  # guidance calibrate: A, B, C, D, E\n"
+    start = next((i for i, ln in enumerate(lines) if _COMPASS_HEADER.match(ln)), None)
+    if start is None:
+        lines += ["\n" if lines and lines[-1].strip() else "", "[compass]\n", entry]
+    else:
+        end = next(
+            (i for i in range(start + 1, len(lines)) if _TABLE_HEADER.match(lines[i])), len(lines)
+        )
+        old = next((i for i in range(start + 1, end) if _DEVIATION_LINE.match(lines[i])), None)
+        if old is not None:
+            lines[old] = entry
+        else:
+            lines.insert(start + 1, entry)
+    fd, tmp = tempfile.mkstemp(dir=config.parent, prefix=f".{config.name}.", suffix=".tmp")
+    try:
+        with os.fdopen(fd, "w", encoding="utf-8") as f:
+            f.writelines(lines)
+        os.replace(tmp, config)
+    except OSError as exc:
+        Path(tmp).unlink(missing_ok=True)
+        raise UserError(f"cannot write {config}: {exc.strerror or exc}") from None
+
+
+def register(sub: Any) -> None:
+    p = sub.add_parser(
+        "calibrate",
+        help="fit the compass deviation card from a recorded calibration drive",
+        description=(
+            "Fit the compass deviation card (A + B sin h + C cos h + D sin 2h + E cos 2h) from a "
+            "calibration drive: a CAN log and a time-stamped NMEA capture, starting at a known "
+            "true heading. Best: two slow circles in a car park, one each way (docs/estimation.md)."
+        ),
+    )
+    p.add_argument("log", type=Path, help="the drive's CAN log (candump .log, .asc, .blf)")
+    p.add_argument("--nmea", type=Path, required=True, help="the compass capture (time-stamped)")
+    p.add_argument("--config", required=True, help="the car's TOML (profile, start, place)")
+    p.add_argument("--profile", default=None, help="CAN profile (default: the config's)")
+    p.add_argument(
+        "--start-heading-deg",
+        type=float,
+        default=None,
+        help="true heading at the start, clockwise from north (default: [start])",
+    )
+    p.add_argument("--write", action="store_true", help="write the card into the config")
+    p.add_argument("--json", action="store_true", help="last stdout line: the result as JSON")
+    p.set_defaults(func=_cli)
+
+
+def _cli(args: argparse.Namespace) -> int:
+    config = Path(args.config)
+    res = calibrate(
+        args.log, args.nmea, args.config, profile=args.profile,
+        start_heading_deg=args.start_heading_deg,
+    )  # fmt: skip
+    values = card(res)
+    w = sys.stdout.write
+    w(
+        f"compass deviation card ({res.terms}): A {values[0]:+.2f}, B {values[1]:+.2f}, "
+        f"C {values[2]:+.2f}, D {values[3]:+.2f}, E {values[4]:+.2f} deg\n"
+        f"residual {res.residual_rms_deg:.2f} deg rms, {res.residual_max_deg:.2f} deg max; "
+        f"{res.n_used} readings used, {res.n_outliers} outliers; "
+        f"heading coverage {res.coverage_deg:.0f} deg\n"
+    )
+    if res.note:
+        w(f"note: {res.note}\n")
+    if args.write:
+        write_card(config, values)
+        w(f"written to {config} as [compass] deviation_deg\n")
+    else:
+        w(f"not written: add --write to put it into {config}\n")
+    if args.json:
+        w(
+            json.dumps(
+                {
+                    "deviation_deg": values,
+                    "terms": res.terms,
+                    "residual_rms_deg": res.residual_rms_deg,
+                    "residual_max_deg": res.residual_max_deg,
+                    "n_used": res.n_used,
+                    "n_outliers": res.n_outliers,
+                    "coverage_deg": res.coverage_deg,
+                    "note": res.note,
+                    "written": bool(args.write),
+                }
+            )
+            + "\n"
+        )
+    return 0
