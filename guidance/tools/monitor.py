@@ -1,10 +1,11 @@
 """``guidance monitor``: watch one car or a fleet live, print messages for scripts, plot tracks.
 
-Live view (default): a rich table of every car seen, with pose, major axis,
-target and distance to it, last prompt, health and the age of the last message;
-a car's row goes when its liveliness token goes (its process ended or the link
-dropped). Press ``s`` or send SIGUSR1 for a PNG snapshot of the tracks, ``q``
-to quit. ``--json`` prints each message as one JSON line instead (plus
+Live view (default): every car seen, with pose, compass heading, major axis,
+target and distance to it, last prompt, health and the age of the last message, as a
+table on a wide terminal and one block per car at 80 columns or piped
+(``guidance.tools.monitor_view``); a car goes when its liveliness token goes (its
+process ended or the link dropped). Press ``s`` or send SIGUSR1 for a PNG snapshot
+of the tracks, ``q`` to quit. ``--json`` prints each message as one JSON line instead (plus
 ``guidance.liveliness/1`` lines when cars appear or vanish). ``--count`` and
 ``--timeout`` end the run: exit 0 if any message arrived, 1 (with one line on
 stderr) if none did. All zenoh work goes through ``guidance.telemetry``.
@@ -22,9 +23,7 @@ import signal
 import sys
 import threading
 import time
-from collections import deque
 from collections.abc import Iterator, Mapping, Sequence
-from dataclasses import dataclass, field
 from pathlib import Path
 from types import FrameType
 from typing import Any
@@ -33,174 +32,28 @@ from guidance.errors import UserError
 from guidance.telemetry.client import MonitorClient, TelemetryEvent
 from guidance.telemetry.config import check_endpoint
 from guidance.telemetry.keys import DEFAULT_CONNECT, KINDS
-
-LIVELINESS_SCHEMA = "guidance.liveliness/1"
-TRACK_POINTS = 20_000
-ELLIPSE_EVERY_S = 10.0
-"""Keep one past ellipse per car this often (car time) for the snapshot."""
-
-
-# -- what the monitor knows about each car (pure, no I/O) ------------------------------------
-@dataclass(slots=True)
-class CarView:
-    vehicle_id: str
-    alive: bool = True
-    state: Mapping[str, Any] | None = None
-    prompt: str = ""
-    health: Mapping[str, Any] | None = None
-    last_received_s: float | None = None
-    messages: int = 0
-    gaps: int = 0
-    """Messages missing from the sequence numbers (dropped by the car or the network)."""
-    track: deque[tuple[float, float]] = field(default_factory=lambda: deque(maxlen=TRACK_POINTS))
-    ellipses: list[tuple[float, float, float, float, float]] = field(default_factory=list)
-    """(x_m, y_m, semi_major_m, semi_minor_m, orientation_rad), one every ELLIPSE_EVERY_S."""
-    _last_seq: dict[str, int] = field(default_factory=dict)
-    _last_ellipse_t_s: float = -math.inf
-
-
-class FleetView:
-    """Folds telemetry events into one ``CarView`` per car."""
-
-    def __init__(self) -> None:
-        self.cars: dict[str, CarView] = {}
-        self.gone: dict[str, CarView] = {}
-        self.messages = 0
-
-    def apply(self, event: TelemetryEvent) -> bool:
-        """Fold one event in; False when it told nothing new (a repeated late-join reply)."""
-        vid = event.vehicle_id
-        if event.kind == "gone":
-            car = self.cars.pop(vid, None)
-            if car is not None:
-                car.alive = False
-                self.gone[vid] = car
-            return True
-        car = self.cars.get(vid)
-        if car is None:
-            car = self.gone.pop(vid, None) or CarView(vid)
-            car.alive = True
-            self.cars[vid] = car
-        if event.kind == "alive" or event.message is None:
-            return True
-        msg = event.message
-        seq = msg.get("seq")
-        if isinstance(seq, int):
-            last = car._last_seq.get(event.kind)
-            if event.late_join and last is not None:
-                return False  # live (or queried) messages already arrived; this one is older
-            if last is not None and seq > last + 1:
-                car.gaps += seq - last - 1
-            if last is None or seq > last or seq == 1:
-                car._last_seq[event.kind] = seq
-        self.messages += 1
-        car.messages += 1
-        car.last_received_s = event.received_s
-        if event.kind == "state":
-            self._apply_state(car, msg)
-        elif event.kind == "prompt":
-            car.prompt = str(msg.get("text", ""))
-        elif event.kind == "health":
-            car.health = msg
-        return True
-
-    @staticmethod
-    def _apply_state(car: CarView, msg: Mapping[str, Any]) -> None:
-        car.state = msg
-        x, y = msg.get("x_m"), msg.get("y_m")
-        if not (isinstance(x, int | float) and isinstance(y, int | float)):
-            return
-        car.track.append((float(x), float(y)))
-        t_s = msg.get("t_s")
-        ell = msg.get("ellipse") or {}
-        if isinstance(t_s, int | float) and t_s - car._last_ellipse_t_s >= ELLIPSE_EVERY_S:
-            axes = [ell.get(k) for k in ("semi_major_m", "semi_minor_m", "orientation_rad")]
-            nums = [float(v) for v in axes if isinstance(v, int | float)]
-            if len(nums) == 3:
-                car.ellipses.append((float(x), float(y), nums[0], nums[1], nums[2]))
-                car._last_ellipse_t_s = float(t_s)
-
-
-def _fmt(value: object, spec: str = ".1f", unit: str = "") -> str:
-    if isinstance(value, int | float) and math.isfinite(value):
-        return f"{value:{spec}}{unit}"
-    return "-"
-
-
-def health_summary(health: Mapping[str, Any] | None) -> str:
-    """ "ok", or the inputs that are down or invalid, e.g. "compass down, camera invalid"."""
-    if health is None:
-        return "-"
-    problems = []
-    for name, h in sorted((health.get("inputs") or {}).items()):
-        if not h.get("alive", False):
-            problems.append(f"{name} down")
-        elif not h.get("valid", False):
-            problems.append(f"{name} invalid")
-    tel = (health.get("components") or {}).get("telemetry") or {}
-    drops = sum((tel.get("dropped") or {}).values())
-    text = ", ".join(problems) if problems else "ok"
-    return f"{text} ({drops} dropped)" if drops else text
-
-
-def car_row(car: CarView, now_s: float) -> dict[str, str]:
-    """One table row as strings (also what tests check)."""
-    s = car.state or {}
-    target = s.get("target") or {}
-    dist = None
-    if all(isinstance(v, int | float) for v in (s.get("x_m"), s.get("y_m"))) and all(
-        isinstance(target.get(k), int | float) for k in ("x_m", "y_m")
-    ):
-        dist = math.hypot(target["x_m"] - s["x_m"], target["y_m"] - s["y_m"])
-    age = None if car.last_received_s is None else now_s - car.last_received_s
-    lost = s.get("lost")
-    return {
-        "car": car.vehicle_id,
-        "x_m": _fmt(s.get("x_m")),
-        "y_m": _fmt(s.get("y_m")),
-        "heading_deg": _fmt(s.get("heading_deg"), ".0f"),
-        "major_axis_m": _fmt((s.get("ellipse") or {}).get("major_axis_m"))
-        + (" LOST" if lost else ""),
-        "target": (
-            f"{target.get('kind', '?')} ({_fmt(target.get('x_m'), '.0f')}, "
-            f"{_fmt(target.get('y_m'), '.0f')})"
-            if target
-            else "-"
-        ),
-        "distance_m": _fmt(dist, ".0f"),
-        "prompt": car.prompt or "-",
-        "health": health_summary(car.health),
-        "age_s": _fmt(age, ".1f"),
-    }
-
-
-_COLUMNS = (
-    ("car", "car"),
-    ("x_m", "x m"),
-    ("y_m", "y m"),
-    ("heading_deg", "hdg °"),
-    ("major_axis_m", "major axis m"),
-    ("target", "target"),
-    ("distance_m", "to target m"),
-    ("prompt", "last prompt"),
-    ("health", "health"),
-    ("age_s", "age s"),
+from guidance.tools.monitor_view import (
+    CarView,
+    FleetView,
+    car_row,
+    compass_deg,
+    health_summary,
+    render_table,
 )
 
+__all__ = [
+    "CarView",
+    "FleetView",
+    "car_row",
+    "compass_deg",
+    "health_summary",
+    "register",
+    "render_table",
+    "run",
+    "write_snapshot",
+]
 
-def render_table(view: FleetView, now_s: float, title: str) -> Any:
-    from rich.table import Table
-
-    table = Table(title=title, caption="s: snapshot PNG   q: quit", expand=False)
-    for _, header in _COLUMNS:
-        table.add_column(header, overflow="fold")
-    for vid in sorted(view.cars):
-        row = car_row(view.cars[vid], now_s)
-        style = "red" if "LOST" in row["major_axis_m"] else None
-        table.add_row(*(row[k] for k, _ in _COLUMNS), style=style)
-    if not view.cars:
-        table.add_row("(no car seen yet)", *([""] * (len(_COLUMNS) - 1)))
-    return table
+LIVELINESS_SCHEMA = "guidance.liveliness/1"
 
 
 def write_snapshot(view: FleetView, path: Path) -> Path:
@@ -492,10 +345,7 @@ def _run_live(client: MonitorClient, args: argparse.Namespace) -> int:
                     status = f"snapshot written: {write_snapshot(view, snapshot_path)}"
                 now = time.monotonic()
                 if now >= next_draw or stop.is_set():
-                    table = render_table(view, now, title)
-                    if status:
-                        table.caption = f"{status}   (s: snapshot   q: quit)"
-                    live.update(table)
+                    live.update(render_table(view, now, title, status))
                     next_draw = now + 0.25
     finally:
         if old_usr1 is not None:

@@ -2,8 +2,11 @@
 
 from __future__ import annotations
 
+import io
 import json
+import math
 import os
+import re
 import signal
 import socket
 import subprocess
@@ -18,7 +21,14 @@ import pytest
 from guidance.telemetry.client import TelemetryEvent
 from guidance.telemetry.config import TelemetryConfig
 from guidance.telemetry.publisher import Telemetry
-from guidance.tools.monitor import FleetView, car_row, health_summary, write_snapshot
+from guidance.tools.monitor import (
+    FleetView,
+    car_row,
+    compass_deg,
+    health_summary,
+    render_table,
+    write_snapshot,
+)
 
 REPO = Path(__file__).resolve().parents[2]
 
@@ -99,6 +109,7 @@ def state(seq: int, x: float, y: float, t_s: float) -> dict[str, Any]:
         "t_s": t_s,
         "x_m": x,
         "y_m": y,
+        "heading_rad": math.pi / 2,
         "heading_deg": 90.0,
         "lost": False,
         "ellipse": {
@@ -138,6 +149,7 @@ def test_fleet_view_rows_gaps_late_join_and_vanishing_cars() -> None:
     assert len(car.ellipses) == 2  # t_s 0 and 12 are more than 10 s apart
     row = car_row(car, now_s=103.5)
     assert row["x_m"] == "10.0" and row["major_axis_m"] == "10.0"
+    assert row["compass_deg"] == "0"  # heading_rad pi/2 (north, CCW from east): compass 0
     assert row["distance_m"] == "50" and row["target"] == "landmark (40, 40)"
     assert row["prompt"] == "Turn right" and row["age_s"] == "2.5"
     assert row["health"] == "compass down (3 dropped)"
@@ -150,6 +162,117 @@ def test_fleet_view_rows_gaps_late_join_and_vanishing_cars() -> None:
 def test_health_summary_without_health() -> None:
     assert health_summary(None) == "-"
     assert health_summary({"inputs": {"cam": {"alive": True, "valid": False}}}) == "cam invalid"
+
+
+def test_compass_heading_is_clockwise_from_north() -> None:
+    # The messages' heading is counter-clockwise from east; people read compass headings.
+    assert compass_deg(0.0) == 90.0  # east
+    assert compass_deg(math.pi / 2) == 0.0  # north
+    assert compass_deg(math.pi) == 270.0  # west
+    assert compass_deg(-math.pi / 2) == 180.0  # south
+    assert compass_deg(math.radians(60.0)) == pytest.approx(30.0)  # north-east-ish
+    assert compass_deg(math.radians(90.2)) == 0.0  # 359.8 is shown as 0, never "360"
+
+
+HOSTILE_PROMPT = "In 200 metres, turn [bold red]left[/] \x1b[31mnow\x1b[0m\x07 [/]\nthen (25)"
+
+
+def awkward_fleet() -> FleetView:
+    """Long numbers, a lost car, a long health line and a prompt full of markup and escapes."""
+    view = FleetView()
+    s1 = state(1, -12345.678, 21.34, 1.0)
+    s1["heading_rad"], s1["target"] = 0.3, {"x_m": 300.0, "y_m": 0.0, "kind": "goal", "id": None}
+    view.apply(event("state", "car1", **s1))
+    view.apply(event("prompt", "car1", seq=1, t_s=1.0, text=HOSTILE_PROMPT))
+    view.apply(
+        event(
+            "health",
+            "car1",
+            seq=1,
+            t_s=1.0,
+            inputs={"compass": {"alive": False}, "camera": {"alive": True, "valid": False}},
+            components={"telemetry": {"dropped": {"superseded": 3}}},
+        )
+    )
+    s2 = state(1, 1.0, 2.0, 1.0)
+    s2["heading_rad"], s2["lost"] = -1.2, True
+    s2["ellipse"] = {**s2["ellipse"], "major_axis_m": 123.4}
+    view.apply(event("state", "van-7", **s2))
+    return view
+
+
+def rendered(view: FleetView, width: int, terminal: bool) -> str:
+    from rich.console import Console
+
+    out = io.StringIO()
+    console = Console(file=out, width=width, force_terminal=terminal, color_system=None)
+    console.print(render_table(view, 102.5, "guidance monitor: tcp/127.0.0.1:7447"))
+    return out.getvalue()
+
+
+EXPECTED_FIELDS = (
+    # every value whole, with its label and unit: a split number fails one of these
+    "x -12345.7 m",
+    "y 21.3 m",
+    "hdg 73°",  # 0.3 rad CCW from east
+    "axis 10.0 m",
+    "to goal (300, 0): 12646 m",
+    "age 2.5 s",
+    "health: camera invalid, compass down (3 dropped)",
+    "x 1.0 m",
+    "hdg 159°",  # -1.2 rad
+    "axis 123.4 m LOST",
+)
+
+
+@pytest.mark.parametrize("terminal", [True, False], ids=["tty", "piped"])
+def test_80_columns_and_piped_output_never_split_a_number(terminal: bool) -> None:
+    text = rendered(awkward_fleet(), 80, terminal)
+    lines = text.splitlines()
+    assert all(len(line) <= 80 for line in lines), text
+    assert "…" not in text and "hdg: compass heading, degrees clockwise from north" in text
+    for f in EXPECTED_FIELDS:
+        assert f in text, f"{f!r} not whole in:\n{text}"
+    # One block per car: it starts with the car id, its other lines are indented.
+    starts = [line.split()[0] for line in lines[2:] if not line.startswith(" ")]
+    assert starts == ["car1", "van-7"], text
+    # The prompt is plain text: markup shown as typed, escapes and control characters gone.
+    assert 'prompt: "In 200 metres, turn [bold red]left[/] now [/] then (25)"' in " ".join(
+        line.strip() for line in lines
+    )
+    assert "\x1b" not in text and "\x07" not in text and "[31m" not in text
+
+
+def test_wide_terminal_gets_the_table_with_whole_numbers() -> None:
+    text = rendered(awkward_fleet(), 200, True)
+    assert "major axis m" in text and "last prompt" in text and "┃ car" in text
+    assert "clockwise from north" in text and "…" not in text
+    car1 = next(line for line in text.splitlines() if line.startswith("│ car1"))
+    cells = [c.strip() for c in car1.strip("│").split("│")]
+    assert cells[:8] == ["car1", "-12345.7", "21.3", "73", "10.0", "goal (300, 0)", "12646", "2.5"]
+    assert "[bold red]left[/]" in text and "\x1b" not in text
+    # Narrower than the table needs: the per-car layout, not a squeezed table.
+    narrow = rendered(awkward_fleet(), 120, True)
+    assert "┃" not in narrow and all(f in narrow for f in EXPECTED_FIELDS)
+
+
+def test_markup_in_a_prompt_is_never_interpreted_even_in_colour() -> None:
+    from rich.console import Console
+
+    view = FleetView()
+    view.apply(event("state", "car1", **state(1, 0.0, 0.0, 0.0)))
+    view.apply(event("prompt", "car1", seq=1, t_s=0.0, text="[/] [link=http://x]go[/link]"))
+    for width in (80, 200):
+        out = io.StringIO()
+        console = Console(file=out, width=width, force_terminal=True, color_system="truecolor")
+        console.print(render_table(view, 100.0, "t"))  # markup parsing would raise on "[/]"
+        text = out.getvalue()
+        assert "[link=http://x]go[/link]" in text and "\x1b]8;" not in text  # no hyperlink
+
+
+def test_an_empty_fleet_says_so() -> None:
+    assert "(no car seen yet)" in rendered(FleetView(), 80, False)
+    assert "(no car seen yet)" in rendered(FleetView(), 200, True)
 
 
 def test_snapshot_png_has_tracks_and_labelled_axes(
@@ -265,7 +388,7 @@ def test_live_view_table_and_sigusr1_snapshot(
         stdout=subprocess.PIPE,
         stderr=subprocess.PIPE,
         text=True,
-        env={**os.environ, "COLUMNS": "200"},
+        env={**os.environ, "COLUMNS": "80"},  # piped, 80 columns
     )
     try:
         # Signal only once the handler is installed (SIGUSR1 would otherwise end the process):
@@ -286,8 +409,21 @@ def test_live_view_table_and_sigusr1_snapshot(
             proc.kill()
             proc.wait()
     assert proc.returncode == 0, err
-    assert "car1" in out and "major axis m" in out and "turn left" in out
-    assert "snapshot written" in out
+    assert "snapshot written" in out and "degrees clockwise from north" in out
+    assert all(len(line) <= 80 for line in out.splitlines()) and "…" not in out, out
+    # Piped: one block per car, every value whole with its label and unit.
+    block = out[out.index("\ncar1 ") :]
+    for pattern in (
+        r"x -?\d+\.\d m",
+        r"y -?\d+\.\d m",
+        r"hdg \d{1,3}°",
+        r"axis \d+\.\d m",
+        r"to goal \(300, 0\): \d+ m",
+        r"age \d+\.\d s",
+        r"health: ok",
+        r'prompt: "In 200 metres, turn left \(\d+\)"',
+    ):
+        assert re.search(pattern, block), f"{pattern} not whole in:\n{out}"
 
 
 def test_send_goal_reaches_a_car_that_allows_it() -> None:

@@ -1,0 +1,345 @@
+"""What ``guidance monitor`` knows about each car, and how its terminal view is drawn.
+
+``FleetView`` folds telemetry events into one ``CarView`` per car (pure, no I/O).
+``render_table`` returns a rich renderable that picks its layout from the space it is
+given: a table when the output is a terminal wide enough for every column without
+splitting a number, otherwise one block per car (its numbers packed into whole
+``label value unit`` fields, then its health and last prompt) that never splits a value
+either, at 80 columns or piped into a file. Headings are shown as compass headings
+(degrees clockwise from north); the messages carry them counter-clockwise from east.
+Text from the cars (prompts, ids, health names) is shown as plain text: never parsed
+as rich markup, terminal control characters removed.
+"""
+
+from __future__ import annotations
+
+import math
+import re
+import textwrap
+import unicodedata
+from collections import deque
+from collections.abc import Iterator, Mapping
+from dataclasses import dataclass, field
+from typing import TYPE_CHECKING, Any
+
+from rich.cells import cell_len
+
+if TYPE_CHECKING:  # rich's renderables load when the live view first draws
+    from rich.console import Console, ConsoleOptions, RenderResult
+    from rich.table import Table
+    from rich.text import Text
+
+TRACK_POINTS = 20_000
+ELLIPSE_EVERY_S = 10.0
+"""Keep one past ellipse per car this often (car time) for the snapshot."""
+
+HEADING_CONVENTION = "hdg: compass heading, degrees clockwise from north"
+KEYS_HELP = "s: snapshot PNG   q: quit"
+
+
+# -- what the monitor knows about each car ---------------------------------------------------
+@dataclass(slots=True)
+class CarView:
+    vehicle_id: str
+    alive: bool = True
+    state: Mapping[str, Any] | None = None
+    prompt: str = ""
+    health: Mapping[str, Any] | None = None
+    last_received_s: float | None = None
+    messages: int = 0
+    gaps: int = 0
+    """Messages missing from the sequence numbers (dropped by the car or the network)."""
+    track: deque[tuple[float, float]] = field(default_factory=lambda: deque(maxlen=TRACK_POINTS))
+    ellipses: list[tuple[float, float, float, float, float]] = field(default_factory=list)
+    """(x_m, y_m, semi_major_m, semi_minor_m, orientation_rad), one every ELLIPSE_EVERY_S."""
+    _last_seq: dict[str, int] = field(default_factory=dict)
+    _last_ellipse_t_s: float = -math.inf
+
+
+class FleetView:
+    """Folds telemetry events into one ``CarView`` per car."""
+
+    def __init__(self) -> None:
+        self.cars: dict[str, CarView] = {}
+        self.gone: dict[str, CarView] = {}
+        self.messages = 0
+
+    def apply(self, event: Any) -> bool:
+        """Fold one ``TelemetryEvent`` in; False when it told nothing new (a repeated
+        late-join reply)."""
+        vid = event.vehicle_id
+        if event.kind == "gone":
+            car = self.cars.pop(vid, None)
+            if car is not None:
+                car.alive = False
+                self.gone[vid] = car
+            return True
+        car = self.cars.get(vid)
+        if car is None:
+            car = self.gone.pop(vid, None) or CarView(vid)
+            car.alive = True
+            self.cars[vid] = car
+        if event.kind == "alive" or event.message is None:
+            return True
+        msg = event.message
+        seq = msg.get("seq")
+        if isinstance(seq, int):
+            last = car._last_seq.get(event.kind)
+            if event.late_join and last is not None:
+                return False  # live (or queried) messages already arrived; this one is older
+            if last is not None and seq > last + 1:
+                car.gaps += seq - last - 1
+            if last is None or seq > last or seq == 1:
+                car._last_seq[event.kind] = seq
+        self.messages += 1
+        car.messages += 1
+        car.last_received_s = event.received_s
+        if event.kind == "state":
+            self._apply_state(car, msg)
+        elif event.kind == "prompt":
+            car.prompt = str(msg.get("text", ""))
+        elif event.kind == "health":
+            car.health = msg
+        return True
+
+    @staticmethod
+    def _apply_state(car: CarView, msg: Mapping[str, Any]) -> None:
+        car.state = msg
+        x, y = msg.get("x_m"), msg.get("y_m")
+        if not (isinstance(x, int | float) and isinstance(y, int | float)):
+            return
+        car.track.append((float(x), float(y)))
+        t_s = msg.get("t_s")
+        ell = msg.get("ellipse") or {}
+        if isinstance(t_s, int | float) and t_s - car._last_ellipse_t_s >= ELLIPSE_EVERY_S:
+            axes = [ell.get(k) for k in ("semi_major_m", "semi_minor_m", "orientation_rad")]
+            nums = [float(v) for v in axes if isinstance(v, int | float)]
+            if len(nums) == 3:
+                car.ellipses.append((float(x), float(y), nums[0], nums[1], nums[2]))
+                car._last_ellipse_t_s = float(t_s)
+
+
+# -- row values ------------------------------------------------------------------------------
+_ANSI = re.compile(r"\x1b(\[[0-?]*[ -/]*[@-~]|\][^\x07\x1b]*(\x07|\x1b\\)?|[@-Z\\-_])")
+_SPACES = re.compile(r"[\t\n\r\v\f\x85\u2028\u2029]+")
+
+
+def plain(value: object) -> str:
+    """Text from a car made safe for a terminal: escape sequences and control/format
+    characters removed, line breaks and tabs turned into spaces."""
+    text = _SPACES.sub(" ", _ANSI.sub("", str(value)))
+    return "".join(ch for ch in text if unicodedata.category(ch)[0] != "C")
+
+
+def compass_deg(heading_rad: float) -> float:
+    """Heading counter-clockwise from east (rad) as a compass heading: degrees clockwise
+    from north in [0, 360)."""
+    deg = (90.0 - math.degrees(heading_rad)) % 360.0
+    return 0.0 if deg >= 359.5 else deg  # shown rounded: 359.7 reads as 0, not 360
+
+
+def _num(value: object) -> float | None:
+    if isinstance(value, int | float) and not isinstance(value, bool) and math.isfinite(value):
+        return float(value)
+    return None
+
+
+def _fmt(value: object, spec: str = ".1f", unit: str = "") -> str:
+    num = _num(value)
+    return "-" if num is None else f"{num:{spec}}{unit}"
+
+
+def health_summary(health: Mapping[str, Any] | None) -> str:
+    """ "ok", or the inputs that are down or invalid, e.g. "compass down, camera invalid"."""
+    if health is None:
+        return "-"
+    problems = []
+    for name, h in sorted((health.get("inputs") or {}).items()):
+        if not h.get("alive", False):
+            problems.append(f"{plain(name)} down")
+        elif not h.get("valid", False):
+            problems.append(f"{plain(name)} invalid")
+    tel = (health.get("components") or {}).get("telemetry") or {}
+    drops = sum((tel.get("dropped") or {}).values())
+    text = ", ".join(problems) if problems else "ok"
+    return f"{text} ({drops} dropped)" if drops else text
+
+
+def _heading(state: Mapping[str, Any]) -> float | None:
+    rad = _num(state.get("heading_rad"))
+    if rad is None and (deg := _num(state.get("heading_deg"))) is not None:
+        rad = math.radians(deg)
+    return None if rad is None else compass_deg(rad)
+
+
+def car_row(car: CarView, now_s: float) -> dict[str, str]:
+    """One car's values as display strings (what both layouts show, and what tests check)."""
+    s = car.state or {}
+    target = s.get("target") or {}
+    x, y = _num(s.get("x_m")), _num(s.get("y_m"))
+    tx, ty = _num(target.get("x_m")), _num(target.get("y_m"))
+    dist = None
+    if None not in (x, y, tx, ty):
+        dist = math.hypot(tx - x, ty - y)  # type: ignore[operator]
+    age = None if car.last_received_s is None else now_s - car.last_received_s
+    return {
+        "car": plain(car.vehicle_id),
+        "x_m": _fmt(x),
+        "y_m": _fmt(y),
+        "compass_deg": _fmt(_heading(s), ".0f"),
+        "major_axis_m": _fmt((s.get("ellipse") or {}).get("major_axis_m"))
+        + (" LOST" if s.get("lost") else ""),
+        "target": (
+            f"{plain(target.get('kind', '?'))} ({_fmt(tx, '.0f')}, {_fmt(ty, '.0f')})"
+            if target
+            else "-"
+        ),
+        "distance_m": _fmt(dist, ".0f"),
+        "prompt": plain(car.prompt) or "-",
+        "health": health_summary(car.health),
+        "age_s": _fmt(age, ".1f"),
+    }
+
+
+# -- layouts ---------------------------------------------------------------------------------
+_COLUMNS = (
+    # key, header, may wrap between words
+    ("car", "car", False),
+    ("x_m", "x m", False),
+    ("y_m", "y m", False),
+    ("compass_deg", "hdg °", False),
+    ("major_axis_m", "major axis m", False),
+    ("target", "target", False),
+    ("distance_m", "to target m", False),
+    ("age_s", "age s", False),
+    ("health", "health", True),
+    ("prompt", "last prompt", True),
+)
+_MIN_WRAP_WIDTH = {"health": 12, "prompt": 24}
+"""Narrowest a wrapping column may get before the table gives way to the per-car layout."""
+
+
+def _words_width(text: str) -> int:
+    return max((cell_len(w) for w in text.split()), default=0)
+
+
+def _table_width(rows: list[dict[str, str]]) -> int:
+    """Width the table needs so that no value is split: every no-wrap column at its widest
+    cell (header words included), wrapping columns at their minimum, plus the borders."""
+    total = 1
+    for key, header, wraps in _COLUMNS:
+        cells = [r[key] for r in rows]
+        if wraps:
+            natural = max([cell_len(c) for c in cells] + [cell_len(header)])
+            width = max(
+                min(natural, _MIN_WRAP_WIDTH[key]), _words_width(header), *map(_words_width, cells)
+            )
+        else:
+            width = max([cell_len(c) for c in cells] + [_words_width(header)])
+        total += width + 3
+    return total
+
+
+def _pack(fields: list[str], width: int, indent: str) -> list[str]:
+    """Greedily pack whole fields into lines of at most ``width`` cells (a field longer
+    than a line gets a line of its own)."""
+    lines: list[str] = []
+    line = ""
+    for f in fields:
+        candidate = f if not line else f"{line}  {f}"
+        if line and cell_len(candidate) > width:
+            lines.append(line)
+            line = f"{indent}{f}"
+        else:
+            line = candidate
+    if line:
+        lines.append(line)
+    return lines
+
+
+def _unit(label: str, value: str, unit: str) -> str:
+    return f"{label} -" if value == "-" else f"{label} {value}{unit}"
+
+
+def car_lines(row: dict[str, str], width: int) -> list[str]:
+    """The per-car layout: the numbers as whole fields, then health and the last prompt."""
+    indent = "    "
+    lost = row["major_axis_m"].endswith(" LOST")
+    axis = row["major_axis_m"].removesuffix(" LOST")
+    fields = [
+        row["car"],
+        _unit("x", row["x_m"], " m"),
+        _unit("y", row["y_m"], " m"),
+        _unit("hdg", row["compass_deg"], "°"),
+        _unit("axis", axis, " m") + (" LOST" if lost else ""),
+    ]
+    if row["target"] != "-":
+        fields.append(f"to {row['target']}: " + _unit("", row["distance_m"], " m").strip())
+    fields += [_unit("age", row["age_s"], " s"), f"health: {row['health']}"]
+    lines = _pack(fields, width, indent)
+    if row["prompt"] != "-":
+        lines += textwrap.wrap(
+            f'prompt: "{row["prompt"]}"',
+            width=max(20, width),
+            initial_indent=indent,
+            subsequent_indent=indent + "  ",
+            break_long_words=False,
+            break_on_hyphens=False,
+        )
+    return lines
+
+
+@dataclass(slots=True)
+class FleetRender:
+    """The fleet as the monitor shows it; lays itself out for the width it is given."""
+
+    rows: list[dict[str, str]]
+    title: str
+    caption: str
+
+    def __rich_console__(self, console: Console, options: ConsoleOptions) -> RenderResult:
+        width = options.max_width
+        if options.is_terminal and self.rows and _table_width(self.rows) <= width:
+            yield self._table()
+        else:
+            yield from self._lines(width)
+
+    def _table(self) -> Table:
+        from rich.table import Table
+        from rich.text import Text
+
+        table = Table(
+            title=Text(f"{self.title}\n{HEADING_CONVENTION}"),
+            caption=Text(self.caption),
+            expand=False,
+        )
+        for key, header, wraps in _COLUMNS:
+            table.add_column(
+                header,
+                no_wrap=not wraps,
+                overflow="fold",
+                justify="right" if key.endswith(("_m", "_s", "_deg")) else "left",
+                min_width=_MIN_WRAP_WIDTH.get(key) if wraps else None,
+            )
+        for row in self.rows:
+            style = "red" if row["major_axis_m"].endswith("LOST") else None
+            table.add_row(*(Text(row[k]) for k, _, _ in _COLUMNS), style=style)
+        return table
+
+    def _lines(self, width: int) -> Iterator[Text]:
+        from rich.text import Text
+
+        yield Text(self.title, style="bold")
+        yield Text(f"{HEADING_CONVENTION}   {self.caption}", style="dim")
+        if not self.rows:
+            yield Text("(no car seen yet)")
+        for row in self.rows:
+            lost = row["major_axis_m"].endswith("LOST")
+            yield Text("\n".join(car_lines(row, width)), style="red" if lost else "")
+
+
+def render_table(view: FleetView, now_s: float, title: str, status: str = "") -> FleetRender:
+    """The live view of every car seen, sorted by id."""
+    rows = [car_row(view.cars[vid], now_s) for vid in sorted(view.cars)]
+    caption = f"{status}   ({KEYS_HELP})" if status else KEYS_HELP
+    return FleetRender(rows, plain(title), caption)
