@@ -7,6 +7,7 @@ from __future__ import annotations
 
 import argparse
 import csv
+import importlib.metadata
 import math
 import sqlite3
 import sys
@@ -408,8 +409,24 @@ def _area_args(p: argparse.ArgumentParser, radius_default: float | None) -> None
     p.add_argument("--limit", type=int, default=None, help="at most this many candidates")
 
 
+def _version() -> str:
+    """The urban-guidance distribution's version, as ``guidance.version.version`` finds it
+    (landmark_db may not import it: tests/test_layers.py)."""
+    try:
+        return importlib.metadata.version("urban-guidance")
+    except importlib.metadata.PackageNotFoundError:
+        import tomllib
+
+        try:
+            pyproject = Path(__file__).resolve().parents[1] / "pyproject.toml"
+            return str(tomllib.loads(pyproject.read_text())["project"]["version"])
+        except (OSError, KeyError, TypeError, tomllib.TOMLDecodeError):
+            return "unknown"
+
+
 def build_parser() -> argparse.ArgumentParser:
     ap = argparse.ArgumentParser(prog="landmark-db", description=__doc__)
+    ap.add_argument("--version", action="version", version=f"landmark-db {_version()}")
     sub = ap.add_subparsers(dest="command", required=True)
 
     p = sub.add_parser("init", help="create an empty database")

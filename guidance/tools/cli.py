@@ -10,12 +10,14 @@ as a traceback; ``--debug`` shows the traceback of unexpected failures.
 from __future__ import annotations
 
 import argparse
+import contextlib
 import importlib
 import logging
 import sys
 from collections.abc import Sequence
 
 from guidance.errors import UserError
+from guidance.version import version_text
 
 _COMMAND_MODULES = (
     "hal_sim.cli",  # study
@@ -34,6 +36,8 @@ def build_parser() -> argparse.ArgumentParser:
         prog="guidance",
         description="Urban driver guidance without GPS or a road map.",
     )
+    version = version_text("guidance")
+    parser.add_argument("--version", action="version", version=version)
     parser.add_argument("--debug", action="store_true", help="show tracebacks and debug logs")
     sub = parser.add_subparsers(dest="command", metavar="COMMAND")
     for name in _COMMAND_MODULES:
@@ -44,6 +48,9 @@ def build_parser() -> argparse.ArgumentParser:
                 continue
             raise
         module.register(sub)
+    for command in sub.choices.values():  # `guidance monitor --version` works too
+        with contextlib.suppress(argparse.ArgumentError):  # unless it has its own
+            command.add_argument("--version", action="version", version=version)
     return parser
 
 
