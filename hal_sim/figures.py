@@ -1,4 +1,5 @@
-"""Study figures (matplotlib, Agg): fig3 (range study) and fig4 (landmark study)."""
+"""Study figures (matplotlib, Agg): fig3 (range study); fig4 and its range heatmap
+(landmark study)."""
 
 from __future__ import annotations
 
@@ -66,54 +67,200 @@ def fig3(
     plt.close(fig)
 
 
-def success_curve(
-    distance_km: np.ndarray, success: np.ndarray, bin_km: float = 1.0
+WILSON_Z = 1.96
+"""Two-sided 95 % normal quantile for the Wilson score interval."""
+MIN_BIN_TRIALS = 5
+"""Distance bins with fewer trials than this are left out of the success curves."""
+RANGE_HEATMAP_NAME = "fig4_range_heatmap.png"
+"""Written beside fig4.png by ``fig4``."""
+CURVE_DETECTION_RATES = (0.2, 0.6, 1.0)
+"""Detection rates drawn in fig4's panels: three bands per panel stay apart; every rate is
+in the heatmap."""
+
+
+def wilson_interval(
+    successes: np.ndarray, trials: np.ndarray, z: float = WILSON_Z
 ) -> tuple[np.ndarray, np.ndarray]:
-    """Success rate in distance bins (bins with fewer than 5 trials are left out)."""
+    """Wilson score interval (lower, upper) of a binomial proportion, per element.
+
+    Unlike the normal approximation it stays inside [0, 1] and is not zero-width at
+    0 % or 100 %, which matters in bins of a few dozen trials.
+    """
+    k = np.asarray(successes, dtype=float)
+    n = np.asarray(trials, dtype=float)
+    p = k / n
+    z2 = z * z
+    denom = 1.0 + z2 / n
+    centre = (p + z2 / (2 * n)) / denom
+    half = z * np.sqrt(p * (1 - p) / n + z2 / (4 * n * n)) / denom
+    return np.clip(centre - half, 0.0, 1.0), np.clip(centre + half, 0.0, 1.0)
+
+
+def success_bins(
+    distance_km: np.ndarray,
+    success: np.ndarray,
+    bin_km: float = 1.0,
+    min_trials: int = MIN_BIN_TRIALS,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(bin centre km, successes, trials) in distance bins holding at least ``min_trials``."""
     if len(distance_km) == 0:
-        return np.array([]), np.array([])
+        return np.array([]), np.array([]), np.array([])
     edges = np.arange(0.0, float(distance_km.max()) + bin_km, bin_km)
     idx = np.digitize(distance_km, edges) - 1
-    xs, ys = [], []
+    xs, ks, ns = [], [], []
     for b in range(len(edges) - 1):
         m = idx == b
-        if m.sum() >= 5:
+        if m.sum() >= min_trials:
             xs.append(edges[b] + bin_km / 2)
-            ys.append(float(success[m].mean()))
-    return np.array(xs), np.array(ys)
+            ks.append(int(success[m].sum()))
+            ns.append(int(m.sum()))
+    return np.array(xs), np.array(ks), np.array(ns)
 
 
-def fig4(data: StudyData, path: Path) -> None:
-    """One panel per method: success rate against Euclidean start-goal distance."""
+def _trial_outcomes(data: StudyData, key: str) -> tuple[np.ndarray, np.ndarray]:
+    r = data.results[key]
+    return r[:, engine.RES_EUCLID_M] / 1000.0, r[:, engine.RES_OUTCOME] == engine.OUTCOME_ARRIVED
+
+
+def fig4(data: StudyData, path: Path, rates: tuple[float, ...] = CURVE_DETECTION_RATES) -> None:
+    """Success against start-goal distance with 95 % Wilson bands, one panel per method and
+    landmark density, a curve per detection rate in ``rates``; and, beside it
+    (``RANGE_HEATMAP_NAME``), the per-method heatmap of the range at 80 % success."""
+    from hal_sim.studies import LANDMARK_DENSITIES, LANDMARK_METHODS, SUCCESS_TARGET
+
+    methods = [m for m in LANDMARK_METHODS if any(c.method is m for c in data.conditions)]
+    fig, axes = plt.subplots(
+        len(methods),
+        len(LANDMARK_DENSITIES),
+        figsize=(3.4 * len(LANDMARK_DENSITIES) + 1.6, 2.9 * len(methods) + 1.2),
+        dpi=100,
+        sharex=True,
+        sharey=True,
+        squeeze=False,
+    )
+    cmap = plt.get_cmap("plasma")
+    colour = {rate: cmap(0.8 * i / max(1, len(rates) - 1)) for i, rate in enumerate(rates)}
+    for row, method in enumerate(methods):
+        for col, density in enumerate(LANDMARK_DENSITIES):
+            ax = axes[row, col]
+            drew = False
+            for c in data.conditions:
+                if c.method is not method or c.density_per_km2 != density:
+                    continue
+                if c.detection_rate not in colour:
+                    continue
+                x, k, n = success_bins(*_trial_outcomes(data, c.key))
+                if len(x) == 0:
+                    continue
+                lo, hi = wilson_interval(k, n)
+                ax.fill_between(x, lo, hi, color=colour[c.detection_rate], alpha=0.2, lw=0)
+                ax.plot(x, k / n, color=colour[c.detection_rate], lw=1.6, marker=".", ms=4)
+                drew = True
+            if not drew:
+                ax.text(
+                    0.5,
+                    0.5,
+                    f"fewer than {MIN_BIN_TRIALS} trials\nin every 1 km bin",
+                    ha="center",
+                    va="center",
+                    transform=ax.transAxes,
+                    fontsize=8,
+                    color="0.4",
+                )
+            ax.axhline(SUCCESS_TARGET, color="black", linewidth=0.8, linestyle="--")
+            ax.set_ylim(0, 1.02)
+            ax.grid(True, alpha=0.3)
+            ax.set_title(f"{_method_name(method)}, {density:g} landmarks/km²", fontsize=9)
+            if row == len(methods) - 1:
+                ax.set_xlabel("Euclidean start-goal distance, km")
+            if col == 0:
+                ax.set_ylabel("Success rate")
+    handles = [plt.Line2D([], [], color=colour[r], lw=1.6, label=f"{r:.0%}") for r in rates]
+    handles.append(plt.Line2D([], [], color="black", lw=0.8, ls="--", label="80 % success"))
+    fig.legend(
+        handles=handles,
+        loc="center right",
+        title="detection rate\n(bands: 95 %\nWilson interval;\nall rates: heatmap)",
+        fontsize=9,
+        title_fontsize=9,
+    )
+    fig.suptitle(
+        "Landmark study: success (goal reached, never lost) against distance, "
+        "compass ±30° (2σ), 1 km bins"
+    )
+    fig.tight_layout(rect=(0, 0, 0.9, 0.97))
+    fig.savefig(path)
+    plt.close(fig)
+    range_heatmap(data, path.with_name(RANGE_HEATMAP_NAME))
+
+
+def _method_name(method: Any) -> str:
+    return str(method.value).replace("_", " ")
+
+
+def range_grid(data: StudyData, method: Any) -> tuple[np.ndarray, np.ndarray]:
+    """(range km at 80 % success, censored) over density (rows) x detection rate (columns)
+    for one method; NaN where the condition was not run."""
+    from hal_sim.studies import LANDMARK_DENSITIES, LANDMARK_DETECTION_RATES, range_at_success
+
+    km = np.full((len(LANDMARK_DENSITIES), len(LANDMARK_DETECTION_RATES)), np.nan)
+    censored = np.zeros(km.shape, dtype=bool)
+    for c in data.conditions:
+        if c.method is not method:
+            continue
+        i = LANDMARK_DENSITIES.index(c.density_per_km2)
+        j = LANDMARK_DETECTION_RATES.index(c.detection_rate)
+        km[i, j], censored[i, j] = range_at_success(*_trial_outcomes(data, c.key))
+    return km, censored
+
+
+def range_heatmap(data: StudyData, path: Path) -> None:
+    """One heatmap per method: the range at 80 % success over landmark density x detection
+    rate, one colour scale for all, each cell labelled ("+": success stayed above 80 % at
+    every distance tried, so the range is at least that)."""
     from hal_sim.studies import LANDMARK_DENSITIES, LANDMARK_DETECTION_RATES, LANDMARK_METHODS
 
-    fig, axes = plt.subplots(1, 3, figsize=(16, 5.5), dpi=100, sharey=True)
+    methods = [m for m in LANDMARK_METHODS if any(c.method is m for c in data.conditions)]
+    grids = [range_grid(data, m) for m in methods]
+    finite = [g[0][np.isfinite(g[0])] for g in grids]
+    vmax = max([1.0] + [float(v.max()) for v in finite if len(v)])
+    fig, axes = plt.subplots(
+        1,
+        len(methods),
+        figsize=(4.6 * len(methods) + 1.4, 4.9),
+        dpi=100,
+        squeeze=False,
+        layout="constrained",
+    )
     cmap = plt.get_cmap("viridis")
-    styles = {
-        r: s
-        for r, s in zip(LANDMARK_DETECTION_RATES, (":", "-.", "--", (0, (5, 1)), "-"), strict=False)
-    }
-    for ax, method in zip(axes, LANDMARK_METHODS, strict=False):
-        for c in data.conditions:
-            if c.method is not method:
-                continue
-            r = data.results[c.key]
-            x, y = success_curve(r[:, engine.RES_EUCLID_M] / 1000.0, r[:, engine.RES_OUTCOME] == 0)
-            col = cmap(LANDMARK_DENSITIES.index(c.density_per_km2) / (len(LANDMARK_DENSITIES) - 1))
-            ax.plot(
-                x, y, color=col, linestyle=styles[c.detection_rate], linewidth=1.3,
-                label=f"{c.density_per_km2:g}/km², {c.detection_rate:.0%}",
-            )  # fmt: skip
-        ax.axhline(0.8, color="black", linewidth=0.8, linestyle="--")
-        ax.set_title(method.value.replace("_", " "))
-        ax.set_xlabel("Euclidean start-goal distance, km")
-        ax.set_ylim(0, 1.02)
-        ax.grid(True, alpha=0.3)
-    axes[0].set_ylabel("Success rate (goal reached, never lost)")
-    handles, labels = axes[0].get_legend_handles_labels()
-    fig.legend(handles, labels, loc="center right", fontsize=7, title="density, detection", ncol=1)
-    fig.suptitle("Landmark study: success against distance (compass ±30°, 2σ)")
-    fig.tight_layout(rect=(0, 0, 0.88, 0.95))
+    norm = matplotlib.colors.Normalize(vmin=0.0, vmax=vmax)
+    image = None
+    for ax, method, (km, censored) in zip(axes[0], methods, grids, strict=True):
+        image = ax.imshow(km, cmap=cmap, norm=norm, origin="lower", aspect="auto")
+        for i in range(km.shape[0]):
+            for j in range(km.shape[1]):
+                if not np.isfinite(km[i, j]):
+                    continue
+                text = f"{km[i, j]:.1f}" + ("+" if censored[i, j] else "")
+                dark = norm(km[i, j]) < 0.55
+                ax.text(j, i, text, ha="center", va="center", fontsize=9,
+                        color="white" if dark else "black")  # fmt: skip
+        ax.set_xticks(range(len(LANDMARK_DETECTION_RATES)))
+        ax.set_xticklabels([f"{r:.0%}" for r in LANDMARK_DETECTION_RATES])
+        ax.set_yticks(range(len(LANDMARK_DENSITIES)))
+        ax.set_yticklabels([f"{d:g}" for d in LANDMARK_DENSITIES])
+        ax.set_xlabel("Landmark detection rate")
+        ax.set_title(_method_name(method))
+    axes[0, 0].set_ylabel("Landmark density, per km²")
+    trials = sorted({len(r) for r in data.results.values()})
+    n = f"{trials[0]}" if len(trials) == 1 else f"{trials[0]}-{trials[-1]}"
+    fig.suptitle(
+        "Landmark study: range at 80 % success (compass ±30°, 2σ; "
+        f"{n} trials per cell; +: above 80 % at every distance tried)"
+    )
+    if image is not None:
+        bar = fig.colorbar(image, ax=list(axes[0]), fraction=0.04, pad=0.02)
+        bar.set_label("Range at 80 % success: Euclidean start-goal distance, km")
     fig.savefig(path)
     plt.close(fig)
 

@@ -50,6 +50,8 @@ def test_landmark_study_small_n_outputs(tmp_path: Path) -> None:
         assert c["mean_driven_km"] > 0.0
     assert len(_rows(tmp_path / "trials.csv")) == 150
     assert (tmp_path / "fig4.png").stat().st_size > 20_000
+    heatmap = (tmp_path / "fig4_range_heatmap.png").read_bytes()  # beside fig4.png
+    assert heatmap[:8] == b"\x89PNG\r\n\x1a\n" and len(heatmap) > 20_000
     table = _rows(tmp_path / "range_at_80pct.csv")
     assert len(table) >= 75
 
