@@ -38,16 +38,16 @@ from typing import TYPE_CHECKING, Any, Protocol
 
 from guidance.app.checkpoint import Checkpointer, load_checkpoint
 from guidance.app.ports import Speaker
+from guidance.core.codec import to_record
 from guidance.core.messages import (
     CameraFrame,
-    CompassHeading,
     EstimateState,
-    IntersectionScene,
     LandmarkFix,
-    TurnCompleted,
     WheelOdometry,
 )
 from guidance.errors import UserError
+from guidance.telemetry.messages import InputHealth, LandmarkRejection
+from guidance.telemetry.sink import MessageSink
 
 if TYPE_CHECKING:  # the estimator stack (filterpy, scipy, numba) loads on first use only
     from guidance.core.messages import InputStatus
@@ -111,11 +111,7 @@ class App:
         max_loop_lag_s: float = 0.5,
         method: str = "",
     ) -> None:
-        from guidance.core.messages import Approach, GoalUpdate, HeadingFix
 
-        self._heading_fix_type = HeadingFix
-        self._approach_type = Approach
-        self._goal_type = GoalUpdate
         self.pipeline = pipeline
         self.sources = dict(sources or {})
         self.camera = camera
@@ -244,48 +240,36 @@ class App:
 
     def _handle(self, msg: Input | None, out: Outputs) -> None:
         p = self.pipeline
-        tel, rec, spk = self.telemetry, self.recorder, self.speaker
-        for prompt in out.prompts:
-            if spk is not None:
-                spk.say(prompt.text, prompt.priority, prompt.t_s)
-            if tel is not None:
-                tel.publish_prompt(
-                    prompt.t_s, prompt.text, kind=prompt.kind, priority=prompt.priority
+        if self.speaker is not None:
+            for prompt in out.prompts:
+                self.speaker.say(prompt.text, prompt.priority, prompt.t_s)
+        for sink in self.sinks:
+            for prompt in out.prompts:
+                sink.send_prompt(prompt.t_s, prompt.text, kind=prompt.kind,
+                                 priority=prompt.priority)  # fmt: skip
+            for decision in out.decisions:
+                sink.send_decision(decision)
+            for turn in out.turns:
+                sink.send_turn(turn)
+            for taken in out.exits_taken:
+                sink.send_exit(taken)
+            if out.landmark_updates or out.landmark_rejections:
+                t = (out.landmark_updates or [f for f, _ in out.landmark_rejections])[0].t_s
+                rejections = [
+                    LandmarkRejection(reason, fix.landmark_id)
+                    for fix, reason in out.landmark_rejections
+                ]
+                sink.send_landmark(t, matches=out.landmark_updates, rejections=rejections)
+            if out.state is not None:
+                tx, ty, kind, tid = p.target()
+                sink.send_state(
+                    out.state,
+                    speed_mps=p.speed_mps,
+                    target=(tx, ty, kind, tid),
+                    goal=p.navigator.goal,
+                    method=self.method,
+                    mode=p.navigator.mode,
                 )
-            if rec is not None:
-                rec.record_prompt(
-                    prompt.t_s, prompt.text, kind=prompt.kind, priority=prompt.priority
-                )
-        for decision in out.decisions:
-            if tel is not None:
-                tel.publish_decision(decision)
-            if rec is not None:
-                rec.record_decision(decision)
-        if out.landmark_updates or out.landmark_rejections:
-            from guidance.telemetry.messages import LandmarkRejection
-
-            t = (out.landmark_updates or [f for f, _ in out.landmark_rejections])[0].t_s
-            rejections = [
-                LandmarkRejection(reason, fix.landmark_id)
-                for fix, reason in out.landmark_rejections
-            ]
-            if tel is not None:
-                tel.publish_landmark(t, matches=out.landmark_updates, rejections=rejections)
-            if rec is not None:
-                rec.record_landmark(t, matches=out.landmark_updates, rejections=rejections)
-        if out.state is not None:
-            tx, ty, kind, tid = p.target()
-            kw: dict[str, Any] = {
-                "speed_mps": p.speed_mps,
-                "target": (tx, ty, kind, tid),
-                "goal": p.navigator.goal,
-                "method": self.method,
-                "mode": p.navigator.mode,
-            }
-            if tel is not None:
-                tel.publish_state(out.state, **kw)
-            if rec is not None:
-                rec.record_state(out.state, **kw)
         if out.health and msg is None:
             self._publish_health(out.health[0].t_s)
         elif out.health:
@@ -293,14 +277,17 @@ class App:
         for listener in self.listeners:
             listener(msg, out)
 
+    @property
+    def sinks(self) -> list[MessageSink]:
+        """Where outputs go: telemetry and the recorder, each with its own queue policy."""
+        return [s for s in (self.telemetry, self.recorder) if s is not None]
+
     def _inputs_health(self, t_s: float) -> dict[str, InputStatus]:
         return self.pipeline.statuses(t_s)
 
     def _publish_health(self, t_s: float) -> None:
-        if self.telemetry is None and self.recorder is None:
+        if not self.sinks:
             return
-        from guidance.telemetry.messages import InputHealth
-
         inputs = {
             name: InputHealth(
                 st.alive, st.valid, st.rate_hz, st.age_s, st.expected_rate_hz, st.detail
@@ -319,51 +306,13 @@ class App:
                 "frames_dropped": self.counts["frames_dropped"],
             },
         }
-        if self.telemetry is not None:
-            self.telemetry.publish_health(t_s, inputs, components=comps)
-        if self.recorder is not None:
-            self.recorder.record_health(t_s, inputs, components=comps)
+        for sink in self.sinks:
+            sink.send_health(t_s, inputs, components=comps)
 
     def _record_input(self, msg: Input) -> None:
-        rec = self.recorder
-        if rec is None:
-            return
-        if isinstance(msg, WheelOdometry):
-            rec.record(
-                "/odometry",
-                msg.t_s,
-                {"t_s": msg.t_s, "d_left_m": msg.d_left_m, "d_right_m": msg.d_right_m},
-            )
-        elif isinstance(msg, CompassHeading):
-            rec.record(
-                "/compass",
-                msg.t_s,
-                {"t_s": msg.t_s, "heading_deg": msg.heading_deg, "is_true": msg.is_true},
-            )
-        elif isinstance(msg, self._heading_fix_type):
-            rec.record("/heading", msg.t_s, {"t_s": msg.t_s, "theta_rad": msg.theta_rad})
-        elif isinstance(msg, LandmarkFix):
-            rec.record(
-                "/landmark_fix",
-                msg.t_s,
-                {
-                    "t_s": msg.t_s,
-                    "landmark_id": msg.landmark_id,
-                    "x_m": msg.x_m,
-                    "y_m": msg.y_m,
-                    "sigma_m": msg.sigma_m,
-                },
-            )
-        elif isinstance(msg, IntersectionScene | TurnCompleted):
-            rec.record_scene(msg)
-        elif isinstance(msg, self._approach_type):
-            rec.record("/approach", msg.t_s, {"t_s": msg.t_s, "distance_m": msg.distance_m})
-        elif isinstance(msg, self._goal_type):
-            rec.record(
-                "/goal",
-                msg.t_s,
-                {"t_s": msg.t_s, "x_m": msg.x_m, "y_m": msg.y_m, "source": msg.source},
-            )
+        if self.recorder is not None:
+            topic, body = to_record(msg)
+            self.recorder.record(topic, msg.t_s, body)
 
     # -- waiting (the simulation's lockstep) ----------------------------------------------------
     def _wake(self) -> None:

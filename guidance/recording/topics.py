@@ -7,9 +7,11 @@ import logging
 from collections.abc import Mapping, Sequence
 from typing import TYPE_CHECKING, Any
 
+from guidance.core import codec
 from guidance.telemetry.messages import (
     MESSAGE_SCHEMAS,
 )
+from guidance.telemetry.sink import SINK_SCHEMAS
 
 if TYPE_CHECKING:
     pass
@@ -77,19 +79,6 @@ INPUT_SCHEMAS: dict[str, dict[str, Any]] = {
         },
         ["timestamp", "frame_id", "data", "format"],
     ),
-    "scene": _schema(
-        "guidance.scene",
-        {
-            "t_s": _T,
-            "kind": {"type": "string", "enum": ["intersection", "turn"]},
-            "exit_headings_rad": {"type": "array", "items": {"type": "number"}},
-            "distance_m": {"type": ["number", "null"]},
-            "labels": {"type": "array", "items": {"type": "string"}},
-            "heading_change_rad": {"type": ["number", "null"]},
-            "source": {"type": "string"},
-        },
-        ["t_s", "kind"],
-    ),
 }
 
 TOPICS: dict[str, dict[str, Any]] = {
@@ -97,13 +86,16 @@ TOPICS: dict[str, dict[str, Any]] = {
     "/nmea": INPUT_SCHEMAS["nmea"],
     "/camera": INPUT_SCHEMAS["camera"],
     "/camera/thumbnail": INPUT_SCHEMAS["thumbnail"],
-    "/scene": INPUT_SCHEMAS["scene"],
+    # the processed inputs replay feeds the pipeline: schemas from the message fields
+    **{topic: codec.schema(topic) for topic in dict.fromkeys(codec.TOPICS.values())},
     "/state": MESSAGE_SCHEMAS["state"],
     "/decision": MESSAGE_SCHEMAS["decision"],
     "/prompt": MESSAGE_SCHEMAS["prompt"],
     "/landmark": MESSAGE_SCHEMAS["landmark"],
     "/health": MESSAGE_SCHEMAS["health"],
+    "/turn": SINK_SCHEMAS["turn"],
+    "/exit": SINK_SCHEMAS["exit"],
 }
-"""Topic -> JSON Schema (its ``title`` is the MCAP schema name). Other topics get a bare one."""
+"""Topic -> JSON Schema (its ``title`` is the MCAP schema name); every topic has one."""
 INPUT_TOPICS = ("/can", "/nmea", "/camera", "/scene")
-OUTPUT_TOPICS = ("/state", "/decision", "/prompt", "/landmark", "/health")
+OUTPUT_TOPICS = ("/state", "/decision", "/prompt", "/landmark", "/health", "/turn", "/exit")

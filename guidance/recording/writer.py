@@ -11,41 +11,27 @@ import queue
 import re
 import threading
 import time
-from collections.abc import Callable, Mapping, Sequence
+from collections.abc import Callable, Mapping
 from functools import partial
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 from guidance.core.messages import (
     CameraFrame,
-    EstimateState,
-    IntersectionScene,
-    LandmarkFix,
-    TurnCompleted,
 )
 from guidance.recording.config import RecordingConfig
 from guidance.recording.files import _STOP, _Item, _OpenFile
 from guidance.recording.health import RecorderHealth
 from guidance.recording.topics import _DISK_FULL_ERRNOS
-from guidance.telemetry.messages import (
-    InputHealth,
-    LandmarkMatch,
-    LandmarkRejection,
-    TargetLike,
-    decision_message,
-    health_message,
-    landmark_message,
-    prompt_message,
-    state_message,
-)
+from guidance.telemetry.sink import Build, MessageSink
 
 if TYPE_CHECKING:
-    from guidance.core.navigator import Decision
+    pass
 
 log = logging.getLogger(__name__)
 
 
-class Recorder:
+class Recorder(MessageSink):
     """Records inputs and outputs of a run to rotating MCAP files, off the caller's thread.
 
     ``record*`` methods return False when the message was not queued (queue
@@ -170,117 +156,18 @@ class Recorder:
         """
         return self._put("/camera", frame.t_s, partial(self._camera_body, frame, file_ref))
 
-    def record_scene(self, event: IntersectionScene | TurnCompleted) -> bool:
-        if isinstance(event, IntersectionScene):
-            body: dict[str, Any] = {
-                "t_s": event.t_s,
-                "kind": "intersection",
-                "exit_headings_rad": list(event.exit_headings_rad),
-                "distance_m": event.distance_m,
-                "labels": list(event.labels),
-                "heading_change_rad": None,
-                "source": "",
-            }
-        else:
-            body = {
-                "t_s": event.t_s,
-                "kind": "turn",
-                "exit_headings_rad": [],
-                "distance_m": None,
-                "labels": [],
-                "heading_change_rad": event.heading_change_rad,
-                "source": event.source,
-            }
-        return self._put("/scene", event.t_s, lambda: body)
+    def publish(self, kind: str, t_s: float, build: Build) -> bool:
+        """The sink port (``guidance.telemetry.sink``): one bounded FIFO for every kind."""
+        return self._put(f"/{kind}", t_s, partial(build, vehicle_id=self.config.vehicle_id))
 
-    def record_state(
-        self,
-        state: EstimateState,
-        *,
-        speed_mps: float | None = None,
-        target: TargetLike | None = None,
-        goal: tuple[float, float] | None = None,
-        method: str | None = None,
-        mode: str | None = None,
-    ) -> bool:
-        return self._put(
-            "/state",
-            state.t_s,
-            partial(
-                state_message,
-                state,
-                vehicle_id=self.config.vehicle_id,
-                speed_mps=speed_mps,
-                target=target,
-                goal=goal,
-                method=method,
-                mode=mode,
-            ),
-        )
+    def own_health(self) -> tuple[str, Mapping[str, Any]]:
+        return "recorder", self.health().as_dict()
 
-    def record_decision(self, decision: Decision) -> bool:
-        return self._put(
-            "/decision",
-            getattr(decision, "t_s", math.nan),  # a bad object fails on the writer thread
-            partial(decision_message, decision, vehicle_id=self.config.vehicle_id),
-        )
-
-    def record_prompt(
-        self, t_s: float, text: str, *, kind: str = "info", priority: int = 0
-    ) -> bool:
-        return self._put(
-            "/prompt",
-            t_s,
-            partial(
-                prompt_message,
-                t_s,
-                text,
-                vehicle_id=self.config.vehicle_id,
-                kind=kind,
-                priority=priority,
-            ),
-        )
-
-    def record_landmark(
-        self,
-        t_s: float,
-        *,
-        matches: Sequence[LandmarkMatch | LandmarkFix] = (),
-        rejections: Sequence[LandmarkRejection] = (),
-        gated: int | None = None,
-    ) -> bool:
-        return self._put(
-            "/landmark",
-            t_s,
-            partial(
-                landmark_message,
-                t_s,
-                vehicle_id=self.config.vehicle_id,
-                matches=tuple(matches),
-                rejections=tuple(rejections),
-                gated=gated,
-            ),
-        )
-
-    def record_health(
-        self,
-        t_s: float,
-        inputs: Mapping[str, InputHealth | Mapping[str, Any]],
-        *,
-        components: Mapping[str, Mapping[str, Any]] | None = None,
-    ) -> bool:
-        comps = {**(components or {}), "recorder": self.health().as_dict()}
-        return self._put(
-            "/health",
-            t_s,
-            partial(
-                health_message,
-                t_s,
-                dict(inputs),
-                vehicle_id=self.config.vehicle_id,
-                components=comps,
-            ),
-        )
+    record_state = MessageSink.send_state
+    record_decision = MessageSink.send_decision
+    record_prompt = MessageSink.send_prompt
+    record_landmark = MessageSink.send_landmark
+    record_health = MessageSink.send_health
 
     def _put(self, topic: str, t_s: float, build: Callable[..., dict[str, Any]]) -> bool:
         if not self._accepting:

@@ -15,7 +15,7 @@ log = logging.getLogger(__name__)
 
 KEY_PREFIX = "guidance"
 SCHEMA_VERSION = 1
-KINDS = ("state", "decision", "prompt", "landmark", "health")
+KINDS = ("state", "decision", "prompt", "landmark", "health", "turn", "exit")
 """Message kinds published under ``guidance/<vehicle_id>/<kind>``."""
 LATEST_KINDS = frozenset({"state", "health", "landmark"})
 """Kinds held in a latest-value slot; the others go through a short FIFO."""

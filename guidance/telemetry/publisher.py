@@ -6,14 +6,13 @@ import logging
 import threading
 import time
 from collections import deque
-from collections.abc import Callable, Mapping, Sequence
+from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
 from functools import partial
 from typing import TYPE_CHECKING, Any
 
 import zenoh
 
-from guidance.core.messages import EstimateState, LandmarkFix
 from guidance.errors import UserError
 from guidance.telemetry.config import TelemetryConfig
 from guidance.telemetry.keys import (
@@ -26,16 +25,7 @@ from guidance.telemetry.keys import (
     schema_tag,
 )
 from guidance.telemetry.messages import (
-    InputHealth,
-    LandmarkMatch,
-    LandmarkRejection,
-    TargetLike,
-    decision_message,
     encode,
-    health_message,
-    landmark_message,
-    prompt_message,
-    state_message,
 )
 from guidance.telemetry.redact import redact_text
 from guidance.telemetry.session import (
@@ -45,11 +35,11 @@ from guidance.telemetry.session import (
     parse_goal,
     session_config,
 )
+from guidance.telemetry.sink import Build, MessageSink
 
 if TYPE_CHECKING:
     import asyncio
 
-    from guidance.core.navigator import Decision
 
 log = logging.getLogger(__name__)
 
@@ -131,7 +121,7 @@ class _Link:
 GoalCallback = Callable[[float, float], None]
 
 
-class Telemetry:
+class Telemetry(MessageSink):
     """The car's telemetry: one zenoh session, non-blocking ``publish_*`` calls.
 
     ``on_goal(x_m, y_m)`` receives accepted remote goals (only with
@@ -207,82 +197,22 @@ class Telemetry:
         self.close()
 
     # -- publishing (any thread, never blocks) -----------------------------------------------
-    def publish_state(
-        self,
-        state: EstimateState,
-        *,
-        speed_mps: float | None = None,
-        target: TargetLike | None = None,
-        goal: tuple[float, float] | None = None,
-        method: str | None = None,
-        mode: str | None = None,
-    ) -> None:
-        self._put(
-            "state",
-            partial(
-                state_message,
-                state,
-                vehicle_id=self.vehicle_id,
-                speed_mps=speed_mps,
-                target=target,
-                goal=goal,
-                method=method,
-                mode=mode,
-            ),
-        )
+    def publish(self, kind: str, t_s: float, build: Build) -> bool:
+        """The sink port (``guidance.telemetry.sink``): latest-value slot or FIFO by kind."""
+        return self._put(kind, partial(build, vehicle_id=self.vehicle_id))
 
-    def publish_decision(self, decision: Decision) -> None:
-        self._put("decision", partial(decision_message, decision, vehicle_id=self.vehicle_id))
+    def own_health(self) -> tuple[str, Mapping[str, Any]]:
+        return "telemetry", self.health().as_dict()
 
-    def publish_prompt(
-        self, t_s: float, text: str, *, kind: str = "info", priority: int = 0
-    ) -> None:
-        self._put(
-            "prompt",
-            partial(
-                prompt_message, t_s, text, vehicle_id=self.vehicle_id, kind=kind, priority=priority
-            ),
-        )
+    publish_state = MessageSink.send_state
+    publish_decision = MessageSink.send_decision
+    publish_prompt = MessageSink.send_prompt
+    publish_landmark = MessageSink.send_landmark
+    publish_health = MessageSink.send_health
 
-    def publish_landmark(
-        self,
-        t_s: float,
-        *,
-        matches: Sequence[LandmarkMatch | LandmarkFix] = (),
-        rejections: Sequence[LandmarkRejection] = (),
-        gated: int | None = None,
-    ) -> None:
-        self._put(
-            "landmark",
-            partial(
-                landmark_message,
-                t_s,
-                vehicle_id=self.vehicle_id,
-                matches=tuple(matches),
-                rejections=tuple(rejections),
-                gated=gated,
-            ),
-        )
-
-    def publish_health(
-        self,
-        t_s: float,
-        inputs: Mapping[str, InputHealth | Mapping[str, Any]],
-        *,
-        components: Mapping[str, Mapping[str, Any]] | None = None,
-    ) -> None:
-        """Publish input health; telemetry's own health is added under components.telemetry."""
-        comps = {**(components or {}), "telemetry": self.health().as_dict()}
-        self._put(
-            "health",
-            partial(
-                health_message, t_s, dict(inputs), vehicle_id=self.vehicle_id, components=comps
-            ),
-        )
-
-    def _put(self, kind: str, build: Callable[..., dict[str, Any]]) -> None:
+    def _put(self, kind: str, build: Callable[..., dict[str, Any]]) -> bool:
         if not self.config.enabled or self._stop.is_set():
-            return
+            return False
         wall = self._clock()
         with self._lock:
             seq = self._seq[kind] + 1
@@ -299,6 +229,7 @@ class Telemetry:
                     self._count_drop_locked("fifo_full")
                 fifo.append(item)
         self._wake.set()
+        return True
 
     def _count_drop_locked(self, reason: str) -> None:
         self._dropped[reason] = self._dropped.get(reason, 0) + 1

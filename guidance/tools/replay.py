@@ -34,8 +34,6 @@ from typing import TYPE_CHECKING, Any
 
 from guidance.core.messages import (
     CompassHeading,
-    IntersectionScene,
-    LandmarkFix,
     TurnCompleted,
     WheelOdometry,
 )
@@ -97,55 +95,46 @@ def pipeline_config_from_session(session: Mapping[str, Any]) -> PipelineConfig:
 
 
 def message_from_record(topic: str, data: Mapping[str, Any]) -> Input | None:
-    """One recorded input message back as the message the pipeline took."""
-    from guidance.core.messages import Approach, GoalUpdate, HeadingFix
+    """One recorded input back as the message the pipeline took (``guidance.core.codec``).
 
-    t = float(data["t_s"])
-    if topic == "/odometry":
-        return WheelOdometry(t, float(data["d_left_m"]), float(data["d_right_m"]))
-    if topic == "/compass":
-        return CompassHeading(t, float(data["heading_deg"]), bool(data.get("is_true", False)))
-    if topic == "/heading":
-        return HeadingFix(t, float(data["theta_rad"]))
-    if topic == "/landmark_fix":
-        return LandmarkFix(
-            t,
-            int(data["landmark_id"]),
-            float(data["x_m"]),
-            float(data["y_m"]),
-            float(data["sigma_m"]),
-        )
-    if topic == "/scene":
-        if data.get("kind") == "intersection":
-            dist = data.get("distance_m")
-            return IntersectionScene(
-                t,
-                tuple(float(h) for h in data["exit_headings_rad"]),
-                None if dist is None else float(dist),
-                tuple(str(x) for x in data.get("labels", [])),
-            )
-        if data.get("source") == "detected":
-            return None  # re-derived by the pipeline's own turn detector
-        return TurnCompleted(t, float(data["heading_change_rad"]), str(data.get("source", "")))
-    if topic == "/approach":
-        return Approach(t, float(data["distance_m"]))
-    if topic == "/goal":
-        return GoalUpdate(t, float(data["x_m"]), float(data["y_m"]), str(data.get("source", "")))
-    return None
+    Turns the pipeline's own detector reported are left out: replay re-derives them."""
+    from guidance.core.codec import from_record
+
+    msg = from_record(topic, data)
+    if isinstance(msg, TurnCompleted) and msg.source == "detected":
+        return None
+    return msg
+
+
+def _decoded(topic: str, data: Mapping[str, Any], skipped: list[str]) -> Input | None:
+    """``message_from_record``, counting a damaged record instead of failing the replay."""
+    from guidance.core.codec import CodecError
+
+    try:
+        return message_from_record(topic, data)
+    except CodecError as exc:
+        skipped.append(str(exc))
+        return None
 
 
 RAW_TOPICS = ("/can", "/nmea", "/heading", "/landmark_fix", "/scene", "/approach", "/goal")
 
 
 def mcap_inputs(
-    path: str | Path, *, raw: bool = False, profile: str = "gm_global_a"
+    path: str | Path,
+    *,
+    raw: bool = False,
+    profile: str = "gm_global_a",
+    skipped: list[str] | None = None,
 ) -> tuple[dict[str, Any], Iterator[Input]]:
     """The session record and the recorded inputs (in processing order) of a recording.
 
     ``raw=True`` decodes the raw ``/can`` frames and ``/nmea`` lines again with the car's
     decoder (``profile``) and compass parser instead of taking the decoded ``/odometry`` and
     ``/compass`` the app recorded: the drivers' decoding is then part of what is replayed.
+    Records that do not decode are left out and described in ``skipped``.
     """
+    bad: list[str] = skipped if skipped is not None else []
     from guidance.recording.reader import Reader
 
     sessions = list(Reader(path, topics=["/session"], log_time_order=False))
@@ -155,7 +144,7 @@ def mcap_inputs(
 
     def inputs() -> Iterator[Input]:
         for rec in Reader(path, topics=INPUT_TOPICS, log_time_order=False):
-            msg = message_from_record(rec.topic, rec.data)
+            msg = _decoded(rec.topic, rec.data, bad)
             if msg is not None:
                 yield msg
 
@@ -187,7 +176,7 @@ def mcap_inputs(
                 if heading is not None:
                     yield heading
             else:
-                msg = message_from_record(rec.topic, d)
+                msg = _decoded(rec.topic, d, bad)
                 if msg is not None:
                     yield msg
 
@@ -504,7 +493,10 @@ def _cli_replay(args: argparse.Namespace) -> int:
             track.write(pipeline.state())
 
     if is_mcap:
-        session, inputs = mcap_inputs(path, raw=args.raw, profile=args.profile or DEFAULT_PROFILE)
+        skipped: list[str] = []
+        session, inputs = mcap_inputs(
+            path, raw=args.raw, profile=args.profile or DEFAULT_PROFILE, skipped=skipped
+        )
         pipeline = Pipeline(pipeline_config_from_session(session))
         try:
             res = replay(pipeline, inputs, speed=args.speed, on_output=on_output)
@@ -512,6 +504,11 @@ def _cli_replay(args: argparse.Namespace) -> int:
             if track is not None:
                 track.close()
         problems = compare_with_recording(res, recorded_outputs(path))
+        if skipped:
+            sys.stderr.write(
+                f"guidance replay: {len(skipped)} damaged input records left out "
+                f"(first: {skipped[0]})\n"
+            )
     else:
         setup = raw_setup(args.config, args.profile, args.start_heading_deg, path)
         pcfg = setup.pipeline

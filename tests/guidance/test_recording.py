@@ -21,6 +21,7 @@ from mcap.reader import make_reader
 from mcap.records import Message
 from mcap.stream_reader import StreamReader
 
+from guidance.core.codec import to_record
 from guidance.core.messages import (
     CameraFrame,
     Ellipse,
@@ -61,8 +62,12 @@ def record_drive(rec: Recorder, n: int = 200) -> None:
                 target=(100.0, 50.0, "goal", None),
                 method="straight_to_goal",
             )
-    rec.record_scene(IntersectionScene(10.5, (0.0, math.pi / 2), 15.0, ("straight", "left")))
-    rec.record_scene(TurnCompleted(11.0, math.pi / 2))
+    for event in (
+        IntersectionScene(10.5, (0.0, math.pi / 2), 15.0, ("straight", "left")),
+        TurnCompleted(11.0, math.pi / 2),
+    ):
+        topic, body = to_record(event)
+        rec.record(topic, event.t_s, body)
     rec.record_prompt(10.6, "In 15 metres, turn left", kind="turn", priority=1)
     rec.record_landmark(10.7, rejections=[LandmarkRejection("outside_gate", 3)], gated=1)
     rec.record_health(10.8, {"odometry": InputHealth(True, True, 100.0, 0.01)})
@@ -417,3 +422,26 @@ def test_reader_errors_are_user_errors(tmp_path: Path) -> None:
         Reader(tmp_path / "nope.mcap")
     with pytest.raises(UserError, match=r"no \.mcap files"):
         Reader(tmp_path)
+
+
+def test_turns_and_exits_taken_leave_the_process(tmp_path: Path) -> None:
+    """Outputs the pipeline computes (turns, exits taken) are recorded on their own topics."""
+    from guidance.core.messages import ExitTaken
+    from guidance.core.navigator import Decision
+    from guidance.telemetry.sink import SINK_SCHEMAS
+
+    decision = Decision(
+        20.0, 1, math.pi / 2, math.pi / 2, (), 100.0, 0.0, "goal", None, 7, False, "goal", "cost"
+    )
+    with Recorder(RecordingConfig(directory=str(tmp_path))) as rec:
+        assert rec.send_turn(TurnCompleted(21.0, -math.pi / 2, "co-driver"))
+        assert rec.send_exit(ExitTaken(21.5, decision, 2, False, "co-driver"))
+    msgs = {m.topic: m.data for m in Reader(tmp_path)}
+    turn, taken = msgs["/turn"], msgs["/exit"]
+    assert turn["schema"] == "guidance.turn/1" and turn["heading_change_deg"] == -90.0
+    assert turn["source"] == "co-driver" and turn["vehicle_id"] == "car1"
+    assert (taken["advised_exit"], taken["taken_exit"], taken["followed"]) == (1, 2, False)
+    assert taken["intersection_id"] == 7 and taken["decision_t_s"] == 20.0
+    for kind, body in (("turn", turn), ("exit", taken)):
+        props = SINK_SCHEMAS[kind]["properties"]
+        assert set(body) <= set(props), set(body) - set(props)
