@@ -345,6 +345,10 @@ def run_trial(
     headings = np.empty(4)
     penalties = np.empty(4)
     costs = np.empty(4)
+    decide_params = np.array(
+        [p[I_REVISIT_GATE], p[I_REVISIT_FLOOR] ** 2, p[I_TABU], p[I_EXIT_TOL], p[I_LM_PASS],
+         p[I_LOOKAHEAD]]
+    )  # fmt: skip
     period = p[I_COMPASS_PERIOD]
     n_samples = samples.shape[0]
     for i in range(n_samples):
@@ -447,41 +451,10 @@ def run_trial(
             for e in range(n_exits):
                 headings[e] = world.DIR_HEADING[dirs[e]]
             hs = headings[:n_exits]
-            kk = law.match_intersection(
-                ix,
-                iy,
-                P[0, 0],
-                P[0, 1],
-                P[1, 1],
-                mem_xy,
-                n_mem,
-                p[I_REVISIT_GATE],
-                p[I_REVISIT_FLOOR] ** 2,
-            )
-            if kk < 0:
-                if n_mem >= MAX_MEMORY:
-                    half = n_mem // 2
-                    mem_xy[: n_mem - half] = mem_xy[half:n_mem]
-                    mem_h[: n_mem - half] = mem_h[half:n_mem]
-                    mem_c[: n_mem - half] = mem_c[half:n_mem]
-                    mem_c[n_mem - half : n_mem] = 0
-                    n_mem -= half
-                kk = n_mem
-                mem_xy[kk, 0] = ix
-                mem_xy[kk, 1] = iy
-                n_mem += 1
-            law.exit_penalties(hs, mem_h, mem_c, kk, p[I_TABU], p[I_EXIT_TOL], penalties)
-            tx, ty = gx, gy
-            if mode == law.MODE_LANDMARK and lm_xy.shape[0] > 0:
-                r2 = p[I_LM_PASS] ** 2
-                for m in range(lm_xy.shape[0]):
-                    if (lm_xy[m, 0] - ix) ** 2 + (lm_xy[m, 1] - iy) ** 2 <= r2:
-                        passed[m] = True
-                t = law.landmark_target(ix, iy, gx, gy, lm_xy, passed)
-                if t >= 0:
-                    tx, ty = lm_xy[t, 0], lm_xy[t, 1]
-            best = law.exit_costs(ix, iy, hs, tx, ty, penalties, p[I_LOOKAHEAD], costs)
-            law.record_exit(mem_h, mem_c, kk, hs[best], p[I_EXIT_TOL])
+            best, _k, _revisit, n_mem, _target = law.decide_exit(
+                ix, iy, P[0, 0], P[0, 1], P[1, 1], hs, mem_xy, mem_h, mem_c, n_mem, passed,
+                lm_xy, gx, gy, mode, decide_params, penalties, costs,
+            )  # fmt: skip
             ns[world.R_C] = adj[b, dirs[best]]
     res[RES_OUTCOME] = outcome
     res[RES_DRIVEN_M] = ts[world.T_DRIVEN]

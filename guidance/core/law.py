@@ -138,6 +138,107 @@ def record_exit(
 
 
 @njit(cache=True, error_model="numpy")
+def move_exit_use(
+    mem_headings: np.ndarray,
+    mem_counts: np.ndarray,
+    k: int,
+    advised_rad: float,
+    taken_rad: float,
+    match_tol_rad: float,
+) -> None:
+    """The driver took another exit than advised: one use moves from advised to taken."""
+    if not 0 <= k < mem_counts.shape[0]:
+        return
+    for j in range(mem_headings.shape[1]):
+        if mem_counts[k, j] > 0 and abs(wrap_angle(advised_rad - mem_headings[k, j])) <= (
+            match_tol_rad
+        ):
+            mem_counts[k, j] -= 1
+            break
+    record_exit(mem_headings, mem_counts, k, taken_rad, match_tol_rad)
+
+
+@njit(cache=True, error_model="numpy")
+def remember_intersection(
+    mem_xy: np.ndarray, mem_headings: np.ndarray, mem_counts: np.ndarray, n_mem: int,
+    x: float, y: float,
+) -> tuple[int, int]:  # fmt: skip
+    """Store a new intersection; when memory is full, forget the oldest half first (a long
+    drive: those are far behind). Returns (its index, the new count)."""
+    if n_mem >= mem_xy.shape[0]:
+        half = n_mem // 2
+        keep = n_mem - half
+        mem_xy[:keep] = mem_xy[half:n_mem]
+        mem_headings[:keep] = mem_headings[half:n_mem]
+        mem_counts[:keep] = mem_counts[half:n_mem]
+        mem_xy[keep:n_mem] = 0.0
+        mem_headings[keep:n_mem] = 0.0
+        mem_counts[keep:n_mem] = 0
+        n_mem = keep
+    mem_xy[n_mem, 0] = x
+    mem_xy[n_mem, 1] = y
+    return n_mem, n_mem + 1
+
+
+@njit(cache=True, error_model="numpy")
+def decide_exit(
+    ix: float,
+    iy: float,
+    pxx: float,
+    pxy: float,
+    pyy: float,
+    headings: np.ndarray,
+    mem_xy: np.ndarray,
+    mem_headings: np.ndarray,
+    mem_counts: np.ndarray,
+    n_mem: int,
+    passed: np.ndarray,
+    lm_xy: np.ndarray,
+    goal_x: float,
+    goal_y: float,
+    mode: int,
+    params: np.ndarray,
+    penalties_out: np.ndarray,
+    costs_out: np.ndarray,
+) -> tuple[int, int, bool, int, int]:
+    """The whole SPEC 3 step at an intersection reached at (ix, iy) with position covariance
+    (pxx, pxy, pyy): recognise a revisit, remember a new intersection, tabu penalties, mark
+    passed landmarks and pick the target, cost every exit, record the chosen one.
+
+    ``params`` = (revisit gate chi2, revisit floor variance m^2, tabu step rad, exit match
+    tolerance rad, landmark pass radius m, lookahead m) (``DECIDE_PARAMS``).
+    Returns (best exit, intersection index, revisit, new memory count, target landmark index
+    or -1 for the goal). Shared by ``Navigator.decide`` and the study engine.
+    """
+    gate, floor2, tabu, tol, pass_r, lookahead = (
+        params[0], params[1], params[2], params[3], params[4], params[5],
+    )  # fmt: skip
+    k = match_intersection(ix, iy, pxx, pxy, pyy, mem_xy, n_mem, gate, floor2)
+    revisit = k >= 0
+    if not revisit:
+        k, n_mem = remember_intersection(mem_xy, mem_headings, mem_counts, n_mem, ix, iy)
+    exit_penalties(headings, mem_headings, mem_counts, k, tabu, tol, penalties_out)
+    tx, ty = goal_x, goal_y
+    target = -1
+    if mode == MODE_LANDMARK and lm_xy.shape[0] > 0:
+        r2 = pass_r * pass_r
+        for m in range(lm_xy.shape[0]):
+            if (lm_xy[m, 0] - ix) ** 2 + (lm_xy[m, 1] - iy) ** 2 <= r2:
+                passed[m] = True
+        target = landmark_target(ix, iy, goal_x, goal_y, lm_xy, passed)
+        if target >= 0:
+            tx, ty = lm_xy[target, 0], lm_xy[target, 1]
+    best = exit_costs(ix, iy, headings, tx, ty, penalties_out, lookahead, costs_out)
+    record_exit(mem_headings, mem_counts, k, headings[best], tol)
+    return best, k, revisit, n_mem, target
+
+
+DECIDE_PARAMS = ("revisit_gate_chi2", "revisit_floor_var_m2", "tabu_step_rad",
+                 "exit_match_tol_rad", "landmark_pass_radius_m", "lookahead_m")  # fmt: skip
+"""The order of ``decide_exit``'s ``params``."""
+
+
+@njit(cache=True, error_model="numpy")
 def landmark_target(
     x: float,
     y: float,

@@ -113,6 +113,11 @@ class Navigator:
             else (law.MODE_GOAL)
         )
         self.decisions = 0
+        c = self.config
+        self._params = np.array(
+            [c.revisit_gate_chi2, c.revisit_floor_sigma_m**2, c.tabu_step_rad,
+             c.exit_match_tol_rad, c.landmark_pass_radius_m, c.lookahead_m]
+        )  # fmt: skip
 
     # -- goal and landmarks ---------------------------------------------------
     def set_goal(self, goal_xy: tuple[float, float]) -> None:
@@ -166,43 +171,23 @@ class Navigator:
         self, t_s: float, x: np.ndarray, P: np.ndarray, exit_headings: Sequence[float]
     ) -> Decision:
         """Choose an exit at an intersection reached at estimate ``x`` with covariance ``P``."""
-        cfg = self.config
         if not exit_headings:
             raise ValueError("an intersection needs at least one exit")
         headings = np.array([model.wrap_angle(float(h)) for h in exit_headings])
         self.update_mode(float(model.major_axis_m(P)))
-        k = law.match_intersection(
-            float(x[0]),
-            float(x[1]),
-            float(P[0, 0]),
-            float(P[0, 1]),
-            float(P[1, 1]),
-            self._mem_xy,
-            self._n_mem,
-            cfg.revisit_gate_chi2,
-            cfg.revisit_floor_sigma_m**2,
-        )
-        revisit = k >= 0
-        if not revisit:
-            k = self._remember(x)
         penalties = np.zeros(len(headings))
-        law.exit_penalties(
-            headings,
-            self._mem_headings,
-            self._mem_counts,
-            k,
-            cfg.tabu_step_rad,
-            cfg.exit_match_tol_rad,
-            penalties,
-        )
-        tx, ty, kind, tid = self.target(x)
         costs = np.zeros(len(headings))
-        best = law.exit_costs(
-            float(x[0]), float(x[1]), headings, tx, ty, penalties, cfg.lookahead_m, costs
-        )
-        law.record_exit(
-            self._mem_headings, self._mem_counts, k, headings[best], cfg.exit_match_tol_rad
-        )
+        best, k, revisit, self._n_mem, target = law.decide_exit(
+            float(x[0]), float(x[1]), float(P[0, 0]), float(P[0, 1]), float(P[1, 1]),
+            headings, self._mem_xy, self._mem_headings, self._mem_counts, self._n_mem,
+            self._passed, self._lm_xy, self.goal[0], self.goal[1], self._mode, self._params,
+            penalties, costs,
+        )  # fmt: skip
+        if target >= 0:
+            lm = self.landmarks[target]
+            tx, ty, kind, tid = lm.x_m, lm.y_m, "landmark", lm.id
+        else:
+            tx, ty, kind, tid = self.goal[0], self.goal[1], "goal", None
         self.decisions += 1
         options = tuple(
             ExitOption(
@@ -239,18 +224,12 @@ class Navigator:
             reason=reason,
         )
 
-    def _remember(self, x: np.ndarray) -> int:
-        if self._n_mem >= self.config.max_intersections:
-            # Memory full: forget the oldest half (a long drive; those are far behind).
-            half = self._n_mem // 2
-            for arr in (self._mem_xy, self._mem_headings, self._mem_counts):
-                arr[: self._n_mem - half] = arr[half : self._n_mem]
-                arr[self._n_mem - half : self._n_mem] = 0
-            self._n_mem -= half
-        k = self._n_mem
-        self._mem_xy[k] = (x[0], x[1])
-        self._n_mem += 1
-        return k
+    def move_exit_use(self, k: int, advised_rad: float, taken_rad: float) -> None:
+        """The driver took another exit than advised at intersection k: correct the memory."""
+        law.move_exit_use(
+            self._mem_headings, self._mem_counts, k, advised_rad, taken_rad,
+            self.config.exit_match_tol_rad,
+        )  # fmt: skip
 
     @property
     def remembered_intersections(self) -> int:

@@ -467,34 +467,9 @@ class Pipeline:
                 d.exit_index,
                 source,
             )
-            self._correct_memory(d.intersection_id, d.exit_heading_rad, d.options[best].heading_rad)
-
-    def _correct_memory(self, k: int, advised_rad: float, taken_rad: float) -> None:
-        """Move one use at intersection k from the advised exit to the exit taken."""
-        mem = self.navigator.memory()
-        headings = mem["mem_headings"]
-        counts = mem["mem_counts"]
-        assert isinstance(headings, list) and isinstance(counts, list)
-        if not 0 <= k < len(counts):
-            return
-        tol = self.config.navigator.exit_match_tol_rad
-        row_h, row_c = headings[k], counts[k]
-        for j, (h, c) in enumerate(zip(row_h, row_c, strict=True)):
-            if c > 0 and abs(wrap_angle(advised_rad - h)) <= tol:
-                row_c[j] = c - 1
-                break
-        free = -1
-        for j, (h, c) in enumerate(zip(row_h, row_c, strict=True)):
-            if c > 0 and abs(wrap_angle(taken_rad - h)) <= tol:
-                row_c[j] = c + 1
-                break
-            if c <= 0 and free < 0:
-                free = j
-        else:
-            if free >= 0:
-                row_h[free] = taken_rad
-                row_c[free] = 1
-        self.navigator.restore(mem)
+            self.navigator.move_exit_use(
+                d.intersection_id, d.exit_heading_rad, d.options[best].heading_rad
+            )
 
     def _say(self, out: Outputs, t: float, text: str, priority: int, kind: str) -> None:
         self.prompt_count += 1
