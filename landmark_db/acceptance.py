@@ -1,99 +1,237 @@
-"""Real-image acceptance: precision and recall of the matcher on public image pairs.
+"""Acceptance: recall and precision of recognition on real photos, calibrated on negatives.
 
-The folders hold pairs ``<name>A.<ext>`` / ``<name>B.<ext>`` (homogr_magsac) and the OpenCV
-``box.png`` / ``box_in_scene.png`` pair. Every pair's A image becomes a landmark; every B
-image is a query that should match its own A. Every other landmark is a distractor for it.
-Images that are pixel-identical (LePoint2A = LePoint3A; box_rgb_zcmgyu = box) are one
-landmark; an unpaired image is a query that must match nothing unless it duplicates a
-landmark's photo.
+Input: a landmark database (``landmark-db init`` / ``import``, one or several photos per
+landmark) and a ground-truth CSV with a ``query`` column (an image path, relative to the
+CSV's folder or ``--images``), an ``expected`` column (the landmark's name or id; empty or
+``none`` for a *negative*: a photo of a place that is not in the database) and an optional
+``condition`` column (``viewpoint``, ``zoom``, ``night``...).
 
-Two runs:
+Runs, with the single-image check (no gate, no temporal confirmation):
 
-* **full**: each query against every landmark; a match to the wrong landmark is false;
-* **leave-one-out**: each B query against every landmark *except* its own: any match is
-  false (this is the look-alike test on real photos).
+* **full**: every query against every landmark; a match to another landmark is false, any
+  match of a negative is false;
+* **leave-one-out**: every positive query against every landmark *except* its own: any
+  match is false (the look-alike test: the right answer is missing).
 
-Recall = correct matches / paired queries (full run); precision = correct / all matches
-(both runs together).
+Scores are recorded at a raw inlier threshold of 4 (``CALIBRATION_MIN_INLIERS``), so one run
+gives every decision at every threshold: a landmark is verified when its best photo's
+inliers reach the threshold, and the recogniser's ambiguity rule picks among the verified
+ones (``decide``). The report: precision and recall at the shipped threshold, recall by
+condition, the inlier distribution of wrong pairs (every landmark other than the expected
+one, both runs), the smallest threshold with zero false matches and the recommended one
+with the margin ``MARGIN`` (docs/landmarks.md).
+
+``shared_layout`` turns ../shared/data/images (A/B pairs) into such a database and CSV.
 """
 
 from __future__ import annotations
 
+import csv
 import hashlib
+import math
 import tempfile
-from collections.abc import Iterator
-from dataclasses import dataclass
+from collections import Counter, defaultdict
+from collections.abc import Iterator, Sequence
+from dataclasses import dataclass, replace
 from pathlib import Path
 
-import cv2
 import numpy as np
 
-from landmark_db.features import OrbConfig
+from landmark_db.features import ExtractorConfig, decode_image
 from landmark_db.geo import Origin
-from landmark_db.recognise import Recogniser, RecogniserConfig, RecognitionResult
-from landmark_db.store import LandmarkDbError, create_db
+from landmark_db.matcher import MatchConfig
+from landmark_db.recognise import Recogniser, RecogniserConfig
+from landmark_db.store import LandmarkDb, LandmarkDbError, create_db
 
 IMAGE_EXTS = (".png", ".jpg", ".jpeg")
-KNOWN_PAIRS = {"box": "box_in_scene"}
-"""Pairs whose names do not follow the A/B convention: reference stem -> query stem."""
+CALIBRATION_MIN_INLIERS = 4
+MARGIN = 2.0
+"""Recommended threshold = MARGIN x (most inliers of any wrong pair) + 1."""
 
 
 @dataclass(frozen=True, slots=True)
-class Query:
-    path: Path
+class TruthRow:
+    query: Path
     expected: str | None
-    """Name of the landmark it should match (None: must match nothing)."""
+    """Landmark name (or id) it shows; None for a negative (must match nothing)."""
+    condition: str = ""
 
 
 @dataclass(frozen=True, slots=True)
 class Outcome:
     query: Path
     expected: str | None
-    matched: str | None
     leave_one_out: bool
-    result: RecognitionResult
+    condition: str
+    scores: dict[str, int]
+    """Landmark name -> inliers of its best photo (0: no plausible homography)."""
 
-    @property
-    def correct(self) -> bool:
-        return self.matched is not None and self.matched == self.expected
 
-    @property
-    def false_match(self) -> bool:
-        return self.matched is not None and self.matched != self.expected
+def decide(scores: dict[str, int], threshold: int, ambiguity_ratio: float) -> str | None:
+    """The recogniser's decision from per-landmark scores: the best verified landmark unless
+    a second verified one comes within ``ambiguity_ratio`` (``Recogniser._match``)."""
+    ok = sorted(((v, k) for k, v in scores.items() if v >= threshold), reverse=True)
+    if not ok or (len(ok) > 1 and ok[0][0] < ambiguity_ratio * ok[1][0]):
+        return None
+    return ok[0][1]
 
 
 @dataclass(frozen=True, slots=True)
 class AcceptanceReport:
     landmarks: int
+    photos: int
     outcomes: tuple[Outcome, ...]
+    threshold: int
+    """The threshold the figures below are at (the shipped default unless overridden)."""
+    ambiguity_ratio: float
+
+    def matched(self, o: Outcome, threshold: int | None = None) -> str | None:
+        t = self.threshold if threshold is None else threshold
+        return decide(o.scores, t, self.ambiguity_ratio)
 
     @property
     def positives(self) -> int:
         return sum(1 for o in self.outcomes if not o.leave_one_out and o.expected is not None)
 
-    @property
-    def true_matches(self) -> int:
-        return sum(1 for o in self.outcomes if o.correct)
+    def true_matches(self, threshold: int | None = None) -> int:
+        return sum(
+            1 for o in self.outcomes if o.expected is not None and not o.leave_one_out
+            and self.matched(o, threshold) == o.expected
+        )  # fmt: skip
+
+    def false_matches(self, threshold: int | None = None) -> list[tuple[Outcome, str]]:
+        out = []
+        for o in self.outcomes:
+            m = self.matched(o, threshold)
+            if m is not None and (o.leave_one_out or m != o.expected):
+                out.append((o, m))
+        return out
+
+    def recall(self, threshold: int | None = None) -> float:
+        return self.true_matches(threshold) / self.positives if self.positives else 0.0
+
+    def precision(self, threshold: int | None = None) -> float:
+        t, f = self.true_matches(threshold), len(self.false_matches(threshold))
+        return t / (t + f) if t + f else 1.0
+
+    def recall_by_condition(self, threshold: int | None = None) -> dict[str, tuple[int, int]]:
+        """condition -> (correct, positives) in the full run."""
+        out: dict[str, list[int]] = defaultdict(lambda: [0, 0])
+        for o in self.outcomes:
+            if o.expected is None or o.leave_one_out:
+                continue
+            out[o.condition or "-"][1] += 1
+            out[o.condition or "-"][0] += self.matched(o, threshold) == o.expected
+        return {k: (v[0], v[1]) for k, v in sorted(out.items())}
+
+    def wrong_scores(self) -> list[tuple[int, Outcome, str]]:
+        """(inliers, outcome, landmark) of every wrong pair, highest first."""
+        out = [
+            (v, o, name)
+            for o in self.outcomes
+            for name, v in o.scores.items()
+            if o.leave_one_out or name != o.expected
+        ]
+        return sorted(out, key=lambda t: -t[0])
 
     @property
-    def false_matches(self) -> int:
-        return sum(1 for o in self.outcomes if o.false_match)
+    def max_wrong(self) -> int:
+        w = self.wrong_scores()
+        return w[0][0] if w else 0
 
     @property
-    def recall(self) -> float:
-        return self.true_matches / self.positives if self.positives else 0.0
+    def zero_false_threshold(self) -> int:
+        """The smallest threshold at which no wrong pair verifies."""
+        return max(self.max_wrong + 1, CALIBRATION_MIN_INLIERS)
 
     @property
-    def precision(self) -> float:
-        n = self.true_matches + self.false_matches
-        return self.true_matches / n if n else 1.0
+    def recommended_threshold(self) -> int:
+        return max(math.ceil(MARGIN * self.max_wrong) + 1, CALIBRATION_MIN_INLIERS)
+
+    def wrong_histogram(self) -> dict[int, int]:
+        return dict(sorted(Counter(v for v, _o, _n in self.wrong_scores()).items()))
 
 
-def _pixel_key(path: Path) -> str:
-    image = cv2.imread(str(path), cv2.IMREAD_COLOR)
-    if image is None:
-        raise LandmarkDbError(f"{path}: cannot read image")
-    return hashlib.sha256(np.ascontiguousarray(image).tobytes()).hexdigest()
+def read_truth(path: Path, images_root: Path | None = None) -> list[TruthRow]:
+    """The ground-truth CSV (module docstring); raises LandmarkDbError naming the row."""
+    root = images_root or path.parent
+    try:
+        with path.open(newline="") as fh:
+            rows = list(csv.DictReader(fh))
+    except OSError as exc:
+        raise LandmarkDbError(f"{path}: {exc.strerror}") from exc
+    out = []
+    for i, row in enumerate(rows, start=2):
+        q = (row.get("query") or row.get("image") or "").strip()
+        if not q:
+            raise LandmarkDbError(f"{path}:{i}: no query image")
+        exp = (row.get("expected") or "").strip()
+        out.append(
+            TruthRow(
+                root / q,
+                None if exp.lower() in ("", "none", "-") else exp,
+                (row.get("condition") or "").strip(),
+            )
+        )
+    if not out:
+        raise LandmarkDbError(f"{path}: no rows")
+    return out
+
+
+def evaluate_db(
+    db: LandmarkDb, truth: Sequence[TruthRow], config: RecogniserConfig | None = None
+) -> AcceptanceReport:
+    """Every truth row through the single-image check: full run and leave-one-out."""
+    cfg = config or RecogniserConfig()
+    threshold = cfg.match.inliers_needed(db.extractor.kind)
+    raw = replace(
+        cfg,
+        match=replace(cfg.match, min_inliers=CALIBRATION_MIN_INLIERS),
+        max_photos=10**6,
+    )
+    lms = list(db.landmarks())
+    names = {lm.id: lm.name for lm in lms}
+    by_key = {lm.name: lm.name for lm in lms} | {str(lm.id): lm.name for lm in lms}
+    rec = Recogniser(db, raw)
+    outcomes = []
+    for row in truth:
+        try:
+            image = decode_image(row.query.read_bytes())
+        except (OSError, ValueError) as exc:
+            raise LandmarkDbError(f"{row.query}: {exc}") from exc
+        expected = None
+        if row.expected is not None:
+            expected = by_key.get(row.expected)
+            if expected is None:
+                raise LandmarkDbError(f"{row.query}: no landmark {row.expected!r} in {db.path}")
+        runs = [(False, list(names))]
+        if expected is not None:
+            runs.append((True, [i for i, n in names.items() if n != expected]))
+        for loo, ids in runs:
+            res = rec.match_image(image, ids)
+            scores: dict[str, int] = {}
+            for e in res.evidence:
+                n = names[e.landmark_id]
+                scores[n] = max(scores.get(n, 0), e.inliers)
+            outcomes.append(Outcome(row.query, expected, loo, row.condition, scores))
+    n_photos = sum(db.photo_counts().values())
+    return AcceptanceReport(len(lms), n_photos, tuple(outcomes), threshold, cfg.ambiguity_ratio)
+
+
+# --- the shared A/B image pairs ---------------------------------------------------------------
+
+SAME_PLACE = {"LePoint1": "LePoint", "LePoint2": "LePoint", "LePoint3": "LePoint"}
+"""Pairs that show one place: LePoint1, 2 and 3 are one magazine (LePoint2A = LePoint3A)."""
+CONDITIONS = {
+    "Boston": "small_viewpoint", "BostonLib": "viewpoint", "BruggeSquare": "wide_viewpoint",
+    "BruggeTower": "viewpoint", "Brussels": "wide_viewpoint", "CapitalRegion": "zoom",
+    "Eiffel": "wide_viewpoint", "ExtremeZoom": "zoom", "LePoint": "wide_viewpoint",
+    "WhiteBoard": "viewpoint", "adam": "viewpoint", "boat": "zoom", "city": "modality",
+    "graf": "viewpoint", "box": "clutter",
+}  # fmt: skip
+"""What changes between a pair's A and B image (looked at, one word each)."""
+KNOWN_PAIRS = {"box": "box_in_scene"}
+"""Pairs whose names do not follow the A/B convention: reference stem -> query stem."""
 
 
 def _images(folder: Path) -> Iterator[Path]:
@@ -102,67 +240,76 @@ def _images(folder: Path) -> Iterator[Path]:
             yield p
 
 
-def discover(folder: Path) -> tuple[dict[str, Path], list[Query]]:
-    """(landmark name -> reference image, queries) for the image folders under ``folder``."""
+def _pixels(path: Path) -> str:
+    pixels = np.ascontiguousarray(decode_image(path.read_bytes()))
+    return hashlib.sha256(pixels.tobytes()).hexdigest()
+
+
+def shared_layout(folder: Path, several: bool) -> tuple[list[tuple[Path, str]], list[TruthRow]]:
+    """(photos as (path, landmark name), truth) for the A/B pairs under ``folder``.
+
+    A place is a pair's name (``SAME_PLACE`` joins pairs of one place). Its A images are its
+    photos (pixel-identical files once); with ``several`` False only the first is, and the
+    others become queries. B images are queries of their place; unpaired images are
+    queries that must match nothing, unless they copy a photo's pixels.
+    """
     files = list(_images(folder))
     if not files:
         raise LandmarkDbError(f"{folder}: no images found")
     by_stem = {(p.parent, p.stem): p for p in files}
-    refs: dict[Path, Path] = {}  # query -> reference
+    refs: dict[Path, tuple[Path, str]] = {}  # query -> (reference, pair name)
     for (parent, stem), p in by_stem.items():
         if stem.endswith("A") and (parent, stem[:-1] + "B") in by_stem:
-            refs[by_stem[(parent, stem[:-1] + "B")]] = p
+            refs[by_stem[(parent, stem[:-1] + "B")]] = (p, stem[:-1])
         if stem in KNOWN_PAIRS and (parent, KNOWN_PAIRS[stem]) in by_stem:
-            refs[by_stem[(parent, KNOWN_PAIRS[stem])]] = p
-    landmarks: dict[str, Path] = {}
-    name_of_pixels: dict[str, str] = {}
-    name_of_ref: dict[Path, str] = {}
-    for ref in sorted(set(refs.values())):
-        key = _pixel_key(ref)
-        name = name_of_pixels.setdefault(key, ref.stem)
-        if name == ref.stem:
-            landmarks[name] = ref
-        name_of_ref[ref] = name
-    queries = [Query(q, name_of_ref[r]) for q, r in sorted(refs.items())]
-    used = set(refs) | set(refs.values())
+            refs[by_stem[(parent, KNOWN_PAIRS[stem])]] = (p, stem)
+    photos: list[tuple[Path, str]] = []
+    truth: list[TruthRow] = []
+    place_of_pixels: dict[str, str] = {}
+    for ref, pair in sorted(set(refs.values())):
+        place = SAME_PLACE.get(pair, pair)
+        key = _pixels(ref)
+        if key in place_of_pixels:
+            continue
+        place_of_pixels[key] = place
+        if several or all(name != place for _p, name in photos):
+            photos.append((ref, place))
+        else:
+            truth.append(TruthRow(ref, place, "same_place"))
+    for q, (_ref, pair) in sorted(refs.items()):
+        place = SAME_PLACE.get(pair, pair)
+        truth.append(TruthRow(q, place, CONDITIONS.get(place, "")))
+    used = set(refs) | {r for r, _ in refs.values()}
     for p in files:
         if p not in used:
-            queries.append(Query(p, name_of_pixels.get(_pixel_key(p))))
-    return landmarks, queries
+            copy_of = place_of_pixels.get(_pixels(p))
+            truth.append(TruthRow(p, copy_of, "copy" if copy_of else "negative"))
+    return photos, truth
 
 
 def evaluate(
     folder: Path,
     config: RecogniserConfig | None = None,
-    photo_orb: OrbConfig | None = None,
+    extractor: ExtractorConfig | None = None,
+    several: bool = False,
     workdir: Path | None = None,
 ) -> AcceptanceReport:
-    """Build a database of the reference images and run both query sets (module docstring).
-
-    ``photo_orb`` sets the ORB parameters of the database photos (default: ``OrbConfig()``).
-    """
-    landmarks, queries = discover(folder)
+    """``shared_layout`` into a temporary database, then ``evaluate_db``."""
+    photos, truth = shared_layout(folder, several)
     with tempfile.TemporaryDirectory(dir=workdir) as tmp:
-        db = create_db(Path(tmp) / "acceptance.sqlite", Origin(0.0, 0.0), photo_orb)
-        ids: dict[str, int] = {}
-        for i, (name, path) in enumerate(sorted(landmarks.items())):
-            ids[name] = db.add(name, path.read_bytes(), x_m=1000.0 * i, y_m=0.0)
-        names = {v: k for k, v in ids.items()}
-        rec = Recogniser(db, config)
-        outcomes: list[Outcome] = []
+        db = create_db(Path(tmp) / "acceptance.sqlite", Origin(0.0, 0.0), extractor)
         try:
-            for q in queries:
-                image = cv2.imread(str(q.path), cv2.IMREAD_COLOR)
-                if image is None:
-                    raise LandmarkDbError(f"{q.path}: cannot read image")
-                res = rec.match_image(image)
-                matched = None if res.landmark_id is None else names[res.landmark_id]
-                outcomes.append(Outcome(q.path, q.expected, matched, False, res))
-                if q.expected is not None:
-                    others = [i for n, i in ids.items() if n != q.expected]
-                    res = rec.match_image(image, others)
-                    matched = None if res.landmark_id is None else names[res.landmark_id]
-                    outcomes.append(Outcome(q.path, None, matched, True, res))
+            ids: dict[str, int] = {}
+            for path, name in photos:
+                if name in ids:
+                    db.add_photo(ids[name], path.read_bytes(), source=path.name)
+                else:
+                    ids[name] = db.add(
+                        name, path.read_bytes(), x_m=1000.0 * len(ids), y_m=0.0, source=path.name
+                    )
+            return evaluate_db(db, truth, config)
         finally:
-            rec.close()
-    return AcceptanceReport(len(landmarks), tuple(outcomes))
+            db.close()
+
+
+__all__ = ["AcceptanceReport", "MatchConfig", "TruthRow", "evaluate", "evaluate_db", "read_truth"]

@@ -1,67 +1,138 @@
-"""ORB features: extraction at a bounded image size, and their storage as blobs.
+"""Local features: extraction at a bounded image size, and their storage as blobs.
 
 OpenCV is wrapped here and in ``matcher``; nothing else in the package calls cv2 for features.
-Images are converted to grey and downscaled so their longer side is at most ``max_side_px``
-before detection: ORB's cost grows with the pixel count, and a 1232x1616 camera frame at
-full size costs 25 ms to describe on the reference laptop against 10 ms at 1024 px
-(docs/landmarks.md). Keypoint coordinates are stored in the downscaled image's pixels;
-the homography check is indifferent to the scale.
+Two extractors, chosen per database and recorded with every photo's features:
+
+* ``rootsift`` (default): SIFT keypoints and descriptors (stored as SIFT's own 128 bytes),
+  matched as RootSIFT (L1-normalise, square root: Arandjelovic & Zisserman 2012) with a
+  k-d tree. Photos are described at <= 640 px, camera frames at <= 480 px.
+* ``orb``: ORB keypoints and 256-bit descriptors, matched by Hamming distance; photos and
+  frames at <= 1024 px. Faster to describe, weaker across viewpoint, zoom and light.
+
+docs/landmarks.md has the side-by-side measurements that chose the default. Images are
+converted to grey and shrunk so their longer side is at most ``max_side_px`` before
+detection; keypoint coordinates are in the shrunk image's pixels (the homography check is
+indifferent to the scale).
+
+Every extractor has a version (``EXTRACTOR_VERSIONS``): a change to what ``extract`` computes
+bumps it, and ``LandmarkDb.refresh_features`` (``landmark-db migrate``) recomputes the stored
+features whose identity (``ExtractorConfig.ident``) no longer matches.
 """
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+import contextlib
+from dataclasses import dataclass, replace
 from typing import Any
 
 import cv2
 import numpy as np
 
 CV: Any = cv2
-"""cv2 untyped: the stubs shipped with OpenCV 5.0 lack the features2d module (ORB, BFMatcher)."""
+"""cv2 untyped: the stubs shipped with OpenCV 5.0 lack the features2d module (ORB, SIFT)."""
+
+
+def quiet_opencv() -> None:
+    """No OpenCV ``[ WARN ]`` lines on stderr (a damaged image is reported by us, in one line)."""
+    with contextlib.suppress(AttributeError):  # builds without the logging utilities
+        CV.utils.logging.setLogLevel(CV.utils.logging.LOG_LEVEL_ERROR)
+
+
+quiet_opencv()
 
 KEYPOINT_FIELDS = 6
 """Stored per keypoint (float32): x, y, size, angle, response, octave."""
-DESCRIPTOR_BYTES = 32
-"""ORB descriptors are 256 bits."""
+
+EXTRACTOR_VERSIONS = {"rootsift": 1, "orb": 1}
+"""Version of each extractor's output; bump when ``extract`` changes for that kind."""
+DESCRIPTOR_BYTES = {"rootsift": 128, "orb": 32}
+FRAME_MAX_SIDE_PX = {"rootsift": 480, "orb": 1024}
+"""Camera frames are described at most this large (the per-frame time budget)."""
+PHOTO_MAX_SIDE_PX = {"rootsift": 640, "orb": 1024}
 
 
 @dataclass(frozen=True, slots=True)
-class OrbConfig:
-    """ORB parameters. ``max_side_px`` bounds the longer image side before detection."""
+class ExtractorConfig:
+    """Which features, how many, on how large an image (``max_side_px``, longer side)."""
 
+    kind: str = "rootsift"
     n_features: int = 1000
-    max_side_px: int = 1024
-    scale_factor: float = 1.2
-    n_levels: int = 8
-    fast_threshold: int = 20
+    max_side_px: int = PHOTO_MAX_SIDE_PX["rootsift"]
 
     def __post_init__(self) -> None:
+        if self.kind not in EXTRACTOR_VERSIONS:
+            raise ValueError(f"extractor must be one of {sorted(EXTRACTOR_VERSIONS)}")
         if self.n_features < 10:
             raise ValueError("n_features must be at least 10")
         if self.max_side_px < 64:
             raise ValueError("max_side_px must be at least 64")
 
+    @property
+    def version(self) -> int:
+        return EXTRACTOR_VERSIONS[self.kind]
+
+    @property
+    def ident(self) -> str:
+        """Name, version and parameters, e.g. ``rootsift/1:1000@640``: stored with features."""
+        return f"{self.kind}/{self.version}:{self.n_features}@{self.max_side_px}"
+
+    @property
+    def descriptor_bytes(self) -> int:
+        return DESCRIPTOR_BYTES[self.kind]
+
+    @property
+    def binary(self) -> bool:
+        """Hamming-matched descriptors (ORB) rather than Euclidean (RootSIFT)."""
+        return self.kind == "orb"
+
+    def for_frames(self, n_features: int, max_side_px: int | None = None) -> ExtractorConfig:
+        """The same extractor for camera frames (default size: ``FRAME_MAX_SIDE_PX``)."""
+        side = max_side_px if max_side_px is not None else FRAME_MAX_SIDE_PX[self.kind]
+        return replace(self, n_features=n_features, max_side_px=side)
+
+    @classmethod
+    def parse(cls, ident: str) -> ExtractorConfig:
+        """Inverse of ``ident`` (the version is not checked here). Raises ValueError."""
+        try:
+            head, _, params = ident.partition(":")
+            kind = head.partition("/")[0]
+            n, _, side = params.partition("@")
+            return cls(kind, int(n), int(side))
+        except (TypeError, ValueError) as exc:
+            raise ValueError(f"bad extractor {ident!r} ({exc})") from exc
+
     def create(self) -> Any:
-        """A new ``cv2.ORB`` detector with these parameters."""
-        return CV.ORB_create(
-            nfeatures=self.n_features,
-            scaleFactor=self.scale_factor,
-            nlevels=self.n_levels,
-            fastThreshold=self.fast_threshold,
-        )
+        """A new OpenCV detector/descriptor for this extractor."""
+        if self.kind == "orb":
+            return CV.ORB_create(nfeatures=self.n_features, scaleFactor=1.2, nlevels=8)
+        return CV.SIFT_create(self.n_features, 3, 0.04, 10.0, 1.6, cv2.CV_8U)
+
+
+def OrbConfig(n_features: int = 1000, max_side_px: int = 1024) -> ExtractorConfig:
+    """The ORB extractor (the only one before schema v3; kept for callers of that API)."""
+    return ExtractorConfig("orb", n_features, max_side_px)
+
+
+def root_sift(desc: np.ndarray) -> np.ndarray:
+    """SIFT -> RootSIFT: L1-normalise each row, then the element-wise square root (float32)."""
+    d = desc.astype(np.float32)
+    d /= d.sum(axis=1, keepdims=True) + 1e-7
+    return np.sqrt(d)
 
 
 @dataclass(frozen=True, slots=True, eq=False)
 class Features:
-    """Keypoints (N x 6 float32) and descriptors (N x 32 uint8) of one image.
+    """Keypoints (N x 6 float32) and descriptors (N x D uint8) of one image.
 
-    ``width``/``height`` are the pixel size of the (downscaled) image they were found in.
+    ``width``/``height`` are the pixel size of the (downscaled) image they were found in;
+    ``kind`` is the extractor that made them.
     """
 
     keypoints: np.ndarray
     descriptors: np.ndarray
     width: int
     height: int
+    kind: str = "orb"
 
     def __len__(self) -> int:
         return int(self.descriptors.shape[0])
@@ -71,6 +142,12 @@ class Features:
         """Keypoint positions, N x 2 float32."""
         return self.keypoints[:, :2]
 
+    def for_matching(self) -> np.ndarray:
+        """Descriptors as the matcher compares them: uint8 (ORB) or RootSIFT float32."""
+        if self.kind == "rootsift":
+            return root_sift(self.descriptors)
+        return self.descriptors
+
     def keypoint_blob(self) -> bytes:
         return np.ascontiguousarray(self.keypoints, dtype="<f4").tobytes()
 
@@ -78,17 +155,22 @@ class Features:
         return np.ascontiguousarray(self.descriptors, dtype=np.uint8).tobytes()
 
     @classmethod
-    def from_blobs(cls, kp_blob: bytes, desc_blob: bytes, width: int, height: int) -> Features:
+    def from_blobs(
+        cls, kp_blob: bytes, desc_blob: bytes, width: int, height: int, kind: str = "orb"
+    ) -> Features:
         """Inverse of the two ``*_blob`` methods; raises ValueError on inconsistent blobs."""
+        if kind not in DESCRIPTOR_BYTES:
+            raise ValueError(f"unknown extractor {kind!r}")
+        n_bytes = DESCRIPTOR_BYTES[kind]
         kp = np.frombuffer(kp_blob, dtype="<f4")
         desc = np.frombuffer(desc_blob, dtype=np.uint8)
-        if kp.size % KEYPOINT_FIELDS or desc.size % DESCRIPTOR_BYTES:
+        if kp.size % KEYPOINT_FIELDS or desc.size % n_bytes:
             raise ValueError("feature blob length is not a whole number of entries")
         kp = kp.reshape(-1, KEYPOINT_FIELDS).astype(np.float32)
-        desc = desc.reshape(-1, DESCRIPTOR_BYTES)
+        desc = desc.reshape(-1, n_bytes)
         if kp.shape[0] != desc.shape[0]:
             raise ValueError(f"{kp.shape[0]} keypoints but {desc.shape[0]} descriptors")
-        return cls(kp, desc, width, height)
+        return cls(kp, desc, width, height, kind)
 
 
 def to_grey(image: np.ndarray) -> np.ndarray:
@@ -125,28 +207,51 @@ def downscale(grey: np.ndarray, max_side_px: int) -> np.ndarray:
     return cv2.resize(grey, size, interpolation=cv2.INTER_LINEAR)
 
 
-def extract(image: np.ndarray, config: OrbConfig, orb: Any = None) -> Features:
-    """ORB keypoints and descriptors of an image (grey, downscaled per ``config``)."""
+def extract(image: np.ndarray, config: ExtractorConfig, detector: Any = None) -> Features:
+    """Keypoints and descriptors of an image (grey, downscaled per ``config``)."""
     grey = downscale(to_grey(image), config.max_side_px)
-    detector = orb if orb is not None else config.create()
-    kps, desc = detector.detectAndCompute(grey, None)
+    det = detector if detector is not None else config.create()
+    kps, desc = det.detectAndCompute(grey, None)
     h, w = grey.shape[:2]
     if desc is None or not kps:
         return Features(
             np.zeros((0, KEYPOINT_FIELDS), np.float32),
-            np.zeros((0, DESCRIPTOR_BYTES), np.uint8),
+            np.zeros((0, config.descriptor_bytes), np.uint8),
             w,
             h,
+            config.kind,
         )
     kp = np.array(
         [(k.pt[0], k.pt[1], k.size, k.angle, k.response, k.octave) for k in kps],
         dtype=np.float32,
     )
-    return Features(kp, np.ascontiguousarray(desc, dtype=np.uint8), w, h)
+    d = np.ascontiguousarray(desc, dtype=np.uint8)
+    return Features(kp, d, w, h, config.kind)
+
+
+_JPEG_EOI = b"\xff\xd9"
+_PNG_IEND = b"IEND\xaeB`\x82"
+
+
+def damaged(data: bytes) -> str | None:
+    """Why encoded JPEG/PNG bytes are cut short (no end marker), or None.
+
+    OpenCV decodes a truncated JPEG to a grey-filled picture with only a warning; a photo
+    like that must not enter the database or be matched silently.
+    """
+    if data[:2] == b"\xff\xd8" and _JPEG_EOI not in data[-64:]:
+        return "truncated JPEG (no end-of-image marker)"
+    if data[:4] == b"\x89PNG" and _PNG_IEND not in data[-64:]:
+        return "truncated PNG (no IEND chunk)"
+    return None
 
 
 def decode_image(data: bytes) -> np.ndarray:
-    """Encoded image bytes (PNG, JPEG, ...) -> BGR array. Raises ValueError if undecodable."""
+    """Encoded image bytes (PNG, JPEG, ...) -> BGR array. Raises ValueError if undecodable
+    or truncated."""
+    why = damaged(data)
+    if why is not None:
+        raise ValueError(f"damaged image: {why}")
     buf = np.frombuffer(data, dtype=np.uint8)
     image = cv2.imdecode(buf, cv2.IMREAD_COLOR) if buf.size else None
     if image is None:

@@ -5,10 +5,13 @@
 1. **gate** (``landmark_db.gate``): the landmarks within the sighting range of the
    2-sigma ellipse, nearest first, at most ``max_candidates``; none -> ``no_candidate``
    (and no image work at all);
-2. **match** (``landmark_db.matcher``): ORB on the frame, then per candidate k-NN Hamming
-   matching with the ratio test (``few_matches``) and a RANSAC homography with a minimum
-   inlier count (``failed_geometry``); two verified candidates whose inlier counts are within
-   ``ambiguity_ratio`` of each other -> ``ambiguous``;
+2. **match** (``landmark_db.matcher``): features of the frame (the database's extractor),
+   then per candidate photo k-NN matching with the ratio test (``few_matches``) and a
+   MAGSAC++ homography with a calibrated minimum inlier count (``failed_geometry``). A
+   landmark scores its best photo: photos of one place never compete. At most
+   ``max_photos`` photos per frame, nearest candidates first (the time budget). Two
+   verified *landmarks* whose inlier counts are within ``ambiguity_ratio`` of each other
+   -> ``ambiguous``;
 3. **confirm**: the same landmark verified in ``confirm_frames`` consecutive frames, each
    within ``confirm_window_s`` of the previous (``not_consistent`` until then); a landmark
    already fixed less than ``refix_interval_s`` ago -> ``repeat`` (one fix per pass, so the
@@ -42,7 +45,7 @@ import numpy as np
 
 from guidance.core.messages import CameraFrame, EstimateState, LandmarkFix
 from guidance.core.model import CHI2_2D_2SIGMA
-from landmark_db.features import Features, OrbConfig, extract
+from landmark_db.features import ExtractorConfig, extract
 from landmark_db.gate import valid_covariance
 from landmark_db.matcher import (
     FAILED_GEOMETRY,
@@ -50,12 +53,12 @@ from landmark_db.matcher import (
     MatchConfig,
     MatchEvidence,
     PairMatcher,
+    PhotoIndex,
 )
 from landmark_db.store import Candidate, LandmarkDb, open_db, query_gate
 
-FRAME_FEATURES = 700
-"""ORB features per camera frame: with 1000 per photo, a 1232x1616 frame against 5 candidates
-fits the 60 ms budget on the 2-core reference laptop (docs/landmarks.md)."""
+FRAME_FEATURES = 1000
+"""Features per camera frame (described at ``features.FRAME_MAX_SIDE_PX``)."""
 
 NO_CANDIDATE = "no_candidate"
 AMBIGUOUS = "ambiguous"
@@ -92,19 +95,27 @@ class RecogniserConfig:
     """No second fix from the same landmark within this time."""
     ambiguity_ratio: float = 1.5
     """The best verified candidate needs this many times the runner-up's inliers."""
-    frame_orb: OrbConfig = field(default_factory=lambda: OrbConfig(n_features=FRAME_FEATURES))
-    """ORB settings for camera frames (the photos' settings are stored in the database)."""
+    frame_features: int = FRAME_FEATURES
+    frame_max_side_px: int | None = None
+    """Frames are shrunk to this longer side (None: ``features.FRAME_MAX_SIDE_PX`` of the
+    database's extractor)."""
+    frame_orb: ExtractorConfig | None = None
+    """Full override of the frame extractor (its kind must be the database's)."""
+    max_photos: int = 8
+    """Photos compared per frame at most, nearest candidates first: the time budget."""
     match: MatchConfig = field(default_factory=MatchConfig)
     feature_cache: int = 512
-    """Landmark feature sets kept in memory (LRU)."""
+    """Landmarks whose photo features are kept in memory (LRU)."""
 
     def __post_init__(self) -> None:
         if not (math.isfinite(self.sighting_range_m) and self.sighting_range_m >= 0.0):
             raise ValueError("sighting_range_m must be a non-negative number")
         if not self.gate_chi2 > 0.0:
             raise ValueError("gate_chi2 must be positive")
-        if self.max_candidates < 1 or self.confirm_frames < 1 or self.feature_cache < 1:
-            raise ValueError("max_candidates, confirm_frames and feature_cache must be >= 1")
+        if min(self.max_candidates, self.confirm_frames, self.feature_cache, self.max_photos) < 1:
+            raise ValueError(
+                "max_candidates, confirm_frames, feature_cache and max_photos must be >= 1"
+            )
 
 
 @dataclass(frozen=True, slots=True)
@@ -150,8 +161,16 @@ class Recogniser:
         self.db = db
         self.config = config or RecogniserConfig()
         self._matcher = PairMatcher(self.config.match)
-        self._orb = self.config.frame_orb.create()
-        self._cache: OrderedDict[int, Features] = OrderedDict()
+        self.frame_extractor = self.config.frame_orb or db.extractor.for_frames(
+            self.config.frame_features, self.config.frame_max_side_px
+        )
+        if self.frame_extractor.kind != db.extractor.kind:
+            raise ValueError(
+                f"frame extractor {self.frame_extractor.kind} cannot match photos described"
+                f" by {db.extractor.kind}"
+            )
+        self._detector = self.frame_extractor.create()
+        self._cache: OrderedDict[int, list[PhotoIndex]] = OrderedDict()
         self._sigma_cache: dict[int, tuple[float, float, float]] = {}
         self._lock = threading.Lock()
         self._counts: Counter[str] = Counter()
@@ -220,14 +239,12 @@ class Recogniser:
 
     # --- internals ---------------------------------------------------------------------------
 
-    def _landmark_features(self, lid: int) -> Features | None:
+    def _landmark_photos(self, lid: int) -> list[PhotoIndex]:
         f = self._cache.get(lid)
         if f is not None:
             self._cache.move_to_end(lid)
             return f
-        f = self.db.features(lid)
-        if f is None:
-            return None
+        f = [PhotoIndex(pid, feats) for pid, feats in self.db.photo_features(lid)]
         self._cache[lid] = f
         if len(self._cache) > self.config.feature_cache:
             self._cache.popitem(last=False)
@@ -236,9 +253,10 @@ class Recogniser:
     def match_image(
         self, image: np.ndarray, landmark_ids: Sequence[int] | None = None
     ) -> RecognitionResult:
-        """Single-image check, no gate and no temporal state: ``image`` against the given
-        landmarks (all landmarks when None). ``fix`` stays None; ``landmark_id`` is the
-        verified match, if any. For the ``match`` command and the acceptance figures."""
+        """Single-image check, no gate and no temporal state: ``image`` against every photo
+        of the given landmarks (all landmarks when None; no ``max_photos`` budget). ``fix``
+        stays None; ``landmark_id`` is the verified match, if any. For the ``match`` command
+        and the acceptance figures."""
         ids = [lm.id for lm in self.db.landmarks()] if landmark_ids is None else list(landmark_ids)
         with self._lock:
             t0 = time.perf_counter()
@@ -246,23 +264,31 @@ class Recogniser:
                 return RecognitionResult(0.0, None, BAD_INPUT, None)
             if not ids:
                 return RecognitionResult(0.0, None, NO_CANDIDATE, None)
-            reason, lid, ev, n = self._match(image, ids)
+            reason, lid, ev, n = self._match(image, ids, None)
             return RecognitionResult(0.0, None, reason, lid, (), ev, n, time.perf_counter() - t0)
 
     def _match(
-        self, image: np.ndarray, ids: Sequence[int]
+        self, image: np.ndarray, ids: Sequence[int], max_photos: int | None
     ) -> tuple[str | None, int | None, tuple[MatchEvidence, ...], int]:
-        """(reason, verified id, evidence, frame feature count) for one image against ``ids``."""
+        """(reason, verified id, evidence, frame feature count) for one image against ``ids``
+        (their photos in order, at most ``max_photos`` of them; None: all). A landmark's
+        evidence is its best photo's."""
         try:
-            feats = extract(image, self.config.frame_orb, self._orb)
+            feats = extract(image, self.frame_extractor, self._detector)
         except ValueError:
             return BAD_INPUT, None, (), 0
+        desc = feats.for_matching()
         evidence = []
+        budget = max_photos if max_photos is not None else 1 << 62
         for lid in ids:
-            photo = self._landmark_features(lid)
-            if photo is None:  # removed since the query; check() reports such files
-                continue
-            evidence.append(self._matcher.verify(lid, feats, photo))
+            best: MatchEvidence | None = None
+            for photo in self._landmark_photos(lid)[: max(budget, 0)]:
+                e = self._matcher.verify(lid, feats, desc, photo)
+                budget -= 1
+                if best is None or (e.inliers, e.good_matches) > (best.inliers, best.good_matches):
+                    best = e
+            if best is not None:  # None: removed since the query, or out of budget
+                evidence.append(best)
         ev = tuple(evidence)
         verified = sorted((e for e in ev if e.verified), key=lambda e: -e.inliers)
         if not verified:
@@ -299,7 +325,8 @@ class Recogniser:
         if not cands:
             self._break_streak()
             return RecognitionResult(t, None, NO_CANDIDATE, None)
-        reason, lid, ev, n_feats = self._match(image, [c.id for c in cands])
+        ids = [c.id for c in cands]
+        reason, lid, ev, n_feats = self._match(image, ids, cfg.max_photos)
         cands_t = tuple(cands)
 
         def out(

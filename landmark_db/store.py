@@ -3,10 +3,12 @@
 Tables (docs/landmarks.md has the full schema):
 
 * ``schema_version``: one row, the version the migrations below have brought the file to;
-* ``metadata``: key/value text, holding the local frame's origin and the ORB parameters;
+* ``metadata``: key/value text, holding the local frame's origin and the extractor;
 * ``landmarks``: id, name, lat/lon, local x/y metres, optional facing heading, position sigma;
-* ``images``: the reference photo of each landmark, encoded (PNG or JPEG bytes);
-* ``features``: ORB keypoints and descriptors of the reference photo, as blobs;
+* ``photos``: any number of photos per landmark, encoded (PNG or JPEG bytes), each with its
+  own facing and capture conditions;
+* ``photo_features``: keypoints and descriptors of each photo, as blobs, with the extractor
+  (name, version, parameters) that made them;
 * ``landmark_index``: an R*Tree over x/y (a point box per landmark) for candidate queries.
 
 The car opens the file read-only (``mode=ro`` URI); only the tools write. Every problem
@@ -26,28 +28,42 @@ from contextlib import contextmanager
 from dataclasses import dataclass
 from pathlib import Path
 
+import cv2
 import numpy as np
 
 from guidance.core.model import CHI2_2D_2SIGMA
-from guidance.errors import UserError
-from landmark_db.features import Features, OrbConfig, decode_image, encode_image, extract
+from landmark_db.features import ExtractorConfig, Features, decode_image, encode_image, extract
 from landmark_db.gate import gate_box, in_gate, mahalanobis_sq
 from landmark_db.geo import Origin
+from landmark_db.integrity import CheckReport
+from landmark_db.schema import (
+    MIGRATIONS,
+    SCHEMA_VERSION,
+    TABLES,
+    V1,
+    LandmarkDbError,
+    file_version,
+    migrate,
+)
 
-SCHEMA_VERSION = 2
-"""The version this code writes and reads; older files are migrated by ``open_db(writable)``."""
+__all__ = [
+    "MIGRATIONS",
+    "SCHEMA_VERSION",
+    "Candidate",
+    "CheckReport",
+    "Landmark",
+    "LandmarkDb",
+    "LandmarkDbError",
+    "Photo",
+    "create_db",
+    "migrate",
+    "open_db",
+    "query_gate",
+    "query_radius",
+]
 
 DEFAULT_POSITION_SIGMA_M = 3.0
 """1-sigma of a surveyed landmark position when the source gives none (consumer GPS)."""
-
-
-class LandmarkDbError(UserError):
-    """A landmark database that cannot be used: the message says why, in one line."""
-
-    def __init__(self, message: str) -> None:
-        # One line whatever it quotes: SQLite echoes a damaged schema's bytes, paths may hold
-        # newlines.
-        super().__init__(" ".join(str(message).split()))
 
 
 _READ_ERRORS = (sqlite3.DatabaseError, UnicodeDecodeError)
@@ -57,50 +73,6 @@ not UTF-8)."""
 _MAX_FLOAT = "1.7976931348623157e308"
 _FINITE_SQL = f"coalesce({{c}} BETWEEN -{_MAX_FLOAT} AND {_MAX_FLOAT}, 0)"
 """SQL true for a finite number only: NULL, text, blobs and infinities fail it."""
-
-
-_V1 = """
-CREATE TABLE schema_version (version INTEGER NOT NULL);
-CREATE TABLE metadata (key TEXT PRIMARY KEY, value TEXT NOT NULL);
-CREATE TABLE landmarks (
-    id INTEGER PRIMARY KEY,
-    name TEXT NOT NULL,
-    lat_deg REAL NOT NULL,
-    lon_deg REAL NOT NULL,
-    x_m REAL NOT NULL,
-    y_m REAL NOT NULL,
-    facing_deg REAL,
-    position_sigma_m REAL NOT NULL,
-    added_utc TEXT NOT NULL,
-    source TEXT NOT NULL DEFAULT ''
-);
-CREATE TABLE images (
-    landmark_id INTEGER PRIMARY KEY REFERENCES landmarks(id) ON DELETE CASCADE,
-    format TEXT NOT NULL,
-    width INTEGER NOT NULL,
-    height INTEGER NOT NULL,
-    sha256 TEXT NOT NULL,
-    data BLOB NOT NULL
-);
-CREATE TABLE features (
-    landmark_id INTEGER PRIMARY KEY REFERENCES landmarks(id) ON DELETE CASCADE,
-    count INTEGER NOT NULL,
-    width INTEGER NOT NULL,
-    height INTEGER NOT NULL,
-    keypoints BLOB NOT NULL,
-    descriptors BLOB NOT NULL
-);
-CREATE VIRTUAL TABLE landmark_index USING rtree(id, min_x, max_x, min_y, max_y);
-INSERT INTO schema_version VALUES (1);
-"""
-
-_V2 = """
-CREATE INDEX landmarks_name ON landmarks(name);
-UPDATE schema_version SET version = 2;
-"""
-
-MIGRATIONS: tuple[tuple[int, str], ...] = ((1, _V1), (2, _V2))
-"""(version, script): applying script k brings a file from version k-1 to version k."""
 
 
 @dataclass(frozen=True, slots=True)
@@ -120,15 +92,17 @@ class Landmark:
 
 
 @dataclass(frozen=True, slots=True)
-class CheckReport:
-    """What ``check`` found: ``problems`` empty means the file is sound."""
+class Photo:
+    """One photo of a landmark (without its pixels); ``facing_deg`` clockwise from N."""
 
-    landmarks: int
-    problems: tuple[str, ...]
-
-    @property
-    def ok(self) -> bool:
-        return not self.problems
+    id: int
+    landmark_id: int
+    format: str
+    width: int
+    height: int
+    facing_deg: float | None
+    conditions: str
+    source: str
 
 
 def _utc_now() -> str:
@@ -155,7 +129,12 @@ class LandmarkDb:
         self.readonly = readonly
         self._lock = threading.RLock()
         self.origin = self._read_origin()
-        self.orb = self._read_orb()
+        self.extractor = self._read_extractor()
+
+    @property
+    def orb(self) -> ExtractorConfig:
+        """The photo extractor (named ``orb`` before schema v3, when ORB was the only one)."""
+        return self.extractor
 
     # --- opening ------------------------------------------------------------------------------
 
@@ -184,16 +163,12 @@ class LandmarkDb:
                 f"{self.path}: missing or bad origin in metadata ({exc})"
             ) from exc
 
-    def _read_orb(self) -> OrbConfig:
-        meta = self._read_meta()
+    def _read_extractor(self) -> ExtractorConfig:
         try:
-            return OrbConfig(
-                n_features=int(meta["orb_n_features"]),
-                max_side_px=int(meta["orb_max_side_px"]),
-            )
+            return ExtractorConfig.parse(str(self._read_meta()["extractor"]))
         except (KeyError, ValueError, TypeError) as exc:
             raise LandmarkDbError(
-                f"{self.path}: missing or bad ORB parameters in metadata ({exc})"
+                f"{self.path}: missing or bad extractor in metadata ({exc})"
             ) from exc
 
     def metadata(self) -> dict[str, str]:
@@ -209,9 +184,22 @@ class LandmarkDb:
             except _READ_ERRORS as exc:
                 raise LandmarkDbError(f"{self.path}: unreadable landmark database ({exc})") from exc
 
+    def stale_features(self) -> int:
+        """Photos whose stored features were not made by this file's extractor (its current
+        name, version and parameters): ``refresh_features`` recomputes them."""
+        with self._reading() as c:
+            return int(
+                c.execute(
+                    "SELECT count(*) FROM photos p LEFT JOIN photo_features f ON f.photo_id = p.id"
+                    " WHERE f.extractor IS NULL OR f.extractor != ?",
+                    (self.extractor.ident,),
+                ).fetchone()[0]
+            )
+
     def _check_rows(self) -> None:
         """Every landmark's position, facing and sigma, and every index box, are finite
-        numbers: one scan of each table at open, so a damaged row never becomes a fix."""
+        numbers: one scan of each table at open, so a damaged row never becomes a fix.
+        Features made by another extractor (or version) must be recomputed first."""
         cols = ("lat_deg", "lon_deg", "x_m", "y_m", "position_sigma_m")
         bad = " OR ".join(f"NOT {_FINITE_SQL.format(c=c)}" for c in cols)
         bad += f" OR (facing_deg IS NOT NULL AND NOT {_FINITE_SQL.format(c='facing_deg')})"
@@ -226,12 +214,74 @@ class LandmarkDb:
             r = c.execute(f"SELECT id FROM landmark_index WHERE {box} LIMIT 1").fetchone()
             if r is not None:
                 raise LandmarkDbError(f"{self.path}: index box of landmark {r[0]!r} is not finite")
+        stale = self.stale_features()
+        if stale:
+            raise LandmarkDbError(
+                f"{self.path}: {stale} photo(s) have features from another extractor than"
+                f" {self.extractor.ident}; run `landmark-db migrate` on it"
+            )
 
     # --- writing ------------------------------------------------------------------------------
 
     def _writable(self) -> None:
         if self.readonly:
             raise LandmarkDbError(f"{self.path} is open read-only")
+
+    def _encoded(
+        self, label: str, image: np.ndarray | bytes, image_format: str
+    ) -> tuple[bytes, np.ndarray, str, Features]:
+        """(encoded bytes, pixels, format, features) of a photo given as bytes or an array."""
+        if isinstance(image, bytes | bytearray | memoryview):
+            data = bytes(image)
+            try:
+                pixels = decode_image(data)
+            except ValueError as exc:
+                raise LandmarkDbError(f"{label}: {exc}") from exc
+            fmt = (
+                "jpeg" if data[:2] == b"\xff\xd8" else "png" if data[:4] == b"\x89PNG" else "other"
+            )
+        else:
+            pixels = image
+            try:
+                data = encode_image(pixels, image_format)
+            except (ValueError, cv2.error) as exc:
+                raise LandmarkDbError(f"{label}: {exc}") from exc
+            fmt = image_format.lstrip(".").replace("jpg", "jpeg")
+        try:
+            feats = extract(pixels, self.extractor)
+        except ValueError as exc:
+            raise LandmarkDbError(f"{label}: {exc}") from exc
+        return data, pixels, fmt, feats
+
+    def _insert_photo(
+        self,
+        lid: int,
+        data: bytes,
+        pixels: np.ndarray,
+        fmt: str,
+        feats: Features,
+        facing: float | None,
+        conditions: str,
+        source: str,
+    ) -> int:
+        h, w = pixels.shape[:2]
+        cur = self._conn.execute(
+            "INSERT INTO photos (landmark_id, format, width, height, sha256, data, facing_deg,"
+            " conditions, added_utc, source) VALUES (?, ?, ?, ?, ?, ?, ?, ?, ?, ?)",
+            (lid, fmt, w, h, hashlib.sha256(data).hexdigest(), data, facing, conditions,
+             _utc_now(), source),
+        )  # fmt: skip
+        pid = cur.lastrowid
+        assert pid is not None
+        self._insert_features(int(pid), feats)
+        return int(pid)
+
+    def _insert_features(self, pid: int, feats: Features) -> None:
+        self._conn.execute(
+            "INSERT OR REPLACE INTO photo_features VALUES (?, ?, ?, ?, ?, ?, ?)",
+            (pid, self.extractor.ident, len(feats), feats.width, feats.height,
+             feats.keypoint_blob(), feats.descriptor_blob()),
+        )  # fmt: skip
 
     def add(
         self,
@@ -246,8 +296,9 @@ class LandmarkDb:
         position_sigma_m: float = DEFAULT_POSITION_SIGMA_M,
         source: str = "",
         image_format: str = ".png",
+        conditions: str = "",
     ) -> int:
-        """Add a landmark with its photo (encoded bytes or an array); returns its id.
+        """Add a landmark with its first photo (encoded bytes or an array); returns its id.
 
         Give either lat/lon or local x/y; the other pair is computed from the origin.
         Raises ``LandmarkDbError`` for a bad position or an undecodable image.
@@ -269,24 +320,7 @@ class LandmarkDb:
         if sigma < 0:
             raise LandmarkDbError("position sigma must not be negative")
         facing = None if facing_deg is None else _finite("facing", facing_deg) % 360.0
-        if isinstance(image, bytes | bytearray | memoryview):
-            data = bytes(image)
-            try:
-                pixels = decode_image(data)
-            except ValueError as exc:
-                raise LandmarkDbError(f"landmark {name!r}: {exc}") from exc
-            fmt = (
-                "jpeg" if data[:2] == b"\xff\xd8" else "png" if data[:4] == b"\x89PNG" else "other"
-            )
-        else:
-            pixels = image
-            data = encode_image(pixels, image_format)
-            fmt = image_format.lstrip(".").replace("jpg", "jpeg")
-        try:
-            feats = extract(pixels, self.orb)
-        except ValueError as exc:
-            raise LandmarkDbError(f"landmark {name!r}: {exc}") from exc
-        h, w = pixels.shape[:2]
+        data, pixels, fmt, feats = self._encoded(f"landmark {name!r}", image, image_format)
         with self._lock, self._conn:
             cur = self._conn.execute(
                 "INSERT INTO landmarks (name, lat_deg, lon_deg, x_m, y_m, facing_deg,"
@@ -295,25 +329,34 @@ class LandmarkDb:
             )
             lid = cur.lastrowid
             assert lid is not None
-            self._conn.execute(
-                "INSERT INTO images VALUES (?, ?, ?, ?, ?, ?)",
-                (lid, fmt, w, h, hashlib.sha256(data).hexdigest(), data),
-            )
-            self._conn.execute(
-                "INSERT INTO features VALUES (?, ?, ?, ?, ?, ?)",
-                (
-                    lid,
-                    len(feats),
-                    feats.width,
-                    feats.height,
-                    feats.keypoint_blob(),
-                    feats.descriptor_blob(),
-                ),
-            )
+            self._insert_photo(lid, data, pixels, fmt, feats, facing, conditions, source)
             self._conn.execute(
                 "INSERT INTO landmark_index VALUES (?, ?, ?, ?, ?)", (lid, x, x, y, y)
             )
         return int(lid)
+
+    def add_photo(
+        self,
+        landmark_id: int,
+        image: np.ndarray | bytes,
+        *,
+        facing_deg: float | None = None,
+        conditions: str = "",
+        source: str = "",
+        image_format: str = ".png",
+    ) -> int:
+        """Another photo of an existing landmark (another distance, direction, light...);
+        returns the photo's id. All photos of a landmark are scored as one place."""
+        self._writable()
+        if self.get(landmark_id) is None:
+            raise LandmarkDbError(f"no landmark {landmark_id}")
+        facing = None if facing_deg is None else _finite("facing", facing_deg) % 360.0
+        label = f"landmark {landmark_id}"
+        data, pixels, fmt, feats = self._encoded(label, image, image_format)
+        with self._lock, self._conn:
+            return self._insert_photo(
+                landmark_id, data, pixels, fmt, feats, facing, conditions, source
+            )
 
     def add_many_precomputed(
         self,
@@ -325,7 +368,8 @@ class LandmarkDb:
         """Bulk insert (name, x, y) landmarks sharing one photo and its features.
 
         For benchmarks and simulated cities of many landmarks, where describing a photo
-        per landmark would dominate; positions are local metres.
+        per landmark would dominate; positions are local metres. ``features`` must come
+        from this file's extractor.
         """
         self._writable()
         digest = hashlib.sha256(image_data).hexdigest()
@@ -339,34 +383,54 @@ class LandmarkDb:
                     (name, lat, lon, x, y, position_sigma_m, now, "bulk"),
                 )
                 lid = cur.lastrowid
-                self._conn.execute(
-                    "INSERT INTO images VALUES (?, 'png', ?, ?, ?, ?)",
-                    (lid, features.width, features.height, digest, image_data),
+                cur = self._conn.execute(
+                    "INSERT INTO photos (landmark_id, format, width, height, sha256, data,"
+                    " added_utc, source) VALUES (?, 'png', ?, ?, ?, ?, ?, 'bulk')",
+                    (lid, features.width, features.height, digest, image_data, now),
                 )
-                self._conn.execute(
-                    "INSERT INTO features VALUES (?, ?, ?, ?, ?, ?)",
-                    (
-                        lid,
-                        len(features),
-                        features.width,
-                        features.height,
-                        features.keypoint_blob(),
-                        features.descriptor_blob(),
-                    ),
-                )
+                assert cur.lastrowid is not None
+                self._insert_features(cur.lastrowid, features)
                 self._conn.execute(
                     "INSERT INTO landmark_index VALUES (?, ?, ?, ?, ?)", (lid, x, x, y, y)
                 )
 
     def remove(self, landmark_id: int) -> bool:
-        """Delete a landmark with its photo, features and index row; False if absent."""
+        """Delete a landmark with its photos, features and index row; False if absent."""
         self._writable()
         with self._lock, self._conn:
             n = self._conn.execute("DELETE FROM landmarks WHERE id = ?", (landmark_id,)).rowcount
-            self._conn.execute("DELETE FROM images WHERE landmark_id = ?", (landmark_id,))
-            self._conn.execute("DELETE FROM features WHERE landmark_id = ?", (landmark_id,))
+            self._conn.execute(
+                "DELETE FROM photo_features WHERE photo_id IN"
+                " (SELECT id FROM photos WHERE landmark_id = ?)",
+                (landmark_id,),
+            )
+            self._conn.execute("DELETE FROM photos WHERE landmark_id = ?", (landmark_id,))
             self._conn.execute("DELETE FROM landmark_index WHERE id = ?", (landmark_id,))
         return n > 0
+
+    def refresh_features(self, extractor: ExtractorConfig | None = None) -> int:
+        """Make ``extractor`` (default: the file's own) the file's extractor and recompute
+        every photo's features that it did not make; returns how many were recomputed.
+        The migration for a new extractor, or a new version of one."""
+        self._writable()
+        ext = extractor or self.extractor
+        with self._lock, self._conn:
+            self._conn.execute(
+                "INSERT OR REPLACE INTO metadata VALUES ('extractor', ?)", (ext.ident,)
+            )
+            self.extractor = ext
+            rows = self._conn.execute(
+                "SELECT p.id, p.data FROM photos p LEFT JOIN photo_features f"
+                " ON f.photo_id = p.id WHERE f.extractor IS NULL OR f.extractor != ?",
+                (ext.ident,),
+            ).fetchall()
+            for pid, data in rows:
+                try:
+                    feats = extract(decode_image(bytes(data)), ext)
+                except ValueError as exc:
+                    raise LandmarkDbError(f"{self.path}: photo {pid}: {exc}") from exc
+                self._insert_features(int(pid), feats)
+        return len(rows)
 
     # --- reading ------------------------------------------------------------------------------
 
@@ -440,116 +504,69 @@ class LandmarkDb:
             raise LandmarkDbError(f"{self.path}: bad landmark index ({exc})") from exc
         return arr[:, 0].astype(np.int64), arr[:, 1:3]
 
-    def image_bytes(self, landmark_id: int) -> tuple[str, bytes] | None:
-        """(format, encoded bytes) of a landmark's photo."""
+    def photos(self, landmark_id: int) -> list[Photo]:
+        """A landmark's photos, oldest first."""
+        with self._reading() as c:
+            rows = c.execute(
+                "SELECT id, landmark_id, format, width, height, facing_deg, conditions, source"
+                " FROM photos WHERE landmark_id = ? ORDER BY id",
+                (landmark_id,),
+            ).fetchall()
+        return [Photo(*r) for r in rows]
+
+    def photo_counts(self) -> dict[int, int]:
+        """Landmark id -> number of photos."""
+        with self._reading() as c:
+            rows = c.execute("SELECT landmark_id, count(*) FROM photos GROUP BY landmark_id")
+            return {int(a): int(b) for a, b in rows.fetchall()}
+
+    def photo_bytes(self, photo_id: int) -> tuple[str, bytes] | None:
+        """(format, encoded bytes) of one photo."""
         with self._reading():
             r = self._conn.execute(
-                "SELECT format, data FROM images WHERE landmark_id = ?", (landmark_id,)
+                "SELECT format, data FROM photos WHERE id = ?", (photo_id,)
             ).fetchone()
         if r is not None and not isinstance(r[1], bytes):
-            raise LandmarkDbError(f"{self.path}: landmark {landmark_id}: photo is not a blob")
+            raise LandmarkDbError(f"{self.path}: photo {photo_id} is not a blob")
         return None if r is None else (str(r[0]), r[1])
 
-    def features(self, landmark_id: int) -> Features | None:
-        with self._reading():
-            r = self._conn.execute(
-                "SELECT width, height, keypoints, descriptors FROM features WHERE landmark_id = ?",
-                (landmark_id,),
-            ).fetchone()
-        if r is None:
-            return None
-        try:
-            if not (isinstance(r[2], bytes) and isinstance(r[3], bytes)):
-                raise ValueError("keypoints or descriptors are not blobs")
-            if not (isinstance(r[0], int) and isinstance(r[1], int)):
-                raise ValueError(f"image size {r[0]!r} x {r[1]!r} is not integer")
-            return Features.from_blobs(r[2], r[3], r[0], r[1])
-        except ValueError as exc:
-            raise LandmarkDbError(f"{self.path}: landmark {landmark_id}: {exc}") from exc
+    def image_bytes(self, landmark_id: int) -> tuple[str, bytes] | None:
+        """(format, encoded bytes) of a landmark's first photo."""
+        photos = self.photos(landmark_id)
+        return self.photo_bytes(photos[0].id) if photos else None
 
-    # --- integrity ----------------------------------------------------------------------------
+    def photo_features(self, landmark_id: int) -> list[tuple[int, Features]]:
+        """(photo id, features) of every photo of a landmark, oldest first."""
+        with self._reading():
+            rows = self._conn.execute(
+                "SELECT p.id, f.width, f.height, f.keypoints, f.descriptors FROM photos p"
+                " JOIN photo_features f ON f.photo_id = p.id WHERE p.landmark_id = ?"
+                " ORDER BY p.id",
+                (landmark_id,),
+            ).fetchall()
+        out = []
+        for pid, w, h, kp, desc in rows:
+            try:
+                if not (isinstance(kp, bytes) and isinstance(desc, bytes)):
+                    raise ValueError("keypoints or descriptors are not blobs")
+                if not (isinstance(w, int) and isinstance(h, int)):
+                    raise ValueError(f"image size {w!r} x {h!r} is not integer")
+                out.append((int(pid), Features.from_blobs(kp, desc, w, h, self.extractor.kind)))
+            except ValueError as exc:
+                raise LandmarkDbError(f"{self.path}: landmark {landmark_id}: {exc}") from exc
+        return out
+
+    def features(self, landmark_id: int) -> Features | None:
+        """Features of a landmark's first photo."""
+        f = self.photo_features(landmark_id)
+        return f[0][1] if f else None
 
     def check(self, decode_images: bool = True) -> CheckReport:
-        """``PRAGMA integrity_check`` plus consistency: every landmark has a photo and
-        features that decode, the R*Tree has exactly one matching box per landmark,
-        positions agree with lat/lon through the origin (within 1 m)."""
-        problems: list[str] = []
+        """``PRAGMA integrity_check`` plus consistency (``landmark_db.integrity``)."""
+        from landmark_db.integrity import check
+
         with self._lock:
-            c = self._conn
-            try:
-                res = [str(r[0]) for r in c.execute("PRAGMA integrity_check").fetchall()]
-            except sqlite3.DatabaseError as exc:
-                return CheckReport(0, (f"integrity_check failed: {exc}",))
-            if res != ["ok"]:
-                problems.extend(f"integrity: {r}" for r in res[:20])
-            n = int(c.execute("SELECT count(*) FROM landmarks").fetchone()[0])
-            for label, sql in (
-                (
-                    "without a photo",
-                    "SELECT id FROM landmarks WHERE id NOT IN (SELECT landmark_id FROM images)",
-                ),
-                (
-                    "without features",
-                    "SELECT id FROM landmarks WHERE id NOT IN (SELECT landmark_id FROM features)",
-                ),
-                (
-                    "without an index box",
-                    "SELECT id FROM landmarks WHERE id NOT IN (SELECT id FROM landmark_index)",
-                ),
-                (
-                    "index box for no landmark",
-                    "SELECT id FROM landmark_index WHERE id NOT IN (SELECT id FROM landmarks)",
-                ),
-                (
-                    "photo for no landmark",
-                    "SELECT landmark_id FROM images WHERE landmark_id NOT IN"
-                    " (SELECT id FROM landmarks)",
-                ),
-                (
-                    "features for no landmark",
-                    "SELECT landmark_id FROM features WHERE landmark_id NOT IN"
-                    " (SELECT id FROM landmarks)",
-                ),
-                (
-                    "index box not at its position",
-                    "SELECT l.id FROM landmarks l JOIN landmark_index r ON r.id = l.id"
-                    " WHERE abs(r.min_x - l.x_m) > 0.01 OR abs(r.max_x - l.x_m) > 0.01"
-                    " OR abs(r.min_y - l.y_m) > 0.01 OR abs(r.max_y - l.y_m) > 0.01",
-                ),
-                ("with no keypoints", "SELECT landmark_id FROM features WHERE count < 1"),
-            ):
-                ids = [int(r[0]) for r in c.execute(sql).fetchall()]
-                if ids:
-                    shown = ", ".join(map(str, ids[:10])) + (" ..." if len(ids) > 10 else "")
-                    problems.append(f"{len(ids)} landmark(s) {label}: {shown}")
-            rows = c.execute(
-                "SELECT l.id, l.lat_deg, l.lon_deg, l.x_m, l.y_m, f.count, f.width, f.height,"
-                " f.keypoints, f.descriptors FROM landmarks l JOIN features f"
-                " ON f.landmark_id = l.id"
-            )
-            for lid, lat, lon, x, y, count, w, h, kp, desc in rows:
-                ex, ey = self.origin.to_local(lat, lon)
-                if math.hypot(ex - x, ey - y) > 1.0:
-                    problems.append(
-                        f"landmark {lid}: x/y disagree with lat/lon by"
-                        f" {math.hypot(ex - x, ey - y):.1f} m"
-                    )
-                try:
-                    f = Features.from_blobs(bytes(kp), bytes(desc), w, h)
-                    if len(f) != count:
-                        raise ValueError(f"{len(f)} features stored, count says {count}")
-                except ValueError as exc:
-                    problems.append(f"landmark {lid}: bad features: {exc}")
-            if decode_images:
-                for lid, data, digest in c.execute("SELECT landmark_id, data, sha256 FROM images"):
-                    if hashlib.sha256(bytes(data)).hexdigest() != digest:
-                        problems.append(f"landmark {lid}: photo checksum mismatch")
-                        continue
-                    try:
-                        decode_image(bytes(data))
-                    except ValueError:
-                        problems.append(f"landmark {lid}: photo does not decode")
-        return CheckReport(n, tuple(problems))
+            return check(self._conn, self.origin, self.extractor, decode_images)
 
 
 def _connect(path: Path, readonly: bool) -> sqlite3.Connection:
@@ -562,37 +579,10 @@ def _connect(path: Path, readonly: bool) -> sqlite3.Connection:
     return conn
 
 
-def _version(conn: sqlite3.Connection, path: Path) -> int:
-    try:
-        tables = {r[0] for r in conn.execute("SELECT name FROM sqlite_master WHERE type = 'table'")}
-    except sqlite3.DatabaseError as exc:
-        raise LandmarkDbError(f"{path}: not a landmark database ({exc})") from exc
-    if "schema_version" not in tables:
-        raise LandmarkDbError(f"{path}: not a landmark database (no schema_version table)")
-    row = conn.execute("SELECT version FROM schema_version").fetchone()
-    if row is None or not isinstance(row[0], int):
-        raise LandmarkDbError(f"{path}: schema_version table is empty or bad")
-    return int(row[0])
-
-
-def migrate(conn: sqlite3.Connection, path: Path, target: int = SCHEMA_VERSION) -> int:
-    """Apply the migrations after the file's version up to ``target``; returns the new version."""
-    current = _version(conn, path)
-    for version, script in MIGRATIONS:
-        if current < version <= target:
-            try:
-                conn.executescript(f"BEGIN; {script} COMMIT;")
-            except sqlite3.DatabaseError as exc:
-                conn.rollback()
-                raise LandmarkDbError(f"{path}: migration to v{version} failed: {exc}") from exc
-            current = version
-    return current
-
-
 def create_db(
     path: str | Path,
     origin: Origin,
-    orb: OrbConfig | None = None,
+    extractor: ExtractorConfig | None = None,
 ) -> LandmarkDb:
     """Create a new, empty database file (refuses to overwrite) and open it writable."""
     p = Path(path)
@@ -600,10 +590,10 @@ def create_db(
         raise LandmarkDbError(f"{p} already exists")
     if not p.parent.is_dir():
         raise LandmarkDbError(f"folder {p.parent} does not exist")
-    orb = orb or OrbConfig()
+    ext = extractor or ExtractorConfig()
     conn = sqlite3.connect(p, check_same_thread=False)
     try:
-        conn.executescript(f"BEGIN; {_V1} COMMIT;")
+        conn.executescript(f"BEGIN; {V1} COMMIT;")
         with conn:
             conn.executemany(
                 "INSERT INTO metadata VALUES (?, ?)",
@@ -611,8 +601,7 @@ def create_db(
                     ("origin_lat_deg", repr(origin.lat_deg)),
                     ("origin_lon_deg", repr(origin.lon_deg)),
                     ("origin_alt_m", repr(origin.alt_m)),
-                    ("orb_n_features", str(orb.n_features)),
-                    ("orb_max_side_px", str(orb.max_side_px)),
+                    ("extractor", ext.ident),
                     ("created_utc", _utc_now()),
                 ],
             )
@@ -641,7 +630,7 @@ def open_db(path: str | Path, *, readonly: bool = True) -> LandmarkDb:
     except sqlite3.Error as exc:
         raise LandmarkDbError(f"{p}: cannot open ({exc})") from exc
     try:
-        version = _version(conn, p)
+        version = file_version(conn, p)
         if version > SCHEMA_VERSION:
             raise LandmarkDbError(
                 f"{p}: schema v{version} is newer than this software (v{SCHEMA_VERSION})"
@@ -654,7 +643,7 @@ def open_db(path: str | Path, *, readonly: bool = True) -> LandmarkDb:
                 )
             migrate(conn, p)
         tables = {r[0] for r in conn.execute("SELECT name FROM sqlite_master WHERE type = 'table'")}
-        missing = {"metadata", "landmarks", "images", "features", "landmark_index"} - tables
+        missing = TABLES - tables
         if missing:
             raise LandmarkDbError(f"{p}: not a landmark database (missing {sorted(missing)})")
         db = LandmarkDb(conn, p, readonly)

@@ -190,6 +190,31 @@ class Saved:
     name: str
     t_s: float
     frame_t_s: float
+    """Time of the frame nearest the mark (the landmark's first photo)."""
+    photos: int = 1
+
+
+def pick_frames(times: list[float], t_mark: float, max_gap_s: float, n: int) -> list[int]:
+    """Indexes of up to ``n`` frames for a mark: the nearest, then the nearest to
+    ``t_mark -/+ k * max_gap_s / 2`` (before and after: the car approaching and passing, so
+    several distances and angles), each within ``max_gap_s`` of the mark, no frame twice."""
+    offsets = [0.0]
+    for k in range(1, n):
+        offsets += [-k * max_gap_s / 2.0, k * max_gap_s / 2.0]
+    chosen: list[int] = []
+    for off in offsets:
+        if len(chosen) == n:
+            break
+        target = t_mark + off
+        best = None
+        for i, t in enumerate(times):
+            if i in chosen or abs(t - t_mark) > max_gap_s + 1e-9:
+                continue
+            if best is None or abs(t - target) < abs(times[best] - target):
+                best = i
+        if best is not None and (off == 0.0 or abs(times[best] - target) <= max_gap_s / 4.0):
+            chosen.append(best)
+    return chosen
 
 
 def survey(
@@ -200,58 +225,71 @@ def survey(
     name_prefix: str = "survey",
     max_gap_s: float = 1.0,
     position_sigma_m: float = 5.0,
+    frames_per_mark: int = 3,
 ) -> tuple[list[Saved], list[str]]:
-    """Save, for each mark, the frame nearest in time (within ``max_gap_s``) as a landmark.
+    """Save, for each mark, up to ``frames_per_mark`` frames within ``max_gap_s`` of it as
+    photos of one landmark (``pick_frames``). A mark named like an existing landmark (the
+    same place passed again, e.g. in the other direction) adds its photos to that landmark.
 
     Returns (saved landmarks, one-line notes on marks that were skipped).
     """
+    if frames_per_mark < 1:
+        raise LandmarkDbError("frames per mark must be at least 1")
     pending = sorted(marks, key=lambda m: m.t_s)
     saved: list[Saved] = []
     notes: list[str] = []
-    prev: tuple[float, np.ndarray] | None = None
+    window: list[tuple[float, np.ndarray]] = []
     k = 0
 
-    def save(mark: Mark, t_f: float, image: np.ndarray) -> None:
+    def save(mark: Mark) -> None:
         nonlocal k
         k += 1
         name = mark.name or f"{name_prefix}-{k:04d}"
-        if abs(t_f - mark.t_s) > max_gap_s:
+        times = [t for t, _ in window]
+        picked = pick_frames(times, mark.t_s, max_gap_s, frames_per_mark)
+        if not picked:
             notes.append(f"{name}: no frame within {max_gap_s} s of t={mark.t_s:.2f}")
             return
-        pos: dict[str, float] = {}
-        if mark.lat_deg is not None and mark.lon_deg is not None:
-            pos = {"lat_deg": mark.lat_deg, "lon_deg": mark.lon_deg}
-        elif mark.x_m is not None and mark.y_m is not None:
-            pos = {"x_m": mark.x_m, "y_m": mark.y_m}
-        elif track is not None and (ll := track.at(mark.t_s)) is not None:
-            pos = {"lat_deg": ll[0], "lon_deg": ll[1]}
+        src = f"survey t={mark.t_s:.2f}"
+        existing = db.find(name) if mark.name else None
+        first = 0
+        if existing is not None:
+            lid = existing.id
         else:
-            notes.append(f"{name}: no position at t={mark.t_s:.2f} (no mark position, no GPS)")
-            return
-        lid = db.add(
-            name,
-            image,
-            position_sigma_m=position_sigma_m,
-            source=f"survey t={mark.t_s:.2f}",
-            image_format=".jpg",
-            **pos,
-        )
-        saved.append(Saved(lid, name, mark.t_s, t_f))
+            pos: dict[str, float] = {}
+            if mark.lat_deg is not None and mark.lon_deg is not None:
+                pos = {"lat_deg": mark.lat_deg, "lon_deg": mark.lon_deg}
+            elif mark.x_m is not None and mark.y_m is not None:
+                pos = {"x_m": mark.x_m, "y_m": mark.y_m}
+            elif track is not None and (ll := track.at(mark.t_s)) is not None:
+                pos = {"lat_deg": ll[0], "lon_deg": ll[1]}
+            else:
+                notes.append(f"{name}: no position at t={mark.t_s:.2f} (no mark position, no GPS)")
+                return
+            lid = db.add(
+                name,
+                window[picked[0]][1],
+                position_sigma_m=position_sigma_m,
+                source=src,
+                image_format=".jpg",
+                **pos,  # type: ignore[arg-type]
+            )
+            first = 1
+        for i in picked[first:]:
+            t_f = window[i][0]
+            db.add_photo(lid, window[i][1], source=f"{src} frame t={t_f:.2f}", image_format=".jpg")
+        saved.append(Saved(lid, name, mark.t_s, window[picked[0]][0], len(picked)))
 
     for t, image in frames:
-        while pending and pending[0].t_s <= t:
-            mark = pending.pop(0)
-            # the nearer of the frames just before and at/after the mark
-            if prev is not None and mark.t_s - prev[0] < t - mark.t_s:
-                save(mark, *prev)
-            else:
-                save(mark, t, image)
-        prev = (t, image)
+        while pending and pending[0].t_s + max_gap_s < t:
+            save(pending.pop(0))
+        window = [(tf, im) for tf, im in window if not pending or tf >= pending[0].t_s - max_gap_s]
+        window.append((t, image))
         if not pending:
             break
     for mark in pending:
-        if prev is not None:
-            save(mark, *prev)
+        if window:
+            save(mark)
         else:
             notes.append(f"mark at t={mark.t_s:.2f}: no frames")
     return saved, notes

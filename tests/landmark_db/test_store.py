@@ -114,15 +114,15 @@ def test_check_finds_inconsistencies(tmp_path: Path) -> None:
     c = db._conn
     with c:
         c.execute("DELETE FROM landmark_index WHERE id = 1")
-        c.execute("UPDATE images SET data = x'00' WHERE landmark_id = 2")
-        c.execute("DELETE FROM features WHERE landmark_id = 3")
+        c.execute("UPDATE photos SET data = x'00' WHERE landmark_id = 2")
+        c.execute("DELETE FROM photo_features WHERE photo_id = 3")
         c.execute("INSERT INTO landmark_index VALUES (99, 1, 1, 1, 1)")
     report = db.check()
     text = "\n".join(report.problems)
     assert not report.ok
     assert "without an index box: 1" in text
-    assert "landmark 2: photo checksum mismatch" in text
-    assert "without features: 3" in text
+    assert "landmark 2 photo 2: checksum mismatch" in text
+    assert "with a photo without features: 3" in text
     assert "index box for no landmark: 99" in text
     db.close()
 
@@ -135,23 +135,81 @@ def test_remove_keeps_the_file_consistent(tmp_path: Path) -> None:
     db.close()
 
 
-def test_migration_from_v1(tmp_path: Path) -> None:
-    db = _db(tmp_path)
-    with db._conn as c:  # make it a version-1 file, as written by the first release
-        c.execute("DROP INDEX landmarks_name")
-        c.execute("UPDATE schema_version SET version = 1")
-    db.close()
+def _v2_file(path: Path, n: int = 3) -> list[np.ndarray]:
+    """A version-2 file as the previous release wrote it: one photo per landmark in
+    ``images``, its ORB features in ``features``."""
+    from landmark_db.features import extract
+    from landmark_db.schema import V1, V2
+
+    photos = [facade(100 + i) for i in range(n)]
+    c = sqlite3.connect(path)
+    c.executescript(f"BEGIN; {V1} {V2} COMMIT;")
+    with c:
+        c.executemany(
+            "INSERT INTO metadata VALUES (?, ?)",
+            [("origin_lat_deg", "42.444"), ("origin_lon_deg", "-76.5019"), ("origin_alt_m", "0.0"),
+             ("orb_n_features", "300"), ("orb_max_side_px", "1024"), ("created_utc", "x")],
+        )  # fmt: skip
+        for i, photo in enumerate(photos, start=1):
+            lat, lon = ORIGIN.to_geodetic(50.0 * i, 0.0)
+            c.execute(
+                "INSERT INTO landmarks VALUES (?, ?, ?, ?, ?, 0, NULL, 3.0, 'x', 's')",
+                (i, f"lm{i}", lat, lon, 50.0 * i),
+            )
+            data = encode_image(photo)
+            c.execute(
+                "INSERT INTO images VALUES (?, 'png', 640, 480, ?, ?)",
+                (i, __import__("hashlib").sha256(data).hexdigest(), data),
+            )
+            f = extract(photo, OrbConfig(n_features=300))
+            c.execute(
+                "INSERT INTO features VALUES (?, ?, ?, ?, ?, ?)",
+                (i, len(f), f.width, f.height, f.keypoint_blob(), f.descriptor_blob()),
+            )
+            c.execute("INSERT INTO landmark_index VALUES (?, ?, ?, 0, 0)", (i, 50.0 * i, 50.0 * i))
+    c.close()
+    return photos
+
+
+def test_migration_from_v2_keeps_photos_and_features(tmp_path: Path) -> None:
     p = tmp_path / "t.sqlite"
+    photos = _v2_file(p)
     with pytest.raises(LandmarkDbError, match="older than"):
         open_db(p)  # the car never writes: it asks for a migration
     open_db(p, readonly=False).close()
     with open_db(p) as ro:
         v = ro._conn.execute("SELECT version FROM schema_version").fetchone()[0]
-        idx = ro._conn.execute(
-            "SELECT name FROM sqlite_master WHERE type = 'index' AND name = 'landmarks_name'"
-        ).fetchall()
-        assert v == SCHEMA_VERSION and idx
-        assert len(ro) == 3 and ro.check().ok
+        assert v == SCHEMA_VERSION and len(ro) == 3 and ro.check().ok
+        assert ro.extractor.ident == "orb/1:300@1024"  # the file keeps its extractor
+        assert [ph.id for ph in ro.photos(2)] == [2]
+        f = ro.features(2)
+        assert f is not None and f.kind == "orb" and f.descriptors.shape[1] == 32
+        from landmark_db.recognise import Recogniser
+
+        assert Recogniser(ro).match_image(photos[1]).landmark_id == 2
+
+
+def test_refresh_features_recomputes_for_a_new_extractor_or_version(tmp_path: Path) -> None:
+    from landmark_db.features import ExtractorConfig
+
+    p = tmp_path / "t.sqlite"
+    _v2_file(p)
+    with open_db(p, readonly=False) as db:
+        assert db.refresh_features() == 0  # nothing stale
+        assert db.refresh_features(ExtractorConfig("rootsift", 500, 640)) == 3
+    with open_db(p) as ro:
+        f = ro.features(1)
+        assert ro.extractor.ident == "rootsift/1:500@640" and ro.check().ok
+        assert f is not None and f.kind == "rootsift" and f.descriptors.shape[1] == 128
+    with sqlite3.connect(p) as c:  # as if written by an older version of the extractor
+        c.execute("UPDATE photo_features SET extractor = 'rootsift/0:500@640' WHERE photo_id = 2")
+    c.close()
+    with pytest.raises(LandmarkDbError, match="landmark-db migrate"):
+        open_db(p)
+    with open_db(p, readonly=False) as db:
+        assert "features from rootsift/0" in " ".join(db.check().problems)
+        assert db.refresh_features() == 1
+    open_db(p).close()
 
 
 def test_newer_schema_is_refused(tmp_path: Path) -> None:
