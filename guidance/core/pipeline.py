@@ -103,6 +103,17 @@ class Outputs:
 # ----------------------------------------------------------------------------- the pipeline
 
 
+GAP_ACCEL_MPS2 = 3.0
+"""The most a car gains in speed per second in town (0-100 km/h in 9 s): bounds what it may
+have driven beyond its last speed during an odometry gap."""
+
+
+def gap_spread_m(speed_before_mps: float, gap_s: float) -> float:
+    """2-sigma widening after an odometry gap: the last speed over the gap, plus what the car
+    could have gained meanwhile (1/2 a t^2). 11 m/s for 5 s: 55 m + 37.5 m."""
+    return speed_before_mps * gap_s + 0.5 * GAP_ACCEL_MPS2 * gap_s * gap_s
+
+
 @dataclass(frozen=True, slots=True)
 class PipelineConfig:
     """Everything the core needs; built from the TOML config (``guidance.config``) or the sim."""
@@ -277,11 +288,13 @@ class Pipeline:
             return
         d = 0.5 * (msg.d_left_m + msg.d_right_m)
         if gap is not None and gap > 0:
-            self.speed_mps = abs(d) / gap
             # Beyond the dead-input timeout (>= 1 s, the decoder's longest bridged gap) the
-            # distance driven meanwhile was not integrated: widen the estimate for it.
+            # distance driven meanwhile was not integrated: widen the estimate for it, by the
+            # speed *before* the gap (the increment after it covers one frame, not the gap).
             if self.config.resume_gap_inflation and gap > self.health.timeout_s("odometry"):
                 self._inflate_after_gap(gap, out)
+            else:
+                self.speed_mps = abs(d) / gap
         self._last_odo_t = msg.t_s
         self.odometer_m += abs(d)
         x = est.x
@@ -293,7 +306,7 @@ class Pipeline:
 
     def _inflate_after_gap(self, gap_s: float, out: Outputs) -> None:
         """Odometry came back after a silence: the car may have moved meanwhile (issue 7)."""
-        spread = max(self.speed_mps, 1.0) * gap_s  # 2-sigma: what the last speed covers
+        spread = gap_spread_m(self.speed_mps, gap_s)
         self.inflate_position(spread)
         log.warning("odometry resumed after %.1f s: position inflated by %.0f m", gap_s, spread)
         self.counts["gap_inflations"] += 1
