@@ -368,8 +368,11 @@ def parse_config(
             from guidance.app.magnetic import declination_deg
 
             declination = declination_deg(origin[0], origin[1], when)
-    if compass is None and start_heading is None:
-        raise UserError("[start] heading_deg is required when there is no compass")
+    if (compass is None or compass_sigma is None) and start_heading is None:
+        raise UserError(
+            "[start] heading_deg is required when there is no compass (or "
+            "compass_two_sigma_deg = false): the heading could never become known"
+        )
     camera = _device("camera", data.get("camera", {}), default_backend="opencv",
                      default_enabled=False)  # fmt: skip
 

@@ -191,6 +191,7 @@ class Pipeline:
             config.estimator, config.start_xy_m[0], config.start_xy_m[1], heading or 0.0
         )
         self.heading_known = heading is not None
+        self._waiting_said = False
         if not self.heading_known:
             P = self.estimator.P
             P[2, 2] = math.pi**2
@@ -357,6 +358,13 @@ class Pipeline:
     def _intersection(self, scene: IntersectionScene, out: Outputs) -> None:
         if not scene.exit_headings_rad:
             out.accepted, out.reason = False, "no_exits"
+            return
+        if not self.heading_known:  # no advice out of a heading the car does not have
+            out.accepted, out.reason = False, "heading_unknown"
+            self.counts["advice_withheld"] += 1
+            if not self._waiting_said:
+                self._waiting_said = True
+                self._say(out, scene.t_s, prompts.waiting_for_heading(), Priority.SAFETY, "info")
             return
         est = self.estimator
         x = est.x

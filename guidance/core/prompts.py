@@ -139,3 +139,8 @@ def compass_unusable(detail: str) -> str:
     if "interference" in detail:
         return "Compass unusable: magnetic interference. Steering by wheel odometry."
     return "Compass unusable: calibrate it."
+
+
+def waiting_for_heading() -> str:
+    """No compass reading yet and no start heading: no turn advice until there is one."""
+    return "Waiting for a heading: no turn advice yet. Drive on, or give the start heading."

@@ -1,4 +1,4 @@
-"""An odometry dropout widens the position by what the car may have driven meanwhile."""
+"""Pipeline edge cases: an odometry dropout, and advice without a heading."""
 
 from __future__ import annotations
 
@@ -43,3 +43,23 @@ def test_a_5_s_dropout_at_11_mps_widens_by_the_distance_it_could_not_measure() -
 def test_the_spread_is_the_last_speed_plus_what_could_be_gained() -> None:
     assert gap_spread_m(11.0, 5.0) == 55.0 + 37.5
     assert gap_spread_m(0.0, 2.0) == 0.5 * GAP_ACCEL_MPS2 * 4.0  # standing: could have set off
+
+
+def test_no_turn_advice_until_the_heading_is_known() -> None:
+    """No compass reading yet and no start heading: say so once, advise nothing."""
+    from dataclasses import replace
+
+    from guidance.core.messages import CompassHeading, IntersectionScene
+
+    p = Pipeline(replace(_pipeline().config, start_heading_rad=None,
+                         estimator=EstimatorConfig(compass_two_sigma_deg=20.0)))  # fmt: skip
+    exits = (0.0, math.pi / 2, -math.pi / 2)
+    said = []
+    for k in range(3):
+        out = p.feed(IntersectionScene(1.0 + k, exits))
+        assert not out.accepted and out.reason == "heading_unknown" and not out.decisions
+        said += [pr.text for pr in out.prompts if pr.kind != "sensor"]
+    assert len(said) == 1 and said[0].startswith("Waiting for a heading")
+    p.feed(CompassHeading(5.0, 90.0))  # the first reading gives the heading
+    out = p.feed(IntersectionScene(6.0, exits))
+    assert out.accepted and len(out.decisions) == 1
