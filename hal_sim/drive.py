@@ -171,7 +171,8 @@ async def drive_async(
     """
     from drivers.can_odometry import MAX_GAP_S, CanOdometry, CanOdometryConfig
     from drivers.compass import SerialCompass, SerialCompassConfig
-    from guidance.app.app import App, build_speaker, session_record
+    from guidance.app.app import App
+    from guidance.app.build import OutputSettings, open_outputs, session_record
     from guidance.app.checkpoint import Checkpointer, load_checkpoint
     from guidance.app.magnetic import declination_deg
     from guidance.core.messages import GoalUpdate
@@ -281,7 +282,8 @@ async def drive_async(
     result_prompts: list[tuple[float, str]] = []
     health_warnings: list[str] = []
     channel = f"sim-can-{os.getpid()}-{next(_channel_ids)}"
-    tx = odo = pty = compass = speaker = telemetry = recorder = None
+    tx = odo = pty = compass = None
+    stack = contextlib.AsyncExitStack()
     try:
         tx = SimCanWheels(channel, profile=opts.profile).open()
         odo = CanOdometry(
@@ -304,24 +306,18 @@ async def drive_async(
         sightings = SimSightings(world)
         sources["scene"] = scene
         sources["landmark"] = sightings
-        if opts.voice_to:
-            speaker = build_speaker("wav", opts.voice_to, lambda: world.t_s)
-        elif opts.voice != "none":
-            speaker = _live_voice(lambda: world.t_s)
+        tcfg = None
         if opts.telemetry:
             from guidance.telemetry.config import TelemetryConfig
-            from guidance.telemetry.publisher import Telemetry
 
             tcfg = (
                 app_config.telemetry
                 if app_config is not None
                 else TelemetryConfig(vehicle_id=opts.vehicle_id)
             )
-            telemetry = Telemetry(tcfg)
-            telemetry.start()
+        rcfg = None
         if opts.record:
             from guidance.recording.config import RecordingConfig
-            from guidance.recording.writer import Recorder
 
             rcfg = RecordingConfig(
                 directory=str(out_dir / "recordings"),
@@ -331,16 +327,20 @@ async def drive_async(
             )
             if app_config is not None:  # the config's folder, rotation and caps
                 rcfg = replace(app_config.recording, prefix=rcfg.prefix, queue_size=1 << 17)
-            recorder = Recorder(rcfg)
-            recorder.start()
-            recorder.record(
-                "/session",
-                world.t_s,
-                session_record(
-                    pipeline, opts.config or "", sim={"seed": opts.seed, "method": method.value}
-                ),
-            )
-
+        live_voice = not opts.voice_to and opts.voice != "none"
+        settings = OutputSettings(
+            voice_backend="wav" if opts.voice_to else "none",
+            wav_path=opts.voice_to or "",
+            telemetry=tcfg,
+            recording=rcfg,
+            session=session_record(
+                pipeline, opts.config or "", sim={"seed": opts.seed, "method": method.value}
+            ),
+            drain_speech=opts.voice_to is not None,
+            speaker_factory=_live_voice if live_voice else None,
+        )
+        outs = await stack.enter_async_context(open_outputs(settings, lambda: world.t_s))
+        speaker, telemetry, recorder = outs.speaker, outs.telemetry, outs.recorder
         app = App(
             pipeline,
             sources=sources,
@@ -421,7 +421,8 @@ async def drive_async(
                         frame = camera.frame_at(t, tx_, ty_)
                         pipeline.health.observe("camera", t)
                         loop = asyncio.get_running_loop()
-                        fix = await loop.run_in_executor(None, app._match, frame, pipeline.state())
+                        state = pipeline.state()
+                        fix = await loop.run_in_executor(None, app.match_frame, frame, state)
                         if fix is not None:
                             app.feed(fix)
                 elif ev.landmark is not None:
@@ -486,12 +487,7 @@ async def drive_async(
             tx.close()
         if pty is not None:
             pty.close()
-        if speaker is not None:
-            speaker.close(drain=opts.voice_to is not None)  # type: ignore[call-arg]
-        if recorder is not None:
-            recorder.close()
-        if telemetry is not None:
-            telemetry.close()
+        await stack.aclose()  # speaker (drained for a WAV), recorder, telemetry
 
     tx_, ty_, _ = world.truth
     x = pipeline.estimator.x

@@ -51,7 +51,6 @@ health vocabulary, plus the pure co-driver line parser the keyboard driver decod
 the shared ellipse/Mahalanobis math the landmark gate uses (one definition of the math)."""
 
 KNOWN_LONG = {
-    "guidance/app/app.py",  # change 4 of ARCHITECTURE.md (composition root) splits it
     "guidance/core/pipeline.py",  # change 5 (PipelineState, one decision step)
     "drivers/can_odometry.py",
     "landmark_db/store.py",

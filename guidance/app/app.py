@@ -20,23 +20,18 @@ steps it in lockstep with the simulated world; replay feeds the pipeline directl
 
 from __future__ import annotations
 
-import argparse
 import asyncio
 import concurrent.futures
 import contextlib
-import json
 import logging
 import math
-import signal
-import sys
 import threading
 import time
 from collections import Counter, deque
 from collections.abc import AsyncIterator, Callable, Mapping, Sequence
-from pathlib import Path
 from typing import TYPE_CHECKING, Any, Protocol
 
-from guidance.app.checkpoint import Checkpointer, load_checkpoint
+from guidance.app.checkpoint import Checkpointer
 from guidance.app.ports import Speaker
 from guidance.core.codec import to_record
 from guidance.core.messages import (
@@ -45,7 +40,6 @@ from guidance.core.messages import (
     LandmarkFix,
     WheelOdometry,
 )
-from guidance.errors import UserError
 from guidance.telemetry.messages import InputHealth, LandmarkRejection
 from guidance.telemetry.sink import MessageSink
 
@@ -424,7 +418,7 @@ class App:
                 continue
             state = self.pipeline.state()
             try:
-                fix = await loop.run_in_executor(None, self._match, frame, state)
+                fix = await loop.run_in_executor(None, self.match_frame, frame, state)
             except Exception:
                 self.counts["recogniser_errors"] += 1
                 log.exception("landmark recogniser failed on a frame; continuing")
@@ -433,7 +427,7 @@ class App:
             if fix is not None:
                 self.feed(fix)
 
-    def _match(self, frame: CameraFrame, state: EstimateState) -> LandmarkFix | None:
+    def match_frame(self, frame: CameraFrame, state: EstimateState) -> LandmarkFix | None:
         """Run the recogniser (worker thread). Accepts ``process(frame, state)`` returning a
         fix, a result with ``.fix``/``.reason`` (``landmark_db.recognise``) or a future of one
         (a recogniser in its own process); or the ``LandmarkRecogniser`` protocol."""
@@ -515,151 +509,3 @@ def _percentile(values: Sequence[float] | deque[float], q: float) -> float | Non
 
 def _ms(v: float | None) -> float | None:
     return None if v is None else v * 1e3
-
-
-# ----------------------------------------------------------------------------- building it
-
-
-def build_speaker(backend: str, wav_path: str, clock: Callable[[], float]) -> Speaker | None:
-    """The configured voice (``none`` for no speaker)."""
-    if backend == "none":
-        return None
-    from guidance.voice import make_speaker
-
-    return make_speaker(backend, wav_path or None, clock=clock)  # type: ignore[arg-type]
-
-
-async def run_car(config_path: str, *, resume: bool = True) -> int:
-    """``guidance run``: open the configured devices and guide until SIGINT/SIGTERM."""
-    from guidance.app.backends import SCENE_BACKENDS, import_backend
-    from guidance.app.config import load_config
-    from guidance.app.watchdog import SystemdNotifier
-    from guidance.core.messages import GoalUpdate
-    from guidance.core.pipeline import Pipeline
-    from guidance.recording.writer import Recorder
-    from guidance.telemetry.publisher import Telemetry
-
-    cfg = load_config(config_path)
-    sys.setswitchinterval(GIL_SWITCH_INTERVAL_S)
-    pipeline = Pipeline(cfg.pipeline)
-    checkpointer = None
-    if cfg.checkpoint.path:
-        checkpointer = Checkpointer(cfg.checkpoint.path, cfg.checkpoint.interval_s)
-        doc = load_checkpoint(cfg.checkpoint.path) if resume else None
-        age_s = time.time() - float(doc.get("wall_time_unix_s", 0.0)) if doc else math.inf
-        if doc is not None and not 0.0 <= age_s <= cfg.checkpoint.max_age_s:
-            log.warning(
-                "checkpoint %s is %.0f s old (limit %.0f s): starting afresh",
-                cfg.checkpoint.path,
-                age_s,
-                cfg.checkpoint.max_age_s,
-            )
-        elif doc is not None:
-            # The laptop's monotonic clock may have restarted, and the car kept moving while
-            # the process was down: widen the position by what the last speed covers.
-            pipeline.restore(doc["pipeline"], same_clock=False)
-            spread = pipeline.speed_mps * age_s
-            pipeline.inflate_position(spread)
-            log.warning(
-                "resumed from checkpoint %s written %.1f s ago; position widened by %.0f m",
-                cfg.checkpoint.path,
-                age_s,
-                spread,
-            )
-    # Devices are built (and their configs checked) before anything starts.
-    sources: dict[str, Source] = {}
-    if cfg.odometry is not None:
-        sources["odometry"] = cfg.odometry.build()
-    if cfg.compass is not None:
-        sources["compass"] = cfg.compass.build()
-    if cfg.keyboard:
-        keyboard = import_backend(SCENE_BACKENDS["keyboard"])
-        sources["scene"] = keyboard(lambda: float(pipeline.estimator.x[2]))
-    camera = cfg.camera.build() if cfg.camera is not None else None
-
-    speaker = build_speaker(cfg.voice.backend, cfg.voice.wav_path, time.monotonic)
-    telemetry = recorder = None
-    stop = asyncio.Event()
-    try:
-        loop = asyncio.get_running_loop()
-
-        def on_goal(x_m: float, y_m: float) -> None:
-            app.feed(GoalUpdate(time.monotonic(), x_m, y_m, "remote"))
-
-        telemetry = Telemetry(cfg.telemetry, on_goal=on_goal, loop=loop)
-        telemetry.start()
-        recorder = Recorder(cfg.recording)
-        recorder.start()
-        recorder.record("/session", time.monotonic(), session_record(pipeline, cfg.path))
-        app = App(
-            pipeline,
-            sources=sources,
-            camera=camera,
-            speaker=speaker,
-            telemetry=telemetry,
-            recorder=recorder,
-            notifier=SystemdNotifier(max_lag_s=cfg.max_loop_lag_s),
-            checkpointer=checkpointer,
-            tick_hz=cfg.tick_hz,
-            health_publish_period_s=cfg.health_publish_period_s,
-            max_loop_lag_s=cfg.max_loop_lag_s,
-        )
-        app.stop_event = stop
-        for sig in (signal.SIGINT, signal.SIGTERM):
-            loop.add_signal_handler(sig, stop.set)
-        await app.run_until_stopped()
-        log.warning("stopping: %s", json.dumps(app.lag_summary()))
-    finally:
-        if speaker is not None:
-            speaker.close()
-        if recorder is not None:
-            recorder.close()
-        if telemetry is not None:
-            telemetry.close()
-    return 0
-
-
-def session_record(pipeline: Pipeline, config_path: str = "", **extra: Any) -> dict[str, Any]:
-    """What replay needs to rebuild the pipeline: its configuration as plain data."""
-    return {
-        "schema": "guidance.session/1",
-        "config_path": config_path,
-        "pipeline": pipeline.config.describe(),
-        **extra,
-    }
-
-
-# ----------------------------------------------------------------------------- CLI
-
-
-def register(sub: Any) -> None:
-    run = sub.add_parser(
-        "run",
-        help="guide the driver: the in-car application",
-        description=(
-            "Run the in-car application: wheel odometry, compass and camera from the devices in "
-            "the TOML config, the pose estimator and navigator, voice prompts, Zenoh telemetry "
-            "and MCAP recording. Stop with Ctrl-C (or SIGTERM)."
-        ),
-    )
-    run.add_argument("--config", required=True, type=Path, help="the car's TOML configuration")
-    run.add_argument("--check", action="store_true", help="validate the configuration and exit")
-    run.add_argument(
-        "--fresh", action="store_true", help="ignore an existing checkpoint (start afresh)"
-    )
-    run.set_defaults(func=_cli_run)
-
-
-def _cli_run(args: argparse.Namespace) -> int:
-    if args.check:
-        from guidance.app.config import load_config
-
-        cfg = load_config(args.config)
-        print(  # noqa: T201  (the command output)
-            f"{args.config}: OK (vehicle {cfg.vehicle_id}, method "
-            f"{cfg.pipeline.navigator.method.value})"
-        )
-        return 0
-    if not args.config.is_file():
-        raise UserError(f"config file not found: {args.config}")
-    return asyncio.run(run_car(str(args.config), resume=not args.fresh))

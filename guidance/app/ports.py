@@ -84,4 +84,5 @@ class Speaker(Protocol):
     """Speaks (or writes) driver prompts; never blocks the caller."""
 
     def say(self, text: str, priority: int = 0, t_s: float | None = None) -> None: ...
-    def close(self) -> None: ...
+    def close(self, drain: bool = True) -> None:
+        """Stop; with ``drain`` finish what is queued first (a WAV file), else cut it."""

@@ -23,7 +23,7 @@ _COMMAND_MODULES = (
     "hal_sim.cli",  # study
     "hal_sim.drive",  # sim
     "drivers.cli",  # odometry, compass
-    "guidance.app.app",  # run
+    "guidance.app.run",  # run
     "guidance.tools.monitor",  # monitor
     "guidance.tools.replay",  # replay
     "guidance.tools.evaluate",  # evaluate

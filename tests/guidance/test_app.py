@@ -307,7 +307,7 @@ def test_guidance_run_on_simulated_devices_with_systemd_notify(
     import signal
     import socket
 
-    from guidance.app.app import run_car
+    from guidance.app.run import run_car
     from guidance.recording.reader import Reader
     from hal_sim.sim_compass import SimCompassPty
 

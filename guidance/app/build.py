@@ -1,0 +1,137 @@
+"""Building the app's outputs and resuming its state: shared by ``guidance run`` and the
+simulated drive (``hal_sim.drive``), so the simulator exercises the car's own wiring.
+
+``open_outputs`` opens the speaker, telemetry and recorder a run asks for, writes the
+recording's ``/session`` record, and closes all three on the way out (on an error too);
+``resume_from_checkpoint`` applies the car's checkpoint policy.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import contextlib
+import logging
+import math
+from collections.abc import AsyncIterator, Callable
+from dataclasses import dataclass
+from typing import TYPE_CHECKING, Any
+
+from guidance.app.ports import Speaker
+
+if TYPE_CHECKING:
+    from guidance.core.pipeline import Pipeline
+    from guidance.recording.config import RecordingConfig
+    from guidance.recording.writer import Recorder
+    from guidance.telemetry.config import TelemetryConfig
+    from guidance.telemetry.publisher import Telemetry
+
+log = logging.getLogger(__name__)
+
+
+@dataclass(frozen=True)
+class OutputSettings:
+    """What to open: each part is optional."""
+
+    voice_backend: str = "none"
+    """auto, voice, wav, text or none (``guidance.voice.make_speaker``)."""
+    wav_path: str = ""
+    telemetry: TelemetryConfig | None = None
+    recording: RecordingConfig | None = None
+    session: dict[str, Any] | None = None
+    """The recording's /session record (``session_record``)."""
+    drain_speech: bool = False
+    """On close, let the speaker finish what is queued (a WAV file) instead of cutting it."""
+    speaker_factory: Callable[[Callable[[], float]], Speaker | None] | None = None
+    """Builds the speaker instead of ``voice_backend`` (the simulator's "voice if it can")."""
+
+
+@dataclass
+class Outputs:
+    speaker: Speaker | None = None
+    telemetry: Telemetry | None = None
+    recorder: Recorder | None = None
+
+
+def build_speaker(backend: str, wav_path: str, clock: Callable[[], float]) -> Speaker | None:
+    """The configured voice (``none`` for no speaker)."""
+    if backend == "none":
+        return None
+    from guidance.voice import make_speaker
+
+    return make_speaker(backend, wav_path or None, clock=clock)  # type: ignore[arg-type]
+
+
+def session_record(pipeline: Pipeline, config_path: str = "", **extra: Any) -> dict[str, Any]:
+    """What replay needs to rebuild the pipeline: its configuration as plain data."""
+    return {
+        "schema": "guidance.session/1",
+        "config_path": config_path,
+        "pipeline": pipeline.config.describe(),
+        **extra,
+    }
+
+
+@contextlib.asynccontextmanager
+async def open_outputs(
+    settings: OutputSettings,
+    clock: Callable[[], float],
+    *,
+    on_goal: Callable[[float, float], None] | None = None,
+) -> AsyncIterator[Outputs]:
+    """Open the speaker, telemetry and recorder; close them all when the block ends."""
+    out = Outputs()
+    try:
+        if settings.speaker_factory is not None:
+            out.speaker = settings.speaker_factory(clock)
+        else:
+            out.speaker = build_speaker(settings.voice_backend, settings.wav_path, clock)
+        if settings.telemetry is not None:
+            from guidance.telemetry.publisher import Telemetry
+
+            loop = asyncio.get_running_loop()
+            out.telemetry = Telemetry(settings.telemetry, on_goal=on_goal, loop=loop)
+            out.telemetry.start()
+        if settings.recording is not None:
+            from guidance.recording.writer import Recorder
+
+            out.recorder = Recorder(settings.recording)
+            out.recorder.start()
+            if settings.session is not None:
+                out.recorder.record("/session", clock(), settings.session)
+        yield out
+    finally:
+        if out.speaker is not None:
+            with contextlib.suppress(Exception):
+                out.speaker.close(drain=settings.drain_speech)
+        if out.recorder is not None:
+            out.recorder.close()
+        if out.telemetry is not None:
+            out.telemetry.close()
+
+
+def resume_from_checkpoint(
+    pipeline: Pipeline, doc: dict[str, Any] | None, age_s: float, max_age_s: float, where: str
+) -> str:
+    """Apply the car's resume policy to a loaded checkpoint; returns what was done.
+
+    Too old (or from the future): start afresh. Otherwise restore, on a fresh message clock
+    (the laptop's monotonic clock may have restarted), and widen the position by what the
+    last speed covers in the downtime: the car kept moving while the process was down.
+    """
+    if doc is None:
+        return "no checkpoint"
+    if not (math.isfinite(age_s) and 0.0 <= age_s <= max_age_s):
+        log.warning(
+            "checkpoint %s is %.0f s old (limit %.0f s): starting afresh", where, age_s, max_age_s
+        )
+        return "too old"
+    pipeline.restore(doc["pipeline"], same_clock=False)
+    spread = pipeline.speed_mps * age_s
+    pipeline.inflate_position(spread)
+    log.warning(
+        "resumed from checkpoint %s written %.1f s ago; position widened by %.0f m",
+        where,
+        age_s,
+        spread,
+    )
+    return "resumed"
