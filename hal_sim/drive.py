@@ -315,6 +315,7 @@ async def drive_async(
                 if app_config is not None
                 else TelemetryConfig(vehicle_id=opts.vehicle_id)
             )
+            tcfg = replace(tcfg, origin_lat_lon_deg=origin)  # the city's place: lat/lon
         rcfg = None
         if opts.record:
             from guidance.recording.config import RecordingConfig
@@ -327,6 +328,7 @@ async def drive_async(
             )
             if app_config is not None:  # the config's folder, rotation and caps
                 rcfg = replace(app_config.recording, prefix=rcfg.prefix, queue_size=1 << 17)
+            rcfg = replace(rcfg, origin_lat_lon_deg=origin)
         live_voice = not opts.voice_to and opts.voice != "none"
         settings = OutputSettings(
             voice_backend="wav" if opts.voice_to else "none",
@@ -429,6 +431,8 @@ async def drive_async(
                     sightings.sighted(t, ev.landmark)
                     await app.drained()
                 app.tick(t)
+                if recorder is not None:  # the true pose, on its own topics (rate-limited)
+                    recorder.record_truth(t, *world.truth)
                 if t >= next_track_t:
                     next_track_t = t + TRACK_EVERY_S
                     tx_, ty_, _ = world.truth

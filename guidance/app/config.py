@@ -419,10 +419,12 @@ def parse_config(
     tel_table.setdefault("vehicle_id", vehicle_id)
     with _in_table("telemetry"):
         telemetry = TelemetryConfig.from_mapping(tel_table, base_dir)
+    telemetry = dataclasses.replace(telemetry, origin_lat_lon_deg=origin)
     rec_table = _table("recording", data.get("recording", {}))
     rec_table.setdefault("vehicle_id", vehicle_id)
     with _in_table("recording"):
         recording = RecordingConfig.from_mapping(rec_table, base_dir)
+    recording = dataclasses.replace(recording, origin_lat_lon_deg=origin)
 
     landmarks = _landmarks(data.get("landmarks", []), origin)
 

@@ -12,6 +12,7 @@ from typing import TYPE_CHECKING, Any
 from mcap.writer import CompressionType
 
 from guidance.errors import UserError
+from guidance.telemetry.messages import check_origin
 
 if TYPE_CHECKING:
     pass
@@ -37,10 +38,16 @@ class RecordingConfig:
     thumbnail_interval_s: float = 1.0
     """At most one camera thumbnail this often (0: every frame; negative: none)."""
     thumbnail_width_px: int = 160
+    truth_interval_s: float = 0.1
+    """At most one true pose (``record_truth``, simulated drives) this often."""
     compression: str = "zstd"
     """"zstd", "lz4" or "none" (chunk compression; Foxglove reads all three)."""
+    origin_lat_lon_deg: tuple[float, float] | None = None
+    """WGS-84 origin of the local frame (not a ``[recording]`` key: the app's config sets it
+    from ``[start]``, the simulator from its city); the Foxglove topics need it for the map."""
 
     def __post_init__(self) -> None:
+        check_origin(self.origin_lat_lon_deg)
         if not re.match(r"^[A-Za-z0-9_.-]{1,64}$", self.prefix):
             raise UserError(f"[recording] prefix {self.prefix!r}: use letters, digits, _ . -")
         if self.compression not in ("zstd", "lz4", "none"):
@@ -65,7 +72,7 @@ class RecordingConfig:
         cls, table: Mapping[str, Any], base_dir: Path | None = None
     ) -> RecordingConfig:
         """Build from a parsed ``[recording]`` TOML table; ``directory`` is relative to base_dir."""
-        types = {f.name: f.type for f in fields(cls)}
+        types = {f.name: f.type for f in fields(cls) if f.name != "origin_lat_lon_deg"}
         unknown = sorted(set(table) - set(types))
         if unknown:
             raise UserError(f"[recording]: unknown key(s) {', '.join(unknown)}")

@@ -90,6 +90,7 @@ class _OpenFile:
         )
         self.opened_mono_s = time.monotonic()
         self.channels: dict[str, int] = {}
+        self.schemas: dict[str, int] = {}
         self.sequence: dict[int, int] = {}
         self.writer.start(profile="", library=LIBRARY)
         self.writer.add_metadata(
@@ -110,9 +111,13 @@ class _OpenFile:
         cid = self.channels.get(topic)
         if cid is None:
             schema = TOPICS.get(topic) or _schema(f"guidance{topic.replace('/', '.')}", {}, [])
-            sid = self.writer.register_schema(
-                name=schema["title"], encoding="jsonschema", data=json.dumps(schema).encode()
-            )
+            sid = self.schemas.get(schema["title"])
+            if sid is None:  # one schema record per name (several topics may share one)
+                data = json.dumps(schema, separators=(",", ":")).encode()
+                sid = self.writer.register_schema(
+                    name=schema["title"], encoding="jsonschema", data=data
+                )
+                self.schemas[schema["title"]] = sid
             cid = self.writer.register_channel(topic=topic, message_encoding="json", schema_id=sid)
             self.channels[topic] = cid
         return cid

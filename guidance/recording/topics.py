@@ -8,6 +8,8 @@ from collections.abc import Mapping, Sequence
 from typing import TYPE_CHECKING, Any
 
 from guidance.core import codec
+from guidance.recording.foxglove import SCHEMA_OF_TOPIC as FOXGLOVE_TOPICS
+from guidance.recording.foxglove_schemas import json_schema
 from guidance.telemetry.messages import (
     MESSAGE_SCHEMAS,
 )
@@ -65,27 +67,23 @@ INPUT_SCHEMAS: dict[str, dict[str, Any]] = {
         },
         ["t_s"],
     ),
-    "thumbnail": _schema(
-        "foxglove.CompressedImage",
-        {
-            "timestamp": {
-                "type": "object",
-                "properties": {"sec": {"type": "integer"}, "nsec": {"type": "integer"}},
-            },
-            "frame_id": {"type": "string"},
-            "data": {"type": "string", "contentEncoding": "base64"},
-            "format": {"type": "string"},
-            "t_s": _T,
-        },
-        ["timestamp", "frame_id", "data", "format"],
-    ),
 }
 
 TOPICS: dict[str, dict[str, Any]] = {
     "/can": INPUT_SCHEMAS["can"],
     "/nmea": INPUT_SCHEMAS["nmea"],
     "/camera": INPUT_SCHEMAS["camera"],
-    "/camera/thumbnail": INPUT_SCHEMAS["thumbnail"],
+    "/truth": _schema(
+        "guidance.truth",
+        {
+            "t_s": _T,
+            "x_m": {"type": "number"},
+            "y_m": {"type": "number"},
+            "heading_rad": {"type": "number", "description": "CCW from east"},
+            "heading_deg_true": {"type": ["number", "null"], "description": "CW from north"},
+        },
+        ["t_s", "x_m", "y_m", "heading_rad"],
+    ),
     # the processed inputs replay feeds the pipeline: schemas from the message fields
     **{topic: codec.schema(topic) for topic in dict.fromkeys(codec.TOPICS.values())},
     "/state": MESSAGE_SCHEMAS["state"],
@@ -95,6 +93,8 @@ TOPICS: dict[str, dict[str, Any]] = {
     "/health": MESSAGE_SCHEMAS["health"],
     "/turn": SINK_SCHEMAS["turn"],
     "/exit": SINK_SCHEMAS["exit"],
+    # the published Foxglove schemas (guidance.recording.foxglove): standard viewer panels
+    **{topic: json_schema(name) for topic, name in FOXGLOVE_TOPICS.items()},
 }
 """Topic -> JSON Schema (its ``title`` is the MCAP schema name); every topic has one."""
 INPUT_TOPICS = ("/can", "/nmea", "/camera", "/scene")

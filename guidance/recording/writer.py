@@ -21,8 +21,10 @@ from guidance.core.messages import (
 )
 from guidance.recording.config import RecordingConfig
 from guidance.recording.files import _STOP, _Item, _OpenFile
+from guidance.recording.foxglove import FoxgloveView
 from guidance.recording.health import RecorderHealth
 from guidance.recording.topics import _DISK_FULL_ERRNOS
+from guidance.telemetry.messages import heading_deg_true
 from guidance.telemetry.sink import Build, MessageSink
 
 if TYPE_CHECKING:
@@ -41,6 +43,7 @@ class Recorder(MessageSink):
 
     def __init__(self, config: RecordingConfig, *, clock: Callable[[], float] = time.time) -> None:
         self.config = config
+        self.origin_lat_lon_deg = config.origin_lat_lon_deg
         self._clock = clock
         self._queue: queue.Queue[_Item | object] = queue.Queue(maxsize=config.queue_size)
         self._lock = threading.Lock()
@@ -58,7 +61,9 @@ class Recorder(MessageSink):
         self._index = 0
         self._session_stamp = ""
         self._last_thumb_t_s = -math.inf
+        self._last_truth_t_s = -math.inf
         self._warned_thumbnail = False
+        self._foxglove = FoxgloveView(config.origin_lat_lon_deg)
         self.files: list[Path] = []
 
     # -- lifecycle ----------------------------------------------------------------------------
@@ -156,6 +161,21 @@ class Recorder(MessageSink):
         """
         return self._put("/camera", frame.t_s, partial(self._camera_body, frame, file_ref))
 
+    def record_truth(self, t_s: float, x_m: float, y_m: float, heading_rad: float) -> bool:
+        """The true pose (simulated drives): ``/truth`` and its Foxglove views, at most one per
+        ``truth_interval_s``; False when skipped by the rate limit or not queued."""
+        if t_s - self._last_truth_t_s < self.config.truth_interval_s - 1e-9:
+            return False
+        self._last_truth_t_s = t_s
+        body = {
+            "t_s": t_s,
+            "x_m": float(x_m),
+            "y_m": float(y_m),
+            "heading_rad": float(heading_rad),
+            "heading_deg_true": heading_deg_true(float(heading_rad)),
+        }
+        return self._put("/truth", t_s, lambda: body)
+
     def publish(self, kind: str, t_s: float, build: Build) -> bool:
         """The sink port (``guidance.telemetry.sink``): one bounded FIFO for every kind."""
         return self._put(f"/{kind}", t_s, partial(build, vehicle_id=self.config.vehicle_id))
@@ -218,6 +238,7 @@ class Recorder(MessageSink):
                 self._errors += 1
             log.error("recorder: cannot encode a %s message: %r", item.topic, exc)
             return
+        views = self._foxglove_views(item.topic, body)
         log_ns = max(0, round(item.t_s * 1e9)) if math.isfinite(item.t_s) else 0
         try:
             cur = self._current
@@ -227,10 +248,25 @@ class Recorder(MessageSink):
             cur.write(item.topic, log_ns, item.wall_ns, data)
             if thumb is not None:
                 cur.write("/camera/thumbnail", log_ns, item.wall_ns, thumb)
+            for topic, view in views:
+                cur.write(topic, log_ns, item.wall_ns, view)
             self._bytes += cur.file.tell() - before
             self._written += 1
         except OSError as exc:
             self._fail(f"writing {self._current.path if self._current else 'a file'}", exc)
+
+    def _foxglove_views(self, topic: str, body: dict[str, Any]) -> list[tuple[str, bytes]]:
+        """The Foxglove messages that go with one message (``guidance.recording.foxglove``)."""
+        try:
+            return [
+                (t, json.dumps(m, separators=(",", ":"), allow_nan=False).encode())
+                for t, m in self._foxglove.derive(topic, body)
+            ]
+        except Exception as exc:  # the message itself is still recorded
+            with self._lock:
+                self._errors += 1
+            log.error("recorder: no Foxglove view of a %s message: %r", topic, exc)
+            return []
 
     def _camera_body(self, frame: CameraFrame, file_ref: str) -> dict[str, Any]:
         image = frame.image

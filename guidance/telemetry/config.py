@@ -10,6 +10,7 @@ from typing import TYPE_CHECKING, Any
 
 from guidance.errors import UserError
 from guidance.telemetry.keys import _ENDPOINT_RE, _MODES, DEFAULT_LISTEN, validate_vehicle_id
+from guidance.telemetry.messages import check_origin
 
 if TYPE_CHECKING:
     pass
@@ -73,9 +74,14 @@ class TelemetryConfig:
     retry_period_s: float = 2.0
     fifo_size: int = 32
     """Decisions and prompts waiting to be sent, per kind; the oldest is dropped beyond."""
+    origin_lat_lon_deg: tuple[float, float] | None = None
+    """WGS-84 origin of the local frame, for the state's ``lat_deg``/``lon_deg``. Not a
+    ``[telemetry]`` key: the app's config sets it from ``[start]`` (the simulator from its
+    city)."""
 
     def __post_init__(self) -> None:
         validate_vehicle_id(self.vehicle_id)
+        check_origin(self.origin_lat_lon_deg)
         if self.mode not in _MODES:
             raise UserError(f"telemetry mode must be one of {_MODES}, not {self.mode!r}")
         for ep in (*self.listen, *self.connect):
@@ -93,7 +99,7 @@ class TelemetryConfig:
 
         Relative file paths are taken relative to ``base_dir`` (the TOML file's folder).
         """
-        known = {f.name for f in fields(cls)}
+        known = {f.name for f in fields(cls)} - {"origin_lat_lon_deg"}
         unknown = sorted(set(table) - known)
         if unknown:
             raise UserError(f"[telemetry]: unknown key(s) {', '.join(unknown)}")

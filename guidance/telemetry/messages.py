@@ -12,6 +12,7 @@ from dataclasses import dataclass
 from typing import TYPE_CHECKING, Any
 
 from guidance.core.messages import EstimateState, LandmarkFix
+from guidance.errors import UserError
 from guidance.telemetry.keys import schema_tag
 
 if TYPE_CHECKING:
@@ -71,6 +72,50 @@ def _wrap_deg(angle_rad: float) -> float | None:
     return _num(deg)
 
 
+Origin = tuple[float, float]
+"""(latitude, longitude) in degrees (WGS-84) of the local frame's origin: x east, y north."""
+
+
+def check_origin(origin: Origin | None) -> None:
+    """An origin is a (latitude, longitude) in degrees within range, or None."""
+    if origin is None:
+        return
+    lat, lon = origin
+    if not (-90.0 <= lat <= 90.0 and -180.0 <= lon <= 180.0):
+        raise UserError(f"origin {origin!r}: latitude must be in [-90, 90], longitude [-180, 180]")
+
+
+def heading_deg_true(heading_rad: float | None) -> float | None:
+    """Compass heading: degrees clockwise from true north in [0, 360), from ``heading_rad``
+    (counter-clockwise from east, the local frame's convention)."""
+    if heading_rad is None or not math.isfinite(heading_rad):
+        return None
+    deg = (90.0 - math.degrees(heading_rad)) % 360.0
+    return 0.0 if deg >= 360.0 else deg
+
+
+def lat_lon_deg(x_m: float | None, y_m: float | None, origin: Origin | None) -> Origin | None:
+    """WGS-84 latitude and longitude of a local point (east, north metres from ``origin``),
+    through pymap3d's ENU conversion; None without an origin or a finite point."""
+    if origin is None or x_m is None or y_m is None:
+        return None
+    if not (math.isfinite(x_m) and math.isfinite(y_m)):
+        return None
+    import pymap3d
+
+    lat, lon, _h = pymap3d.enu2geodetic(x_m, y_m, 0.0, origin[0], origin[1], 0.0)
+    return float(lat), float(lon)
+
+
+def _with_geo(point: dict[str, Any] | None, origin: Origin | None) -> dict[str, Any] | None:
+    """A point dict with ``lat_deg``/``lon_deg`` added (null without an origin)."""
+    if point is None:
+        return None
+    geo = lat_lon_deg(point["x_m"], point["y_m"], origin)
+    point["lat_deg"], point["lon_deg"] = geo if geo is not None else (None, None)
+    return point
+
+
 def state_message(
     state: EstimateState,
     *,
@@ -82,16 +127,30 @@ def state_message(
     goal: tuple[float, float] | None = None,
     method: str | None = None,
     mode: str | None = None,
+    origin_lat_lon_deg: Origin | None = None,
 ) -> dict[str, Any]:
-    """The ``guidance.state`` message (docs/telemetry.md)."""
+    """The ``guidance.state`` message (docs/telemetry.md).
+
+    With ``origin_lat_lon_deg`` (the configured start), the position, target and goal also
+    carry WGS-84 ``lat_deg``/``lon_deg``; without it those are null.
+    """
     e = state.ellipse
+    x, y = _num(state.x_m), _num(state.y_m)
+    geo = lat_lon_deg(x, y, origin_lat_lon_deg)
+    goal_d = None if goal is None else {"x_m": _num(goal[0]), "y_m": _num(goal[1])}
     msg = _envelope("state", vehicle_id, seq, state.t_s, wall_time_unix_s)
     msg.update(
         {
-            "x_m": _num(state.x_m),
-            "y_m": _num(state.y_m),
+            "x_m": x,
+            "y_m": y,
+            "lat_deg": None if geo is None else geo[0],
+            "lon_deg": None if geo is None else geo[1],
+            "origin": None
+            if origin_lat_lon_deg is None
+            else {"lat_deg": origin_lat_lon_deg[0], "lon_deg": origin_lat_lon_deg[1]},
             "heading_rad": _num(state.heading_rad),
             "heading_deg": _wrap_deg(state.heading_rad),
+            "heading_deg_true": heading_deg_true(_num(state.heading_rad)),
             "covariance": [[_num(v) for v in row] for row in state.covariance],
             "ellipse": {
                 "semi_major_m": _num(e.semi_major_m),
@@ -100,8 +159,8 @@ def state_message(
                 "major_axis_m": _num(e.major_axis_m),
             },
             "speed_mps": _num(speed_mps),
-            "target": _target_dict(target),
-            "goal": None if goal is None else {"x_m": _num(goal[0]), "y_m": _num(goal[1])},
+            "target": _with_geo(_target_dict(target), origin_lat_lon_deg),
+            "goal": _with_geo(goal_d, origin_lat_lon_deg),
             "method": None if method is None else str(method),
             "mode": mode,
             "lost": bool(state.lost),
@@ -296,7 +355,7 @@ _ENVELOPE_PROPS: dict[str, Any] = {
     "t_s": {"type": ["number", "null"], "description": "car monotonic clock, s"},
     "wall_time_unix_s": {"type": ["number", "null"], "description": "for logs only, s"},
 }
-_TARGET = {
+_TARGET: dict[str, Any] = {
     "type": ["object", "null"],
     "properties": {
         "x_m": _NUM,
@@ -317,14 +376,32 @@ def _obj(title: str, props: Mapping[str, Any]) -> dict[str, Any]:
     }
 
 
+_LAT = {"type": ["number", "null"], "description": "WGS-84 latitude, degrees (null: no origin)"}
+_LON = {"type": ["number", "null"], "description": "WGS-84 longitude, degrees (null: no origin)"}
+_GEO_TARGET: dict[str, Any] = {
+    **_TARGET,
+    "properties": {**dict(_TARGET["properties"]), "lat_deg": _LAT, "lon_deg": _LON},
+}
+
 MESSAGE_SCHEMAS: dict[str, dict[str, Any]] = {
     "state": _obj(
         "guidance.state",
         {
             "x_m": _NUM,
             "y_m": _NUM,
+            "lat_deg": _LAT,
+            "lon_deg": _LON,
+            "origin": {
+                "type": ["object", "null"],
+                "description": "the local frame's origin (x east, y north metres), WGS-84",
+                "properties": {"lat_deg": {"type": "number"}, "lon_deg": {"type": "number"}},
+            },
             "heading_rad": _NUM,
             "heading_deg": _NUM,
+            "heading_deg_true": {
+                "type": ["number", "null"],
+                "description": "compass heading: degrees clockwise from true north, [0, 360)",
+            },
             "covariance": {
                 "type": "array",
                 "description": "3x3 over (x_m, y_m, heading_rad)",
@@ -340,8 +417,11 @@ MESSAGE_SCHEMAS: dict[str, dict[str, Any]] = {
                 },
             },
             "speed_mps": _NUM,
-            "target": _TARGET,
-            "goal": {"type": ["object", "null"], "properties": {"x_m": _NUM, "y_m": _NUM}},
+            "target": _GEO_TARGET,
+            "goal": {
+                "type": ["object", "null"],
+                "properties": {"x_m": _NUM, "y_m": _NUM, "lat_deg": _LAT, "lon_deg": _LON},
+            },
             "method": {"type": ["string", "null"]},
             "mode": {"type": ["string", "null"]},
             "lost": {"type": "boolean"},

@@ -139,6 +139,7 @@ class Telemetry(MessageSink):
         clock: Callable[[], float] = time.time,
     ) -> None:
         self.config = config
+        self.origin_lat_lon_deg = config.origin_lat_lon_deg
         self.vehicle_id = config.vehicle_id
         self._on_goal = on_goal
         self._loop = loop

@@ -100,6 +100,9 @@ SINK_SCHEMAS: dict[str, dict[str, Any]] = {
 class MessageSink:
     """Where outputs go. Subclasses implement ``publish`` and ``own_health``."""
 
+    origin_lat_lon_deg: tuple[float, float] | None = None
+    """WGS-84 origin of the local frame: state messages then carry latitude/longitude."""
+
     def publish(self, kind: str, t_s: float, build: Build) -> bool:
         """Queue one message of ``kind``; never blocks; False when it was refused or dropped."""
         raise NotImplementedError
@@ -121,7 +124,7 @@ class MessageSink:
     ) -> bool:
         build = partial(
             state_message, state, speed_mps=speed_mps, target=target, goal=goal, method=method,
-            mode=mode,
+            mode=mode, origin_lat_lon_deg=self.origin_lat_lon_deg,
         )  # fmt: skip
         return self.publish("state", state.t_s, build)
 

@@ -95,6 +95,10 @@ def test_round_trip_in_log_time_order_with_schemas_foxglove_reads(tmp_path: Path
         "/prompt": 1,
         "/landmark": 1,
         "/health": 1,
+        # Foxglove views (no origin configured: no LocationFix)
+        "/foxglove/pose": 40,
+        "/foxglove/scene": 40,
+        "/foxglove/log": 1,
     }
     times = [m.t_s for m in msgs]
     assert times == sorted(times)

@@ -130,7 +130,8 @@ def publisher_process() -> Iterator[Callable[..., subprocess.Popen[bytes]]]:
 
 # -- messages ---------------------------------------------------------------------------------
 def test_state_reaches_a_subscriber_with_the_documented_fields(car_port: int) -> None:
-    cfg = TelemetryConfig(vehicle_id="car7", listen=(tcp(car_port),))
+    origin = (42.444, -76.5019)
+    cfg = TelemetryConfig(vehicle_id="car7", listen=(tcp(car_port),), origin_lat_lon_deg=origin)
     with Telemetry(cfg) as tel, MonitorClient([tcp(car_port)]) as mon:
         wait_for(mon, lambda e: e.kind == "alive" and e.vehicle_id == "car7")
         assert wait_until(tel.has_subscribers)
@@ -158,8 +159,18 @@ def test_state_reaches_a_subscriber_with_the_documented_fields(car_port: int) ->
         "major_axis_m": 12.4,
     }
     assert msg["speed_mps"] == 8.5
-    assert msg["target"] == {"x_m": 300.0, "y_m": 120.0, "kind": "landmark", "id": 4}
-    assert msg["goal"] == {"x_m": 500.0, "y_m": 200.0}
+    target = {k: msg["target"][k] for k in ("x_m", "y_m", "kind", "id")}
+    assert target == {"x_m": 300.0, "y_m": 120.0, "kind": "landmark", "id": 4}
+    assert (msg["goal"]["x_m"], msg["goal"]["y_m"]) == (500.0, 200.0)
+    # WGS-84 beside the local metres: back through pymap3d's inverse, to a millimetre
+    import pymap3d
+
+    assert msg["origin"] == {"lat_deg": origin[0], "lon_deg": origin[1]}
+    for point, (x, y) in ((msg, (10.0, 20.0)), (msg["target"], (300.0, 120.0)),
+                          (msg["goal"], (500.0, 200.0))):  # fmt: skip
+        e, n, _u = pymap3d.geodetic2enu(point["lat_deg"], point["lon_deg"], 0.0, *origin, 0.0)
+        assert (e, n) == (pytest.approx(x, abs=1e-3), pytest.approx(y, abs=1e-3))
+    assert msg["heading_deg_true"] == pytest.approx(350.0)  # 100° CCW from east
     assert (msg["method"], msg["mode"], msg["lost"], msg["healthy"]) == (
         "hybrid",
         "landmark",
