@@ -184,6 +184,24 @@ def register(subparsers: Any) -> None:
         metavar=("X_M", "Y_M"),
         help="ask --vehicle ID to drive to a new goal (obeyed only if the car allows it)",
     )
+    p.add_argument(
+        "--web",
+        nargs="?",
+        const="127.0.0.1:8765",
+        metavar="HOST:PORT",
+        help="serve a live map of the fleet to a browser (default 127.0.0.1:8765; port 0: any)",
+    )
+    p.add_argument(
+        "--allow-remote",
+        action="store_true",
+        help="let --web bind an address other than loopback (see docs/telemetry.md first)",
+    )
+    p.add_argument(
+        "--tiles",
+        metavar="URL",
+        default="",
+        help="--web map tiles from this server, e.g. http://tiles.lan/{z}/{x}/{y}.png",
+    )
     p.set_defaults(func=run)
 
 
@@ -205,9 +223,21 @@ def run(args: argparse.Namespace) -> int:
     endpoints: Sequence[str] = args.connect or [DEFAULT_CONNECT]
     for ep in endpoints:
         check_endpoint(ep)
+    web = getattr(args, "web", None)
+    if web is not None:
+        from guidance.tools.web.server import check_web_args
+
+        check_web_args(web, allow_remote=args.allow_remote, tiles=args.tiles)
     client = MonitorClient(endpoints, vehicle=args.vehicle, zenoh_config=args.zenoh_config)
     client.open()
     try:
+        if web is not None:
+            from guidance.tools.web.server import serve
+
+            return serve(
+                client, web, allow_remote=args.allow_remote, tiles=args.tiles,
+                timeout_s=args.timeout, announce=lambda line: print(line, flush=True),
+            )  # fmt: skip
         if args.send_goal is not None:
             return _send_goal(client, args)
         if args.json:

@@ -1,0 +1,1 @@
+"""The web monitor (``guidance monitor --web``): server and static assets (package data)."""

@@ -1,0 +1,282 @@
+"""``guidance monitor --web``: a live map of the fleet in a browser, from one process.
+
+A thread folds the Zenoh telemetry events into a ``FleetView`` (the terminal monitor's);
+a standard-library HTTP server serves the page and its assets (package data: no build step,
+no CDN) and ``/api/fleet``, a JSON snapshot of every car the page polls twice a second.
+
+Security: it binds to loopback unless ``allow_remote`` is given; on loopback it also answers
+only requests whose ``Host`` is a loopback name (a web page elsewhere cannot reach it through
+DNS rebinding). Text from the cars is inserted by the page as text, never as HTML, and the
+page's Content-Security-Policy allows scripts and styles from itself only, images from itself
+and the configured tile server.
+"""
+
+from __future__ import annotations
+
+import ipaddress
+import json
+import logging
+import threading
+import time
+from collections.abc import Callable, Mapping
+from http import HTTPStatus
+from http.server import BaseHTTPRequestHandler, ThreadingHTTPServer
+from importlib import resources
+from typing import Any
+from urllib.parse import urlsplit
+
+from guidance.errors import UserError
+from guidance.telemetry.client import MonitorClient
+from guidance.tools.monitor_view import CarView, FleetView, health_summary
+
+log = logging.getLogger(__name__)
+
+DEFAULT_BIND = "127.0.0.1:8765"
+TRACK_POINTS_SENT = 1500
+"""At most this many points of each car's track go to the page (evenly thinned)."""
+_ASSETS = {
+    "/": ("index.html", "text/html; charset=utf-8"),
+    "/index.html": ("index.html", "text/html; charset=utf-8"),
+    "/static/app.js": ("app.js", "text/javascript; charset=utf-8"),
+    "/static/style.css": ("style.css", "text/css; charset=utf-8"),
+}
+
+
+def parse_bind(text: str) -> tuple[str, int]:
+    """``HOST:PORT`` (``[v6]:PORT`` too) or ``PORT``; port 0 picks a free one."""
+    host, sep, port_text = text.rpartition(":")
+    if not sep:
+        host, port_text = "127.0.0.1", text
+    host = host.strip("[]") or "127.0.0.1"
+    try:
+        port = int(port_text)
+    except ValueError:
+        raise UserError(f"--web {text!r}: expected HOST:PORT, e.g. {DEFAULT_BIND}") from None
+    if not 0 <= port <= 65535:
+        raise UserError(f"--web {text!r}: port must be 0-65535")
+    return host, port
+
+
+def is_loopback(host: str) -> bool:
+    if host == "localhost":
+        return True
+    try:
+        return ipaddress.ip_address(host).is_loopback
+    except ValueError:
+        return False
+
+
+def check_tiles(url: str) -> str:
+    """A tile URL template: http(s), with ``{z}``, ``{x}`` and ``{y}``."""
+    parts = urlsplit(url)
+    if parts.scheme not in ("http", "https") or not parts.netloc:
+        raise UserError(f"--tiles {url!r}: expected an http(s) URL template")
+    if not all(k in url for k in ("{z}", "{x}", "{y}")):
+        raise UserError(f"--tiles {url!r}: the template needs {{z}}, {{x}} and {{y}}")
+    return url
+
+
+def check_web_args(bind: str, *, allow_remote: bool, tiles: str) -> tuple[str, int]:
+    """Validate ``--web``, ``--allow-remote`` and ``--tiles`` before anything opens."""
+    host, port = parse_bind(bind)
+    if not is_loopback(host) and not allow_remote:
+        raise UserError(
+            f"--web {bind}: serving the fleet's positions beyond this machine needs "
+            "--allow-remote (and zenoh access control: config/zenoh/, docs/telemetry.md)"
+        )
+    if tiles:
+        check_tiles(tiles)
+    return host, port
+
+
+def car_json(car: CarView, now_s: float) -> dict[str, Any]:
+    """What the page gets for one car."""
+    track = list(car.track)
+    if len(track) > TRACK_POINTS_SENT:
+        step = len(track) / TRACK_POINTS_SENT
+        track = [track[int(i * step)] for i in range(TRACK_POINTS_SENT - 1)] + [track[-1]]
+    age = None if car.last_received_s is None else max(0.0, now_s - car.last_received_s)
+    health = car.health
+    return {
+        "vehicle_id": car.vehicle_id,
+        "alive": car.alive,
+        "age_s": age,
+        "state": car.state,
+        "track": [[round(x, 2), round(y, 2)] for x, y in track],
+        "prompt": car.prompt,
+        "health": {
+            "ok": None if health is None else bool(health.get("ok")),
+            "summary": health_summary(health),
+        },
+        "messages": car.messages,
+        "gaps": car.gaps,
+    }
+
+
+class WebMonitor:
+    """The fleet view fed by a ``MonitorClient`` and served over HTTP."""
+
+    def __init__(
+        self,
+        client: MonitorClient,
+        host: str = "127.0.0.1",
+        port: int = 8765,
+        *,
+        allow_remote: bool = False,
+        tiles: str = "",
+        clock: Callable[[], float] = time.monotonic,
+    ) -> None:
+        check_web_args(f"[{host}]:{port}", allow_remote=allow_remote, tiles=tiles)
+        self.client = client
+        self.tiles = check_tiles(tiles) if tiles else ""
+        self.view = FleetView()
+        self.lock = threading.Lock()
+        self._clock = clock
+        self._stop = threading.Event()
+        self._threads: list[threading.Thread] = []
+        self.loopback_only = is_loopback(host)
+        self.httpd = ThreadingHTTPServer((host, port), _Handler)
+        self.httpd.daemon_threads = True
+        self.httpd.monitor = self  # type: ignore[attr-defined]
+
+    @property
+    def url(self) -> str:
+        addr = self.httpd.server_address
+        host = addr[0].decode() if isinstance(addr[0], bytes) else str(addr[0])
+        port = addr[1]
+        shown = f"[{host}]" if ":" in host else host
+        return f"http://{shown}:{port}/"
+
+    def start(self) -> WebMonitor:
+        self.client.query_latest()
+        for name, target in (("web-events", self._events), ("web-http", self.httpd.serve_forever)):
+            t = threading.Thread(target=target, name=name, daemon=True)
+            t.start()
+            self._threads.append(t)
+        return self
+
+    def close(self) -> None:
+        self._stop.set()
+        self.httpd.shutdown()
+        self.httpd.server_close()
+        for t in self._threads:
+            t.join(5.0)
+
+    def __enter__(self) -> WebMonitor:
+        return self.start()
+
+    def __exit__(self, *_exc: object) -> None:
+        self.close()
+
+    def _events(self) -> None:
+        while not self._stop.is_set():
+            event = self.client.get(0.25)
+            if event is None:
+                continue
+            with self.lock:
+                new_car = event.kind == "alive" and event.vehicle_id not in self.view.cars
+                self.view.apply(event)
+            if new_car:
+                self.client.query_latest(event.vehicle_id)
+
+    def fleet(self) -> dict[str, Any]:
+        now = self._clock()
+        with self.lock:
+            cars = {**self.view.gone, **self.view.cars}
+            out = [car_json(cars[vid], now) for vid in sorted(cars)]
+            messages = self.view.messages
+        return {"schema": "guidance.fleet/1", "cars": out, "messages": messages}
+
+    def page_config(self) -> dict[str, Any]:
+        from guidance.version import version
+
+        return {"tiles": self.tiles, "version": version(), "poll_ms": 500}
+
+    def host_allowed(self, host_header: str | None) -> bool:
+        if not self.loopback_only:
+            return True
+        if not host_header:
+            return False
+        host = urlsplit(f"//{host_header}").hostname or ""
+        return is_loopback(host)
+
+    def csp(self) -> str:
+        img = "'self' data:"
+        if self.tiles:
+            parts = urlsplit(self.tiles.replace("{", "").replace("}", ""))
+            img += f" {parts.scheme}://{parts.netloc}"
+        return (
+            f"default-src 'none'; script-src 'self'; style-src 'self'; img-src {img}; "
+            "connect-src 'self'; base-uri 'none'; form-action 'none'; frame-ancestors 'none'"
+        )
+
+
+class _Handler(BaseHTTPRequestHandler):
+    server_version = "guidance-monitor"
+    sys_version = ""
+
+    def log_message(self, format: str, *args: Any) -> None:
+        log.debug("web: " + format, *args)
+
+    def _send(self, status: int, body: bytes, ctype: str, extra: Mapping[str, str] = {}) -> None:
+        self.send_response(status)
+        self.send_header("Content-Type", ctype)
+        self.send_header("Content-Length", str(len(body)))
+        self.send_header("Cache-Control", "no-store")
+        self.send_header("X-Content-Type-Options", "nosniff")
+        self.send_header("Referrer-Policy", "no-referrer")
+        for k, v in extra.items():
+            self.send_header(k, v)
+        self.end_headers()
+        if self.command != "HEAD":
+            self.wfile.write(body)
+
+    def _json(self, value: Any) -> None:
+        body = json.dumps(value, separators=(",", ":"), allow_nan=False).encode()
+        self._send(HTTPStatus.OK, body, "application/json")
+
+    def do_HEAD(self) -> None:
+        self.do_GET()
+
+    def do_GET(self) -> None:
+        mon: WebMonitor = self.server.monitor  # type: ignore[attr-defined]
+        if not mon.host_allowed(self.headers.get("Host")):
+            self._send(HTTPStatus.MISDIRECTED_REQUEST, b"wrong host\n", "text/plain")
+            return
+        path = urlsplit(self.path).path
+        if path == "/api/fleet":
+            self._json(mon.fleet())
+        elif path == "/api/config":
+            self._json(mon.page_config())
+        elif path in _ASSETS:
+            name, ctype = _ASSETS[path]
+            body = resources.files("guidance.tools.web").joinpath("static", name).read_bytes()
+            self._send(HTTPStatus.OK, body, ctype, {"Content-Security-Policy": mon.csp()})
+        else:
+            self._send(HTTPStatus.NOT_FOUND, b"not found\n", "text/plain")
+
+
+def serve(
+    client: MonitorClient,
+    bind: str,
+    *,
+    allow_remote: bool = False,
+    tiles: str = "",
+    timeout_s: float | None = None,
+    announce: Callable[[str], None] = print,
+) -> int:
+    """Run the web monitor until Ctrl-C or ``timeout_s``; exit code 0."""
+    host, port = check_web_args(bind, allow_remote=allow_remote, tiles=tiles)
+    try:
+        web = WebMonitor(client, host, port, allow_remote=allow_remote, tiles=tiles)
+    except OSError as exc:
+        raise UserError(f"--web {bind}: cannot listen: {exc.strerror or exc}") from None
+    with web:
+        announce(f"guidance monitor: web map at {web.url} (Ctrl-C to stop)")
+        deadline = None if timeout_s is None else time.monotonic() + timeout_s
+        try:
+            while deadline is None or time.monotonic() < deadline:
+                time.sleep(0.2 if deadline is None else min(0.2, deadline - time.monotonic()))
+        except KeyboardInterrupt:
+            pass
+    return 0

@@ -1,0 +1,264 @@
+// guidance monitor --web: polls /api/fleet and draws every car on a local-metre grid
+// (x east, y north), with map tiles underneath when a tile server is configured.
+// Text from the cars is only ever set with textContent, never parsed as HTML.
+"use strict";
+
+const SVG = "http://www.w3.org/2000/svg";
+const COLOURS = ["#1f77b4", "#d62728", "#2ca02c", "#9467bd", "#ff7f0e", "#17becf",
+                 "#8c564b", "#e377c2", "#bcbd22", "#7f7f7f"];
+const EARTH_M = 6378137.0;
+const state = { config: { tiles: "", poll_ms: 500 }, ref: null, colours: new Map(), failures: 0 };
+
+function el(name, attrs, parent) {
+  const e = document.createElementNS(SVG, name);
+  for (const [k, v] of Object.entries(attrs || {})) e.setAttribute(k, String(v));
+  if (parent) parent.appendChild(e);
+  return e;
+}
+
+function html(tag, cls, text, parent) {
+  const e = document.createElement(tag);
+  if (cls) e.className = cls;
+  if (text !== undefined && text !== null) e.textContent = String(text);
+  if (parent) parent.appendChild(e);
+  return e;
+}
+
+function colour(vid) {
+  if (!state.colours.has(vid)) state.colours.set(vid, COLOURS[state.colours.size % COLOURS.length]);
+  return state.colours.get(vid);
+}
+
+function num(v) { return typeof v === "number" && isFinite(v) ? v : null; }
+
+function compass(headingRad) {  // CCW from east (rad) -> clockwise from north (deg)
+  let d = (90 - headingRad * 180 / Math.PI) % 360;
+  if (d < 0) d += 360;
+  return d >= 359.5 ? 0 : d;
+}
+
+// Local metres of a car's origin in the page's reference frame (equirectangular: exact
+// enough over a city). Cars without an origin are drawn in their own local metres.
+function offset(origin) {
+  if (!origin || !state.ref) return [0, 0];
+  const lat0 = state.ref.lat_deg * Math.PI / 180;
+  const dx = (origin.lon_deg - state.ref.lon_deg) * Math.PI / 180 * EARTH_M * Math.cos(lat0);
+  const dy = (origin.lat_deg - state.ref.lat_deg) * Math.PI / 180 * EARTH_M;
+  return [dx, dy];
+}
+
+function toLatLon(x, y) {
+  const lat0 = state.ref.lat_deg * Math.PI / 180;
+  return [state.ref.lat_deg + y / EARTH_M * 180 / Math.PI,
+          state.ref.lon_deg + x / (EARTH_M * Math.cos(lat0)) * 180 / Math.PI];
+}
+
+function fromLatLon(lat, lon) {
+  const lat0 = state.ref.lat_deg * Math.PI / 180;
+  return [(lon - state.ref.lon_deg) * Math.PI / 180 * EARTH_M * Math.cos(lat0),
+          (lat - state.ref.lat_deg) * Math.PI / 180 * EARTH_M];
+}
+
+function niceStep(span) {
+  const raw = span / 8;
+  const p = Math.pow(10, Math.floor(Math.log10(raw)));
+  for (const m of [1, 2, 5, 10]) if (m * p >= raw) return m * p;
+  return 10 * p;
+}
+
+function bounds(cars) {
+  let b = null;
+  const add = (x, y, r) => {
+    if (x === null || y === null) return;
+    r = r || 0;
+    if (!b) b = [x - r, y - r, x + r, y + r];
+    else b = [Math.min(b[0], x - r), Math.min(b[1], y - r), Math.max(b[2], x + r), Math.max(b[3], y + r)];
+  };
+  for (const c of cars) {
+    const [ox, oy] = offset(c.state && c.state.origin);
+    for (const [x, y] of c.track) add(x + ox, y + oy);
+    const s = c.state || {};
+    const e = s.ellipse || {};
+    add(num(s.x_m) === null ? null : s.x_m + ox, num(s.y_m) === null ? null : s.y_m + oy, num(e.semi_major_m) || 0);
+    if (s.goal) add(num(s.goal.x_m) === null ? null : s.goal.x_m + ox, num(s.goal.y_m) === null ? null : s.goal.y_m + oy);
+  }
+  if (!b) b = [-100, -100, 100, 100];
+  const pad = Math.max(20, 0.08 * Math.max(b[2] - b[0], b[3] - b[1]));
+  return [b[0] - pad, b[1] - pad, b[2] + pad, b[3] + pad];
+}
+
+function projector(b, w, h) {
+  const k = Math.min(w / (b[2] - b[0]), h / (b[3] - b[1]));
+  const cx = (b[0] + b[2]) / 2, cy = (b[1] + b[3]) / 2;
+  return { k, x: (x) => w / 2 + (x - cx) * k, y: (y) => h / 2 - (y - cy) * k,
+           ix: (px) => cx + (px - w / 2) / k, iy: (py) => cy - (py - h / 2) / k };
+}
+
+function drawGrid(p, w, h) {
+  const g = document.getElementById("grid");
+  g.replaceChildren();
+  g.setAttribute("class", "grid");
+  const x0 = p.ix(0), x1 = p.ix(w), y0 = p.iy(h), y1 = p.iy(0);
+  const step = niceStep(Math.max(x1 - x0, y1 - y0));
+  for (let x = Math.ceil(x0 / step) * step; x <= x1; x += step) {
+    el("line", { x1: p.x(x), y1: 0, x2: p.x(x), y2: h, class: Math.abs(x) < 1e-9 ? "axis" : "" }, g);
+    el("text", { x: p.x(x) + 2, y: h - 4 }, g).textContent = `${Math.round(x)} m`;
+  }
+  for (let y = Math.ceil(y0 / step) * step; y <= y1; y += step) {
+    el("line", { x1: 0, y1: p.y(y), x2: w, y2: p.y(y), class: Math.abs(y) < 1e-9 ? "axis" : "" }, g);
+    el("text", { x: 2, y: p.y(y) - 2 }, g).textContent = `${Math.round(y)} m`;
+  }
+  document.getElementById("scale").textContent =
+    `grid ${step} m · x east, y north (m)` + (state.ref ? ` · origin ${state.ref.lat_deg.toFixed(5)}, ${state.ref.lon_deg.toFixed(5)}` : "");
+}
+
+function drawTiles(p, w, h) {
+  const g = document.getElementById("tiles");
+  g.replaceChildren();
+  if (!state.config.tiles || !state.ref) return;
+  const [latN, lonW] = toLatLon(p.ix(0), p.iy(0));
+  const [latS, lonE] = toLatLon(p.ix(w), p.iy(h));
+  const lat0 = state.ref.lat_deg * Math.PI / 180;
+  const z = Math.max(0, Math.min(19, Math.round(Math.log2(2 * Math.PI * EARTH_M * Math.cos(lat0) * p.k / 256))));
+  const n = Math.pow(2, z);
+  const tx = (lon) => Math.floor((lon + 180) / 360 * n);
+  const ty = (lat) => { const r = lat * Math.PI / 180; return Math.floor((1 - Math.log(Math.tan(r) + 1 / Math.cos(r)) / Math.PI) / 2 * n); };
+  const lonOf = (x) => x / n * 360 - 180;
+  const latOf = (y) => Math.atan(Math.sinh(Math.PI * (1 - 2 * y / n))) * 180 / Math.PI;
+  let count = 0;
+  for (let x = tx(lonW); x <= tx(lonE); x++) {
+    for (let y = ty(latN); y <= ty(latS); y++) {
+      if (++count > 100) return;
+      const [ax, ay] = fromLatLon(latOf(y), lonOf(x));
+      const [bx, by] = fromLatLon(latOf(y + 1), lonOf(x + 1));
+      const url = state.config.tiles.replace("{z}", z).replace("{x}", x).replace("{y}", y);
+      el("image", { href: url, x: p.x(ax), y: p.y(ay), width: p.x(bx) - p.x(ax), height: p.y(by) - p.y(ay),
+                    preserveAspectRatio: "none" }, g);
+    }
+  }
+}
+
+function drawCar(c, p, parent) {
+  const s = c.state || {};
+  const col = colour(c.vehicle_id);
+  const [ox, oy] = offset(s.origin);
+  const g = el("g", { class: c.alive ? "car" : "car gone", "data-vehicle": c.vehicle_id,
+                      "data-alive": c.alive }, parent);
+  if (c.track.length > 1) {
+    el("polyline", { class: "track", stroke: col,
+                     points: c.track.map(([x, y]) => `${p.x(x + ox).toFixed(1)},${p.y(y + oy).toFixed(1)}`).join(" ") }, g);
+  }
+  const x = num(s.x_m), y = num(s.y_m);
+  if (x === null || y === null) return;
+  g.setAttribute("data-x", x.toFixed(2));
+  g.setAttribute("data-y", y.toFixed(2));
+  const px = p.x(x + ox), py = p.y(y + oy);
+  const e = s.ellipse || {};
+  const a = num(e.semi_major_m), b = num(e.semi_minor_m), o = num(e.orientation_rad);
+  if (a !== null && b !== null && o !== null) {
+    el("ellipse", { class: "ellipse", cx: px, cy: py, rx: Math.max(a * p.k, 1), ry: Math.max(b * p.k, 1),
+                    transform: `rotate(${(-o * 180 / Math.PI).toFixed(2)} ${px} ${py})`,
+                    fill: col, stroke: col, "data-semi-major-m": a, "data-semi-minor-m": b }, g);
+  }
+  const goal = s.goal, target = s.target;
+  if (goal && num(goal.x_m) !== null) {
+    const gx = p.x(goal.x_m + ox), gy = p.y(goal.y_m + oy);
+    const pts = [];
+    for (let i = 0; i < 10; i++) {
+      const r = i % 2 ? 4 : 10, t = Math.PI / 2 + i * Math.PI / 5;
+      pts.push(`${(gx + r * Math.cos(t)).toFixed(1)},${(gy - r * Math.sin(t)).toFixed(1)}`);
+    }
+    el("polygon", { class: "goal", points: pts.join(" "), fill: col }, g);
+  }
+  if (target && num(target.x_m) !== null && target.kind !== "goal") {
+    const tx = p.x(target.x_m + ox), ty = p.y(target.y_m + oy);
+    el("path", { class: "target", stroke: col, d: `M${tx - 6},${ty - 6}L${tx + 6},${ty + 6}M${tx - 6},${ty + 6}L${tx + 6},${ty - 6}` }, g);
+  }
+  const h = num(s.heading_rad);
+  if (h !== null) {
+    el("line", { class: "heading", x1: px, y1: py, x2: px + 16 * Math.cos(h), y2: py - 16 * Math.sin(h),
+                 stroke: col, "stroke-width": 3 }, g);
+  }
+  el("circle", { class: "position", cx: px, cy: py, r: 5, fill: col, stroke: "#fff" }, g);
+  el("text", { class: "label", x: px + 8, y: py - 8, fill: col }, g).textContent = c.vehicle_id;
+}
+
+function fmt(v, digits, unit) {
+  const n = num(v);
+  return n === null ? "–" : `${n.toFixed(digits)}${unit}`;
+}
+
+function drawCard(c, ul) {
+  const s = c.state || {};
+  const li = html("li", c.alive ? "card" : "card gone", undefined, ul);
+  li.dataset.vehicle = c.vehicle_id;
+  li.dataset.alive = String(c.alive);
+  li.style.setProperty("--car", colour(c.vehicle_id));
+  html("span", "name", c.vehicle_id, li);
+  html("span", "state-word", c.alive ? "live" : "gone", li);
+  const pos = html("div", "position", undefined, li);
+  const h = num(s.heading_rad);
+  pos.textContent = `x ${fmt(s.x_m, 1, " m")}  y ${fmt(s.y_m, 1, " m")}  hdg ${h === null ? "–" : compass(h).toFixed(0) + "°"}`;
+  if (num(s.lat_deg) !== null) html("div", "geo", `${s.lat_deg.toFixed(6)}, ${s.lon_deg.toFixed(6)}`, li);
+  const axis = html("div", "axis", `2σ axis ${fmt((s.ellipse || {}).major_axis_m, 1, " m")}`, li);
+  if (s.lost) html("span", "lost", " LOST", axis);
+  if (s.goal && num(s.goal.x_m) !== null && num(s.x_m) !== null) {
+    const d = Math.hypot(s.goal.x_m - s.x_m, s.goal.y_m - s.y_m);
+    html("div", "goal-text", `to goal (${s.goal.x_m.toFixed(0)}, ${s.goal.y_m.toFixed(0)}): ${d.toFixed(0)} m`, li);
+  }
+  if (s.target && s.target.kind === "landmark") html("div", "target-text", `target: landmark ${s.target.id}`, li);
+  html("div", "age", `age ${fmt(c.age_s, 1, " s")}`, li);
+  html("div", c.health.ok === false ? "health bad" : "health", `health: ${c.health.summary}`, li);
+  if (c.prompt) html("div", "prompt", `“${c.prompt}”`, li);
+}
+
+function render(fleet) {
+  const cars = fleet.cars;
+  if (!state.ref) {
+    const withOrigin = cars.find((c) => c.state && c.state.origin);
+    if (withOrigin) state.ref = withOrigin.state.origin;
+  }
+  const svg = document.getElementById("map");
+  const w = svg.clientWidth || 800, h = svg.clientHeight || 600;
+  svg.setAttribute("viewBox", `0 0 ${w} ${h}`);
+  const p = projector(bounds(cars), w, h);
+  drawTiles(p, w, h);
+  drawGrid(p, w, h);
+  const g = document.getElementById("cars");
+  g.replaceChildren();
+  for (const c of cars.filter((c) => !c.alive)) drawCar(c, p, g);  // live cars on top
+  for (const c of cars.filter((c) => c.alive)) drawCar(c, p, g);
+  const ul = document.getElementById("cards");
+  ul.replaceChildren();
+  for (const c of cars) drawCard(c, ul);
+  document.getElementById("empty").hidden = cars.length > 0;
+  const live = cars.filter((c) => c.alive).length;
+  const st = document.getElementById("status");
+  st.className = "";
+  st.textContent = `${live} live, ${cars.length - live} gone · ${fleet.messages} messages · ${new Date().toLocaleTimeString()}`;
+}
+
+async function poll() {
+  try {
+    const r = await fetch("/api/fleet", { cache: "no-store" });
+    if (!r.ok) throw new Error(`HTTP ${r.status}`);
+    render(await r.json());
+    state.failures = 0;
+  } catch (err) {
+    state.failures += 1;
+    const st = document.getElementById("status");
+    st.className = "error";
+    st.textContent = `monitor unreachable (${err.message}); retrying`;
+  }
+  setTimeout(poll, state.config.poll_ms);
+}
+
+async function start() {
+  try {
+    const r = await fetch("/api/config", { cache: "no-store" });
+    if (r.ok) state.config = await r.json();
+  } catch (err) { /* defaults */ }
+  poll();
+}
+
+start();

@@ -1,0 +1,223 @@
+"""The web map in a real headless Chromium (issue 16, item 3).
+
+Two ``guidance sim`` processes (cars ``alpha`` and ``bravo``, Zenoh on loopback, multicast
+scouting off) and ``guidance monitor --web 127.0.0.1:0`` run as real processes; the system's
+Chromium (Debian ``chromium`` + ``chromium-driver``, driven by selenium; nothing downloaded)
+opens the page. From the DOM: both cars appear, their positions move, each has an ellipse;
+``alpha`` killed with SIGKILL is shown as gone within a few seconds while ``bravo`` goes on.
+A screenshot is saved to ``out/test-artifacts/web_monitor.png`` (or ``$GUIDANCE_TEST_ARTIFACTS``).
+"""
+
+from __future__ import annotations
+
+import os
+import re
+import shutil
+import signal
+import socket
+import subprocess
+import sys
+import time
+from collections.abc import Callable, Iterator
+from pathlib import Path
+from typing import Any
+
+import pytest
+
+REPO = Path(__file__).resolve().parents[2]
+CHROMIUM = shutil.which("chromium") or shutil.which("chromium-browser")
+CHROMEDRIVER = shutil.which("chromedriver")
+
+pytestmark = [
+    pytest.mark.slow,
+    pytest.mark.skipif(
+        CHROMIUM is None or CHROMEDRIVER is None,
+        reason="needs the Debian packages chromium and chromium-driver (.ci/run installs them)",
+    ),
+]
+
+
+def free_port() -> int:
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return int(s.getsockname()[1])
+
+
+def sim_config(tmp: Path, vehicle: str, port: int, seed: int) -> Path:
+    """config/sim.toml with this car's id, seed and its own loopback endpoint."""
+    text = (REPO / "config" / "sim.toml").read_text()
+    text = re.sub(r'(?m)^id = "sim1"', f'id = "{vehicle}"', text)
+    text = re.sub(r"(?m)^seed = \d+", f"seed = {seed}", text)
+    text = text.replace('listen = ["tcp/127.0.0.1:7447"]', f'listen = ["tcp/127.0.0.1:{port}"]')
+    assert f"127.0.0.1:{port}" in text and f'"{vehicle}"' in text
+    path = tmp / f"{vehicle}.toml"
+    path.write_text(text)
+    return path
+
+
+@pytest.fixture
+def processes() -> Iterator[Callable[..., subprocess.Popen[str]]]:
+    procs: list[subprocess.Popen[str]] = []
+
+    def start(*args: str, stdout: int | None = subprocess.DEVNULL) -> subprocess.Popen[str]:
+        p = subprocess.Popen(
+            [sys.executable, "-m", "guidance.tools.cli", *args],
+            cwd=REPO,
+            stdout=stdout,
+            stderr=subprocess.DEVNULL,
+            text=True,
+        )
+        procs.append(p)
+        return p
+
+    yield start
+    for p in procs:
+        if p.poll() is None:
+            p.kill()
+        p.wait(10)
+
+
+def browser(tmp: Path) -> Any:
+    from selenium import webdriver
+    from selenium.webdriver.chrome.service import Service
+
+    os.environ["SE_OFFLINE"] = "true"  # selenium must never fetch a browser or driver
+    opts = webdriver.ChromeOptions()
+    opts.binary_location = str(CHROMIUM)
+    for flag in (
+        "--headless",
+        "--no-sandbox",
+        "--disable-gpu",
+        "--disable-background-networking",
+        "--disable-component-update",
+        "--disable-sync",
+        "--window-size=1280,800",
+        f"--user-data-dir={tmp / 'chromium-profile'}",
+    ):
+        opts.add_argument(flag)
+    return webdriver.Chrome(service=Service(executable_path=str(CHROMEDRIVER)), options=opts)
+
+
+def cars(driver: Any) -> dict[str, dict[str, Any]]:
+    """What the page shows for each car, read from its SVG and cards."""
+    return dict(
+        driver.execute_script(
+            """
+            const out = {};
+            for (const g of document.querySelectorAll('#cars g.car')) {
+              const e = g.querySelector('ellipse.ellipse');
+              const card = document.querySelector(`li.card[data-vehicle="${g.dataset.vehicle}"]`);
+              out[g.dataset.vehicle] = {
+                alive: g.dataset.alive === 'true',
+                x: g.dataset.x === undefined ? null : parseFloat(g.dataset.x),
+                y: g.dataset.y === undefined ? null : parseFloat(g.dataset.y),
+                rx: e ? parseFloat(e.getAttribute('rx')) : 0,
+                track: !!g.querySelector('polyline.track'),
+                goal: !!g.querySelector('polygon.goal'),
+                card_gone: card ? card.classList.contains('gone') : null,
+                card_text: card ? card.textContent : '',
+              };
+            }
+            return out;
+            """
+        )
+    )
+
+
+def wait_for(cond: Callable[[], Any], timeout_s: float, what: str) -> Any:
+    deadline = time.monotonic() + timeout_s
+    while time.monotonic() < deadline:
+        value = cond()
+        if value:
+            return value
+        time.sleep(0.2)
+    raise AssertionError(f"timed out after {timeout_s:g} s waiting for {what}")
+
+
+def artifact_dir() -> Path:
+    d = Path(os.environ.get("GUIDANCE_TEST_ARTIFACTS", REPO / "out" / "test-artifacts"))
+    d.mkdir(parents=True, exist_ok=True)
+    return d
+
+
+def test_two_simulated_cars_on_the_web_map_and_one_killed(
+    tmp_path: Path, processes: Callable[..., subprocess.Popen[str]]
+) -> None:
+    ports = {"alpha": free_port(), "bravo": free_port()}
+    sims = {
+        vid: processes(
+            "sim",
+            "--config",
+            str(sim_config(tmp_path, vid, port, seed)),
+            "--speed",
+            "4",
+            "--duration",
+            "3000",
+            "--no-voice",
+            "--no-record",
+            "--no-png",
+            "--out",
+            str(tmp_path / vid),
+        )
+        for (vid, port), seed in zip(ports.items(), (7, 11), strict=True)
+    }
+    connect = [a for p in ports.values() for a in ("--connect", f"tcp/127.0.0.1:{p}")]
+    web = processes("monitor", "--web", "127.0.0.1:0", *connect, stdout=subprocess.PIPE)
+    assert web.stdout is not None
+    line = web.stdout.readline()
+    m = re.search(r"http://127\.0\.0\.1:\d+/", line)
+    assert m, f"monitor said {line!r}"
+
+    driver = browser(tmp_path)
+    try:
+        driver.get(m.group(0))
+        assert driver.title == "guidance monitor: fleet map"
+
+        def both_drawn() -> dict[str, dict[str, Any]] | None:
+            seen = cars(driver)
+            ready = all(v in seen and seen[v]["x"] is not None for v in ports)
+            return seen if ready else None
+
+        first = wait_for(both_drawn, 90.0, "both cars on the page")
+        t0 = time.monotonic()
+
+        def both_moved() -> dict[str, dict[str, Any]] | None:
+            now = cars(driver)
+            moved = all((now[v]["x"], now[v]["y"]) != (first[v]["x"], first[v]["y"]) for v in ports)
+            return now if moved else None
+
+        now = wait_for(both_moved, 20.0, "both cars to move")
+        for vid in ports:
+            car = now[vid]
+            assert car["alive"] and not car["card_gone"] and "live" in car["card_text"]
+            assert car["rx"] > 0 and car["track"] and car["goal"], car
+            assert "hdg" in car["card_text"] and "health:" in car["card_text"]
+        print(f"both cars moving on the page {time.monotonic() - t0:.1f} s after both appeared")
+        driver.save_screenshot(str(tmp_path / "live.png"))
+
+        sims["alpha"].send_signal(signal.SIGKILL)
+        sims["alpha"].wait(10)
+        killed = time.monotonic()
+        after = wait_for(
+            lambda: (c := cars(driver)) and not c["alpha"]["alive"] and c["alpha"]["card_gone"]
+            and c,
+            10.0,
+            "alpha shown as gone",
+        )  # fmt: skip
+        gone_s = time.monotonic() - killed
+        print(f"alpha shown as gone {gone_s:.2f} s after SIGKILL")
+        assert gone_s < 5.0
+        assert "gone" in after["alpha"]["card_text"]
+        bravo = after["bravo"]
+        assert bravo["alive"] and not bravo["card_gone"]
+        wait_for(
+            lambda: (cars(driver)["bravo"]["x"], cars(driver)["bravo"]["y"])
+            != (bravo["x"], bravo["y"]),
+            20.0,
+            "bravo to keep moving",
+        )  # fmt: skip
+        shot = artifact_dir() / "web_monitor.png"
+        assert driver.save_screenshot(str(shot))
+        assert shot.stat().st_size > 10_000
+    finally:
+        driver.quit()

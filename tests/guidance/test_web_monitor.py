@@ -1,0 +1,191 @@
+"""``guidance monitor --web`` server: the fleet API over real Zenoh on loopback, the packaged
+assets, and the binding and Host rules (the browser test is tests/guidance/test_web_browser.py)."""
+
+from __future__ import annotations
+
+import http.client
+import json
+import re
+import socket
+import subprocess
+import sys
+import time
+from collections.abc import Callable, Iterator
+from importlib import resources
+from pathlib import Path
+from typing import Any
+
+import pytest
+
+from guidance.core.messages import Ellipse, EstimateState
+from guidance.errors import UserError
+from guidance.telemetry.client import MonitorClient
+from guidance.telemetry.config import TelemetryConfig
+from guidance.telemetry.publisher import Telemetry
+from guidance.tools.web.server import WebMonitor, check_web_args, parse_bind
+
+REPO = Path(__file__).resolve().parents[2]
+ORIGIN = (42.444, -76.5019)
+
+
+def free_port() -> int:
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return int(s.getsockname()[1])
+
+
+def get(url_port: int, path: str, host: str | None = None) -> tuple[int, dict[str, str], bytes]:
+    conn = http.client.HTTPConnection("127.0.0.1", url_port, timeout=5)
+    try:
+        conn.putrequest("GET", path, skip_host=host is not None)
+        if host is not None:
+            conn.putheader("Host", host)
+        conn.endheaders()
+        r = conn.getresponse()
+        return r.status, {k.lower(): v for k, v in r.getheaders()}, r.read()
+    finally:
+        conn.close()
+
+
+def wait_until(cond: Callable[[], Any], timeout_s: float = 10.0) -> Any:
+    deadline = time.monotonic() + timeout_s
+    while time.monotonic() < deadline:
+        value = cond()
+        if value:
+            return value
+        time.sleep(0.05)
+    return cond()
+
+
+@pytest.fixture
+def car_and_web() -> Iterator[tuple[Telemetry, WebMonitor]]:
+    port = free_port()
+    cfg = TelemetryConfig(
+        vehicle_id="van7", listen=(f"tcp/127.0.0.1:{port}",), origin_lat_lon_deg=ORIGIN
+    )
+    tel = Telemetry(cfg)
+    tel.start()
+    client = MonitorClient([f"tcp/127.0.0.1:{port}"]).open()
+    web = WebMonitor(client, "127.0.0.1", 0).start()
+    try:
+        yield tel, web
+    finally:
+        web.close()
+        client.close()
+        tel.close()
+
+
+def test_fleet_api_shows_a_live_car_with_its_state_prompt_and_health(
+    car_and_web: tuple[Telemetry, WebMonitor],
+) -> None:
+    tel, web = car_and_web
+    port = web.httpd.server_address[1]
+    cov = ((9.0, 1.0, 0.0), (1.0, 4.0, 0.0), (0.0, 0.0, 0.01))
+    for i in range(5):
+        tel.publish_state(
+            EstimateState(float(i), 10.0 * i, 0.0, 0.0, cov, Ellipse(6.2, 3.9, 0.2, 12.4), False,
+                          True),
+            goal=(300.0, 0.0),
+        )  # fmt: skip
+        time.sleep(0.1)
+    tel.publish_prompt(4.0, "<img src=x onerror=alert(1)> turn left", kind="turn")
+
+    def fleet() -> dict[str, Any] | None:
+        _status, _h, body = get(port, "/api/fleet")
+        data = json.loads(body)
+        cars = data["cars"]
+        ok = cars and cars[0]["prompt"] and cars[0]["state"] and cars[0]["state"]["x_m"] == 40.0
+        return data if ok else None
+
+    data = wait_until(fleet)
+    assert data is not None, get(port, "/api/fleet")
+    car = data["cars"][0]
+    assert car["vehicle_id"] == "van7" and car["alive"] is True
+    assert car["state"]["lat_deg"] == pytest.approx(ORIGIN[0], abs=1e-3)
+    assert car["state"]["ellipse"]["semi_major_m"] == 6.2
+    assert car["track"][-1] == [40.0, 0.0] and len(car["track"]) >= 2
+    assert car["prompt"].startswith("<img")  # sent as data; the page sets it as text
+    assert 0.0 <= car["age_s"] < 5.0
+    assert car["health"] == {"ok": None, "summary": "-"}
+
+
+def test_page_and_assets_come_from_the_package_with_a_strict_csp(
+    car_and_web: tuple[Telemetry, WebMonitor],
+) -> None:
+    _tel, web = car_and_web
+    port = web.httpd.server_address[1]
+    status, headers, body = get(port, "/")
+    assert status == 200 and b'<script src="/static/app.js">' in body
+    csp = headers["content-security-policy"]
+    assert "script-src 'self'" in csp and "default-src 'none'" in csp
+    assert headers["x-content-type-options"] == "nosniff"
+    for name in ("app.js", "style.css"):
+        status, _h, served = get(port, f"/static/{name}")
+        packaged = resources.files("guidance.tools.web").joinpath("static", name).read_bytes()
+        assert status == 200 and served == packaged
+    assert get(port, "/static/../server.py")[0] == 404
+    assert json.loads(get(port, "/api/config")[2])["tiles"] == ""
+
+
+def test_no_cdn_every_asset_is_local() -> None:
+    static = resources.files("guidance.tools.web").joinpath("static")
+    names = sorted(p.name for p in static.iterdir())
+    assert names == ["app.js", "index.html", "style.css"]
+    for name in names:
+        text = static.joinpath(name).read_text()
+        urls = set(re.findall(r"https?://[^\s\"')]+", text)) - {"http://www.w3.org/2000/svg"}
+        assert urls == set(), (name, urls)
+        assert "innerHTML" not in text and "insertAdjacentHTML" not in text
+    pyproject = (REPO / "pyproject.toml").read_text()
+    assert '"guidance.tools.web" = ["static/*.html", "static/*.js", "static/*.css"]' in pyproject
+
+
+def test_a_foreign_host_header_is_refused_on_loopback(
+    car_and_web: tuple[Telemetry, WebMonitor],
+) -> None:
+    _tel, web = car_and_web
+    port = web.httpd.server_address[1]
+    assert get(port, "/api/fleet", host=f"localhost:{port}")[0] == 200
+    assert get(port, "/api/fleet", host=f"[::1]:{port}")[0] == 200
+    assert get(port, "/api/fleet", host=f"attacker.example:{port}")[0] == 421  # DNS rebinding
+    assert get(port, "/", host="")[0] == 421
+
+
+def test_binding_rules_and_tile_templates() -> None:
+    assert parse_bind("127.0.0.1:0") == ("127.0.0.1", 0)
+    assert parse_bind("[::1]:8080") == ("::1", 8080)
+    assert parse_bind("9000") == ("127.0.0.1", 9000)
+    assert check_web_args("localhost:1", allow_remote=False, tiles="") == ("localhost", 1)
+    with pytest.raises(UserError, match="--allow-remote"):
+        check_web_args("0.0.0.0:8765", allow_remote=False, tiles="")
+    assert check_web_args("0.0.0.0:8765", allow_remote=True, tiles="") == ("0.0.0.0", 8765)
+    with pytest.raises(UserError, match="HOST:PORT"):
+        parse_bind("host:port")
+    with pytest.raises(UserError, match=r"\{z\}"):
+        check_web_args("127.0.0.1:1", allow_remote=False, tiles="http://tiles.lan/a.png")
+    with pytest.raises(UserError, match="http"):
+        check_web_args("127.0.0.1:1", allow_remote=False, tiles="file:///{z}/{x}/{y}")
+    ok = "http://tiles.lan:8080/{z}/{x}/{y}.png"
+    assert check_web_args("127.0.0.1:1", allow_remote=False, tiles=ok)
+
+
+def test_tile_server_is_the_only_other_image_source() -> None:
+    client = MonitorClient([f"tcp/127.0.0.1:{free_port()}"])  # never opened
+    web = WebMonitor(client, "127.0.0.1", 0, tiles="http://tiles.lan:8080/{z}/{x}/{y}.png")
+    try:
+        assert "img-src 'self' data: http://tiles.lan:8080;" in web.csp()
+        assert web.page_config()["tiles"].startswith("http://tiles.lan:8080/")
+    finally:
+        web.httpd.server_close()
+
+
+def test_cli_refuses_a_public_bind_without_the_flag() -> None:
+    r = subprocess.run(
+        [sys.executable, "-m", "guidance.tools.cli", "monitor", "--web", "0.0.0.0:0"],
+        cwd=REPO,
+        capture_output=True,
+        text=True,
+        timeout=60,
+    )
+    assert r.returncode == 2 and "--allow-remote" in r.stderr
+    assert len(r.stderr.strip().splitlines()) == 1
