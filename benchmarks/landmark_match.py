@@ -27,9 +27,10 @@ import cv2
 import numpy as np
 
 from hal_sim.sim_camera import SimCamera, SimCameraConfig, facade
-from landmark_db.features import encode_image, extract
+from landmark_db.features import ExtractorConfig, OrbConfig, encode_image, extract
 from landmark_db.geo import Origin
-from landmark_db.recognise import Recogniser
+from landmark_db.matcher import MatchConfig, PairMatcher, PhotoIndex
+from landmark_db.recognise import Recogniser, RecogniserConfig
 from landmark_db.store import create_db, open_db
 
 FRAME_SIZE = (1232, 1616)  # (width, height) of the camera
@@ -51,66 +52,153 @@ def _frame(cam: SimCamera, seed: int) -> np.ndarray:
     return cam.view(facade(seed), 8.0)
 
 
-def part1(tmp: Path, n_frames: int) -> None:
-    db = create_db(tmp / "five.sqlite", ORIGIN)
-    seeds = [900 + i for i in range(5)]
-    for i, s in enumerate(seeds):
-        db.add(f"c{i}", facade(s), x_m=2.0 * i, y_m=1.0 * i)
-    db.close()
-    cam = _camera(1)
-    frames = [_frame(cam, seeds[k % 5]) for k in range(n_frames)]
-    with open_db(tmp / "five.sqlite") as ro:
-        rec = Recogniser(ro)
-        times, cpu, found, ncand = [], [], 0, []
-        from guidance.core.messages import CameraFrame
+def _run_case(
+    tmp: Path, label: str, extractor: ExtractorConfig, photos_per: int, frames: list[np.ndarray]
+) -> dict[str, float]:
+    """Five landmarks within 10 m of each other, ``photos_per`` photos each (other views of
+    the same facade); the frames show one of them. Returns the figures of one column."""
+    from guidance.core.messages import CameraFrame
 
+    path = tmp / f"{label}.sqlite"
+    db = create_db(path, ORIGIN, extractor)
+    cam = _camera(11)
+    for i, s in enumerate(SEEDS):
+        lid = db.add(f"c{i}", facade(s), x_m=2.0 * i, y_m=1.0 * i)
+        for _ in range(photos_per - 1):
+            db.add_photo(lid, cam.view(facade(s), 6.0))
+    db.close()
+    with open_db(path) as ro:
+        rec = Recogniser(ro)
+        times, cpu, found, compared = [], [], 0, []
         for k, img in enumerate(frames):
             c0 = time.process_time()
             r = rec.process_xy(CameraFrame(10.0 * k, img), (4.0, 2.0), _state_cov(10.0))
             cpu.append(time.process_time() - c0)
             times.append(r.elapsed_s)
             found += r.landmark_id == k % 5 + 1
-            ncand.append(len(r.evidence))
-        # stage split on the last frame
-        orb = rec.config.frame_orb.create()
+            compared.append(min(rec.config.max_photos, 5 * photos_per))
+        detector = rec.frame_extractor.create()
         t0 = time.perf_counter()
         for _ in range(10):
-            feats = extract(frames[-1], rec.config.frame_orb, orb)
-        t_orb = (time.perf_counter() - t0) / 10
-        photo = ro.features(1)
-        assert photo is not None
-        from landmark_db.matcher import PairMatcher
-
+            feats = extract(frames[-1], rec.frame_extractor, detector)
+        t_feat = (time.perf_counter() - t0) / 10
+        desc = feats.for_matching()
+        index = PhotoIndex(1, ro.photo_features(1)[0][1])
         pm = PairMatcher(rec.config.match)
         t0 = time.perf_counter()
         for _ in range(10):
-            pm.verify(1, feats, photo)
+            pm.verify(1, feats, desc, index)
         t_pair = (time.perf_counter() - t0) / 10
     ms = np.array(times) * 1e3
+    return {
+        "median": float(np.median(ms)),
+        "p90": float(np.percentile(ms, 90)),
+        "max": float(ms.max()),
+        "cpu": float(np.median(cpu) * 1e3),
+        "features": t_feat * 1e3,
+        "per_photo": t_pair * 1e3,
+        "photos": float(np.mean(compared)),
+        "found": found / len(frames),
+    }
+
+
+SEEDS = [900 + i for i in range(5)]
+
+
+def part1(tmp: Path, n_frames: int) -> None:
+    cam = _camera(1)
+    frames = [_frame(cam, SEEDS[k % 5]) for k in range(n_frames)]
+    cases = [
+        ("rootsift", ExtractorConfig(), 1),
+        ("rootsift x3", ExtractorConfig(), 3),
+        ("orb", OrbConfig(), 1),
+        ("orb x3", OrbConfig(), 3),
+    ]
+    cols = {
+        label: _run_case(tmp, label.replace(" ", ""), ext, n, frames) for label, ext, n in cases
+    }
     print(
-        f"part 1: {FRAME_SIZE[0]}x{FRAME_SIZE[1]} frame against {int(np.mean(ncand))} candidates,"
-        f" {n_frames} frames"
+        f"part 1: {FRAME_SIZE[0]}x{FRAME_SIZE[1]} frames against 5 gated candidates"
+        f" ({n_frames} frames; 'x3': 3 photos per landmark, at most"
+        f" {RecogniserConfig().max_photos} photos per frame)"
     )
+    print(f"{'':<34}" + "".join(f"{label:>14}" for label in cols))
+    rows = [
+        ("wall median ms (target <= 60)", "median", "{:.1f}"),
+        ("wall p90 ms", "p90", "{:.1f}"),
+        ("wall max ms", "max", "{:.1f}"),
+        ("CPU ms median (all threads)", "cpu", "{:.1f}"),
+        ("frame features ms", "features", "{:.1f}"),
+        ("per photo ms (kNN, ratio, MAGSAC)", "per_photo", "{:.1f}"),
+        ("photos compared per frame", "photos", "{:.0f}"),
+        ("right landmark verified", "found", "{:.2f}"),
+    ]
+    for name, key, fmt in rows:
+        print(f"{name:<34}" + "".join(f"{fmt.format(c[key]):>14}" for c in cols.values()))
+    print(f"  load average {os.getloadavg()[0]:.1f} on {os.cpu_count()} cores")
+
+
+def part_real(tmp: Path, folder: Path, n_frames: int) -> None:
+    """Real photos: the shared A/B pairs, B images resized to the camera's 1232x1616, each
+    against 5 gated candidates (its own place and the 4 nearest others, A photos)."""
+    from guidance.core.messages import CameraFrame
+    from landmark_db.acceptance import shared_layout
+
+    if not folder.is_dir():
+        print(f"real photos: {folder} absent, skipped")
+        return
+    photos, truth = shared_layout(folder, several=False)
+    queries = [t for t in truth if t.expected is not None and t.condition != "copy"]
     print(
-        f"  per frame: median {np.median(ms):.1f} ms, p90 {np.percentile(ms, 90):.1f} ms,"
-        f" max {ms.max():.1f} ms (target <= 60 ms)"
+        f"real photos: {len(queries)} queries resized to {FRAME_SIZE[0]}x{FRAME_SIZE[1]},"
+        " 5 candidates"
     )
-    print(
-        f"  CPU time per frame (all threads, less sensitive to other load): median"
-        f" {np.median(cpu) * 1e3:.1f} ms; load average {os.getloadavg()[0]:.1f} on"
-        f" {os.cpu_count()} cores"
+    fast = RecogniserConfig(
+        frame_max_side_px=400, match=MatchConfig(flann_trees=1, flann_checks=16)
     )
-    print(
-        f"  stages: grey+downscale+ORB {t_orb * 1e3:.1f} ms; per candidate (kNN + ratio +"
-        f" RANSAC) {t_pair * 1e3:.1f} ms"
+    variants = (
+        ("rootsift", ExtractorConfig(), RecogniserConfig()),
+        ("rootsift fast", ExtractorConfig(), fast),
+        ("orb", OrbConfig(), RecogniserConfig()),
     )
-    print(f"  correct landmark verified in {found}/{n_frames} frames")
+    print(f"{'':<34}" + "".join(f"{lab:>14}" for lab, _e, _c in variants))
+    cols = []
+    for lab, ext, config in variants:
+        path = tmp / f"real-{lab.replace(' ', '')}.sqlite"
+        db = create_db(path, ORIGIN, ext)
+        where = {}
+        for i, (p, name) in enumerate(photos):
+            db.add(name, p.read_bytes(), x_m=3.0 * i, y_m=0.0)
+            where[name] = 3.0 * i
+        db.close()
+        times, cpu, found = [], [], 0
+        with open_db(path) as ro:
+            rec = Recogniser(ro, config)
+            for k in range(n_frames):
+                q = queries[k % len(queries)]
+                img = cv2.resize(cv2.imread(str(q.query)), FRAME_SIZE)
+                c0 = time.process_time()
+                assert q.expected is not None
+                r = rec.process_xy(
+                    CameraFrame(100.0 * k, img), (where[q.expected], 0.0), _state_cov(1.0)
+                )
+                cpu.append(time.process_time() - c0)
+                times.append(r.elapsed_s)
+                found += r.landmark_id == ro.find(q.expected).id  # type: ignore[union-attr]
+        ms = np.array(times) * 1e3
+        cols.append((np.median(ms), np.percentile(ms, 90), np.median(cpu) * 1e3, found / n_frames))
+    for i, name in enumerate(
+        ("wall median ms (target <= 60)", "wall p90 ms", "CPU ms median", "right landmark verified")
+    ):
+        print(
+            f"{name:<34}" + "".join(f"{c[i]:>14.2f}" if i == 3 else f"{c[i]:>14.1f}" for c in cols)
+        )
 
 
 def part2(tmp: Path, sizes: list[int], density: float, n_frames: int) -> None:
     rng = np.random.default_rng(2)
     probe = create_db(tmp / "probe.sqlite", ORIGIN)
-    pool = [extract(facade(700 + i), probe.orb) for i in range(POOL)]
+    pool = [extract(facade(700 + i), probe.extractor) for i in range(POOL)]
     probe.close()
     photo = encode_image(np.zeros((8, 8), np.uint8))  # photos are not read when matching
     cam = _camera(3)
@@ -163,14 +251,25 @@ def part2(tmp: Path, sizes: list[int], density: float, n_frames: int) -> None:
 
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__)
-    ap.add_argument("--sizes", type=int, nargs="+", default=[100, 1_000, 10_000, 100_000])
+    ap.add_argument("--sizes", type=int, nargs="+", default=[100, 1_000, 10_000])
+    ap.add_argument("--part", choices=["real", "1", "2", "all"], default="all")
+    ap.add_argument(
+        "--images",
+        type=Path,
+        default=Path(__file__).resolve().parents[2] / "shared" / "data" / "images",
+        help="the shared real image pairs (optional)",
+    )
     ap.add_argument("--density", type=float, default=10.0)
     ap.add_argument("--frames", type=int, default=60)
     args = ap.parse_args()
     print(f"OpenCV {cv2.__version__}, {cv2.getNumThreads()} threads")
     with tempfile.TemporaryDirectory() as tmp:
-        part1(Path(tmp), args.frames)
-        part2(Path(tmp), args.sizes, args.density, args.frames)
+        if args.part in ("real", "all"):
+            part_real(Path(tmp), args.images, args.frames)
+        if args.part in ("1", "all"):
+            part1(Path(tmp), args.frames)
+        if args.part in ("2", "all"):
+            part2(Path(tmp), args.sizes, args.density, args.frames)
 
 
 if __name__ == "__main__":

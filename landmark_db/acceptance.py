@@ -45,8 +45,10 @@ from landmark_db.store import LandmarkDb, LandmarkDbError, create_db
 
 IMAGE_EXTS = (".png", ".jpg", ".jpeg")
 CALIBRATION_MIN_INLIERS = 4
-MARGIN = 2.0
-"""Recommended threshold = MARGIN x (most inliers of any wrong pair) + 1."""
+FUTURE_PAIRS_FACTOR = 10.0
+"""The recommended threshold must hold for this many times the calibration's wrong pairs."""
+FUTURE_FALSE_MATCHES = 0.05
+"""... with at most this many expected wrong pairs reaching it (``recommended_threshold``)."""
 
 
 @dataclass(frozen=True, slots=True)
@@ -144,9 +146,27 @@ class AcceptanceReport:
         """The smallest threshold at which no wrong pair verifies."""
         return max(self.max_wrong + 1, CALIBRATION_MIN_INLIERS)
 
+    def tail_ratio(self) -> float:
+        """Fitted ratio of the wrong pairs' inlier tail, P(score >= k + 1) / P(score >= k), over
+        the recorded scores (>= 4): the decay is close to geometric (docs/landmarks.md)."""
+        scores = [v for v, _o, _n in self.wrong_scores() if v >= CALIBRATION_MIN_INLIERS]
+        if len(scores) < 2:
+            return 0.5
+        # maximum likelihood for a geometric distribution shifted to start at 4
+        mean_excess = float(np.mean(scores)) - CALIBRATION_MIN_INLIERS
+        return min(max(mean_excess / (1.0 + mean_excess), 0.05), 0.95)
+
     @property
     def recommended_threshold(self) -> int:
-        return max(math.ceil(MARGIN * self.max_wrong) + 1, CALIBRATION_MIN_INLIERS)
+        """The margin: the smallest threshold at which ``FUTURE_PAIRS_FACTOR`` times as many
+        wrong pairs as calibrated would, by the fitted geometric tail, verify fewer than
+        ``FUTURE_FALSE_MATCHES`` times; never below the zero-false threshold + 1."""
+        wrong = self.wrong_scores()
+        n_tail = sum(1 for v, _o, _n in wrong if v >= CALIBRATION_MIN_INLIERS)
+        r = self.tail_ratio()
+        budget = FUTURE_FALSE_MATCHES / (FUTURE_PAIRS_FACTOR * max(n_tail, 1))
+        extra = math.ceil(math.log(budget) / math.log(r)) if n_tail else 0
+        return max(CALIBRATION_MIN_INLIERS + extra, self.zero_false_threshold + 1)
 
     def wrong_histogram(self) -> dict[int, int]:
         return dict(sorted(Counter(v for v, _o, _n in self.wrong_scores()).items()))

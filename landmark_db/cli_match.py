@@ -143,7 +143,8 @@ def _print_report(r: AcceptanceReport, verbose: bool) -> None:
     z, m = r.zero_false_threshold, r.recommended_threshold
     out(
         f"zero false matches from {z} inliers (recall {r.recall(z):.3f});"
-        f" with the 2x margin: {m} inliers (recall {r.recall(m):.3f})"
+        f" with the margin (tail ratio {r.tail_ratio():.2f}): {m} inliers"
+        f" (recall {r.recall(m):.3f})"
     )
 
 

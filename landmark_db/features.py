@@ -46,7 +46,7 @@ KEYPOINT_FIELDS = 6
 EXTRACTOR_VERSIONS = {"rootsift": 1, "orb": 1}
 """Version of each extractor's output; bump when ``extract`` changes for that kind."""
 DESCRIPTOR_BYTES = {"rootsift": 128, "orb": 32}
-FRAME_MAX_SIDE_PX = {"rootsift": 480, "orb": 1024}
+FRAME_MAX_SIDE_PX = {"rootsift": 440, "orb": 1024}
 """Camera frames are described at most this large (the per-frame time budget)."""
 PHOTO_MAX_SIDE_PX = {"rootsift": 640, "orb": 1024}
 

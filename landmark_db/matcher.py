@@ -33,7 +33,7 @@ FAILED_GEOMETRY = "failed_geometry"
 MIN_MATCHES_FOR_GEOMETRY = 6
 """Below this many ratio-test survivors no homography is attempted (4 define one exactly)."""
 
-CALIBRATED_MIN_INLIERS = {"rootsift": 15, "orb": 11}
+CALIBRATED_MIN_INLIERS = {"rootsift": 12, "orb": 9}
 """Inliers needed to accept, per extractor: 2 x (most inliers of a wrong pair) + 1 on the
 calibration set (docs/landmarks.md, "How the thresholds were calibrated")."""
 REPROJ_PX = {"rootsift": 3.0, "orb": 4.0}
@@ -52,6 +52,10 @@ class MatchConfig:
     ransac_reproj_px: float | None = None
     max_iters: int = 2000
     """MAGSAC++ iterations at most (it stops early when confident)."""
+    flann_checks: int = 24
+    """Leaves the k-d trees visit per query (RootSIFT): the speed/accuracy knob of kNN."""
+    flann_trees: int = 4
+    """Randomised k-d trees per photo index."""
 
     def __post_init__(self) -> None:
         if not 0.0 < self.ratio < 1.0:
@@ -86,13 +90,13 @@ class MatchEvidence:
 class PhotoIndex:
     """One photo's features with its nearest-neighbour index, built once and reused."""
 
-    def __init__(self, photo_id: int, features: Features) -> None:
+    def __init__(self, photo_id: int, features: Features, checks: int = 24, trees: int = 4) -> None:
         self.photo_id = photo_id
         self.features = features
         self._desc = features.for_matching()
         self._flann: Any = None
         if features.kind != "orb" and len(features) >= 2:
-            self._flann = CV.FlannBasedMatcher({"algorithm": 1, "trees": 4}, {"checks": 32})
+            self._flann = CV.FlannBasedMatcher({"algorithm": 1, "trees": trees}, {"checks": checks})
             self._flann.add([self._desc])
             self._flann.train()
 

@@ -57,7 +57,7 @@ from landmark_db.matcher import (
 )
 from landmark_db.store import Candidate, LandmarkDb, open_db, query_gate
 
-FRAME_FEATURES = 1000
+FRAME_FEATURES = 600
 """Features per camera frame (described at ``features.FRAME_MAX_SIDE_PX``)."""
 
 NO_CANDIDATE = "no_candidate"
@@ -101,7 +101,7 @@ class RecogniserConfig:
     database's extractor)."""
     frame_orb: ExtractorConfig | None = None
     """Full override of the frame extractor (its kind must be the database's)."""
-    max_photos: int = 8
+    max_photos: int = 6
     """Photos compared per frame at most, nearest candidates first: the time budget."""
     match: MatchConfig = field(default_factory=MatchConfig)
     feature_cache: int = 512
@@ -244,7 +244,11 @@ class Recogniser:
         if f is not None:
             self._cache.move_to_end(lid)
             return f
-        f = [PhotoIndex(pid, feats) for pid, feats in self.db.photo_features(lid)]
+        m = self.config.match
+        f = [
+            PhotoIndex(pid, feats, m.flann_checks, m.flann_trees)
+            for pid, feats in self.db.photo_features(lid)
+        ]
         self._cache[lid] = f
         if len(self._cache) > self.config.feature_cache:
             self._cache.popitem(last=False)
@@ -278,17 +282,27 @@ class Recogniser:
         except ValueError:
             return BAD_INPUT, None, (), 0
         desc = feats.for_matching()
-        evidence = []
-        budget = max_photos if max_photos is not None else 1 << 62
-        for lid in ids:
-            best: MatchEvidence | None = None
-            for photo in self._landmark_photos(lid)[: max(budget, 0)]:
-                e = self._matcher.verify(lid, feats, desc, photo)
-                budget -= 1
-                if best is None or (e.inliers, e.good_matches) > (best.inliers, best.good_matches):
-                    best = e
-            if best is not None:  # None: removed since the query, or out of budget
-                evidence.append(best)
+        photos = {lid: self._landmark_photos(lid) for lid in ids}
+        # Round robin: every candidate's first photo, then every second photo... so a
+        # budget of ``max_photos`` never starves the farther candidates.
+        order = [
+            (lid, ph)
+            for rank in range(max((len(p) for p in photos.values()), default=0))
+            for lid in ids
+            if rank < len(photos[lid])
+            for ph in (photos[lid][rank],)
+        ]
+        if max_photos is not None:
+            order = order[:max_photos]
+        per_lm: dict[int, MatchEvidence] = {}
+        for lid, photo in order:
+            if lid in per_lm and per_lm[lid].verified:
+                continue  # already recognised: one photo of a place is enough
+            e = self._matcher.verify(lid, feats, desc, photo)
+            b = per_lm.get(lid)
+            if b is None or (e.inliers, e.good_matches) > (b.inliers, b.good_matches):
+                per_lm[lid] = e
+        evidence = [per_lm[lid] for lid in ids if lid in per_lm]
         ev = tuple(evidence)
         verified = sorted((e for e in ev if e.verified), key=lambda e: -e.inliers)
         if not verified:

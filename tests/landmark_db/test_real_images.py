@@ -16,8 +16,11 @@ from landmark_db.matcher import CALIBRATED_MIN_INLIERS
 
 pytestmark = pytest.mark.shared_data
 
-MIN_RECALL = 0.8
-"""Measured 16 of 19 (0.84) with one photo per place, 15 of 18 (0.83) with several."""
+MIN_RECALL_ZERO_FALSE = 0.8
+"""Recall at the smallest threshold with zero false matches: measured 16/19 (0.84) with one
+photo per place, 16/18 (0.89) with several (docs/landmarks.md)."""
+MIN_RECALL_SHIPPED = 0.7
+"""At the shipped threshold, which keeps a margin over the wrong pairs: 15/19 and 14/18."""
 
 
 def test_pairs_are_laid_out_as_places(shared_images: Path) -> None:
@@ -38,9 +41,10 @@ def test_zero_false_matches_and_recall(shared_images: Path, several: bool) -> No
     wrong = [(o.query.name, o.leave_one_out, m) for o, m in report.false_matches()]
     assert wrong == []
     assert report.precision() == 1.0
-    assert report.recall() >= MIN_RECALL, report.recall()
+    assert report.recall() >= MIN_RECALL_SHIPPED, report.recall()
+    assert report.recall(report.zero_false_threshold) >= MIN_RECALL_ZERO_FALSE
     assert any(o.leave_one_out for o in report.outcomes)
-    # the shipped threshold keeps at least the documented margin over every wrong pair
-    assert CALIBRATED_MIN_INLIERS["rootsift"] >= report.recommended_threshold
+    # the shipped threshold keeps a margin over every wrong pair seen here
+    assert CALIBRATED_MIN_INLIERS["rootsift"] >= report.zero_false_threshold + 3
     correct = {o.query.stem for o in report.outcomes if report.matched(o) == o.expected}
     assert {"BostonB", "adamB", "boatB", "grafB", "box_in_scene"} <= correct
