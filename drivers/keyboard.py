@@ -1,7 +1,11 @@
-"""The co-driver keyboard as a roadway-scene source.
+"""The co-driver keyboard as a roadway-scene source, and the line handling every co-driver input
+shares (the terminal keyboard here, a USB keypad in ``drivers.evdev_keys``).
 
-``KeyboardScene`` is the ``RoadwayScene`` source: a thread reads lines from stdin (or any text
-stream), parses them with ``guidance.core.co_driver`` and hands the events to the app's sink.
+``CoDriverLines`` turns one typed line into what happens next: an ``IntersectionScene`` or a
+``TurnCompleted`` for the sink (parsed by ``guidance.core.co_driver``), a command (help, repeat
+the last prompt, mute), or an answer to a line that does not parse. Every line gets an
+acknowledgement on ``feedback`` (the operator screen, or stderr), so the co-driver knows it was
+taken. ``KeyboardScene`` reads the lines from stdin (or any text stream) on its own thread.
 """
 
 from __future__ import annotations
@@ -14,10 +18,148 @@ from collections import Counter
 from collections.abc import Callable
 from typing import TextIO
 
-from guidance.core.co_driver import SceneParseError, parse_line, to_scene
+from guidance.core.co_driver import ExitsTyped, SceneParseError, parse_line, to_scene
 from guidance.core.messages import IntersectionScene, TurnCompleted
 
 log = logging.getLogger(__name__)
+
+SceneMessage = IntersectionScene | TurnCompleted
+Feedback = Callable[[str], None]
+"""Where acknowledgements, answers and help go: one line of text each."""
+
+COMMANDS: dict[str, str] = {
+    "?": "help",
+    "help": "help",
+    "repeat": "repeat",
+    "again": "repeat",
+    "*": "repeat",
+    "mute": "mute",
+    "/": "mute",
+}
+"""Lines that are commands, not scene reports (the keypad sends ``*`` and ``/``)."""
+
+HELP_LINES: tuple[str, ...] = (
+    "exits ahead: l s r (left straight right), bl br (bear), hl hr (hard), u (U-turn),"
+    " l30 r60 or +30 -120 (degrees, left positive); keypad 8 4 6 7 9 1 3 2",
+    "turn taken: tl, turned left, t 4 (keypad: 0 then the exit key, e.g. 0 4)",
+    "commands: ? or help (this help), repeat (keypad *), mute (keypad /)",
+)
+
+_LABEL_WORDS = {
+    "s": "straight",
+    "f": "straight",
+    "straight": "straight",
+    "ahead": "straight",
+    "l": "left",
+    "left": "left",
+    "r": "right",
+    "right": "right",
+    "bl": "bear left",
+    "br": "bear right",
+    "hl": "hard left",
+    "hr": "hard right",
+    "u": "U-turn",
+    "uturn": "U-turn",
+}
+
+
+def label_words(label: str) -> str:
+    """A parser label as words: "bl" -> "bear left", "l30" -> "30 deg left", "+30" -> "+30 deg"."""
+    if label in _LABEL_WORDS:
+        return _LABEL_WORDS[label]
+    if label[:1] in ("l", "r") and label[1:].replace(".", "", 1).isdigit():
+        return f"{label[1:]} deg {'left' if label[0] == 'l' else 'right'}"
+    return f"{label} deg"
+
+
+class CoDriverLines:
+    """One co-driver line -> a scene message, a command or an answer, and an acknowledgement.
+
+    ``heading_fn`` gives the estimated heading (rad) that turns relative exits into absolute
+    ones, ``clock`` stamps the message. ``on_command`` receives "repeat" and "mute" and returns
+    what to acknowledge ("voice muted"); None: the co-driver is told the command is not
+    available. Counters: lines, rejected,
+    intersections, turns, commands.
+    """
+
+    def __init__(
+        self,
+        name: str,
+        heading_fn: Callable[[], float],
+        *,
+        clock: Callable[[], float] = time.monotonic,
+        feedback: Feedback | None = None,
+        on_command: Callable[[str], str] | None = None,
+    ) -> None:
+        self.name = name
+        self._heading_fn = heading_fn
+        self._clock = clock
+        self.feedback: Feedback = feedback if feedback is not None else _stderr_feedback
+        self.on_command = on_command
+        self._counts: Counter[str] = Counter()
+        self._lock = threading.Lock()
+
+    def stats(self) -> dict[str, int]:
+        with self._lock:
+            return dict(self._counts)
+
+    def _count(self, key: str) -> None:
+        with self._lock:
+            self._counts[key] += 1
+
+    def handle(self, line: str, sink: Callable[[SceneMessage], None]) -> SceneMessage | None:
+        """Act on one line; returns the message delivered to ``sink``, if any."""
+        t_s = self._clock()
+        text = line.strip().lower()
+        if not text:
+            return None
+        self._count("lines")
+        command = COMMANDS.get(text)
+        if command is not None:
+            self._count("commands")
+            self._command(command)
+            return None
+        try:
+            typed = parse_line(text)
+        except SceneParseError as exc:
+            self._count("rejected")
+            log.info("%s: %s", self.name, exc)
+            self.feedback(f"? {exc} (? for help)")
+            return None
+        if typed is None:  # pragma: no cover - empty lines returned above
+            return None
+        msg = to_scene(typed, t_s, self._heading_fn())
+        self._count("intersections" if isinstance(msg, IntersectionScene) else "turns")
+        sink(msg)
+        if isinstance(typed, ExitsTyped):
+            self.feedback("ok: exits " + ", ".join(label_words(lab) for lab in typed.labels))
+        else:
+            self.feedback(f"ok: turned {label_words(typed.label)}")
+        return msg
+
+    def _command(self, command: str) -> None:
+        if command == "help":
+            for text in HELP_LINES:
+                self.feedback(text)
+            return
+        if self.on_command is None:
+            self.feedback(f"ok: {command} (not available in this run)")
+            return
+        self.feedback(f"ok: {self.on_command(command)}")
+
+
+def _stderr_feedback(text: str) -> None:
+    sys.stderr.write(text + "\n")
+    sys.stderr.flush()
+
+
+def _stream_feedback(stream: TextIO) -> Feedback:
+    def write(text: str) -> None:
+        stream.write(text + "\n")
+        stream.flush()
+
+    return write
+
 
 # --------------------------------------------------------------------------- the source
 
@@ -25,11 +167,11 @@ log = logging.getLogger(__name__)
 class KeyboardScene:
     """``RoadwayScene`` from co-driver lines on a text stream (stdin by default).
 
-    A daemon thread reads lines (blocking I/O stays off the event loop, HOUSE_STYLE) and calls
-    ``sink`` with an ``IntersectionScene`` or ``TurnCompleted``. ``heading_fn`` gives the
-    current estimated heading (rad) for turning relative exits into absolute ones; ``clock``
-    stamps the line (the message clock). Unparseable lines are counted, logged and answered on
-    ``feedback`` (stderr) so the co-driver can retype them.
+    A daemon thread reads lines (blocking I/O stays off the event loop, HOUSE_STYLE) and hands
+    each to ``CoDriverLines``, which calls ``sink`` with an ``IntersectionScene`` or
+    ``TurnCompleted``. ``heading_fn`` gives the current estimated heading (rad); ``clock``
+    stamps the line (the message clock). ``feedback`` (a text stream or a callable; default
+    stderr) gets the acknowledgement of every line, the answer to a bad one and the help.
     """
 
     def __init__(
@@ -37,21 +179,21 @@ class KeyboardScene:
         heading_fn: Callable[[], float],
         *,
         stream: TextIO | None = None,
-        feedback: TextIO | None = None,
+        feedback: TextIO | Feedback | None = None,
+        on_command: Callable[[str], str] | None = None,
         clock: Callable[[], float] = time.monotonic,
         name: str = "keyboard",
     ) -> None:
         self.name = name
-        self._heading_fn = heading_fn
         self._stream = stream
-        self._feedback = feedback
-        self._clock = clock
-        self._counts: Counter[str] = Counter()
-        self._lock = threading.Lock()
+        write = feedback if feedback is None or callable(feedback) else _stream_feedback(feedback)
+        self.lines = CoDriverLines(
+            name, heading_fn, clock=clock, feedback=write, on_command=on_command
+        )
         self._thread: threading.Thread | None = None
         self._stop = threading.Event()
 
-    def start(self, sink: Callable[[IntersectionScene | TurnCompleted], None]) -> None:
+    def start(self, sink: Callable[[SceneMessage], None]) -> None:
         if self._thread is not None:
             raise RuntimeError(f"{self.name} already started")
         self._stop.clear()
@@ -69,35 +211,17 @@ class KeyboardScene:
             thread.join(timeout=0.2)
 
     def stats(self) -> dict[str, int]:
-        with self._lock:
-            return dict(self._counts)
+        return self.lines.stats()
 
-    def handle_line(
-        self, line: str, sink: Callable[[IntersectionScene | TurnCompleted], None]
-    ) -> IntersectionScene | TurnCompleted | None:
-        """Parse one line and deliver it; returns what was delivered (for tests and replay)."""
-        t_s = self._clock()
-        with self._lock:
-            self._counts["lines"] += 1
-        try:
-            typed = parse_line(line)
-        except SceneParseError as exc:
-            with self._lock:
-                self._counts["rejected"] += 1
-            log.info("%s: %s", self.name, exc)
-            out = self._feedback if self._feedback is not None else sys.stderr
-            out.write(f"? {exc}\n")
-            out.flush()
-            return None
-        if typed is None:
-            return None
-        msg = to_scene(typed, t_s, self._heading_fn())
-        with self._lock:
-            self._counts["intersections" if isinstance(msg, IntersectionScene) else "turns"] += 1
-        sink(msg)
-        return msg
+    def describe(self) -> str:
+        """What the operator screen shows for this input."""
+        return "keyboard (stdin)" if self._stream is None else f"keyboard ({self.name})"
 
-    def _run(self, sink: Callable[[IntersectionScene | TurnCompleted], None]) -> None:
+    def handle_line(self, line: str, sink: Callable[[SceneMessage], None]) -> SceneMessage | None:
+        """Act on one line; returns what was delivered (for tests and replay)."""
+        return self.lines.handle(line, sink)
+
+    def _run(self, sink: Callable[[SceneMessage], None]) -> None:
         stream = self._stream if self._stream is not None else sys.stdin
         while not self._stop.is_set():
             try:

@@ -20,8 +20,13 @@ BACKENDS: dict[str, dict[str, tuple[str, str]]] = {
         "opencv": ("drivers.camera:OpenCvCamera", "drivers.camera:CameraConfig"),
     },
 }
-SCENE_BACKENDS: dict[str, str] = {"keyboard": "drivers.keyboard:KeyboardScene"}
-"""Co-driver input backends (``module:Class``), imported on first use."""
+SCENE_BACKENDS: dict[str, str] = {
+    "keyboard": "drivers.keyboard:KeyboardScene",
+    "evdev": "drivers.evdev_keys:EvdevKeys",
+}
+"""Co-driver input backends (``[scene] input``, ``module:Class``), imported on first use."""
+SCENE_CONFIGS: dict[str, str] = {"evdev": "drivers.evdev_keys:EvdevKeysConfig"}
+"""The driver config dataclass of a co-driver input that takes one (``[scene] device``...)."""
 
 
 def import_backend(path: str) -> Any:

@@ -23,7 +23,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from guidance.app.backends import BACKENDS, import_backend
+from guidance.app.backends import BACKENDS, SCENE_BACKENDS, import_backend
 from guidance.app.tables import _check_document, _check_type, _in_table, _name, _Table, _table
 from guidance.core.estimator import EstimatorConfig, car_model
 from guidance.core.health import HealthConfig
@@ -82,6 +82,18 @@ class VoiceSettings:
 
 
 @dataclass(frozen=True, slots=True)
+class SceneSettings:
+    """``[scene]``: where the co-driver's keys come from."""
+
+    input: str = "keyboard"
+    """keyboard (lines on stdin), evdev (a keypad or keyboard: ``device``) or none."""
+    device: str = ""
+    """The input device for ``evdev``: /dev/input/by-id/...-event-kbd."""
+    grab: bool = True
+    """evdev: take the device exclusively."""
+
+
+@dataclass(frozen=True, slots=True)
 class CheckpointSettings:
     path: str = ""
     """Empty: no checkpoints."""
@@ -101,7 +113,7 @@ class AppConfig:
     odometry: DeviceConfig | None
     compass: DeviceConfig | None
     camera: DeviceConfig | None
-    keyboard: bool
+    scene: SceneSettings
     voice: VoiceSettings
     telemetry: TelemetryConfig
     recording: RecordingConfig
@@ -376,9 +388,7 @@ def parse_config(
     camera = _device("camera", data.get("camera", {}), default_backend="opencv",
                      default_enabled=False)  # fmt: skip
 
-    scene = _Table("scene", data.get("scene", {}))
-    keyboard = scene.boolean("keyboard", True)
-    scene.done()
+    scene = _scene(data.get("scene", {}), base_dir)
 
     voice_t = _Table("voice", data.get("voice", {}))
     voice = VoiceSettings(
@@ -473,7 +483,7 @@ def parse_config(
         odometry=odometry,
         compass=compass,
         camera=camera,
-        keyboard=keyboard,
+        scene=scene,
         voice=voice,
         telemetry=telemetry,
         recording=recording,
@@ -483,6 +493,30 @@ def parse_config(
         max_loop_lag_s=max_lag,
         sim=types.MappingProxyType(dict(sim)),
     )
+
+
+def _scene(data: object, base_dir: Path | None) -> SceneSettings:
+    """``[scene] input``/``device``/``grab``; ``keyboard = true|false`` is the old spelling."""
+    t = _Table("scene", data)
+    if t.has("keyboard") and t.has("input"):
+        raise UserError("[scene] give input or keyboard (the old spelling), not both")
+    if t.has("keyboard"):
+        kind = "keyboard" if t.boolean("keyboard", True) else "none"
+    else:
+        kind = t.string("input", "keyboard", (*SCENE_BACKENDS, "none"))
+    device = t.string("device", "")
+    grab = t.boolean("grab", True)
+    t.done()
+    if kind == "evdev" and not device:
+        raise UserError(
+            "[scene] device is required with input = 'evdev' "
+            "(e.g. /dev/input/by-id/usb-<keypad>-event-kbd)"
+        )
+    if device and kind != "evdev":
+        raise UserError(f"[scene] device is only read with input = 'evdev', not {kind!r}")
+    if device and base_dir is not None and not Path(device).is_absolute():
+        device = str(base_dir / device)
+    return SceneSettings(kind, device, grab)
 
 
 def _landmarks(items: object, origin: tuple[float, float] | None) -> tuple[Landmark, ...]:

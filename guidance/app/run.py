@@ -9,26 +9,80 @@ import asyncio
 import json
 import logging
 import math
+import os
 import signal
+import stat
 import sys
 import time
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any, TextIO
 
 from guidance.app.app import GIL_SWITCH_INTERVAL_S, App, Source
 from guidance.app.build import OutputSettings, open_outputs, resume_from_checkpoint, session_record
 from guidance.app.checkpoint import Checkpointer, load_checkpoint
+from guidance.app.operator_view import OperatorView
+from guidance.app.screen import (
+    NO_INPUT_PROMPT,
+    MutableSpeaker,
+    Operator,
+    OperatorScreen,
+    banner_rows,
+    co_driver_state,
+)
 from guidance.errors import UserError
+
+if TYPE_CHECKING:
+    from guidance.app.config import SceneSettings
 
 log = logging.getLogger(__name__)
 
+SCREEN_MODES = ("auto", "live", "plain", "off")
 
-async def run_car(config_path: str, *, resume: bool = True) -> int:
-    """``guidance run``: open the configured devices and guide until SIGINT/SIGTERM."""
-    from guidance.app.backends import SCENE_BACKENDS, import_backend
+
+def stdin_problem(stream: TextIO | None) -> str:
+    """Why co-driver lines cannot come from ``stream`` (stdin), or "" when they can: a
+    terminal, a pipe or a file can; /dev/null (what systemd gives a service) cannot."""
+    try:
+        fd = stream.fileno() if stream is not None else -1
+        if fd < 0:
+            return "there is no stdin"
+        if os.isatty(fd):
+            return ""
+        st = os.fstat(fd)
+    except (OSError, ValueError):
+        return "stdin is closed"
+    if stat.S_ISFIFO(st.st_mode) or stat.S_ISREG(st.st_mode):
+        return ""
+    if stat.S_ISCHR(st.st_mode) and st.st_rdev == os.stat(os.devnull).st_rdev:
+        return "stdin is /dev/null (as under systemd)"
+    return "stdin is not a terminal"
+
+
+def co_driver_problem(scene: SceneSettings, stdin: TextIO | None) -> str:
+    """Why the configured co-driver input will not work now, or ""."""
+    if scene.input == "none":
+        return "[scene] input = 'none'"
+    if scene.input == "evdev":
+        return "" if os.path.exists(scene.device) else f"input device {scene.device} not found"
+    problem = stdin_problem(stdin)
+    return f"{problem}; name a keypad in [scene] (input = 'evdev', device)" if problem else ""
+
+
+async def run_car(
+    config_path: str,
+    *,
+    resume: bool = True,
+    screen: str = "auto",
+    stdout: TextIO | None = None,
+) -> int:
+    """``guidance run``: open the configured devices and guide until SIGINT/SIGTERM.
+
+    ``screen``: the operator screen on ``stdout`` ("auto": live on a terminal, plain lines
+    otherwise; "live", "plain", "off")."""
+    from guidance.app.backends import SCENE_BACKENDS, SCENE_CONFIGS, import_backend
     from guidance.app.config import load_config
     from guidance.app.watchdog import SystemdNotifier
-    from guidance.core.messages import GoalUpdate
+    from guidance.core.messages import GoalUpdate, Priority
     from guidance.core.pipeline import Pipeline
 
     cfg = load_config(config_path)
@@ -46,10 +100,33 @@ async def run_car(config_path: str, *, resume: bool = True) -> int:
         sources["odometry"] = cfg.odometry.build()
     if cfg.compass is not None:
         sources["compass"] = cfg.compass.build()
-    if cfg.keyboard:
-        keyboard = import_backend(SCENE_BACKENDS["keyboard"])
-        sources["scene"] = keyboard(lambda: float(pipeline.estimator.x[2]))
     camera = cfg.camera.build() if cfg.camera is not None else None
+    out_stream = stdout if stdout is not None else sys.stdout
+    view = OperatorView(
+        vehicle_id=cfg.vehicle_id,
+        landmark_names={lm.id: lm.name for lm in cfg.pipeline.landmarks if lm.name},
+        lost_major_axis_m=cfg.pipeline.estimator.lost_major_axis_m,
+    )
+    live = {"auto": None, "live": True, "plain": False, "off": None}[screen]
+    opscreen = OperatorScreen(view, stream=out_stream, live=live)
+    operator = Operator(opscreen, pipeline)
+    feedback = opscreen.ack if screen != "off" else None
+    scene_source = None
+    if cfg.scene.input != "none":
+        cls = import_backend(SCENE_BACKENDS[cfg.scene.input])
+        args: list[Any] = []
+        if cfg.scene.input in SCENE_CONFIGS:
+            conf_cls = import_backend(SCENE_CONFIGS[cfg.scene.input])
+            args.append(conf_cls(device=cfg.scene.device, grab=cfg.scene.grab))
+        scene_source = cls(
+            *args,
+            lambda: float(pipeline.estimator.x[2]),
+            feedback=feedback,
+            on_command=operator.on_command,
+        )
+        sources["scene"] = scene_source
+    operator.co_driver = scene_source
+    no_input = co_driver_problem(cfg.scene, sys.stdin)
 
     settings = OutputSettings(
         voice_backend=cfg.voice.backend,
@@ -66,11 +143,18 @@ async def run_car(config_path: str, *, resume: bool = True) -> int:
             app.feed(GoalUpdate(time.monotonic(), x_m, y_m, "remote"))
 
     async with open_outputs(settings, time.monotonic, on_goal=on_goal) as out:
+        speaker = MutableSpeaker(out.speaker) if out.speaker is not None else None
+        operator.speaker = speaker
+        operator.loop = asyncio.get_running_loop()
+        voice = type(out.speaker).__name__ if out.speaker is not None else "none"
+        co_driver = co_driver_state(scene_source)[0] if scene_source is not None else "none"
+        if no_input:
+            co_driver += f" - NOT AVAILABLE: {no_input}"
         app = App(
             pipeline,
             sources=sources,
             camera=camera,
-            speaker=out.speaker,
+            speaker=speaker,
             telemetry=out.telemetry,
             recorder=out.recorder,
             notifier=SystemdNotifier(max_lag_s=cfg.max_loop_lag_s),
@@ -83,7 +167,24 @@ async def run_car(config_path: str, *, resume: bool = True) -> int:
         loop = asyncio.get_running_loop()
         for sig in (signal.SIGINT, signal.SIGTERM):
             loop.add_signal_handler(sig, stop.set)
-        await app.run_until_stopped()
+        if screen != "off":
+            opscreen.print_banner(
+                banner_rows(cfg, voice=f"{cfg.voice.backend} ({voice})", co_driver=co_driver)
+            )
+            app.listeners.append(operator)
+        if no_input:
+            log.warning("NO CO-DRIVER INPUT: %s; intersections cannot be reported", no_input)
+            opscreen.fold(lambda v: v.add(time.time(), "info", f"NO CO-DRIVER INPUT: {no_input}",
+                                          "bad"))  # fmt: skip
+            if speaker is not None:
+                speaker.say(NO_INPUT_PROMPT, Priority.SAFETY, time.monotonic())
+        try:
+            if screen != "off":
+                opscreen.start()
+            await app.run_until_stopped()
+        finally:
+            if screen != "off":
+                opscreen.stop()
         log.warning("stopping: %s", json.dumps(app.lag_summary()))
     return 0
 
@@ -106,6 +207,13 @@ def register(sub: Any) -> None:
     run.add_argument(
         "--fresh", action="store_true", help="ignore an existing checkpoint (start afresh)"
     )
+    run.add_argument(
+        "--screen",
+        choices=SCREEN_MODES,
+        default="auto",
+        help="the operator screen on stdout: auto (live on a terminal, plain lines otherwise), "
+        "live, plain or off",
+    )
     run.set_defaults(func=_cli_run)
 
 
@@ -118,7 +226,15 @@ def _cli_run(args: argparse.Namespace) -> int:
             f"{args.config}: OK (vehicle {cfg.vehicle_id}, method "
             f"{cfg.pipeline.navigator.method.value})"
         )
+        if cfg.scene.input == "evdev" and not os.path.exists(cfg.scene.device):
+            print(  # noqa: T201
+                f"warning: [scene] device {cfg.scene.device} does not exist now: no co-driver "
+                "keys until it is plugged in",
+                file=sys.stderr,
+            )
+        elif cfg.scene.input == "none":
+            print("warning: [scene] input = 'none': no co-driver input", file=sys.stderr)  # noqa: T201
         return 0
     if not args.config.is_file():
         raise UserError(f"config file not found: {args.config}")
-    return asyncio.run(run_car(str(args.config), resume=not args.fresh))
+    return asyncio.run(run_car(str(args.config), resume=not args.fresh, screen=args.screen))

@@ -1,0 +1,311 @@
+"""The operator screen of ``guidance run`` and the co-driver's commands (docs/app.md, "Operator
+screen").
+
+``OperatorScreen`` draws an ``OperatorView`` (guidance/app/operator_view.py, the pure fold) on
+its own thread, so drawing never runs on the event loop: on a terminal a rich live view
+redrawn 4 times a second; otherwise (the systemd journal, a pipe) plain lines, one per event
+(prompt, key, health flip, exit taken) and a status line every 30 s.
+
+``Operator`` is the glue ``guidance run`` hangs on ``App.listeners``: it folds each input and
+its outputs into the view, refreshes the inputs' health and the target twice a second, speaks
+a different exit taken, and carries out the co-driver's commands (repeat the last instruction,
+mute) through ``MutableSpeaker``. ``banner_rows`` is the start-up banner.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import logging
+import sys
+import threading
+import time
+from collections.abc import Callable, Sequence
+from typing import TYPE_CHECKING, Any, TextIO
+
+from guidance.app.operator_view import OperatorView, clock_text
+from guidance.core.messages import Priority
+
+if TYPE_CHECKING:
+    from guidance.app.config import AppConfig
+    from guidance.app.ports import Speaker
+    from guidance.core.pipeline import Pipeline
+
+log = logging.getLogger(__name__)
+
+STYLES = {"ok": "green", "warn": "bold yellow", "bad": "bold red", "": ""}
+REFRESH_HZ = 4.0
+STATUS_PERIOD_S = 30.0
+LIVE_PERIOD_S = 0.5
+"""How often ``Operator`` reads health and target from the pipeline (wall clock)."""
+
+
+def _printable(text: str) -> str:
+    """Text from outside (typed lines, device names) without terminal control characters."""
+    return "".join(c if c.isprintable() else "?" for c in text)
+
+
+class OperatorScreen:
+    """Draws an ``OperatorView`` on ``stream`` from a thread of its own (see the module).
+
+    ``live``: a rich live view (default: when ``stream`` is a terminal), else plain lines.
+    The view is changed only under ``lock`` (``fold``); drawing reads it under the same lock.
+    """
+
+    def __init__(
+        self,
+        view: OperatorView,
+        *,
+        stream: TextIO | None = None,
+        live: bool | None = None,
+        wall: Callable[[], float] = time.time,
+        refresh_hz: float = REFRESH_HZ,
+        status_period_s: float = STATUS_PERIOD_S,
+    ) -> None:
+        self.view = view
+        self.stream = stream if stream is not None else sys.stdout
+        self.live = self.stream.isatty() if live is None else live
+        self.wall = wall
+        self.lock = threading.Lock()
+        self._period_s = 1.0 / refresh_hz
+        self._status_period_s = status_period_s
+        self._stop = threading.Event()
+        self._thread: threading.Thread | None = None
+        self._printed_seq = 0
+        self._next_status = 0.0
+        self._live: Any = None
+
+    # -- changing the view (any thread) ----------------------------------------------------------
+    def fold(self, fn: Callable[[OperatorView], object]) -> None:
+        with self.lock:
+            fn(self.view)
+
+    def ack(self, text: str) -> None:
+        """The co-driver input's feedback (its reader thread)."""
+        now = self.wall()
+        self.fold(lambda v: v.ack(_printable(text), now))
+
+    def print_banner(self, rows: Sequence[tuple[str, str]]) -> None:
+        """The start-up banner, before the live view starts."""
+        width = max(len(label) for label, _ in rows)
+        lines = [f"{label:<{width}}  {_printable(value)}" for label, value in rows]
+        if self.live:
+            from rich.console import Console
+            from rich.panel import Panel
+            from rich.text import Text
+
+            Console(file=self.stream).print(
+                Panel(Text("\n".join(lines)), title="guidance run", expand=False)
+            )
+        else:
+            for line in lines:
+                self.stream.write(f"guidance: {line}\n")
+            self.stream.flush()
+
+    # -- drawing ----------------------------------------------------------------------------------
+    def start(self) -> None:
+        if self.live:
+            from rich.console import Console
+            from rich.live import Live
+
+            console = Console(file=self.stream)
+            self._live = Live(
+                console=console, auto_refresh=False, redirect_stdout=False, redirect_stderr=False
+            )
+            self._live.start()
+        self._thread = threading.Thread(target=self._run, name="operator-screen", daemon=True)
+        self._thread.start()
+
+    def stop(self) -> None:
+        self._stop.set()
+        if self._thread is not None:
+            self._thread.join(timeout=2.0)
+            self._thread = None
+        self.draw()  # the last state stays on the screen / in the journal
+        if self._live is not None:
+            self._live.stop()
+            self._live = None
+
+    def _run(self) -> None:
+        while not self._stop.wait(self._period_s):
+            try:
+                self.draw()
+            except Exception:  # the screen must never take the car down
+                log.exception("operator screen: drawing failed; continuing")
+
+    def draw(self) -> None:
+        if self._live is not None:
+            with self.lock:
+                rows = self.view.rows()
+                title = self._title()
+            self._live.update(render_rows(rows, title), refresh=True)
+        else:
+            self._print_plain()
+
+    def _title(self) -> str:
+        vehicle = f"vehicle {self.view.vehicle_id}  " if self.view.vehicle_id else ""
+        return f"guidance  {vehicle}{clock_text(self.wall())}"
+
+    def _print_plain(self) -> None:
+        now = self.wall()
+        with self.lock:
+            new = [e for e in self.view.events if e.seq > self._printed_seq]
+            status = self.view.status_line() if now >= self._next_status else None
+        lines = [f"{clock_text(e.wall_s)} {e.kind}: {e.text}" for e in new]
+        if new:
+            self._printed_seq = new[-1].seq
+        if status is not None:
+            self._next_status = now + self._status_period_s
+            lines.append(f"{clock_text(now)} status: {status}")
+        if lines:
+            self.stream.write("".join(f"guidance: {line}\n" for line in lines))
+            self.stream.flush()
+
+
+def render_rows(rows: Sequence[tuple[str, str, str]], title: str) -> Any:
+    """The rich renderable of the screen: a labelled grid in a panel."""
+    from rich.panel import Panel
+    from rich.table import Table
+    from rich.text import Text
+
+    grid = Table.grid(padding=(0, 1))
+    grid.add_column(style="bold", no_wrap=True)
+    grid.add_column(overflow="fold")
+    previous = ""
+    for label, text, style in rows:
+        grid.add_row("" if label == previous else label, Text(text, style=STYLES.get(style, "")))
+        previous = label
+    return Panel(grid, title=title, title_align="left")
+
+
+# -- the glue guidance run uses -------------------------------------------------------------------
+class MutableSpeaker:
+    """A speaker the co-driver can mute: guidance and information prompts are dropped while
+    muted (counted); warnings (``Priority.SAFETY``) are always spoken."""
+
+    def __init__(self, inner: Speaker) -> None:
+        self.inner = inner
+        self.muted = False
+        self.dropped_muted = 0
+
+    def say(self, text: str, priority: int = 0, t_s: float | None = None) -> None:
+        if self.muted and priority < Priority.SAFETY:
+            self.dropped_muted += 1
+            return
+        self.inner.say(text, priority, t_s)
+
+    def close(self, drain: bool = True) -> None:
+        self.inner.close(drain)
+
+    def __getattr__(self, name: str) -> Any:  # stats(), health(), ... of the real speaker
+        return getattr(self.inner, name)
+
+
+DIFFERENT_EXIT_PROMPT = "Different exit taken. Guidance continues from here."
+NO_INPUT_PROMPT = "Warning: no co-driver input. Intersections cannot be reported."
+
+
+class Operator:
+    """``App.listeners`` entry and co-driver command handler of ``guidance run``."""
+
+    def __init__(
+        self,
+        screen: OperatorScreen,
+        pipeline: Pipeline,
+        *,
+        speaker: MutableSpeaker | None = None,
+        co_driver: Any = None,
+        clock: Callable[[], float] = time.monotonic,
+    ) -> None:
+        self.screen = screen
+        self.pipeline = pipeline
+        self.speaker = speaker
+        self.co_driver = co_driver
+        self.clock = clock
+        self.loop: asyncio.AbstractEventLoop | None = None
+        self._next_live = 0.0
+
+    def __call__(self, msg: Any, out: Any) -> None:
+        """On the loop, after each input and tick."""
+        now = self.screen.wall()
+        self.screen.fold(lambda v: v.apply(msg, out, now))
+        if self.speaker is not None:
+            for taken in out.exits_taken:
+                if not taken.followed:
+                    self.speaker.say(DIFFERENT_EXIT_PROMPT, Priority.GUIDANCE, taken.t_s)
+        if now >= self._next_live:
+            self._next_live = now + LIVE_PERIOD_S
+            self.refresh()
+
+    def refresh(self) -> None:
+        p = self.pipeline
+        t = p.t_s if p.t_s is not None else self.clock()
+        inputs = p.statuses(t)
+        target = p.target()
+        desc, ok = co_driver_state(self.co_driver)
+        self.screen.fold(
+            lambda v: v.set_live(
+                inputs=inputs,
+                target=target,
+                heading_known=p.heading_known,
+                speed_mps=p.speed_mps,
+                co_driver=desc,
+                co_driver_ok=ok,
+            )
+        )
+
+    def on_command(self, command: str) -> str:
+        """The co-driver's "repeat" or "mute" (from the input's reader thread)."""
+        if command == "mute":
+            if self.speaker is None:
+                return "no voice in this run"
+            self.speaker.muted = not self.speaker.muted
+            return "voice muted (warnings still spoken)" if self.speaker.muted else "voice on"
+        if command == "repeat":
+            with self.screen.lock:
+                text = self.screen.view.last_turn_prompt
+            if not text:
+                return "nothing to repeat yet"
+            if self.speaker is not None and self.loop is not None:
+                speaker = self.speaker
+                self.loop.call_soon_threadsafe(
+                    lambda: speaker.say(text, Priority.GUIDANCE, self.clock())
+                )
+            return f"repeating: {text}"
+        return f"unknown command {command}"
+
+
+def co_driver_state(source: Any) -> tuple[str, bool]:
+    """(what the screen says about the co-driver input, whether it works)."""
+    if source is None:
+        return "NONE: intersections cannot be reported", False
+    describe = getattr(source, "describe", None)
+    text = describe() if callable(describe) else str(getattr(source, "name", source))
+    connected = getattr(source, "connected", True)
+    return text, bool(connected)
+
+
+def banner_rows(cfg: AppConfig, *, voice: str, co_driver: str) -> list[tuple[str, str]]:
+    """The start-up banner: vehicle, config, inputs, voice, telemetry and recording."""
+    rows = [("vehicle", cfg.vehicle_id), ("config", cfg.path)]
+    rows.append(("method", cfg.pipeline.navigator.method.value))
+    for kind, dev in (("odometry", cfg.odometry), ("compass", cfg.compass), ("camera", cfg.camera)):
+        if dev is None:
+            rows.append((kind, "off"))
+            continue
+        c = dev.config
+        where = getattr(c, "channel", None) or getattr(c, "port", None) or getattr(c, "source", "")
+        iface = getattr(c, "interface", "")
+        rate = f", expected {dev.expected_rate_hz:g} Hz" if dev.expected_rate_hz else ""
+        rows.append((kind, f"{dev.backend} {iface} {where}".replace("  ", " ") + rate))
+    rows.append(("co-driver", co_driver))
+    rows.append(("voice", voice))
+    tel = cfg.telemetry
+    if tel.enabled:
+        ends = ", ".join((*tel.listen, *tel.connect))
+        rows.append(("telemetry", f"zenoh {tel.mode} {ends}".strip()))
+    else:
+        rows.append(("telemetry", "off"))
+    rec = cfg.recording
+    rows.append(("recording", rec.directory if rec.enabled else "off"))
+    rows.append(("checkpoint", cfg.checkpoint.path or "off"))
+    return rows
