@@ -6,7 +6,7 @@ viewers show them in their standard panels:
 
 * ``/foxglove/location`` (``foxglove.LocationFix``, Map panel): each ``/state`` with an origin;
 * ``/foxglove/pose`` (``foxglove.PoseInFrame``): each ``/state``, frame ``map`` (x east, y north);
-* ``/foxglove/scene`` (``foxglove.SceneUpdate``, 3D panel): each ``/state``: the estimate, its
+* ``/foxglove/scene`` (``foxglove.SceneUpdate``, 3D panel): every 0.5 s the estimate, its
   2-sigma ellipse, goal and target; each second the growing piece of the track and of the true
   track; every 10 s the landmarks;
 * ``/foxglove/log`` (``foxglove.Log``, Log panel): each ``/prompt``;
@@ -40,6 +40,9 @@ TRACK_PIECE = 60
 """Points per track entity (``track/0``, ``track/1``...): only the growing piece is resent, so
 a long drive's scene stays small; pieces share their end points."""
 LANDMARKS_EVERY_S = 10.0
+SCENE_EVERY_S = 0.5
+"""The estimate's scene entities (ellipse, goal) at most this often; the pose and location
+topics keep the state's full rate."""
 
 _BLUE = (0.15, 0.45, 1.0, 1.0)
 _ELLIPSE = (0.15, 0.45, 1.0, 0.9)
@@ -213,6 +216,7 @@ class FoxgloveView:
         self._truth = _Track("truth", _GREEN)
         self._landmarks: list[dict[str, Any]] = []
         self._next_landmarks_t = -math.inf
+        self._next_scene_t = -math.inf
 
     def derive(self, topic: str, body: Mapping[str, Any]) -> list[tuple[str, dict[str, Any]]]:
         """The Foxglove messages (topic, message) that go with one recorded message."""
@@ -246,13 +250,17 @@ class FoxgloveView:
                     location_fix(t, (lat, lon), cov, frame_id="estimate", color=_BLUE),
                 )
             )
-        entities = [self._estimate_entity(t, s, x, y, heading), self._goal_entity(t, s)]
+        entities = []
+        if t >= self._next_scene_t:
+            self._next_scene_t = t + SCENE_EVERY_S
+            entities += [self._estimate_entity(t, s, x, y, heading), self._goal_entity(t, s)]
         if self._track.add(t, x, y):
             entities.append(self._track.piece(t))
         if t >= self._next_landmarks_t:
             self._next_landmarks_t = t + LANDMARKS_EVERY_S
             entities.append(self._landmark_entity(t))
-        out.append(("/foxglove/scene", {"deletions": [], "entities": entities}))
+        if entities:
+            out.append(("/foxglove/scene", {"deletions": [], "entities": entities}))
         return out
 
     def _estimate_entity(
