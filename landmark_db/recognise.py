@@ -423,7 +423,7 @@ async def recognise_async(
 ) -> RecognitionResult:
     """``recogniser.process`` in ``executor`` (default: the loop's thread pool).
 
-    The event loop keeps running meanwhile: ORB, k-NN matching and RANSAC are OpenCV
+    The event loop keeps running meanwhile: SIFT/ORB, k-NN matching and MAGSAC++ are OpenCV
     calls that release the GIL (tests/landmark_db/test_recognise_async.py measures it).
     """
     loop = asyncio.get_running_loop()
