@@ -75,9 +75,10 @@ class DriveOptions:
     camera_hz: float | None = None
     """Simulated camera (``hal_sim.sim_camera``) + the real landmark recogniser at this frame
     rate (simulated time), instead of the world's sighting events."""
-    decision_distance_m: float = 30.0
-    """The simulated co-driver announces the next intersection this far ahead (the studies'
-    value); with more, the navigator decides earlier and the driver hears two announcements."""
+    decision_distance_m: float = 250.0
+    """The simulated co-driver announces the next intersection this far ahead: as soon as it
+    comes into view, so the voice's own timing (guidance.core.announce: about 8 s ahead, at
+    least 35 m) decides when the driver hears it, as in the car. The studies use 30 m."""
     cap_factor: float = 3.0
     cap_extra_m: float = 2000.0
     config: str | None = None

@@ -257,7 +257,8 @@ class SimScene:
         if ev.passed:
             self.approaching = False
             return
-        if self.approaching and ev.t_s >= self._next_update_t:
+        decided = int(self.world.ns[world.R_C]) >= 0  # the next exit is chosen: approaching it
+        if (self.approaching or decided) and ev.t_s >= self._next_update_t:
             self._next_update_t = ev.t_s + every_s
             if self._sink is not None:
                 self._sink(Approach(ev.t_s, ev.to_intersection_m))

@@ -179,6 +179,8 @@ class _Pending:
     resolve_at_odometer_m: float
     announced: set[str] = field(default_factory=set)
     """Announcements made for it: "now" (distance unknown), "early", "before"."""
+    reach_odometer_m: float = -math.inf
+    """A turn detected before the car gets near the intersection belongs to the one before."""
 
 
 class Pipeline:
@@ -192,6 +194,7 @@ class Pipeline:
         )
         self.heading_known = heading is not None
         self._waiting_said = False
+        self._last_manoeuvre = ""
         if not self.heading_known:
             P = self.estimator.P
             P[2, 2] = math.pi**2
@@ -302,7 +305,9 @@ class Pipeline:
         turn = self.turns.update(msg.t_s, float(x[2]), self.odometer_m)
         if turn is not None:
             out.turns.append(turn)
-            self._resolve(turn.t_s, turn.heading_change_rad, "detected", out)
+            pending = self._pending
+            if pending is None or self.odometer_m >= pending.reach_odometer_m:
+                self._resolve(turn.t_s, turn.heading_change_rad, "detected", out)
         self._after_step(msg.t_s, out)
 
     def _inflate_after_gap(self, gap_s: float, out: Outputs) -> None:
@@ -382,7 +387,10 @@ class Pipeline:
         out.decisions.append(decision)
         ahead = to_b or 0.0
         self._pending = _Pending(
-            decision, heading, self.odometer_m + ahead + self.config.straight_after_m
+            decision,
+            heading,
+            self.odometer_m + ahead + self.config.straight_after_m,
+            reach_odometer_m=self.odometer_m + ahead - self.config.turn_detector.window_m,
         )
         if to_b is None:  # in the car: say it now, right after the exits are known
             self._pending.announced.add("now")
@@ -407,10 +415,13 @@ class Pipeline:
             return
         kind = due[0]
         straight = prompts.manoeuvre(d.turn_rad) == "continue straight"
-        if kind == "before" and straight and pending.announced:
-            pending.announced.add("before")
-            return
         pending.announced.add(kind)
+        if straight and kind == "early":
+            return  # straight through needs no early warning (OsmAnd, Organic Maps)
+        if straight and self._last_manoeuvre == "continue straight":
+            self.counts["straight_not_repeated"] += 1  # says nothing new at the next one
+            return
+        self._last_manoeuvre = prompts.manoeuvre(d.turn_rad)
         text = prompts.decision_prompt(d, max(0.0, distance_m), self.config.units)
         self._say(out, t, text, Priority.GUIDANCE, "turn")
 
@@ -477,6 +488,8 @@ class Pipeline:
             out.exits_taken.append(ExitTaken(t, d, d.exit_index, True, source))
             return
         actual_heading = wrap_angle(pending.heading_before_rad + change_rad)
+        if source == "detected":  # the heading now: right even when decided mid-turn
+            actual_heading = float(self.estimator.x[2])
         best = min(d.options, key=lambda o: abs(wrap_angle(o.heading_rad - actual_heading))).index
         followed = best == d.exit_index
         out.exits_taken.append(ExitTaken(t, d, best, followed, source))
@@ -542,6 +555,11 @@ class Pipeline:
                 "heading_before_rad": self._pending.heading_before_rad,
                 "resolve_at_odometer_m": self._pending.resolve_at_odometer_m,
                 "announced": sorted(self._pending.announced),
+                "reach_odometer_m": (
+                    self._pending.reach_odometer_m
+                    if math.isfinite(self._pending.reach_odometer_m)
+                    else None
+                ),
             }
         return {
             "x": est.x.tolist(),
@@ -602,6 +620,7 @@ class Pipeline:
                 float(pending["heading_before_rad"]),
                 float(pending["resolve_at_odometer_m"]),
                 set(pending.get("announced", [])),
+                float(pending.get("reach_odometer_m") or -math.inf),
             )
             self.last_decision = self._pending.decision
         if isinstance(last, int | float):

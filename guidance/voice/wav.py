@@ -40,6 +40,19 @@ Renderer = Callable[[str], tuple[bytes, int]]
 """Renders text to 16-bit mono PCM; returns (frames, sample rate in Hz)."""
 
 
+def default_renderer(voice: str = "en", rate_wpm: int = DEFAULT_RATE_WPM) -> Renderer:
+    """The espeak-ng command line when installed, else the library from the ``espeakng-loader``
+    wheel (a non-root machine without the Debian package); SpeechEngineError when neither."""
+    try:
+        return EspeakNgRenderer(voice, rate_wpm)
+    except SpeechEngineError as cli_missing:
+        from guidance.voice import libespeak
+
+        if not libespeak.available():
+            raise cli_missing from None
+        return libespeak.LibEspeakRenderer(voice, rate_wpm)
+
+
 class EspeakNgRenderer:
     """Renders text with the espeak-ng command line (``--stdout``), one process per prompt.
 
@@ -125,7 +138,7 @@ class WavSpeaker:
         fallback: Speaker | None = None,
     ) -> None:
         self.path = Path(path)
-        self._render = renderer if renderer is not None else EspeakNgRenderer()
+        self._render = renderer if renderer is not None else default_renderer()
         _, self._rate = self._render("ready")  # fail now, not on the first turn
         self._gap_frames = round(gap_s * self._rate)
         self._gap_s = self._gap_frames / self._rate

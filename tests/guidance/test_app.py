@@ -430,7 +430,7 @@ def test_straight_on_is_announced_once() -> None:
         said += [pr.text for pr in p.feed(WheelOdometry(t, 1.1, 1.1)).prompts]
         said += [pr.text for pr in p.feed(HeadingFix(t, 0.0)).prompts]
         said += [pr.text for pr in p.feed(Approach(t, 300.0 - 1.1 * k)).prompts]
-    assert said == ["In 300 metres, continue straight"]
+    assert said == ["In 90 metres, continue straight"]  # once, at the final announcement (8 s)
 
 
 def test_a_sensor_silent_from_the_start_is_reported() -> None:

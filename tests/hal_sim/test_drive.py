@@ -237,3 +237,26 @@ def test_field_protocol_sets_new_goals_until_the_time_limit() -> None:
     assert any("New destination" in text for _, text in r.prompt_log)
     assert times[0] == pytest.approx(0.0, abs=0.2) and len(times) == 7  # once a simulated minute
     assert r.loop_lag_ms["loop_lag_p99_ms"] is not None
+
+
+def test_turn_prompts_come_early_enough_at_the_simulated_speed_and_never_twice() -> None:
+    """The final announcement is at least 3 s before the intersection at the drive's speed
+    (Organic Maps: about 8 s, at least 35 m); no prompt twice; "continue straight" is not said
+    at one intersection after another."""
+    import itertools
+    import re
+
+    from hal_sim.params import SimParams
+
+    r = run_drive(FAST)
+    v = SimParams().cruise_mps  # the fastest the simulated car drives
+    turns = [(t, text) for t, text in r.prompt_log if text.startswith("In ")]
+    assert len(turns) >= 3
+    for _t, text in turns:
+        m = re.match(r"In (\d+) metres", text)
+        assert m, text
+        assert int(m.group(1)) / v >= 3.0, text  # seconds left to act, at most this speed
+    assert len(set(r.prompt_log)) == len(r.prompt_log)
+    texts = [text for _t, text in r.prompt_log]
+    for a, b in itertools.pairwise(texts):
+        assert not (a == b and "straight" in a), (a, b)
