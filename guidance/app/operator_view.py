@@ -50,8 +50,9 @@ class ScreenEvent:
 
 
 def compass_deg(heading_rad: float) -> float:
-    """Filter heading (rad, CCW from east) -> compass heading (deg clockwise from north)."""
-    return (90.0 - math.degrees(heading_rad)) % 360.0
+    """Filter heading (rad, CCW from east) -> compass heading (deg clockwise from north),
+    rounded to 0.1 deg so that it never shows as 360."""
+    return round((90.0 - math.degrees(heading_rad)) % 360.0, 1) % 360.0
 
 
 def compass_point(deg: float) -> str:
@@ -209,7 +210,7 @@ class OperatorView:
         if self.state is None:
             return name
         dx, dy = tx - self.state.x_m, ty - self.state.y_m
-        bearing = compass_deg(math.atan2(dy, dx))
+        bearing = round(compass_deg(math.atan2(dy, dx))) % 360
         return (
             f"{name}: {distance_text(math.hypot(dx, dy))}, bearing {bearing:03.0f} deg "
             f"({compass_point(bearing)})"
@@ -237,7 +238,7 @@ class OperatorView:
         if st is None:
             out += [("HEADING", "-", ""), ("POSITION", "no estimate yet", "")]
         else:
-            deg = compass_deg(st.heading_rad)
+            deg = round(compass_deg(st.heading_rad)) % 360
             heading = f"{deg:03.0f} deg {compass_point(deg)} (clockwise from north)"
             if not self.heading_known:
                 heading = "unknown (waiting for the compass or a start heading)"

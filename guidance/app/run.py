@@ -27,7 +27,6 @@ from guidance.app.screen import (
     Operator,
     OperatorScreen,
     banner_rows,
-    co_driver_state,
 )
 from guidance.errors import UserError
 
@@ -147,7 +146,9 @@ async def run_car(
         operator.speaker = speaker
         operator.loop = asyncio.get_running_loop()
         voice = type(out.speaker).__name__ if out.speaker is not None else "none"
-        co_driver = co_driver_state(scene_source)[0] if scene_source is not None else "none"
+        co_driver = {"evdev": f"keypad {cfg.scene.device}", "keyboard": "keyboard (stdin)"}.get(
+            cfg.scene.input, "none"
+        )
         if no_input:
             co_driver += f" - NOT AVAILABLE: {no_input}"
         app = App(

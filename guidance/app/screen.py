@@ -65,7 +65,7 @@ class OperatorScreen:
         self.stream = stream if stream is not None else sys.stdout
         self.live = self.stream.isatty() if live is None else live
         self.wall = wall
-        self.lock = threading.Lock()
+        self.lock = threading.RLock()
         self._period_s = 1.0 / refresh_hz
         self._status_period_s = status_period_s
         self._stop = threading.Event()
@@ -73,6 +73,8 @@ class OperatorScreen:
         self._printed_seq = 0
         self._next_status = 0.0
         self._live: Any = None
+        self._log_handler: logging.Handler | None = None
+        self._moved_handlers: list[logging.Handler] = []
 
     # -- changing the view (any thread) ----------------------------------------------------------
     def fold(self, fn: Callable[[OperatorView], object]) -> None:
@@ -112,6 +114,7 @@ class OperatorScreen:
                 console=console, auto_refresh=False, redirect_stdout=False, redirect_stderr=False
             )
             self._live.start()
+            self._route_logging()
         self._thread = threading.Thread(target=self._run, name="operator-screen", daemon=True)
         self._thread.start()
 
@@ -120,10 +123,37 @@ class OperatorScreen:
         if self._thread is not None:
             self._thread.join(timeout=2.0)
             self._thread = None
+        self._next_status = 0.0  # a last status line for the journal
         self.draw()  # the last state stays on the screen / in the journal
         if self._live is not None:
             self._live.stop()
             self._live = None
+        self._restore_logging()
+
+    def _route_logging(self) -> None:
+        """While the live view owns the terminal, log lines that would be written to that
+        terminal are shown on the screen (LOG rows) instead of scrolling through it."""
+        root = logging.getLogger()
+        self._moved_handlers = [
+            h
+            for h in root.handlers
+            if isinstance(h, logging.StreamHandler)
+            and callable(getattr(h.stream, "isatty", None))
+            and h.stream.isatty()
+        ]
+        for h in self._moved_handlers:
+            root.removeHandler(h)
+        self._log_handler = _ScreenLogHandler(self)
+        root.addHandler(self._log_handler)
+
+    def _restore_logging(self) -> None:
+        root = logging.getLogger()
+        if self._log_handler is not None:
+            root.removeHandler(self._log_handler)
+            self._log_handler = None
+        for h in self._moved_handlers:
+            root.addHandler(h)
+        self._moved_handlers = []
 
     def _run(self) -> None:
         while not self._stop.wait(self._period_s):
@@ -159,6 +189,20 @@ class OperatorScreen:
         if lines:
             self.stream.write("".join(f"guidance: {line}\n" for line in lines))
             self.stream.flush()
+
+
+class _ScreenLogHandler(logging.Handler):
+    def __init__(self, screen: OperatorScreen) -> None:
+        super().__init__(logging.WARNING)
+        self.screen = screen
+
+    def emit(self, record: logging.LogRecord) -> None:
+        try:
+            text = _printable(f"{record.name}: {record.getMessage()}")
+        except Exception:  # pragma: no cover - a bad format string
+            text = str(record.msg)
+        now = self.screen.wall()
+        self.screen.fold(lambda v: v.add(now, "log", text, "warn"))
 
 
 def render_rows(rows: Sequence[tuple[str, str, str]], title: str) -> Any:

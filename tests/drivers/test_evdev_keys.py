@@ -228,7 +228,7 @@ def test_a_uinput_keypad_through_the_kernel() -> None:  # pragma: no cover - nee
     with ui:
         c = Collect()
         assert ui.device is not None
-        src = EvdevKeys(EvdevKeysConfig(ui.device.path), lambda: 0.0, feedback=c.say)
+        src = EvdevKeys(EvdevKeysConfig(str(ui.device.path)), lambda: 0.0, feedback=c.say)
         src.start(c.sink)
         try:
             assert c.wait(lambda: src.connected)

@@ -1,0 +1,344 @@
+"""The operator screen of ``guidance run`` and the co-driver input as the car runs it.
+
+* the pure fold (``OperatorView``) on a real ``Pipeline``'s outputs;
+* ``run_car`` as systemd runs it (stdin at /dev/null, plain lines on a non-terminal stdout) with
+  the co-driver's keypad records arriving on the configured input device (a FIFO): they reach
+  the navigator, every key is acknowledged, a different exit taken is shown and spoken;
+* the warning (log, screen, voice) when there is no co-driver input;
+* the live screen in a real terminal (a tmux pane), captured while a simulated drive runs.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import io
+import logging
+import math
+import os
+import re
+import shutil
+import signal
+import subprocess
+import sys
+import time
+from collections.abc import Callable, Iterator
+from contextlib import AbstractContextManager
+from pathlib import Path
+
+import pytest
+from evdev import ecodes
+from screen_drive import drive_config
+
+from drivers.evdev_keys import key_press_records
+from guidance.app.operator_view import OperatorView, compass_deg, uncertainty_text
+from guidance.app.run import co_driver_problem, run_car, stdin_problem
+from guidance.app.screen import OperatorScreen, render_rows
+from guidance.core.estimator import EstimatorConfig
+from guidance.core.messages import (
+    HeadingFix,
+    InputStatus,
+    IntersectionScene,
+    TurnCompleted,
+    WheelOdometry,
+)
+from guidance.core.navigator import Method, NavigatorConfig
+from guidance.core.pipeline import Pipeline, PipelineConfig
+from hal_sim.sim_can import SimCanWheels
+from hal_sim.sim_compass import SimCompassPty
+
+ROOT = Path(__file__).resolve().parents[2]
+KP = {str(d): getattr(ecodes, f"KEY_KP{d}") for d in range(10)}
+CLOCK = r"\d\d:\d\d:\d\d"
+
+
+@pytest.fixture(autouse=True)
+def no_leaks(leak_check: Callable[..., AbstractContextManager[None]]) -> Iterator[None]:
+    with leak_check(grace_s=3.0, ignore_threads=("asyncio_",), ptys=False):
+        yield
+
+
+def keys(text: str) -> bytes:
+    return key_press_records([ecodes.KEY_KPENTER if c == "\n" else KP[c] for c in text])
+
+
+# ----------------------------------------------------------------------------- the pure fold
+
+
+def test_view_of_a_drive_next_instruction_uncertainty_heading_exit_and_prompts() -> None:
+    p = Pipeline(
+        PipelineConfig(
+            estimator=EstimatorConfig(compass_two_sigma_deg=20.0),
+            navigator=NavigatorConfig(method=Method.STRAIGHT_TO_GOAL),
+            start_xy_m=(0.0, 0.0),
+            goal_xy_m=(0.0, 1000.0),
+            start_heading_rad=0.0,
+            state_period_s=0.5,
+        )
+    )
+    view = OperatorView(vehicle_id="v1")
+    wall = 1_800_000_000.0
+    for k in range(40):  # 40 m east
+        t = 0.1 * (k + 1)
+        msg = WheelOdometry(t, 1.0, 1.0)
+        view.apply(msg, p.feed(msg), wall + t)
+        view.apply(None, p.feed(HeadingFix(t, 0.0)), wall + t)
+    scene = IntersectionScene(4.1, (math.pi / 2, 0.0, -math.pi / 2), None, ("l", "s", "r"))
+    view.apply(scene, p.feed(scene), wall + 4.1)
+    view.set_live(
+        inputs=p.statuses(4.1),
+        target=p.target(),
+        heading_known=p.heading_known,
+        speed_mps=p.speed_mps,
+        co_driver="keypad /dev/x: connected",
+        co_driver_ok=True,
+    )
+    rows = {label: text for label, text, _ in reversed(view.rows())}  # first of each label
+    assert rows["NEXT"] == "Turn left, at the next intersection (distance unknown)"
+    assert re.fullmatch(r"goal: 1\.0 km, bearing 35\d deg \(N\)", rows["TARGET"])
+    assert rows["HEADING"].startswith("090 deg E (clockwise from north)")
+    assert re.fullmatch(
+        r"position good to about \d+ m \(2-sigma major axis \d+ m\)", rows["POSITION"]
+    )
+    prompt = time.strftime("%H:%M:%S", time.localtime(wall + 4.1))
+    assert rows["PROMPT"] == f"{prompt} At the next intersection, turn left"  # wall clock
+    turn = TurnCompleted(5.0, -math.pi / 2, source="co-driver")  # the driver went right
+    view.apply(turn, p.feed(turn), wall + 5.0)
+    rows_list = view.rows()
+    exit_rows = [(text, style) for label, text, style in rows_list if label == "EXIT"]
+    assert exit_rows == [
+        (
+            f"{time.strftime('%H:%M:%S', time.localtime(wall + 5.0))} DIFFERENT EXIT TAKEN: "
+            "advised turn left, took turn right (co-driver)",
+            "warn",
+        )
+    ]
+    assert dict((lab, t) for lab, t, _ in rows_list)["NEXT"].startswith("waiting for the next")
+    assert ("INPUT", "co-driver keypad /dev/x: connected", "ok") in rows_list
+    assert "next: waiting for the next intersection" in view.status_line()
+
+
+def test_uncertainty_and_heading_words() -> None:
+    assert uncertainty_text(60.0, False, 100.0) == (
+        "position good to about 30 m (2-sigma major axis 60 m)"
+    )
+    assert (
+        uncertainty_text(8.0, False, 100.0) == "position good to about 5 m (2-sigma major axis 8 m)"
+    )
+    assert uncertainty_text(130.0, True, 100.0).startswith("LOST: 2-sigma major axis 130 m")
+    assert compass_deg(0.0) == 90.0 and compass_deg(math.pi / 2) == 0.0
+    assert compass_deg(-math.pi / 2) == 180.0
+
+
+def test_unhealthy_input_and_unknown_heading_are_flagged() -> None:
+    view = OperatorView()
+    view.set_live(
+        inputs={"odometry": InputStatus("odometry", False, False, 0.0, 3.0, 20.0)},
+        target=None, heading_known=False, speed_mps=0.0, co_driver="", co_driver_ok=False,
+    )  # fmt: skip
+    rows = view.rows()
+    assert ("INPUT", "odometry silent 0.0/20 Hz", "bad") in rows
+    assert rows[0] == (
+        "NEXT", "no advice: waiting for a heading (compass or start heading)", "warn"
+    )  # fmt: skip
+
+
+def test_rich_rendering_keeps_typed_text_plain() -> None:
+    """Typed text is never read as rich markup; control characters are replaced."""
+    from rich.console import Console
+
+    screen = OperatorScreen(OperatorView(), stream=io.StringIO(), live=False)
+    screen.ack("[bold]l s r\x1b[2J")
+    console = Console(file=io.StringIO(), width=100, record=True)
+    with screen.lock:
+        console.print(render_rows(screen.view.rows(), "guidance"))
+    text = console.export_text()
+    assert "[bold]l s r?[2J" in text and "\x1b" not in text
+
+
+# ----------------------------------------------------------------------------- run_car
+
+
+def test_stdin_checks() -> None:
+    from guidance.app.config import SceneSettings
+
+    with open(os.devnull) as null:
+        assert stdin_problem(null) == "stdin is /dev/null (as under systemd)"
+        assert "name a keypad" in co_driver_problem(SceneSettings("keyboard"), null)
+    r, w = os.pipe()
+    with os.fdopen(r) as pipe, os.fdopen(w, "w"):
+        assert stdin_problem(pipe) == ""  # lines from a script
+    assert co_driver_problem(SceneSettings("evdev", "/dev/input/by-id/nothing"), None) == (
+        "input device /dev/input/by-id/nothing not found"
+    )
+    assert co_driver_problem(SceneSettings("none"), None) == "[scene] input = 'none'"
+
+
+def _run(cfg: Path, out: io.StringIO, during: Callable[[], object], seconds: float) -> int:
+    async def scenario() -> int:
+        task = asyncio.create_task(run_car(str(cfg), screen="plain", stdout=out))
+        await asyncio.sleep(0.5)
+        await asyncio.to_thread(during)
+        await asyncio.sleep(seconds)
+        os.kill(os.getpid(), signal.SIGTERM)
+        return await asyncio.wait_for(task, 10.0)
+
+    return asyncio.run(scenario())
+
+
+def test_keypad_reaches_the_navigator_under_systemd_conditions(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """stdin is /dev/null and stdout no terminal (the unit); keys come from the device."""
+    keypad = tmp_path / "keypad"
+    os.mkfifo(keypad)
+    fd = os.open(keypad, os.O_RDWR)
+    monkeypatch.setattr(sys, "stdin", open(os.devnull))  # noqa: SIM115
+    channel = f"screen-plain-{os.getpid()}"
+    out = io.StringIO()
+    with SimCompassPty(rate_hz=10.0) as pty, SimCanWheels(channel, period_s=0.02) as wheels:
+        pty.set_heading(90.0)
+        wheels.set_speeds(8.0, 8.0)
+        cfg = drive_config(tmp_path, channel=channel, compass_port=pty.port,
+                           scene=f'input = "evdev"\ndevice = "{keypad}"')  # fmt: skip
+        wheels.start()
+        pty.start()
+
+        def type_keys() -> None:
+            time.sleep(0.5)
+            os.write(fd, keys("486\n"))  # exits left, straight, right: the goal is north
+            time.sleep(1.0)
+            os.write(fd, keys("06\n"))  # the driver took the right
+
+        try:
+            assert _run(cfg, out, type_keys, 1.5) == 0
+        finally:
+            wheels.stop()
+            pty.stop()
+            os.close(fd)
+            sys.stdin.close()
+    text = out.getvalue()
+    assert re.search(rf"guidance: co-driver +keypad {keypad}\n", text)  # the banner
+    assert re.search(rf"guidance: {CLOCK} key: key KEY_KP4: 4_\n", text)
+    assert re.search(rf"{CLOCK} key: ok: exits left, straight, right", text)
+    assert re.search(rf"{CLOCK} prompt: At the next intersection, turn left", text)
+    assert re.search(rf"{CLOCK} key: ok: turned right", text)
+    assert re.search(
+        rf"{CLOCK} exit: DIFFERENT EXIT TAKEN: advised turn left, took turn right", text
+    )
+    status = re.findall(rf"{CLOCK} status: (.*)", text)[-1]
+    assert "position good to about" in status and "odometry ok" in status
+    assert "compass ok" in status and "co-driver keypad" in status
+    assert "NO CO-DRIVER INPUT" not in text
+    spoken = capsys.readouterr().err
+    assert "Different exit taken. Guidance continues from here." in spoken
+
+
+def test_no_co_driver_input_is_said_loudly(
+    tmp_path: Path,
+    monkeypatch: pytest.MonkeyPatch,
+    capsys: pytest.CaptureFixture[str],
+    caplog: pytest.LogCaptureFixture,
+) -> None:
+    """[scene] input = keyboard under systemd (stdin /dev/null): log, screen and voice, once."""
+    monkeypatch.setattr(sys, "stdin", open(os.devnull))  # noqa: SIM115
+    channel = f"screen-none-{os.getpid()}"
+    out = io.StringIO()
+    with SimCompassPty(rate_hz=10.0) as pty, SimCanWheels(channel, period_s=0.02):
+        cfg = drive_config(tmp_path, channel=channel, compass_port=pty.port,
+                           scene='input = "keyboard"')  # fmt: skip
+        with caplog.at_level(logging.WARNING, logger="guidance.app.run"):
+            try:
+                assert _run(cfg, out, lambda: None, 0.3) == 0
+            finally:
+                sys.stdin.close()
+    warnings = [r.getMessage() for r in caplog.records if "NO CO-DRIVER INPUT" in r.getMessage()]
+    assert warnings == [
+        "NO CO-DRIVER INPUT: stdin is /dev/null (as under systemd); name a keypad in [scene] "
+        "(input = 'evdev', device); intersections cannot be reported"
+    ]
+    assert "info: NO CO-DRIVER INPUT: stdin is /dev/null" in out.getvalue()
+    spoken = capsys.readouterr().err
+    assert spoken.count("Warning: no co-driver input. Intersections cannot be reported.") == 1
+
+
+def test_check_says_when_the_input_device_is_missing(tmp_path: Path) -> None:
+    missing = "/dev/input/by-id/usb-missing-event-kbd"
+    cfg = drive_config(tmp_path, channel="x", compass_port="/dev/null",
+                       scene=f'input = "evdev"\ndevice = "{missing}"')  # fmt: skip
+    done = subprocess.run(
+        [sys.executable, "-m", "guidance.tools.cli", "run", "--config", str(cfg), "--check"],
+        capture_output=True, text=True, cwd=ROOT, timeout=120,
+    )  # fmt: skip
+    assert done.returncode == 0, done.stderr
+    assert "OK (vehicle screen1" in done.stdout
+    assert "[scene] device /dev/input/by-id/usb-missing-event-kbd does not exist" in done.stderr
+
+
+# ----------------------------------------------------------------------------- a real terminal
+
+
+@pytest.mark.skipif(
+    shutil.which("tmux") is None, reason="tmux is not installed (.ci/run installs it)"
+)
+def test_live_screen_in_a_real_terminal_shows_instruction_uncertainty_and_health(
+    tmp_path: Path,
+) -> None:
+    """``guidance run`` on simulated devices inside a tmux pane (a real pty, 100x40); the keys
+    come from the keypad FIFO; the pane's text is captured and checked."""
+    keypad = tmp_path / "keypad"
+    os.mkfifo(keypad)
+    fd = os.open(keypad, os.O_RDWR)
+    sock = f"guidance-test-{os.getpid()}"
+    tmux = ["tmux", "-L", sock, "-f", "/dev/null"]
+    command = (
+        f"cd {ROOT} && {sys.executable} tests/guidance/screen_drive.py {tmp_path} "
+        f"2> {tmp_path / 'stderr.txt'}; echo EXITED $?; sleep 30"
+    )
+    env = {**os.environ, "TERM": "xterm-256color", "PYTHONPATH": str(ROOT)}
+    env.pop("TMUX", None)
+    subprocess.run([*tmux, "new-session", "-d", "-x", "100", "-y", "40", "-s", "drive", command],
+                   check=True, env=env)  # fmt: skip
+
+    def capture() -> str:
+        done = subprocess.run([*tmux, "capture-pane", "-p", "-t", "drive"],
+                              capture_output=True, text=True)  # fmt: skip
+        return done.stdout
+
+    def wait_for(predicate: Callable[[str], bool], timeout_s: float) -> str:
+        deadline = time.monotonic() + timeout_s
+        while True:
+            screen = capture()
+            if predicate(screen) or time.monotonic() > deadline:
+                return screen
+            time.sleep(0.2)
+
+    try:
+        deadline = time.monotonic() + 60.0
+        while not (tmp_path / "running").exists() and time.monotonic() < deadline:
+            time.sleep(0.1)
+        assert (tmp_path / "running").exists(), capture() + (tmp_path / "stderr.txt").read_text()
+        time.sleep(1.0)
+        os.write(fd, keys("486\n"))
+        screen = wait_for(
+            lambda s: "Turn left, at the next intersection" in s
+            and "odometry ok" in s and "compass ok" in s and "position good to" in s,
+            20.0,
+        )  # fmt: skip
+        print(screen)  # pytest -s shows the captured screen
+        assert (
+            "NEXT" in screen and "Turn left, at the next intersection (distance unknown)" in screen
+        )
+        assert re.search(r"POSITION\s+position good to about \d+ m \(2-sigma major axis", screen)
+        assert re.search(r"INPUT\s+compass ok", screen) and "odometry ok" in screen
+        assert "co-driver keypad" in screen and "connected" in screen  # (a long path wraps)
+        assert re.search(rf"PROMPT\s+{CLOCK} At the next intersection, turn left", screen)
+        assert re.search(rf"KEY\s+{CLOCK} key KEY_KP", screen)  # each key acknowledged
+        assert re.search(rf"│\s+{CLOCK} ok: exits left, straight, right", screen)
+        assert "HEADING" in screen and "deg E (clockwise from north)" in screen
+        assert "+ help" in screen  # the keys line
+        (tmp_path / "stop").touch()
+        final = wait_for(lambda s: "EXITED" in s, 20.0)
+        assert "EXITED 0" in final, final + (tmp_path / "stderr.txt").read_text()
+    finally:
+        subprocess.run([*tmux, "kill-server"], capture_output=True)
+        os.close(fd)
