@@ -46,6 +46,7 @@ from guidance.core.messages import (
 from guidance.core.model import compass_to_heading, wrap_angle
 from guidance.core.navigator import Decision, Landmark, Navigator, NavigatorConfig
 from guidance.core.prompts import Units
+from guidance.core.snapshot_check import check_snapshot
 from guidance.core.turns import TurnDetector, TurnDetectorConfig
 
 log = logging.getLogger(__name__)
@@ -587,7 +588,18 @@ class Pipeline:
         ``same_clock``: the message clock continues from the snapshot's (the simulation, a
         restart within one boot); False for the car in general, where the monotonic clock
         may have restarted with the laptop, so the snapshot's times are not carried over.
+        Every value is checked first (``snapshot_check``): a bad one raises ``SnapshotError``
+        and nothing is changed.
         """
+        nav_cfg = self.navigator.config
+        check_snapshot(
+            snap,
+            n_state=self.estimator.n,
+            start_xy=self.config.start_xy_m,
+            n_landmarks=len(self.navigator.landmarks),
+            mem_capacity=nav_cfg.max_intersections,
+            mem_width=nav_cfg.max_exits,
+        )
         est = self.estimator
         est.set_state(np.asarray(snap["x"], dtype=float), np.asarray(snap["P"], dtype=float))
         last = snap.get("last_t_s") if same_clock else None

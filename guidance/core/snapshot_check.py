@@ -1,0 +1,226 @@
+"""Checking a pipeline snapshot (a checkpoint's ``pipeline``) before any of it is used (issue 14).
+
+A checkpoint is a file from outside the process: it may be damaged, hand-edited, from another
+version or written by a process that had already gone wrong. ``check_snapshot`` looks at every
+value ``Pipeline.restore`` reads and raises ``SnapshotError`` (one line, naming the field) unless
+each is of the right type (numbers are JSON numbers, never text or booleans), finite, within the
+bounds the consumer needs (a covariance symmetric and positive-definite, a position within
+``MAX_OFFSET_M`` of the trip's start, a speed a car can drive) and of a bounded size (the
+navigator's memory fits its arrays). Nothing is changed: ``restore`` runs only after it passed.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Mapping, Sequence
+
+import numpy as np
+
+MAX_OFFSET_M = 200_000.0
+"""A restored position farther than this from the trip's start is not believed (an urban trip)."""
+MAX_SIGMA_M = 100_000.0
+"""Position standard deviations above this are not a state, they are a fault."""
+MAX_SPEED_MPS = 90.0
+"""The CAN driver's implausible-speed limit."""
+MAX_COUNT = 10**9
+MAX_TURN_SAMPLES = 10_000
+MAX_ODOMETER_M = 1e8
+
+
+class SnapshotError(ValueError):
+    """A snapshot value that must not be restored; the message is one line naming the field."""
+
+
+def _number(snap: Mapping[str, object], key: str, lo: float, hi: float, default: float) -> float:
+    v = snap.get(key, default)
+    return number(v, key, lo, hi)
+
+
+def number(v: object, where: str, lo: float = -math.inf, hi: float = math.inf) -> float:
+    """``v`` as a finite float in [lo, hi]; only JSON numbers (int or float, not bool)."""
+    if isinstance(v, bool) or not isinstance(v, int | float):
+        raise SnapshotError(f"{where} must be a number, not {type(v).__name__}")
+    try:
+        f = float(v)
+    except OverflowError:
+        raise SnapshotError(f"{where} is out of range") from None
+    if not math.isfinite(f):
+        raise SnapshotError(f"{where} must be finite, not {f}")
+    if not lo <= f <= hi:
+        raise SnapshotError(f"{where} = {f:.6g} is outside [{lo:.6g}, {hi:.6g}]")
+    return f
+
+
+def integer(v: object, where: str, lo: int = 0, hi: int = MAX_COUNT) -> int:
+    if isinstance(v, bool) or not isinstance(v, int):
+        raise SnapshotError(f"{where} must be an integer, not {type(v).__name__}")
+    if not lo <= v <= hi:
+        raise SnapshotError(f"{where} is outside [{lo}, {hi}]")
+    return v
+
+
+def _boolean(snap: Mapping[str, object], key: str) -> None:
+    v = snap.get(key, False)
+    if not isinstance(v, bool):
+        raise SnapshotError(f"{key} must be true or false, not {type(v).__name__}")
+
+
+def _list(v: object, where: str, max_len: int) -> Sequence[object]:
+    if not isinstance(v, list | tuple):
+        raise SnapshotError(f"{where} must be a list, not {type(v).__name__}")
+    if len(v) > max_len:
+        raise SnapshotError(f"{where} has {len(v)} entries, at most {max_len} allowed")
+    return v
+
+
+def _matrix(v: object, where: str, rows: int, cols: int, max_rows: int | None = None) -> np.ndarray:
+    """A list of ``rows`` lists of ``cols`` finite numbers (rows may be any count up to
+    ``max_rows`` when given)."""
+    outer = _list(v, where, max_rows if max_rows is not None else rows)
+    if max_rows is None and len(outer) != rows:
+        raise SnapshotError(f"{where} must have {rows} rows, not {len(outer)}")
+    out = np.zeros((len(outer), cols))
+    for i, row in enumerate(outer):
+        r = _list(row, f"{where}[{i}]", cols)
+        if len(r) != cols:
+            raise SnapshotError(f"{where}[{i}] must have {cols} values, not {len(r)}")
+        for j, x in enumerate(r):
+            out[i, j] = number(x, f"{where}[{i}][{j}]")
+    return out
+
+
+def check_state(x: object, P: object, n_state: int, start_xy: tuple[float, float]) -> None:
+    """The estimator state: a vector of 3 or ``n_state`` numbers and its covariance."""
+    xs = _list(x, "x", n_state)
+    if len(xs) not in (3, n_state):
+        raise SnapshotError(f"x must have 3 or {n_state} values, not {len(xs)}")
+    vec = [number(v, f"x[{i}]") for i, v in enumerate(xs)]
+    off = math.hypot(vec[0] - start_xy[0], vec[1] - start_xy[1])
+    if off > MAX_OFFSET_M:
+        raise SnapshotError(
+            f"x puts the car {off / 1000:.0f} km from the trip's start (at most "
+            f"{MAX_OFFSET_M / 1000:.0f} km)"
+        )
+    if abs(vec[2]) > 100.0:
+        raise SnapshotError(f"x[2] (heading) = {vec[2]:.6g} rad is not an angle")
+    cov = _matrix(P, "P", len(vec), len(vec))
+    if not np.allclose(cov, cov.T, rtol=1e-6, atol=1e-9):
+        raise SnapshotError("P is not symmetric")
+    if max(cov[0, 0], cov[1, 1]) > MAX_SIGMA_M**2:
+        raise SnapshotError(f"P: a position sigma above {MAX_SIGMA_M:.0f} m")
+    try:
+        np.linalg.cholesky(cov)
+    except np.linalg.LinAlgError:
+        raise SnapshotError("P is not positive-definite") from None
+
+
+def check_navigator(nav: object, n_landmarks: int, capacity: int, width: int) -> None:
+    if not isinstance(nav, dict):
+        raise SnapshotError(f"navigator must be a table, not {type(nav).__name__}")
+    goal = _list(nav.get("goal"), "navigator.goal", 2)
+    if len(goal) != 2:
+        raise SnapshotError("navigator.goal must be [x, y]")
+    for i, v in enumerate(goal):
+        number(v, f"navigator.goal[{i}]", -1e9, 1e9)
+    integer(nav.get("mode"), "navigator.mode", 0, 1)
+    passed = _list(nav.get("passed"), "navigator.passed", n_landmarks)
+    if len(passed) != n_landmarks or not all(isinstance(p, bool) for p in passed):
+        raise SnapshotError(f"navigator.passed must be {n_landmarks} true/false values")
+    xy = _matrix(nav.get("mem_xy"), "navigator.mem_xy", 0, 2, max_rows=capacity)
+    n = len(xy)
+    heads = _matrix(nav.get("mem_headings"), "navigator.mem_headings", n, width)
+    del heads
+    counts = _list(nav.get("mem_counts"), "navigator.mem_counts", n)
+    if len(counts) != n:
+        raise SnapshotError(f"navigator.mem_counts must have {n} rows")
+    for i, row in enumerate(counts):
+        r = _list(row, f"navigator.mem_counts[{i}]", width)
+        if len(r) != width:
+            raise SnapshotError(f"navigator.mem_counts[{i}] must have {width} values")
+        for j, c in enumerate(r):
+            integer(c, f"navigator.mem_counts[{i}][{j}]")
+
+
+def check_turns(turns: object) -> None:
+    if turns is None:
+        return
+    if not isinstance(turns, dict):
+        raise SnapshotError(f"turns must be a table, not {type(turns).__name__}")
+    _matrix(turns.get("samples", []), "turns.samples", 0, 2, max_rows=MAX_TURN_SAMPLES)
+    if turns.get("last_raw") is not None:
+        number(turns["last_raw"], "turns.last_raw")
+    number(turns.get("unwrapped", 0.0), "turns.unwrapped")
+    integer(turns.get("turns", 0), "turns.turns")
+
+
+def check_pending(pending: object) -> None:
+    if pending is None:
+        return
+    if not isinstance(pending, dict):
+        raise SnapshotError(f"pending must be a table, not {type(pending).__name__}")
+    d = pending.get("decision")
+    if not isinstance(d, dict):
+        raise SnapshotError("pending.decision must be a table")
+    for key in ("t_s", "exit_heading_rad", "turn_rad", "target_x_m", "target_y_m"):
+        number(d.get(key), f"pending.decision.{key}")
+    integer(d.get("exit_index"), "pending.decision.exit_index", 0, 64)
+    integer(d.get("intersection_id"), "pending.decision.intersection_id", -1, MAX_COUNT)
+    for key in ("target_kind", "mode", "reason"):
+        if not isinstance(d.get(key), str) or len(str(d.get(key))) > 200:
+            raise SnapshotError(f"pending.decision.{key} must be a short text")
+    if d.get("target_id") is not None:
+        integer(d.get("target_id"), "pending.decision.target_id", -(2**63), 2**63 - 1)
+    if not isinstance(d.get("revisit"), bool):
+        raise SnapshotError("pending.decision.revisit must be true or false")
+    options = _list(d.get("options"), "pending.decision.options", 64)
+    names = ("heading_rad", "turn_rad", "angle_cost_rad", "penalty_rad", "cost_rad")
+    for i, o in enumerate(options):
+        if not isinstance(o, dict) or set(o) != {"index", *names}:
+            raise SnapshotError(f"pending.decision.options[{i}] must have index and {names}")
+        integer(o["index"], f"pending.decision.options[{i}].index", 0, 64)
+        for key in names:
+            number(o[key], f"pending.decision.options[{i}].{key}")
+    expected = {"t_s", "exit_index", "exit_heading_rad", "turn_rad", "options", "target_x_m",
+                "target_y_m", "target_kind", "target_id", "intersection_id", "revisit", "mode",
+                "reason"}  # fmt: skip
+    if set(d) != expected:
+        raise SnapshotError("pending.decision has unknown or missing fields")
+    number(pending.get("heading_before_rad"), "pending.heading_before_rad")
+    number(pending.get("resolve_at_odometer_m"), "pending.resolve_at_odometer_m")
+    if pending.get("reach_odometer_m") is not None:
+        number(pending["reach_odometer_m"], "pending.reach_odometer_m")
+    announced = _list(pending.get("announced", []), "pending.announced", 64)
+    for a in announced:
+        if not isinstance(a, str | int) or isinstance(a, bool):
+            raise SnapshotError("pending.announced must hold names")
+
+
+def check_snapshot(
+    snap: object,
+    *,
+    n_state: int,
+    start_xy: tuple[float, float],
+    n_landmarks: int,
+    mem_capacity: int,
+    mem_width: int,
+) -> None:
+    """Raise ``SnapshotError`` unless every value ``Pipeline.restore`` reads is usable."""
+    if not isinstance(snap, dict):
+        raise SnapshotError(f"the snapshot must be a table, not {type(snap).__name__}")
+    check_state(snap.get("x"), snap.get("P"), n_state, start_xy)
+    if snap.get("last_t_s") is not None:
+        _number(snap, "last_t_s", -1e12, 1e12, 0.0)
+    check_navigator(snap.get("navigator"), n_landmarks, mem_capacity, mem_width)
+    check_turns(snap.get("turns"))
+    _number(snap, "odometer_m", 0.0, MAX_ODOMETER_M, 0.0)
+    _number(snap, "speed_mps", -MAX_SPEED_MPS, MAX_SPEED_MPS, 0.0)
+    for key in ("landmark_updates", "prompt_count", "decisions"):
+        integer(snap.get(key, 0), key)
+    for key in ("heading_known", "arrived", "finished", "lost_said", "uncertain_said"):
+        _boolean(snap, key)
+    counts = snap.get("counts", {})
+    if not isinstance(counts, dict) or len(counts) > 1000:
+        raise SnapshotError("counts must be a table of at most 1000 names")
+    for k, v in counts.items():
+        integer(v, f"counts.{str(k)[:40]!r}")
+    check_pending(snap.get("pending"))
