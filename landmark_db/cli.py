@@ -20,6 +20,7 @@ from landmark_db.cli_match import add_match_parsers
 from landmark_db.features import EXTRACTOR_VERSIONS, PHOTO_MAX_SIDE_PX, ExtractorConfig
 from landmark_db.gate import GATE_PROBABILITY_2SIGMA
 from landmark_db.geo import Origin
+from landmark_db.schema import SCHEMA_VERSION
 from landmark_db.store import (
     DEFAULT_POSITION_SIGMA_M,
     create_db,
@@ -63,14 +64,7 @@ def cmd_migrate(args: argparse.Namespace) -> None:
     with open_db(path, readonly=False) as db:  # applies the schema migrations
         ext = _extractor(args) if args.extractor else db.extractor
         n = db.refresh_features(ext)
-        version = db.metadata().get("schema_version_unused") or _schema_version()
-        print(f"{path}: schema v{version}; features {ext.ident} ({n} photo(s) recomputed)")
-
-
-def _schema_version() -> int:
-    from landmark_db.schema import SCHEMA_VERSION
-
-    return SCHEMA_VERSION
+        print(f"{path}: schema v{SCHEMA_VERSION}; features {ext.ident} ({n} photo(s) recomputed)")
 
 
 def cmd_add(args: argparse.Namespace) -> None:

@@ -9,7 +9,7 @@
    then per candidate photo k-NN matching with the ratio test (``few_matches``) and a
    MAGSAC++ homography with a calibrated minimum inlier count (``failed_geometry``). A
    landmark scores its best photo: photos of one place never compete. At most
-   ``max_photos`` photos per frame, nearest candidates first (the time budget). Two
+   ``max_photos`` photos per frame, round robin over the candidates (the time budget). Two
    verified *landmarks* whose inlier counts are within ``ambiguity_ratio`` of each other
    -> ``ambiguous``;
 3. **confirm**: the same landmark verified in ``confirm_frames`` consecutive frames, each
@@ -296,8 +296,8 @@ class Recogniser:
             order = order[:max_photos]
         per_lm: dict[int, MatchEvidence] = {}
         for lid, photo in order:
-            if lid in per_lm and per_lm[lid].verified:
-                continue  # already recognised: one photo of a place is enough
+            # every photo in the budget is scored (no early stop on the first verified one):
+            # the ambiguity rule compares each landmark's best photo
             e = self._matcher.verify(lid, feats, desc, photo)
             b = per_lm.get(lid)
             if b is None or (e.inliers, e.good_matches) > (b.inliers, b.good_matches):
