@@ -221,3 +221,85 @@ def test_two_simulated_cars_on_the_web_map_and_one_killed(
         assert shot.stat().st_size > 10_000
     finally:
         driver.quit()
+
+
+def test_tiles_come_only_from_the_configured_server_and_cover_the_car(tmp_path: Path) -> None:
+    """A local tile server: the page asks it for the tile under the car (the tile maths), and
+    the browser loads nothing from anywhere but the monitor and that server."""
+    import http.server
+    import io
+    import math
+    import threading
+
+    from PIL import Image
+
+    from guidance.core.messages import Ellipse, EstimateState
+    from guidance.telemetry.client import MonitorClient
+    from guidance.telemetry.config import TelemetryConfig
+    from guidance.telemetry.publisher import Telemetry
+    from guidance.tools.web.server import WebMonitor
+
+    buf = io.BytesIO()
+    Image.new("RGB", (256, 256), (235, 240, 225)).save(buf, "PNG")
+    png, requested = buf.getvalue(), []
+
+    class Tiles(http.server.BaseHTTPRequestHandler):
+        def do_GET(self) -> None:
+            requested.append(self.path)
+            self.send_response(200)
+            self.send_header("Content-Type", "image/png")
+            self.send_header("Content-Length", str(len(png)))
+            self.end_headers()
+            self.wfile.write(png)
+
+        def log_message(self, *_args: Any) -> None:
+            pass
+
+    tiles = http.server.ThreadingHTTPServer(("127.0.0.1", 0), Tiles)
+    threading.Thread(target=tiles.serve_forever, daemon=True).start()
+    tile_url = f"http://127.0.0.1:{tiles.server_address[1]}/{{z}}/{{x}}/{{y}}.png"
+    origin, port = (42.444, -76.5019), free_port()
+    cfg = TelemetryConfig(
+        vehicle_id="tiled", listen=(f"tcp/127.0.0.1:{port}",), origin_lat_lon_deg=origin
+    )
+    cov = ((25.0, 0.0, 0.0), (0.0, 25.0, 0.0), (0.0, 0.0, 0.01))
+    with Telemetry(cfg) as tel, MonitorClient([f"tcp/127.0.0.1:{port}"]) as client:
+        web = WebMonitor(client, "127.0.0.1", 0, tiles=tile_url).start()
+        driver = browser(tmp_path)
+        try:
+            for i in range(20):  # a short drive north-east of the origin
+                tel.publish_state(
+                    EstimateState(float(i), 300.0 + 5 * i, 200.0 + 5 * i, 0.8, cov,
+                                  Ellipse(10.0, 10.0, 0.0, 20.0), False, True),
+                    goal=(600.0, 500.0),
+                )  # fmt: skip
+                time.sleep(0.05)
+            driver.get(web.url)
+            wait_for(lambda: cars(driver).get("tiled", {}).get("x") == 395.0, 20.0, "the car")
+            wait_for(lambda: requested, 10.0, "tile requests")
+            srcs = driver.execute_script(
+                "return [...document.querySelectorAll('#tiles image')]"
+                ".map(i => i.getAttribute('href'))"
+            )
+            assert srcs and all(s.startswith(tile_url.split("{")[0]) for s in srcs)
+            z = {int(p.split("/")[1]) for p in requested}
+            assert len(z) == 1 and 12 <= min(z) <= 19, requested
+            lat, lon = driver.execute_script(
+                "const s = document.querySelector('li.card[data-vehicle=tiled] .geo');"
+                "return s.textContent.split(', ').map(Number);"
+            )
+            n = 2 ** min(z)
+            tx = math.floor((lon + 180) / 360 * n)
+            r = math.radians(lat)
+            ty = math.floor((1 - math.log(math.tan(r) + 1 / math.cos(r)) / math.pi) / 2 * n)
+            assert f"/{min(z)}/{tx}/{ty}.png" in requested  # the tile under the car
+            loaded = driver.execute_script(
+                "return performance.getEntriesByType('resource').map(e => e.name)"
+            )
+            page, tile_host = web.url.rstrip("/"), tile_url.split("/{")[0]
+            assert all(u.startswith((page, tile_host)) for u in loaded), loaded
+        finally:
+            driver.quit()
+            web.close()
+            tiles.shutdown()
+            tiles.server_close()
