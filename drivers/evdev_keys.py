@@ -174,6 +174,7 @@ class EvdevKeys(ThreadedSource[SceneMessage]):
         *,
         clock: Callable[[], float] = time.monotonic,
         feedback: Feedback | None = None,
+        echo: Feedback | None = None,
         on_command: Callable[[str], str] | None = None,
         name: str = "keypad",
     ) -> None:
@@ -181,7 +182,7 @@ class EvdevKeys(ThreadedSource[SceneMessage]):
         self.config = config
         self._device = config.device
         self.lines = CoDriverLines(
-            name, heading_fn, clock=clock, feedback=feedback, on_command=on_command
+            name, heading_fn, clock=clock, feedback=feedback, echo=echo, on_command=on_command
         )
         self.keys = KeyLine()
         self.device_name = ""
@@ -264,7 +265,7 @@ class EvdevKeys(ThreadedSource[SceneMessage]):
             return
         self._count("keys")
         line, echo = self.keys.press(event.code)
-        self.lines.feedback(echo)
+        self.lines.echo(echo)
         if line:
             self._health.data(True)
             try:

@@ -10,10 +10,15 @@ taken. ``KeyboardScene`` reads the lines from stdin (or any text stream) on its 
 
 from __future__ import annotations
 
+import contextlib
 import logging
+import os
+import select
 import sys
+import termios
 import threading
 import time
+import tty
 from collections import Counter
 from collections.abc import Callable
 from typing import TextIO
@@ -89,12 +94,15 @@ class CoDriverLines:
         *,
         clock: Callable[[], float] = time.monotonic,
         feedback: Feedback | None = None,
+        echo: Feedback | None = None,
         on_command: Callable[[str], str] | None = None,
     ) -> None:
         self.name = name
         self._heading_fn = heading_fn
         self._clock = clock
         self.feedback: Feedback = feedback if feedback is not None else _stderr_feedback
+        self.echo: Feedback = echo if echo is not None else self.feedback
+        """Where each key's acknowledgement goes (the screen's typing line)."""
         self.on_command = on_command
         self._counts: Counter[str] = Counter()
         self._lock = threading.Lock()
@@ -172,6 +180,10 @@ class KeyboardScene:
     ``TurnCompleted``. ``heading_fn`` gives the current estimated heading (rad); ``clock``
     stamps the line (the message clock). ``feedback`` (a text stream or a callable; default
     stderr) gets the acknowledgement of every line, the answer to a bad one and the help.
+
+    With ``echo`` (the live operator screen) and a terminal, the terminal is read key by key
+    (cbreak mode, no terminal echo: the screen owns the terminal) and every key is
+    acknowledged on ``echo`` with the line so far; the terminal's mode is restored on stop.
     """
 
     def __init__(
@@ -180,6 +192,7 @@ class KeyboardScene:
         *,
         stream: TextIO | None = None,
         feedback: TextIO | Feedback | None = None,
+        echo: Feedback | None = None,
         on_command: Callable[[str], str] | None = None,
         clock: Callable[[], float] = time.monotonic,
         name: str = "keyboard",
@@ -188,8 +201,9 @@ class KeyboardScene:
         self._stream = stream
         write = feedback if feedback is None or callable(feedback) else _stream_feedback(feedback)
         self.lines = CoDriverLines(
-            name, heading_fn, clock=clock, feedback=write, on_command=on_command
+            name, heading_fn, clock=clock, feedback=write, echo=echo, on_command=on_command
         )
+        self._per_key = echo is not None
         self._thread: threading.Thread | None = None
         self._stop = threading.Event()
 
@@ -223,6 +237,9 @@ class KeyboardScene:
 
     def _run(self, sink: Callable[[SceneMessage], None]) -> None:
         stream = self._stream if self._stream is not None else sys.stdin
+        if self._per_key and _is_tty(stream):
+            self._run_keys(stream.fileno(), sink)
+            return
         while not self._stop.is_set():
             try:
                 line = stream.readline()
@@ -238,3 +255,54 @@ class KeyboardScene:
                 self.handle_line(line, sink)
             except Exception:
                 log.exception("%s: the scene sink raised; continuing", self.name)
+
+    def _run_keys(self, fd: int, sink: Callable[[SceneMessage], None]) -> None:
+        """Key by key from a terminal in cbreak mode; Ctrl-C still interrupts."""
+        saved = termios.tcgetattr(fd)
+        try:
+            tty.setcbreak(fd)
+            buffer = ""
+            while not self._stop.is_set():
+                if not select.select([fd], [], [], 0.2)[0]:
+                    continue
+                data = os.read(fd, 256).decode("utf-8", "replace")
+                if not data:
+                    return
+                for ch in data:
+                    buffer = self._key(ch, buffer, sink)
+        except (OSError, termios.error) as exc:
+            log.warning("%s: terminal input closed (%s)", self.name, exc)
+        finally:
+            with contextlib.suppress(OSError, termios.error):
+                termios.tcsetattr(fd, termios.TCSADRAIN, saved)
+
+    def _key(self, ch: str, buffer: str, sink: Callable[[SceneMessage], None]) -> str:
+        """One typed character: acknowledged on echo; Enter hands the line on."""
+        if ch in "\r\n":
+            self.lines.echo(f"key Enter: {buffer!r}" if buffer else "key Enter: empty line")
+            try:
+                self.handle_line(buffer, sink)
+            except Exception:
+                log.exception("%s: the scene sink raised; continuing", self.name)
+            return ""
+        if ch in "\x7f\b":
+            buffer = buffer[:-1]
+        elif ch == "\x15":  # Ctrl-U: clear the line
+            buffer = ""
+        elif ch.isprintable():
+            buffer += ch
+        else:
+            self.lines.echo(f"key {ch.encode('unicode_escape').decode()}: not used (? for help)")
+            return buffer
+        self.lines.echo(f"typing: {buffer}_")
+        if buffer == "?":  # help at once, as on the keypad
+            self.handle_line(buffer, sink)
+            return ""
+        return buffer
+
+
+def _is_tty(stream: TextIO) -> bool:
+    try:
+        return os.isatty(stream.fileno())
+    except (OSError, ValueError, AttributeError):
+        return False

@@ -44,7 +44,8 @@ class ScreenEvent:
     seq: int
     wall_s: float
     kind: str
-    """"prompt", "key", "exit", "health", "log", "info"."""
+    """"prompt", "key" (a line acknowledged, answered, help), "typing" (one key), "exit",
+    "health", "log", "info"."""
     text: str
     style: str = ""
 
@@ -261,6 +262,8 @@ class OperatorView:
             out.append(("EXIT", f"{clock_text(e.wall_s)} {e.text}", e.style))
         for e in self.of_kind("prompt", PROMPTS_SHOWN):
             out.append(("PROMPT", f"{clock_text(e.wall_s)} {e.text}", e.style))
+        for e in self.of_kind("typing", 1):
+            out.append(("TYPING", f"{clock_text(e.wall_s)} {e.text}", ""))
         for e in self.of_kind("key", KEYS_SHOWN):
             out.append(("KEY", f"{clock_text(e.wall_s)} {e.text}", e.style))
         for e in self.of_kind("log", 2):

@@ -110,6 +110,9 @@ async def run_car(
     opscreen = OperatorScreen(view, stream=out_stream, live=live)
     operator = Operator(opscreen, pipeline)
     feedback = opscreen.ack if screen != "off" else None
+    # Key by key on the screen: always for a keypad; for a terminal keyboard only when the
+    # live view owns the terminal (its echo would otherwise be drawn over).
+    per_key = screen != "off" and (cfg.scene.input == "evdev" or opscreen.live)
     scene_source = None
     if cfg.scene.input != "none":
         cls = import_backend(SCENE_BACKENDS[cfg.scene.input])
@@ -121,6 +124,7 @@ async def run_car(
             *args,
             lambda: float(pipeline.estimator.x[2]),
             feedback=feedback,
+            echo=opscreen.echo if per_key else None,
             on_command=operator.on_command,
         )
         sources["scene"] = scene_source

@@ -86,6 +86,11 @@ class OperatorScreen:
         now = self.wall()
         self.fold(lambda v: v.ack(_printable(text), now))
 
+    def echo(self, text: str) -> None:
+        """One key acknowledged (the co-driver input's reader thread): the TYPING line."""
+        now = self.wall()
+        self.fold(lambda v: v.add(now, "typing", _printable(text)))
+
     def print_banner(self, rows: Sequence[tuple[str, str]]) -> None:
         """The start-up banner, before the live view starts."""
         width = max(len(label) for label, _ in rows)

@@ -130,7 +130,7 @@ def test_keypad_records_from_a_fifo_reach_the_sink_with_acknowledgements(
         commands.append(cmd)
         return f"did {cmd}"
 
-    src = EvdevKeys(EvdevKeysConfig(str(path)), lambda: 0.0, feedback=c.say,
+    src = EvdevKeys(EvdevKeysConfig(str(path)), lambda: 0.0, feedback=c.say, echo=c.say,
                     on_command=on_command, clock=lambda: 7.0)  # fmt: skip
     src.start(c.sink)
     try:

@@ -218,7 +218,7 @@ def test_keypad_reaches_the_navigator_under_systemd_conditions(
             sys.stdin.close()
     text = out.getvalue()
     assert re.search(rf"guidance: co-driver +keypad {keypad}\n", text)  # the banner
-    assert re.search(rf"guidance: {CLOCK} key: key KEY_KP4: 4_\n", text)
+    assert re.search(rf"guidance: {CLOCK} typing: key KEY_KP4: 4_\n", text)  # every key
     assert re.search(rf"{CLOCK} key: ok: exits left, straight, right", text)
     assert re.search(rf"{CLOCK} prompt: At the next intersection, turn left", text)
     assert re.search(rf"{CLOCK} key: ok: turned right", text)
@@ -332,8 +332,8 @@ def test_live_screen_in_a_real_terminal_shows_instruction_uncertainty_and_health
         assert re.search(r"INPUT\s+compass ok", screen) and "odometry ok" in screen
         assert "co-driver keypad" in screen and "connected" in screen  # (a long path wraps)
         assert re.search(rf"PROMPT\s+{CLOCK} At the next intersection, turn left", screen)
-        assert re.search(rf"KEY\s+{CLOCK} key KEY_KP", screen)  # each key acknowledged
-        assert re.search(rf"│\s+{CLOCK} ok: exits left, straight, right", screen)
+        assert re.search(rf"TYPING\s+{CLOCK} key Enter: '486'", screen)  # the last key
+        assert re.search(rf"KEY\s+{CLOCK} ok: exits left, straight, right", screen)
         assert "HEADING" in screen and "deg E (clockwise from north)" in screen
         assert "+ help" in screen  # the keys line
         (tmp_path / "stop").touch()
