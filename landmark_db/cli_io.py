@@ -31,15 +31,17 @@ def _import_row(
     db: LandmarkDb, folder: Path, row: dict[str, str], where: str, groups: dict[str, int]
 ) -> bool:
     """Add one CSV row: a new landmark, or (same ``id`` value, else same name, as an earlier
-    row) another photo of it. Returns True for a new landmark."""
+    row) another photo of it. A landmark without a ``name`` is named by its ``id`` value,
+    else by the image's file name. Returns True for a new landmark."""
     name_col = (row.get("image") or row.get("file") or "").strip()
     if not name_col:
         raise UserError(f"{where}: no image column value")
     image = folder / name_col
     if not image.is_file():
         raise UserError(f"{where}: {image} not found")
-    name = (row.get("name") or "").strip() or image.stem
-    key = (row.get("id") or "").strip() or f"name:{name}"
+    group = (row.get("id") or "").strip()
+    name = (row.get("name") or "").strip() or group or image.stem
+    key = f"id:{group}" if group else f"name:{name}"
     try:
         facing = _csv_float(row, "facing_deg", "facing")
         sigma = _csv_float(row, "sigma_m", "position_sigma_m")

@@ -52,15 +52,17 @@ def test_import_groups_rows_into_landmarks_and_add_to(
         "f42.png,,tower,0,0,night\n"  # same name: another photo of the tower
         "f43.png,7,hall,50,0,\n"
         "f44.png,7,,50,0,west side\n"  # same id value: another photo of the hall
+        "f45.png,L9,,90,0,\n"  # no name: named by its id value
     )
     code, out, _ = run(capsys, "import", db, str(ph))
-    assert code == 0 and "imported 2 landmarks (4 photos)" in out
+    assert code == 0 and "imported 3 landmarks (5 photos)" in out
     code, out, _ = run(capsys, "add", db, str(ph / "f45.png"), "--to", "hall", "--facing", "90")
-    assert code == 0 and "added photo 5 to landmark 2 (hall)" in out
+    assert code == 0 and "added photo 6 to landmark 2 (hall)" in out
     code, out, _ = run(capsys, "list", db)
-    assert code == 0 and "2 landmarks, 5 photos" in out
+    assert code == 0 and "3 landmarks, 6 photos" in out
     with open_db(db) as ro:
-        assert [len(ro.photos(lm.id)) for lm in ro.landmarks()] == [2, 3]
+        assert [len(ro.photos(lm.id)) for lm in ro.landmarks()] == [2, 3, 1]
+        assert ro.find("L9") is not None
         assert [p.conditions for p in ro.photos(1)] == ["day", "night"]
     code, out, _ = run(capsys, "show", db, "hall")
     assert code == 0 and out.count("photo ") >= 3 and "west side" in out
@@ -69,7 +71,7 @@ def test_import_groups_rows_into_landmarks_and_add_to(
     db2 = str(tmp_path / "m2.sqlite")
     assert run(capsys, "init", db2, "--origin", "0", "0")[0] == 0
     code, out, _ = run(capsys, "import", db2, str(tmp_path / "out"))
-    assert code == 0 and "imported 2 landmarks (5 photos)" in out
+    assert code == 0 and "imported 3 landmarks (6 photos)" in out
     code, _, err = run(capsys, "add", db, str(ph / "f45.png"), "--to", "nowhere")
     assert code == 2 and "no landmark 'nowhere'" in err
 
