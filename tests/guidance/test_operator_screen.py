@@ -342,3 +342,65 @@ def test_live_screen_in_a_real_terminal_shows_instruction_uncertainty_and_health
     finally:
         subprocess.run([*tmux, "kill-server"], capture_output=True)
         os.close(fd)
+
+
+# ----------------------------------------------------------------------------- voice keys
+
+
+def test_repeat_and_mute_keys_act_on_the_real_speaker() -> None:
+    """The co-driver's repeat (*) and mute (/) from the input's thread, through ``Operator``
+    and ``MutableSpeaker`` around a real TextSpeaker; warnings are spoken while muted."""
+    import threading
+
+    from guidance.app.screen import MutableSpeaker, Operator
+    from guidance.core.messages import Priority
+    from guidance.voice.speakers import TextSpeaker
+
+    speech = io.StringIO()
+    speaker = MutableSpeaker(TextSpeaker(speech))
+    p = Pipeline(
+        PipelineConfig(
+            estimator=EstimatorConfig(compass_two_sigma_deg=20.0),
+            navigator=NavigatorConfig(method=Method.STRAIGHT_TO_GOAL),
+            start_xy_m=(0.0, 0.0),
+            goal_xy_m=(0.0, 1000.0),
+            start_heading_rad=0.0,
+        )
+    )
+    screen = OperatorScreen(OperatorView(), stream=io.StringIO(), live=False)
+    op = Operator(screen, p, speaker=speaker, clock=lambda: 9.0)
+    answers: list[str] = []
+
+    async def scenario() -> None:
+        op.loop = asyncio.get_running_loop()
+
+        def from_the_keypad_thread(cmd: str) -> None:
+            t = threading.Thread(target=lambda: answers.append(op.on_command(cmd)))
+            t.start()
+            t.join()
+
+        from_the_keypad_thread("repeat")  # nothing said yet
+        scene = IntersectionScene(1.0, (math.pi / 2, 0.0), None, ("l", "s"))
+        out = p.feed(scene)
+        op(scene, out)
+        for prompt in out.prompts:
+            speaker.say(prompt.text, prompt.priority, prompt.t_s)
+        from_the_keypad_thread("repeat")
+        await asyncio.sleep(0.05)  # the repeat is said on the loop
+        from_the_keypad_thread("mute")
+        speaker.say("At the next intersection, bear left", Priority.GUIDANCE, 9.5)
+        speaker.say("Warning: odometry is silent", Priority.SAFETY, 9.5)
+        from_the_keypad_thread("mute")
+        speaker.say("Continue straight", Priority.GUIDANCE, 10.0)
+
+    asyncio.run(scenario())
+    assert answers == [
+        "nothing to repeat yet",
+        "repeating: At the next intersection, turn left",
+        "voice muted (warnings still spoken)",
+        "voice on",
+    ]
+    said = speech.getvalue()
+    assert said.count("At the next intersection, turn left") == 2  # said, then repeated
+    assert "bear left" not in said and speaker.dropped_muted == 1
+    assert "Warning: odometry is silent" in said and "Continue straight" in said
