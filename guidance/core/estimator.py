@@ -45,6 +45,10 @@ class EstimatorConfig:
     initial_heading_sigma_deg: float = 1.0
     max_wheel_step_m: float = 20.0
     """Sanity limit: a single odometry increment above this is rejected."""
+    reorder_window_s: float = 1.0
+    """An input up to this much older than the estimate is applied where it arrives (sources
+    race each other and clocks jitter; a sub-second clock step must not freeze the estimate).
+    Older inputs are rejected, until ``REANCHOR_AFTER`` in a row make the estimate follow."""
     interference_detection: bool = True
     """Reject compass readings while their innovations say the field is disturbed.
 
@@ -116,6 +120,10 @@ def car_model(base: EstimatorConfig, *, calibrated: bool, **overrides: float) ->
     values.update(overrides)
     return replace(base, **values)
 
+
+REANCHOR_AFTER = 10
+"""Out-of-order inputs in a row after which the inputs' time base wins (about 0.1-0.5 s of
+odometry): an estimate stamped in the future by a glitch never freezes for good."""
 
 BIAS_TURN_STEP_RAD = math.radians(10.0)
 """The bias grows with heading changes counted in steps of this size, so that the wiggles of a
@@ -196,6 +204,8 @@ class PoseEstimator:
         self.healthy = True
         self._last_t: float | None = None
         self._turn_rad = 0.0
+        self.out_of_order_run = 0
+        """Inputs rejected in a row for being older than the estimate (a clock that stepped)."""
         self.interference_level = 1.0
         self.interference = False
         """True while compass readings are judged magnetically disturbed (and rejected)."""
@@ -324,8 +334,17 @@ class PoseEstimator:
         kind = type(msg).__name__
         if not math.isfinite(msg.t_s):
             return self._reject(kind, "non_finite_time")
-        if self._last_t is not None and msg.t_s < self._last_t:
-            return self._reject(kind, "out_of_order")
+        lag = 0.0 if self._last_t is None else self._last_t - msg.t_s
+        late = lag > 0.0
+        if lag > self.config.reorder_window_s:
+            self.out_of_order_run += 1
+            if self.out_of_order_run < REANCHOR_AFTER:
+                return self._reject(kind, "out_of_order")
+            # This many inputs in a row from before the estimate's time: the inputs' clock
+            # stepped back (or the estimate's time came from a glitch). Follow the inputs.
+            self.rejections["time_reanchored"] += 1
+            self._last_t = None
+            late = False
         x_before, P_before = self._kf.x.copy(), self._kf.P.copy()
         if isinstance(msg, WheelOdometry):
             result = self._predict(msg)
@@ -336,7 +355,11 @@ class PoseEstimator:
         else:  # pragma: no cover - typing forbids it
             return self._reject(kind, "unknown_input")
         if result.accepted:
-            self._last_t = msg.t_s
+            self.out_of_order_run = 0
+            if not late:  # a late input (inside the reorder window) never moves time back
+                self._last_t = msg.t_s
+            else:
+                self.accepted["late_in_window"] += 1
             self.accepted[kind] += 1
             if not self._check_finite(x_before, P_before):
                 return StepResult(kind, False, "non_finite_state_reset", result.mahalanobis_sq)

@@ -46,7 +46,7 @@ class HealthMonitor:
         self._status: dict[str, InputStatus] = {}
         self._counts: dict[str, tuple[int, int]] = {}
         self._valid: dict[str, tuple[bool, str]] = {}
-        self._judged: dict[str, tuple[bool, str]] = {}
+        self._judged: dict[tuple[str, str], tuple[bool, str]] = {}
         self._start: float | None = None
 
     def observe(self, name: str, t_s: float) -> None:
@@ -73,11 +73,12 @@ class HealthMonitor:
         ok = frac <= self.config.max_reject_fraction
         self._valid[name] = (ok, "" if ok else f"garbled: {frac:.0%} rejected")
 
-    def judge(self, name: str, ok: bool, why: str = "") -> None:
-        """The consumer's verdict on an input's data (e.g. a compass the filter keeps
-        rejecting): invalid with ``why`` until judged ok again."""
+    def judge(self, name: str, ok: bool, why: str = "", aspect: str = "data") -> None:
+        """The consumer's verdict on an input (e.g. a compass the filter keeps rejecting, or
+        inputs stamped before the estimate): invalid with ``why`` until judged ok again. Each
+        ``aspect`` is judged on its own; the input is valid when every aspect is."""
         if name in self.expected:
-            self._judged[name] = (ok, "" if ok else why)
+            self._judged[(name, aspect)] = (ok, "" if ok else why)
 
     def timeout_s(self, name: str) -> float:
         rate = self.expected.get(name)
@@ -103,10 +104,10 @@ class HealthMonitor:
         valid, why = self._valid.get(name, (True, ""))
         if not valid:
             detail = f"{detail}; {why}" if detail else why
-        judged, why = self._judged.get(name, (True, ""))
-        if not judged:
-            valid = False
-            detail = f"{detail}; {why}" if detail else why
+        for (judged_name, _aspect), (judged, why) in self._judged.items():
+            if judged_name == name and not judged:
+                valid = False
+                detail = f"{detail}; {why}" if detail else why
         return InputStatus(name, alive, valid, measured, age, rate, detail)
 
     def evaluate(self, t_s: float) -> list[HealthChange]:

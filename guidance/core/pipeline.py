@@ -104,6 +104,10 @@ class Outputs:
 # ----------------------------------------------------------------------------- the pipeline
 
 
+GAP_HOLD_S = 5.0
+"""An odometry increment this long after the previous one waits for the next to confirm its
+time (a glitch stamping one frame far ahead must not widen the estimate by hours of driving)."""
+
 GAP_ACCEL_MPS2 = 3.0
 """The most a car gains in speed per second in town (0-100 km/h in 9 s): bounds what it may
 have driven beyond its last speed during an odometry gap."""
@@ -195,6 +199,7 @@ class Pipeline:
         )
         self.heading_known = heading is not None
         self._waiting_said = False
+        self._held_odometry: WheelOdometry | None = None
         self._last_manoeuvre = ""
         if not self.heading_known:
             P = self.estimator.P
@@ -285,10 +290,29 @@ class Pipeline:
         return HeadingFix(msg.t_s, compass_to_heading(reading + cfg.mounting_offset_deg, decl))
 
     def _odometry(self, msg: WheelOdometry, out: Outputs) -> None:
-        est = self.estimator
+        held, self._held_odometry = self._held_odometry, None
         gap = None if self._last_odo_t is None else msg.t_s - self._last_odo_t
+        if held is not None:
+            if msg.t_s >= held.t_s:  # the new time base holds: the gap was real
+                self._odometry_step(held, held.t_s - (self._last_odo_t or held.t_s), out)
+                gap = msg.t_s - held.t_s
+            else:  # back before it: the frame ahead was a clock glitch, not a gap
+                self.counts["time_glitch_dropped"] += 1
+                log.warning("odometry stamped %.1f s ahead was a glitch: dropped",
+                            held.t_s - msg.t_s)  # fmt: skip
+        elif gap is not None and gap > max(GAP_HOLD_S, self.health.timeout_s("odometry")):
+            # After a long silence, wait for the next increment to confirm the new time
+            # (an adapter glitch stamps a frame an hour ahead): one increment of latency.
+            self._held_odometry = msg
+            out.accepted, out.reason = False, "held_after_gap"
+            return
+        self._odometry_step(msg, gap, out)
+
+    def _odometry_step(self, msg: WheelOdometry, gap: float | None, out: Outputs) -> None:
+        est = self.estimator
         r = est.process(msg)
         out.accepted, out.reason = r.accepted, r.reason
+        self._judge_time("odometry", r.reason)
         if not r.accepted:
             return
         d = 0.5 * (msg.d_left_m + msg.d_right_m)
@@ -343,6 +367,10 @@ class Pipeline:
             return
         r = est.process(fix)
         out.accepted, out.reason = r.accepted, r.reason
+        self._judge_time("compass", r.reason)
+        if r.reason == "out_of_order":  # a time problem, not the compass's data
+            self._after_step(fix.t_s, out)
+            return
         self.compass_judge.add(fix.t_s, r.accepted, r.reason)
         self.health.judge("compass", *self.compass_judge.verdict(fix.t_s))
         self._after_step(fix.t_s, out)
@@ -505,6 +533,13 @@ class Pipeline:
             self.navigator.move_exit_use(
                 d.intersection_id, d.exit_heading_rad, d.options[best].heading_rad
             )
+
+    def _judge_time(self, name: str, reason: str | None) -> None:
+        """Inputs the estimator cannot place in time make their input invalid (a frozen
+        estimate while inputs are alive is a fault, never silent)."""
+        self.health.judge(
+            name, reason != "out_of_order", "time: stamped before the estimate", aspect="time"
+        )
 
     def _say(self, out: Outputs, t: float, text: str, priority: int, kind: str) -> None:
         self.prompt_count += 1

@@ -9,7 +9,7 @@ import pytest
 from scipy.stats import chi2
 
 from guidance.core import model
-from guidance.core.estimator import EstimatorConfig, PoseEstimator
+from guidance.core.estimator import REANCHOR_AFTER, EstimatorConfig, PoseEstimator
 from guidance.core.messages import HeadingFix, LandmarkFix, WheelOdometry
 
 TRACK = 1.72
@@ -148,11 +148,34 @@ def test_compass_convention() -> None:
 
 def test_out_of_order_inputs_are_rejected_and_counted() -> None:
     est = PoseEstimator()
-    assert est.process(WheelOdometry(2.0, 1.0, 1.0)).accepted
-    r = est.process(WheelOdometry(1.0, 1.0, 1.0))
+    assert est.process(WheelOdometry(5.0, 1.0, 1.0)).accepted
+    r = est.process(WheelOdometry(3.0, 1.0, 1.0))  # older than the reorder window (1 s)
     assert not r.accepted and r.reason == "out_of_order"
     assert est.rejections["out_of_order"] == 1
     assert est.x[0] == pytest.approx(1.0)
+
+
+def test_a_late_input_inside_the_reorder_window_is_applied_and_time_never_goes_back() -> None:
+    """Sources race (a compass line stamped later than an odometry increment delivered after
+    it): the distance must not be lost (issue 14, item 12)."""
+    est = PoseEstimator()
+    assert est.process(WheelOdometry(2.0, 1.0, 1.0)).accepted
+    assert est.process(HeadingFix(2.3, 0.0)).accepted
+    r = est.process(WheelOdometry(2.1, 1.0, 1.0))  # delivered late, 0.2 s older
+    assert r.accepted and est.x[0] == pytest.approx(2.0)
+    assert est.last_t_s == 2.3 and est.accepted["late_in_window"] == 1
+
+
+def test_a_clock_stepped_back_is_followed_after_a_few_inputs_never_frozen() -> None:
+    """Inputs from a clock that stepped back by an hour (or an estimate stamped in the future
+    by a glitch): rejected at first, then the estimate follows their time base."""
+    est = PoseEstimator()
+    assert est.process(WheelOdometry(3600.0, 1.0, 1.0)).accepted  # the glitch
+    results = [est.process(WheelOdometry(1.0 + 0.05 * k, 0.5, 0.5)) for k in range(30)]
+    rejected = [r for r in results if not r.accepted]
+    assert 0 < len(rejected) < REANCHOR_AFTER
+    assert est.rejections["time_reanchored"] == 1
+    assert est.x[0] == pytest.approx(1.0 + 0.5 * (30 - len(rejected)))  # moving again
 
 
 def test_non_finite_inputs_never_corrupt_the_estimate() -> None:

@@ -4,7 +4,9 @@ from __future__ import annotations
 
 import math
 
-from guidance.core.estimator import EstimatorConfig
+import pytest
+
+from guidance.core.estimator import REANCHOR_AFTER, EstimatorConfig
 from guidance.core.messages import WheelOdometry
 from guidance.core.navigator import NavigatorConfig
 from guidance.core.pipeline import GAP_ACCEL_MPS2, Pipeline, PipelineConfig, gap_spread_m
@@ -63,3 +65,52 @@ def test_no_turn_advice_until_the_heading_is_known() -> None:
     p.feed(CompassHeading(5.0, 90.0))  # the first reading gives the heading
     out = p.feed(IntersectionScene(6.0, exits))
     assert out.accepted and len(out.decisions) == 1
+
+
+def test_a_frame_stamped_an_hour_ahead_neither_widens_nor_freezes_the_estimate() -> None:
+    """An adapter glitch stamps one increment an hour ahead (issue 14, item 2): it is held
+    until the next one shows the time base did not move, then dropped; the estimate is the
+    same as without the glitch and keeps moving."""
+    step = 11.0 * 0.05
+    runs = []
+    for glitch in (False, True):
+        p = _pipeline()
+        t = 0.0
+        for k in range(140):
+            t += 0.05
+            if glitch and k == 100:
+                out = p.feed(WheelOdometry(t + 3600.0, step, step))
+                assert not out.accepted and out.reason == "held_after_gap"
+            assert p.feed(WheelOdometry(t, step, step)).accepted
+        runs.append(p)
+    clean, glitched = runs
+    assert glitched.counts["time_glitch_dropped"] == 1 and glitched.counts["gap_inflations"] == 0
+    assert glitched.estimator.major_axis_m == pytest.approx(clean.estimator.major_axis_m)
+    assert glitched.estimator.x[0] == pytest.approx(clean.estimator.x[0])
+
+
+def test_a_clock_stepped_back_half_a_second_keeps_the_estimate_moving() -> None:
+    """A wall-clock step of -0.5 s between two increments (issue 14, item 1)."""
+    p = _pipeline()
+    t, step = 0.0, 11.0 * 0.05
+    for k in range(200):
+        t += 0.05
+        if k == 100:
+            t -= 0.5
+        assert p.feed(WheelOdometry(t, step, step)).accepted
+    assert p.estimator.x[0] == pytest.approx(200 * step, rel=1e-6)
+    assert p.statuses(t)["odometry"].valid
+
+
+def test_inputs_the_estimator_cannot_place_in_time_make_the_input_invalid() -> None:
+    p = _pipeline()
+    for k in range(1, 40):
+        p.feed(WheelOdometry(0.05 * k, 0.5, 0.5))
+    p.estimator.process(WheelOdometry(100.0, 0.1, 0.1))  # the estimate's time is now ahead
+    out = p.feed(WheelOdometry(2.05, 0.5, 0.5))
+    assert out.reason == "out_of_order"
+    st = p.statuses(2.05)["odometry"]
+    assert not st.valid and "time" in st.detail
+    for k in range(REANCHOR_AFTER):
+        p.feed(WheelOdometry(2.1 + 0.05 * k, 0.5, 0.5))
+    assert p.statuses(3.0)["odometry"].valid  # the estimate followed the inputs' time
