@@ -198,11 +198,12 @@ class App:
             self.save_checkpoint(now_s)
         return out
 
-    def save_checkpoint(self, t_s: float) -> bool:
+    def save_checkpoint(self, t_s: float, *, finished: bool = False) -> bool:
         if self.checkpointer is None:
             return False
         extra = dict(self.checkpoint_extra()) if self.checkpoint_extra is not None else {}
-        return self.checkpointer.save(t_s, {"pipeline": self.pipeline.snapshot(), "extra": extra})
+        state = {"pipeline": self.pipeline.snapshot(), "extra": extra}
+        return self.checkpointer.save(t_s, state, finished=finished)
 
     def camera_sink(self, frame: CameraFrame) -> None:
         """The camera's sink (its thread): a one-slot ring, so a stalled loop or a slow matcher

@@ -3,7 +3,8 @@ simulated drive (``hal_sim.drive``), so the simulator exercises the car's own wi
 
 ``open_outputs`` opens the speaker, telemetry and recorder a run asks for, writes the
 recording's ``/session`` record, and closes all three on the way out (on an error too);
-``resume_from_checkpoint`` applies the car's checkpoint policy.
+``resume_from_checkpoint`` applies the car's checkpoint policy and ``start_checkpoints`` the
+whole of it for ``guidance run`` (identity, load, check, resume).
 """
 
 from __future__ import annotations
@@ -12,11 +13,20 @@ import asyncio
 import contextlib
 import logging
 import math
+import time
 from collections.abc import AsyncIterator, Callable
 from dataclasses import dataclass
 from typing import TYPE_CHECKING, Any
 
+from guidance.app.checkpoint import (
+    Checkpointer,
+    checkpoint_age_s,
+    load_checkpoint,
+    set_aside,
+    trip_identity,
+)
 from guidance.app.ports import Speaker
+from guidance.core.snapshot_check import SnapshotError
 
 if TYPE_CHECKING:
     from guidance.core.pipeline import Pipeline
@@ -125,7 +135,11 @@ def resume_from_checkpoint(
             "checkpoint %s is %.0f s old (limit %.0f s): starting afresh", where, age_s, max_age_s
         )
         return "too old"
-    pipeline.restore(doc["pipeline"], same_clock=False)
+    try:
+        pipeline.restore(doc["pipeline"], same_clock=False)
+    except SnapshotError as exc:
+        set_aside(where, f"invalid state: {exc}")
+        return "invalid"
     spread = pipeline.speed_mps * age_s
     pipeline.inflate_position(spread)
     log.warning(
@@ -135,3 +149,24 @@ def resume_from_checkpoint(
         spread,
     )
     return "resumed"
+
+
+def start_checkpoints(
+    pipeline: Pipeline,
+    path: str,
+    *,
+    interval_s: float,
+    max_age_s: float,
+    vehicle_id: str,
+    resume: bool = True,
+) -> Checkpointer | None:
+    """``guidance run``'s checkpoints: resume this vehicle's unfinished trip when the file
+    allows it (else start afresh, a bad file moved aside), and the writer for this run."""
+    if not path:
+        return None
+    identity = trip_identity(vehicle_id, pipeline.config.describe())
+    if resume:
+        doc = load_checkpoint(path, identity)
+        age_s = checkpoint_age_s(doc, time.time()) if doc is not None else math.inf
+        resume_from_checkpoint(pipeline, doc, age_s, max_age_s, path)
+    return Checkpointer(path, interval_s, identity)

@@ -10,11 +10,18 @@ restarted process) sees the previous checkpoint or the new one, never half of on
 
 The interval is measured on the message clock, so an accelerated simulation checkpoints as
 often per simulated minute as the car does per real minute.
+
+A checkpoint is checked before it is trusted (issue 14): it names the vehicle, the trip (goal,
+start and a digest of the pipeline's configuration) and the software version (``identity``);
+a clean stop marks it ``finished``. ``load_checkpoint`` moves a damaged, invalid or foreign
+file aside (renamed ``<name>.rejected-<time>``), logs why and returns None, so one bad file
+never stops a start; ``Pipeline.restore`` checks every value of the state itself.
 """
 
 from __future__ import annotations
 
 import contextlib
+import hashlib
 import json
 import logging
 import math
@@ -28,16 +35,43 @@ from guidance.errors import UserError
 
 log = logging.getLogger(__name__)
 
-SCHEMA = "guidance.checkpoint/1"
+SCHEMA = "guidance.checkpoint/2"
+MAX_BYTES = 16 << 20
+"""A checkpoint is a few kB to a few hundred kB; anything larger is not read."""
+
+
+def trip_identity(vehicle_id: str, pipeline_config: Mapping[str, Any]) -> dict[str, Any]:
+    """What a checkpoint must match to be resumed: vehicle, trip and software version.
+
+    ``pipeline_config`` is ``PipelineConfig.describe()``: the goal and start come from it, and
+    its digest changes with any other setting (landmarks, method, estimator)."""
+    from guidance.version import version
+
+    text = json.dumps(pipeline_config, sort_keys=True, default=str)
+    return {
+        "vehicle_id": vehicle_id,
+        "software_version": version(),
+        "trip": {
+            "goal_xy_m": list(pipeline_config.get("goal_xy_m", [])),
+            "start_xy_m": list(pipeline_config.get("start_xy_m", [])),
+            "config_digest": hashlib.sha256(text.encode()).hexdigest()[:16],
+        },
+    }
 
 
 class Checkpointer:
     """Writes checkpoints to ``path`` at most every ``interval_s`` of message time."""
 
-    def __init__(self, path: str | Path, interval_s: float = 5.0) -> None:
+    def __init__(
+        self,
+        path: str | Path,
+        interval_s: float = 5.0,
+        identity: Mapping[str, Any] | None = None,
+    ) -> None:
         if not (math.isfinite(interval_s) and interval_s > 0):
             raise UserError(f"checkpoint interval must be > 0 s, not {interval_s!r}")
         self.path = Path(path)
+        self.identity = dict(identity) if identity is not None else None
         self.interval_s = interval_s
         self.saved = 0
         self.errors = 0
@@ -53,10 +87,19 @@ class Checkpointer:
             return False
         return self.save(t_s, state)
 
-    def save(self, t_s: float, state: Mapping[str, Any]) -> bool:
-        """Write now (atomically). A failure (disk full, read-only) is logged once, not raised."""
+    def save(self, t_s: float, state: Mapping[str, Any], *, finished: bool = False) -> bool:
+        """Write now (atomically). A failure (disk full, read-only) is logged once, not raised.
+
+        ``finished``: the run stopped cleanly; the next start does not resume this one."""
         self._next_t = t_s + self.interval_s
-        doc = {"schema": SCHEMA, "t_s": t_s, "wall_time_unix_s": time.time(), **state}
+        doc = {
+            "schema": SCHEMA,
+            "identity": self.identity,
+            "finished": finished,
+            "t_s": t_s,
+            "wall_time_unix_s": time.time(),
+            **state,
+        }
         try:
             write_atomic(self.path, json.dumps(doc, allow_nan=False).encode())
         except (OSError, ValueError) as exc:
@@ -73,19 +116,21 @@ class Checkpointer:
 
 
 def write_atomic(path: Path, data: bytes) -> None:
-    """Write ``data`` to ``path`` so that readers see the old or the new content, never a mix."""
+    """Write ``data`` to ``path`` so that readers see the old or the new content, never a mix.
+
+    The temporary file is removed on every error path (a full disk, a size limit, a signal)."""
     path.parent.mkdir(parents=True, exist_ok=True)
     tmp = path.with_name(f".{path.name}.{os.getpid()}.tmp")
     fd = os.open(tmp, os.O_WRONLY | os.O_CREAT | os.O_TRUNC, 0o644)
     try:
-        view = memoryview(data)
-        while view:
-            n = os.write(fd, view)
-            view = view[n:]
-        os.fsync(fd)
-    finally:
-        os.close(fd)
-    try:
+        try:
+            view = memoryview(data)
+            while view:
+                n = os.write(fd, view)
+                view = view[n:]
+            os.fsync(fd)
+        finally:
+            os.close(fd)
         os.replace(tmp, path)
     except BaseException:
         with contextlib.suppress(OSError):
@@ -99,19 +144,97 @@ def write_atomic(path: Path, data: bytes) -> None:
             os.close(dfd)
 
 
-def load_checkpoint(path: str | Path) -> dict[str, Any] | None:
-    """The checkpoint at ``path``, or None when there is none; a damaged one is a UserError."""
+def set_aside(path: str | Path, why: str) -> Path | None:
+    """Rename a checkpoint that must not be resumed to ``<name>.rejected-<time>`` and log why;
+    the new path, or None when it could not be moved (then it is only ignored)."""
+    p = Path(path)
+    stamp = time.strftime("%Y%m%dT%H%M%S", time.gmtime())
+    dest = p.with_name(f"{p.name}.rejected-{stamp}")
+    n = 1
+    while dest.exists():
+        n += 1
+        dest = p.with_name(f"{p.name}.rejected-{stamp}-{n}")
+    try:
+        os.replace(p, dest)
+    except OSError as exc:
+        log.warning("checkpoint %s ignored: %s (could not move it aside: %s)", p, why, exc)
+        return None
+    log.warning("checkpoint %s ignored: %s; moved aside to %s", p, why, dest.name)
+    return dest
+
+
+def identity_mismatch(found: object, expected: Mapping[str, Any]) -> str:
+    """Why a checkpoint's identity is not this run's, or "" when it is."""
+    if not isinstance(found, dict):
+        return "it names no vehicle or trip"
+    if found.get("vehicle_id") != expected.get("vehicle_id"):
+        return f"it is from vehicle {str(found.get('vehicle_id'))[:40]!r}, not this one"
+    if found.get("software_version") != expected.get("software_version"):
+        return (
+            f"it was written by version {str(found.get('software_version'))[:40]!r}, "
+            f"this is {expected.get('software_version')!r}"
+        )
+    trip, want = found.get("trip"), expected.get("trip")
+    if not isinstance(trip, dict) or not isinstance(want, dict):
+        return "it names no trip"
+    if trip.get("goal_xy_m") != want.get("goal_xy_m"):
+        return "the goal changed since (another trip)"
+    if trip.get("start_xy_m") != want.get("start_xy_m"):
+        return "the start changed since (another trip)"
+    if trip.get("config_digest") != want.get("config_digest"):
+        return "the configuration changed since"
+    return ""
+
+
+def load_checkpoint(
+    path: str | Path, expected: Mapping[str, Any] | None = None
+) -> dict[str, Any] | None:
+    """The checkpoint at ``path`` if it may be resumed, else None.
+
+    None when there is none or the last run finished cleanly; a damaged file, one of another
+    schema, vehicle, trip or version (when ``expected`` names them) is moved aside and logged.
+    """
     p = Path(path)
     try:
-        raw = p.read_bytes()
+        with p.open("rb") as f:
+            raw = f.read(MAX_BYTES + 1)
     except FileNotFoundError:
         return None
     except OSError as exc:
-        raise UserError(f"checkpoint {p}: {exc.strerror or exc}") from None
+        log.warning("checkpoint %s cannot be read (%s): starting afresh", p, exc.strerror or exc)
+        return None
+    if len(raw) > MAX_BYTES:
+        set_aside(p, f"it is larger than {MAX_BYTES >> 20} MiB")
+        return None
     try:
         doc = json.loads(raw)
-    except ValueError as exc:
-        raise UserError(f"checkpoint {p} is damaged ({exc}); delete it to start afresh") from None
+    except (ValueError, RecursionError) as exc:
+        set_aside(p, f"it is damaged ({str(exc)[:80]})")
+        return None
     if not isinstance(doc, dict) or doc.get("schema") != SCHEMA:
-        raise UserError(f"checkpoint {p} is not a {SCHEMA} file; delete it to start afresh")
+        set_aside(p, f"it is not a {SCHEMA} file")
+        return None
+    if expected is not None:
+        why = identity_mismatch(doc.get("identity"), expected)
+        if why:
+            set_aside(p, why)
+            return None
+    if doc.get("finished") is True:
+        log.info("checkpoint %s: the last run stopped cleanly; starting afresh", p)
+        return None
+    if not isinstance(doc.get("pipeline"), dict):
+        set_aside(p, "it holds no pipeline state")
+        return None
     return doc
+
+
+def checkpoint_age_s(doc: Mapping[str, Any], now_unix_s: float) -> float:
+    """Seconds since the checkpoint was written; inf when its time is missing or not a number."""
+    t = doc.get("wall_time_unix_s")
+    if isinstance(t, bool) or not isinstance(t, int | float):
+        return math.inf
+    try:
+        age = now_unix_s - float(t)
+    except OverflowError:
+        return math.inf
+    return age if math.isfinite(age) else math.inf

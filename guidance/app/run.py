@@ -8,7 +8,6 @@ import argparse
 import asyncio
 import json
 import logging
-import math
 import os
 import signal
 import stat
@@ -18,8 +17,7 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Any, TextIO
 
 from guidance.app.app import GIL_SWITCH_INTERVAL_S, App, Source
-from guidance.app.build import OutputSettings, open_outputs, resume_from_checkpoint, session_record
-from guidance.app.checkpoint import Checkpointer, load_checkpoint
+from guidance.app.build import OutputSettings, open_outputs, session_record, start_checkpoints
 from guidance.app.operator_view import OperatorView
 from guidance.app.screen import (
     NO_INPUT_PROMPT,
@@ -87,12 +85,14 @@ async def run_car(
     cfg = load_config(config_path)
     sys.setswitchinterval(GIL_SWITCH_INTERVAL_S)
     pipeline = Pipeline(cfg.pipeline)
-    checkpointer = None
-    if cfg.checkpoint.path:
-        checkpointer = Checkpointer(cfg.checkpoint.path, cfg.checkpoint.interval_s)
-        doc = load_checkpoint(cfg.checkpoint.path) if resume else None
-        age_s = time.time() - float(doc.get("wall_time_unix_s", 0.0)) if doc else math.inf
-        resume_from_checkpoint(pipeline, doc, age_s, cfg.checkpoint.max_age_s, cfg.checkpoint.path)
+    checkpointer = start_checkpoints(
+        pipeline,
+        cfg.checkpoint.path,
+        interval_s=cfg.checkpoint.interval_s,
+        max_age_s=cfg.checkpoint.max_age_s,
+        vehicle_id=cfg.vehicle_id,
+        resume=resume,
+    )
     # Devices are built (and their configs checked) before anything starts.
     sources: dict[str, Source] = {}
     if cfg.odometry is not None:
@@ -190,6 +190,7 @@ async def run_car(
         finally:
             if screen != "off":
                 opscreen.stop()
+        app.save_checkpoint(time.monotonic(), finished=True)  # a clean stop: not resumed
         log.warning("stopping: %s", json.dumps(app.lag_summary()))
     return 0
 

@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import asyncio
 import io
+import json
 import math
 import os
 import threading
@@ -387,8 +388,9 @@ directory = "rec"
     assert messages[-1] == "STOPPING=1"
     from guidance.app.checkpoint import load_checkpoint
 
-    doc = load_checkpoint(tmp_path / "ck.json")
-    assert doc is not None
+    assert load_checkpoint(tmp_path / "ck.json") is None  # a clean stop is not resumed
+    doc = json.loads((tmp_path / "ck.json").read_bytes())
+    assert doc["finished"] is True and doc["identity"]["vehicle_id"] == "t1"
     x, y = doc["pipeline"]["x"][:2]
     assert 10.0 < x < 25.0 and abs(y) < 3.0  # 10 m/s east for about 1.5-2 s
     files = list((tmp_path / "rec").glob("*.mcap"))
