@@ -426,7 +426,11 @@ class App:
                 continue
             self.counts["frames_matched"] += 1
             if fix is not None:
-                self.feed(fix)
+                try:  # a bad fix is the estimator's to reject; it must never end the loop
+                    self.feed(fix)
+                except Exception:
+                    self.counts["recogniser_errors"] += 1
+                    log.exception("a landmark fix could not be applied; continuing")
 
     def match_frame(self, frame: CameraFrame, state: EstimateState) -> LandmarkFix | None:
         """Run the recogniser (worker thread). Accepts ``process(frame, state)`` returning a

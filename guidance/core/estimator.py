@@ -121,6 +121,13 @@ def car_model(base: EstimatorConfig, *, calibrated: bool, **overrides: float) ->
     return replace(base, **values)
 
 
+MIN_LANDMARK_SIGMA_M = 0.01
+MAX_LANDMARK_SIGMA_M = 1000.0
+"""A landmark fix claims its position to between a centimetre and a kilometre (1 sigma);
+outside that it is a damaged record (1e200 squared overflows), not a measurement."""
+MAX_COORDINATE_M = 1.0e7
+"""Local metres: a quarter of the Earth's circumference from the start is not a city."""
+
 REANCHOR_AFTER = 10
 """Out-of-order inputs in a row after which the inputs' time base wins (about 0.1-0.5 s of
 odometry): an estimate stamped in the future by a glitch never freezes for good."""
@@ -455,6 +462,11 @@ class PoseEstimator:
             and msg.sigma_m > 0.0
         ):
             return self._reject(kind, "non_finite_input")
+        if not (
+            MIN_LANDMARK_SIGMA_M <= msg.sigma_m <= MAX_LANDMARK_SIGMA_M
+            and max(abs(msg.x_m), abs(msg.y_m)) <= MAX_COORDINATE_M
+        ):
+            return self._reject(kind, "implausible_landmark")
         var = msg.sigma_m**2
         R = np.eye(2) * var
         z = np.array([msg.x_m, msg.y_m])

@@ -291,3 +291,19 @@ def test_interference_detector_never_trips_on_a_clean_compass() -> None:
         if i % 2 == 0:
             est.process(HeadingFix(t, model.wrap_angle(heading + rng.normal(0, math.radians(15)))))
     assert est.rejections["magnetic_interference"] < 0.01 * est.accepted["HeadingFix"]
+
+
+def test_an_absurd_landmark_sigma_is_rejected_not_squared_into_overflow() -> None:
+    """A damaged landmark row (sigma 1e200, a coordinate 1e39) must not reach the math
+    (issue 14, item 4)."""
+    est = PoseEstimator()
+    est.process(WheelOdometry(1.0, 1.0, 1.0))
+    before = est.P.copy()
+    for fix in (
+        LandmarkFix(2.0, 1, 1.0, 0.0, 1e200),
+        LandmarkFix(2.0, 1, 1.0, 0.0, 1e-9),
+        LandmarkFix(2.0, 1, 1e39, 0.0, 5.0),
+    ):
+        r = est.process(fix)
+        assert not r.accepted and r.reason == "implausible_landmark"
+    assert np.array_equal(est.P, before) and est.healthy
