@@ -18,8 +18,8 @@ from pathlib import Path
 
 _ROOT = Path(__file__).resolve().parent.parent
 COMPILED_SOURCES = (
-    "guidance/model.py",
-    "guidance/law.py",
+    "guidance/core/model.py",
+    "guidance/core/law.py",
     "hal_sim/params.py",
     "hal_sim/world.py",
     "hal_sim/engine.py",

@@ -143,3 +143,18 @@ def test_no_module_over_600_lines() -> None:
     assert not long, "split these modules (docs/layout.md):\n" + "\n".join(long)
     shrunk = [m for m in KNOWN_LONG if len((ROOT / m).read_text().splitlines()) <= 600]
     assert not shrunk, f"now short enough, take them off KNOWN_LONG: {shrunk}"
+
+
+def test_the_numba_cache_key_covers_every_compiled_source() -> None:
+    """A moved module must not silently drop out of the cache key (stale compiled code)."""
+    from guidance._numba_cache import COMPILED_SOURCES
+
+    missing = [rel for rel in COMPILED_SOURCES if not (ROOT / rel).is_file()]
+    assert not missing, f"listed but absent: {missing}"
+    compiled = {
+        str(p.relative_to(ROOT))
+        for pkg in ("guidance", "hal_sim")
+        for p in (ROOT / pkg).rglob("*.py")
+        if "@njit" in p.read_text()
+    }
+    assert compiled <= set(COMPILED_SOURCES), compiled - set(COMPILED_SOURCES)
