@@ -22,20 +22,18 @@ import hashlib
 import math
 import sqlite3
 import threading
-import time
 from collections.abc import Iterator, Sequence
 from contextlib import contextmanager
 from dataclasses import dataclass
 from pathlib import Path
 
-import cv2
 import numpy as np
 
-from guidance.core.model import CHI2_2D_2SIGMA
-from landmark_db.features import ExtractorConfig, Features, decode_image, encode_image, extract
-from landmark_db.gate import gate_box, in_gate, mahalanobis_sq
+from landmark_db.features import ExtractorConfig, Features
 from landmark_db.geo import Origin
 from landmark_db.integrity import CheckReport
+from landmark_db.photos import Photo, PhotoStore, _finite, _utc_now
+from landmark_db.query import Candidate, query_gate, query_radius
 from landmark_db.schema import (
     MIGRATIONS,
     SCHEMA_VERSION,
@@ -91,32 +89,7 @@ class Landmark:
     source: str = ""
 
 
-@dataclass(frozen=True, slots=True)
-class Photo:
-    """One photo of a landmark (without its pixels); ``facing_deg`` clockwise from N."""
-
-    id: int
-    landmark_id: int
-    format: str
-    width: int
-    height: int
-    facing_deg: float | None
-    conditions: str
-    source: str
-
-
-def _utc_now() -> str:
-    return time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime())
-
-
-def _finite(name: str, value: float) -> float:
-    v = float(value)
-    if not math.isfinite(v):
-        raise LandmarkDbError(f"{name} must be a finite number, not {value!r}")
-    return v
-
-
-class LandmarkDb:
+class LandmarkDb(PhotoStore):
     """A landmark database file. Construct with ``create_db`` or ``open_db``.
 
     Thread-safe for the uses here: one connection guarded by a lock, opened with
@@ -184,18 +157,6 @@ class LandmarkDb:
             except _READ_ERRORS as exc:
                 raise LandmarkDbError(f"{self.path}: unreadable landmark database ({exc})") from exc
 
-    def stale_features(self) -> int:
-        """Photos whose stored features were not made by this file's extractor (its current
-        name, version and parameters): ``refresh_features`` recomputes them."""
-        with self._reading() as c:
-            return int(
-                c.execute(
-                    "SELECT count(*) FROM photos p LEFT JOIN photo_features f ON f.photo_id = p.id"
-                    " WHERE f.extractor IS NULL OR f.extractor != ?",
-                    (self.extractor.ident,),
-                ).fetchone()[0]
-            )
-
     def _check_rows(self) -> None:
         """Every landmark's position, facing and sigma, and every index box, are finite
         numbers: one scan of each table at open, so a damaged row never becomes a fix.
@@ -226,62 +187,6 @@ class LandmarkDb:
     def _writable(self) -> None:
         if self.readonly:
             raise LandmarkDbError(f"{self.path} is open read-only")
-
-    def _encoded(
-        self, label: str, image: np.ndarray | bytes, image_format: str
-    ) -> tuple[bytes, np.ndarray, str, Features]:
-        """(encoded bytes, pixels, format, features) of a photo given as bytes or an array."""
-        if isinstance(image, bytes | bytearray | memoryview):
-            data = bytes(image)
-            try:
-                pixels = decode_image(data)
-            except ValueError as exc:
-                raise LandmarkDbError(f"{label}: {exc}") from exc
-            fmt = (
-                "jpeg" if data[:2] == b"\xff\xd8" else "png" if data[:4] == b"\x89PNG" else "other"
-            )
-        else:
-            pixels = image
-            try:
-                data = encode_image(pixels, image_format)
-            except (ValueError, cv2.error) as exc:
-                raise LandmarkDbError(f"{label}: {exc}") from exc
-            fmt = image_format.lstrip(".").replace("jpg", "jpeg")
-        try:
-            feats = extract(pixels, self.extractor)
-        except ValueError as exc:
-            raise LandmarkDbError(f"{label}: {exc}") from exc
-        return data, pixels, fmt, feats
-
-    def _insert_photo(
-        self,
-        lid: int,
-        data: bytes,
-        pixels: np.ndarray,
-        fmt: str,
-        feats: Features,
-        facing: float | None,
-        conditions: str,
-        source: str,
-    ) -> int:
-        h, w = pixels.shape[:2]
-        cur = self._conn.execute(
-            "INSERT INTO photos (landmark_id, format, width, height, sha256, data, facing_deg,"
-            " conditions, added_utc, source) VALUES (?, ?, ?, ?, ?, ?, ?, ?, ?, ?)",
-            (lid, fmt, w, h, hashlib.sha256(data).hexdigest(), data, facing, conditions,
-             _utc_now(), source),
-        )  # fmt: skip
-        pid = cur.lastrowid
-        assert pid is not None
-        self._insert_features(int(pid), feats)
-        return int(pid)
-
-    def _insert_features(self, pid: int, feats: Features) -> None:
-        self._conn.execute(
-            "INSERT OR REPLACE INTO photo_features VALUES (?, ?, ?, ?, ?, ?, ?)",
-            (pid, self.extractor.ident, len(feats), feats.width, feats.height,
-             feats.keypoint_blob(), feats.descriptor_blob()),
-        )  # fmt: skip
 
     def add(
         self,
@@ -335,29 +240,6 @@ class LandmarkDb:
             )
         return int(lid)
 
-    def add_photo(
-        self,
-        landmark_id: int,
-        image: np.ndarray | bytes,
-        *,
-        facing_deg: float | None = None,
-        conditions: str = "",
-        source: str = "",
-        image_format: str = ".png",
-    ) -> int:
-        """Another photo of an existing landmark (another distance, direction, light...);
-        returns the photo's id. All photos of a landmark are scored as one place."""
-        self._writable()
-        if self.get(landmark_id) is None:
-            raise LandmarkDbError(f"no landmark {landmark_id}")
-        facing = None if facing_deg is None else _finite("facing", facing_deg) % 360.0
-        label = f"landmark {landmark_id}"
-        data, pixels, fmt, feats = self._encoded(label, image, image_format)
-        with self._lock, self._conn:
-            return self._insert_photo(
-                landmark_id, data, pixels, fmt, feats, facing, conditions, source
-            )
-
     def add_many_precomputed(
         self,
         rows: Sequence[tuple[str, float, float]],
@@ -407,30 +289,6 @@ class LandmarkDb:
             self._conn.execute("DELETE FROM photos WHERE landmark_id = ?", (landmark_id,))
             self._conn.execute("DELETE FROM landmark_index WHERE id = ?", (landmark_id,))
         return n > 0
-
-    def refresh_features(self, extractor: ExtractorConfig | None = None) -> int:
-        """Make ``extractor`` (default: the file's own) the file's extractor and recompute
-        every photo's features that it did not make; returns how many were recomputed.
-        The migration for a new extractor, or a new version of one."""
-        self._writable()
-        ext = extractor or self.extractor
-        with self._lock, self._conn:
-            self._conn.execute(
-                "INSERT OR REPLACE INTO metadata VALUES ('extractor', ?)", (ext.ident,)
-            )
-            self.extractor = ext
-            rows = self._conn.execute(
-                "SELECT p.id, p.data FROM photos p LEFT JOIN photo_features f"
-                " ON f.photo_id = p.id WHERE f.extractor IS NULL OR f.extractor != ?",
-                (ext.ident,),
-            ).fetchall()
-            for pid, data in rows:
-                try:
-                    feats = extract(decode_image(bytes(data)), ext)
-                except ValueError as exc:
-                    raise LandmarkDbError(f"{self.path}: photo {pid}: {exc}") from exc
-                self._insert_features(int(pid), feats)
-        return len(rows)
 
     # --- reading ------------------------------------------------------------------------------
 
@@ -503,63 +361,6 @@ class LandmarkDb:
         except (TypeError, ValueError) as exc:  # not an R*Tree any more
             raise LandmarkDbError(f"{self.path}: bad landmark index ({exc})") from exc
         return arr[:, 0].astype(np.int64), arr[:, 1:3]
-
-    def photos(self, landmark_id: int) -> list[Photo]:
-        """A landmark's photos, oldest first."""
-        with self._reading() as c:
-            rows = c.execute(
-                "SELECT id, landmark_id, format, width, height, facing_deg, conditions, source"
-                " FROM photos WHERE landmark_id = ? ORDER BY id",
-                (landmark_id,),
-            ).fetchall()
-        return [Photo(*r) for r in rows]
-
-    def photo_counts(self) -> dict[int, int]:
-        """Landmark id -> number of photos."""
-        with self._reading() as c:
-            rows = c.execute("SELECT landmark_id, count(*) FROM photos GROUP BY landmark_id")
-            return {int(a): int(b) for a, b in rows.fetchall()}
-
-    def photo_bytes(self, photo_id: int) -> tuple[str, bytes] | None:
-        """(format, encoded bytes) of one photo."""
-        with self._reading():
-            r = self._conn.execute(
-                "SELECT format, data FROM photos WHERE id = ?", (photo_id,)
-            ).fetchone()
-        if r is not None and not isinstance(r[1], bytes):
-            raise LandmarkDbError(f"{self.path}: photo {photo_id} is not a blob")
-        return None if r is None else (str(r[0]), r[1])
-
-    def image_bytes(self, landmark_id: int) -> tuple[str, bytes] | None:
-        """(format, encoded bytes) of a landmark's first photo."""
-        photos = self.photos(landmark_id)
-        return self.photo_bytes(photos[0].id) if photos else None
-
-    def photo_features(self, landmark_id: int) -> list[tuple[int, Features]]:
-        """(photo id, features) of every photo of a landmark, oldest first."""
-        with self._reading():
-            rows = self._conn.execute(
-                "SELECT p.id, f.width, f.height, f.keypoints, f.descriptors FROM photos p"
-                " JOIN photo_features f ON f.photo_id = p.id WHERE p.landmark_id = ?"
-                " ORDER BY p.id",
-                (landmark_id,),
-            ).fetchall()
-        out = []
-        for pid, w, h, kp, desc in rows:
-            try:
-                if not (isinstance(kp, bytes) and isinstance(desc, bytes)):
-                    raise ValueError("keypoints or descriptors are not blobs")
-                if not (isinstance(w, int) and isinstance(h, int)):
-                    raise ValueError(f"image size {w!r} x {h!r} is not integer")
-                out.append((int(pid), Features.from_blobs(kp, desc, w, h, self.extractor.kind)))
-            except ValueError as exc:
-                raise LandmarkDbError(f"{self.path}: landmark {landmark_id}: {exc}") from exc
-        return out
-
-    def features(self, landmark_id: int) -> Features | None:
-        """Features of a landmark's first photo."""
-        f = self.photo_features(landmark_id)
-        return f[0][1] if f else None
 
     def check(self, decode_images: bool = True) -> CheckReport:
         """``PRAGMA integrity_check`` plus consistency (``landmark_db.integrity``)."""
@@ -656,44 +457,3 @@ def open_db(path: str | Path, *, readonly: bool = True) -> LandmarkDb:
     except BaseException:
         conn.close()
         raise
-
-
-@dataclass(frozen=True, slots=True)
-class Candidate:
-    """A landmark that passed the gate, with its distance (m) to the 2-sigma ellipse."""
-
-    id: int
-    x_m: float
-    y_m: float
-    distance_m: float
-
-
-def query_gate(
-    db: LandmarkDb,
-    mean_xy: Sequence[float],
-    cov_xy: Sequence[Sequence[float]],
-    range_m: float,
-    k2: float = CHI2_2D_2SIGMA,
-    limit: int | None = None,
-) -> list[Candidate]:
-    """Landmarks within ``range_m`` of the ``k2`` ellipse, nearest first (``landmark_db.gate``);
-    those inside the ellipse by Mahalanobis distance from the mean.
-
-    R*Tree box first, then the exact distance-to-ellipse test on what the box returned.
-    """
-    ids, xy = db.in_box(*gate_box(mean_xy, cov_xy, k2, range_m))
-    if len(ids) == 0:
-        return []
-    mask, dist = in_gate(xy, mean_xy, cov_xy, k2, range_m)
-    keep = np.flatnonzero(mask)
-    # Nearest to the ellipse first; inside it (distance 0), most likely first (Mahalanobis).
-    d2 = mahalanobis_sq(xy[keep], mean_xy, cov_xy)
-    keep = keep[np.lexsort((ids[keep], d2, dist[keep]))]
-    if limit is not None:
-        keep = keep[:limit]
-    return [Candidate(int(ids[i]), float(xy[i, 0]), float(xy[i, 1]), float(dist[i])) for i in keep]
-
-
-def query_radius(db: LandmarkDb, x_m: float, y_m: float, radius_m: float) -> list[Candidate]:
-    """Landmarks within ``radius_m`` of a point, nearest first (distance is to the point)."""
-    return query_gate(db, (x_m, y_m), ((0.0, 0.0), (0.0, 0.0)), radius_m)
