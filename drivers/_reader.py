@@ -6,6 +6,12 @@ the sink without ever letting a failing sink stop the reader (counted as ``sink_
 once when it starts failing and once when it works again), the doubling reconnect backoff, and
 logging a device lost and found once per flip. A driver supplies the reading (``_run``, or
 ``_workers`` for more than one thread) and, through small hooks, what it opens and closes.
+
+Back-pressure (issue 14): a consumer that can say how much it has not processed yet
+(``set_backlog``, the app's queue) makes ``_deliver_bounded`` hold data instead of queueing
+more while it is behind: a driver that can merge its messages (``_merge``: the CAN odometry
+sums its increments and keeps the last time) folds the held one and the new one into one
+(counted ``coalesced``); one that cannot drops the older (counted ``dropped_behind``).
 """
 
 from __future__ import annotations
@@ -24,6 +30,8 @@ T = TypeVar("T")
 
 JOIN_TIMEOUT_S = 5.0
 """How long ``stop()`` waits for each thread (reads time out well within this)."""
+BACKLOG_LIMIT = 32
+"""Messages handed over and not yet processed beyond which ``_deliver_bounded`` holds data."""
 
 
 class SourceTiming(Protocol):
@@ -78,6 +86,9 @@ class ThreadedSource(Generic[T]):
         self._threads: list[threading.Thread] = []
         self._connected: bool | None = None  # None: never tried yet
         self._sink_failing = False
+        self._backlog: Callable[[], int] | None = None
+        self._backlog_limit = BACKLOG_LIMIT
+        self._held: T | None = None
 
     # the source --------------------------------------------------------------------------------
 
@@ -124,7 +135,17 @@ class ThreadedSource(Generic[T]):
     def __exit__(self, *exc: object) -> None:
         self.stop()
 
+    def set_backlog(self, backlog: Callable[[], int], limit: int = BACKLOG_LIMIT) -> None:
+        """``backlog()``: how many handed-over messages the consumer has not processed yet;
+        above ``limit`` the driver holds (merges or drops) instead of handing over more."""
+        self._backlog = backlog
+        self._backlog_limit = max(1, int(limit))
+
     # hooks ---------------------------------------------------------------------------------------
+
+    def _merge(self, held: T, new: T) -> T | None:
+        """One message standing for ``held`` followed by ``new``; None: cannot (drop ``held``)."""
+        return None
 
     def _workers(self, sink: Callable[[T], None]) -> list[tuple[str, Callable[[], None]]]:
         """(role, target) of each thread; the thread is named '<name>-<role>'."""
@@ -170,6 +191,34 @@ class ThreadedSource(Generic[T]):
             self._sink_failing = False
             self._log.warning("%s: the %s sink works again", self.name, self.sink_kind)
         return True
+
+    def _behind(self) -> bool:
+        backlog = self._backlog
+        if backlog is None:
+            return False
+        try:
+            return backlog() >= self._backlog_limit
+        except Exception:  # a consumer's counter must never stop the reader
+            return False
+
+    def _deliver_bounded(self, sink: Callable[[T], None], out: T | None) -> bool:
+        """``_deliver``, unless the consumer is behind: then hold ``out`` (merged with, or
+        replacing, what was held). ``out`` None: only try to hand over what is held."""
+        held = self._held
+        if out is None:
+            if held is None:
+                return False
+            out = held
+        elif held is not None:
+            merged = self._merge(held, out)
+            self._count("coalesced" if merged is not None else "dropped_behind")
+            if merged is not None:
+                out = merged
+        self._held = None
+        if self._behind():
+            self._held = out
+            return False
+        return self._deliver(sink, out)
 
     def _set_connected(self, up: bool, detail: object = "") -> None:
         """Tell the tracker the device is up or down; log once per flip: lost and back."""

@@ -474,6 +474,10 @@ class CanOdometry(ThreadedSource[WheelOdometry]):
                 exc,
             )
 
+    def _merge(self, held: WheelOdometry, new: WheelOdometry) -> WheelOdometry:
+        """Back-pressure: one increment for both (distances summed, the later time)."""
+        return WheelOdometry(new.t_s, held.d_left_m + new.d_left_m, held.d_right_m + new.d_right_m)
+
     def _run(self, sink: Callable[[WheelOdometry], None]) -> None:
         delay = self.config.reconnect_initial_s
         while not self._stop.is_set():
@@ -496,6 +500,7 @@ class CanOdometry(ThreadedSource[WheelOdometry]):
                 continue
             if msg is None:
                 self._health.evaluate()  # notices (and logs) a silence while nothing arrives
+                self._deliver_bounded(sink, None)  # what was held while the consumer was behind
                 continue
             if self._offline:
                 self._offline = False
@@ -514,7 +519,7 @@ class CanOdometry(ThreadedSource[WheelOdometry]):
             if outcome != "ignored":
                 self._health.data(outcome in ("ok", "gap"))
             if out is not None:
-                self._deliver(sink, out)
+                self._deliver_bounded(sink, out)  # coalesced while the consumer is behind
 
 
 # -- replaying logs ----------------------------------------------------------------------------

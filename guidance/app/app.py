@@ -152,6 +152,10 @@ class App:
             self._submitted += 1
         loop.call_soon_threadsafe(self._on_message, msg)
 
+    def backlog(self) -> int:
+        """Messages handed to ``sink`` and not yet processed (the drivers' back-pressure)."""
+        return self._submitted - self._processed
+
     def _on_message(self, msg: Any) -> None:
         try:
             if isinstance(msg, CameraFrame):  # a camera handed to sink(): use the ring too
@@ -351,6 +355,8 @@ class App:
                         for src in self.sources.values():
                             tap_raw_inputs(src, self.recorder)
                     for name, src in self.sources.items():
+                        if callable(getattr(src, "set_backlog", None)):
+                            src.set_backlog(self.backlog)  # type: ignore[attr-defined]
                         src.start(self.sink)
                         self._started_sources.append(src)
                         log.info("started %s (%s)", name, getattr(src, "name", name))
