@@ -27,6 +27,7 @@ import numpy as np
 import pynmea2
 
 from landmark_db.acceptance import IMAGE_EXTS
+from landmark_db.features import decode_image
 from landmark_db.store import LandmarkDb, LandmarkDbError
 
 
@@ -178,9 +179,10 @@ def frames_from_folder(path: Path, fps: float) -> Iterator[tuple[float, np.ndarr
     if not files:
         raise LandmarkDbError(f"{path}: no images")
     for i, p in enumerate(files):
-        image = cv2.imread(str(p), cv2.IMREAD_COLOR)
-        if image is None:
-            raise LandmarkDbError(f"{p}: cannot read image")
+        try:
+            image = decode_image(p.read_bytes())  # refuses a truncated file
+        except (OSError, ValueError) as exc:
+            raise LandmarkDbError(f"{p}: cannot read image ({exc})") from exc
         yield i / fps, image
 
 

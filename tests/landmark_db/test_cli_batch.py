@@ -202,3 +202,18 @@ def test_survey_keeps_several_frames_per_mark_and_joins_passes(
         "survey t=3.50 frame t=3.00",
         "survey t=3.50 frame t=4.00",
     ]
+
+
+def test_survey_refuses_a_truncated_frame_in_one_line(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    frames = tmp_path / "frames"
+    _write(frames, "00.png", facade(90))
+    jpeg = encode_image(facade(91), ".jpg")
+    (frames / "01.jpg").write_bytes(jpeg[: len(jpeg) // 2])
+    (tmp_path / "marks.csv").write_text("t_s,name,x_m,y_m\n1.0,a,0,0\n")
+    db = str(tmp_path / "s.sqlite")
+    main(["init", db, "--origin", "0", "0"])
+    capsys.readouterr()
+    code, _, err = run(capsys, "survey", db, str(frames), "--marks", str(tmp_path / "marks.csv"))
+    assert code == 2 and err.count("\n") == 1 and "01.jpg" in err and "truncated JPEG" in err
