@@ -356,13 +356,23 @@ class SerialCompassConfig:
     """Extra keyword arguments for ``serial.Serial`` (parity, rtscts...)."""
     stale_after_s: float = 3.0
     """No line for this long: ``health()`` says 'silent'. Compasses send at 1-20 Hz."""
+    stall_flush_s: float = 1.0
+    """The reader did not run for this long (the process was stopped, starved or suspended):
+    what waits in the serial buffer is old, so it is discarded (counted ``stale_bytes``) rather
+    than stamped "now" and fused as the current heading."""
 
     def __post_init__(self) -> None:
         if not isinstance(self.port, str) or not self.port:
             raise UserError(f"port must be a device path such as /dev/ttyUSB0, not {self.port!r}")
         if not (isinstance(self.baudrate, int) and self.baudrate > 0):
             raise UserError(f"baudrate must be a positive integer, not {self.baudrate!r}")
-        for name in ("read_timeout_s", "reconnect_initial_s", "reconnect_max_s", "stale_after_s"):
+        for name in (
+            "read_timeout_s",
+            "reconnect_initial_s",
+            "reconnect_max_s",
+            "stale_after_s",
+            "stall_flush_s",
+        ):
             value = getattr(self, name)
             if not (isinstance(value, int | float) and value > 0):
                 raise UserError(f"{name} must be a positive number of seconds, not {value!r}")
@@ -454,6 +464,23 @@ class SerialCompass(ThreadedSource[CompassHeading]):
             # A device that delivered is retried quickly; one that fails at once backs off.
             delay = self.config.reconnect_initial_s if self._got_data else self._backoff(delay)
 
+    def _discard_stale(self, port: serial.Serial, n_read: int, gap_s: float) -> None:
+        """Drop what the port buffered while the reader was not running (and the bytes just
+        read from it); counted in ``stale_bytes`` and ``stale_flushes``, logged."""
+        try:
+            waiting = int(port.in_waiting)
+            port.reset_input_buffer()
+        except (serial.SerialException, OSError, ValueError):
+            waiting = 0
+        self._count("stale_flushes")
+        self._count("stale_bytes", n_read + waiting)
+        self._log.warning(
+            "%s: the reader did not run for %.1f s: %d buffered bytes discarded as stale",
+            self.name,
+            gap_s,
+            n_read + waiting,
+        )
+
     def _read(self, port: serial.Serial, sink: Callable[[CompassHeading], None]) -> None:
         def too_long() -> None:
             with self._lock:
@@ -462,8 +489,15 @@ class SerialCompass(ThreadedSource[CompassHeading]):
             self._health.error("line longer than max_line_bytes")
 
         assembler = LineAssembler(self.config.max_line_bytes, too_long)
+        last_read = time.monotonic()
         while not self._stop.is_set():
             chunk = port.read(max(1, min(port.in_waiting, 4096)))
+            now = time.monotonic()
+            gap_s, last_read = now - last_read, now
+            if chunk and gap_s > self.config.stall_flush_s:  # buffered while nobody read: old
+                self._discard_stale(port, len(chunk), gap_s)
+                assembler = LineAssembler(self.config.max_line_bytes, too_long)
+                continue
             if not chunk:
                 self._health.evaluate()  # notices (and logs) a silence
                 continue
