@@ -221,8 +221,8 @@ class KeyboardScene:
         it is a daemon and delivers nothing after this."""
         self._stop.set()
         thread, self._thread = self._thread, None
-        if thread is not None:
-            thread.join(timeout=0.2)
+        if thread is not None:  # key by key: the reader wakes within 0.2 s and restores the tty
+            thread.join(timeout=1.0 if self._per_key else 0.2)
 
     def stats(self) -> dict[str, int]:
         return self.lines.stats()

@@ -181,8 +181,7 @@ async def run_car(
             log.warning("NO CO-DRIVER INPUT: %s; intersections cannot be reported", no_input)
             opscreen.fold(lambda v: v.add(time.time(), "info", f"NO CO-DRIVER INPUT: {no_input}",
                                           "bad"))  # fmt: skip
-            if speaker is not None:
-                speaker.say(NO_INPUT_PROMPT, Priority.SAFETY, time.monotonic())
+            operator.say(NO_INPUT_PROMPT, Priority.SAFETY, time.monotonic())
         try:
             if screen != "off":
                 opscreen.start()

@@ -277,13 +277,20 @@ class Operator:
         """On the loop, after each input and tick."""
         now = self.screen.wall()
         self.screen.fold(lambda v: v.apply(msg, out, now))
-        if self.speaker is not None:
-            for taken in out.exits_taken:
-                if not taken.followed:
-                    self.speaker.say(DIFFERENT_EXIT_PROMPT, Priority.GUIDANCE, taken.t_s)
+        for taken in out.exits_taken:
+            if not taken.followed:
+                self.say(DIFFERENT_EXIT_PROMPT, Priority.GUIDANCE, taken.t_s)
         if now >= self._next_live:
             self._next_live = now + LIVE_PERIOD_S
             self.refresh()
+
+    def say(self, text: str, priority: Priority, t_s: float) -> None:
+        """Speak (when there is a voice) and show it with the pipeline's prompts (on the loop)."""
+        if self.speaker is not None:
+            self.speaker.say(text, priority, t_s)
+        now = self.screen.wall()
+        style = "bad" if priority >= Priority.SAFETY else ""
+        self.screen.fold(lambda v: v.add(now, "prompt", text, style))
 
     def refresh(self) -> None:
         p = self.pipeline
@@ -314,10 +321,9 @@ class Operator:
                 text = self.screen.view.last_turn_prompt
             if not text:
                 return "nothing to repeat yet"
-            if self.speaker is not None and self.loop is not None:
-                speaker = self.speaker
+            if self.loop is not None:
                 self.loop.call_soon_threadsafe(
-                    lambda: speaker.say(text, Priority.GUIDANCE, self.clock())
+                    lambda: self.say(text, Priority.GUIDANCE, self.clock())
                 )
             return f"repeating: {text}"
         return f"unknown command {command}"

@@ -49,6 +49,7 @@ from hal_sim.sim_compass import SimCompassPty
 ROOT = Path(__file__).resolve().parents[2]
 KP = {str(d): getattr(ecodes, f"KEY_KP{d}") for d in range(10)}
 CLOCK = r"\d\d:\d\d:\d\d"
+NO_INPUT = "Warning: no co-driver input. Intersections cannot be reported."
 
 
 @pytest.fixture(autouse=True)
@@ -231,6 +232,7 @@ def test_keypad_reaches_the_navigator_under_systemd_conditions(
     assert "NO CO-DRIVER INPUT" not in text
     spoken = capsys.readouterr().err
     assert "Different exit taken. Guidance continues from here." in spoken
+    assert re.search(rf"{CLOCK} prompt: Different exit taken. Guidance continues", text)
 
 
 def test_no_co_driver_input_is_said_loudly(
@@ -257,8 +259,9 @@ def test_no_co_driver_input_is_said_loudly(
         "(input = 'evdev', device); intersections cannot be reported"
     ]
     assert "info: NO CO-DRIVER INPUT: stdin is /dev/null" in out.getvalue()
+    assert re.search(rf"{CLOCK} prompt: {re.escape(NO_INPUT)}", out.getvalue())  # shown too
     spoken = capsys.readouterr().err
-    assert spoken.count("Warning: no co-driver input. Intersections cannot be reported.") == 1
+    assert spoken.count(NO_INPUT) == 1
 
 
 def test_check_says_when_the_input_device_is_missing(tmp_path: Path) -> None:
@@ -404,3 +407,5 @@ def test_repeat_and_mute_keys_act_on_the_real_speaker() -> None:
     assert said.count("At the next intersection, turn left") == 2  # said, then repeated
     assert "bear left" not in said and speaker.dropped_muted == 1
     assert "Warning: odometry is silent" in said and "Continue straight" in said
+    shown = [e.text for e in screen.view.of_kind("prompt", 5)]
+    assert shown == ["At the next intersection, turn left"] * 2  # the repeat is shown too
