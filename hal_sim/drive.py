@@ -20,6 +20,7 @@ from __future__ import annotations
 import argparse
 import asyncio
 import contextlib
+import copy
 import io
 import itertools
 import json
@@ -374,6 +375,7 @@ async def drive_async(
         next_track_t = world.t_s
         next_ellipse_m = pipeline.odometer_m
         next_frame_t = world.t_s
+        copy.deepcopy(world).step()  # compile the world's numba step before the loop's clock
         async with app.running():
             if compass is not None and not await app.wait_until(lambda: compass.connected, 5.0):
                 raise UserError("the simulated compass pty did not open")

@@ -344,6 +344,9 @@ class App:
     @contextlib.asynccontextmanager
     async def running(self) -> AsyncIterator[App]:
         """Start sources and the background tasks; stop and release everything on exit."""
+        from guidance.core.warmup import warm_up
+
+        warm_up()  # numba compiles now, not on the first message (no lag, no false "silent")
         self._loop = asyncio.get_running_loop()
         try:
             async with asyncio.TaskGroup() as tg:
