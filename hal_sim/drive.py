@@ -515,7 +515,7 @@ async def drive_async(
         wall_s=time.monotonic() - wall0,
         seed=opts.seed,
         method=method.value,
-        wav=opts.voice_to,
+        wav=opts.voice_to if opts.voice_to and wav_has_speech(opts.voice_to) else None,
         recording=[str(p) for p in (recorder.files if recorder is not None else [])],
         resumed_at_s=resumed_at,
         health_warnings=health_warnings,
@@ -562,6 +562,25 @@ def _date(text: str) -> Any:
     import datetime as dt
 
     return dt.date.fromisoformat(text)
+
+
+def wav_has_speech(path: str, min_s: float = 0.3, min_rms: float = 100.0) -> bool:
+    """True when ``path`` is a WAV file holding at least ``min_s`` of sound above ``min_rms``
+    (16-bit): what the summary may call "prompts recorded"."""
+    import wave
+
+    import numpy as np
+
+    try:
+        with wave.open(path, "rb") as w:
+            if w.getsampwidth() != 2 or w.getframerate() <= 0:
+                return False
+            rate = w.getframerate()
+            a = np.frombuffer(w.readframes(w.getnframes()), dtype=np.int16).astype(float)
+    except (OSError, EOFError, wave.Error):
+        return False
+    loud = np.abs(a) > min_rms
+    return bool(a.size >= min_s * rate and np.count_nonzero(loud) >= 0.1 * min_s * rate)
 
 
 def _live_voice(clock: Callable[[], float]) -> Any:
@@ -825,6 +844,8 @@ def _cli_sim(args: argparse.Namespace) -> int:
         w(f"  PNG: {result.png}\n")
     if result.wav:
         w(f"  prompts recorded to {result.wav}\n")
+    elif opts.voice_to:
+        w(f"  no speech in {opts.voice_to}: no speech engine (see docs/voice.md)\n")
     if result.recording:
         w(f"  recording: {', '.join(result.recording)}\n")
     if args.json:

@@ -260,3 +260,24 @@ def test_turn_prompts_come_early_enough_at_the_simulated_speed_and_never_twice()
     texts = [text for _t, text in r.prompt_log]
     for a, b in itertools.pairwise(texts):
         assert not (a == b and "straight" in a), (a, b)
+
+
+def test_the_summary_names_a_wav_only_when_it_holds_speech(tmp_path: Path) -> None:
+    import wave
+
+    import numpy as np
+
+    from hal_sim.drive import wav_has_speech
+
+    assert not wav_has_speech(str(tmp_path / "missing.wav"))
+    silent = tmp_path / "silent.wav"
+    with wave.open(str(silent), "wb") as w:
+        w.setnchannels(1)
+        w.setsampwidth(2)
+        w.setframerate(22050)
+        w.writeframes(np.zeros(22050, dtype=np.int16).tobytes())
+    assert not wav_has_speech(str(silent))
+    (tmp_path / "junk.wav").write_bytes(b"RIFF....not a wav")
+    assert not wav_has_speech(str(tmp_path / "junk.wav"))
+    r = run_drive(replace(FAST, voice_to=str(tmp_path / "prompts.wav")))
+    assert r.wav == str(tmp_path / "prompts.wav") and wav_has_speech(r.wav)
