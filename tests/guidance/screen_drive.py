@@ -1,10 +1,11 @@
 """A short drive of ``guidance run`` on simulated devices, for the operator-screen tests.
 
-``python tests/guidance/screen_drive.py DIR [--screen auto]`` writes ``DIR/car.toml`` (CAN on a
-python-can virtual bus fed by ``SimCanWheels`` in this process, the compass on a pty written by
-``SimCompassPty``, the co-driver keypad at ``DIR/keypad``: a FIFO of raw input_event records
-the test writes) and runs ``run_car`` with stdout as it is (a tmux pane: the live view) until
-``DIR/stop`` appears. ``drive_config`` is also used in-process by the tests.
+``python tests/guidance/screen_drive.py DIR [--screen auto] [--input evdev|keyboard]`` writes
+``DIR/car.toml`` (CAN on a python-can virtual bus fed by ``SimCanWheels`` in this process, the
+compass on a pty written by ``SimCompassPty``, the co-driver keypad at ``DIR/keypad``: a FIFO
+of raw input_event records the test writes; or with ``--input keyboard`` the terminal itself)
+and runs ``run_car`` with stdout as it is (a tmux pane: the live view) until ``DIR/stop``
+appears. ``drive_config`` is also used in-process by the tests.
 """
 
 from __future__ import annotations
@@ -56,7 +57,7 @@ enabled = false
     return cfg
 
 
-async def _drive(directory: Path, screen: str) -> int:
+async def _drive(directory: Path, screen: str, co_driver: str) -> int:
     from guidance.app.run import run_car
     from hal_sim.sim_can import SimCanWheels
     from hal_sim.sim_compass import SimCompassPty
@@ -69,7 +70,11 @@ async def _drive(directory: Path, screen: str) -> int:
             directory,
             channel=channel,
             compass_port=pty.port,
-            scene=f'input = "evdev"\ndevice = "{directory / "keypad"}"',
+            scene=(
+                f'input = "evdev"\ndevice = "{directory / "keypad"}"'
+                if co_driver == "evdev"
+                else 'input = "keyboard"'
+            ),
         )
         task = asyncio.create_task(run_car(str(cfg), screen=screen))
         await asyncio.sleep(0.3)
@@ -90,9 +95,10 @@ def main() -> int:
     parser = argparse.ArgumentParser()
     parser.add_argument("directory", type=Path)
     parser.add_argument("--screen", default="auto")
+    parser.add_argument("--input", default="evdev", choices=("evdev", "keyboard"))
     args = parser.parse_args()
     sys.path.insert(0, str(ROOT))
-    return asyncio.run(_drive(args.directory, args.screen))
+    return asyncio.run(_drive(args.directory, args.screen, args.input))
 
 
 if __name__ == "__main__":

@@ -280,52 +280,77 @@ def test_check_says_when_the_input_device_is_missing(tmp_path: Path) -> None:
 # ----------------------------------------------------------------------------- a real terminal
 
 
-@pytest.mark.skipif(
-    shutil.which("tmux") is None, reason="tmux is not installed (.ci/run installs it)"
-)
-def test_live_screen_in_a_real_terminal_shows_instruction_uncertainty_and_health(
-    tmp_path: Path,
-) -> None:
-    """``guidance run`` on simulated devices inside a tmux pane (a real pty, 100x40); the keys
-    come from the keypad FIFO; the pane's text is captured and checked."""
-    keypad = tmp_path / "keypad"
-    os.mkfifo(keypad)
-    fd = os.open(keypad, os.O_RDWR)
-    sock = f"guidance-test-{os.getpid()}"
-    tmux = ["tmux", "-L", sock, "-f", "/dev/null"]
-    command = (
-        f"cd {ROOT} && {sys.executable} tests/guidance/screen_drive.py {tmp_path} "
-        f"2> {tmp_path / 'stderr.txt'}; echo EXITED $?; sleep 30"
-    )
-    env = {**os.environ, "TERM": "xterm-256color", "PYTHONPATH": str(ROOT)}
-    env.pop("TMUX", None)
-    subprocess.run([*tmux, "new-session", "-d", "-x", "100", "-y", "40", "-s", "drive", command],
-                   check=True, env=env)  # fmt: skip
+class Pane:
+    """``tests/guidance/screen_drive.py`` in a tmux pane (a real pty, 100x40)."""
 
-    def capture() -> str:
-        done = subprocess.run([*tmux, "capture-pane", "-p", "-t", "drive"],
+    def __init__(self, directory: Path, co_driver: str) -> None:
+        self.dir = directory
+        self.tmux = ["tmux", "-L", f"guidance-test-{os.getpid()}", "-f", "/dev/null"]
+        command = (
+            f"cd {ROOT} && {sys.executable} tests/guidance/screen_drive.py {directory} "
+            f"--input {co_driver} 2> {directory / 'stderr.txt'}; echo EXITED $?; sleep 30"
+        )
+        env = {**os.environ, "TERM": "xterm-256color", "PYTHONPATH": str(ROOT)}
+        env.pop("TMUX", None)
+        subprocess.run([*self.tmux, "new-session", "-d", "-x", "100", "-y", "40", "-s", "drive",
+                        command], check=True, env=env)  # fmt: skip
+        deadline = time.monotonic() + 60.0
+        while not (directory / "running").exists() and time.monotonic() < deadline:
+            time.sleep(0.1)
+        assert (directory / "running").exists(), self.capture() + self.stderr()
+        time.sleep(1.0)
+
+    def stderr(self) -> str:
+        path = self.dir / "stderr.txt"
+        return path.read_text() if path.exists() else ""
+
+    def capture(self) -> str:
+        done = subprocess.run([*self.tmux, "capture-pane", "-p", "-t", "drive"],
                               capture_output=True, text=True)  # fmt: skip
         return done.stdout
 
-    def wait_for(predicate: Callable[[str], bool], timeout_s: float) -> str:
+    def send_keys(self, *keys: str) -> None:
+        for key in keys:  # one at a time, as typed
+            subprocess.run([*self.tmux, "send-keys", "-t", "drive", key], check=True)
+            time.sleep(0.05)
+
+    def wait_for(self, predicate: Callable[[str], bool], timeout_s: float = 20.0) -> str:
         deadline = time.monotonic() + timeout_s
         while True:
-            screen = capture()
+            screen = self.capture()
             if predicate(screen) or time.monotonic() > deadline:
                 return screen
             time.sleep(0.2)
 
+    def stop(self) -> str:
+        """Ask the drive to stop; the pane after it exited."""
+        (self.dir / "stop").touch()
+        return self.wait_for(lambda s: "EXITED" in s)
+
+    def close(self) -> None:
+        subprocess.run([*self.tmux, "kill-server"], capture_output=True)
+
+
+needs_tmux = pytest.mark.skipif(
+    shutil.which("tmux") is None, reason="tmux is not installed (.ci/run installs it)"
+)
+
+
+@needs_tmux
+def test_live_screen_in_a_real_terminal_shows_instruction_uncertainty_and_health(
+    tmp_path: Path,
+) -> None:
+    """``guidance run`` on simulated devices inside a tmux pane; the keys come from the keypad
+    FIFO; the pane's text is captured and checked."""
+    keypad = tmp_path / "keypad"
+    os.mkfifo(keypad)
+    fd = os.open(keypad, os.O_RDWR)
+    pane = Pane(tmp_path, "evdev")
     try:
-        deadline = time.monotonic() + 60.0
-        while not (tmp_path / "running").exists() and time.monotonic() < deadline:
-            time.sleep(0.1)
-        assert (tmp_path / "running").exists(), capture() + (tmp_path / "stderr.txt").read_text()
-        time.sleep(1.0)
         os.write(fd, keys("486\n"))
-        screen = wait_for(
+        screen = pane.wait_for(
             lambda s: "Turn left, at the next intersection" in s
-            and "odometry ok" in s and "compass ok" in s and "position good to" in s,
-            20.0,
+            and "odometry ok" in s and "compass ok" in s and "position good to" in s
         )  # fmt: skip
         print(screen)  # pytest -s shows the captured screen
         assert (
@@ -339,12 +364,32 @@ def test_live_screen_in_a_real_terminal_shows_instruction_uncertainty_and_health
         assert re.search(rf"KEY\s+{CLOCK} ok: exits left, straight, right", screen)
         assert "HEADING" in screen and "deg E (clockwise from north)" in screen
         assert "+ help" in screen  # the keys line
-        (tmp_path / "stop").touch()
-        final = wait_for(lambda s: "EXITED" in s, 20.0)
-        assert "EXITED 0" in final, final + (tmp_path / "stderr.txt").read_text()
+        final = pane.stop()
+        assert "EXITED 0" in final, final + pane.stderr()
     finally:
-        subprocess.run([*tmux, "kill-server"], capture_output=True)
+        pane.close()
         os.close(fd)
+
+
+@needs_tmux
+def test_terminal_keyboard_under_the_live_screen_acknowledges_each_key(tmp_path: Path) -> None:
+    """[scene] input = "keyboard" on the pane's own terminal: typed keys show on the TYPING
+    line as they are typed (no terminal echo under the live view), Enter decides, ? helps."""
+    pane = Pane(tmp_path, "keyboard")
+    try:
+        pane.send_keys("l", "Space", "s")
+        typing = pane.wait_for(lambda s: "typing: l s_" in s)
+        assert re.search(rf"TYPING\s+{CLOCK} typing: l s_", typing), typing
+        pane.send_keys("Space", "r", "Enter")
+        decided = pane.wait_for(lambda s: "Turn left, at the next intersection" in s)
+        assert re.search(rf"KEY\s+{CLOCK} ok: exits left, straight, right", decided), decided
+        pane.send_keys("?")
+        helped = pane.wait_for(lambda s: "commands: ? or help" in s)
+        assert "turn taken: tl, turned left" in helped, helped
+        final = pane.stop()
+        assert "EXITED 0" in final, final + pane.stderr()
+    finally:
+        pane.close()
 
 
 # ----------------------------------------------------------------------------- voice keys
