@@ -10,9 +10,8 @@ car uses is ready before the first real message.
 from __future__ import annotations
 
 import math
-from dataclasses import replace
 
-from guidance.core.estimator import CAR_MODEL, EstimatorConfig
+from guidance.core.estimator import EstimatorConfig, car_model
 from guidance.core.messages import CompassHeading, IntersectionScene, LandmarkFix, WheelOdometry
 from guidance.core.navigator import Landmark, NavigatorConfig
 
@@ -22,7 +21,7 @@ def warm_up() -> None:
     from guidance.core.pipeline import Pipeline, PipelineConfig
 
     paper = EstimatorConfig()
-    car = replace(paper, compass_bias_sigma_deg=10.0, **CAR_MODEL)
+    car = car_model(paper, calibrated=False)
     for est in (paper, car):
         p = Pipeline(
             PipelineConfig(
