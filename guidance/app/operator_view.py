@@ -90,6 +90,8 @@ def _sentence(text: str) -> str:
 def _input_text(st: InputStatus) -> tuple[str, str]:
     if not st.alive:
         word, style = ("silent" if st.age_s is not None else "no data"), "bad"
+    elif st.age_s is None:
+        word, style = "starting", "warn"  # in its grace period: nothing received yet
     elif not st.valid:
         word, style = "garbled", "bad"
     else:

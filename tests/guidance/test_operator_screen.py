@@ -138,6 +138,11 @@ def test_unhealthy_input_and_unknown_heading_are_flagged() -> None:
     )  # fmt: skip
     rows = view.rows()
     assert ("INPUT", "odometry silent 0.0/20 Hz", "bad") in rows
+    view.set_live(
+        inputs={"compass": InputStatus("compass", True, True, 0.0, None, 5.0)},
+        target=None, heading_known=True, speed_mps=0.0, co_driver="", co_driver_ok=False,
+    )  # fmt: skip
+    assert ("INPUT", "compass starting 0.0/5 Hz", "warn") in view.rows()  # not "ok" yet
     assert rows[0] == (
         "NEXT", "no advice: waiting for a heading (compass or start heading)", "warn"
     )  # fmt: skip
