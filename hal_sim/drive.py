@@ -537,6 +537,7 @@ def _sim_camera(world: Any, opts: DriveOptions, out_dir: Path) -> tuple[Any, Any
     the navigator's landmark list with the database ids."""
     from guidance.core.navigator import Landmark
     from hal_sim.sim_camera import SimCamera, build_sim_landmark_db
+    from hal_sim.sim_scene import landmark_name
     from landmark_db.recognise import Recogniser, RecogniserConfig
 
     out_dir.mkdir(parents=True, exist_ok=True)
@@ -546,7 +547,7 @@ def _sim_camera(world: Any, opts: DriveOptions, out_dir: Path) -> tuple[Any, Any
     db, lms = build_sim_landmark_db(path, world.lm_xy, opts.seed)
     recogniser = Recogniser(db, RecogniserConfig(sighting_range_m=world.sim.sighting_range_m))
     camera = SimCamera(lms, opts.seed)
-    landmarks = tuple(Landmark(lm.id, lm.x_m, lm.y_m, f"landmark {lm.id}") for lm in lms)
+    landmarks = tuple(Landmark(lm.id, lm.x_m, lm.y_m, landmark_name(i)) for i, lm in enumerate(lms))
     return camera, recogniser, landmarks
 
 

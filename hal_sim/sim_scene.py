@@ -148,7 +148,7 @@ class SimWorld:
 
     def landmarks(self) -> tuple[Landmark, ...]:
         return tuple(
-            Landmark(k, float(self.lm_xy[k, 0]), float(self.lm_xy[k, 1]), f"landmark {k}")
+            Landmark(k, float(self.lm_xy[k, 0]), float(self.lm_xy[k, 1]), landmark_name(k))
             for k in range(len(self.lm_xy))
         )
 
@@ -291,3 +291,18 @@ class SimSightings:
         if self._sink is not None:
             self._sink(fix)
         return fix
+
+
+_PLACES = ("bakery", "town hall", "red church", "post office", "library", "clock tower",
+           "fire station", "old mill", "bank", "theatre", "fountain", "school", "museum",
+           "hotel", "pharmacy", "market hall", "bridge", "cinema")  # fmt: skip
+_STREETS = ("Elm", "Oak", "Main", "Mill", "Park", "Lake", "Hill", "Church", "King", "Queen",
+            "Bridge", "Station", "Market")  # fmt: skip
+
+
+def landmark_name(k: int) -> str:
+    """A name a driver can hear for simulated landmark k ("the bakery on Elm Street")."""
+    place = _PLACES[k % len(_PLACES)]
+    street = _STREETS[(k // len(_PLACES)) % len(_STREETS)]
+    return f"the {place} on {street} Street"
+

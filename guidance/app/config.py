@@ -24,6 +24,7 @@ from pathlib import Path
 from typing import Any
 
 from guidance.app.backends import BACKENDS, SCENE_BACKENDS, import_backend
+from guidance.app.landmarks import LandmarkSettings, parse_landmarks_table
 from guidance.app.tables import _check_document, _check_type, _in_table, _name, _Table, _table
 from guidance.core.estimator import EstimatorConfig, car_model
 from guidance.core.health import HealthConfig
@@ -123,6 +124,8 @@ class AppConfig:
     max_loop_lag_s: float = 0.5
     sim: Mapping[str, Any] = field(default_factory=dict)
     """The ``[sim]`` table, read by ``guidance sim`` only."""
+    landmark_db: LandmarkSettings | None = None
+    """``[landmarks] database``: landmark updates from the camera (guidance/app/landmarks.py)."""
 
 
 def _device(
@@ -436,7 +439,12 @@ def parse_config(
         recording = RecordingConfig.from_mapping(rec_table, base_dir)
     recording = dataclasses.replace(recording, origin_lat_lon_deg=origin)
 
-    landmarks = _landmarks(data.get("landmarks", []), origin)
+    landmark_db = None
+    if isinstance(data.get("landmarks"), Mapping):  # [landmarks]: a database and its matcher
+        landmark_db = parse_landmarks_table(data["landmarks"], base_dir)
+        landmarks: tuple[Landmark, ...] = ()  # read from the database when the car starts
+    else:  # [[landmarks]]: positions only
+        landmarks = _landmarks(data.get("landmarks", []), origin)
 
     rates: dict[str, float | None] = {}
     if odometry is not None:
@@ -492,6 +500,7 @@ def parse_config(
         health_publish_period_s=health_period,
         max_loop_lag_s=max_lag,
         sim=types.MappingProxyType(dict(sim)),
+        landmark_db=landmark_db,
     )
 
 

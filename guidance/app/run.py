@@ -13,11 +13,13 @@ import signal
 import stat
 import sys
 import time
+from dataclasses import replace
 from pathlib import Path
 from typing import TYPE_CHECKING, Any, TextIO
 
 from guidance.app.app import GIL_SWITCH_INTERVAL_S, App, Source
 from guidance.app.build import OutputSettings, open_outputs, session_record, start_checkpoints
+from guidance.app.landmarks import landmark_warnings, open_landmarks
 from guidance.app.operator_view import OperatorView
 from guidance.app.screen import (
     NO_INPUT_PROMPT,
@@ -84,7 +86,15 @@ async def run_car(
 
     cfg = load_config(config_path)
     sys.setswitchinterval(GIL_SWITCH_INTERVAL_S)
-    pipeline = Pipeline(cfg.pipeline)
+    recogniser = None
+    pcfg = cfg.pipeline
+    if cfg.landmark_db is not None:  # the database and the matcher load off the event loop
+        recogniser, landmarks = await asyncio.get_running_loop().run_in_executor(
+            None, open_landmarks, cfg.landmark_db, cfg.origin_lat_lon_deg
+        )
+        pcfg = replace(pcfg, landmarks=landmarks)
+        log.info("landmarks: %d from %s", len(landmarks), cfg.landmark_db.database)
+    pipeline = Pipeline(pcfg)
     checkpointer = start_checkpoints(
         pipeline,
         cfg.checkpoint.path,
@@ -159,6 +169,7 @@ async def run_car(
             pipeline,
             sources=sources,
             camera=camera,
+            recogniser=recogniser,
             speaker=speaker,
             telemetry=out.telemetry,
             recorder=out.recorder,
@@ -239,6 +250,8 @@ def _cli_run(args: argparse.Namespace) -> int:
             )
         elif cfg.scene.input == "none":
             print("warning: [scene] input = 'none': no co-driver input", file=sys.stderr)  # noqa: T201
+        for line in landmark_warnings(cfg):
+            print(f"warning: {line}", file=sys.stderr)  # noqa: T201
         return 0
     if not args.config.is_file():
         raise UserError(f"config file not found: {args.config}")

@@ -115,7 +115,21 @@ def decision_prompt(
 
 
 def landmark_confirmed(name: str = "") -> str:
-    return f"Landmark confirmed: {name}" if name else "Landmark confirmed"
+    """A landmark fix, said by the place's name ("Passing the town hall: position confirmed");
+    a bare number or an internal id is never read out."""
+    spoken = name.strip()
+    if not spoken or _looks_like_an_id(spoken):
+        return "Landmark passed: position confirmed"
+    return f"Passing {spoken}: position confirmed"
+
+
+def _looks_like_an_id(name: str) -> bool:
+    """'57', 'landmark 57', 'sim-00057', 'lm_57': numbering, not a name a driver can use."""
+    words = name.replace("-", " ").replace("_", " ").split()
+    return any(ch.isdigit() for ch in words[-1]) and len(words) <= 2 and not any(
+        w.isalpha() and len(w) > 2 and w.lower() not in ("landmark", "sim", "lm", "mark")
+        for w in words
+    )
 
 
 def position_uncertain(major_axis_m: float, units: Units = Units.METRIC) -> str:

@@ -273,7 +273,7 @@ def test_recogniser_runs_off_the_loop_on_the_latest_frame() -> None:
     assert 4 <= recogniser.calls <= 13  # paced by the matcher, not by the camera
     assert app.counts["frames_dropped"] > 0  # older frames were overwritten (one-slot ring)
     assert pipeline.landmark_updates == 1
-    assert "Landmark confirmed: church" in speech.getvalue()
+    assert "Passing church: position confirmed" in speech.getvalue()
     # The loop stayed responsive while matching ran: typical lateness far below the 50 ms
     # a match takes (the figures under load are in benchmarks/loop_latency.py).
     assert (app.lag_summary()["loop_lag_p50_ms"] or 0.0) < 10.0

@@ -73,8 +73,11 @@ def test_then_form_for_two_close_turns(gap_m: float, text: str) -> None:
 
 
 def test_event_phrases() -> None:
-    assert prompts.landmark_confirmed("Town Hall") == "Landmark confirmed: Town Hall"
-    assert prompts.landmark_confirmed() == "Landmark confirmed"
+    assert prompts.landmark_confirmed("the town hall") == "Passing the town hall: position confirmed"
+    assert prompts.landmark_confirmed() == "Landmark passed: position confirmed"
+    for internal in ("57", "landmark 57", "sim-00057", "lm_3"):  # never read out an id
+        assert prompts.landmark_confirmed(internal) == "Landmark passed: position confirmed"
+    assert prompts.landmark_confirmed("Gate 5") == "Passing Gate 5: position confirmed"
     assert prompts.position_uncertain(83.0) == "Position uncertain, within 80 metres"
     assert prompts.position_uncertain(83.0, IMP) == "Position uncertain, within 250 feet"
     assert prompts.arrived() == "You have arrived at your destination"
