@@ -16,6 +16,7 @@ from mcap.records import Channel, Message, Schema
 from mcap.stream_reader import StreamReader
 
 from guidance.errors import UserError
+from guidance.recording.scan import Damage, scan_records
 
 if TYPE_CHECKING:
     pass
@@ -54,8 +55,9 @@ class Reader:
 
     ``log_time_order=False`` gives them in the order they were written (the
     order the application recorded them). Files cut short by a crash are read
-    up to the damage and listed in ``recovered``; messages that are not JSON
-    objects are skipped and counted in ``skipped``.
+    up to the damage and listed in ``recovered``; damaged chunks (CRC) and records are left out
+    and counted in ``damage``, the rest is read; messages that are not JSON objects are skipped
+    and counted in ``skipped``.
     """
 
     def __init__(
@@ -70,6 +72,8 @@ class Reader:
         self.log_time_order = log_time_order
         self.recovered: list[Path] = []
         self.skipped = 0
+        self.damage = Damage()
+        """What could not be read: chunks failing their CRC, broken records (``scan``)."""
 
     def __iter__(self) -> Iterator[RecordedMessage]:
         streams = [self._iter_file(p) for p in self.files]
@@ -102,35 +106,34 @@ class Reader:
         return out
 
     def _iter_file(self, path: Path) -> Iterator[tuple[int, RecordedMessage]]:
+        """Chunk by chunk with CRCs checked (``scan``): damage is counted in ``damage`` and
+        the rest read; the summary, when readable, only names the channels."""
+        channels: dict[int, str] = {}
         with path.open("rb") as f:
             summary = _summary(f)
-            if summary is not None and summary.chunk_indexes:
-                reader = make_reader(f)
-                for _schema_rec, channel, message in reader.iter_messages(
-                    topics=self.topics, log_time_order=self.log_time_order
-                ):
-                    rec = self._decode(channel.topic, message)
-                    if rec is not None:
-                        yield message.log_time, rec
-                return
-            if summary is None:
-                self.recovered.append(path)
-                log.info("recording %s has no summary (cut short?): reading up to the damage", path)
-            f.seek(0)
-            channels: dict[int, str] = {}
-            found: list[tuple[int, RecordedMessage]] = []
-            for record in _records_until_damage(f):
-                if isinstance(record, Channel):
-                    channels[record.id] = record.topic
-                elif isinstance(record, Message):
-                    topic = channels.get(record.channel_id)
-                    if topic is None or (self.topics is not None and topic not in self.topics):
-                        continue
-                    rec = self._decode(topic, record)
-                    if rec is not None:
-                        found.append((record.log_time, rec))
-            if self.log_time_order:
-                found.sort(key=lambda pair: pair[0])
+        if summary is not None:
+            channels.update({cid: ch.topic for cid, ch in summary.channels.items()})
+        truncated = self.damage.truncated_files
+        found: list[tuple[int, RecordedMessage]] = []
+        for record in scan_records(path, self.damage):
+            if isinstance(record, Channel):
+                channels[record.id] = record.topic
+            elif isinstance(record, Message):
+                topic = channels.get(record.channel_id)
+                if topic is None or (self.topics is not None and topic not in self.topics):
+                    continue
+                rec = self._decode(topic, record)
+                if rec is None:
+                    continue
+                if self.log_time_order:
+                    found.append((record.log_time, rec))
+                else:
+                    yield record.log_time, rec
+        if self.damage.truncated_files > truncated:
+            self.recovered.append(path)
+            log.info("recording %s is cut short: read up to the damage", path)
+        if self.log_time_order:
+            found.sort(key=lambda pair: pair[0])
             yield from found
 
     def _decode(self, topic: str, message: Message) -> RecordedMessage | None:

@@ -51,6 +51,13 @@ def build_parser() -> argparse.ArgumentParser:
     for command in sub.choices.values():  # `guidance monitor --version` works too
         with contextlib.suppress(argparse.ArgumentError):  # unless it has its own
             command.add_argument("--version", action="version", version=version)
+        with contextlib.suppress(argparse.ArgumentError):  # `guidance CMD --debug` as well
+            command.add_argument(
+                "--debug",
+                action="store_true",
+                default=argparse.SUPPRESS,  # absent: keeps `guidance --debug CMD`'s value
+                help="show tracebacks and debug logs",
+            )
     return parser
 
 
@@ -77,7 +84,7 @@ def main(argv: Sequence[str] | None = None) -> int:
             raise
         print(
             f"guidance {args.command}: internal error: {type(exc).__name__}: {exc} "
-            "(run with --debug for the traceback)",
+            f"(run `guidance --debug {args.command} ...` for the traceback)",
             file=sys.stderr,
         )
         return 1

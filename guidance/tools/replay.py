@@ -32,166 +32,32 @@ from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
-from guidance.core.messages import (
-    CompassHeading,
-    TurnCompleted,
-    WheelOdometry,
-)
+from guidance.core.messages import CompassHeading, WheelOdometry
 from guidance.errors import UserError
+from guidance.tools.replay_mcap import (
+    INPUT_TOPICS,
+    RAW_TOPICS,
+    mcap_inputs,
+    message_from_record,
+    recorded_outputs,
+)
+from guidance.tools.replay_session import pipeline_config_from_session, recording_sessions
 from guidance.tools.track import TrackWriter
 
 if TYPE_CHECKING:  # the estimator stack (filterpy, scipy, numba) loads on first use only
     from guidance.core.pipeline import Input, Outputs, Pipeline, PipelineConfig
 
+__all__ = [
+    "INPUT_TOPICS",
+    "RAW_TOPICS",
+    "mcap_inputs",
+    "message_from_record",
+    "pipeline_config_from_session",
+    "recorded_outputs",
+    "recording_sessions",
+]
+
 DEFAULT_PROFILE = "gm_global_a"
-
-INPUT_TOPICS = (
-    "/odometry",
-    "/compass",
-    "/heading",
-    "/landmark_fix",
-    "/scene",
-    "/approach",
-    "/goal",
-)
-
-
-# ----------------------------------------------------------------------------- MCAP
-
-
-def pipeline_config_from_session(session: Mapping[str, Any]) -> PipelineConfig:
-    """Rebuild the pipeline configuration from a recording's ``/session`` record."""
-    from guidance.core.estimator import EstimatorConfig
-    from guidance.core.health import HealthConfig
-    from guidance.core.navigator import Landmark, Method, NavigatorConfig
-    from guidance.core.pipeline import PipelineConfig
-    from guidance.core.prompts import Units
-
-    d = session.get("pipeline")
-    if not isinstance(d, Mapping):
-        raise UserError("the recording's /session record has no pipeline configuration")
-    est = EstimatorConfig(**d["estimator"])
-    nav_d = dict(d["navigator"])
-    nav_d["method"] = Method(nav_d["method"])
-    nav = NavigatorConfig(**nav_d)
-    heading = d.get("start_heading_rad")
-    return PipelineConfig(
-        estimator=est,
-        navigator=nav,
-        start_xy_m=(float(d["start_xy_m"][0]), float(d["start_xy_m"][1])),
-        goal_xy_m=(float(d["goal_xy_m"][0]), float(d["goal_xy_m"][1])),
-        start_heading_rad=None if heading is None else float(heading),
-        landmarks=tuple(Landmark(**lm) for lm in d.get("landmarks", [])),
-        declination_deg=float(d.get("declination_deg", 0.0)),
-        mounting_offset_deg=float(d.get("mounting_offset_deg", 0.0)),
-        units=Units(d.get("units", "metric")),
-        state_period_s=float(d.get("state_period_s", 0.1)),
-        expected_rates_hz=dict(d.get("expected_rates_hz", {})),
-        health=HealthConfig(),
-        straight_after_m=float(d.get("straight_after_m", 25.0)),
-        uncertain_warn_m=float(d.get("uncertain_warn_m", 50.0)),
-        stop_at_arrival=bool(d.get("stop_at_arrival", True)),
-    )
-
-
-def message_from_record(topic: str, data: Mapping[str, Any]) -> Input | None:
-    """One recorded input back as the message the pipeline took (``guidance.core.codec``).
-
-    Turns the pipeline's own detector reported are left out: replay re-derives them."""
-    from guidance.core.codec import from_record
-
-    msg = from_record(topic, data)
-    if isinstance(msg, TurnCompleted) and msg.source == "detected":
-        return None
-    return msg
-
-
-def _decoded(topic: str, data: Mapping[str, Any], skipped: list[str]) -> Input | None:
-    """``message_from_record``, counting a damaged record instead of failing the replay."""
-    from guidance.core.codec import CodecError
-
-    try:
-        return message_from_record(topic, data)
-    except CodecError as exc:
-        skipped.append(str(exc))
-        return None
-
-
-RAW_TOPICS = ("/can", "/nmea", "/heading", "/landmark_fix", "/scene", "/approach", "/goal")
-
-
-def mcap_inputs(
-    path: str | Path,
-    *,
-    raw: bool = False,
-    profile: str = "gm_global_a",
-    skipped: list[str] | None = None,
-) -> tuple[dict[str, Any], Iterator[Input]]:
-    """The session record and the recorded inputs (in processing order) of a recording.
-
-    ``raw=True`` decodes the raw ``/can`` frames and ``/nmea`` lines again with the car's
-    decoder (``profile``) and compass parser instead of taking the decoded ``/odometry`` and
-    ``/compass`` the app recorded: the drivers' decoding is then part of what is replayed.
-    Records that do not decode are left out and described in ``skipped``.
-    """
-    bad: list[str] = skipped if skipped is not None else []
-    from guidance.recording.reader import Reader
-
-    sessions = list(Reader(path, topics=["/session"], log_time_order=False))
-    if not sessions:
-        raise UserError(f"{path}: no /session record; was it recorded by guidance run/sim?")
-    session = sessions[0].data
-
-    def inputs() -> Iterator[Input]:
-        for rec in Reader(path, topics=INPUT_TOPICS, log_time_order=False):
-            msg = _decoded(rec.topic, rec.data, bad)
-            if msg is not None:
-                yield msg
-
-    def raw_inputs() -> Iterator[Input]:
-        import can
-
-        from drivers.can_odometry import WheelSpeedDecoder
-        from drivers.compass import NmeaCompassParser
-
-        decoder = WheelSpeedDecoder(profile)
-        parser = NmeaCompassParser()
-        for rec in Reader(path, topics=RAW_TOPICS, log_time_order=False):
-            d = rec.data
-            if rec.topic == "/can":
-                frame = can.Message(
-                    timestamp=float(d["t_s"]),
-                    arbitration_id=int(d["id"]),
-                    data=bytes.fromhex(str(d["data_hex"])),
-                    is_extended_id=bool(d.get("is_extended_id", False)),
-                    is_error_frame=bool(d.get("is_error_frame", False)),
-                )
-                odo = decoder.feed(frame)
-                if odo is not None:
-                    yield odo
-            elif rec.topic == "/nmea":
-                heading = parser.feed_line(
-                    str(d["line"]).encode("ascii", "replace"), float(d["t_s"])
-                )
-                if heading is not None:
-                    yield heading
-            else:
-                msg = _decoded(rec.topic, d, bad)
-                if msg is not None:
-                    yield msg
-
-    return session, raw_inputs() if raw else inputs()
-
-
-def recorded_outputs(path: str | Path) -> dict[str, list[dict[str, Any]]]:
-    """The decisions and states the recording holds (what the live run computed)."""
-    from guidance.recording.reader import Reader
-
-    out: dict[str, list[dict[str, Any]]] = {"/decision": [], "/state": []}
-    for rec in Reader(path, topics=list(out), log_time_order=False):
-        out[rec.topic].append(rec.data)
-    return out
-
 
 # ----------------------------------------------------------------------------- raw logs
 
@@ -472,66 +338,134 @@ def register(sub: Any) -> None:
 
 
 def _cli_replay(args: argparse.Namespace) -> int:
-    from guidance.core.pipeline import Pipeline
-
-    if args.speed is not None and args.speed <= 0:
-        raise UserError("--speed must be > 0")
+    if args.speed is not None and not (math.isfinite(args.speed) and args.speed > 0):
+        raise UserError("--speed must be a finite number > 0")
     path: Path = args.file
     is_mcap = path.is_dir() or path.suffix.lower() == ".mcap"
-    problems: list[str] | None = None
-
-    def show(_msg: Input, out: Outputs) -> None:
-        if not args.json:
-            for pr in out.prompts:
-                sys.stdout.write(f"[{pr.t_s:9.2f} s] {pr.text}\n")
-
+    current: list[Pipeline] = []
     track = TrackWriter(args.track) if args.track is not None else None
 
     def on_output(msg: Input, out: Outputs) -> None:
-        show(msg, out)
-        if track is not None and isinstance(msg, WheelOdometry) and out.accepted:
-            track.write(pipeline.state())
-
-    if is_mcap:
-        skipped: list[str] = []
-        session, inputs = mcap_inputs(
-            path, raw=args.raw, profile=args.profile or DEFAULT_PROFILE, skipped=skipped
-        )
-        pipeline = Pipeline(pipeline_config_from_session(session))
-        try:
-            res = replay(pipeline, inputs, speed=args.speed, on_output=on_output)
-        finally:
-            if track is not None:
-                track.close()
-        problems = compare_with_recording(res, recorded_outputs(path))
-        if skipped:
-            sys.stderr.write(
-                f"guidance replay: {len(skipped)} damaged input records left out "
-                f"(first: {skipped[0]})\n"
-            )
-    else:
-        setup = raw_setup(args.config, args.profile, args.start_heading_deg, path)
-        pcfg = setup.pipeline
-        if args.nmea is None and pcfg.start_heading_rad is None:
-            raise UserError("no compass log: give --start-heading-deg or a --config with one")
         if not args.json:
-            for note in setup.notes:
-                sys.stdout.write(f"note: {note}\n")
-        if args.nmea is None and "compass" in pcfg.expected_rates_hz:  # not replayed: not silent
-            rates = {k: v for k, v in pcfg.expected_rates_hz.items() if k != "compass"}
-            pcfg = replace(pcfg, expected_rates_hz=rates)
-        streams: list[Iterator[Any]] = [can_inputs(path, setup.profile)]
-        if args.nmea is not None:
-            streams.append(nmea_inputs(args.nmea, _first_can_time(path), args.nmea_rate))
-        merged = heapq.merge(*streams, key=lambda m: m.t_s)
-        pipeline = Pipeline(pcfg)
-        try:
-            res = replay(pipeline, merged, speed=args.speed, on_output=on_output)
-        finally:
-            if track is not None:
-                track.close()
-    if args.write_expected is not None:
+            for pr in out.prompts:
+                sys.stdout.write(f"[{pr.t_s:9.2f} s] {pr.text}\n")
+        if track is not None and isinstance(msg, WheelOdometry) and out.accepted:
+            track.write(current[-1].state())
+
+    summaries: list[dict[str, Any]] = []
+    failed = 0
+    res: ReplayResult | None = None
+    try:
+        if is_mcap:
+            groups = recording_sessions(path)
+            for files in groups:
+                if len(groups) > 1 and not args.json:
+                    sys.stdout.write(f"session {files[0].name} ({len(files)} file(s))\n")
+                try:
+                    res, summary = _replay_mcap(files, args, current, on_output)
+                except UserError as exc:
+                    if len(groups) == 1:
+                        raise
+                    failed += 1
+                    sys.stderr.write(f"guidance replay: {files[0].name}: error: {exc}\n")
+                    summaries.append({"files": [f.name for f in files], "error": str(exc)})
+                    continue
+                summaries.append(summary)
+        else:
+            res = _replay_raw(path, args, current, on_output)
+            summaries.append(_print_result(res, None, args))
+    finally:
+        if track is not None:
+            track.close()
+    if args.write_expected is not None and res is not None:
         args.write_expected.write_text(json.dumps(res.expected(), indent=1) + "\n")
+    if args.json:
+        doc = summaries[0] if len(summaries) == 1 else {"sessions": summaries}
+        sys.stdout.write(json.dumps(doc) + "\n")
+    if failed:
+        return 2
+    return 1 if any(s.get("differences") for s in summaries) else 0
+
+
+def _replay_mcap(
+    files: list[Path],
+    args: argparse.Namespace,
+    current: list[Pipeline],
+    on_output: Callable[[Input, Outputs], None],
+) -> tuple[ReplayResult, dict[str, Any]]:
+    """One recorded session: its inputs through a fresh pipeline, compared with its outputs;
+    damaged records and chunks are counted and reported, the rest replayed."""
+    from guidance.core.pipeline import Pipeline
+    from guidance.recording.scan import Damage
+
+    skipped: list[str] = []
+    damage = Damage()
+    session, inputs = mcap_inputs(
+        files,
+        raw=args.raw,
+        profile=args.profile or DEFAULT_PROFILE,
+        skipped=skipped,
+        damage=damage,
+    )
+    current.append(Pipeline(pipeline_config_from_session(session)))
+    res = replay(current[-1], inputs, speed=args.speed, on_output=on_output)
+    problems = compare_with_recording(res, recorded_outputs(files, skipped))
+    where = files[0].name if len(files) == 1 else f"{files[0].name} (+{len(files) - 1})"
+    if skipped:
+        sys.stderr.write(
+            f"guidance replay: {where}: {len(skipped)} damaged records left out "
+            f"(first: {skipped[0]})\n"
+        )
+    if damage.any:
+        sys.stderr.write(
+            f"guidance replay: {where}: damaged recording: {damage.bad_chunks} chunks failed "
+            f"their CRC or decoding, {damage.bad_records} broken records, "
+            f"{damage.skipped_bytes} bytes skipped; the rest was replayed"
+            + (f" (first: {damage.notes[0]})" if damage.notes else "")
+            + "\n"
+        )
+    summary = _print_result(res, problems, args)
+    summary["files"] = [f.name for f in files]
+    summary["damaged_records"] = len(skipped)
+    summary["damage"] = {
+        "bad_chunks": damage.bad_chunks,
+        "bad_records": damage.bad_records,
+        "skipped_bytes": damage.skipped_bytes,
+        "truncated_files": damage.truncated_files,
+    }
+    return res, summary
+
+
+def _replay_raw(
+    path: Path,
+    args: argparse.Namespace,
+    current: list[Pipeline],
+    on_output: Callable[[Input, Outputs], None],
+) -> ReplayResult:
+    from guidance.core.pipeline import Pipeline
+
+    setup = raw_setup(args.config, args.profile, args.start_heading_deg, path)
+    pcfg = setup.pipeline
+    if args.nmea is None and pcfg.start_heading_rad is None:
+        raise UserError("no compass log: give --start-heading-deg or a --config with one")
+    if not args.json:
+        for note in setup.notes:
+            sys.stdout.write(f"note: {note}\n")
+    if args.nmea is None and "compass" in pcfg.expected_rates_hz:  # not replayed: not silent
+        rates = {k: v for k, v in pcfg.expected_rates_hz.items() if k != "compass"}
+        pcfg = replace(pcfg, expected_rates_hz=rates)
+    streams: list[Iterator[Any]] = [can_inputs(path, setup.profile)]
+    if args.nmea is not None:
+        streams.append(nmea_inputs(args.nmea, _first_can_time(path), args.nmea_rate))
+    merged = heapq.merge(*streams, key=lambda m: m.t_s)
+    current.append(Pipeline(pcfg))
+    return replay(current[-1], merged, speed=args.speed, on_output=on_output)
+
+
+def _print_result(
+    res: ReplayResult, problems: list[str] | None, args: argparse.Namespace
+) -> dict[str, Any]:
+    """The summary lines (stdout) and the result as JSON-able data."""
     f = res.final
     dur = (res.last_t_s or 0.0) - (res.first_t_s or 0.0)
     w = sys.stdout.write
@@ -547,20 +481,13 @@ def _cli_replay(args: argparse.Namespace) -> int:
             if not problems
             else f"DIFFERS from the recording: {problems[0]} ({len(problems)} differences)\n"
         )
-    if args.json:
-        w(
-            json.dumps(
-                {
-                    "inputs": res.inputs,
-                    "duration_s": dur,
-                    "distance_m": res.odometer_m,
-                    "decisions": len(res.decisions),
-                    "prompts": len(res.prompts),
-                    "final": f,
-                    "matches_recording": None if problems is None else not problems,
-                    "differences": problems or [],
-                }
-            )
-            + "\n"
-        )
-    return 1 if problems else 0
+    return {
+        "inputs": res.inputs,
+        "duration_s": dur,
+        "distance_m": res.odometer_m,
+        "decisions": len(res.decisions),
+        "prompts": len(res.prompts),
+        "final": f,
+        "matches_recording": None if problems is None else not problems,
+        "differences": problems or [],
+    }

@@ -1,0 +1,172 @@
+"""The MCAP side of ``guidance replay``: a recording's inputs back as pipeline messages, and the
+outputs it recorded, every record checked at the boundary (``guidance.core.codec`` for the
+inputs, ``replay_session`` for the session and the outputs); damaged records are described and
+left out, damaged chunks counted (``guidance.recording.scan``), never a crash.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Iterator, Mapping
+from pathlib import Path
+from typing import TYPE_CHECKING, Any
+
+from guidance.core.messages import TurnCompleted
+from guidance.errors import UserError
+from guidance.tools.replay_session import well_formed_output
+
+if TYPE_CHECKING:
+    from guidance.core.pipeline import Input
+    from guidance.recording.scan import Damage
+
+INPUT_TOPICS = (
+    "/odometry",
+    "/compass",
+    "/heading",
+    "/landmark_fix",
+    "/scene",
+    "/approach",
+    "/goal",
+)
+
+
+# ----------------------------------------------------------------------------- MCAP
+
+
+def message_from_record(topic: str, data: Mapping[str, Any]) -> Input | None:
+    """One recorded input back as the message the pipeline took (``guidance.core.codec``).
+
+    Turns the pipeline's own detector reported are left out: replay re-derives them."""
+    from guidance.core.codec import from_record
+
+    msg = from_record(topic, data)
+    if isinstance(msg, TurnCompleted) and msg.source == "detected":
+        return None
+    return msg
+
+
+def _decoded(topic: str, data: Mapping[str, Any], skipped: list[str]) -> Input | None:
+    """``message_from_record``, counting a damaged record instead of failing the replay."""
+    from guidance.core.codec import CodecError
+
+    try:
+        return message_from_record(topic, data)
+    except CodecError as exc:
+        skipped.append(str(exc))
+        return None
+
+
+RAW_TOPICS = ("/can", "/nmea", "/heading", "/landmark_fix", "/scene", "/approach", "/goal")
+
+
+def mcap_inputs(
+    path: str | Path | list[Path],
+    *,
+    raw: bool = False,
+    profile: str = "gm_global_a",
+    skipped: list[str] | None = None,
+    damage: Damage | None = None,
+) -> tuple[dict[str, Any], Iterator[Input]]:
+    """The session record and the recorded inputs (in processing order) of a recording.
+
+    ``raw=True`` decodes the raw ``/can`` frames and ``/nmea`` lines again with the car's
+    decoder (``profile``) and compass parser instead of taking the decoded ``/odometry`` and
+    ``/compass`` the app recorded: the drivers' decoding is then part of what is replayed.
+    Records that do not decode are left out and described in ``skipped``; chunks and records
+    the file's damage made unreadable are counted in ``damage`` once the inputs are read.
+    """
+    bad: list[str] = skipped if skipped is not None else []
+    from guidance.recording.reader import Reader
+
+    sessions = list(Reader(path, topics=["/session"], log_time_order=False))
+    if not sessions:
+        where = path if isinstance(path, str | Path) else ", ".join(Path(p).name for p in path)
+        raise UserError(
+            f"{where}: no readable /session record (damaged, or not recorded by guidance run/sim)"
+        )
+    session = sessions[0].data
+
+    def read(topics: tuple[str, ...]) -> Iterator[Any]:
+        reader = Reader(path, topics=topics, log_time_order=False)
+        yield from reader
+        if damage is not None:
+            for key in ("bad_chunks", "bad_records", "skipped_bytes", "truncated_files"):
+                setattr(damage, key, getattr(damage, key) + getattr(reader.damage, key))
+            for note in reader.damage.notes:
+                damage.note(note)
+
+    def inputs() -> Iterator[Input]:
+        for rec in read(INPUT_TOPICS):
+            msg = _decoded(rec.topic, rec.data, bad)
+            if msg is not None:
+                yield msg
+
+    def raw_inputs() -> Iterator[Input]:
+        from drivers.can_odometry import WheelSpeedDecoder
+        from drivers.compass import NmeaCompassParser
+
+        decoder = WheelSpeedDecoder(profile)
+        parser = NmeaCompassParser()
+        for rec in read(RAW_TOPICS):
+            d = rec.data
+            if rec.topic in ("/can", "/nmea"):
+                out = _raw_input(rec.topic, d, decoder, parser, bad)
+                if out is not None:
+                    yield out
+            else:
+                msg = _decoded(rec.topic, d, bad)
+                if msg is not None:
+                    yield msg
+
+    return session, raw_inputs() if raw else inputs()
+
+
+def _raw_input(
+    topic: str, d: Mapping[str, Any], decoder: Any, parser: Any, bad: list[str]
+) -> Input | None:
+    """A recorded ``/can`` frame or ``/nmea`` line through the car's decoder; a malformed
+    record is described in ``bad`` and left out."""
+    import can
+
+    t = d.get("t_s")
+    if isinstance(t, bool) or not isinstance(t, int | float) or not math.isfinite(t):
+        bad.append(f"{topic}: t_s is not a finite number")
+        return None
+    try:
+        if topic == "/can":
+            ident, hex_text = d.get("id"), d.get("data_hex")
+            if isinstance(ident, bool) or not isinstance(ident, int) or not 0 <= ident < 2**29:
+                raise ValueError("id is not a CAN identifier")
+            if not isinstance(hex_text, str) or len(hex_text) > 128:
+                raise ValueError("data_hex is not hex text")
+            frame = can.Message(
+                timestamp=float(t),
+                arbitration_id=ident,
+                data=bytes.fromhex(hex_text),
+                is_extended_id=d.get("is_extended_id") is True,
+                is_error_frame=d.get("is_error_frame") is True,
+            )
+            return decoder.feed(frame)
+        line = d.get("line")
+        if not isinstance(line, str):
+            raise ValueError("line is not text")
+        return parser.feed_line(line.encode("ascii", "replace"), float(t))
+    except (ValueError, TypeError) as exc:
+        bad.append(f"{topic}: {exc}")
+        return None
+
+
+def recorded_outputs(
+    path: str | Path | list[Path], bad: list[str] | None = None
+) -> dict[str, list[dict[str, Any]]]:
+    """The decisions and states the recording holds (what the live run computed); a record
+    without the numbers the comparison reads is described in ``bad`` and left out."""
+    from guidance.recording.reader import Reader
+
+    out: dict[str, list[dict[str, Any]]] = {"/decision": [], "/state": []}
+    for rec in Reader(path, topics=list(out), log_time_order=False):
+        if well_formed_output(rec.topic, rec.data):
+            out[rec.topic].append(rec.data)
+        elif bad is not None:
+            bad.append(f"{rec.topic}: a recorded output without finite numbers")
+    return out
