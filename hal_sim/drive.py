@@ -76,6 +76,11 @@ class DriveOptions:
     camera_hz: float | None = None
     """Simulated camera (``hal_sim.sim_camera``) + the real landmark recogniser at this frame
     rate (simulated time), instead of the world's sighting events."""
+    landmark_db: str | None = None
+    """With ``camera_hz``: the landmark database, built with ``landmark-db import`` from the
+    city's photos on first use (hal_sim/sim_run.py); None: a throwaway one under ``out``."""
+    devices: bool = False
+    """``[sim] devices = true``: ``guidance run`` drives these simulated devices."""
     decision_distance_m: float = 250.0
     """The simulated co-driver announces the next intersection this far ahead: as soon as it
     comes into view, so the voice's own timing (guidance.core.announce: about 8 s ahead, at
@@ -183,10 +188,12 @@ async def drive_async(
     from guidance.core.pipeline import Pipeline, PipelineConfig
     from hal_sim.params import SimParams, estimator_config
     from hal_sim.sim_can import SimCanWheels
+    from hal_sim.sim_checks import check_drive_options, stop_on_signals
     from hal_sim.sim_compass import SimCompassPty
     from hal_sim.sim_scene import SimScene, SimSightings, SimWorld, WorldSpec
 
     wall0 = time.monotonic()
+    check_drive_options(opts)  # one clear line before anything starts (hal_sim/sim_checks.py)
     try:
         method = Method(opts.method)
     except ValueError:
@@ -377,6 +384,7 @@ async def drive_async(
         next_frame_t = world.t_s
         copy.deepcopy(world).step()  # compile the world's numba step before the loop's clock
         async with app.running():
+            stop_signal = stop_on_signals()  # SIGINT/SIGTERM: end with the summary
             if compass is not None and not await app.wait_until(lambda: compass.connected, 5.0):
                 raise UserError("the simulated compass pty did not open")
             if pipeline.finished:
@@ -384,6 +392,9 @@ async def drive_async(
             pace0_wall, pace0_sim = time.monotonic(), world.t_s
             first_step = world.step_count
             while not pipeline.finished:
+                if stop_signal.is_set():
+                    outcome = "stopped"
+                    break
                 ev = world.step()
                 t = ev.t_s
                 if ev.step == first_step + 10:  # lag figures without the start-up (JIT load)
@@ -540,11 +551,18 @@ def _sim_camera(world: Any, opts: DriveOptions, out_dir: Path) -> tuple[Any, Any
     from hal_sim.sim_scene import landmark_name
     from landmark_db.recognise import Recogniser, RecogniserConfig
 
-    out_dir.mkdir(parents=True, exist_ok=True)
-    path = out_dir / f"landmarks-seed{opts.seed}.sqlite"
-    for old in out_dir.glob(f"landmarks-seed{opts.seed}.sqlite*"):
-        old.unlink()
-    db, lms = build_sim_landmark_db(path, world.lm_xy, opts.seed)
+    if opts.landmark_db:  # made as a user makes one: photos + CSV + landmark-db import
+        from hal_sim.sim_run import import_sim_landmark_db
+        from landmark_db.store import open_db
+
+        lms = import_sim_landmark_db(opts.landmark_db, world.lm_xy, opts.seed)
+        db = open_db(opts.landmark_db, readonly=True)
+    else:
+        out_dir.mkdir(parents=True, exist_ok=True)
+        path = out_dir / f"landmarks-seed{opts.seed}.sqlite"
+        for old in out_dir.glob(f"landmarks-seed{opts.seed}.sqlite*"):
+            old.unlink()
+        db, lms = build_sim_landmark_db(path, world.lm_xy, opts.seed)
     recogniser = Recogniser(db, RecogniserConfig(sighting_range_m=world.sim.sighting_range_m))
     camera = SimCamera(lms, opts.seed)
     landmarks = tuple(Landmark(lm.id, lm.x_m, lm.y_m, landmark_name(i)) for i, lm in enumerate(lms))
@@ -828,6 +846,15 @@ def _cli_sim(args: argparse.Namespace) -> int:
         sys.stdout.flush()
 
     result = run_drive(opts, printer, app_config)
+    print_summary(result, opts)
+    if args.json:
+        sys.stdout.write(json.dumps(result.to_json()) + "\n")
+    sys.stdout.flush()
+    return 0
+
+
+def print_summary(result: DriveResult, opts: DriveOptions) -> None:
+    """The end-of-drive summary lines (``guidance sim``, ``guidance run`` on simulated devices)."""
     w = sys.stdout.write
     w(
         f"\n{result.outcome.upper()}: drove {result.driven_km:.2f} km in {result.sim_s:.0f} s "
@@ -849,7 +876,4 @@ def _cli_sim(args: argparse.Namespace) -> int:
         w(f"  no speech in {opts.voice_to}: no speech engine (see docs/voice.md)\n")
     if result.recording:
         w(f"  recording: {', '.join(result.recording)}\n")
-    if args.json:
-        w(json.dumps(result.to_json()) + "\n")
     sys.stdout.flush()
-    return 0

@@ -146,3 +146,27 @@ def test_bad_landmarks_tables_are_rejected(tmp_path: Path, table: str, why: str)
     )
     with pytest.raises(UserError, match=why):
         load_config(cfg)
+
+
+def test_guidance_run_on_the_simulated_devices_reaches_its_goal_with_a_landmark_fix(
+    tmp_path: Path,
+) -> None:
+    """The shipped config: the car process on the simulated devices (virtual CAN, compass pty,
+    simulated camera, a database built with landmark-db import on first use), from another
+    working directory; the --json summary is the last line."""
+    import json
+    import subprocess
+    import sys
+
+    repo = Path(__file__).resolve().parents[2]
+    r = subprocess.run(
+        [sys.executable, "-m", "guidance.tools.cli", "run", "--config",
+         str(repo / "config" / "sim-landmarks.toml"), "--json"],
+        cwd=tmp_path, capture_output=True, text=True, timeout=600,
+    )  # fmt: skip
+    assert r.returncode == 0, r.stderr[-2000:]
+    summary = json.loads(r.stdout.splitlines()[-1])
+    assert summary["outcome"] == "arrived"
+    assert summary["landmark_updates"] >= 1 and summary["prompts"] >= 1
+    assert "Passing the " in r.stdout  # the landmark's name, never its id
+    assert "Traceback" not in r.stderr
