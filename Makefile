@@ -15,7 +15,7 @@ $(STAMP): pyproject.toml
 	@touch $(STAMP)
 
 demo: $(STAMP)
-	$(BIN)/guidance sim --seed 7 --voice-to demo_prompts.wav
+	$(BIN)/guidance sim --seed 7 --density 5 --voice-to demo_prompts.wav
 
 lint: $(STAMP)
 	$(BIN)/ruff check .

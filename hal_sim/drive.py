@@ -259,6 +259,8 @@ async def drive_async(
     track_truth: list[tuple[float, float]] = []
     track_est: list[tuple[float, float]] = []
     ellipses: list[tuple[float, float, list[list[float]]]] = []
+    axis_track: list[tuple[float, float]] = []  # (distance driven, 2-sigma major axis)
+    fixes: list[tuple[float, float, float, int]] = []  # (distance, x, y, landmark id)
     resumed_at: float | None = None
     checkpointer = None
     if opts.checkpoint:
@@ -374,6 +376,10 @@ async def drive_async(
                 st = h.status
                 if not (st.alive and st.valid):
                     health_warnings.append(f"{h.t_s:.1f} s {st.name}: {st.detail}")
+            for fix in out.landmark_updates:
+                x = pipeline.estimator.x
+                fixes.append((pipeline.odometer_m, float(x[0]), float(x[1]), fix.landmark_id))
+                axis_track.append((pipeline.odometer_m, pipeline.estimator.major_axis_m))
 
         app.listeners.append(on_output)
         outcome = "timeout"
@@ -453,6 +459,7 @@ async def drive_async(
                     x = pipeline.estimator.x
                     track_truth.append((tx_, ty_))
                     track_est.append((float(x[0]), float(x[1])))
+                    axis_track.append((pipeline.odometer_m, pipeline.estimator.major_axis_m))
                 if pipeline.odometer_m >= next_ellipse_m:
                     next_ellipse_m = pipeline.odometer_m + ELLIPSE_EVERY_M
                     x, P = pipeline.estimator.x, pipeline.estimator.P
@@ -513,7 +520,10 @@ async def drive_async(
     png = None
     if opts.png:
         png = str(out_dir / f"drive-seed{opts.seed}.png")
-        plot_drive(png, world, track_truth, track_est, ellipses, outcome, opts)
+        from hal_sim.plots import DriveTrace, plot_drive
+
+        trace = DriveTrace(track_truth, track_est, ellipses, axis_track, fixes)
+        plot_drive(png, world, trace, outcome, opts)
     return DriveResult(
         outcome=outcome,
         driven_km=world.driven_m / 1000.0,
@@ -612,77 +622,6 @@ def _live_voice(clock: Callable[[], float]) -> Any:
         spk.close()
         return None
     return spk
-
-
-def plot_drive(
-    path: str,
-    world: Any,
-    truth: list[tuple[float, float]],
-    est: list[tuple[float, float]],
-    ellipses: list[tuple[float, float, list[list[float]]]],
-    outcome: str,
-    opts: DriveOptions,
-) -> None:
-    """PNG of the drive: streets, true and estimated paths, 2-sigma ellipses, landmarks."""
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-    import numpy as np
-    from matplotlib.collections import LineCollection
-    from matplotlib.patches import Ellipse
-
-    from guidance.core import model
-
-    Path(path).parent.mkdir(parents=True, exist_ok=True)
-    fig, ax = plt.subplots(figsize=(8, 8), dpi=110)
-    segs = [((a, b), (c, d)) for a, b, c, d in world.streets()]
-    ax.add_collection(LineCollection(segs, colors="0.85", linewidths=0.8, zorder=0))
-    if truth:
-        t = np.array(truth)
-        ax.plot(t[:, 0], t[:, 1], "-", color="tab:blue", lw=1.6, label="true path")
-    if est:
-        e = np.array(est)
-        ax.plot(e[:, 0], e[:, 1], "--", color="tab:orange", lw=1.2, label="estimated path")
-    for i, (x, y, P) in enumerate(ellipses):
-        a, b, ang = model.ellipse_axes(P[0][0], P[0][1], P[1][1], model.CHI2_2D_2SIGMA)
-        ax.add_patch(
-            Ellipse(
-                (x, y),
-                2 * a,
-                2 * b,
-                angle=math.degrees(ang),
-                fill=False,
-                ec="tab:red",
-                lw=0.8,
-                alpha=0.7,
-                label="2σ ellipse" if i == 0 else None,
-            )
-        )
-    lm = world.lm_xy
-    if len(lm):
-        ax.scatter(lm[:, 0], lm[:, 1], marker="^", s=30, c="tab:green", label="landmarks")
-    sx, sy, _ = world.start_pose
-    gx, gy = world.goal_xy
-    ax.plot([sx], [sy], "o", ms=9, color="black", label="start")
-    ax.plot([gx], [gy], "*", ms=15, color="gold", mec="black", label="goal")
-    ax.set_xlabel("east (m)")
-    ax.set_ylabel("north (m)")
-    comp = "no compass" if opts.compass_deg is None else f"compass ±{opts.compass_deg:g}° (2σ)"
-    ax.set_title(
-        f"guidance sim: seed {opts.seed}, {opts.method}, {comp}\n"
-        f"{opts.density_per_km2:g} landmarks/km², detection {opts.detection_rate:.0%}: {outcome}"
-    )
-    pts = np.array([*truth, *est, (sx, sy), (gx, gy)])
-    margin = 250.0
-    ax.set_xlim(pts[:, 0].min() - margin, pts[:, 0].max() + margin)
-    ax.set_ylim(pts[:, 1].min() - margin, pts[:, 1].max() + margin)
-    ax.set_aspect("equal", adjustable="box")
-    ax.legend(loc="best", fontsize=8)
-    ax.grid(True, lw=0.3, alpha=0.5)
-    fig.tight_layout()
-    fig.savefig(path)
-    plt.close(fig)
 
 
 def run_drive(
