@@ -27,6 +27,7 @@ from guidance.app.checkpoint import (
 )
 from guidance.app.ports import Speaker
 from guidance.core.snapshot_check import SnapshotError
+from guidance.errors import UserError
 
 if TYPE_CHECKING:
     from guidance.core.pipeline import Pipeline
@@ -45,6 +46,9 @@ class OutputSettings:
     voice_backend: str = "none"
     """auto, voice, wav, text or none (``guidance.voice.make_speaker``)."""
     wav_path: str = ""
+    voice: str = "en"
+    rate_wpm: int = 170
+    volume: float = 1.0
     telemetry: TelemetryConfig | None = None
     recording: RecordingConfig | None = None
     session: dict[str, Any] | None = None
@@ -62,13 +66,32 @@ class Outputs:
     recorder: Recorder | None = None
 
 
-def build_speaker(backend: str, wav_path: str, clock: Callable[[], float]) -> Speaker | None:
+def build_speaker(
+    backend: str,
+    wav_path: str,
+    clock: Callable[[], float],
+    *,
+    voice: str = "en",
+    rate_wpm: int = 170,
+    volume: float = 1.0,
+) -> Speaker | None:
     """The configured voice (``none`` for no speaker)."""
     if backend == "none":
         return None
-    from guidance.voice import make_speaker
+    from guidance.voice import SpeakerKind, make_speaker
 
-    return make_speaker(backend, wav_path or None, clock=clock)  # type: ignore[arg-type]
+    kinds: dict[str, SpeakerKind] = {"auto": "auto", "voice": "voice", "wav": "wav", "text": "text"}
+    kind = kinds.get(backend)
+    if kind is None:
+        raise UserError(f"[voice] backend must be auto, voice, wav, text or none, not {backend!r}")
+    return make_speaker(
+        kind,
+        wav_path or None,
+        clock=clock,
+        voice=voice,
+        rate_wpm=rate_wpm,
+        volume=volume,
+    )
 
 
 def session_record(pipeline: Pipeline, config_path: str = "", **extra: Any) -> dict[str, Any]:
@@ -94,7 +117,14 @@ async def open_outputs(
         if settings.speaker_factory is not None:
             out.speaker = settings.speaker_factory(clock)
         else:
-            out.speaker = build_speaker(settings.voice_backend, settings.wav_path, clock)
+            out.speaker = build_speaker(
+                settings.voice_backend,
+                settings.wav_path,
+                clock,
+                voice=settings.voice,
+                rate_wpm=settings.rate_wpm,
+                volume=settings.volume,
+            )
         if settings.telemetry is not None:
             from guidance.telemetry.publisher import Telemetry
 

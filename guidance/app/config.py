@@ -80,6 +80,12 @@ class VoiceSettings:
     backend: str = "auto"
     """auto, voice, wav, text or none."""
     wav_path: str = ""
+    voice: str = "en"
+    """The speech engine's voice (espeak-ng: a language code such as en, en-us, de)."""
+    rate_wpm: int = 170
+    """Speech rate in words per minute (a little slower than espeak-ng's 175, for traffic)."""
+    volume: float = 1.0
+    """0 to 1."""
 
 
 @dataclass(frozen=True, slots=True)
@@ -397,6 +403,9 @@ def parse_config(
     voice = VoiceSettings(
         voice_t.string("backend", "auto", ("auto", "voice", "wav", "text", "none")),
         voice_t.string("wav_path", ""),
+        voice_t.string("voice", "en"),
+        int(voice_t.number("rate_wpm", 170, lo=80, hi=400) or 170),
+        float(voice_t.number("volume", 1.0, lo=0.0, hi=1.0) or 0.0),
     )
     if voice.backend == "wav" and not voice.wav_path:
         raise UserError("[voice] wav_path is required with backend = 'wav'")

@@ -144,6 +144,9 @@ async def run_car(
     settings = OutputSettings(
         voice_backend=cfg.voice.backend,
         wav_path=cfg.voice.wav_path,
+        voice=cfg.voice.voice,
+        rate_wpm=cfg.voice.rate_wpm,
+        volume=cfg.voice.volume,
         telemetry=cfg.telemetry,
         recording=cfg.recording,
         session=session_record(pipeline, cfg.path),

@@ -26,9 +26,9 @@ from typing import Literal, TextIO
 
 from guidance.app.ports import Speaker
 from guidance.core.messages import Priority
-from guidance.voice.queue import DEFAULT_QUEUE_SIZE, Clock
+from guidance.voice.queue import DEFAULT_QUEUE_SIZE, DEFAULT_RATE_WPM, Clock
 from guidance.voice.speakers import Pyttsx3Speaker, SpeechEngineError, TextSpeaker
-from guidance.voice.wav import WavSpeaker
+from guidance.voice.wav import WavSpeaker, default_renderer
 
 log = logging.getLogger(__name__)
 
@@ -46,6 +46,9 @@ def make_speaker(
     text_stream: TextIO | None = None,
     maxsize: int = DEFAULT_QUEUE_SIZE,
     max_age_s: Mapping[Priority, float] | None = None,
+    voice: str = "en",
+    rate_wpm: int = DEFAULT_RATE_WPM,
+    volume: float = 1.0,
 ) -> Speaker:
     """The Speaker asked for, or text with one clear warning when speech cannot start.
 
@@ -61,11 +64,20 @@ def make_speaker(
                 raise ValueError("speaker kind 'wav' needs wav_path")
             suffix = f"; {wav_path} is not written"
             return WavSpeaker(
-                wav_path, clock=clock, maxsize=maxsize, max_age_s=max_age_s, text_stream=text_stream
+                wav_path,
+                renderer=default_renderer(voice, rate_wpm),
+                clock=clock,
+                maxsize=maxsize,
+                max_age_s=max_age_s,
+                text_stream=text_stream,
+                volume=volume,
             )
         if kind in ("voice", "auto"):
             return Pyttsx3Speaker(
                 driver_name,
+                rate_wpm=rate_wpm,
+                voice=voice,
+                volume=volume,
                 clock=clock,
                 maxsize=maxsize,
                 max_age_s=max_age_s,

@@ -210,6 +210,8 @@ class Pyttsx3Speaker:
         maxsize: int = DEFAULT_QUEUE_SIZE,
         max_age_s: Mapping[Priority, float] | None = None,
         rate_wpm: int | None = DEFAULT_RATE_WPM,
+        voice: str | None = None,
+        volume: float | None = None,
         engine_factory: Callable[[], _Engine] | None = None,
         check_audio: bool = True,
         text_stream: TextIO | None = None,
@@ -229,7 +231,7 @@ class Pyttsx3Speaker:
         if engine_factory is None:
             if check_audio and _uses_espeak(driver_name):
                 check_audio_output()
-            engine_factory = _pyttsx3_factory(driver_name, rate_wpm)
+            engine_factory = _pyttsx3_factory(driver_name, rate_wpm, voice, volume)
         self._thread = threading.Thread(
             target=self._run, args=(engine_factory,), name="voice-pyttsx3", daemon=True
         )
@@ -326,13 +328,30 @@ class Pyttsx3Speaker:
                 text.say(p.text, p.priority, p.t_s)
 
 
-def _pyttsx3_factory(driver_name: str | None, rate_wpm: int | None) -> Callable[[], _Engine]:
+def _pyttsx3_factory(
+    driver_name: str | None,
+    rate_wpm: int | None,
+    voice: str | None = None,
+    volume: float | None = None,
+) -> Callable[[], _Engine]:
     def make() -> _Engine:
         import pyttsx3  # imported on first use: the text backend must work without it
 
         engine = pyttsx3.init(driver_name)
         if rate_wpm is not None:
             engine.setProperty("rate", rate_wpm)
+        if volume is not None:
+            engine.setProperty("volume", min(max(float(volume), 0.0), 1.0))
+        if voice:
+            try:  # espeak voice ids look like "gmw/en-us"; a language code is matched to one
+                ids = [v.id for v in engine.getProperty("voices")]
+                match = next((i for i in ids if i == voice or i.endswith("/" + voice)), None)
+                if match is not None:
+                    engine.setProperty("voice", match)
+                else:
+                    log.warning("voice %r not found; using the engine's default", voice)
+            except Exception:  # a driver without a voice list keeps its default
+                log.warning("voice %r could not be set; using the engine's default", voice)
         made: _Engine = engine
         return made
 

@@ -136,8 +136,10 @@ class WavSpeaker:
         max_age_s: Mapping[Priority, float] | None = None,
         text_stream: TextIO | None = None,
         fallback: Speaker | None = None,
+        volume: float = 1.0,
     ) -> None:
         self.path = Path(path)
+        self._volume = min(max(float(volume), 0.0), 1.0)
         self._render = renderer if renderer is not None else default_renderer()
         _, self._rate = self._render("ready")  # fail now, not on the first turn
         self._gap_frames = round(gap_s * self._rate)
@@ -262,6 +264,11 @@ class WavSpeaker:
                 return
             self._current = prompt
             pcm, rate = self._render(prompt.text)
+            if self._volume < 1.0:
+                import numpy as np
+
+                samples = np.frombuffer(pcm, dtype="<i2").astype(np.float64) * self._volume
+                pcm = samples.astype("<i2").tobytes()
             if rate != self._rate:
                 raise SpeechEngineError(f"sample rate changed from {self._rate} to {rate} Hz")
             gap = self._gap_frames if self._frames else 0
