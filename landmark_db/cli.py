@@ -14,7 +14,7 @@ from collections.abc import Sequence
 from pathlib import Path
 
 from guidance.errors import UserError
-from landmark_db.cli_args import HEADER, area, area_args, print_landmark_row
+from landmark_db.cli_args import HEADER, area, area_args, print_landmark_row, safe
 from landmark_db.cli_io import add_io_parsers, add_kwargs
 from landmark_db.cli_match import add_match_parsers
 from landmark_db.features import EXTRACTOR_VERSIONS, PHOTO_MAX_SIDE_PX, ExtractorConfig
@@ -82,7 +82,7 @@ def cmd_add(args: argparse.Namespace) -> None:
                 lm.id, path.read_bytes(), facing_deg=args.facing, conditions=args.conditions,
                 source=path.name,
             )  # fmt: skip
-            print(f"added photo {pid} to landmark {lm.id} ({lm.name})")
+            print(f"added photo {pid} to landmark {lm.id} ({safe(lm.name)})")
             print(HEADER)
             print_landmark_row(lm.id, db)
             return
@@ -118,10 +118,10 @@ def cmd_show(args: argparse.Namespace) -> None:
             raise UserError(f"no landmark {args.landmark!r}")
         img = db.image_bytes(lm.id)
         for key in ("id", "name", "lat_deg", "lon_deg", "x_m", "y_m", "facing_deg"):
-            print(f"{key:>18}: {getattr(lm, key)}")
+            print(f"{key:>18}: {safe(getattr(lm, key))}")
         print(f"{'position_sigma_m':>18}: {lm.position_sigma_m}")
-        print(f"{'added_utc':>18}: {lm.added_utc}")
-        print(f"{'source':>18}: {lm.source}")
+        print(f"{'added_utc':>18}: {safe(lm.added_utc)}")
+        print(f"{'source':>18}: {safe(lm.source)}")
         feats = dict(db.photo_features(lm.id))
         for ph in db.photos(lm.id):
             f = feats.get(ph.id)
@@ -129,7 +129,7 @@ def cmd_show(args: argparse.Namespace) -> None:
             facing = "-" if ph.facing_deg is None else f"{ph.facing_deg:.0f}"
             print(
                 f"{'photo ' + str(ph.id):>18}: {ph.format} {ph.width}x{ph.height}, facing {facing},"
-                f" {desc}; {ph.conditions or '-'}; {ph.source}"
+                f" {desc}; {safe(ph.conditions) or '-'}; {safe(ph.source)}"
             )
         if args.image_out and img is not None:
             Path(args.image_out).write_bytes(img[1])

@@ -5,6 +5,7 @@ from __future__ import annotations
 import argparse
 import math
 import sys
+import unicodedata
 
 import numpy as np
 
@@ -13,6 +14,15 @@ from landmark_db.recognise import RecogniserConfig
 from landmark_db.store import LandmarkDb
 
 _REC = RecogniserConfig()
+
+
+def safe(text: object) -> str:
+    """Text from a file made safe for a terminal: control and format characters (escape
+    sequences, line breaks, bidi overrides) shown as Python escapes, never sent raw."""
+    return "".join(
+        ch.encode("unicode_escape").decode("ascii") if unicodedata.category(ch)[0] == "C" else ch
+        for ch in str(text)
+    )
 
 
 def out(text: str = "") -> None:
@@ -41,7 +51,7 @@ def print_landmark_row(
     n = len(db.photos(lm_id)) if photos is None else photos
     facing = "-" if lm.facing_deg is None else f"{lm.facing_deg:.0f}"
     out(
-        f"{lm.id:>6}  {lm.name:<24.24} {lm.lat_deg:11.6f} {lm.lon_deg:11.6f}"
+        f"{lm.id:>6}  {safe(lm.name):<24.24} {lm.lat_deg:11.6f} {lm.lon_deg:11.6f}"
         f" {lm.x_m:10.1f} {lm.y_m:10.1f} {facing:>6} {n:>6} {extra}"
     )
 

@@ -4,10 +4,12 @@ from __future__ import annotations
 
 import argparse
 import csv
+import re
 from pathlib import Path
 
 from guidance.errors import UserError
 from landmark_db.cli_args import out
+from landmark_db.limits import MAX_CSV_BYTES, MAX_CSV_FIELD_CHARS, MAX_CSV_ROWS, MAX_PHOTO_BYTES
 from landmark_db.store import DEFAULT_POSITION_SIGMA_M, LandmarkDb, open_db
 
 
@@ -19,77 +21,164 @@ def add_kwargs(lat: float | None, lon: float | None, x: float | None, y: float |
     raise UserError("give a position: --latlon LAT LON or --xy X Y")
 
 
+_NUMBER = re.compile(r"[+-]?(\d+\.?\d*|\.\d+)([eE][+-]?\d+)?")
+_FORMULA_START = ("=", "+", "-", "@", "\t", "\r")
+
+
 def _csv_float(row: dict[str, str], *keys: str) -> float | None:
     for k in keys:
         v = (row.get(k) or "").strip()
         if v:
+            if not _NUMBER.fullmatch(v):
+                raise UserError(f"{k} {v[:40]!r} is not a number")
             return float(v)
     return None
 
 
-def _import_row(
-    db: LandmarkDb, folder: Path, row: dict[str, str], where: str, groups: dict[str, int]
-) -> bool:
-    """Add one CSV row: a new landmark, or (same ``id`` value, else same name, as an earlier
-    row) another photo of it. A landmark without a ``name`` is named by its ``id`` value,
-    else by the image's file name. Returns True for a new landmark."""
-    name_col = (row.get("image") or row.get("file") or "").strip()
-    if not name_col:
-        raise UserError(f"{where}: no image column value")
-    image = folder / name_col
-    if not image.is_file():
-        raise UserError(f"{where}: {image} not found")
-    group = (row.get("id") or "").strip()
-    name = (row.get("name") or "").strip() or group or image.stem
-    key = f"id:{group}" if group else f"name:{name}"
+def _text(row: dict[str, str], *keys: str) -> str:
+    """A text cell; the quote ``export`` puts before a formula-like text is taken off."""
+    for k in keys:
+        v = (row.get(k) or "").strip()
+        if v:
+            return v[1:] if v[:1] == "'" and v[1:2] in ("=", "+", "-", "@") else v
+    return ""
+
+
+def cell(text: str) -> str:
+    """A text cell as ``export`` writes it: a leading = + - @ (a spreadsheet formula) or
+    control character is neutralised by a quote in front (OWASP CSV injection)."""
+    return "'" + text if text.startswith(_FORMULA_START) else text
+
+
+def read_csv(path: Path) -> list[dict[str, str]]:
+    """The rows of a CSV file, bounded before reading (``limits``); one-line errors."""
     try:
-        facing = _csv_float(row, "facing_deg", "facing")
-        sigma = _csv_float(row, "sigma_m", "position_sigma_m")
-        conditions = (row.get("conditions") or row.get("condition") or "").strip()
-        if key in groups:
-            db.add_photo(
-                groups[key], image.read_bytes(), facing_deg=facing, conditions=conditions,
-                source=name_col,
-            )  # fmt: skip
-            return False
-        kw = add_kwargs(
-            _csv_float(row, "lat", "lat_deg"),
-            _csv_float(row, "lon", "lon_deg"),
-            _csv_float(row, "x_m", "x"),
-            _csv_float(row, "y_m", "y"),
-        )
-        groups[key] = db.add(
-            name,
-            image.read_bytes(),
-            facing_deg=facing,
-            position_sigma_m=DEFAULT_POSITION_SIGMA_M if sigma is None else sigma,
-            source=name_col,
-            conditions=conditions,
-            **kw,
-        )
-        return True
-    except (ValueError, UserError) as exc:
-        raise UserError(f"{where}: {exc}") from exc
+        size = path.stat().st_size
+    except OSError as exc:
+        raise UserError(f"{path}: {exc.strerror}") from exc
+    if size > MAX_CSV_BYTES:
+        raise UserError(f"{path}: larger than {MAX_CSV_BYTES // 2**20} MiB")
+    rows: list[dict[str, str]] = []
+    line = 0
+    try:
+        with path.open(newline="", encoding="utf-8-sig") as fh:
+            reader = csv.DictReader(fh)
+            for row in reader:
+                line = reader.line_num
+                if len(rows) >= MAX_CSV_ROWS:
+                    raise UserError(f"{path}: more than {MAX_CSV_ROWS} rows")
+                if None in row:
+                    raise UserError(f"{path}:{line}: more fields than the header names")
+                for k, v in row.items():
+                    if len(k or "") > MAX_CSV_FIELD_CHARS or len(v or "") > MAX_CSV_FIELD_CHARS:
+                        raise UserError(
+                            f"{path}:{line}: a field longer than {MAX_CSV_FIELD_CHARS} characters"
+                        )
+                rows.append(row)
+    except csv.Error as exc:
+        raise UserError(f"{path}:{line + 1}: {exc}") from exc
+    except UnicodeDecodeError as exc:
+        raise UserError(f"{path}: not UTF-8 text ({exc.reason} at byte {exc.start})") from exc
+    except OSError as exc:
+        raise UserError(f"{path}: {exc.strerror}") from exc
+    return rows
+
+
+def _image_path(root: Path, value: str, allow_outside: bool) -> Path:
+    """The photo a CSV row names: inside the import folder (no absolute path, no ``..``,
+    no symbolic link out of it) unless ``allow_outside``; at most ``MAX_PHOTO_BYTES``."""
+    rel = Path(value)
+    if not allow_outside:
+        if rel.is_absolute() or ".." in rel.parts:
+            raise UserError(f"image {value!r} is outside the folder (--allow-outside permits it)")
+        image = (root / rel).resolve()
+        if not image.is_relative_to(root):
+            raise UserError(
+                f"image {value!r} leads outside the folder (--allow-outside permits it)"
+            )
+    else:
+        image = (root / rel).resolve()
+    if not image.is_file():
+        raise UserError(f"{image} not found")
+    if image.stat().st_size > MAX_PHOTO_BYTES:
+        raise UserError(f"{image}: larger than {MAX_PHOTO_BYTES // 2**20} MiB")
+    return image
+
+
+def _import_row(
+    db: LandmarkDb,
+    root: Path,
+    row: dict[str, str],
+    groups: dict[str, int],
+    allow_outside: bool,
+) -> str:
+    """Add or update one CSV row: its landmark (same ``id`` value, else same name, as an
+    earlier row: another photo of it; a landmark of that name already in the file: updated,
+    not duplicated) and its photo (the same photo again: updated). A landmark without a
+    ``name`` is named by its ``id`` value, else by the image's file name. Returns "added",
+    "updated" or "photo"."""
+    name_col = _text(row, "image", "file")
+    if not name_col:
+        raise UserError("no image column value")
+    image = _image_path(root, name_col, allow_outside)
+    group = _text(row, "id")
+    name = _text(row, "name") or group or image.stem
+    key = f"id:{group}" if group else f"name:{name}"
+    facing = _csv_float(row, "facing_deg", "facing")
+    sigma = _csv_float(row, "sigma_m", "position_sigma_m")
+    conditions = _text(row, "conditions", "condition")
+    data = image.read_bytes()
+    if key in groups:
+        db.add_photo(groups[key], data, facing_deg=facing, conditions=conditions, source=name_col)
+        return "photo"
+    kw = add_kwargs(
+        _csv_float(row, "lat", "lat_deg"),
+        _csv_float(row, "lon", "lon_deg"),
+        _csv_float(row, "x_m", "x"),
+        _csv_float(row, "y_m", "y"),
+    )
+    sigma_m = DEFAULT_POSITION_SIGMA_M if sigma is None else sigma
+    existing = db.by_name(name)
+    if existing is not None:
+        db.update(existing.id, facing_deg=facing, position_sigma_m=sigma_m, source=name_col, **kw)
+        db.add_photo(existing.id, data, facing_deg=facing, conditions=conditions, source=name_col)
+        groups[key] = existing.id
+        return "updated"
+    groups[key] = db.add(
+        name, data, facing_deg=facing, position_sigma_m=sigma_m, source=name_col,
+        conditions=conditions, **kw,
+    )  # fmt: skip
+    return "added"
 
 
 def cmd_import(args: argparse.Namespace) -> None:
+    """All rows or none: one transaction; a landmark already in the file (by name) is updated
+    and a photo already there is not added twice, so importing again changes nothing."""
     folder = Path(args.folder)
     csv_path = Path(args.csv) if args.csv else folder / "landmarks.csv"
     if not folder.is_dir():
         raise UserError(f"{folder}: not a folder")
-    try:
-        with csv_path.open(newline="") as fh:
-            rows = list(csv.DictReader(fh))
-    except OSError as exc:
-        raise UserError(f"{csv_path}: {exc.strerror}") from exc
+    rows = read_csv(csv_path)
     if not rows:
         raise UserError(f"{csv_path}: no rows")
+    root = folder.resolve()
     with open_db(args.db, readonly=False) as db:
         groups: dict[str, int] = {}
-        added = 0
-        for i, row in enumerate(rows, start=2):
-            added += _import_row(db, folder, row, f"{csv_path}:{i}", groups)
-        out(f"imported {added} landmarks ({len(rows)} photos) into {db.path} ({len(db)} in total)")
+        done = {"added": 0, "updated": 0, "photo": 0}
+        where = ""
+        try:
+            with db.batch():
+                for i, row in enumerate(rows, start=2):
+                    where = f"{csv_path}:{i}"
+                    done[_import_row(db, root, row, groups, args.allow_outside)] += 1
+        except (ValueError, OSError, UserError) as exc:
+            why = exc.strerror if isinstance(exc, OSError) and exc.strerror else exc
+            raise UserError(f"{where}: {why} (nothing imported)") from exc
+        updated = f"; {done['updated']} already there, updated" if done["updated"] else ""
+        out(
+            f"imported {done['added']} landmarks ({len(rows)} photos) into {db.path}"
+            f" ({len(db)} in total){updated}"
+        )
 
 
 def cmd_export(args: argparse.Namespace) -> None:
@@ -115,9 +204,9 @@ def cmd_export(args: argparse.Namespace) -> None:
                     (dest / fname).write_bytes(img[1])
                     facing = photo.facing_deg if photo.facing_deg is not None else lm.facing_deg
                     w.writerow(
-                        [lm.id, lm.name, fname, f"{lm.lat_deg:.9f}", f"{lm.lon_deg:.9f}",
+                        [lm.id, cell(lm.name), fname, f"{lm.lat_deg:.9f}", f"{lm.lon_deg:.9f}",
                          f"{lm.x_m:.3f}", f"{lm.y_m:.3f}", "" if facing is None else facing,
-                         lm.position_sigma_m, photo.conditions]
+                         lm.position_sigma_m, cell(photo.conditions)]
                     )  # fmt: skip
                 n += 1
     out(f"exported {n} landmarks to {dest} (landmarks.csv + images/)")
@@ -166,6 +255,11 @@ def add_io_parsers(sub: argparse._SubParsersAction) -> None:
         help="columns image,[id],[name],lat,lon or x_m,y_m,[facing_deg],[sigma_m],[conditions];"
         " rows with the same id (else the same name) are photos of one landmark"
         " (default FOLDER/landmarks.csv)",
+    )
+    p.add_argument(
+        "--allow-outside",
+        action="store_true",
+        help="let the image column name files outside FOLDER (absolute paths, ..)",
     )
     p.set_defaults(func=cmd_import)
 

@@ -10,7 +10,7 @@ import numpy as np
 
 from guidance.errors import UserError
 from landmark_db.acceptance import AcceptanceReport, evaluate, evaluate_db, read_truth
-from landmark_db.cli_args import area, area_args, err, out
+from landmark_db.cli_args import area, area_args, err, out, safe
 from landmark_db.features import decode_image
 from landmark_db.recognise import Recogniser, RecognitionResult
 from landmark_db.store import LandmarkDb, open_db, query_gate
@@ -70,7 +70,7 @@ def _print_match(query: str, res: RecognitionResult, db: LandmarkDb, many: bool)
     out(f"{'id':>6}  {'name':<24} {'photo':>6} {'good':>5} {'inliers':>7}  result")
     for e in sorted(res.evidence, key=lambda e: (-e.inliers, -e.good_matches)):
         out(
-            f"{e.landmark_id:>6}  {(_name(db, e.landmark_id) or '?'):<24.24} {e.photo_id:>6}"
+            f"{e.landmark_id:>6}  {safe(_name(db, e.landmark_id) or '?'):<24.24} {e.photo_id:>6}"
             f" {e.good_matches:>5} {e.inliers:>7}  {e.reason or 'verified (' + e.model + ')'}"
         )
 

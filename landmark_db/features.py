@@ -28,6 +28,8 @@ from typing import Any
 import cv2
 import numpy as np
 
+from landmark_db.limits import MAX_PHOTO_BYTES, image_size, photo_problem
+
 CV: Any = cv2
 """cv2 untyped: the stubs shipped with OpenCV 5.0 lack the features2d module (ORB, SIFT)."""
 
@@ -247,15 +249,26 @@ def damaged(data: bytes) -> str | None:
 
 
 def decode_image(data: bytes) -> np.ndarray:
-    """Encoded image bytes (PNG, JPEG, ...) -> BGR array. Raises ValueError if undecodable
-    or truncated."""
+    """Encoded PNG or JPEG bytes -> BGR array. Raises ValueError if undecodable, truncated,
+    or of a size ``limits.photo_problem`` refuses (read from the header before decoding)."""
+    if len(data) > MAX_PHOTO_BYTES:
+        raise ValueError(f"image larger than {MAX_PHOTO_BYTES // 2**20} MiB")
     why = damaged(data)
     if why is not None:
         raise ValueError(f"damaged image: {why}")
+    try:
+        w, h = image_size(data)  # from the header: the pixels are bounded before decoding
+    except ValueError as exc:
+        raise ValueError(f"cannot decode image data ({exc})") from exc
+    why = photo_problem(w, h)
+    if why is not None:
+        raise ValueError(f"image {why}")
     buf = np.frombuffer(data, dtype=np.uint8)
     image = cv2.imdecode(buf, cv2.IMREAD_COLOR) if buf.size else None
     if image is None:
         raise ValueError("cannot decode image data")
+    if image.shape[:2] != (h, w):
+        raise ValueError(f"image decodes to {image.shape[1]}x{image.shape[0]}, header says {w}x{h}")
     return image
 
 

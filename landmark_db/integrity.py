@@ -3,12 +3,17 @@
 from __future__ import annotations
 
 import hashlib
-import math
 import sqlite3
 from dataclasses import dataclass
 
 from landmark_db.features import ExtractorConfig, Features, decode_image
 from landmark_db.geo import Origin
+from landmark_db.limits import (
+    MIN_PHOTO_FEATURES,
+    agreement_problem,
+    position_problem,
+    sigma_problem,
+)
 
 
 @dataclass(frozen=True, slots=True)
@@ -56,9 +61,9 @@ _ORPHANS = (
         " OR abs(r.min_y - l.y_m) > 0.01 OR abs(r.max_y - l.y_m) > 0.01",
     ),
     (
-        "with a photo without keypoints",
+        f"with a photo of fewer than {MIN_PHOTO_FEATURES} features",
         "SELECT p.landmark_id FROM photo_features f JOIN photos p ON p.id = f.photo_id"
-        " WHERE f.count < 1",
+        f" WHERE f.count < {MIN_PHOTO_FEATURES}",
     ),
 )
 
@@ -82,12 +87,17 @@ def check(
         if ids:
             shown = ", ".join(map(str, ids[:10])) + (" ..." if len(ids) > 10 else "")
             problems.append(f"{len(ids)} landmark(s) {label}: {shown}")
-    for lid, lat, lon, x, y in c.execute("SELECT id, lat_deg, lon_deg, x_m, y_m FROM landmarks"):
-        ex, ey = origin.to_local(lat, lon)
-        if math.hypot(ex - x, ey - y) > 1.0:
-            problems.append(
-                f"landmark {lid}: x/y disagree with lat/lon by {math.hypot(ex - x, ey - y):.1f} m"
-            )
+    rows = c.execute("SELECT id, lat_deg, lon_deg, x_m, y_m, position_sigma_m FROM landmarks")
+    for lid, lat, lon, x, y, sigma in rows:
+        try:
+            why = position_problem(float(x), float(y)) or sigma_problem(float(sigma))
+            if why is None:
+                ex, ey = origin.to_local(float(lat), float(lon))
+                why = agreement_problem(ex - x, ey - y)
+        except (TypeError, ValueError) as exc:
+            why = f"not a number ({exc})"
+        if why is not None:
+            problems.append(f"landmark {lid}: {why}")
     rows = c.execute(
         "SELECT p.landmark_id, f.photo_id, f.extractor, f.count, f.width, f.height,"
         " f.keypoints, f.descriptors FROM photo_features f JOIN photos p ON p.id = f.photo_id"

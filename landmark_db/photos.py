@@ -7,7 +7,8 @@ import hashlib
 import math
 import sqlite3
 import time
-from contextlib import AbstractContextManager
+from collections.abc import Iterator
+from contextlib import AbstractContextManager, contextmanager
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -16,6 +17,7 @@ import cv2
 import numpy as np
 
 from landmark_db.features import ExtractorConfig, Features, decode_image, encode_image, extract
+from landmark_db.limits import MAX_TEXT_CHARS, MIN_PHOTO_FEATURES, photo_problem
 from landmark_db.schema import LandmarkDbError
 
 
@@ -37,6 +39,12 @@ def _utc_now() -> str:
     return time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime())
 
 
+def _check_text(*texts: str) -> None:
+    for text in texts:
+        if len(text) > MAX_TEXT_CHARS:
+            raise LandmarkDbError(f"text longer than {MAX_TEXT_CHARS} characters")
+
+
 def _finite(name: str, value: float) -> float:
     v = float(value)
     if not math.isfinite(v):
@@ -56,8 +64,19 @@ class PhotoStore:
     def _reading(self) -> AbstractContextManager[sqlite3.Connection]:
         raise NotImplementedError
 
+    _in_batch: bool
+
     def _writable(self) -> None:
         raise NotImplementedError
+
+    @contextmanager
+    def _tx(self) -> Iterator[None]:
+        """A write's transaction: its own (committed at the end), or the one ``batch`` holds."""
+        if self._in_batch:
+            yield
+        else:
+            with self._conn:
+                yield
 
     def get(self, landmark_id: int) -> Any:
         raise NotImplementedError
@@ -94,10 +113,19 @@ class PhotoStore:
             except (ValueError, cv2.error) as exc:
                 raise LandmarkDbError(f"{label}: {exc}") from exc
             fmt = image_format.lstrip(".").replace("jpg", "jpeg")
+        h, w = pixels.shape[:2]
+        why = photo_problem(w, h)
+        if why is not None:
+            raise LandmarkDbError(f"{label}: photo {why}")
         try:
             feats = extract(pixels, self.extractor)
-        except ValueError as exc:
+        except (ValueError, cv2.error) as exc:
             raise LandmarkDbError(f"{label}: {exc}") from exc
+        if len(feats) < MIN_PHOTO_FEATURES:
+            raise LandmarkDbError(
+                f"{label}: the photo has {len(feats)} features, fewer than the"
+                f" {MIN_PHOTO_FEATURES} a recognition needs (too small, blurred or featureless)"
+            )
         return data, pixels, fmt, feats
 
     def _insert_photo(
@@ -146,9 +174,21 @@ class PhotoStore:
         if self.get(landmark_id) is None:
             raise LandmarkDbError(f"no landmark {landmark_id}")
         facing = None if facing_deg is None else _finite("facing", facing_deg) % 360.0
+        _check_text(conditions, source)
         label = f"landmark {landmark_id}"
         data, pixels, fmt, feats = self._encoded(label, image, image_format)
-        with self._lock, self._conn:
+        with self._lock, self._tx():
+            same = self._conn.execute(
+                "SELECT id FROM photos WHERE landmark_id = ? AND sha256 = ? ORDER BY id LIMIT 1",
+                (landmark_id, hashlib.sha256(data).hexdigest()),
+            ).fetchone()
+            if same is not None:  # the same photo again: updated, never a duplicate
+                self._conn.execute(
+                    "UPDATE photos SET facing_deg = ?, conditions = ?, source = ? WHERE id = ?",
+                    (facing, conditions, source, same[0]),
+                )
+                self._insert_features(int(same[0]), feats)
+                return int(same[0])
             return self._insert_photo(
                 landmark_id, data, pixels, fmt, feats, facing, conditions, source
             )

@@ -147,3 +147,29 @@ def migrate(conn: sqlite3.Connection, path: Path, target: int = SCHEMA_VERSION) 
                 raise LandmarkDbError(f"{path}: migration to v{version} failed: {exc}") from exc
             current = version
     return current
+
+
+def roll_back_hot_journal(path: Path) -> None:
+    """A write that was killed (``landmark-db import``) leaves ``<file>-journal`` beside the
+    file, and a read-only open cannot roll it back ("attempt to write a readonly database").
+    SQLite rolls it back, restoring the last committed state, on a writable connection's
+    first read (only when no live writer holds the file). When that is not possible here
+    (read-only file or folder, a writer busy), one line says what is there and what to run."""
+    journal = path.with_name(path.name + "-journal")
+    try:
+        if journal.stat().st_size == 0:
+            return
+    except OSError:
+        return
+    try:
+        conn = sqlite3.connect(path, timeout=2.0)
+        try:
+            conn.execute("SELECT count(*) FROM sqlite_master").fetchone()
+        finally:
+            conn.close()
+    except sqlite3.Error as exc:
+        raise LandmarkDbError(
+            f"{path}: {journal.name} beside it holds a write that was interrupted (or is still"
+            f" running) and it cannot be rolled back here ({exc}); run `landmark-db check"
+            f" {path}` with write access to the file and its folder"
+        ) from exc

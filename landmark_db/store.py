@@ -18,7 +18,6 @@ a ``UserError``, with a one-line message.
 
 from __future__ import annotations
 
-import hashlib
 import math
 import sqlite3
 import threading
@@ -29,10 +28,17 @@ from pathlib import Path
 
 import numpy as np
 
-from landmark_db.features import ExtractorConfig, Features
+from landmark_db.features import ExtractorConfig
 from landmark_db.geo import Origin
 from landmark_db.integrity import CheckReport
-from landmark_db.photos import Photo, PhotoStore, _finite, _utc_now
+from landmark_db.limits import (
+    MAX_COORDINATE_M,
+    MAX_POSITION_SIGMA_M,
+    MIN_POSITION_SIGMA_M,
+    position_problem,
+    sigma_problem,
+)
+from landmark_db.photos import Photo, _utc_now
 from landmark_db.query import Candidate, query_gate, query_radius
 from landmark_db.schema import (
     MIGRATIONS,
@@ -42,9 +48,12 @@ from landmark_db.schema import (
     LandmarkDbError,
     file_version,
     migrate,
+    roll_back_hot_journal,
 )
+from landmark_db.writes import DEFAULT_POSITION_SIGMA_M, LandmarkWriter
 
 __all__ = [
+    "DEFAULT_POSITION_SIGMA_M",
     "MIGRATIONS",
     "SCHEMA_VERSION",
     "Candidate",
@@ -59,9 +68,6 @@ __all__ = [
     "query_gate",
     "query_radius",
 ]
-
-DEFAULT_POSITION_SIGMA_M = 3.0
-"""1-sigma of a surveyed landmark position when the source gives none (consumer GPS)."""
 
 
 _READ_ERRORS = (sqlite3.DatabaseError, UnicodeDecodeError)
@@ -89,7 +95,7 @@ class Landmark:
     source: str = ""
 
 
-class LandmarkDb(PhotoStore):
+class LandmarkDb(LandmarkWriter):
     """A landmark database file. Construct with ``create_db`` or ``open_db``.
 
     Thread-safe for the uses here: one connection guarded by a lock, opened with
@@ -101,6 +107,7 @@ class LandmarkDb(PhotoStore):
         self.path = path
         self.readonly = readonly
         self._lock = threading.RLock()
+        self._in_batch = False
         self.origin = self._read_origin()
         self.extractor = self._read_extractor()
 
@@ -167,11 +174,19 @@ class LandmarkDb(PhotoStore):
         box = " OR ".join(
             f"NOT {_FINITE_SQL.format(c=c)}" for c in ("min_x", "max_x", "min_y", "max_y")
         )
+        bad += (
+            f" OR abs(x_m) > {MAX_COORDINATE_M!r} OR abs(y_m) > {MAX_COORDINATE_M!r}"
+            f" OR NOT position_sigma_m BETWEEN {MIN_POSITION_SIGMA_M!r}"
+            f" AND {MAX_POSITION_SIGMA_M!r}"
+        )
         with self._reading() as c:
             row = c.execute(f"SELECT {self._COLS} FROM landmarks WHERE {bad} LIMIT 1").fetchone()
             if row is not None:
-                self._row(row)  # raises, naming the landmark and the column
-                raise LandmarkDbError(f"{self.path}: landmark {row[0]!r} has a bad position")
+                lm = self._row(row)  # raises for a value that is no number, naming the column
+                why = position_problem(lm.x_m, lm.y_m) or sigma_problem(lm.position_sigma_m)
+                raise LandmarkDbError(
+                    f"{self.path}: landmark {lm.id} ({lm.name!r}): {why or 'bad position'}"
+                )
             r = c.execute(f"SELECT id FROM landmark_index WHERE {box} LIMIT 1").fetchone()
             if r is not None:
                 raise LandmarkDbError(f"{self.path}: index box of landmark {r[0]!r} is not finite")
@@ -187,108 +202,6 @@ class LandmarkDb(PhotoStore):
     def _writable(self) -> None:
         if self.readonly:
             raise LandmarkDbError(f"{self.path} is open read-only")
-
-    def add(
-        self,
-        name: str,
-        image: np.ndarray | bytes,
-        *,
-        lat_deg: float | None = None,
-        lon_deg: float | None = None,
-        x_m: float | None = None,
-        y_m: float | None = None,
-        facing_deg: float | None = None,
-        position_sigma_m: float = DEFAULT_POSITION_SIGMA_M,
-        source: str = "",
-        image_format: str = ".png",
-        conditions: str = "",
-    ) -> int:
-        """Add a landmark with its first photo (encoded bytes or an array); returns its id.
-
-        Give either lat/lon or local x/y; the other pair is computed from the origin.
-        Raises ``LandmarkDbError`` for a bad position or an undecodable image.
-        """
-        self._writable()
-        if not name:
-            raise LandmarkDbError("a landmark needs a name")
-        if lat_deg is not None and lon_deg is not None:
-            lat, lon = _finite("lat", lat_deg), _finite("lon", lon_deg)
-            if not (-90.0 <= lat <= 90.0 and -180.0 <= lon <= 180.0):
-                raise LandmarkDbError(f"lat/lon {lat}, {lon} out of range")
-            x, y = self.origin.to_local(lat, lon)
-        elif x_m is not None and y_m is not None:
-            x, y = _finite("x", x_m), _finite("y", y_m)
-            lat, lon = self.origin.to_geodetic(x, y)
-        else:
-            raise LandmarkDbError("give a position: lat and lon, or x and y")
-        sigma = _finite("position sigma", position_sigma_m)
-        if sigma < 0:
-            raise LandmarkDbError("position sigma must not be negative")
-        facing = None if facing_deg is None else _finite("facing", facing_deg) % 360.0
-        data, pixels, fmt, feats = self._encoded(f"landmark {name!r}", image, image_format)
-        with self._lock, self._conn:
-            cur = self._conn.execute(
-                "INSERT INTO landmarks (name, lat_deg, lon_deg, x_m, y_m, facing_deg,"
-                " position_sigma_m, added_utc, source) VALUES (?, ?, ?, ?, ?, ?, ?, ?, ?)",
-                (name, lat, lon, x, y, facing, sigma, _utc_now(), source),
-            )
-            lid = cur.lastrowid
-            assert lid is not None
-            self._insert_photo(lid, data, pixels, fmt, feats, facing, conditions, source)
-            self._conn.execute(
-                "INSERT INTO landmark_index VALUES (?, ?, ?, ?, ?)", (lid, x, x, y, y)
-            )
-        return int(lid)
-
-    def add_many_precomputed(
-        self,
-        rows: Sequence[tuple[str, float, float]],
-        features: Features,
-        image_data: bytes,
-        position_sigma_m: float = 0.0,
-    ) -> None:
-        """Bulk insert (name, x, y) landmarks sharing one photo and its features.
-
-        For benchmarks and simulated cities of many landmarks, where describing a photo
-        per landmark would dominate; positions are local metres. ``features`` must come
-        from this file's extractor.
-        """
-        self._writable()
-        digest = hashlib.sha256(image_data).hexdigest()
-        now = _utc_now()
-        with self._lock, self._conn:
-            for name, x, y in rows:
-                lat, lon = self.origin.to_geodetic(x, y)
-                cur = self._conn.execute(
-                    "INSERT INTO landmarks (name, lat_deg, lon_deg, x_m, y_m, facing_deg,"
-                    " position_sigma_m, added_utc, source) VALUES (?, ?, ?, ?, ?, NULL, ?, ?, ?)",
-                    (name, lat, lon, x, y, position_sigma_m, now, "bulk"),
-                )
-                lid = cur.lastrowid
-                cur = self._conn.execute(
-                    "INSERT INTO photos (landmark_id, format, width, height, sha256, data,"
-                    " added_utc, source) VALUES (?, 'png', ?, ?, ?, ?, ?, 'bulk')",
-                    (lid, features.width, features.height, digest, image_data, now),
-                )
-                assert cur.lastrowid is not None
-                self._insert_features(cur.lastrowid, features)
-                self._conn.execute(
-                    "INSERT INTO landmark_index VALUES (?, ?, ?, ?, ?)", (lid, x, x, y, y)
-                )
-
-    def remove(self, landmark_id: int) -> bool:
-        """Delete a landmark with its photos, features and index row; False if absent."""
-        self._writable()
-        with self._lock, self._conn:
-            n = self._conn.execute("DELETE FROM landmarks WHERE id = ?", (landmark_id,)).rowcount
-            self._conn.execute(
-                "DELETE FROM photo_features WHERE photo_id IN"
-                " (SELECT id FROM photos WHERE landmark_id = ?)",
-                (landmark_id,),
-            )
-            self._conn.execute("DELETE FROM photos WHERE landmark_id = ?", (landmark_id,))
-            self._conn.execute("DELETE FROM landmark_index WHERE id = ?", (landmark_id,))
-        return n > 0
 
     # --- reading ------------------------------------------------------------------------------
 
@@ -338,9 +251,13 @@ class LandmarkDb(PhotoStore):
         """A landmark by id (digits) or by exact name (the first such)."""
         if key.isdigit():
             return self.get(int(key))
+        return self.by_name(key)
+
+    def by_name(self, name: str) -> Landmark | None:
+        """The first landmark (lowest id) with exactly this name."""
         with self._reading():
             r = self._conn.execute(
-                f"SELECT {self._COLS} FROM landmarks WHERE name = ? ORDER BY id LIMIT 1", (key,)
+                f"SELECT {self._COLS} FROM landmarks WHERE name = ? ORDER BY id LIMIT 1", (name,)
             ).fetchone()
         return None if r is None else self._row(r)
 
@@ -372,6 +289,7 @@ class LandmarkDb(PhotoStore):
 
 def _connect(path: Path, readonly: bool) -> sqlite3.Connection:
     if readonly:
+        roll_back_hot_journal(path)
         uri = f"{path.resolve().as_uri()}?mode=ro"
         conn = sqlite3.connect(uri, uri=True, check_same_thread=False)
     else:

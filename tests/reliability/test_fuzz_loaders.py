@@ -548,7 +548,8 @@ def test_landmark_db_with_flipped_bytes(
         event(_exercise(work / "flipped.sqlite"))
 
 
-TABLES = ["schema_version", "metadata", "landmarks", "images", "features", "landmark_index"]
+TABLES = ["schema_version", "metadata", "landmarks", "photos", "photo_features", "landmark_index"]
+"""The tables of a schema v3 file (``landmark_db.schema``)."""
 SQL_VALUES = st.one_of(
     st.sampled_from(
         [
@@ -584,12 +585,23 @@ SQL_OPS = st.one_of(
                 "origin_lat_deg",
                 "origin_lon_deg",
                 "origin_alt_m",
-                "orb_n_features",
-                "orb_max_side_px",
+                "extractor",
             ]
         ),
         st.one_of(
             st.sampled_from(["nan", "inf", "-inf", "1e999", "abc", "", "91", "-181", "5", "1e3"]),
+            st.sampled_from(  # extractors: stale (another kind, version, parameters) or bad
+                [
+                    "rootsift/1:1000@640",
+                    "orb/2:100@192",
+                    "orb/1:101@192",
+                    "orb/1:5@192",
+                    "orb/1:100@10",
+                    "orb/1:100",
+                    "teblid/1:100@192",
+                    "orb/1:1e9@192",
+                ]
+            ),
             st.just("DELETE"),
         ),
     ),
@@ -611,7 +623,7 @@ SQL_OPS = st.one_of(
     st.tuples(
         st.just("features"),
         st.integers(1, 3),
-        st.sampled_from(["keypoints", "descriptors", "count", "width", "height"]),
+        st.sampled_from(["keypoints", "descriptors", "count", "width", "height", "extractor"]),
         st.one_of(SQL_VALUES, st.binary(max_size=100)),
     ),
     st.tuples(st.just("loosen")),  # landmarks without column types or NOT NULL
@@ -643,10 +655,13 @@ def _corrupt(conn: sqlite3.Connection, op: tuple[Any, ...]) -> None:
             conn.execute("INSERT INTO landmark_index VALUES (4, -1e39, 1e39, -1e39, 1e39)")
         conn.execute(f"UPDATE landmark_index SET {op[2]} = ? WHERE id = ?", (op[3], op[1]))
     elif kind == "delete_row":
-        col = "id" if op[1] in ("landmarks", "landmark_index") else "landmark_id"
+        col = {"landmarks": "id", "landmark_index": "id", "photo_features": "photo_id"}.get(
+            op[1], "landmark_id"
+        )
         conn.execute(f"DELETE FROM {op[1]} WHERE {col} = ?", (op[2],))
     elif kind == "features":
-        conn.execute(f"UPDATE features SET {op[2]} = ? WHERE landmark_id = ?", (op[3], op[1]))
+        # one photo per landmark in the valid file: photo ids are the landmark ids
+        conn.execute(f"UPDATE photo_features SET {op[2]} = ? WHERE photo_id = ?", (op[3], op[1]))
     elif kind == "loosen":
         conn.executescript(
             "ALTER TABLE landmarks RENAME TO old_landmarks;"
