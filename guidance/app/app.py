@@ -44,7 +44,6 @@ from guidance.telemetry.messages import InputHealth, LandmarkRejection
 from guidance.telemetry.sink import MessageSink
 
 if TYPE_CHECKING:  # the estimator stack (filterpy, scipy, numba) loads on first use only
-    from guidance.core.messages import InputStatus
     from guidance.core.pipeline import Input, Outputs, Pipeline
 
 log = logging.getLogger(__name__)
@@ -281,9 +280,6 @@ class App:
         """Where outputs go: telemetry and the recorder, each with its own queue policy."""
         return [s for s in (self.telemetry, self.recorder) if s is not None]
 
-    def _inputs_health(self, t_s: float) -> dict[str, InputStatus]:
-        return self.pipeline.statuses(t_s)
-
     def _publish_health(self, t_s: float) -> None:
         if not self.sinks:
             return
@@ -291,7 +287,7 @@ class App:
             name: InputHealth(
                 st.alive, st.valid, st.rate_hz, st.age_s, st.expected_rate_hz, st.detail
             )
-            for name, st in self._inputs_health(t_s).items()
+            for name, st in self.pipeline.statuses(t_s).items()
         }
         comps: dict[str, Mapping[str, Any]] = {
             "estimator": {

@@ -17,7 +17,7 @@ from __future__ import annotations
 import logging
 import math
 from collections import Counter
-from collections.abc import Mapping, Sequence
+from collections.abc import Mapping
 from dataclasses import asdict, dataclass, field
 
 import numpy as np
@@ -231,7 +231,6 @@ class Pipeline:
         self._next_health_t = -math.inf
         self._lost_said = False
         self._uncertain_said = False
-        self._odometry_dead = False
 
     # -- the one entry point ----------------------------------------------------------------
     def feed(self, msg: Input) -> Outputs:
@@ -554,8 +553,6 @@ class Pipeline:
             st = change.status
             if st.alive and st.valid:
                 log.warning("%s is back (%.1f Hz)", st.name, st.rate_hz)
-                if st.name == "odometry":
-                    self._odometry_dead = False
                 continue
             problem = "is silent" if not st.alive else "sends garbage"
             log.warning("%s %s: %s", st.name, problem, st.detail)
@@ -563,8 +560,6 @@ class Pipeline:
             if st.alive and UNUSABLE in st.detail:
                 text = prompts.compass_unusable(st.detail)
             self._say(out, t, text, Priority.SAFETY, "sensor")
-            if st.name == "odometry" and not st.alive:
-                self._odometry_dead = True
 
     # -- views ----------------------------------------------------------------------------------
     @property
@@ -686,8 +681,3 @@ def _decision_from_dict(data: object) -> Decision:
     opts = tuple(ExitOption(**o) for o in data["options"])
     fields_ = {k: v for k, v in data.items() if k != "options"}
     return Decision(options=opts, **fields_)
-
-
-def exit_options_deg(decision: Decision) -> Sequence[float]:
-    """The turn of each option in degrees (for logs and the co-driver display)."""
-    return [math.degrees(o.turn_rad) for o in decision.options]

@@ -150,12 +150,6 @@ class Reader:
         return RecordedMessage(topic, float(t_s), data)
 
 
-def read_messages(
-    source: str | Path | Sequence[str | Path], topics: Iterable[str] | None = None
-) -> Iterator[RecordedMessage]:
-    """Shortcut: ``Reader(source, topics=topics)`` iterated."""
-    return iter(Reader(source, topics=topics))
-
 
 def _summary(f: Any) -> Any:
     """The file's summary section, or None when it has none or is cut short."""

@@ -6,7 +6,7 @@ import json
 import logging
 import queue
 import time
-from collections.abc import Callable, Iterable, Mapping, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass
 from typing import TYPE_CHECKING, Any
 
@@ -196,14 +196,3 @@ class MonitorClient:
             return
         kind = "alive" if sample.kind == zenoh.SampleKind.PUT else "gone"
         self._push(TelemetryEvent(kind, parts[1], key, None, self._clock()))
-
-
-def iter_events(client: MonitorClient, until_s: float | None) -> Iterable[TelemetryEvent]:
-    """Events until the monotonic deadline ``until_s`` (None: forever)."""
-    while True:
-        wait = 0.2 if until_s is None else min(0.2, until_s - time.monotonic())
-        if wait <= 0:
-            return
-        event = client.get(wait)
-        if event is not None:
-            yield event

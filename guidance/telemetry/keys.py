@@ -55,14 +55,6 @@ def schema_tag(kind: str) -> str:
     return f"guidance.{kind}/{SCHEMA_VERSION}"
 
 
-def parse_schema_tag(tag: object) -> tuple[str, int] | None:
-    """Split a tag: "guidance.state/1" -> ("guidance.state", 1); None if it is not one."""
-    if not isinstance(tag, str) or "/" not in tag:
-        return None
-    name, _, version = tag.rpartition("/")
-    return (name, int(version)) if version.isdigit() else None
-
-
 def validate_vehicle_id(vehicle_id: str) -> str:
     if not _VEHICLE_ID_RE.match(vehicle_id):
         raise UserError(

@@ -256,10 +256,6 @@ class Telemetry(MessageSink):
             client_mode=self.config.mode == "client",
         )
 
-    @property
-    def up(self) -> bool:
-        return self._status == "up"
-
     def has_subscribers(self, kind: str | None = None) -> bool:
         """True when a subscriber for ``kind`` (every kind when None) is known to the session.
 
