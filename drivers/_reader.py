@@ -49,6 +49,11 @@ def rejection_counters(counts: Mapping[str, int], reasons: Iterable[str]) -> dic
     return {f"rejected_{reason}": counts.get(reason, 0) for reason in reasons}
 
 
+RawSink = Callable[[str, float, Mapping[str, object]], None]
+"""``(kind, t_s, fields)``: "can" with id, data, is_extended_id, is_error_frame, channel;
+"nmea" with line, port."""
+
+
 class ThreadedSource(Generic[T]):
     """Base of the live sources: one or more daemon threads feeding a sink of ``T``.
 
@@ -89,6 +94,26 @@ class ThreadedSource(Generic[T]):
         self._backlog: Callable[[], int] | None = None
         self._backlog_limit = BACKLOG_LIMIT
         self._held: T | None = None
+        self._raw_sink: RawSink | None = None
+
+    # raw input ---------------------------------------------------------------------------------
+
+    def set_raw_sink(self, raw_sink: RawSink | None) -> None:
+        """Offer every raw unit read (a CAN frame, an NMEA line) to ``raw_sink(kind, t_s,
+        fields)`` before decoding it: the app records raw inputs through this supported hook
+        (``/can``, ``/nmea``). A failing raw sink is logged once and never stops the reader."""
+        self._raw_sink = raw_sink
+
+    def _offer_raw(self, kind: str, t_s: float, fields: Mapping[str, object]) -> None:
+        raw = self._raw_sink
+        if raw is None:
+            return
+        try:
+            raw(kind, t_s, fields)
+        except Exception:
+            self._count("raw_sink_errors")
+            if self._counts["raw_sink_errors"] == 1:
+                self._log.exception("%s: the raw-input sink raised; continuing", self.name)
 
     # the source --------------------------------------------------------------------------------
 

@@ -352,7 +352,7 @@ class App:
                 try:
                     if self.recorder is not None:
                         for src in self.sources.values():
-                            tap_raw_inputs(src, self.recorder)
+                            record_raw_inputs(src, self.recorder)
                     for name, src in self.sources.items():
                         if callable(getattr(src, "set_backlog", None)):
                             src.set_backlog(self.backlog)  # type: ignore[attr-defined]
@@ -469,44 +469,28 @@ class App:
         }
 
 
-def tap_raw_inputs(source: Any, recorder: Any) -> bool:
-    """Record the raw bytes a driver reads (``/can`` frames, ``/nmea`` lines) as it reads them.
+def record_raw_inputs(source: Any, recorder: Any) -> bool:
+    """Record the raw units a driver reads (``/can`` frames, ``/nmea`` lines) as it reads them,
+    through the readers' supported hook (``ThreadedSource.set_raw_sink``). True when set."""
+    set_raw_sink = getattr(source, "set_raw_sink", None)
+    if not callable(set_raw_sink):
+        return False
 
-    The CAN driver decodes in ``source.decoder.feed(msg)`` and the compass parses in
-    ``source.parser.feed_line(line, t_s)``, on their reader threads; this wraps those two
-    methods of the given instances (nothing else changes). Returns True when a tap was set.
-    """
-    decoder = getattr(source, "decoder", None)
-    if decoder is not None and callable(getattr(decoder, "feed", None)):
-        feed = decoder.feed
-        channel = str(getattr(getattr(source, "config", None), "channel", ""))
-        offset = decoder
-
-        def feed_can(msg: Any) -> Any:
+    def raw_sink(kind: str, t_s: float, f: Mapping[str, Any]) -> None:
+        if kind == "can":
             recorder.record_can(
-                float(msg.timestamp) + float(getattr(offset, "clock_offset_s", 0.0)),
-                msg.arbitration_id,
-                bytes(msg.data),
-                is_extended_id=bool(msg.is_extended_id),
-                is_error_frame=bool(msg.is_error_frame),
-                channel=channel,
+                t_s,
+                int(f["id"]),
+                bytes(f["data"]),
+                is_extended_id=bool(f["is_extended_id"]),
+                is_error_frame=bool(f["is_error_frame"]),
+                channel=str(f["channel"]),
             )
-            return feed(msg)
+        elif kind == "nmea":
+            recorder.record_nmea(t_s, f["line"], port=str(f["port"]))
 
-        decoder.feed = feed_can
-        return True
-    parser = getattr(source, "parser", None)
-    if parser is not None and callable(getattr(parser, "feed_line", None)):
-        feed_line = parser.feed_line
-        port = str(getattr(getattr(source, "config", None), "port", ""))
-
-        def feed_nmea(line: bytes, t_s: float | None = None) -> Any:
-            recorder.record_nmea(time.monotonic() if t_s is None else t_s, line, port=port)
-            return feed_line(line, t_s)
-
-        parser.feed_line = feed_nmea
-        return True
-    return False
+    set_raw_sink(raw_sink)
+    return True
 
 
 def _percentile(values: Sequence[float] | deque[float], q: float) -> float | None:
