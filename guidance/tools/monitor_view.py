@@ -24,6 +24,8 @@ from typing import TYPE_CHECKING, Any
 
 from rich.cells import cell_len
 
+from guidance.tools.monitor_check import MAX_NUMBER, message_problem
+
 if TYPE_CHECKING:  # rich's renderables load when the live view first draws
     from rich.console import Console, ConsoleOptions, RenderResult
     from rich.table import Table
@@ -47,6 +49,10 @@ class CarView:
     health: Mapping[str, Any] | None = None
     last_received_s: float | None = None
     messages: int = 0
+    bad_messages: int = 0
+    """Messages that failed ``monitor_check.message_problem``: counted, never shown."""
+    last_bad: str = ""
+    """Why the last bad message was bad (one short line)."""
     gaps: int = 0
     """Messages missing from the sequence numbers (dropped by the car or the network)."""
     track: deque[tuple[float, float]] = field(default_factory=lambda: deque(maxlen=TRACK_POINTS))
@@ -63,10 +69,12 @@ class FleetView:
         self.cars: dict[str, CarView] = {}
         self.gone: dict[str, CarView] = {}
         self.messages = 0
+        self.bad_messages = 0
 
     def apply(self, event: Any) -> bool:
         """Fold one ``TelemetryEvent`` in; False when it told nothing new (a repeated
-        late-join reply)."""
+        late-join reply) or its message is bad (``monitor_check``: against the message
+        schemas and limits; counted per car, never folded in or shown)."""
         vid = event.vehicle_id
         if event.kind == "gone":
             car = self.cars.pop(vid, None)
@@ -82,6 +90,12 @@ class FleetView:
         if event.kind == "alive" or event.message is None:
             return True
         msg = event.message
+        why = message_problem(event.kind, msg)
+        if why is not None:
+            self.bad_messages += 1
+            car.bad_messages += 1
+            car.last_bad = f"{plain(event.kind)}: {plain(why)}"
+            return False
         seq = msg.get("seq")
         if isinstance(seq, int):
             last = car._last_seq.get(event.kind)
@@ -139,9 +153,24 @@ def compass_deg(heading_rad: float) -> float:
 
 
 def _num(value: object) -> float | None:
-    if isinstance(value, int | float) and not isinstance(value, bool) and math.isfinite(value):
+    if isinstance(value, float) and math.isfinite(value) and abs(value) <= MAX_NUMBER:
+        return value
+    if isinstance(value, int) and not isinstance(value, bool) and abs(value) <= MAX_NUMBER:
         return float(value)
     return None
+
+
+def _mapping(value: object) -> Mapping[str, Any]:
+    """A JSON object as a mapping; anything else (a component's free-form health) as empty."""
+    return value if isinstance(value, Mapping) else {}
+
+
+def bad_summary(car: CarView) -> str:
+    """ "" or e.g. "2 bad messages (state: ellipse: [] is not of type 'object')"."""
+    if not car.bad_messages:
+        return ""
+    n = car.bad_messages
+    return f"{n} bad message{'s' if n > 1 else ''} ({car.last_bad})"
 
 
 def _fmt(value: object, spec: str = ".1f", unit: str = "") -> str:
@@ -154,13 +183,14 @@ def health_summary(health: Mapping[str, Any] | None) -> str:
     if health is None:
         return "-"
     problems = []
-    for name, h in sorted((health.get("inputs") or {}).items()):
+    for name, h in sorted(_mapping(health.get("inputs")).items()):
+        h = _mapping(h)
         if not h.get("alive", False):
             problems.append(f"{plain(name)} down")
         elif not h.get("valid", False):
             problems.append(f"{plain(name)} invalid")
-    tel = (health.get("components") or {}).get("telemetry") or {}
-    drops = sum((tel.get("dropped") or {}).values())
+    tel = _mapping(_mapping(health.get("components")).get("telemetry"))
+    drops = sum(int(v) for v in _mapping(tel.get("dropped")).values() if _num(v) is not None)
     text = ", ".join(problems) if problems else "ok"
     return f"{text} ({drops} dropped)" if drops else text
 
@@ -196,7 +226,7 @@ def car_row(car: CarView, now_s: float) -> dict[str, str]:
         ),
         "distance_m": _fmt(dist, ".0f"),
         "prompt": plain(car.prompt) or "-",
-        "health": health_summary(car.health),
+        "health": ", ".join(t for t in (health_summary(car.health), bad_summary(car)) if t),
         "age_s": _fmt(age, ".1f"),
     }
 
@@ -341,5 +371,8 @@ class FleetRender:
 def render_table(view: FleetView, now_s: float, title: str, status: str = "") -> FleetRender:
     """The live view of every car seen, sorted by id."""
     rows = [car_row(view.cars[vid], now_s) for vid in sorted(view.cars)]
+    if view.bad_messages:
+        bad = f"{view.bad_messages} bad message{'s' if view.bad_messages > 1 else ''} left out"
+        status = f"{status}   {bad}" if status else bad
     caption = f"{status}   ({KEYS_HELP})" if status else KEYS_HELP
     return FleetRender(rows, plain(title), caption)

@@ -27,7 +27,7 @@ from urllib.parse import urlsplit
 
 from guidance.errors import UserError
 from guidance.telemetry.client import MonitorClient
-from guidance.tools.monitor_view import CarView, FleetView, health_summary
+from guidance.tools.monitor_view import CarView, FleetView, bad_summary, health_summary
 
 log = logging.getLogger(__name__)
 
@@ -109,6 +109,8 @@ def car_json(car: CarView, now_s: float) -> dict[str, Any]:
             "summary": health_summary(health),
         },
         "messages": car.messages,
+        "bad_messages": car.bad_messages,
+        "bad": bad_summary(car),
         "gaps": car.gaps,
     }
 
@@ -184,8 +186,13 @@ class WebMonitor:
         with self.lock:
             cars = {**self.view.gone, **self.view.cars}
             out = [car_json(cars[vid], now) for vid in sorted(cars)]
-            messages = self.view.messages
-        return {"schema": "guidance.fleet/1", "cars": out, "messages": messages}
+            messages, bad = self.view.messages, self.view.bad_messages
+        return {
+            "schema": "guidance.fleet/1",
+            "cars": out,
+            "messages": messages,
+            "bad_messages": bad,
+        }
 
     def page_config(self) -> dict[str, Any]:
         from guidance.version import version

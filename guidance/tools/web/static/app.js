@@ -209,6 +209,7 @@ function drawCard(c, ul) {
   if (s.target && s.target.kind === "landmark") html("div", "target-text", `target: landmark ${s.target.id}`, li);
   html("div", "age", `age ${fmt(c.age_s, 1, " s")}`, li);
   html("div", c.health.ok === false ? "health bad" : "health", `health: ${c.health.summary}`, li);
+  if (c.bad_messages) html("div", "health bad", c.bad, li);  // malformed messages, left out
   if (c.prompt) html("div", "prompt", `“${c.prompt}”`, li);
 }
 
@@ -235,7 +236,8 @@ function render(fleet) {
   const live = cars.filter((c) => c.alive).length;
   const st = document.getElementById("status");
   st.className = "";
-  st.textContent = `${live} live, ${cars.length - live} gone · ${fleet.messages} messages · ${new Date().toLocaleTimeString()}`;
+  const bad = fleet.bad_messages ? ` · ${fleet.bad_messages} bad messages left out` : "";
+  st.textContent = `${live} live, ${cars.length - live} gone · ${fleet.messages} messages${bad} · ${new Date().toLocaleTimeString()}`;
 }
 
 async function poll() {

@@ -1,0 +1,101 @@
+"""Telemetry messages checked once, where the monitors fold them (``FleetView.apply``: the
+live table, ``--json`` and the web page), against the published JSON Schemas
+(``guidance.telemetry.messages.MESSAGE_SCHEMAS``, ``guidance.telemetry.sink.SINK_SCHEMAS``)
+and against limits no real message comes near: every number finite and at most 1e15 (a
+distance at most 1e9 m), text at most 4096 characters, at most 20,000 values and 32 levels.
+
+A message that fails is counted and shown as a bad message; nothing of it reaches a display,
+so no ``ellipse`` given as a list, health ``inputs`` as a list or ``x_m`` of 10^400 can end
+the monitor, and no NaN, infinity or 400-digit number is ever drawn.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Mapping
+from functools import cache
+from typing import Any
+
+from guidance.telemetry.messages import MESSAGE_SCHEMAS
+from guidance.telemetry.sink import SINK_SCHEMAS
+
+MAX_NUMBER = 1e15
+"""Any number in a message (times, sequence numbers, counters)."""
+MAX_DISTANCE_M = 1e9
+"""A value whose key ends in ``_m`` (the estimator itself stays within 1e7 m)."""
+MAX_TEXT = 4096
+MAX_VALUES = 20_000
+MAX_DEPTH = 32
+PROBLEM_CHARS = 120
+"""A problem's description is cut to this length (it may quote the message)."""
+
+SCHEMAS: dict[str, dict[str, Any]] = {**MESSAGE_SCHEMAS, **SINK_SCHEMAS}
+
+
+@cache
+def _validator(kind: str) -> Any:
+    """The kind's schema without its ``required`` envelope (schema, vehicle_id, seq, t_s):
+    the monitor shows what a message has; what it has must be of the published types."""
+    from jsonschema import Draft7Validator
+
+    schema = {k: v for k, v in SCHEMAS[kind].items() if k != "required"}
+    return Draft7Validator(schema)
+
+
+def _number_problem(key: str, value: int | float) -> str | None:
+    if isinstance(value, float) and not math.isfinite(value):
+        return f"{key or 'value'} is not a finite number"
+    limit = MAX_DISTANCE_M if key.endswith("_m") else MAX_NUMBER
+    if not -limit <= value <= limit:  # big ints compare exactly, no float conversion
+        shown = f"{value:.3g}" if isinstance(value, float) else f"{len(str(abs(value)))} digits"
+        return f"{key or 'value'} out of range ({shown})"
+    return None
+
+
+def _values_problem(message: Mapping[str, Any]) -> str | None:
+    """The first number, text or size beyond the limits above, or None (iterative: a deep
+    message cannot exhaust the stack)."""
+    stack: list[tuple[str, Any, int]] = [("", message, 0)]
+    seen = 0
+    while stack:
+        key, value, depth = stack.pop()
+        seen += 1
+        if seen > MAX_VALUES:
+            return f"more than {MAX_VALUES} values"
+        if depth > MAX_DEPTH:
+            return f"nested deeper than {MAX_DEPTH} levels"
+        if isinstance(value, bool) or value is None:
+            continue
+        if isinstance(value, int | float):
+            why = _number_problem(key, value)
+            if why is not None:
+                return why
+        elif isinstance(value, str):
+            if len(value) > MAX_TEXT:
+                return f"{key or 'text'} longer than {MAX_TEXT} characters"
+        elif isinstance(value, Mapping):
+            for k, v in value.items():
+                if len(str(k)) > MAX_TEXT:
+                    return f"a key longer than {MAX_TEXT} characters"
+                stack.append((str(k), v, depth + 1))
+        elif isinstance(value, list | tuple):
+            stack.extend((key, v, depth + 1) for v in value)
+        else:
+            return f"{key or 'value'} is a {type(value).__name__}"
+    return None
+
+
+def message_problem(kind: str, message: Mapping[str, Any]) -> str | None:
+    """Why a received message cannot be shown, in one short line, or None when it is good."""
+    why = _values_problem(message)
+    if why is None and kind in SCHEMAS:
+        from jsonschema.exceptions import best_match
+
+        error = best_match(_validator(kind).iter_errors(message))
+        if error is not None:
+            where = "/".join(str(p) for p in error.absolute_path) or "message"
+            why = f"{where}: {error.message}"
+    if why is None:
+        return None
+    text = " ".join(why.split())
+    return text if len(text) <= PROBLEM_CHARS else text[: PROBLEM_CHARS - 3] + "..."
