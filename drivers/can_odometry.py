@@ -14,8 +14,6 @@ same decoder; ``guidance odometry`` prints its summary.
 
 from __future__ import annotations
 
-import gzip
-import io
 import logging
 import math
 import time
@@ -28,6 +26,8 @@ from typing import Any
 import can
 
 from drivers._reader import ThreadedSource, rejection_counters
+from drivers.candump import read_candump
+from drivers.clock import ClockMapper
 from drivers.profiles import CHECKSUMS, VehicleProfile, WheelSignals, get_profile, load_dbc
 from guidance.core.health import DeviceHealth
 from guidance.core.messages import WheelOdometry
@@ -52,8 +52,6 @@ Shorter gaps are bridged with the trapezoid rule (exact at constant acceleration
 loggers drop 0.5-0.7 s at a time (RAV4 log), which must not lose the distance driven."""
 FALLBACK_MIN_MPS = 0.5
 """Front wheels are used only when they move at least this fast while both rears read 0."""
-CLOCK_RESYNC_S = 1.0
-"""Re-measure the wall-to-monotonic offset when a mapped frame time is off by more than this."""
 
 REJECT_REASONS = (
     "dlc",
@@ -400,6 +398,7 @@ class CanOdometry(ThreadedSource[WheelOdometry]):
     ) -> None:
         self.config = config or CanOdometryConfig()
         super().__init__(name, self.config, clock=clock, warnings=WARNINGS)
+        self._clock_map = ClockMapper()
         self.decoder = WheelSpeedDecoder(self.config.profile, max_gap_s=self.config.max_gap_s)
         self._bus: can.BusABC | None = None
         self._offline = False
@@ -457,8 +456,10 @@ class CanOdometry(ThreadedSource[WheelOdometry]):
                 log.debug("%s: shutdown: %s", self.name, exc)
 
     def _resync_clock(self) -> None:
-        if self.config.clock == "wall":
-            self.decoder.clock_offset_s = time.monotonic() - time.time()
+        """Wall-clock frame stamps are mapped onto the monotonic clock frame by frame
+        (``drivers.clock.ClockMapper``: steps followed and reported, glitches ignored)."""
+        self.decoder.clock_offset_s = 0.0
+        self._clock_map = ClockMapper()
 
     def _went_offline(self, exc: BaseException) -> None:
         cfg = self.config
@@ -506,10 +507,13 @@ class CanOdometry(ThreadedSource[WheelOdometry]):
                 self._offline = False
                 delay = self.config.reconnect_initial_s
                 log.warning("%s: CAN bus %s is back", self.name, self.config.channel)
-            if self.config.clock == "wall":
-                lag = time.monotonic() - (msg.timestamp + self.decoder.clock_offset_s)
-                if abs(lag) > CLOCK_RESYNC_S:  # the wall clock was stepped (NTP)
-                    self._resync_clock()
+            if self.config.clock == "wall":  # wall-clock stamps onto the monotonic clock
+                mapped, step = self._clock_map.map(time.monotonic(), float(msg.timestamp))
+                msg.timestamp = mapped
+                if step is not None:
+                    self._count("clock_steps")
+                    log.warning("%s: the wall clock stepped by %+.3f s; CAN times follow it",
+                                self.name, step.step_s)  # fmt: skip
             if msg.is_error_frame:
                 self._count("error_frames")
                 self._health.error(f"CAN error frame (id 0x{msg.arbitration_id:X})")
@@ -559,23 +563,14 @@ def _log_suffix(path: Path) -> tuple[str, bool]:
 def read_can_log(path: Path, result: LogReadResult) -> Iterator[can.Message]:
     """Frames of a recorded log, read by python-can; unreadable records are counted, not raised.
 
-    candump files (``.log``, optionally ``.gz``) are read line by line so one damaged line costs
-    one line; other formats are read with ``can.LogReader`` and stop at the first bad record
-    (``result.error`` says where).
+    candump files (``.log``, optionally ``.gz``) are checked and read line by line
+    (``drivers.candump``): one damaged line costs one line, a damaged ``.gz`` keeps the frames
+    before the damage; other formats are read with ``can.LogReader`` and stop at the first bad
+    record (``result.error`` says where).
     """
     suffix, gz = _log_suffix(path)
-    if suffix in CANDUMP_SUFFIXES:
-        with gzip.open(path, "rb") if gz else path.open("rb") as raw:
-            for line in raw:
-                if not line.strip():
-                    continue
-                try:
-                    text = line.decode("ascii")
-                    msgs = list(can.CanutilsLogReader(io.StringIO(text)))
-                except Exception:  # python-can raises ValueError/IndexError on a bad line
-                    result.unreadable += 1
-                    continue
-                yield from msgs
+    if suffix in CANDUMP_SUFFIXES:  # checked line by line, bounded (drivers/candump.py)
+        yield from read_candump(path, gz, result)
         return
     count = 0
     try:
