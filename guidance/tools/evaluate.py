@@ -30,19 +30,12 @@ import numpy as np
 import numpy.typing as npt
 
 from guidance.errors import UserError
+from guidance.tools.track import COLUMNS
 
 FloatArray = npt.NDArray[np.float64]
 
-TRACK_COLUMNS = (
-    "t_s",
-    "east_m",
-    "north_m",
-    "heading_deg",
-    "var_east_m2",
-    "cov_east_north_m2",
-    "var_north_m2",
-    "major_axis_m",
-)
+TRACK_COLUMNS = COLUMNS
+"""What ``guidance replay --track`` writes (``guidance.tools.track``)."""
 TRUTH_COLUMNS = ("t", "east_m", "north_m")
 NEES_2SIGMA = 4.0  # d^2 bound of the 2-sigma ellipse, 2 dof
 INSIDE_2SIGMA_EXPECTED = 1.0 - math.exp(-NEES_2SIGMA / 2.0)  # 0.865 for an honest filter

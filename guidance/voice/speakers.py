@@ -192,7 +192,33 @@ def _uses_espeak(driver_name: str | None) -> bool:
     return driver_name == "espeak" or (driver_name is None and sys.platform.startswith("linux"))
 
 
-class Pyttsx3Speaker:
+class _QueuedSpeaker:
+    """What a queued speaker with a text failover reports: ``failed``, ``stats``, ``health``
+    (after the engine failed, the prompts go on as text). Subclasses set ``_failover``,
+    ``_queue``, ``_counts`` and ``_lock``."""
+
+    _failover: _Failover
+    _queue: PromptQueue
+    _counts: dict[str, int]
+    _lock: threading.Lock | threading.Condition
+
+    @property
+    def failed(self) -> bool:
+        return self._failover.failed
+
+    def stats(self) -> dict[str, int]:
+        with self._lock:
+            return {**self._queue.stats(), **self._counts, "failed": int(self.failed)}
+
+    def health(self) -> SpeakerHealth:
+        """'text_fallback' after the engine failed; a WAV keeps what was recorded."""
+        counters = self.stats()
+        if self._failover.failed:
+            counters["shown_as_text"] = _shown(self._failover.speaker)
+        return _speaker_health("voice", self._failover.reason, counters)
+
+
+class Pyttsx3Speaker(_QueuedSpeaker):
     """Speaks prompts through pyttsx3 on its own thread, fed by a PromptQueue.
 
     ``say`` never blocks. The engine is created and used on the speaking
@@ -275,21 +301,6 @@ class Pyttsx3Speaker:
             log.warning("speech thread still busy after %.1f s; leaving it behind", timeout_s)
         if self._failover.failed:
             self._failover.speaker.close()
-
-    @property
-    def failed(self) -> bool:
-        return self._failover.failed
-
-    def stats(self) -> dict[str, int]:
-        with self._lock:
-            return {**self._queue.stats(), **self._counts, "failed": int(self.failed)}
-
-    def health(self) -> SpeakerHealth:
-        """'text_fallback' after the engine failed; the prompts go on as text."""
-        counters = self.stats()
-        if self._failover.failed:
-            counters["shown_as_text"] = _shown(self._failover.speaker)
-        return _speaker_health("voice", self._failover.reason, counters)
 
     def _run(self, engine_factory: Callable[[], _Engine]) -> None:
         try:

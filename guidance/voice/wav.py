@@ -25,11 +25,9 @@ from guidance.voice.queue import (
     PromptQueue,
 )
 from guidance.voice.speakers import (
-    SpeakerHealth,
     SpeechEngineError,
     _Failover,
-    _shown,
-    _speaker_health,
+    _QueuedSpeaker,
 )
 
 log = logging.getLogger(__name__)
@@ -112,7 +110,7 @@ class RecordedPrompt:
     duration_s: float
 
 
-class WavSpeaker:
+class WavSpeaker(_QueuedSpeaker):
     """Records what a real-time voice would say into one WAV (``--voice-to FILE.wav``).
 
     Prompts are spoken on a virtual timeline kept on the message clock: the
@@ -148,6 +146,7 @@ class WavSpeaker:
         self._queue = PromptQueue(maxsize, clock, max_age_s)
         self._failover = _Failover(fallback, text_stream, clock)
         self._cond = threading.Condition()
+        self._lock = self._cond
         self._inbox: list[tuple[str, int, float, float | None]] = []
         self._closing = False
         self._discard = False
@@ -211,21 +210,6 @@ class WavSpeaker:
     def duration_s(self) -> float:
         with self._cond:
             return self._frames / self._rate
-
-    @property
-    def failed(self) -> bool:
-        return self._failover.failed
-
-    def stats(self) -> dict[str, int]:
-        with self._cond:
-            return {**self._queue.stats(), **self._counts, "failed": int(self.failed)}
-
-    def health(self) -> SpeakerHealth:
-        """'text_fallback' after the renderer failed; the WAV keeps what was recorded."""
-        counters = self.stats()
-        if self._failover.failed:
-            counters["shown_as_text"] = _shown(self._failover.speaker)
-        return _speaker_health("voice", self._failover.reason, counters)
 
     def _run(self) -> None:
         try:
