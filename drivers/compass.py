@@ -224,15 +224,22 @@ class NmeaCompassParser:
 _EOL_RE = re.compile(rb"[\r\n]")
 
 
+_DECIMAL = re.compile(r"[+-]?(?:[0-9]+(?:\.[0-9]*)?|\.[0-9]+)")
+"""An NMEA number: ASCII digits and one decimal point, nothing else."""
+
+
 def _number(field_text: str) -> float | str | None:
     """None for an empty field, the float, or the text itself when it is not a number."""
     field_text = field_text.strip()
     if not field_text:
         return None
-    try:
-        return float(field_text)
-    except ValueError:
-        return field_text
+    if _DECIMAL.fullmatch(field_text) is None:  # float() takes 1_0_0, 1e3, unicode digits
+        try:
+            special = float(field_text)
+        except ValueError:
+            return field_text
+        return special if not math.isfinite(special) else field_text  # nan, inf: out of range
+    return float(field_text)
 
 
 def _signed_field(data: Sequence[str], value_idx: int, dir_idx: int) -> float | str | None:

@@ -62,7 +62,8 @@ DEFAULT_PROFILE = "gm_global_a"
 # ----------------------------------------------------------------------------- raw logs
 
 
-_STAMPED = re.compile(r"^\s*(\d+(?:\.\d*)?)[\s,;]+(.*)$")
+_STAMPED = re.compile(r"^\s*([0-9]+(?:\.[0-9]*)?)[\s,;]+(.*)$")
+"""A time stamp before an NMEA line: ASCII digits only (``float()`` takes ``1_0_0``)."""
 
 
 def nmea_inputs(path: Path, start_s: float, rate_hz: float) -> Iterator[CompassHeading]:
