@@ -27,7 +27,6 @@ import can
 
 from drivers._reader import ThreadedSource, rejection_counters
 from drivers.candump import read_candump
-from drivers.candump import read_candump
 from drivers.clock import ClockMapper
 from drivers.profiles import CHECKSUMS, VehicleProfile, WheelSignals, get_profile, load_dbc
 from guidance.core.health import DeviceHealth
