@@ -29,8 +29,9 @@ import threading
 import time
 from collections import Counter, deque
 from collections.abc import AsyncIterator, Callable, Mapping, Sequence
-from typing import TYPE_CHECKING, Any, Protocol
+from typing import TYPE_CHECKING, Any
 
+from guidance.app import ports
 from guidance.app.checkpoint import Checkpointer
 from guidance.app.ports import Speaker
 from guidance.core.codec import to_record
@@ -55,14 +56,8 @@ recorder, telemetry) hands the GIL back to the loop within 1 ms instead of Pytho
 (benchmarks/loop_latency.py: loop lateness p99 4.8 -> 3.7 ms on a loaded 2-core machine)."""
 
 
-class Source(Protocol):
-    """What every device source offers (``guidance.interfaces``)."""
-
-    name: str
-
-    def start(self, sink: Callable[[Any], None]) -> None: ...
-    def stop(self) -> None: ...
-    def stats(self) -> Mapping[str, int]: ...
+Source = ports.Source[Any]
+"""What every device source offers (``guidance.app.ports.Source``)."""
 
 
 class NullRecogniser:

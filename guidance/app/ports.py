@@ -10,7 +10,7 @@ never an exception out of ``start``/``stop``.
 from __future__ import annotations
 
 from collections.abc import Callable, Mapping, Sequence
-from typing import Protocol, runtime_checkable
+from typing import Protocol, TypeVar, runtime_checkable
 
 from guidance.core.messages import (
     CameraFrame,
@@ -21,43 +21,38 @@ from guidance.core.messages import (
     WheelOdometry,
 )
 
+T_co = TypeVar("T_co", covariant=True)
+
 
 @runtime_checkable
-class OdometrySource(Protocol):
+class Source(Protocol[T_co]):
+    """A device source delivering messages of one type to the sink it was started with."""
+
     name: str
 
-    def start(self, sink: Callable[[WheelOdometry], None]) -> None: ...
+    def start(self, sink: Callable[[T_co], None]) -> None: ...
     def stop(self) -> None: ...
     def stats(self) -> Mapping[str, int]: ...
 
 
 @runtime_checkable
-class CompassSource(Protocol):
-    name: str
-
-    def start(self, sink: Callable[[CompassHeading], None]) -> None: ...
-    def stop(self) -> None: ...
-    def stats(self) -> Mapping[str, int]: ...
+class OdometrySource(Source[WheelOdometry], Protocol):
+    """Wheel odometry increments."""
 
 
 @runtime_checkable
-class CameraSource(Protocol):
-    name: str
-
-    def start(self, sink: Callable[[CameraFrame], None]) -> None: ...
-    def stop(self) -> None: ...
-    def stats(self) -> Mapping[str, int]: ...
+class CompassSource(Source[CompassHeading], Protocol):
+    """Compass readings."""
 
 
 @runtime_checkable
-class RoadwayScene(Protocol):
+class CameraSource(Source[CameraFrame], Protocol):
+    """Camera frames."""
+
+
+@runtime_checkable
+class RoadwayScene(Source[IntersectionScene | TurnCompleted], Protocol):
     """Tells the app that an intersection is coming and which exits it has, and what was taken."""
-
-    name: str
-
-    def start(self, sink: Callable[[IntersectionScene | TurnCompleted], None]) -> None: ...
-    def stop(self) -> None: ...
-    def stats(self) -> Mapping[str, int]: ...
 
 
 @runtime_checkable
