@@ -355,6 +355,11 @@ class CanOdometryConfig:
     def __post_init__(self) -> None:
         """Reject bad values at start, naming the field (the app prefixes its config section)."""
         get_profile(self.profile)
+        if self.interface not in can.VALID_INTERFACES:  # at --check, not an ExceptionGroup later
+            raise UserError(
+                f"interface {self.interface!r} is not a python-can interface; known: "
+                f"{', '.join(sorted(can.VALID_INTERFACES))}"
+            )
         if self.clock not in ("wall", "frame"):
             raise UserError(f"clock must be 'wall' or 'frame', not {self.clock!r}")
         for name in (

@@ -552,6 +552,8 @@ def _landmarks(items: object, origin: tuple[float, float] | None) -> tuple[Landm
         name = t.string("name", "")
         if (t.has("lat_deg") or t.has("lon_deg")) and origin is None:
             raise UserError(f"[landmarks.{i}] lat_deg/lon_deg need [start] lat_deg/lon_deg")
+        if not (t.has("lat_deg") or t.has("lon_deg")) and not (t.has("x_m") and t.has("y_m")):
+            raise UserError(f"[landmarks.{i}] needs a position: lat_deg/lon_deg or x_m and y_m")
         (x, y), _ = _point(t, origin)
         t.done()
         out.append(Landmark(lid, x, y, name))

@@ -248,6 +248,13 @@ def _cli_run(args: argparse.Namespace) -> int:
         cfg = load_config(args.config, require_goal=False)
         if not cfg.sim.get("devices", False):  # the simulator draws its own goal
             cfg = load_config(args.config)
+        from guidance.app.checks import start_problems
+
+        problems, notes = start_problems(args.config, cfg)  # files, folders, the CAN profile
+        if problems:
+            raise UserError("; ".join(problems))
+        for line in notes:
+            print(f"warning: {line}", file=sys.stderr)  # noqa: T201
         print(  # noqa: T201  (the command output)
             f"{args.config}: OK (vehicle {cfg.vehicle_id}, method "
             f"{cfg.pipeline.navigator.method.value})"

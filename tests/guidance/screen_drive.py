@@ -39,6 +39,7 @@ method = "straight_to_goal"
 [odometry]
 interface = "virtual"
 channel = "{channel}"
+profile = "gm_global_a"
 expected_rate_hz = 50.0
 [compass]
 port = "{compass_port}"

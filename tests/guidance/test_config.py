@@ -141,7 +141,10 @@ def test_bad_value_names_its_key(where: tuple[str, str], value: object, message:
         ({"goal": {"lat_deg": 42.0}}, r"\[goal\] lon_deg is required"),
         ({"goal": {"lat_deg": 42.0, "lon_deg": -76.0, "x_m": 3.0}}, r"not both"),
         ({"start": {"x_m": 0.0}}, r"\[compass\] declination_deg is required"),
-        ({"landmarks": [{"id": 1, "x_m": 0}, {"id": 1, "x_m": 5}]}, r"\[landmarks.1\] id"),
+        (
+            {"landmarks": [{"id": 1, "x_m": 0, "y_m": 0}, {"id": 1, "x_m": 5, "y_m": 0}]},
+            r"\[landmarks.1\] id",
+        ),
         ({"voice": {"backend": "wav"}}, r"\[voice\] wav_path is required"),
     ],
 )
