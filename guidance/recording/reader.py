@@ -150,7 +150,6 @@ class Reader:
         return RecordedMessage(topic, float(t_s), data)
 
 
-
 def _summary(f: Any) -> Any:
     """The file's summary section, or None when it has none or is cut short."""
     try:
