@@ -52,7 +52,8 @@ def test_sentences_buffered_while_the_process_was_stopped_are_discarded_not_fuse
         )
         assert child.stdout is not None and child.stdin is not None
         lines: list[str] = []
-        reader = threading.Thread(target=lambda: lines.extend(child.stdout), name="child-out")
+        stdout = child.stdout
+        reader = threading.Thread(target=lambda: lines.extend(stdout), name="child-out")
         reader.start()
         try:
             wait_until(lambda: sum(ln.startswith("H") for ln in lines) >= 5, 10.0, "headings")

@@ -11,6 +11,7 @@ import subprocess
 import sys
 import textwrap
 from pathlib import Path
+from typing import Any
 
 import pytest
 from reliability_helpers import REPO
@@ -23,7 +24,7 @@ from hal_sim.sim_compass import nmea_sentence
 RAV4 = REPO / "tests" / "data" / "can" / "rav4_2020-02-03_bus0_wheelspeeds.log"
 
 
-def _odometry(capsys: pytest.CaptureFixture[str], path: Path) -> tuple[int, dict, str]:  # type: ignore[type-arg]
+def _odometry(capsys: pytest.CaptureFixture[str], path: Path) -> tuple[int, dict[str, Any], str]:
     rc = main(["odometry", str(path), "--profile", "toyota", "--json"])
     cap = capsys.readouterr()
     assert "internal error" not in cap.err and "Traceback" not in cap.err, cap.err
