@@ -104,6 +104,12 @@ class ThreadedSource(Generic[T]):
         (``/can``, ``/nmea``). A failing raw sink is logged once and never stops the reader."""
         self._raw_sink = raw_sink
 
+    def set_status_sink(self, status_sink: Callable[[DeviceHealth], None] | None) -> None:
+        """Hand every change of this driver's status (``starting``, ``ok``, ``silent``,
+        ``disconnected``, ``invalid``...) with its health record to ``status_sink``: what only
+        the driver knows (its device is gone) reaches the app, the voice and the monitor."""
+        self._health.on_flip = status_sink
+
     def _offer_raw(self, kind: str, t_s: float, fields: Mapping[str, object]) -> None:
         raw = self._raw_sink
         if raw is None:
@@ -248,6 +254,8 @@ class ThreadedSource(Generic[T]):
     def _set_connected(self, up: bool, detail: object = "") -> None:
         """Tell the tracker the device is up or down; log once per flip: lost and back."""
         self._health.connected(up, str(detail) if detail else "")
+        if up != self._connected:
+            self._health.evaluate(self.stats())  # the flip reaches the status sink now
         if up == self._connected:
             return
         was, self._connected = self._connected, up

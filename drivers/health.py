@@ -61,6 +61,9 @@ class HealthTracker:
         self._status = "stopped"
         self.flips = 0
         """Times the status went from good (ok/starting) to bad."""
+        self.on_flip: Callable[[DeviceHealth], None] | None = None
+        """Called (on the caller's thread, outside the lock) with the health whenever the
+        status changes: the driver's status flips reach the app through its message path."""
 
     # -- reports from the reader thread ----------------------------------------------------------
 
@@ -134,7 +137,7 @@ class HealthTracker:
         alive = alive and status not in ("disconnected", "stopped")
         if status != previous:
             self._log_flip(previous, status, error)
-        return DeviceHealth(
+        health = DeviceHealth(
             name=self.name,
             status=status,
             alive=alive,
@@ -144,6 +147,12 @@ class HealthTracker:
             last_error=error,
             warning=self.warning_for(status),
         )
+        if status != previous and self.on_flip is not None:
+            try:
+                self.on_flip(health)
+            except Exception:  # the app's hook must never break the reader
+                log.exception("%s: the status hook raised; continuing", self.name)
+        return health
 
     def warning_for(self, status: str) -> str:
         if status not in BAD_STATUSES:

@@ -29,12 +29,14 @@ import threading
 import time
 from collections import Counter, deque
 from collections.abc import AsyncIterator, Callable, Mapping, Sequence
+from functools import partial
 from typing import TYPE_CHECKING, Any
 
 from guidance.app import ports
 from guidance.app.checkpoint import Checkpointer
 from guidance.app.ports import Speaker
 from guidance.core.codec import to_record
+from guidance.core.health import DeviceHealth, DeviceStatus
 from guidance.core.messages import (
     CameraFrame,
     EstimateState,
@@ -299,8 +301,12 @@ class App:
         for sink in self.sinks:
             sink.send_health(t_s, inputs, components=comps)
 
+    def _device_status(self, name: str, health: DeviceHealth) -> None:
+        """A driver's status flip (on its thread): into the loop like any other input."""
+        self.sink(DeviceStatus(self.clock(), name, health))
+
     def _record_input(self, msg: Input) -> None:
-        if self.recorder is not None:
+        if self.recorder is not None and not isinstance(msg, DeviceStatus):
             topic, body = to_record(msg)
             self.recorder.record(topic, msg.t_s, body)
 
@@ -349,6 +355,9 @@ class App:
                         for src in self.sources.values():
                             record_raw_inputs(src, self.recorder)
                     for name, src in self.sources.items():
+                        set_status_sink = getattr(src, "set_status_sink", None)
+                        if callable(set_status_sink):  # the driver's status flips, as inputs
+                            set_status_sink(partial(self._device_status, name))
                         if callable(getattr(src, "set_backlog", None)):
                             src.set_backlog(self.backlog)  # type: ignore[attr-defined]
                         src.start(self.sink)

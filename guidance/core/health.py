@@ -47,6 +47,7 @@ class HealthMonitor:
         self._counts: dict[str, tuple[int, int]] = {}
         self._valid: dict[str, tuple[bool, str]] = {}
         self._judged: dict[tuple[str, str], tuple[bool, str]] = {}
+        self._device: dict[str, tuple[str, str]] = {}
         self._start: float | None = None
 
     def observe(self, name: str, t_s: float) -> None:
@@ -72,6 +73,20 @@ class HealthMonitor:
         frac = d_rej / d_read if d_read else 0.0
         ok = frac <= self.config.max_reject_fraction
         self._valid[name] = (ok, "" if ok else f"garbled: {frac:.0%} rejected")
+
+    def report(self, status: DeviceStatus) -> bool:
+        """A driver's status flip; returns True when the input just went bad by the driver's
+        own account (its warning sentence is then what the driver hears)."""
+        name, h = status.input, status.health
+        if name not in self.expected:
+            return False
+        was_bad = self._device.get(name, ("ok", ""))[0] in BAD_STATUSES
+        self._device[name] = (h.status, h.last_error)
+        return h.status in BAD_STATUSES and not was_bad
+
+    def device_status(self, name: str) -> str:
+        """The last status the input's driver reported ("ok" when it never did)."""
+        return self._device.get(name, ("ok", ""))[0]
 
     def judge(self, name: str, ok: bool, why: str = "", aspect: str = "data") -> None:
         """The consumer's verdict on an input (e.g. a compass the filter keeps rejecting, or
@@ -104,6 +119,12 @@ class HealthMonitor:
         valid, why = self._valid.get(name, (True, ""))
         if not valid:
             detail = f"{detail}; {why}" if detail else why
+        device, error = self._device.get(name, ("ok", ""))
+        if device in ("disconnected", "invalid"):  # the driver knows better than the clock
+            alive = alive and device != "disconnected"
+            valid = False
+            what = f"{device}: {error}" if error else device
+            detail = f"{detail}; {what}" if detail else what
         for (judged_name, _aspect), (judged, why) in self._judged.items():
             if judged_name == name and not judged:
                 valid = False
@@ -237,3 +258,14 @@ class CompassJudge:
 
     def _why(self) -> str:
         return f"{UNUSABLE}: {self.reason}" if self.unusable else ""
+
+
+@dataclass(frozen=True, slots=True)
+class DeviceStatus:
+    """A driver's status flip, delivered through the ordinary message path (rare): what only
+    the driver knows (its device disconnected) and the sentence it wants said."""
+
+    t_s: float
+    input: str
+    """The app's input it feeds: "odometry", "compass", "camera", "scene"."""
+    health: DeviceHealth

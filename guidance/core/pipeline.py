@@ -26,7 +26,13 @@ from guidance.core import prompts
 from guidance.core.announce import due_announcements
 from guidance.core.compass_cal import CompassCalibration
 from guidance.core.estimator import EstimatorConfig, PoseEstimator
-from guidance.core.health import UNUSABLE, CompassJudge, HealthConfig, HealthMonitor
+from guidance.core.health import (
+    UNUSABLE,
+    CompassJudge,
+    DeviceStatus,
+    HealthConfig,
+    HealthMonitor,
+)
 from guidance.core.messages import (
     Approach,
     CompassHeading,
@@ -67,6 +73,7 @@ Input = (
     | TurnCompleted
     | GoalUpdate
     | Approach
+    | DeviceStatus
 )
 
 INPUT_KINDS: dict[type, str] = {
@@ -199,6 +206,8 @@ class Pipeline:
         )
         self.heading_known = heading is not None
         self._waiting_said = False
+        self._warned: set[str] = set()
+        """Inputs the driver has been warned about (by the pipeline or in the driver's words)."""
         self._held_odometry: WheelOdometry | None = None
         self._last_manoeuvre = ""
         if not self.heading_known:
@@ -264,6 +273,8 @@ class Pipeline:
             self._turn(msg, out)
         elif isinstance(msg, Approach):
             self._approach(msg, out)
+        elif isinstance(msg, DeviceStatus):
+            self._device_status(msg, out)
         self._health(t, out, force=False)
         return out
 
@@ -533,6 +544,15 @@ class Pipeline:
                 d.intersection_id, d.exit_heading_rad, d.options[best].heading_rad
             )
 
+    def _device_status(self, msg: DeviceStatus, out: Outputs) -> None:
+        """A driver's status flip: its own sentence is what the driver hears ("Wheel speed bus
+        disconnected. Position is getting less certain."), once per flip to bad."""
+        went_bad = self.health.report(msg)
+        if went_bad and msg.health.warning and msg.input not in self._warned:
+            self._warned.add(msg.input)
+            self._say(out, msg.t_s, msg.health.warning, Priority.SAFETY, "sensor")
+        self._health(msg.t_s, out, force=True)
+
     def _judge_time(self, name: str, reason: str | None) -> None:
         """Inputs the estimator cannot place in time make their input invalid (a frozen
         estimate while inputs are alive is a fault, never silent)."""
@@ -552,10 +572,14 @@ class Pipeline:
             out.health.append(change)
             st = change.status
             if st.alive and st.valid:
+                self._warned.discard(st.name)
                 log.warning("%s is back (%.1f Hz)", st.name, st.rate_hz)
                 continue
             problem = "is silent" if not st.alive else "sends garbage"
             log.warning("%s %s: %s", st.name, problem, st.detail)
+            if st.name in self._warned:
+                continue  # one warning per input and episode (its driver may have said it)
+            self._warned.add(st.name)
             text = prompts.sensor_warning(st.name, problem)
             if st.alive and UNUSABLE in st.detail:
                 text = prompts.compass_unusable(st.detail)

@@ -1,0 +1,65 @@
+"""One health record from the driver to the driver's ear and the monitor (issue 11, change 3):
+a status only the driver knows ("disconnected") reaches the pipeline through the ordinary
+message path, is spoken in the driver's own words, once, and shows in the input's health."""
+
+from __future__ import annotations
+
+import asyncio
+import io
+from pathlib import Path
+
+from drivers.compass import SerialCompass, SerialCompassConfig
+from guidance.app.app import App
+from guidance.core.estimator import EstimatorConfig
+from guidance.core.health import DeviceHealth, DeviceStatus
+from guidance.core.navigator import NavigatorConfig
+from guidance.core.pipeline import Pipeline, PipelineConfig
+from guidance.voice.speakers import TextSpeaker
+
+
+def _pipeline() -> Pipeline:
+    return Pipeline(
+        PipelineConfig(
+            estimator=EstimatorConfig(compass_two_sigma_deg=20.0),
+            navigator=NavigatorConfig(),
+            start_xy_m=(0.0, 0.0),
+            goal_xy_m=(500.0, 0.0),
+            start_heading_rad=0.0,
+            expected_rates_hz={"compass": 10.0},
+        )
+    )
+
+
+def test_a_compass_whose_port_is_gone_is_said_disconnected_in_its_own_words(
+    tmp_path: Path,
+) -> None:
+    pipeline = _pipeline()
+    speech = io.StringIO()
+    compass = SerialCompass(SerialCompassConfig(port=str(tmp_path / "ttyUSB-missing")))
+
+    async def scenario() -> None:
+        app = App(pipeline, sources={"compass": compass}, speaker=TextSpeaker(speech),
+                  tick_hz=50)  # fmt: skip
+        async with app.running():
+            await asyncio.sleep(1.5)
+
+    asyncio.run(scenario())
+    said = speech.getvalue()
+    assert said.count("Compass disconnected. Heading is getting less certain.") == 1
+    assert "Warning: compass" not in said  # not twice, in other words
+    st = pipeline.statuses(pipeline.t_s or 0.0)["compass"]
+    assert not st.valid and "disconnected" in st.detail and "ttyUSB-missing" in st.detail
+
+
+def test_a_driver_flip_back_to_ok_clears_it() -> None:
+    p = _pipeline()
+    warning = "Compass disconnected. Heading is getting less certain."
+    bad = DeviceHealth(
+        "serial_compass", "disconnected", False, False, last_error="gone", warning=warning
+    )
+    out = p.feed(DeviceStatus(1.0, "compass", bad))
+    assert [pr.text for pr in out.prompts] == [bad.warning]
+    assert p.feed(DeviceStatus(1.5, "compass", bad)).prompts == []  # once per episode
+    ok = DeviceHealth("serial_compass", "ok", True, True)
+    p.feed(DeviceStatus(2.0, "compass", ok))
+    assert p.health.device_status("compass") == "ok"
