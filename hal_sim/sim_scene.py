@@ -305,4 +305,3 @@ def landmark_name(k: int) -> str:
     place = _PLACES[k % len(_PLACES)]
     street = _STREETS[(k // len(_PLACES)) % len(_STREETS)]
     return f"the {place} on {street} Street"
-

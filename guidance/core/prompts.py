@@ -126,9 +126,13 @@ def landmark_confirmed(name: str = "") -> str:
 def _looks_like_an_id(name: str) -> bool:
     """'57', 'landmark 57', 'sim-00057', 'lm_57': numbering, not a name a driver can use."""
     words = name.replace("-", " ").replace("_", " ").split()
-    return any(ch.isdigit() for ch in words[-1]) and len(words) <= 2 and not any(
-        w.isalpha() and len(w) > 2 and w.lower() not in ("landmark", "sim", "lm", "mark")
-        for w in words
+    return (
+        any(ch.isdigit() for ch in words[-1])
+        and len(words) <= 2
+        and not any(
+            w.isalpha() and len(w) > 2 and w.lower() not in ("landmark", "sim", "lm", "mark")
+            for w in words
+        )
     )
 
 

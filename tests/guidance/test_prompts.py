@@ -73,7 +73,8 @@ def test_then_form_for_two_close_turns(gap_m: float, text: str) -> None:
 
 
 def test_event_phrases() -> None:
-    assert prompts.landmark_confirmed("the town hall") == "Passing the town hall: position confirmed"
+    hall = "Passing the town hall: position confirmed"
+    assert prompts.landmark_confirmed("the town hall") == hall
     assert prompts.landmark_confirmed() == "Landmark passed: position confirmed"
     for internal in ("57", "landmark 57", "sim-00057", "lm_3"):  # never read out an id
         assert prompts.landmark_confirmed(internal) == "Landmark passed: position confirmed"
