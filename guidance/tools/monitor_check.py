@@ -12,6 +12,7 @@ the monitor, and no NaN, infinity or 400-digit number is ever drawn.
 from __future__ import annotations
 
 import math
+import re
 from collections.abc import Mapping
 from functools import cache
 from typing import Any
@@ -48,8 +49,17 @@ def _number_problem(key: str, value: int | float) -> str | None:
     limit = MAX_DISTANCE_M if key.endswith("_m") else MAX_NUMBER
     if not -limit <= value <= limit:  # big ints compare exactly, no float conversion
         shown = f"{value:.3g}" if isinstance(value, float) else f"{len(str(abs(value)))} digits"
-        return f"{key or 'value'} out of range ({shown})"
+        return f"{_shown_key(key) if key else 'value'} out of range ({shown})"
     return None
+
+
+_SAFE_KEY = re.compile(r"^[a-z][a-z0-9_]{0,40}$")
+
+
+def _shown_key(key: str) -> str:
+    """A field name fit to show: our own names are lower_snake; anything else (a hostile
+    message's keys: "INF", escapes, markup) is not echoed."""
+    return key if _SAFE_KEY.match(key) and key not in ("nan", "inf", "infinity") else "a field"
 
 
 def _values_problem(message: Mapping[str, Any]) -> str | None:
@@ -72,7 +82,7 @@ def _values_problem(message: Mapping[str, Any]) -> str | None:
                 return why
         elif isinstance(value, str):
             if len(value) > MAX_TEXT:
-                return f"{key or 'text'} longer than {MAX_TEXT} characters"
+                return f"{_shown_key(key) if key else 'text'} longer than {MAX_TEXT} characters"
         elif isinstance(value, Mapping):
             for k, v in value.items():
                 if len(str(k)) > MAX_TEXT:
@@ -81,7 +91,7 @@ def _values_problem(message: Mapping[str, Any]) -> str | None:
         elif isinstance(value, list | tuple):
             stack.extend((key, v, depth + 1) for v in value)
         else:
-            return f"{key or 'value'} is a {type(value).__name__}"
+            return f"{_shown_key(key) if key else 'value'} is a {type(value).__name__}"
     return None
 
 
@@ -93,8 +103,10 @@ def message_problem(kind: str, message: Mapping[str, Any]) -> str | None:
 
         error = best_match(_validator(kind).iter_errors(message))
         if error is not None:
-            where = "/".join(str(p) for p in error.absolute_path) or "message"
-            why = f"{where}: {error.message}"
+            where = "/".join(_shown_key(str(p)) for p in error.absolute_path) or "message"
+            # The schema's rule, never the value: a hostile value is not echoed to a display.
+            expected = error.validator_value if error.validator == "type" else error.validator
+            why = f"{where}: not {expected} (got {type(error.instance).__name__})"
     if why is None:
         return None
     text = " ".join(why.split())

@@ -127,7 +127,7 @@ def test_cli_json_is_the_last_line(tmp_path: Path, capsys: pytest.CaptureFixture
 
 def test_cli_rejects_bad_options(capsys: pytest.CaptureFixture[str]) -> None:
     assert main(["sim", "--detection-rate", "1.5", "--no-voice", "--no-telemetry"]) == 2
-    assert "--detection-rate must be within [0, 1]" in capsys.readouterr().err
+    assert "--detection-rate must be a finite number >= 0 and <= 1" in capsys.readouterr().err
 
 
 @pytest.mark.skipif(shutil.which("espeak-ng") is None, reason="espeak-ng not installed")
