@@ -273,10 +273,20 @@ async def drive_async(
                     f"checkpoint {opts.checkpoint} is for seed {extra.get('seed')} "
                     f"method {extra.get('method')}; delete it or use the same options"
                 )
-            world.replay_to(int(extra["step"]), extra["route"])
-            pipeline.restore(doc["pipeline"])
-            track_truth = [tuple(p) for p in extra.get("track_truth", [])]
-            track_est = [tuple(p) for p in extra.get("track_est", [])]
+            try:  # a damaged or hostile checkpoint: one line, and it is moved aside
+                Pipeline(pcfg).restore(doc["pipeline"])  # checked on a throwaway first
+                world.replay_to(int(extra["step"]), extra["route"])
+                pipeline.restore(doc["pipeline"])
+                track_truth = [(float(a), float(b)) for a, b in extra.get("track_truth", [])]
+                track_est = [(float(a), float(b)) for a, b in extra.get("track_est", [])]
+            except (ValueError, KeyError, TypeError, IndexError, AttributeError) as exc:
+                from guidance.app.checkpoint import set_aside
+
+                set_aside(opts.checkpoint, f"cannot be resumed: {exc}")
+                raise UserError(
+                    f"checkpoint {opts.checkpoint} cannot be resumed ({exc}); it was moved "
+                    "aside: run again to start afresh"
+                ) from None
             resumed_at = world.t_s
             log.warning("resumed from checkpoint %s at t=%.1f s", opts.checkpoint, resumed_at)
 

@@ -219,3 +219,27 @@ def test_a_write_on_a_full_disk_leaves_no_temp_file(tmp_path: Path) -> None:
     assert out.returncode == 0, out.stderr
     assert out.stdout.split() == ["[False,", "False,", "False]", "3"]
     assert [p.name for p in folder.iterdir()] == []
+
+
+def test_the_simulator_refuses_its_own_damaged_checkpoint_in_one_line(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """A sim checkpoint whose state is invalid (NaN pose): one clear line, moved aside, and
+    the next run starts afresh."""
+    import json
+
+    from guidance.tools.cli import main
+
+    ck = tmp_path / "ck.json"
+    args = ["sim", "--seed", "11", "--no-voice", "--no-record", "--no-png", "--no-telemetry",
+            "--out", str(tmp_path), "--checkpoint", str(ck)]  # fmt: skip
+    assert main(args) == 0
+    doc = json.loads(ck.read_text())
+    doc["pipeline"]["x"][0] = float("nan")
+    ck.write_text(json.dumps(doc))
+    capsys.readouterr()
+    assert main(args) == 2
+    err = capsys.readouterr().err
+    assert "cannot be resumed" in err and "internal error" not in err
+    assert not ck.exists() and list(tmp_path.glob("ck.json.rejected-*"))
+    assert main(args) == 0  # afresh
