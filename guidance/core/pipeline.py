@@ -111,6 +111,9 @@ class Outputs:
 # ----------------------------------------------------------------------------- the pipeline
 
 
+LANDMARK_REPEAT_S = 30.0
+"""A landmark confirmed again within this time (the same pass) is not announced again."""
+
 GAP_HOLD_S = 5.0
 """An odometry increment this long after the previous one waits for the next to confirm its
 time (a glitch stamping one frame far ahead must not widen the estimate by hours of driving)."""
@@ -207,6 +210,7 @@ class Pipeline:
         self.heading_known = heading is not None
         self._waiting_said = False
         self._warned: set[str] = set()
+        self._landmark_said: dict[int, float] = {}
         """Inputs the driver has been warned about (by the pipeline or in the driver's words)."""
         self._held_odometry: WheelOdometry | None = None
         self._last_manoeuvre = ""
@@ -393,7 +397,10 @@ class Pipeline:
             out.landmark_updates.append(fix)
             self.navigator.on_landmark_fix(fix.landmark_id, self.estimator.major_axis_m)
             name = next((lm.name for lm in self.config.landmarks if lm.id == fix.landmark_id), "")
-            self._say(out, fix.t_s, prompts.landmark_confirmed(name), Priority.INFO, "landmark")
+            last = self._landmark_said.get(fix.landmark_id, -math.inf)
+            if fix.t_s - last >= LANDMARK_REPEAT_S:  # a second fix from the same pass: silent
+                self._landmark_said[fix.landmark_id] = fix.t_s
+                self._say(out, fix.t_s, prompts.landmark_confirmed(name), Priority.INFO, "landmark")
             self._after_step(fix.t_s, out, mode_done=True)
         else:
             out.landmark_rejections.append((fix, r.reason or "rejected"))

@@ -256,7 +256,7 @@ def test_turn_prompts_come_early_enough_at_the_simulated_speed_and_never_twice()
 
     from hal_sim.params import SimParams
 
-    r = run_drive(FAST)
+    r = run_drive(replace(FAST, density_per_km2=5.0))  # with landmark fixes too
     v = SimParams().cruise_mps  # the fastest the simulated car drives
     turns = [(t, text) for t, text in r.prompt_log if text.startswith("In ")]
     assert len(turns) >= 3
@@ -265,6 +265,8 @@ def test_turn_prompts_come_early_enough_at_the_simulated_speed_and_never_twice()
         assert m, text
         assert int(m.group(1)) / v >= 3.0, text  # seconds left to act, at most this speed
     assert len(set(r.prompt_log)) == len(r.prompt_log)
+    for i, (t, text) in enumerate(r.prompt_log):  # nor the same sentence twice in 3 s
+        assert not any(u - t < 3.0 and same == text for u, same in r.prompt_log[i + 1 :])
     texts = [text for _t, text in r.prompt_log]
     for a, b in itertools.pairwise(texts):
         assert not (a == b and "straight" in a), (a, b)
