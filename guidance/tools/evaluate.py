@@ -20,6 +20,7 @@ import argparse
 import csv
 import json
 import math
+import re
 import sys
 from collections.abc import Sequence
 from dataclasses import dataclass, fields
@@ -33,6 +34,9 @@ from guidance.errors import UserError
 from guidance.tools.track import COLUMNS
 
 FloatArray = npt.NDArray[np.float64]
+
+_DECIMAL = re.compile(r"^[+-]?([0-9]+\.?[0-9]*|\.[0-9]+)([eE][+-]?[0-9]+)?$|^[+-]?(nan|inf)$", re.I)
+"""A number as a CSV from outside may write it: plain ASCII decimal, optional exponent."""
 
 TRACK_COLUMNS = COLUMNS
 """What ``guidance replay --track`` writes (``guidance.tools.track``)."""
@@ -129,6 +133,8 @@ def _read_columns(
                     )
                 for col, i in index.items():
                     try:
+                        if not _DECIMAL.match(row[i].strip()):  # no 1_0_0, 0x10, "１２"
+                            raise ValueError(row[i])
                         v = float(row[i])
                     except ValueError:
                         raise UserError(

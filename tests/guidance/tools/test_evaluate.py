@@ -349,3 +349,12 @@ def test_real_truth_against_itself_shifted(tmp_path: Path) -> None:
     assert run(track_path, src, as_json=True, out=buf) == 0
     d = json.loads(buf.getvalue().splitlines()[-1])
     assert d["ape_rmse_m"] == pytest.approx(1.0, abs=1e-5)
+
+
+def test_numbers_in_a_csv_are_plain_decimals(tmp_path: Path) -> None:
+    """Outside text: Python's float() would take '1_0_0' and fullwidth digits; not here."""
+    for bad in ("1_0_0", "0x10", "１２", "1e", "--1"):
+        truth = tmp_path / "truth.csv"
+        truth.write_text(f"t,east_m,north_m\n0,0,0\n1,{bad},0\n")
+        with pytest.raises(UserError, match="not a number"):
+            read_truth(truth)
