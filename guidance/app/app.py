@@ -34,6 +34,7 @@ from typing import TYPE_CHECKING, Any
 
 from guidance.app import ports
 from guidance.app.checkpoint import Checkpointer
+from guidance.app.logonce import LogOnce
 from guidance.app.ports import Speaker
 from guidance.core.codec import to_record
 from guidance.core.health import DeviceHealth, DeviceStatus
@@ -102,6 +103,8 @@ class App:
         method: str = "",
     ) -> None:
 
+        self.failures = LogOnce(log)
+        """Failures of messages, ticks, stats and the recogniser: logged once, counted."""
         self.pipeline = pipeline
         self.sources = dict(sources or {})
         self.camera = camera
@@ -161,8 +164,9 @@ class App:
                 self._on_frame()
             else:
                 self.feed(msg)
+            self.failures.ok(f"processing {type(msg).__name__}")
         except Exception:
-            log.exception("processing %s failed; continuing", type(msg).__name__)
+            self.failures.failed(f"processing {type(msg).__name__}")
         finally:
             self._processed += 1
             self._wake()
@@ -185,8 +189,9 @@ class App:
             for name, src in self.sources.items():
                 try:
                     read, rejected = _read_rejected(src.stats())
+                    self.failures.ok(f"{name}: stats()")
                 except Exception:  # a source's stats must never stop the loop
-                    log.exception("%s: stats() failed", name)
+                    self.failures.failed(f"{name}: stats()")
                     continue
                 self.pipeline.update_source_counts(name, read, rejected)
         out = self.pipeline.tick(now_s)
@@ -410,8 +415,9 @@ class App:
             if not self.external_ticks:
                 try:
                     self.tick(self.clock())
+                    self.failures.ok("tick")
                 except Exception:
-                    log.exception("tick failed; continuing")
+                    self.failures.failed("tick")
             deadline += period
             if time.monotonic() - deadline > 10 * period:  # stalled: do not burst to catch up
                 deadline = time.monotonic() + period
@@ -429,9 +435,10 @@ class App:
             state = self.pipeline.state()
             try:
                 fix = await loop.run_in_executor(None, self.match_frame, frame, state)
+                self.failures.ok("the landmark recogniser")
             except Exception:
                 self.counts["recogniser_errors"] += 1
-                log.exception("landmark recogniser failed on a frame; continuing")
+                self.failures.failed("the landmark recogniser")
                 continue
             self.counts["frames_matched"] += 1
             if fix is not None:
@@ -439,7 +446,7 @@ class App:
                     self.feed(fix)
                 except Exception:
                     self.counts["recogniser_errors"] += 1
-                    log.exception("a landmark fix could not be applied; continuing")
+                    self.failures.failed("applying a landmark fix")
 
     def match_frame(self, frame: CameraFrame, state: EstimateState) -> LandmarkFix | None:
         """Run the recogniser (worker thread). Accepts ``process(frame, state)`` returning a
