@@ -26,7 +26,8 @@ from collections.abc import Sequence
 
 import numpy as np
 
-from guidance.core.model import CHI2_2D_2SIGMA
+from guidance.core.model import CHI2_2D_2SIGMA, mahalanobis_sq_2d
+from guidance.core.model import ellipse_axes as model_ellipse_axes
 
 GATE_PROBABILITY_2SIGMA = 1.0 - math.exp(-CHI2_2D_2SIGMA / 2.0)
 """P(chi-square, 2 dof <= 4) = 0.8647: the probability mass inside the 2-sigma ellipse."""
@@ -36,15 +37,12 @@ _NEWTON_STEPS = 60
 
 
 def ellipse_axes(cov_xy: Sequence[Sequence[float]], k2: float) -> tuple[float, float, float]:
-    """Semi-axes (major, minor, metres) and orientation (rad from x) of ``d^T P^-1 d <= k2``."""
-    pxx, pxy, pyy = float(cov_xy[0][0]), float(cov_xy[0][1]), float(cov_xy[1][1])
-    tr = 0.5 * (pxx + pyy)
-    diff = 0.5 * (pxx - pyy)
-    rad = math.hypot(diff, pxy)
-    l1 = max(tr + rad, 0.0)
-    l2 = max(tr - rad, 0.0)
-    angle = 0.5 * math.atan2(2.0 * pxy, pxx - pyy)
-    return math.sqrt(k2 * l1), math.sqrt(k2 * l2), angle
+    """Semi-axes (major, minor, metres) and orientation (rad from x) of ``d^T P^-1 d <= k2``:
+    the estimator's own ``guidance.core.model.ellipse_axes`` (one definition of the math)."""
+    a, b, angle = model_ellipse_axes(
+        float(cov_xy[0][0]), float(cov_xy[0][1]), float(cov_xy[1][1]), float(k2)
+    )
+    return float(a), float(b), float(angle)
 
 
 def gate_box(
@@ -114,15 +112,16 @@ def distance_to_ellipse(
 def mahalanobis_sq(
     points_xy: np.ndarray, mean_xy: Sequence[float], cov_xy: Sequence[Sequence[float]]
 ) -> np.ndarray:
-    """d^T P^-1 d for each point (N x 2); +inf where P is singular."""
+    """d^T P^-1 d for each point (N x 2); +inf where P is singular. Each is the estimator's
+    ``guidance.core.model.mahalanobis_sq_2d`` (the gate checks a handful of candidates)."""
     pts = np.asarray(points_xy, dtype=np.float64).reshape(-1, 2)
     pxx, pxy, pyy = float(cov_xy[0][0]), float(cov_xy[0][1]), float(cov_xy[1][1])
-    det = pxx * pyy - pxy * pxy
-    dx = pts[:, 0] - float(mean_xy[0])
-    dy = pts[:, 1] - float(mean_xy[1])
-    if not det > 0.0:
+    if not pxx * pyy - pxy * pxy > 0.0:
         return np.full(len(pts), math.inf)
-    return (pyy * dx * dx - 2.0 * pxy * dx * dy + pxx * dy * dy) / det
+    mx, my = float(mean_xy[0]), float(mean_xy[1])
+    return np.array(
+        [mahalanobis_sq_2d(x - mx, y - my, pxx, pxy, pyy) for x, y in pts], dtype=np.float64
+    )
 
 
 def in_gate(
