@@ -51,6 +51,7 @@ from guidance.core.messages import (
 )
 from guidance.core.model import compass_to_heading, wrap_angle
 from guidance.core.navigator import Decision, Landmark, Navigator, NavigatorConfig
+from guidance.core.pipeline_state import PipelineState, _InState
 from guidance.core.prompts import Units
 from guidance.core.snapshot_check import check_snapshot
 from guidance.core.turns import TurnDetector, TurnDetectorConfig
@@ -201,20 +202,28 @@ class _Pending:
 class Pipeline:
     """Estimator + navigator + turn detector + health, driven by messages (see module doc)."""
 
+    heading_known = _InState[bool]()
+    odometer_m = _InState[float]()
+    speed_mps = _InState[float]()
+    landmark_updates = _InState[int]()
+    prompt_count = _InState[int]()
+    arrived = _InState[bool]()
+    finished = _InState[bool]()
+
     def __init__(self, config: PipelineConfig) -> None:
         self.config = config
         heading = config.start_heading_rad
         self.estimator = PoseEstimator(
             config.estimator, config.start_xy_m[0], config.start_xy_m[1], heading or 0.0
         )
-        self.heading_known = heading is not None
+        self.st = PipelineState(heading_known=heading is not None)
         self._waiting_said = False
         self._warned: set[str] = set()
         self._landmark_said: dict[int, float] = {}
         """Inputs the driver has been warned about (by the pipeline or in the driver's words)."""
         self._held_odometry: WheelOdometry | None = None
         self._last_manoeuvre = ""
-        if not self.heading_known:
+        if not self.st.heading_known:
             P = self.estimator.P
             P[2, 2] = math.pi**2
             P[0, 2] = P[2, 0] = P[1, 2] = P[2, 1] = 0.0
@@ -230,20 +239,12 @@ class Pipeline:
             calibrated=self._deviation is not None or config.mounting_offset_deg != 0.0,
         )
         self.counts: Counter[str] = Counter()
-        self.odometer_m = 0.0
-        self.speed_mps = 0.0
-        self.landmark_updates = 0
-        self.prompt_count = 0
-        self.arrived = False
-        self.finished = False
         self.last_decision: Decision | None = None
         self._pending: _Pending | None = None
         self._last_t: float | None = None
         self._last_odo_t: float | None = None
         self._next_state_t = -math.inf
         self._next_health_t = -math.inf
-        self._lost_said = False
-        self._uncertain_said = False
 
     # -- the one entry point ----------------------------------------------------------------
     def feed(self, msg: Input) -> Outputs:
@@ -261,7 +262,7 @@ class Pipeline:
             self._last_t = t
         if isinstance(msg, GoalUpdate):
             self._set_goal(msg, out)
-        elif self.finished:
+        elif self.st.finished:
             out.accepted, out.reason = False, "finished"
         elif isinstance(msg, WheelOdometry):
             self._odometry(msg, out)
@@ -337,21 +338,21 @@ class Pipeline:
             if self.config.resume_gap_inflation and gap > self.health.timeout_s("odometry"):
                 self._inflate_after_gap(gap, out)
             else:
-                self.speed_mps = abs(d) / gap
+                self.st.speed_mps = abs(d) / gap
         self._last_odo_t = msg.t_s
-        self.odometer_m += abs(d)
+        self.st.odometer_m += abs(d)
         x = est.x
-        turn = self.turns.update(msg.t_s, float(x[2]), self.odometer_m)
+        turn = self.turns.update(msg.t_s, float(x[2]), self.st.odometer_m)
         if turn is not None:
             out.turns.append(turn)
             pending = self._pending
-            if pending is None or self.odometer_m >= pending.reach_odometer_m:
+            if pending is None or self.st.odometer_m >= pending.reach_odometer_m:
                 self._resolve(turn.t_s, turn.heading_change_rad, "detected", out)
         self._after_step(msg.t_s, out)
 
     def _inflate_after_gap(self, gap_s: float, out: Outputs) -> None:
         """Odometry came back after a silence: the car may have moved meanwhile (issue 7)."""
-        spread = gap_spread_m(self.speed_mps, gap_s)
+        spread = gap_spread_m(self.st.speed_mps, gap_s)
         self.inflate_position(spread)
         log.warning("odometry resumed after %.1f s: position inflated by %.0f m", gap_s, spread)
         self.counts["gap_inflations"] += 1
@@ -370,11 +371,11 @@ class Pipeline:
 
     def _heading(self, fix: HeadingFix, out: Outputs) -> None:
         est = self.estimator
-        if not self.heading_known and est.config.compass_two_sigma_deg is not None:
+        if not self.st.heading_known and est.config.compass_two_sigma_deg is not None:
             est.heading_from_compass(
                 fix.theta_rad, math.radians(est.config.compass_two_sigma_deg / 2.0) ** 2
             )
-            self.heading_known = True
+            self.st.heading_known = True
             self.turns.reset()
             log.info("initial heading from the compass: %.0f deg", math.degrees(fix.theta_rad))
             self._after_step(fix.t_s, out)
@@ -393,7 +394,7 @@ class Pipeline:
         r = self.estimator.process(fix)
         out.accepted, out.reason = r.accepted, r.reason
         if r.accepted:
-            self.landmark_updates += 1
+            self.st.landmark_updates += 1
             out.landmark_updates.append(fix)
             self.navigator.on_landmark_fix(fix.landmark_id, self.estimator.major_axis_m)
             name = next((lm.name for lm in self.config.landmarks if lm.id == fix.landmark_id), "")
@@ -410,7 +411,7 @@ class Pipeline:
         if not scene.exit_headings_rad:
             out.accepted, out.reason = False, "no_exits"
             return
-        if not self.heading_known:  # no advice out of a heading the car does not have
+        if not self.st.heading_known:  # no advice out of a heading the car does not have
             out.accepted, out.reason = False, "heading_unknown"
             self.counts["advice_withheld"] += 1
             if not self._waiting_said:
@@ -435,8 +436,8 @@ class Pipeline:
         self._pending = _Pending(
             decision,
             heading,
-            self.odometer_m + ahead + self.config.straight_after_m,
-            reach_odometer_m=self.odometer_m + ahead - self.config.turn_detector.window_m,
+            self.st.odometer_m + ahead + self.config.straight_after_m,
+            reach_odometer_m=self.st.odometer_m + ahead - self.config.turn_detector.window_m,
         )
         if to_b is None:  # in the car: say it now, right after the exits are known
             self._pending.announced.add("now")
@@ -456,7 +457,7 @@ class Pipeline:
         pending = self._pending
         assert pending is not None
         d = pending.decision
-        due = due_announcements(distance_m, self.speed_mps, pending.announced)
+        due = due_announcements(distance_m, self.st.speed_mps, pending.announced)
         if not due:
             return
         kind = due[0]
@@ -481,8 +482,8 @@ class Pipeline:
             out.accepted, out.reason = False, "non_finite_goal"
             return
         self.navigator.set_goal((goal.x_m, goal.y_m))
-        self.arrived = False
-        self.finished = False
+        self.st.arrived = False
+        self.st.finished = False
         self._say(out, goal.t_s, "New destination set", Priority.INFO, "info")
 
     # -- after every estimator step -------------------------------------------------------------
@@ -491,30 +492,30 @@ class Pipeline:
         major = est.major_axis_m
         if not mode_done:
             self.navigator.update_mode(major)
-        if self._pending is not None and self.odometer_m >= self._pending.resolve_at_odometer_m:
+        if self._pending is not None and self.st.odometer_m >= self._pending.resolve_at_odometer_m:
             self._resolve(t, 0.0, "no_turn", out)
         warn = self.config.uncertain_warn_m
-        if not self._uncertain_said and major > warn and not est.lost:
-            self._uncertain_said = True
+        if not self.st.uncertain_said and major > warn and not est.lost:
+            self.st.uncertain_said = True
             self._say(out, t, prompts.position_uncertain(major, self.config.units), Priority.SAFETY,
                       "uncertain")  # fmt: skip
-        elif self._uncertain_said and major < UNCERTAIN_HYSTERESIS * warn:
-            self._uncertain_said = False
+        elif self.st.uncertain_said and major < UNCERTAIN_HYSTERESIS * warn:
+            self.st.uncertain_said = False
         if est.lost:
             out.lost = True
-            if not self._lost_said:
-                self._lost_said = True
+            if not self.st.lost_said:
+                self.st.lost_said = True
                 self._say(out, t, prompts.lost(), Priority.SAFETY, "lost")
                 if self.config.stop_at_arrival:
-                    self.finished = True
-        elif self._lost_said and major < UNCERTAIN_HYSTERESIS * est.config.lost_major_axis_m:
-            self._lost_said = False
-        if not est.lost and not self.arrived and self.navigator.arrived(est.x):
-            self.arrived = True
+                    self.st.finished = True
+        elif self.st.lost_said and major < UNCERTAIN_HYSTERESIS * est.config.lost_major_axis_m:
+            self.st.lost_said = False
+        if not est.lost and not self.st.arrived and self.navigator.arrived(est.x):
+            self.st.arrived = True
             out.arrived = True
             self._say(out, t, prompts.arrived(), Priority.GUIDANCE, "arrived")
             if self.config.stop_at_arrival:
-                self.finished = True
+                self.st.finished = True
         if t >= self._next_state_t:
             self._next_state_t = t + self.config.state_period_s
             out.state = est.state()
@@ -568,7 +569,7 @@ class Pipeline:
         )
 
     def _say(self, out: Outputs, t: float, text: str, priority: int, kind: str) -> None:
-        self.prompt_count += 1
+        self.st.prompt_count += 1
         out.prompts.append(Prompt(t, text, priority, kind))
 
     def _health(self, t: float, out: Outputs, force: bool) -> None:
@@ -627,19 +628,11 @@ class Pipeline:
             "x": est.x.tolist(),
             "P": est.P.tolist(),
             "last_t_s": est.last_t_s,
-            "heading_known": self.heading_known,
             "navigator": self.navigator.memory(),
             "turns": self.turns.snapshot(),
-            "odometer_m": self.odometer_m,
-            "speed_mps": self.speed_mps,
-            "landmark_updates": self.landmark_updates,
-            "prompt_count": self.prompt_count,
             "decisions": self.navigator.decisions,
-            "arrived": self.arrived,
-            "finished": self.finished,
             "pending": pending,
-            "lost_said": self._lost_said,
-            "uncertain_said": self._uncertain_said,
+            **asdict(self.st),
             "counts": dict(self.counts),
         }
 
@@ -666,7 +659,7 @@ class Pipeline:
         last = snap.get("last_t_s") if same_clock else None
         if isinstance(last, int | float):
             est._last_t = float(last)  # the estimator's time order survives the restart
-        self.heading_known = bool(snap.get("heading_known", True))
+        self.st = PipelineState.from_snapshot(snap)
         nav = snap["navigator"]
         assert isinstance(nav, dict)
         self.navigator.restore(nav)
@@ -674,14 +667,6 @@ class Pipeline:
         turns = snap.get("turns")
         if isinstance(turns, dict):
             self.turns.restore(turns)
-        self.odometer_m = float(snap.get("odometer_m", 0.0))  # type: ignore[arg-type]
-        self.speed_mps = float(snap.get("speed_mps", 0.0))  # type: ignore[arg-type]
-        self.landmark_updates = int(snap.get("landmark_updates", 0))  # type: ignore[call-overload]
-        self.prompt_count = int(snap.get("prompt_count", 0))  # type: ignore[call-overload]
-        self.arrived = bool(snap.get("arrived", False))
-        self.finished = bool(snap.get("finished", False))
-        self._lost_said = bool(snap.get("lost_said", False))
-        self._uncertain_said = bool(snap.get("uncertain_said", False))
         counts = snap.get("counts", {})
         if isinstance(counts, dict):
             self.counts = Counter({str(k): int(v) for k, v in counts.items()})
