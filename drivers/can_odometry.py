@@ -522,17 +522,18 @@ class CanOdometry(ThreadedSource[WheelOdometry]):
             if msg.is_error_frame:
                 self._count("error_frames")
                 self._health.error(f"CAN error frame (id 0x{msg.arbitration_id:X})")
-            self._offer_raw(
-                "can",
-                float(msg.timestamp) + float(self.decoder.clock_offset_s),
-                {
-                    "id": msg.arbitration_id,
-                    "data": bytes(msg.data),
-                    "is_extended_id": bool(msg.is_extended_id),
-                    "is_error_frame": bool(msg.is_error_frame),
-                    "channel": str(self.config.channel),
-                },
-            )
+            if self._raw_sink is not None:  # recording raw frames: built only then
+                self._offer_raw(
+                    "can",
+                    float(msg.timestamp) + float(self.decoder.clock_offset_s),
+                    {
+                        "id": msg.arbitration_id,
+                        "data": bytes(msg.data),
+                        "is_extended_id": bool(msg.is_extended_id),
+                        "is_error_frame": bool(msg.is_error_frame),
+                        "channel": str(self.config.channel),
+                    },
+                )
             with self._lock:
                 out = self.decoder.feed(msg)
                 outcome = self.decoder.last_outcome

@@ -512,7 +512,8 @@ class SerialCompass(ThreadedSource[CompassHeading]):
             self._got_data = True
             self._count("bytes", len(chunk))
             for line in assembler.feed(chunk):
-                self._offer_raw("nmea", t_s, {"line": line, "port": str(self.config.port)})
+                if self._raw_sink is not None:  # recording raw lines
+                    self._offer_raw("nmea", t_s, {"line": line, "port": str(self.config.port)})
                 with self._lock:
                     out = self.parser.feed_line(line, t_s)
                     outcome = self.parser.last_outcome

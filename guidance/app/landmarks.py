@@ -67,14 +67,19 @@ def _import(path: str) -> Any:
     return import_backend(path)
 
 
-def check_database(settings: LandmarkSettings) -> int:
-    """Open the database read-only as the car will (``--check``); returns its landmark count."""
+def _open_read_only(settings: LandmarkSettings) -> Any:
+    """The database opened as the car opens it; a missing or damaged file is one line."""
     if not Path(settings.database).is_file():
         raise UserError(f"[landmarks] database {settings.database}: no such file")
     try:
-        db = _import(OPEN_DB)(settings.database, readonly=True)
+        return _import(OPEN_DB)(settings.database, readonly=True)
     except Exception as exc:  # the store reports damage as one line (LandmarkDbError)
         raise UserError(f"[landmarks] database {settings.database}: {exc}") from None
+
+
+def check_database(settings: LandmarkSettings) -> int:
+    """Open the database read-only as the car will (``--check``); returns its landmark count."""
+    db = _open_read_only(settings)
     try:
         return sum(1 for _ in db.landmarks())
     finally:
@@ -90,8 +95,7 @@ def open_landmarks(
     from each landmark's latitude/longitude around the car's ``[start]`` when it has one, else
     from the database's own local metres (the car's start must then be the database's origin).
     """
-    check_database(settings)
-    db = _import(OPEN_DB)(settings.database, readonly=True)
+    db = _open_read_only(settings)
     config = _import(RECOGNISER_CONFIG)(
         sighting_range_m=settings.sighting_range_m,
         confirm_frames=settings.confirm_frames,

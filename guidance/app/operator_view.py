@@ -24,6 +24,7 @@ from guidance.core.messages import (
     InputStatus,
     IntersectionScene,
 )
+from guidance.core.model import heading_to_compass
 from guidance.core.prompts import manoeuvre
 
 KEYS_LINE = (
@@ -53,7 +54,7 @@ class ScreenEvent:
 def compass_deg(heading_rad: float) -> float:
     """Filter heading (rad, CCW from east) -> compass heading (deg clockwise from north),
     rounded to 0.1 deg so that it never shows as 360."""
-    return round((90.0 - math.degrees(heading_rad)) % 360.0, 1) % 360.0
+    return round(float(heading_to_compass(heading_rad, 0.0)), 1) % 360.0
 
 
 def compass_point(deg: float) -> str:

@@ -2,13 +2,10 @@
 
 from __future__ import annotations
 
-import logging
 import math
 from collections.abc import Collection
 from dataclasses import dataclass
 from typing import Literal
-
-log = logging.getLogger(__name__)
 
 # --------------------------------------------------------------------- prompt timing
 

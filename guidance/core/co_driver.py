@@ -9,16 +9,12 @@ reader that delivers the lines is ``drivers.keyboard.KeyboardScene``.
 
 from __future__ import annotations
 
-import logging
 import math
 import re
 from dataclasses import dataclass
 
 from guidance.core.messages import IntersectionScene, TurnCompleted
 from guidance.core.model import wrap_angle
-
-log = logging.getLogger(__name__)
-
 
 # Relative exit directions, radians CCW (left positive), by keyboard token.
 EXIT_TOKENS: dict[str, float] = {

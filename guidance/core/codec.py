@@ -11,6 +11,7 @@ told apart by ``kind``; its wire format is pinned by the committed replay record
 from __future__ import annotations
 
 import dataclasses
+import functools
 import math
 import types
 import typing
@@ -65,6 +66,7 @@ class CodecError(ValueError):
     """A record that does not decode into its topic's message (a damaged or foreign file)."""
 
 
+@functools.cache
 def _hints(cls: type) -> dict[str, Any]:
     return typing.get_type_hints(cls)
 

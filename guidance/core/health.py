@@ -4,7 +4,6 @@ and the drivers' device health record.
 
 from __future__ import annotations
 
-import logging
 import math
 from collections import deque
 from collections.abc import Mapping
@@ -12,8 +11,6 @@ from dataclasses import dataclass, field
 from typing import Any
 
 from guidance.core.messages import HealthChange, InputStatus
-
-log = logging.getLogger(__name__)
 
 # ----------------------------------------------------------------------------- health
 

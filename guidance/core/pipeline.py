@@ -27,7 +27,6 @@ from guidance.core.announce import due_announcements
 from guidance.core.compass_cal import CompassCalibration
 from guidance.core.estimator import EstimatorConfig, PoseEstimator
 from guidance.core.health import (
-    UNUSABLE,
     CompassJudge,
     DeviceStatus,
     HealthConfig,
@@ -589,8 +588,8 @@ class Pipeline:
                 continue  # one warning per input and episode (its driver may have said it)
             self._warned.add(st.name)
             text = prompts.sensor_warning(st.name, problem)
-            if st.alive and UNUSABLE in st.detail:
-                text = prompts.compass_unusable(st.detail)
+            if st.name == "compass" and st.alive and self.compass_judge.unusable:
+                text = prompts.compass_unusable(self.compass_judge.reason)
             self._say(out, t, text, Priority.SAFETY, "sensor")
 
     # -- views ----------------------------------------------------------------------------------

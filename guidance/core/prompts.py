@@ -152,9 +152,10 @@ def sensor_warning(sensor: str, problem: str) -> str:
     return f"Warning: {sensor} {problem}"
 
 
-def compass_unusable(detail: str) -> str:
-    """The compass readings cannot be used (health detail ``unusable: <reason>``)."""
-    if "interference" in detail:
+def compass_unusable(reason: str) -> str:
+    """The compass readings cannot be used (``CompassJudge.reason``: uncalibrated,
+    interference or gated)."""
+    if reason == "interference":
         return "Compass unusable: magnetic interference. Steering by wheel odometry."
     return "Compass unusable: calibrate it."
 

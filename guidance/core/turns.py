@@ -7,15 +7,12 @@ it (docs/app.md, "Roadway scene").
 
 from __future__ import annotations
 
-import logging
 import math
 from collections import deque
 from dataclasses import dataclass
 
 from guidance.core.messages import TurnCompleted
 from guidance.core.model import wrap_angle
-
-log = logging.getLogger(__name__)
 
 # --------------------------------------------------------------------------- turn detection
 

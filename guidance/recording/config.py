@@ -2,22 +2,16 @@
 
 from __future__ import annotations
 
-import logging
 import re
 from collections.abc import Mapping
 from dataclasses import dataclass, fields
 from pathlib import Path
-from typing import TYPE_CHECKING, Any
+from typing import Any
 
 from mcap.writer import CompressionType
 
 from guidance.errors import UserError
 from guidance.telemetry.messages import check_origin
-
-if TYPE_CHECKING:
-    pass
-
-log = logging.getLogger(__name__)
 
 
 # -- configuration --------------------------------------------------------------------------------

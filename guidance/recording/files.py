@@ -3,24 +3,18 @@
 from __future__ import annotations
 
 import json
-import logging
 import os
 import time
 from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
-from typing import TYPE_CHECKING, Any
+from typing import Any
 
 from mcap.writer import Writer
 
 from guidance.recording.config import _COMPRESSION, RecordingConfig
 from guidance.recording.topics import LIBRARY, TOPICS, _schema
 from guidance.telemetry.keys import SCHEMA_VERSION
-
-if TYPE_CHECKING:
-    pass
-
-log = logging.getLogger(__name__)
 
 
 class _DirectFile:

@@ -2,14 +2,8 @@
 
 from __future__ import annotations
 
-import logging
 from dataclasses import dataclass, fields
-from typing import TYPE_CHECKING, Any
-
-if TYPE_CHECKING:
-    pass
-
-log = logging.getLogger(__name__)
+from typing import Any
 
 # -- health ----------------------------------------------------------------------------------------
 DISK_FULL_WARNING = "Recording stopped. The disk is full."

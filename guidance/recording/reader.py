@@ -8,7 +8,7 @@ import logging
 import struct
 from collections.abc import Iterable, Iterator, Sequence
 from pathlib import Path
-from typing import TYPE_CHECKING, Any, NamedTuple
+from typing import Any, NamedTuple
 
 from mcap.exceptions import McapError
 from mcap.reader import make_reader
@@ -17,9 +17,6 @@ from mcap.stream_reader import StreamReader
 
 from guidance.errors import UserError
 from guidance.recording.scan import Damage, scan_records
-
-if TYPE_CHECKING:
-    pass
 
 log = logging.getLogger(__name__)
 

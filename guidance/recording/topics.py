@@ -3,9 +3,8 @@
 from __future__ import annotations
 
 import errno
-import logging
 from collections.abc import Mapping, Sequence
-from typing import TYPE_CHECKING, Any
+from typing import Any
 
 from guidance.core import codec
 from guidance.recording.foxglove import SCHEMA_OF_TOPIC as FOXGLOVE_TOPICS
@@ -14,12 +13,6 @@ from guidance.telemetry.messages import (
     MESSAGE_SCHEMAS,
 )
 from guidance.telemetry.sink import SINK_SCHEMAS
-
-if TYPE_CHECKING:
-    pass
-
-log = logging.getLogger(__name__)
-
 
 LIBRARY = "guidance-recorder"
 _DISK_FULL_ERRNOS = {errno.ENOSPC, errno.EDQUOT, errno.EFBIG}

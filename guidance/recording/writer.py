@@ -14,7 +14,7 @@ import time
 from collections.abc import Callable, Mapping
 from functools import partial
 from pathlib import Path
-from typing import TYPE_CHECKING, Any
+from typing import Any
 
 from guidance.core.messages import (
     CameraFrame,
@@ -26,9 +26,6 @@ from guidance.recording.health import RecorderHealth
 from guidance.recording.topics import _DISK_FULL_ERRNOS
 from guidance.telemetry.messages import heading_deg_true
 from guidance.telemetry.sink import Build, MessageSink
-
-if TYPE_CHECKING:
-    pass
 
 log = logging.getLogger(__name__)
 

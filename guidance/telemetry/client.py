@@ -8,7 +8,7 @@ import queue
 import time
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass
-from typing import TYPE_CHECKING, Any
+from typing import Any
 
 import zenoh
 
@@ -26,9 +26,6 @@ from guidance.telemetry.keys import (
 from guidance.telemetry.messages import encode
 from guidance.telemetry.redact import _zenoh_error_text
 from guidance.telemetry.session import _close_at_exit, _quiet_close, open_session, session_config
-
-if TYPE_CHECKING:
-    pass
 
 log = logging.getLogger(__name__)
 

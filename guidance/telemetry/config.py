@@ -2,20 +2,14 @@
 
 from __future__ import annotations
 
-import logging
 from collections.abc import Mapping
 from dataclasses import dataclass, fields
 from pathlib import Path
-from typing import TYPE_CHECKING, Any
+from typing import Any
 
 from guidance.errors import UserError
 from guidance.telemetry.keys import _ENDPOINT_RE, _MODES, DEFAULT_LISTEN, validate_vehicle_id
 from guidance.telemetry.messages import check_origin
-
-if TYPE_CHECKING:
-    pass
-
-log = logging.getLogger(__name__)
 
 
 # -- configuration --------------------------------------------------------------------------------

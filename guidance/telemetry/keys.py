@@ -2,16 +2,9 @@
 
 from __future__ import annotations
 
-import logging
 import re
-from typing import TYPE_CHECKING
 
 from guidance.errors import UserError
-
-if TYPE_CHECKING:
-    pass
-
-log = logging.getLogger(__name__)
 
 KEY_PREFIX = "guidance"
 SCHEMA_VERSION = 1

@@ -5,20 +5,18 @@
 from __future__ import annotations
 
 import json
-import logging
 import math
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 from typing import TYPE_CHECKING, Any
 
 from guidance.core.messages import EstimateState, LandmarkFix
+from guidance.core.model import heading_to_compass
 from guidance.errors import UserError
 from guidance.telemetry.keys import schema_tag
 
 if TYPE_CHECKING:
     from guidance.core.navigator import Decision
-
-log = logging.getLogger(__name__)
 
 
 # -- message encoders (pure functions, shared with guidance.recording) --------------------------
@@ -90,8 +88,7 @@ def heading_deg_true(heading_rad: float | None) -> float | None:
     (counter-clockwise from east, the local frame's convention)."""
     if heading_rad is None or not math.isfinite(heading_rad):
         return None
-    deg = (90.0 - math.degrees(heading_rad)) % 360.0
-    return 0.0 if deg >= 360.0 else deg
+    return float(heading_to_compass(heading_rad, 0.0))  # true: no declination
 
 
 def lat_lon_deg(x_m: float | None, y_m: float | None, origin: Origin | None) -> Origin | None:

@@ -20,13 +20,12 @@ import tempfile
 from pathlib import Path
 from typing import Any
 
-import numpy as np
-
 from guidance.core.compass_cal import (
     FitResult,
     calibrate_from_drive,
     reference_headings_from_odometry,
 )
+from guidance.core.model import heading_to_compass
 from guidance.errors import UserError
 from guidance.tools.replay import can_inputs, nmea_inputs, raw_setup
 
@@ -39,7 +38,7 @@ def calibrate(
     pcfg = setup.pipeline
     if pcfg.start_heading_rad is None:
         raise UserError("the start heading is needed: [start] heading_deg or --start-heading-deg")
-    start_true_deg = (90.0 - np.degrees(pcfg.start_heading_rad)) % 360.0
+    start_true_deg = heading_to_compass(pcfg.start_heading_rad, 0.0)  # true: no declination
     odo = list(can_inputs(log, setup.profile))
     if len(odo) < 2:
         raise UserError(f"{log}: no wheel odometry decoded with profile {setup.profile!r}")

@@ -30,6 +30,7 @@ from typing import TextIO
 import numpy as np
 import numpy.typing as npt
 
+from guidance.core.model import CHI2_2D_2SIGMA, mahalanobis_sq_2d
 from guidance.errors import UserError
 from guidance.tools.track import COLUMNS
 
@@ -41,7 +42,7 @@ _DECIMAL = re.compile(r"^[+-]?([0-9]+\.?[0-9]*|\.[0-9]+)([eE][+-]?[0-9]+)?$|^[+-
 TRACK_COLUMNS = COLUMNS
 """What ``guidance replay --track`` writes (``guidance.tools.track``)."""
 TRUTH_COLUMNS = ("t", "east_m", "north_m")
-NEES_2SIGMA = 4.0  # d^2 bound of the 2-sigma ellipse, 2 dof
+NEES_2SIGMA = CHI2_2D_2SIGMA  # d^2 bound of the 2-sigma ellipse, 2 dof
 INSIDE_2SIGMA_EXPECTED = 1.0 - math.exp(-NEES_2SIGMA / 2.0)  # 0.865 for an honest filter
 MEAN_NEES_EXPECTED = 2.0
 MIN_ERROR_M = 1e-6  # steps with a smaller true error are left out of the axis ratio
@@ -239,12 +240,17 @@ def evaluate(track: Track, truth: Truth) -> Evaluation:
     path_m = float(np.sum(np.hypot(np.diff(pe), np.diff(pn))))
     final_m = float(err[-1])
 
-    # Consistency: NEES = e^T P^-1 e with the closed-form inverse of the 2x2 covariance.
+    # Consistency: NEES = e^T P^-1 e, the estimator's own Mahalanobis distance (core.model).
     ex, en = ref_e - est_e, ref_n - est_n
     a, b, c = track.var_east_m2[sel], track.cov_east_north_m2[sel], track.var_north_m2[sel]
-    det = a * c - b * b
-    ok = (a > 0) & (c > 0) & (det > 1e-12 * a * c)
-    nees = (c[ok] * ex[ok] ** 2 - 2.0 * b[ok] * ex[ok] * en[ok] + a[ok] * en[ok] ** 2) / det[ok]
+    ok = (a > 0) & (c > 0) & (a * c - b * b > 1e-12 * a * c)
+    nees = np.array(
+        [
+            mahalanobis_sq_2d(float(e0), float(e1), float(s00), float(s01), float(s11))
+            for e0, e1, s00, s01, s11 in zip(ex[ok], en[ok], a[ok], b[ok], c[ok], strict=True)
+        ],
+        dtype=np.float64,
+    )
     big = err >= MIN_ERROR_M
     ratio = 0.5 * track.major_axis_m[sel][big] / err[big]
 

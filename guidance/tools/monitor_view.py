@@ -24,6 +24,7 @@ from typing import TYPE_CHECKING, Any
 
 from rich.cells import cell_len
 
+from guidance.core.model import heading_to_compass
 from guidance.tools.monitor_check import MAX_NUMBER, message_problem
 
 if TYPE_CHECKING:  # rich's renderables load when the live view first draws
@@ -148,7 +149,7 @@ def plain(value: object) -> str:
 def compass_deg(heading_rad: float) -> float:
     """Heading counter-clockwise from east (rad) as a compass heading: degrees clockwise
     from north in [0, 360)."""
-    deg = (90.0 - math.degrees(heading_rad)) % 360.0
+    deg = float(heading_to_compass(heading_rad, 0.0))
     return 0.0 if deg >= 359.5 else deg  # shown rounded: 359.7 reads as 0, not 360
 
 

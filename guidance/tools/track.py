@@ -9,11 +9,11 @@ and ``major_axis_m``, the full major axis of the 2-sigma ellipse (d^2 = 4).
 from __future__ import annotations
 
 import csv
-import math
 from pathlib import Path
 from typing import TextIO
 
 from guidance.core.messages import EstimateState
+from guidance.core.model import heading_to_compass
 from guidance.errors import UserError
 
 COLUMNS = (
@@ -30,7 +30,7 @@ COLUMNS = (
 
 def compass_deg(heading_rad: float) -> float:
     """Filter heading (CCW from east, rad) as a true heading (clockwise from north, degrees)."""
-    return (90.0 - math.degrees(heading_rad)) % 360.0
+    return float(heading_to_compass(heading_rad, 0.0))  # true: no declination
 
 
 class TrackWriter:

@@ -4,7 +4,6 @@ message clock (SPEC section 6, docs/voice.md).
 
 from __future__ import annotations
 
-import logging
 import math
 import threading
 import time
@@ -12,9 +11,6 @@ from collections.abc import Callable, Mapping
 from dataclasses import dataclass, replace
 
 from guidance.core.messages import Priority
-
-log = logging.getLogger(__name__)
-
 
 Clock = Callable[[], float]
 """Returns the current time on the message clock (monotonic seconds)."""
