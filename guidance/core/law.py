@@ -21,7 +21,7 @@ import math
 import numpy as np
 from numba import njit
 
-from guidance.core.model import wrap_angle
+from guidance.core.model import mahalanobis_sq_2d, wrap_angle
 
 MODE_GOAL = 0
 MODE_LANDMARK = 1
@@ -87,9 +87,7 @@ def match_intersection(
     best = -1
     best_d2 = gate_chi2
     for k in range(n_mem):
-        dx = mem_xy[k, 0] - x
-        dy = mem_xy[k, 1] - y
-        d2 = (c * dx * dx - 2.0 * b * dx * dy + a * dy * dy) / det
+        d2 = mahalanobis_sq_2d(mem_xy[k, 0] - x, mem_xy[k, 1] - y, a, b, c)
         if d2 <= best_d2:
             best_d2 = d2
             best = k

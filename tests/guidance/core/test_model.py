@@ -1,0 +1,56 @@
+"""The shared math (guidance.core.model): compass conventions, chi-square constants, and the
+in-place Joseph updates checked against filterpy."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+from scipy.stats import chi2
+
+from guidance.core import model
+from guidance.core.estimator import EstimatorConfig, PoseEstimator
+from guidance.core.messages import HeadingFix, LandmarkFix, WheelOdometry
+
+
+@pytest.mark.parametrize("deg", [0.0, 90.0, 180.0, 270.0, 359.9])
+@pytest.mark.parametrize("decl", [-15.0, 0.0, 15.0])
+def test_compass_degrees_round_trip(deg: float, decl: float) -> None:
+    theta = model.compass_to_heading(deg, decl)
+    assert -math.pi < theta <= math.pi
+    back = model.heading_to_compass(theta, decl)
+    assert abs(model.wrap_angle(math.radians(back - deg))) < 1e-9
+
+
+def test_compass_convention() -> None:
+    # magnetic north with +10 deg (east) declination is true bearing 10 deg: 80 deg CCW from east
+    assert model.compass_to_heading(0.0, 10.0) == pytest.approx(math.radians(80.0))
+    assert model.compass_to_heading(90.0, 0.0) == pytest.approx(0.0, abs=1e-12)
+    assert model.compass_to_heading(180.0, 0.0) == pytest.approx(-math.pi / 2)
+
+
+def test_chi2_constants_match_their_documented_probabilities() -> None:
+    assert chi2.cdf(model.CHI2_2D_2SIGMA, 2) == pytest.approx(1 - math.exp(-2))  # 86.5 %
+    assert chi2.cdf(model.CHI2_2D_P99, 2) == pytest.approx(0.99)
+    assert chi2.cdf(model.CHI2_1D_P999, 1) == pytest.approx(0.999)
+
+
+def test_model_updates_match_filterpy() -> None:
+    """The engine's in-place updates (core.model) and filterpy's give the same covariance."""
+    est = PoseEstimator(EstimatorConfig(compass_two_sigma_deg=20.0))
+    for k in range(100):
+        est.process(WheelOdometry(0.1 * k, 1.0, 1.01))
+    x, P = est.x, est.P
+    var = model.two_sigma_deg_to_var(20.0)
+    y, S = model.heading_innovation(x, P, 0.2, var)
+    model.heading_update(x, P, y, S, var)
+    est.process(HeadingFix(10.0, 0.2))
+    np.testing.assert_allclose(est.P, P, rtol=0, atol=1e-12)
+    np.testing.assert_allclose(est.x, x, rtol=0, atol=1e-12)
+    # and a landmark fix
+    inn = model.position_innovation(x, P, 95.0, 25.0, 25.0)
+    model.position_update(x, P, *inn, 25.0, np.empty((3, 3)))
+    assert est.process(LandmarkFix(11.0, 1, 95.0, 25.0, 5.0)).accepted
+    np.testing.assert_allclose(est.P, P, rtol=0, atol=1e-12)
+    np.testing.assert_allclose(est.x, x, rtol=0, atol=1e-12)
