@@ -175,7 +175,8 @@ async def _run(seconds: float, camera: bool, record: bool, worker: bool) -> dict
         recorder = Recorder(RecordingConfig(directory=tmp.name))
         recorder.start()
     app = App(pipeline, sources={"odometry": odo}, camera=cam, recogniser=matcher,
-              recorder=recorder, tick_hz=100.0)  # fmt: skip
+              sinks=[recorder] if recorder is not None else [], recorder=recorder,
+              tick_hz=100.0)  # fmt: skip
     app.measure_latency = True
     try:
         with SimCanWheels(channel, period_s=0.01) as wheels:

@@ -363,13 +363,13 @@ async def drive_async(
             speaker_factory=_live_voice if live_voice else None,
         )
         outs = await stack.enter_async_context(open_outputs(settings, lambda: world.t_s))
-        speaker, telemetry, recorder = outs.speaker, outs.telemetry, outs.recorder
+        speaker, recorder = outs.speaker, outs.recorder
         app = App(
             pipeline,
             sources=sources,
             recogniser=recogniser,
             speaker=speaker,
-            telemetry=telemetry,
+            sinks=outs.sinks,
             recorder=recorder,
             checkpointer=checkpointer,
             checkpoint_extra=extra_state,

@@ -30,12 +30,12 @@ import time
 from collections import Counter, deque
 from collections.abc import AsyncIterator, Callable, Mapping, Sequence
 from functools import partial
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING, Any, TypeAlias
 
 from guidance.app import ports
 from guidance.app.checkpoint import Checkpointer
 from guidance.app.logonce import LogOnce
-from guidance.app.ports import Speaker
+from guidance.app.ports import InputRecorder, Notifier, Speaker
 from guidance.core.codec import to_record
 from guidance.core.health import DeviceHealth, DeviceStatus
 from guidance.core.messages import (
@@ -45,10 +45,15 @@ from guidance.core.messages import (
     WheelOdometry,
 )
 from guidance.telemetry.messages import InputHealth, LandmarkRejection
-from guidance.telemetry.sink import MessageSink
 
 if TYPE_CHECKING:  # the estimator stack (filterpy, scipy, numba) loads on first use only
+    from guidance.app.ports import OutputSink
     from guidance.core.pipeline import Input, Outputs, Pipeline
+
+    Message: TypeAlias = Input | CameraFrame
+    """What the sources hand to ``App.sink``: the pipeline's inputs, or a camera frame."""
+    Source: TypeAlias = ports.Source[Message]
+    """What every device source offers (``guidance.app.ports.Source``)."""
 
 log = logging.getLogger(__name__)
 
@@ -57,10 +62,6 @@ GIL_SWITCH_INTERVAL_S = 0.001
 """``sys.setswitchinterval`` in the car: a pure-Python thread (CAN and compass readers,
 recorder, telemetry) hands the GIL back to the loop within 1 ms instead of Python's 5 ms
 (benchmarks/loop_latency.py: loop lateness p99 4.8 -> 3.7 ms on a loaded 2-core machine)."""
-
-
-Source = ports.Source[Any]
-"""What every device source offers (``guidance.app.ports.Source``)."""
 
 
 class NullRecogniser:
@@ -87,12 +88,12 @@ class App:
         pipeline: Pipeline,
         *,
         sources: Mapping[str, Source] | None = None,
-        camera: Source | None = None,
+        camera: ports.CameraSource | None = None,
         recogniser: Any = None,
         speaker: Speaker | None = None,
-        telemetry: Any = None,
-        recorder: Any = None,
-        notifier: Any = None,
+        sinks: Sequence[OutputSink] = (),
+        recorder: InputRecorder | None = None,
+        notifier: Notifier | None = None,
         checkpointer: Checkpointer | None = None,
         checkpoint_extra: Callable[[], Mapping[str, Any]] | None = None,
         clock: Callable[[], float] = time.monotonic,
@@ -110,8 +111,10 @@ class App:
         self.camera = camera
         self.recogniser: Any = recogniser if recogniser is not None else NullRecogniser()
         self.speaker = speaker
-        self.telemetry = telemetry
+        self.sinks: list[OutputSink] = list(sinks)
+        """Where outputs go (telemetry, the recorder), each with its own queue policy."""
         self.recorder = recorder
+        """Where the inputs are recorded as they arrive (the recorder is a sink as well)."""
         self.notifier = notifier
         self.checkpointer = checkpointer
         self.checkpoint_extra = checkpoint_extra
@@ -142,7 +145,7 @@ class App:
         self._started_sources: list[Source] = []
 
     # -- input side (any thread) ----------------------------------------------------------------
-    def sink(self, msg: Any) -> None:
+    def sink(self, msg: Message) -> None:
         """Hand a message to the loop; callable from any thread (the sources' sink)."""
         loop = self._loop
         if loop is None:
@@ -155,7 +158,7 @@ class App:
         """Messages handed to ``sink`` and not yet processed (the drivers' back-pressure)."""
         return self._submitted - self._processed
 
-    def _on_message(self, msg: Any) -> None:
+    def _on_message(self, msg: Message) -> None:
         try:
             if isinstance(msg, CameraFrame):  # a camera handed to sink(): use the ring too
                 with self._frame_lock:
@@ -276,11 +279,6 @@ class App:
             self._next_health_pub = -math.inf  # publish at the next tick
         for listener in self.listeners:
             listener(msg, out)
-
-    @property
-    def sinks(self) -> list[MessageSink]:
-        """Where outputs go: telemetry and the recorder, each with its own queue policy."""
-        return [s for s in (self.telemetry, self.recorder) if s is not None]
 
     def _publish_health(self, t_s: float) -> None:
         if not self.sinks:
@@ -480,7 +478,7 @@ class App:
         }
 
 
-def record_raw_inputs(source: Any, recorder: Any) -> bool:
+def record_raw_inputs(source: Source, recorder: InputRecorder) -> bool:
     """Record the raw units a driver reads (``/can`` frames, ``/nmea`` lines) as it reads them,
     through the readers' supported hook (``ThreadedSource.set_raw_sink``). True when set."""
     set_raw_sink = getattr(source, "set_raw_sink", None)

@@ -30,6 +30,7 @@ from guidance.core.snapshot_check import SnapshotError
 from guidance.errors import UserError
 
 if TYPE_CHECKING:
+    from guidance.app.ports import OutputSink
     from guidance.core.pipeline import Pipeline
     from guidance.recording.config import RecordingConfig
     from guidance.recording.writer import Recorder
@@ -64,6 +65,11 @@ class Outputs:
     speaker: Speaker | None = None
     telemetry: Telemetry | None = None
     recorder: Recorder | None = None
+
+    @property
+    def sinks(self) -> list[OutputSink]:
+        """Where the outputs go (``App(sinks=...)``): telemetry, then the recorder."""
+        return [s for s in (self.telemetry, self.recorder) if s is not None]
 
 
 def build_speaker(

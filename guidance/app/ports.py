@@ -1,16 +1,21 @@
-"""One interface per kind of device (HOUSE_STYLE); real and simulated devices implement them.
+"""The app's ports: one interface per kind of device (HOUSE_STYLE), real and simulated devices
+implement them, and one per thing ``App`` drives (speaker, output sinks, recorder, notifier).
 
 A source owns its blocking I/O on its own thread and hands each message to the
 ``sink`` it was started with; the application's sink forwards it to the event
 loop with ``loop.call_soon_threadsafe``. Sources count what they read and what
 they rejected, by reason, in ``stats()``; a bad byte is a counted rejection,
 never an exception out of ``start``/``stop``.
+
+``OutputSink`` is the telemetry's ``MessageSink`` (the one output path, shared by telemetry and
+the recorder); it is named here for type checking only, since importing it loads the
+estimator's math (numba): ``if TYPE_CHECKING: from guidance.app.ports import OutputSink``.
 """
 
 from __future__ import annotations
 
 from collections.abc import Callable, Mapping, Sequence
-from typing import Protocol, TypeVar, runtime_checkable
+from typing import TYPE_CHECKING, Protocol, TypeAlias, TypeVar, runtime_checkable
 
 from guidance.core.messages import (
     CameraFrame,
@@ -20,6 +25,12 @@ from guidance.core.messages import (
     TurnCompleted,
     WheelOdometry,
 )
+
+if TYPE_CHECKING:
+    from guidance.telemetry.sink import MessageSink
+
+    OutputSink: TypeAlias = MessageSink
+    """Where outputs go (telemetry, the recorder): ``publish`` plus one helper per kind."""
 
 T_co = TypeVar("T_co", covariant=True)
 
@@ -81,3 +92,37 @@ class Speaker(Protocol):
     def say(self, text: str, priority: int = 0, t_s: float | None = None) -> None: ...
     def close(self, drain: bool = True) -> None:
         """Stop; with ``drain`` finish what is queued first (a WAV file), else cut it."""
+
+
+@runtime_checkable
+class InputRecorder(Protocol):
+    """The recorder's input side (``guidance.recording.writer.Recorder``): what arrived, as it
+    arrived. Its output side is an ``OutputSink``. Never blocks; False when not queued."""
+
+    def record(self, topic: str, t_s: float, message: Mapping[str, object]) -> bool: ...
+    def record_camera(self, frame: CameraFrame) -> bool: ...
+    def record_can(
+        self,
+        t_s: float,
+        arbitration_id: int,
+        data: bytes,
+        *,
+        is_extended_id: bool = False,
+        is_error_frame: bool = False,
+        channel: str = "",
+    ) -> bool: ...
+    def record_nmea(self, t_s: float, line: str, *, port: str = "") -> bool: ...
+
+
+@runtime_checkable
+class Notifier(Protocol):
+    """Tells the service manager how the app is doing (``guidance.app.watchdog``)."""
+
+    def ready(self, status: str | None = None) -> None:
+        """Devices are open, the loop is starting."""
+
+    def tick(self, lag_s: float) -> bool:
+        """Once per ticker period, with the loop's lateness; True when a keep-alive was sent."""
+
+    def stopping(self) -> None:
+        """A clean shutdown has begun."""

@@ -17,7 +17,7 @@ from dataclasses import replace
 from pathlib import Path
 from typing import TYPE_CHECKING, Any, TextIO
 
-from guidance.app.app import GIL_SWITCH_INTERVAL_S, App, Source
+from guidance.app.app import GIL_SWITCH_INTERVAL_S, App
 from guidance.app.build import OutputSettings, open_outputs, session_record, start_checkpoints
 from guidance.app.landmarks import landmark_warnings, open_landmarks
 from guidance.app.operator_view import OperatorView
@@ -31,6 +31,7 @@ from guidance.app.screen import (
 from guidance.errors import UserError
 
 if TYPE_CHECKING:
+    from guidance.app.app import Source
     from guidance.app.config import SceneSettings
 
 log = logging.getLogger(__name__)
@@ -174,7 +175,7 @@ async def run_car(
             camera=camera,
             recogniser=recogniser,
             speaker=speaker,
-            telemetry=out.telemetry,
+            sinks=out.sinks,
             recorder=out.recorder,
             notifier=SystemdNotifier(max_lag_s=cfg.max_loop_lag_s),
             checkpointer=checkpointer,
