@@ -23,9 +23,19 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from guidance.app.backends import BACKENDS, SCENE_BACKENDS, import_backend
+from guidance.app.backends import BACKENDS, import_backend
 from guidance.app.landmarks import LandmarkSettings, parse_landmarks_table
-from guidance.app.tables import _check_document, _check_type, _in_table, _name, _Table, _table
+from guidance.app.settings import (
+    HEALTH_RULES,
+    CheckpointSettings,
+    LoopSettings,
+    SceneSettings,
+    VehicleSettings,
+    VoiceSettings,
+    read_scene,
+)
+from guidance.app.tables import _check_document, _Table
+from guidance.config_tables import from_table, key_name
 from guidance.core.estimator import EstimatorConfig, car_model
 from guidance.core.health import HealthConfig
 from guidance.core.navigator import Landmark, Method, NavigatorConfig
@@ -35,8 +45,6 @@ from guidance.errors import UserError
 from guidance.recording.config import RecordingConfig
 from guidance.telemetry.config import TelemetryConfig
 from guidance.telemetry.keys import validate_vehicle_id
-
-"""Device kind -> backend name -> (``module:Class``, ``module:ConfigClass``)."""
 
 DEFAULT_RATES_HZ = {"odometry": 20.0, "compass": 5.0, "camera": 10.0}
 TABLES = (
@@ -76,40 +84,6 @@ class DeviceConfig:
 
 
 @dataclass(frozen=True, slots=True)
-class VoiceSettings:
-    backend: str = "auto"
-    """auto, voice, wav, text or none."""
-    wav_path: str = ""
-    voice: str = "en"
-    """The speech engine's voice (espeak-ng: a language code such as en, en-us, de)."""
-    rate_wpm: int = 170
-    """Speech rate in words per minute (a little slower than espeak-ng's 175, for traffic)."""
-    volume: float = 1.0
-    """0 to 1."""
-
-
-@dataclass(frozen=True, slots=True)
-class SceneSettings:
-    """``[scene]``: where the co-driver's keys come from."""
-
-    input: str = "keyboard"
-    """keyboard (lines on stdin), evdev (a keypad or keyboard: ``device``) or none."""
-    device: str = ""
-    """The input device for ``evdev``: /dev/input/by-id/...-event-kbd."""
-    grab: bool = True
-    """evdev: take the device exclusively."""
-
-
-@dataclass(frozen=True, slots=True)
-class CheckpointSettings:
-    path: str = ""
-    """Empty: no checkpoints."""
-    interval_s: float = 5.0
-    max_age_s: float = 600.0
-    """An older checkpoint (wall clock) is not resumed: the car may be anywhere by now."""
-
-
-@dataclass(frozen=True, slots=True)
 class AppConfig:
     """The validated configuration of one run."""
 
@@ -135,9 +109,15 @@ class AppConfig:
 
 
 def _device(
-    kind: str, data: object, *, default_backend: str, default_enabled: bool = True
+    kind: str,
+    data: object,
+    base_dir: Path | None,
+    *,
+    default_backend: str,
+    default_enabled: bool = True,
 ) -> DeviceConfig | None:
-    """A device table: ``backend``, ``enabled``, ``expected_rate_hz``, then the driver's keys."""
+    """A device table: ``backend``, ``enabled``, ``expected_rate_hz``, then the driver's keys
+    (its config dataclass, read by ``from_table``)."""
     t = _Table(kind, data)
     if not t.boolean("enabled", default_enabled):
         t.used.update(t.data)
@@ -146,25 +126,16 @@ def _device(
     rate = t.number("expected_rate_hz", DEFAULT_RATES_HZ[kind], positive=True)
     _, cfg_path = BACKENDS[kind][backend]
     cfg_cls = import_backend(cfg_path)
-    ftypes = {f.name: str(f.type) for f in dataclasses.fields(cfg_cls)}
+    fields = {f.name for f in dataclasses.fields(cfg_cls)}
     app_keys = {"enabled", "backend", "expected_rate_hz"} | _APP_DEVICE_KEYS.get(kind, set())
-    kwargs: dict[str, Any] = {}
-    for key, value in t.data.items():
-        if key in app_keys:
-            continue
-        if key not in ftypes:
+    own = {k: v for k, v in t.data.items() if k not in app_keys}
+    for key in own:
+        if key not in fields:
             raise UserError(
                 f"[{kind}] unknown key {key!r} for backend {backend!r}; "
-                f"known: {', '.join(sorted(set(ftypes) | app_keys))}"
+                f"known: {', '.join(sorted(fields | app_keys))}"
             )
-        kwargs[key] = _check_type(value, ftypes[key], t.key(key))
-    try:
-        config = cfg_cls(**kwargs)
-    except UserError as exc:
-        raise UserError(f"[{kind}] {exc}") from None
-    except (TypeError, ValueError) as exc:
-        raise UserError(f"[{kind}] {exc}") from None
-    return DeviceConfig(kind, backend, config, rate)
+    return DeviceConfig(kind, backend, from_table(cfg_cls, own, kind, base_dir), rate)
 
 
 _APP_DEVICE_KEYS = {
@@ -273,13 +244,16 @@ def load_config(
         data = tomllib.loads(text.decode("utf-8"))
     except (tomllib.TOMLDecodeError, UnicodeDecodeError) as exc:
         raise UserError(f"{p}: not valid TOML: {exc}") from None
-    return parse_config(
-        data,
-        base_dir=p.resolve().parent,
-        path=str(p),
-        require_goal=require_goal,
-        default_date=default_date,
-    )
+    try:
+        return parse_config(
+            data,
+            base_dir=p.resolve().parent,
+            path=str(p),
+            require_goal=require_goal,
+            default_date=default_date,
+        )
+    except UserError as exc:  # one format: the file, then [table] key and what was expected
+        raise UserError(f"{p}: {exc}") from None
 
 
 def parse_config(
@@ -297,16 +271,14 @@ def parse_config(
     _check_document(data)
     unknown = sorted(set(data) - set(TABLES))
     if unknown:
-        raise UserError(f"unknown table(s): {', '.join('[' + _name(u) + ']' for u in unknown)}")
+        raise UserError(f"unknown table(s): {', '.join(f'[{key_name(u)}]' for u in unknown)}")
 
-    vehicle = _Table("vehicle", data.get("vehicle", {}))
-    vehicle_id = vehicle.string("id", "car1")
+    vehicle = from_table(VehicleSettings, data.get("vehicle", {}), "vehicle")
+    vehicle_id, track = vehicle.id, vehicle.track_m
     try:
         validate_vehicle_id(vehicle_id)
     except UserError as exc:
         raise UserError(f"[vehicle] id: {exc}") from None
-    track = vehicle.number("track_m", None, positive=True)
-    vehicle.done()
 
     start = _Table("start", data.get("start", {}))
     (sx, sy), origin = _point(start, None)
@@ -363,9 +335,9 @@ def parse_config(
             car_overrides[key] = est.number(key, lo=0.0) or 0.0
     est.done()
 
-    odometry = _device("odometry", data.get("odometry", {}), default_backend="can")
+    odometry = _device("odometry", data.get("odometry", {}), base_dir, default_backend="can")
     compass_table = data.get("compass", {})
-    compass = _device("compass", compass_table, default_backend="nmea_serial", default_enabled=True)
+    compass = _device("compass", compass_table, base_dir, default_backend="nmea_serial")
     if compass is None:
         compass_sigma = None
         est_kwargs["compass_two_sigma_deg"] = None
@@ -394,59 +366,33 @@ def parse_config(
             "[start] heading_deg is required when there is no compass (or "
             "compass_two_sigma_deg = false): the heading could never become known"
         )
-    camera = _device("camera", data.get("camera", {}), default_backend="opencv",
+    camera = _device("camera", data.get("camera", {}), base_dir, default_backend="opencv",
                      default_enabled=False)  # fmt: skip
 
-    scene = _scene(data.get("scene", {}), base_dir)
+    scene = read_scene(data.get("scene", {}), base_dir)
 
-    voice_t = _Table("voice", data.get("voice", {}))
-    voice = VoiceSettings(
-        voice_t.string("backend", "auto", ("auto", "voice", "wav", "text", "none")),
-        voice_t.string("wav_path", ""),
-        voice_t.string("voice", "en"),
-        int(voice_t.number("rate_wpm", 170, lo=80, hi=400) or 170),
-        float(voice_t.number("volume", 1.0, lo=0.0, hi=1.0) or 0.0),
-    )
+    voice = from_table(VoiceSettings, data.get("voice", {}), "voice", base_dir)
     if voice.backend == "wav" and not voice.wav_path:
         raise UserError("[voice] wav_path is required with backend = 'wav'")
-    voice_t.done()
+    health = from_table(HealthConfig, data.get("health", {}), "health", rules=HEALTH_RULES)
+    loop = from_table(LoopSettings, data.get("loop", {}), "loop")
+    checkpoint = from_table(CheckpointSettings, data.get("checkpoint", {}), "checkpoint", base_dir)
 
-    health_t = _Table("health", data.get("health", {}))
-    health = HealthConfig(
-        silence_periods=health_t.number("silence_periods", 5.0, positive=True) or 5.0,
-        min_timeout_s=health_t.number("min_timeout_s", 1.0, positive=True) or 1.0,
-        max_reject_fraction=health_t.number("max_reject_fraction", 0.5, lo=0.0, hi=1.0) or 0.5,
+    # [telemetry] and [recording]: vehicle_id defaults to [vehicle] id; the origin is [start]'s.
+    telemetry = from_table(
+        TelemetryConfig,
+        data.get("telemetry", {}),
+        "telemetry",
+        base_dir,
+        base=TelemetryConfig(vehicle_id=vehicle_id, origin_lat_lon_deg=origin),
     )
-    health_t.done()
-
-    loop = _Table("loop", data.get("loop", {}))
-    tick_hz = loop.number("tick_hz", 20.0, positive=True) or 20.0
-    state_rate = loop.number("state_rate_hz", 10.0, positive=True) or 10.0
-    health_period = loop.number("health_publish_period_s", 1.0, positive=True) or 1.0
-    max_lag = loop.number("max_lag_s", 0.5, positive=True) or 0.5
-    loop.done()
-
-    ck = _Table("checkpoint", data.get("checkpoint", {}))
-    ck_path = ck.string("path", "")
-    if ck_path and base_dir is not None and not Path(ck_path).is_absolute():
-        ck_path = str(base_dir / ck_path)
-    checkpoint = CheckpointSettings(
-        ck_path,
-        ck.number("interval_s", 5.0, positive=True) or 5.0,
-        ck.number("max_age_s", 600.0, positive=True) or 600.0,
+    recording = from_table(
+        RecordingConfig,
+        data.get("recording", {}),
+        "recording",
+        base_dir,
+        base=RecordingConfig(vehicle_id=vehicle_id, origin_lat_lon_deg=origin),
     )
-    ck.done()
-
-    tel_table = _table("telemetry", data.get("telemetry", {}))
-    tel_table.setdefault("vehicle_id", vehicle_id)
-    with _in_table("telemetry"):
-        telemetry = TelemetryConfig.from_mapping(tel_table, base_dir)
-    telemetry = dataclasses.replace(telemetry, origin_lat_lon_deg=origin)
-    rec_table = _table("recording", data.get("recording", {}))
-    rec_table.setdefault("vehicle_id", vehicle_id)
-    with _in_table("recording"):
-        recording = RecordingConfig.from_mapping(rec_table, base_dir)
-    recording = dataclasses.replace(recording, origin_lat_lon_deg=origin)
 
     landmark_db = None
     if isinstance(data.get("landmarks"), Mapping):  # [landmarks]: a database and its matcher
@@ -482,7 +428,7 @@ def parse_config(
         compass_deviation_deg=deviation,
         compass_unusable_after_s=unusable_after,
         units=Units(units),
-        state_period_s=1.0 / state_rate,
+        state_period_s=1.0 / loop.state_rate_hz,
         expected_rates_hz=rates,
         health=health,
         straight_after_m=straight_after or 25.0,
@@ -505,36 +451,12 @@ def parse_config(
         telemetry=telemetry,
         recording=recording,
         checkpoint=checkpoint,
-        tick_hz=tick_hz,
-        health_publish_period_s=health_period,
-        max_loop_lag_s=max_lag,
+        tick_hz=loop.tick_hz,
+        health_publish_period_s=loop.health_publish_period_s,
+        max_loop_lag_s=loop.max_lag_s,
         sim=types.MappingProxyType(dict(sim)),
         landmark_db=landmark_db,
     )
-
-
-def _scene(data: object, base_dir: Path | None) -> SceneSettings:
-    """``[scene] input``/``device``/``grab``; ``keyboard = true|false`` is the old spelling."""
-    t = _Table("scene", data)
-    if t.has("keyboard") and t.has("input"):
-        raise UserError("[scene] give input or keyboard (the old spelling), not both")
-    if t.has("keyboard"):
-        kind = "keyboard" if t.boolean("keyboard", True) else "none"
-    else:
-        kind = t.string("input", "keyboard", (*SCENE_BACKENDS, "none"))
-    device = t.string("device", "")
-    grab = t.boolean("grab", True)
-    t.done()
-    if kind == "evdev" and not device:
-        raise UserError(
-            "[scene] device is required with input = 'evdev' "
-            "(e.g. /dev/input/by-id/usb-<keypad>-event-kbd)"
-        )
-    if device and kind != "evdev":
-        raise UserError(f"[scene] device is only read with input = 'evdev', not {kind!r}")
-    if device and base_dir is not None and not Path(device).is_absolute():
-        device = str(base_dir / device)
-    return SceneSettings(kind, device, grab)
 
 
 def _landmarks(items: object, origin: tuple[float, float] | None) -> tuple[Landmark, ...]:

@@ -1,26 +1,18 @@
-"""TOML table checking: one error format for every key, type and range of the config."""
+"""TOML table checks of the app's config: the whole document, and ``_Table`` for the tables that do
+not map 1:1 onto a dataclass (``[start]``/``[goal]`` with lat/lon or x/y, ``[navigation]``,
+``[estimator]``, a device's own keys). The tables that do are read by
+``guidance.config_tables.from_table``; both use its error format."""
 
 from __future__ import annotations
 
-import contextlib
 import math
-import re
-from collections.abc import Iterator, Mapping
+from collections.abc import Mapping
 from typing import Any
 
+from guidance.config_tables import BARE_KEY, key_name
 from guidance.errors import UserError
 
-"""Device kind -> backend name -> (``module:Class``, ``module:ConfigClass``)."""
-
-
 # ----------------------------------------------------------------------------- value checks
-
-_BARE_KEY = re.compile(r"[A-Za-z0-9_-]+")
-
-
-def _name(key: object) -> str:
-    """A key as a message shows it: bare, or quoted when it has odd characters (one line)."""
-    return key if isinstance(key, str) and _BARE_KEY.fullmatch(key) else repr(key)
 
 
 def _check_document(
@@ -32,43 +24,24 @@ def _check_document(
     (every key here is a bare word; the message stays one line)."""
     huge = isinstance(node, int) and not -(2**63) <= node < 2**63  # TOML: 64-bit integers
     if huge or (isinstance(node, float) and not math.isfinite(node)):
-        where = _name(key[0]) + "".join(f"[{i}]" for i in key[1:])
+        where = key_name(key[0]) + "".join(f"[{i}]" for i in key[1:])
         if table:
-            where = f"[{'.'.join(_name(t) for t in table)}] {where}"
+            where = f"[{'.'.join(key_name(t) for t in table)}] {where}"
         if huge:
             raise UserError(f"{where} is out of range (TOML integers are 64-bit)")
         raise UserError(f"{where} must be finite, not {node!r}")
     if isinstance(node, Mapping):
         inner = (*table, *(str(k) for k in key))
         for k in node:
-            if not (isinstance(k, str) and _BARE_KEY.fullmatch(k)):
+            if not (isinstance(k, str) and BARE_KEY.fullmatch(k)):
                 if not inner:
-                    raise UserError(f"unknown table(s): [{_name(k)}]")
-                raise UserError(f"[{'.'.join(map(_name, inner))}] unknown key(s): {_name(k)}")
+                    raise UserError(f"unknown table(s): [{key_name(k)}]")
+                raise UserError(f"[{'.'.join(map(key_name, inner))}] unknown key(s): {key_name(k)}")
         for k, v in node.items():
             _check_document(v, inner, (k,))
     elif isinstance(node, list):
         for i, v in enumerate(node):
             _check_document(v, table, (*key, i))
-
-
-@contextlib.contextmanager
-def _in_table(name: str) -> Iterator[None]:
-    """A ``UserError`` from a table's own parser names the table (``[telemetry] bad zenoh
-    endpoint ''``)."""
-    try:
-        yield
-    except UserError as exc:
-        if str(exc).startswith(f"[{name}"):
-            raise
-        raise UserError(f"[{name}] {exc}") from None
-
-
-def _table(name: str, data: object) -> dict[str, Any]:
-    """A table handed on whole (``[telemetry]``, ``[recording]``), as a new dict."""
-    if not isinstance(data, Mapping):
-        raise UserError(f"[{name}] must be a table")
-    return dict(data)
 
 
 class _Table:
@@ -138,31 +111,4 @@ class _Table:
     def done(self) -> None:
         unknown = sorted(set(self.data) - self.used)
         if unknown:
-            raise UserError(f"[{self.name}] unknown key(s): {', '.join(map(_name, unknown))}")
-
-
-def _check_type(value: Any, annotation: str, where: str) -> Any:
-    """Check a TOML value against a driver config field's annotation (simple types only)."""
-    parts = [p.strip() for p in annotation.split("|")]
-    ok_types: list[type] = []
-    for p in parts:
-        if p == "None":
-            if value is None:
-                return value
-        elif p == "bool":
-            ok_types.append(bool)
-        elif p == "int":
-            ok_types.append(int)
-        elif p == "float":
-            ok_types.append(float)
-        elif p == "str":
-            ok_types.append(str)
-        else:
-            return value  # mappings and others: the driver validates them
-    if isinstance(value, bool) and bool not in ok_types:
-        raise UserError(f"{where} must be {annotation}, not {value!r}")
-    if isinstance(value, int) and not isinstance(value, bool) and float in ok_types:
-        return value if int in ok_types else float(value)
-    if not isinstance(value, tuple(ok_types)):
-        raise UserError(f"{where} must be {annotation}, not {value!r}")
-    return value
+            raise UserError(f"[{self.name}] unknown key(s): {', '.join(map(key_name, unknown))}")

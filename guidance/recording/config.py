@@ -4,12 +4,13 @@ from __future__ import annotations
 
 import re
 from collections.abc import Mapping
-from dataclasses import dataclass, fields
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
 from mcap.writer import CompressionType
 
+from guidance.config_tables import from_table, rule
 from guidance.errors import UserError
 from guidance.telemetry.messages import check_origin
 
@@ -20,7 +21,7 @@ class RecordingConfig:
     """The ``[recording]`` table of the car's TOML config (docs/telemetry.md)."""
 
     enabled: bool = True
-    directory: str = "recordings"
+    directory: str = field(default="recordings", metadata=rule(path=True))
     prefix: str = "drive"
     vehicle_id: str = "car1"
     chunk_size_bytes: int = 64 * 1024
@@ -34,9 +35,9 @@ class RecordingConfig:
     thumbnail_width_px: int = 160
     truth_interval_s: float = 0.1
     """At most one true pose (``record_truth``, simulated drives) this often."""
-    compression: str = "zstd"
+    compression: str = field(default="zstd", metadata=rule(choices=("zstd", "lz4", "none")))
     """"zstd", "lz4" or "none" (chunk compression; Foxglove reads all three)."""
-    origin_lat_lon_deg: tuple[float, float] | None = None
+    origin_lat_lon_deg: tuple[float, float] | None = field(default=None, metadata=rule(read=False))
     """WGS-84 origin of the local frame (not a ``[recording]`` key: the app's config sets it
     from ``[start]``, the simulator from its city); the Foxglove topics need it for the map."""
 
@@ -65,27 +66,9 @@ class RecordingConfig:
     def from_mapping(
         cls, table: Mapping[str, Any], base_dir: Path | None = None
     ) -> RecordingConfig:
-        """Build from a parsed ``[recording]`` TOML table; ``directory`` is relative to base_dir."""
-        types = {f.name: f.type for f in fields(cls) if f.name != "origin_lat_lon_deg"}
-        unknown = sorted(set(table) - set(types))
-        if unknown:
-            raise UserError(f"[recording]: unknown key(s) {', '.join(unknown)}")
-        kwargs: dict[str, Any] = {}
-        for key, value in table.items():
-            want = types[key]
-            ok = {
-                "bool": isinstance(value, bool),
-                "int": isinstance(value, int) and not isinstance(value, bool),
-                "float": isinstance(value, int | float) and not isinstance(value, bool),
-                "str": isinstance(value, str),
-            }.get(str(want), False)
-            if not ok:
-                raise UserError(f"[recording] {key} must be {want}, not {value!r}")
-            kwargs[key] = float(value) if want == "float" else value
-        if base_dir is not None and "directory" in kwargs:
-            d = Path(kwargs["directory"])
-            kwargs["directory"] = str(d if d.is_absolute() else base_dir / d)
-        return cls(**kwargs)
+        """Build from a parsed ``[recording]`` TOML table (``guidance.config_tables``);
+        a relative ``directory`` is taken from ``base_dir`` (the TOML file's folder)."""
+        return from_table(cls, table, "recording", base_dir)
 
 
 _COMPRESSION = {

@@ -3,10 +3,11 @@
 from __future__ import annotations
 
 from collections.abc import Mapping
-from dataclasses import dataclass, fields
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
+from guidance.config_tables import from_table, rule
 from guidance.errors import UserError
 from guidance.telemetry.keys import _ENDPOINT_RE, _MODES, DEFAULT_LISTEN, validate_vehicle_id
 from guidance.telemetry.messages import check_origin
@@ -22,9 +23,9 @@ class TlsConfig:
     policy name peers by certificate common name.
     """
 
-    root_ca_certificate: str
-    certificate: str = ""
-    private_key: str = ""
+    root_ca_certificate: str = field(metadata=rule(path=True))
+    certificate: str = field(default="", metadata=rule(path=True))
+    private_key: str = field(default="", metadata=rule(path=True))
     mutual: bool = False
     verify_name_on_connect: bool = True
 
@@ -56,11 +57,11 @@ class TelemetryConfig:
 
     enabled: bool = True
     vehicle_id: str = "car1"
-    mode: str = "peer"
+    mode: str = field(default="peer", metadata=rule(choices=_MODES))
     listen: tuple[str, ...] = (DEFAULT_LISTEN,)
     connect: tuple[str, ...] = ()
     multicast_scouting: bool = False
-    zenoh_config: str = ""
+    zenoh_config: str = field(default="", metadata=rule(path=True))
     tls: TlsConfig | None = None
     allow_remote_goal: bool = False
     max_goal_range_m: float = 50_000.0
@@ -68,7 +69,7 @@ class TelemetryConfig:
     retry_period_s: float = 2.0
     fifo_size: int = 32
     """Decisions and prompts waiting to be sent, per kind; the oldest is dropped beyond."""
-    origin_lat_lon_deg: tuple[float, float] | None = None
+    origin_lat_lon_deg: tuple[float, float] | None = field(default=None, metadata=rule(read=False))
     """WGS-84 origin of the local frame, for the state's ``lat_deg``/``lon_deg``. Not a
     ``[telemetry]`` key: the app's config sets it from ``[start]`` (the simulator from its
     city)."""
@@ -89,68 +90,10 @@ class TelemetryConfig:
     def from_mapping(
         cls, table: Mapping[str, Any], base_dir: Path | None = None
     ) -> TelemetryConfig:
-        """Build from a parsed ``[telemetry]`` TOML table; unknown keys and bad types are errors.
-
-        Relative file paths are taken relative to ``base_dir`` (the TOML file's folder).
-        """
-        known = {f.name for f in fields(cls)} - {"origin_lat_lon_deg"}
-        unknown = sorted(set(table) - known)
-        if unknown:
-            raise UserError(f"[telemetry]: unknown key(s) {', '.join(unknown)}")
-
-        def path(value: object, key: str) -> str:
-            if not isinstance(value, str):
-                raise UserError(f"[telemetry] {key} must be a string path")
-            if value and base_dir is not None and not Path(value).is_absolute():
-                return str(base_dir / value)
-            return value
-
-        kwargs: dict[str, Any] = {}
-        for key, value in table.items():
-            if key in ("listen", "connect"):
-                if isinstance(value, str):
-                    value = [value]
-                if not isinstance(value, list) or not all(isinstance(v, str) for v in value):
-                    raise UserError(f"[telemetry] {key} must be a list of endpoint strings")
-                kwargs[key] = tuple(value)
-            elif key == "tls":
-                if not isinstance(value, Mapping):
-                    raise UserError("[telemetry.tls] must be a table")
-                tls_known = {f.name for f in fields(TlsConfig)}
-                bad = sorted(set(value) - tls_known)
-                if bad or "root_ca_certificate" not in value:
-                    raise UserError(
-                        "[telemetry.tls] needs root_ca_certificate"
-                        + (f"; unknown key(s) {', '.join(bad)}" if bad else "")
-                    )
-                verify = value.get("verify_name_on_connect", True)
-                kwargs["tls"] = TlsConfig(
-                    root_ca_certificate=path(
-                        value["root_ca_certificate"], "tls.root_ca_certificate"
-                    ),
-                    certificate=path(value.get("certificate", ""), "tls.certificate"),
-                    private_key=path(value.get("private_key", ""), "tls.private_key"),
-                    mutual=_typed(value.get("mutual", False), bool, "tls.mutual"),
-                    verify_name_on_connect=_typed(verify, bool, "tls.verify_name_on_connect"),
-                )
-            elif key == "zenoh_config":
-                kwargs[key] = path(value, key)
-            elif key in ("enabled", "multicast_scouting", "allow_remote_goal"):
-                kwargs[key] = _typed(value, bool, key)
-            elif key in ("retry_period_s", "max_goal_range_m"):
-                kwargs[key] = float(_typed(value, (int, float), key))
-            elif key == "fifo_size":
-                kwargs[key] = _typed(value, int, key)
-            else:
-                kwargs[key] = _typed(value, str, key)
-        return cls(**kwargs)
-
-
-def _typed(value: Any, types: type | tuple[type, ...], key: str) -> Any:
-    if not isinstance(value, types) or (types is not bool and isinstance(value, bool)):
-        names = types.__name__ if isinstance(types, type) else "/".join(t.__name__ for t in types)
-        raise UserError(f"[telemetry] {key} must be {names}, not {value!r}")
-    return value
+        """Build from a parsed ``[telemetry]`` TOML table (``guidance.config_tables``): unknown
+        keys and bad types are errors; relative file paths are taken from ``base_dir`` (the TOML
+        file's folder); ``listen``/``connect`` may be one string."""
+        return from_table(cls, table, "telemetry", base_dir)
 
 
 def check_endpoint(endpoint: str) -> str:

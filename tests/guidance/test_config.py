@@ -100,22 +100,22 @@ BAD = [
     (("vehicle", "id"), "my car!", r"\[vehicle\] id"),
     (("vehicle", "track_m"), math.inf, r"\[vehicle\] track_m must be finite"),
     (("odometry", "bitrate"), -1, r"\[odometry\] bitrate must be a positive integer"),
-    (("odometry", "bitrate"), "fast", r"\[odometry\] bitrate must be int \| None"),
+    (("odometry", "bitrate"), "fast", r"\[odometry\] bitrate must be an integer, not 'fast'"),
     (("odometry", "profile"), "ford_t", r"\[odometry\] .*ford_t"),
     (("odometry", "chanel"), "can1", r"\[odometry\] unknown key 'chanel'"),
     (("odometry", "backend"), "lin", r"\[odometry\] backend must be one of can"),
     (("odometry", "clock"), "sundial", r"\[odometry\] clock must be"),
     (("odometry", "expected_rate_hz"), 0, r"\[odometry\] expected_rate_hz must be > 0"),
     (("compass", "baudrate"), 0, r"\[compass\] baudrate must be a positive integer"),
-    (("compass", "port"), 7, r"\[compass\] port must be str"),
+    (("compass", "port"), 7, r"\[compass\] port must be a string, not 7"),
     (("compass", "mounting_offset_deg"), 200, r"\[compass\] mounting_offset_deg must be within"),
     (("compass", "date"), "yesterday", r"\[compass\] date must be a date"),
     (("camera", "source"), [1], r"\[camera\]"),
     (("voice", "backend"), "shout", r"\[voice\] backend must be one of"),
     (("loop", "tick_hz"), 0, r"\[loop\] tick_hz must be > 0"),
     (("checkpoint", "interval_s"), -1, r"\[checkpoint\] interval_s must be > 0"),
-    (("telemetry", "mode"), "broadcast", r"telemetry mode must be one of"),
-    (("telemetry", "listn"), [], r"\[telemetry\]: unknown key\(s\) listn"),
+    (("telemetry", "mode"), "broadcast", r"\[telemetry\] mode must be one of peer, client, not"),
+    (("telemetry", "listn"), [], r"\[telemetry\] unknown key\(s\): listn \(known: "),
     (("recording", "compression"), "zip", r"\[recording\] compression"),
     (("health", "max_reject_fraction"), 2, r"\[health\] max_reject_fraction must be within"),
 ]
@@ -167,7 +167,7 @@ def test_cli_reports_a_bad_config_in_one_line(
     assert main(["run", "--config", str(bad), "--check"]) == 2
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1
-    assert "[odometry] channel must be str" in err[0]
+    assert f"{bad}: [odometry] channel must be a string, not 0" in err[0]
 
 
 def test_cli_reports_toml_syntax_and_missing_file(
@@ -184,3 +184,58 @@ def test_cli_reports_toml_syntax_and_missing_file(
 def test_cli_check_accepts_the_tahoe_config(capsys: pytest.CaptureFixture[str]) -> None:
     assert main(["run", "--config", str(TAHOE), "--check"]) == 0
     assert "OK (vehicle tahoe1, method hybrid)" in capsys.readouterr().out
+
+
+@pytest.mark.parametrize(
+    ("table", "value", "message"),
+    [
+        ("voice", {"rate_wpm": 500}, "[voice] rate_wpm must be within [80, 400], not 500"),
+        ("voice", {"rate_wpm": 170.5}, "[voice] rate_wpm must be an integer, not 170.5"),
+        ("loop", {"tick_hz": True}, "[loop] tick_hz must be a number, not True"),
+        ("health", {"min_reads_for_validity": 3}, "[health] unknown key(s): min_reads_for_valid"),
+        ("vehicle", {"track_m": -1.5}, "[vehicle] track_m must be > 0, not -1.5"),
+        ("recording", {"directory": 5}, "[recording] directory must be a string, not 5"),
+        ("telemetry", {"tls": {"mutual": True}}, "[telemetry.tls] root_ca_certificate is required"),
+        ("telemetry", {"listen": ["tcp/a:1", 2]}, "[telemetry] listen[1] must be a string, not 2"),
+        ("odometry", {"bitrate": True}, "[odometry] bitrate must be an integer, not True"),
+        ("checkpoint", {"path": 1}, "[checkpoint] path must be a string, not 1"),
+    ],
+)
+def test_one_format_table_key_and_what_was_expected(
+    table: str, value: dict[str, Any], message: str
+) -> None:
+    doc = _tahoe()
+    doc.setdefault(table, {}).update(value)
+    with pytest.raises(UserError) as info:
+        parse_config(doc)
+    assert str(info.value).startswith(message)
+
+
+def test_a_bad_file_names_itself(tmp_path: Path) -> None:
+    bad = tmp_path / "car.toml"
+    bad.write_text(TAHOE.read_text().replace("[voice]", "[voice]\nrate_wpm = true"))
+    with pytest.raises(UserError) as info:
+        load_config(bad)
+    assert str(info.value) == f"{bad}: [voice] rate_wpm must be an integer, not True"
+
+
+def test_paths_are_relative_to_the_config_files_folder(tmp_path: Path) -> None:
+    (tmp_path / "cfg").mkdir()
+    path = tmp_path / "cfg" / "car.toml"
+    path.write_text(
+        "[start]\nx_m = 0.0\ny_m = 0.0\nheading_deg = 90.0\n"
+        "[goal]\nx_m = 100.0\ny_m = 0.0\n"
+        "[compass]\nenabled = false\n"
+        '[checkpoint]\npath = "state/ck.json"\n'
+        '[recording]\ndirectory = "rec"\n'
+        '[telemetry]\nzenoh_config = "/etc/zenoh.json5"\n'
+        '[telemetry.tls]\nroot_ca_certificate = "ca.pem"\n'
+    )
+    cfg = load_config(path)
+    folder = path.resolve().parent
+    assert cfg.checkpoint.path == str(folder / "state" / "ck.json")
+    assert cfg.recording.directory == str(folder / "rec")
+    assert cfg.telemetry.zenoh_config == "/etc/zenoh.json5"  # absolute: as given
+    assert cfg.telemetry.tls is not None
+    assert cfg.telemetry.tls.root_ca_certificate == str(folder / "ca.pem")
+    assert cfg.telemetry.vehicle_id == cfg.recording.vehicle_id == "car1"  # [vehicle] id

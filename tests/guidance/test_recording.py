@@ -415,7 +415,9 @@ def test_recording_config_table() -> None:
     assert cfg == RecordingConfig(directory="/data/recordings")
     with pytest.raises(UserError, match="unknown key"):
         RecordingConfig.from_mapping({"dir": "x"})
-    with pytest.raises(UserError, match="chunk_size_bytes must be int"):
+    with pytest.raises(
+        UserError, match=r"\[recording\] chunk_size_bytes must be an integer, not '64k'"
+    ):
         RecordingConfig.from_mapping({"chunk_size_bytes": "64k"})
     with pytest.raises(UserError, match="compression"):
         RecordingConfig(compression="gzip")

@@ -1,0 +1,100 @@
+"""The config tables that map 1:1 onto a dataclass, read by ``guidance.config_tables.from_table``
+(``[vehicle]``, ``[scene]``, ``[voice]``, ``[health]``, ``[loop]``, ``[checkpoint]``): each
+field is a key, its type and ``rule`` say what the key takes (docs/app.md, "Configuration")."""
+
+from __future__ import annotations
+
+from collections.abc import Mapping
+from dataclasses import dataclass, field
+from pathlib import Path
+
+from guidance.app.backends import SCENE_BACKENDS
+from guidance.config_tables import Rule, from_table, rule
+from guidance.errors import UserError
+
+
+@dataclass(frozen=True, slots=True)
+class VoiceSettings:
+    """``[voice]``."""
+
+    backend: str = field(
+        default="auto", metadata=rule(choices=("auto", "voice", "wav", "text", "none"))
+    )
+    wav_path: str = ""
+    voice: str = "en"
+    """The speech engine's voice (espeak-ng: a language code such as en, en-us, de)."""
+    rate_wpm: int = field(default=170, metadata=rule(lo=80, hi=400))
+    """Speech rate in words per minute (a little slower than espeak-ng's 175, for traffic)."""
+    volume: float = field(default=1.0, metadata=rule(lo=0, hi=1))
+
+
+@dataclass(frozen=True, slots=True)
+class SceneSettings:
+    """``[scene]``: where the co-driver's keys come from."""
+
+    input: str = field(default="keyboard", metadata=rule(choices=(*SCENE_BACKENDS, "none")))
+    """keyboard (lines on stdin), evdev (a keypad or keyboard: ``device``) or none."""
+    device: str = field(default="", metadata=rule(path=True))
+    """The input device for ``evdev``: /dev/input/by-id/...-event-kbd."""
+    grab: bool = True
+    """evdev: take the device exclusively."""
+
+
+@dataclass(frozen=True, slots=True)
+class CheckpointSettings:
+    """``[checkpoint]``."""
+
+    path: str = field(default="", metadata=rule(path=True))
+    """Empty: no checkpoints."""
+    interval_s: float = field(default=5.0, metadata=rule(positive=True))
+    max_age_s: float = field(default=600.0, metadata=rule(positive=True))
+    """An older checkpoint (wall clock) is not resumed: the car may be anywhere by now."""
+
+
+@dataclass(frozen=True, slots=True)
+class VehicleSettings:
+    """``[vehicle]``."""
+
+    id: str = "car1"
+    track_m: float | None = field(default=None, metadata=rule(positive=True))
+    """None: the ``[odometry] profile``'s track width."""
+
+
+@dataclass(frozen=True, slots=True)
+class LoopSettings:
+    """``[loop]``."""
+
+    tick_hz: float = field(default=20.0, metadata=rule(positive=True))
+    state_rate_hz: float = field(default=10.0, metadata=rule(positive=True))
+    health_publish_period_s: float = field(default=1.0, metadata=rule(positive=True))
+    max_lag_s: float = field(default=0.5, metadata=rule(positive=True))
+
+
+HEALTH_RULES = {
+    "silence_periods": Rule(positive=True),
+    "min_timeout_s": Rule(positive=True),
+    "max_reject_fraction": Rule(lo=0, hi=1),
+    "min_reads_for_validity": Rule(read=False),
+}
+"""``[health]`` is ``HealthConfig`` (guidance/core/health.py) without its last field."""
+
+
+def read_scene(data: object, base_dir: Path | None) -> SceneSettings:
+    """``[scene] input``/``device``/``grab``; ``keyboard = true|false`` is the old spelling."""
+    table = dict(data) if isinstance(data, Mapping) else data
+    if isinstance(table, dict) and "keyboard" in table:
+        if "input" in table:
+            raise UserError("[scene] give input or keyboard (the old spelling), not both")
+        keyboard = table.pop("keyboard")
+        if not isinstance(keyboard, bool):
+            raise UserError(f"[scene] keyboard must be true or false, not {keyboard!r}")
+        table["input"] = "keyboard" if keyboard else "none"
+    scene = from_table(SceneSettings, table, "scene", base_dir)
+    if scene.input == "evdev" and not scene.device:
+        raise UserError(
+            "[scene] device is required with input = 'evdev' "
+            "(e.g. /dev/input/by-id/usb-<keypad>-event-kbd)"
+        )
+    if scene.device and scene.input != "evdev":
+        raise UserError(f"[scene] device is only read with input = 'evdev', not {scene.input!r}")
+    return scene
