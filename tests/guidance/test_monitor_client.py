@@ -1,0 +1,139 @@
+"""MonitorClient's queues are zenoh's own channels: a ring for state and health (the newest
+kept), a FIFO for the other kinds (every one, in order). Real zenoh sessions on 127.0.0.1,
+multicast scouting off; the car is a bare session publishing with ``CongestionControl.BLOCK``
+so every message reaches the monitor and any loss is the client's own."""
+
+from __future__ import annotations
+
+import json
+import socket
+import time
+from collections.abc import Iterator
+
+import pytest
+import zenoh
+
+from guidance.errors import UserError
+from guidance.telemetry.client import FIFO_KINDS, RING_KINDS, MonitorClient, TelemetryEvent
+from guidance.telemetry.session import open_session, session_config
+
+
+def free_port() -> int:
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return int(s.getsockname()[1])
+
+
+def wait_for_match(publishers: list[zenoh.Publisher], timeout_s: float = 10.0) -> None:
+    deadline = time.monotonic() + timeout_s
+    while time.monotonic() < deadline:
+        # zenoh-python 1.10 returns a MatchingStatus (its stub says bool): accept both
+        statuses = (p.matching_status for p in publishers)
+        if all(bool(getattr(st, "matching", st)) for st in statuses):
+            return
+        time.sleep(0.02)
+    raise AssertionError("the monitor's subscriptions never reached the car")
+
+
+def drain(client: MonitorClient, quiet_s: float = 0.5) -> list[TelemetryEvent]:
+    """Every event until none came for ``quiet_s``."""
+    events = []
+    while (event := client.get(quiet_s)) is not None:
+        events.append(event)
+    return events
+
+
+@pytest.fixture
+def car() -> Iterator[tuple[zenoh.Session, int]]:
+    port = free_port()
+    session = open_session(session_config(mode="peer", listen=[f"tcp/127.0.0.1:{port}"]))
+    try:
+        yield session, port
+    finally:
+        session.close()
+
+
+def message(kind: str, seq: int) -> bytes:
+    body = {"schema": f"guidance.{kind}/1", "vehicle_id": "car1", "seq": seq, "t_s": seq * 0.01}
+    return json.dumps(body).encode()
+
+
+def test_a_state_flood_keeps_the_newest_while_every_prompt_arrives_in_order(
+    car: tuple[zenoh.Session, int],
+) -> None:
+    session, port = car
+    states, prompts, ring, fifo = 1000, 64, 8, 64
+    block = zenoh.CongestionControl.BLOCK
+    pub_state = session.declare_publisher("guidance/car1/state", congestion_control=block)
+    pub_prompt = session.declare_publisher("guidance/car1/prompt", congestion_control=block)
+    with MonitorClient([f"tcp/127.0.0.1:{port}"], ring_size=ring, fifo_size=fifo) as client:
+        wait_for_match([pub_state, pub_prompt])
+        # the reader is stalled while the car floods: 1000 states, a prompt every ~16 of them
+        p = 0
+        for s in range(1, states + 1):
+            pub_state.put(message("state", s))
+            if s % (states // prompts) == 0 and p < prompts:
+                p += 1
+                pub_prompt.put(message("prompt", p))
+        assert p == prompts
+        time.sleep(1.0)  # all of it delivered on loopback; nobody reads yet
+        events = drain(client)
+    seqs = {k: [e.message["seq"] for e in events if e.kind == k and e.message] for k in RING_KINDS}
+    got_prompts = [e.message["seq"] for e in events if e.kind == "prompt" and e.message]
+    # ring: zenoh dropped the oldest states; the newest `ring` are kept, in order
+    assert seqs["state"] == list(range(states - ring + 1, states + 1))
+    # fifo: every prompt, in the order sent (the FIFO held exactly its capacity)
+    assert got_prompts == list(range(1, prompts + 1))
+    assert client.received == ring + prompts and client.undecodable == 0
+
+
+def test_a_reader_that_keeps_up_sees_every_state_and_liveliness_in_order(
+    car: tuple[zenoh.Session, int],
+) -> None:
+    session, port = car
+    block = zenoh.CongestionControl.BLOCK
+    pub = session.declare_publisher("guidance/car1/state", congestion_control=block)
+    with MonitorClient([f"tcp/127.0.0.1:{port}"]) as client:
+        token = session.liveliness().declare_token("guidance/car1")
+        wait_for_match([pub])
+        for s in range(1, 101):
+            pub.put(message("state", s))
+            time.sleep(0.002)
+        time.sleep(0.3)
+        token.undeclare()
+        events = drain(client, 1.0)
+    kinds = [e.kind for e in events]
+    assert kinds[0] == "alive" and kinds[-1] == "gone"  # a car's messages come between
+    assert [e.message["seq"] for e in events if e.kind == "state" and e.message] == list(
+        range(1, 101)
+    )
+
+
+def test_bad_payloads_are_counted_not_returned(car: tuple[zenoh.Session, int]) -> None:
+    session, port = car
+    pub = session.declare_publisher(
+        "guidance/car1/decision", congestion_control=zenoh.CongestionControl.BLOCK
+    )
+    with MonitorClient([f"tcp/127.0.0.1:{port}"]) as client:
+        wait_for_match([pub])
+        for payload in (b"not json", b"[1, 2]", message("decision", 1)):
+            pub.put(payload)
+        events = drain(client)
+    assert [e.kind for e in events] == ["decision"]
+    assert client.undecodable == 2 and client.received == 1
+
+
+def test_channel_kinds_cover_every_kind_once() -> None:
+    from guidance.telemetry.keys import KINDS
+
+    assert sorted((*RING_KINDS, *FIFO_KINDS)) == sorted(KINDS)
+    assert set(RING_KINDS) == {"state", "health"}
+
+
+def test_an_unopened_client_waits_and_returns_nothing() -> None:
+    client = MonitorClient([f"tcp/127.0.0.1:{free_port()}"])
+    t0 = time.monotonic()
+    assert client.get(0.1) is None and client.get(0) is None
+    assert 0.09 < time.monotonic() - t0 < 1.0
+    with pytest.raises(UserError):
+        MonitorClient(ring_size=0)
