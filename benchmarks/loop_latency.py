@@ -40,8 +40,9 @@ import numpy as np
 
 from drivers.can_odometry import CanOdometry, CanOdometryConfig
 from guidance.app.app import GIL_SWITCH_INTERVAL_S, App
+from guidance.app.ports import Recognised
 from guidance.core.estimator import EstimatorConfig
-from guidance.core.messages import CameraFrame, EstimateState, LandmarkFix
+from guidance.core.messages import CameraFrame, EstimateState
 from guidance.core.navigator import Method, NavigatorConfig
 from guidance.core.pipeline import Pipeline, PipelineConfig
 from hal_sim.sim_can import SimCanWheels
@@ -111,10 +112,10 @@ def _orb_match(image: np.ndarray) -> float:
 
 
 class OrbMatcher:
-    """The matcher as the app sees it: ``process(frame, state)``.
+    """The matcher as the app sees it (``guidance.app.ports.Recogniser``).
 
     ``worker=True`` (default, as ``landmark_db.recognise.RecogniserWorker`` does) runs it in
-    a worker process and returns a future: the Python parts of matching (building match
+    a worker process and waits for it: the Python parts of matching (building match
     lists) then never hold this process's GIL. ``worker=False`` runs it in the app's thread
     pool, to show the jitter that costs.
     """
@@ -128,14 +129,17 @@ class OrbMatcher:
         self.calls = 0
         self.busy_s = 0.0
 
-    def process(self, frame: CameraFrame, state: EstimateState) -> LandmarkFix | None:
+    def process(self, frame: CameraFrame, state: EstimateState) -> Recognised:
         image = np.asarray(frame.image)
         if self.pool is not None:
             self.busy_s += self.pool.submit(_orb_match, image).result()
         else:
             self.busy_s += _orb_match(image)
         self.calls += 1
-        return None
+        return Recognised(None, "few_matches")
+
+    def stats(self) -> dict[str, int]:
+        return {"frames": self.calls}
 
     def close(self) -> None:
         if self.pool is not None:

@@ -150,7 +150,9 @@ def state_xy(state: EstimateState) -> tuple[tuple[float, float], tuple[tuple[flo
 
 
 class Recogniser:
-    """Recognises database landmarks in camera frames. Implements ``LandmarkRecogniser``.
+    """Recognises database landmarks in camera frames: the app's ``Recogniser`` port
+    (``guidance.app.ports``: ``process(frame, state)`` and ``stats()``; its ``NullRecogniser``
+    is the default when no database is configured).
 
     Construct from an open database or with ``Recogniser.from_path(path)``, which opens the
     file read-only and validates it. Calls are serialised by a lock, so it may be used from
@@ -187,15 +189,7 @@ class Recogniser:
     def close(self) -> None:
         self.db.close()
 
-    # --- LandmarkRecogniser protocol ---------------------------------------------------------
-
-    def recognise(
-        self,
-        frame: CameraFrame,
-        mean_xy: tuple[float, float],
-        cov_xy: Sequence[Sequence[float]],
-    ) -> LandmarkFix | None:
-        return self.process_xy(frame, mean_xy, cov_xy).fix
+    # --- counters ----------------------------------------------------------------------------
 
     def stats(self) -> Mapping[str, int]:
         """Frames, fixes, verified frames, candidates compared, and rejections by reason."""
@@ -389,34 +383,8 @@ def _with_elapsed(r: RecognitionResult, elapsed_s: float) -> RecognitionResult:
     )
 
 
-class NullRecogniser:
-    """The default when no landmark database is configured: recognises nothing."""
-
-    def __init__(self) -> None:
-        self._frames = 0
-
-    def recognise(
-        self,
-        frame: CameraFrame,
-        mean_xy: tuple[float, float],
-        cov_xy: Sequence[Sequence[float]],
-    ) -> LandmarkFix | None:
-        self._frames += 1
-        return None
-
-    def process(self, frame: CameraFrame, state: EstimateState) -> RecognitionResult:
-        self._frames += 1
-        return RecognitionResult(frame.t_s, None, NO_CANDIDATE, None)
-
-    def stats(self) -> Mapping[str, int]:
-        return {"frames": self._frames, "fixes": 0, NO_CANDIDATE: self._frames}
-
-    def close(self) -> None:
-        return None
-
-
 async def recognise_async(
-    recogniser: Recogniser | NullRecogniser,
+    recogniser: Recogniser,
     frame: CameraFrame,
     state: EstimateState,
     executor: Executor | None = None,

@@ -6,9 +6,9 @@
   hands messages over with ``loop.call_soon_threadsafe``; the pipeline processes them on the
   loop in arrival order, and its outputs go to the speaker, Zenoh telemetry and the MCAP
   recorder (all non-blocking);
-* camera frames go to a one-slot ring; a recogniser (``process(frame, state)`` or the
-  ``LandmarkRecogniser`` protocol) matches the latest one in a worker thread, off the loop,
-  and its fixes come back as pipeline inputs;
+* camera frames go to a one-slot ring; the recogniser (``ports.Recogniser``:
+  ``process(frame, state)`` -> a fix or a reason) matches the latest one in a worker thread,
+  off the loop, and its fixes come back as pipeline inputs;
 * a ticker task at absolute monotonic deadlines measures loop lag, pings the systemd watchdog,
   evaluates health (silent or garbled inputs), publishes health and writes checkpoints;
 * everything starts under one ``asyncio.TaskGroup`` and every device is released in a
@@ -21,7 +21,6 @@ steps it in lockstep with the simulated world; replay feeds the pipeline directl
 from __future__ import annotations
 
 import asyncio
-import concurrent.futures
 import contextlib
 import logging
 import math
@@ -35,7 +34,7 @@ from typing import TYPE_CHECKING, Any, TypeAlias
 from guidance.app import ports
 from guidance.app.checkpoint import Checkpointer
 from guidance.app.logonce import LogOnce
-from guidance.app.ports import InputRecorder, Notifier, Speaker
+from guidance.app.ports import InputRecorder, Notifier, NullRecogniser, Recogniser, Speaker
 from guidance.core.codec import to_record
 from guidance.core.health import DeviceHealth, DeviceStatus
 from guidance.core.messages import (
@@ -64,16 +63,6 @@ recorder, telemetry) hands the GIL back to the loop within 1 ms instead of Pytho
 (benchmarks/loop_latency.py: loop lateness p99 4.8 -> 3.7 ms on a loaded 2-core machine)."""
 
 
-class NullRecogniser:
-    """Recognises nothing: the default until a landmark matcher is configured."""
-
-    def process(self, frame: CameraFrame, state: EstimateState) -> LandmarkFix | None:
-        return None
-
-    def stats(self) -> dict[str, int]:
-        return {}
-
-
 def _read_rejected(stats: Mapping[str, int]) -> tuple[int, int]:
     """(read, rejected) from a source's counters: CAN frames, NMEA lines, or nothing."""
     read = stats.get("frames", stats.get("lines", 0))
@@ -89,7 +78,7 @@ class App:
         *,
         sources: Mapping[str, Source] | None = None,
         camera: ports.CameraSource | None = None,
-        recogniser: Any = None,
+        recogniser: Recogniser | None = None,
         speaker: Speaker | None = None,
         sinks: Sequence[OutputSink] = (),
         recorder: InputRecorder | None = None,
@@ -109,7 +98,7 @@ class App:
         self.pipeline = pipeline
         self.sources = dict(sources or {})
         self.camera = camera
-        self.recogniser: Any = recogniser if recogniser is not None else NullRecogniser()
+        self.recogniser: Recogniser = recogniser if recogniser is not None else NullRecogniser()
         self.speaker = speaker
         self.sinks: list[OutputSink] = list(sinks)
         """Where outputs go (telemetry, the recorder), each with its own queue policy."""
@@ -422,52 +411,40 @@ class App:
 
     async def _recognise(self) -> None:
         """Match the latest camera frame in a worker thread; fixes come back as inputs."""
-        loop = asyncio.get_running_loop()
         while True:
             await self._frame_ready.wait()
             self._frame_ready.clear()
             with self._frame_lock:
                 frame, self._frame = self._frame, None
-            if frame is None:
-                continue
-            state = self.pipeline.state()
-            try:
-                fix = await loop.run_in_executor(None, self.match_frame, frame, state)
-                self.failures.ok("the landmark recogniser")
+            if frame is not None:
+                await self.recognise(frame)
+
+    async def recognise(self, frame: CameraFrame) -> None:
+        """Match ``frame`` against the current estimate in a worker thread (off the loop) and
+        apply the fix it gives; a failure is counted and logged once, never raised."""
+        state = self.pipeline.state()
+        loop = asyncio.get_running_loop()
+        try:
+            fix = await loop.run_in_executor(None, self.match_frame, frame, state)
+            self.failures.ok("the landmark recogniser")
+        except Exception:
+            self.counts["recogniser_errors"] += 1
+            self.failures.failed("the landmark recogniser")
+            return
+        self.counts["frames_matched"] += 1
+        if fix is not None:
+            try:  # a bad fix is the estimator's to reject; it must never end the loop
+                self.feed(fix)
             except Exception:
                 self.counts["recogniser_errors"] += 1
-                self.failures.failed("the landmark recogniser")
-                continue
-            self.counts["frames_matched"] += 1
-            if fix is not None:
-                try:  # a bad fix is the estimator's to reject; it must never end the loop
-                    self.feed(fix)
-                except Exception:
-                    self.counts["recogniser_errors"] += 1
-                    self.failures.failed("applying a landmark fix")
+                self.failures.failed("applying a landmark fix")
 
     def match_frame(self, frame: CameraFrame, state: EstimateState) -> LandmarkFix | None:
-        """Run the recogniser (worker thread). Accepts ``process(frame, state)`` returning a
-        fix, a result with ``.fix``/``.reason`` (``landmark_db.recognise``) or a future of one
-        (a recogniser in its own process); or the ``LandmarkRecogniser`` protocol."""
-        r = self.recogniser
-        if hasattr(r, "process"):
-            result = r.process(frame, state)
-        else:
-            cov = [
-                [state.covariance[0][0], state.covariance[0][1]],
-                [state.covariance[1][0], state.covariance[1][1]],
-            ]
-            result = r.recognise(frame, (state.x_m, state.y_m), cov)
-        if isinstance(result, concurrent.futures.Future):
-            result = result.result()
-        if result is None or isinstance(result, LandmarkFix):
-            return result
-        reason = getattr(result, "reason", None)
-        if reason:
-            self.counts[f"recognition_{reason}"] += 1
-        fix = getattr(result, "fix", None)
-        return fix if isinstance(fix, LandmarkFix) else None
+        """Run the recogniser (worker thread): its fix, its rejection reason counted."""
+        result = self.recogniser.process(frame, state)
+        if result.reason:
+            self.counts[f"recognition_{result.reason}"] += 1
+        return result.fix
 
     # -- figures ----------------------------------------------------------------------------------
     def lag_summary(self) -> dict[str, float | None]:

@@ -15,6 +15,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
+from guidance.app.ports import Recogniser
 from guidance.core.navigator import Landmark
 from guidance.errors import UserError
 
@@ -88,7 +89,7 @@ def check_database(settings: LandmarkSettings) -> int:
 
 def open_landmarks(
     settings: LandmarkSettings, origin_lat_lon: tuple[float, float] | None
-) -> tuple[Any, tuple[Landmark, ...]]:
+) -> tuple[Recogniser, tuple[Landmark, ...]]:
     """The recogniser on the database and its landmarks in the car's local frame.
 
     Slow (features are loaded, the matcher built): call it off the event loop. Positions come
@@ -101,7 +102,7 @@ def open_landmarks(
         confirm_frames=settings.confirm_frames,
         max_candidates=settings.max_candidates,
     )
-    recogniser = _import(RECOGNISER)(db, config)
+    recogniser: Recogniser = _import(RECOGNISER)(db, config)
     out = []
     for lm in db.landmarks():
         x, y = float(lm.x_m), float(lm.y_m)

@@ -1,5 +1,6 @@
 """The app's ports: one interface per kind of device (HOUSE_STYLE), real and simulated devices
-implement them, and one per thing ``App`` drives (speaker, output sinks, recorder, notifier).
+implement them, and one per thing ``App`` drives (recogniser, speaker, output sinks, recorder,
+notifier).
 
 A source owns its blocking I/O on its own thread and hands each message to the
 ``sink`` it was started with; the application's sink forwards it to the event
@@ -14,12 +15,14 @@ estimator's math (numba): ``if TYPE_CHECKING: from guidance.app.ports import Out
 
 from __future__ import annotations
 
-from collections.abc import Callable, Mapping, Sequence
+from collections.abc import Callable, Mapping
+from dataclasses import dataclass
 from typing import TYPE_CHECKING, Protocol, TypeAlias, TypeVar, runtime_checkable
 
 from guidance.core.messages import (
     CameraFrame,
     CompassHeading,
+    EstimateState,
     IntersectionScene,
     LandmarkFix,
     TurnCompleted,
@@ -33,6 +36,9 @@ if TYPE_CHECKING:
     """Where outputs go (telemetry, the recorder): ``publish`` plus one helper per kind."""
 
 T_co = TypeVar("T_co", covariant=True)
+
+NO_CANDIDATE = "no_candidate"
+"""The null recogniser's reason: no landmark to compare (``landmark_db.recognise``'s own)."""
 
 
 @runtime_checkable
@@ -66,23 +72,49 @@ class RoadwayScene(Source[IntersectionScene | TurnCompleted], Protocol):
     """Tells the app that an intersection is coming and which exits it has, and what was taken."""
 
 
+class Recognition(Protocol):
+    """What a recogniser says about one frame (``landmark_db.recognise.RecognitionResult``):
+    a fix, or the reason there is none."""
+
+    @property
+    def fix(self) -> LandmarkFix | None: ...
+    @property
+    def reason(self) -> str | None: ...
+
+
+@dataclass(frozen=True, slots=True)
+class Recognised:
+    """A plain ``Recognition`` (the null recogniser's, a test double's)."""
+
+    fix: LandmarkFix | None = None
+    reason: str | None = None
+
+
 @runtime_checkable
-class LandmarkRecogniser(Protocol):
-    """Matches a camera frame against the landmarks gated by the current estimate.
+class Recogniser(Protocol):
+    """Matches a camera frame against the landmarks the current estimate gates in
+    (``landmark_db.recognise.Recogniser``). Called off the event loop, one frame at a time;
+    rejections are counted by reason in ``stats()``."""
 
-    ``mean_xy`` and ``cov_xy`` are the estimated position and its 2x2
-    covariance (row-major tuples). Returns a fix or None; reasons for
-    rejections are counted in ``stats()``.
-    """
-
-    def recognise(
-        self,
-        frame: CameraFrame,
-        mean_xy: tuple[float, float],
-        cov_xy: Sequence[Sequence[float]],
-    ) -> LandmarkFix | None: ...
-
+    def process(self, frame: CameraFrame, state: EstimateState) -> Recognition: ...
     def stats(self) -> Mapping[str, int]: ...
+
+
+class NullRecogniser:
+    """Recognises nothing: the default until a landmark database is configured."""
+
+    def __init__(self) -> None:
+        self._frames = 0
+
+    def process(self, frame: CameraFrame, state: EstimateState) -> Recognised:
+        self._frames += 1
+        return Recognised(None, NO_CANDIDATE)
+
+    def stats(self) -> Mapping[str, int]:
+        return {"frames": self._frames, "fixes": 0, NO_CANDIDATE: self._frames}
+
+    def close(self) -> None:
+        return None
 
 
 @runtime_checkable

@@ -21,6 +21,7 @@ import pytest
 from drivers.can_odometry import CanOdometry, CanOdometryConfig
 from drivers.keyboard import KeyboardScene
 from guidance.app.app import App
+from guidance.app.ports import Recognised
 from guidance.core.estimator import EstimatorConfig
 from guidance.core.messages import (
     CameraFrame,
@@ -248,13 +249,16 @@ class _SlowRecogniser:
         self.calls = 0
         self.threads: set[str] = set()
 
-    def process(self, frame: CameraFrame, state: EstimateState) -> LandmarkFix | None:
+    def process(self, frame: CameraFrame, state: EstimateState) -> Recognised:
         self.threads.add(threading.current_thread().name)
         time.sleep(0.05)
         self.calls += 1
         if self.calls == 3:
-            return LandmarkFix(frame.t_s, 7, state.x_m + 3.0, state.y_m, 5.0)
-        return None
+            return Recognised(LandmarkFix(frame.t_s, 7, state.x_m + 3.0, state.y_m, 5.0))
+        return Recognised(None, "few_matches")
+
+    def stats(self) -> dict[str, int]:
+        return {"frames": self.calls}
 
 
 def test_recogniser_runs_off_the_loop_on_the_latest_frame() -> None:

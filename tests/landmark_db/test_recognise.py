@@ -9,7 +9,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from guidance.app.ports import LandmarkRecogniser
+from guidance.app.ports import NullRecogniser
+from guidance.app.ports import Recogniser as RecogniserPort
 from guidance.core.estimator import PoseEstimator
 from guidance.core.messages import CameraFrame, Ellipse, EstimateState, WheelOdometry
 from hal_sim.sim_camera import SimCamera, SimCameraConfig, SimLandmark, facade
@@ -21,7 +22,6 @@ from landmark_db.recognise import (
     NO_CANDIDATE,
     NOT_CONSISTENT,
     REPEAT,
-    NullRecogniser,
     Recogniser,
     RecogniserConfig,
     RecogniserWorker,
@@ -47,8 +47,8 @@ def lms(sim_db_path: tuple[Path, list[SimLandmark]]) -> list[SimLandmark]:
 
 
 def test_protocols_are_implemented(sim_db: LandmarkDb) -> None:
-    assert isinstance(Recogniser(sim_db), LandmarkRecogniser)
-    assert isinstance(NullRecogniser(), LandmarkRecogniser)
+    assert isinstance(Recogniser(sim_db), RecogniserPort)
+    assert isinstance(NullRecogniser(), RecogniserPort)
 
 
 def test_confirmed_over_two_frames_then_one_fix_per_pass(
@@ -164,7 +164,7 @@ def test_fix_sigma_documented_value() -> None:
 
 def test_null_recogniser() -> None:
     n = NullRecogniser()
-    assert n.recognise(CameraFrame(0.0, None), (0.0, 0.0), COV) is None
+    assert n.process(CameraFrame(0.0, None), _state(0.0, 0.0)).fix is None
     assert n.process(CameraFrame(1.0, None), _state(0.0, 0.0)).reason == NO_CANDIDATE
     assert n.stats()["frames"] == 2 and n.stats()["fixes"] == 0
 
