@@ -186,6 +186,7 @@ async def drive_async(
     from guidance.core.model import heading_to_compass
     from guidance.core.navigator import Method, NavigatorConfig
     from guidance.core.pipeline import Pipeline, PipelineConfig
+    from hal_sim.lockstep import LockstepSink
     from hal_sim.params import SimParams, estimator_config
     from hal_sim.sim_can import SimCanWheels
     from hal_sim.sim_checks import check_drive_options, stop_on_signals
@@ -392,6 +393,8 @@ async def drive_async(
                 axis_track.append((pipeline.odometer_m, pipeline.estimator.major_axis_m))
 
         app.listeners.append(on_output)
+        lockstep = LockstepSink(app.sink)  # the world waits for the app (hal_sim/lockstep.py)
+        app.source_sink = lockstep
         outcome = "timeout"
         expect_odo = expect_heading = expect_lines = 0
         last_can_t: float | None = None
@@ -401,7 +404,9 @@ async def drive_async(
         copy.deepcopy(world).step()  # compile the world's numba step before the loop's clock
         async with app.running():
             stop_signal = stop_on_signals()  # SIGINT/SIGTERM: end with the summary
-            if compass is not None and not await app.wait_until(lambda: compass.connected, 5.0):
+            if compass is not None and not await lockstep.wait_until(
+                lambda: compass.connected, 5.0
+            ):
                 raise UserError("the simulated compass pty did not open")
             if pipeline.finished:
                 outcome = "arrived" if pipeline.arrived else "lost"
@@ -422,7 +427,7 @@ async def drive_async(
                     if last_can_t is not None and t - last_can_t <= MAX_GAP_S:
                         expect_odo += 1
                         n_odo = expect_odo
-                        if not await app.wait_until(
+                        if not await lockstep.wait_until(
                             _at_least(app.counts, "WheelOdometry", n_odo), 2.0
                         ):
                             log.warning("t=%.1f s: odometry frame not delivered", t)
@@ -438,7 +443,7 @@ async def drive_async(
                         pty.write_heading(float(heading_to_compass(ev.heading_rad, decl)))
                         expect_heading += 1
                     n_head = expect_heading
-                    ok = await app.wait_until(
+                    ok = await lockstep.wait_until(
                         _compass_done(app.counts, compass, n_head, n_lines),
                         2.0,
                     )
@@ -459,7 +464,7 @@ async def drive_async(
                             app.feed(fix)
                 elif ev.landmark is not None:
                     sightings.sighted(t, ev.landmark)
-                    await app.drained()
+                    await lockstep.drained()
                 app.tick(t)
                 if recorder is not None:  # the true pose, on its own topics (rate-limited)
                     recorder.record_truth(t, *world.truth)
@@ -486,7 +491,7 @@ async def drive_async(
                         world.new_goal()
                         ngx, ngy = world.goal_xy
                         app.feed(GoalUpdate(t, ngx, ngy, "field_protocol"))
-                        await app.drained()
+                        await lockstep.drained()
                     if t >= end_t:
                         outcome = "time_limit"
                         break
@@ -497,7 +502,7 @@ async def drive_async(
                 if ev.decide:
                     before = pipeline.navigator.decisions
                     scene.announce(ev)
-                    await app.drained()
+                    await lockstep.drained()
                     if pipeline.navigator.decisions > before and pipeline.last_decision:
                         scene.follow(pipeline.last_decision.exit_index)
                 if opts.speed is not None:

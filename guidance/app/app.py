@@ -15,7 +15,8 @@
   ``finally``.
 
 The simulation (``hal_sim.drive``) builds the same ``App`` around simulated devices and
-steps it in lockstep with the simulated world; replay feeds the pipeline directly.
+steps it in lockstep with the simulated world (``hal_sim.lockstep`` wraps ``source_sink``);
+replay feeds the pipeline directly.
 """
 
 from __future__ import annotations
@@ -120,10 +121,12 @@ class App:
         self.measure_latency = False
         self.stop_event = asyncio.Event()
         self._loop: asyncio.AbstractEventLoop | None = None
+        self.source_sink: Callable[[Message], None] = self.sink
+        """What the sources are started with: ``sink``, or a wrapper around it (the simulator's
+        ``hal_sim.lockstep.LockstepSink`` counts what passes, to step the world in lockstep)."""
         self._submitted = 0
         self._processed = 0
         self._sub_lock = threading.Lock()
-        self._waiters: list[asyncio.Future[None]] = []
         self._frame: CameraFrame | None = None
         self._frame_lock = threading.Lock()
         self._frame_signalled = False
@@ -161,7 +164,6 @@ class App:
             self.failures.failed(f"processing {type(msg).__name__}")
         finally:
             self._processed += 1
-            self._wake()
 
     # -- the loop side ----------------------------------------------------------------------------
     def feed(self, msg: Input) -> Outputs:
@@ -302,33 +304,6 @@ class App:
             topic, body = to_record(msg)
             self.recorder.record(topic, msg.t_s, body)
 
-    # -- waiting (the simulation's lockstep) ----------------------------------------------------
-    def _wake(self) -> None:
-        waiters, self._waiters = self._waiters, []
-        for fut in waiters:
-            if not fut.done():
-                fut.set_result(None)
-
-    async def wait_until(self, predicate: Callable[[], bool], timeout_s: float = 2.0) -> bool:
-        """Wait until ``predicate()`` holds (re-checked after each processed message)."""
-        loop = asyncio.get_running_loop()
-        deadline = loop.time() + timeout_s
-        while not predicate():
-            remaining = deadline - loop.time()
-            if remaining <= 0:
-                return False
-            fut: asyncio.Future[None] = loop.create_future()
-            self._waiters.append(fut)
-            with contextlib.suppress(TimeoutError):
-                await asyncio.wait_for(fut, min(remaining, 0.05))
-        return True
-
-    async def drained(self, timeout_s: float = 2.0) -> bool:
-        """Wait until every message handed to ``sink`` so far has been processed."""
-        with self._sub_lock:
-            target = self._submitted
-        return await self.wait_until(lambda: self._processed >= target, timeout_s)
-
     # -- running --------------------------------------------------------------------------------
     @contextlib.asynccontextmanager
     async def running(self) -> AsyncIterator[App]:
@@ -352,7 +327,7 @@ class App:
                             set_status_sink(partial(self._device_status, name))
                         if callable(getattr(src, "set_backlog", None)):
                             src.set_backlog(self.backlog)  # type: ignore[attr-defined]
-                        src.start(self.sink)
+                        src.start(self.source_sink)
                         self._started_sources.append(src)
                         log.info("started %s (%s)", name, getattr(src, "name", name))
                     if self.camera is not None:

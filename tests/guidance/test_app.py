@@ -35,6 +35,7 @@ from guidance.core.messages import (
 from guidance.core.navigator import Landmark, Method, NavigatorConfig
 from guidance.core.pipeline import Outputs, Pipeline, PipelineConfig
 from guidance.voice.speakers import TextSpeaker
+from hal_sim.lockstep import LockstepSink
 from hal_sim.sim_can import SimCanWheels
 
 
@@ -129,16 +130,17 @@ def test_co_driver_keyboard_drives_decisions_and_corrects_the_memory() -> None:
         app = App(pipeline, sources={"scene": scene}, speaker=TextSpeaker(speech),
                   clock=lambda: clock_t[0])  # fmt: skip
         app.listeners.append(listen)
+        app.source_sink = lockstep = LockstepSink(app.sink)
         async with app.running():
             for k in range(50):  # drive 50 m east
                 clock_t[0] = 0.1 * (k + 1)
                 app.feed(WheelOdometry(clock_t[0], 1.0, 1.0))
             writer.write("l s r\n")
             writer.flush()
-            assert await app.wait_until(lambda: pipeline.last_decision is not None, 5.0)
+            assert await lockstep.wait_until(lambda: pipeline.last_decision is not None, 5.0)
             writer.write("tr\n")
             writer.flush()
-            assert await app.wait_until(lambda: bool(taken), 5.0)
+            assert await lockstep.wait_until(lambda: bool(taken), 5.0)
             writer.close()
 
     asyncio.run(scenario())
