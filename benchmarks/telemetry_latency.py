@@ -62,7 +62,8 @@ for i in range(len(hot)):
     tel.publish_state(state, speed_mps=8.0)
     hot[i] = time.perf_counter() - t0
 tel.close()
-print(json.dumps({"sent": n, "published": h.published, "dropped": dict(h.dropped),
+dropped = {k.removeprefix("dropped_"): v for k, v in h.counters.items() if k.startswith("dropped_")}
+print(json.dumps({"sent": n, "published": h.counters["published"], "dropped": dropped,
                   "call_median_us": float(np.median(cost) * 1e6),
                   "call_p99_us": float(np.percentile(cost, 99) * 1e6),
                   "call_max_us": float(cost.max() * 1e6),

@@ -24,7 +24,7 @@ from collections.abc import Callable, Iterable, Mapping
 from typing import ClassVar, Generic, Protocol, Self, TypeVar
 
 from drivers.health import HealthTracker
-from guidance.core.health import DeviceHealth
+from guidance.core.messages import Health
 
 T = TypeVar("T")
 
@@ -104,7 +104,7 @@ class ThreadedSource(Generic[T]):
         (``/can``, ``/nmea``). A failing raw sink is logged once and never stops the reader."""
         self._raw_sink = raw_sink
 
-    def set_status_sink(self, status_sink: Callable[[DeviceHealth], None] | None) -> None:
+    def set_status_sink(self, status_sink: Callable[[Health], None] | None) -> None:
         """Hand every change of this driver's status (``starting``, ``ok``, ``silent``,
         ``disconnected``, ``invalid``...) with its health record to ``status_sink``: what only
         the driver knows (its device is gone) reaches the app, the voice and the monitor."""
@@ -156,7 +156,7 @@ class ThreadedSource(Generic[T]):
             out.update(self._counts)
         return out
 
-    def health(self) -> DeviceHealth:
+    def health(self) -> Health:
         """alive: data arriving; valid: most of the recent data usable (see the class)."""
         return self._health.evaluate(self.stats())
 

@@ -29,8 +29,7 @@ from drivers._reader import ThreadedSource, rejection_counters
 from drivers.candump import read_candump
 from drivers.clock import ClockMapper
 from drivers.profiles import CHECKSUMS, VehicleProfile, WheelSignals, get_profile, load_dbc
-from guidance.core.health import DeviceHealth
-from guidance.core.messages import WheelOdometry
+from guidance.core.messages import Health, WheelOdometry
 from guidance.errors import UserError
 
 log = logging.getLogger(__name__)
@@ -410,7 +409,7 @@ class CanOdometry(ThreadedSource[WheelOdometry]):
 
     # OdometrySource ------------------------------------------------------------------------------
 
-    def health(self) -> DeviceHealth:
+    def health(self) -> Health:
         """alive: wheel-speed frames arriving; valid: most of the recent ones usable."""
         counters = self.stats()
         with self._lock:

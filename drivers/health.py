@@ -1,9 +1,10 @@
 """One health record per device (HOUSE_STYLE: every input has a health record).
 
-Every driver answers ``health()`` with a ``DeviceHealth``: is data arriving (``alive``), is what
-arrives usable (``valid``), a one-word ``status``, the age of the last accepted message, its
-counters, the last error, and ``warning``, a sentence the app can speak to the driver when the
-status is not "ok" (empty otherwise). docs/reliability.md lists what each fault does to these.
+Every driver answers ``health()`` with a ``guidance.core.messages.Health``: is data arriving
+(``alive``), is what arrives usable (``valid``), a one-word ``status``, the age of the last
+accepted message, its counters, the last error (``detail``), and ``warning``, a sentence the
+app can speak to the driver when the status is not "ok" (empty otherwise). docs/reliability.md
+lists what each fault does to these.
 
 ``HealthTracker`` is the bookkeeping behind it, shared by the drivers: the reader thread reports
 each unit of data (a wheel-speed frame, an NMEA line, a camera frame) as accepted, rejected or
@@ -19,7 +20,8 @@ import threading
 from collections import deque
 from collections.abc import Callable, Mapping
 
-from guidance.core.health import BAD_STATUSES, MAX_REJECTED_FRACTION, VALIDITY_WINDOW, DeviceHealth
+from guidance.core.health import BAD_STATUSES, MAX_REJECTED_FRACTION, VALIDITY_WINDOW
+from guidance.core.messages import Health
 
 log = logging.getLogger(__name__)
 
@@ -61,7 +63,7 @@ class HealthTracker:
         self._status = "stopped"
         self.flips = 0
         """Times the status went from good (ok/starting) to bad."""
-        self.on_flip: Callable[[DeviceHealth], None] | None = None
+        self.on_flip: Callable[[Health], None] | None = None
         """Called (on the caller's thread, outside the lock) with the health whenever the
         status changes: the driver's status flips reach the app through its message path."""
 
@@ -106,7 +108,7 @@ class HealthTracker:
 
     # -- evaluation ----------------------------------------------------------------------------
 
-    def evaluate(self, counters: Mapping[str, int] | None = None) -> DeviceHealth:
+    def evaluate(self, counters: Mapping[str, int] | None = None) -> Health:
         """The health now; logs a flip to a bad status once, and the recovery once."""
         now = self._clock()
         with self._lock:
@@ -137,14 +139,14 @@ class HealthTracker:
         alive = alive and status not in ("disconnected", "stopped")
         if status != previous:
             self._log_flip(previous, status, error)
-        health = DeviceHealth(
+        health = Health(
             name=self.name,
             status=status,
             alive=alive,
             valid=valid and alive,
             age_s=age,
             counters=dict(counters or {}),
-            last_error=error,
+            detail=error,
             warning=self.warning_for(status),
         )
         if status != previous and self.on_flip is not None:

@@ -37,14 +37,15 @@ from guidance.app.checkpoint import Checkpointer
 from guidance.app.logonce import LogOnce
 from guidance.app.ports import InputRecorder, Notifier, NullRecogniser, Recogniser, Speaker
 from guidance.core.codec import to_record
-from guidance.core.health import DeviceHealth, DeviceStatus
+from guidance.core.health import DeviceStatus
 from guidance.core.messages import (
     CameraFrame,
     EstimateState,
+    Health,
     LandmarkFix,
     WheelOdometry,
 )
-from guidance.telemetry.messages import InputHealth, LandmarkRejection
+from guidance.telemetry.messages import LandmarkRejection
 
 if TYPE_CHECKING:  # the estimator stack (filterpy, scipy, numba) loads on first use only
     from guidance.app.ports import OutputSink
@@ -274,13 +275,8 @@ class App:
     def _publish_health(self, t_s: float) -> None:
         if not self.sinks:
             return
-        inputs = {
-            name: InputHealth(
-                st.alive, st.valid, st.rate_hz, st.age_s, st.expected_rate_hz, st.detail
-            )
-            for name, st in self.pipeline.statuses(t_s).items()
-        }
-        comps: dict[str, Mapping[str, Any]] = {
+        inputs = self.pipeline.statuses(t_s)
+        comps: dict[str, Health | Mapping[str, Any]] = {
             "estimator": {
                 "healthy": self.pipeline.estimator.healthy,
                 "resets": self.pipeline.estimator.resets,
@@ -292,10 +288,14 @@ class App:
                 "frames_dropped": self.counts["frames_dropped"],
             },
         }
+        speaker_health = getattr(self.speaker, "health", None)  # not every speaker has one
+        voice = speaker_health() if callable(speaker_health) else None
+        if isinstance(voice, Health):
+            comps[voice.name] = voice
         for sink in self.sinks:
             sink.send_health(t_s, inputs, components=comps)
 
-    def _device_status(self, name: str, health: DeviceHealth) -> None:
+    def _device_status(self, name: str, health: Health) -> None:
         """A driver's status flip (on its thread): into the loop like any other input."""
         self.sink(DeviceStatus(self.clock(), name, health))
 

@@ -21,7 +21,7 @@ from guidance.core.messages import (
     Approach,
     EstimateState,
     ExitTaken,
-    InputStatus,
+    Health,
     IntersectionScene,
 )
 from guidance.core.model import heading_to_compass
@@ -88,7 +88,7 @@ def _sentence(text: str) -> str:
     return text[:1].upper() + text[1:]
 
 
-def _input_text(st: InputStatus) -> tuple[str, str]:
+def _input_text(st: Health) -> tuple[str, str]:
     if not st.alive:
         word, style = ("silent" if st.age_s is not None else "no data"), "bad"
     elif st.age_s is None:
@@ -97,7 +97,8 @@ def _input_text(st: InputStatus) -> tuple[str, str]:
         word, style = "garbled", "bad"
     else:
         word, style = "ok", "ok"
-    rate = f" {st.rate_hz:.1f}/{st.expected_rate_hz:.0f} Hz" if st.expected_rate_hz else ""
+    measured = st.rate_hz or 0.0
+    rate = f" {measured:.1f}/{st.expected_rate_hz:.0f} Hz" if st.expected_rate_hz else ""
     detail = f" ({st.detail})" if st.detail and style != "ok" else ""
     return f"{st.name} {word}{rate}{detail}", style
 
@@ -122,7 +123,7 @@ class OperatorView:
         self.heading_known = True
         self.speed_mps = 0.0
         self.target: tuple[float, float, str, int | None] | None = None
-        self.inputs: dict[str, InputStatus] = {}
+        self.inputs: dict[str, Health] = {}
         self.co_driver = ""
         self.co_driver_style = ""
         self.arrived = False
@@ -182,7 +183,7 @@ class OperatorView:
     def set_live(
         self,
         *,
-        inputs: Mapping[str, InputStatus],
+        inputs: Mapping[str, Health],
         target: tuple[float, float, str, int | None] | None,
         heading_known: bool,
         speed_mps: float,

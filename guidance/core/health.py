@@ -1,5 +1,6 @@
-"""Input health on the message clock (SPEC section 6; openpilot's SubMaster alive/valid),
-and the drivers' device health record.
+"""Input health on the message clock (SPEC section 6; openpilot's SubMaster alive/valid), the
+drivers' statuses and their flips (``DeviceStatus``). The record itself, for inputs and
+components alike, is ``guidance.core.messages.Health``.
 """
 
 from __future__ import annotations
@@ -7,10 +8,9 @@ from __future__ import annotations
 import math
 from collections import deque
 from collections.abc import Mapping
-from dataclasses import dataclass, field
-from typing import Any
+from dataclasses import dataclass
 
-from guidance.core.messages import HealthChange, InputStatus
+from guidance.core.messages import Health, HealthChange
 
 # ----------------------------------------------------------------------------- health
 
@@ -40,11 +40,11 @@ class HealthMonitor:
         self.expected = dict(expected_rates_hz)
         self._last: dict[str, float | None] = dict.fromkeys(self.expected)
         self._times: dict[str, deque[float]] = {k: deque() for k in self.expected}
-        self._status: dict[str, InputStatus] = {}
+        self._status: dict[str, Health] = {}
         self._counts: dict[str, tuple[int, int]] = {}
         self._valid: dict[str, tuple[bool, str]] = {}
         self._judged: dict[tuple[str, str], tuple[bool, str]] = {}
-        self._device: dict[str, tuple[str, str]] = {}
+        self._device: dict[str, Health] = {}
         self._start: float | None = None
 
     def observe(self, name: str, t_s: float) -> None:
@@ -77,13 +77,14 @@ class HealthMonitor:
         name, h = status.input, status.health
         if name not in self.expected:
             return False
-        was_bad = self._device.get(name, ("ok", ""))[0] in BAD_STATUSES
-        self._device[name] = (h.status, h.last_error)
+        was_bad = self.device_status(name) in BAD_STATUSES
+        self._device[name] = h
         return h.status in BAD_STATUSES and not was_bad
 
     def device_status(self, name: str) -> str:
         """The last status the input's driver reported ("ok" when it never did)."""
-        return self._device.get(name, ("ok", ""))[0]
+        device = self._device.get(name)
+        return "ok" if device is None else device.status
 
     def judge(self, name: str, ok: bool, why: str = "", aspect: str = "data") -> None:
         """The consumer's verdict on an input (e.g. a compass the filter keeps rejecting, or
@@ -98,35 +99,58 @@ class HealthMonitor:
             return math.inf
         return max(self.config.min_timeout_s, self.config.silence_periods / rate)
 
-    def status(self, name: str, t_s: float) -> InputStatus:
+    def status(self, name: str, t_s: float) -> Health:
         last = self._last.get(name)
         rate = self.expected.get(name)
         q = self._times.get(name, deque())
         window = min(RATE_WINDOW_S, t_s - self._start) if self._start is not None else 0.0
         measured = len(q) / window if window > 0.5 else 0.0
         age = None if last is None else max(0.0, t_s - last)
+        starting = False
         if rate is None:  # event-driven input (scene, landmarks): always alive
             alive, detail = True, ""
         elif last is None:
             started = self._start is not None and t_s - self._start > self.timeout_s(name)
             alive, detail = not started, ("silent since start" if started else "")
+            starting = not started
         else:
             alive = age is not None and age <= self.timeout_s(name)
             detail = "" if alive else f"silent for {age:.1f} s"
         valid, why = self._valid.get(name, (True, ""))
         if not valid:
             detail = f"{detail}; {why}" if detail else why
-        device, error = self._device.get(name, ("ok", ""))
-        if device in ("disconnected", "invalid"):  # the driver knows better than the clock
-            alive = alive and device != "disconnected"
+        device = self._device.get(name)
+        device_bad = device is not None and device.status in ("disconnected", "invalid")
+        if device is not None and device_bad:  # the driver knows better than the clock
+            alive = alive and device.status != "disconnected"
             valid = False
-            what = f"{device}: {error}" if error else device
+            what = f"{device.status}: {device.detail}" if device.detail else device.status
             detail = f"{detail}; {what}" if detail else what
         for (judged_name, _aspect), (judged, why) in self._judged.items():
             if judged_name == name and not judged:
                 valid = False
                 detail = f"{detail}; {why}" if detail else why
-        return InputStatus(name, alive, valid, measured, age, rate, detail)
+        if device is not None and device_bad:
+            status, warning = device.status, device.warning
+        else:
+            warning = ""
+            status = "silent" if not alive else "invalid" if not valid else "ok"
+            if status == "ok" and starting:
+                status = "starting"  # in its grace period: nothing received yet
+        counts = self._counts.get(name)
+        counters = {} if counts is None else {"read": counts[0], "rejected": counts[1]}
+        return Health(
+            name,
+            status,
+            alive,
+            valid,
+            age,
+            detail,
+            warning,
+            counters=counters,
+            rate_hz=measured,
+            expected_rate_hz=rate,
+        )
 
     def evaluate(self, t_s: float) -> list[HealthChange]:
         """Statuses whose alive/valid flags flipped since the last evaluation."""
@@ -144,7 +168,7 @@ class HealthMonitor:
                 changes.append(HealthChange(t_s, st))
         return changes
 
-    def statuses(self, t_s: float) -> dict[str, InputStatus]:
+    def statuses(self, t_s: float) -> dict[str, Health]:
         return {name: self.status(name, t_s) for name in self.expected}
 
 
@@ -158,42 +182,6 @@ VALIDITY_WINDOW = 20
 """Recent units of data over which the rejection fraction is measured."""
 MAX_REJECTED_FRACTION = 0.5
 """More rejected than this (of the window) makes the input invalid."""
-
-
-@dataclass(frozen=True, slots=True)
-class DeviceHealth:
-    """A driver's health at one moment (``health()``); ``as_dict`` for telemetry and logs."""
-
-    name: str
-    status: str
-    alive: bool
-    """Data arrived within the driver's ``stale_after_s``."""
-    valid: bool
-    """An accepted message arrived within ``stale_after_s`` and the recent rejection fraction
-    is at most ``MAX_REJECTED_FRACTION``."""
-    age_s: float | None = None
-    """Seconds since the last accepted message (driver clock); None before the first."""
-    counters: Mapping[str, int] = field(default_factory=dict)
-    last_error: str = ""
-    warning: str = ""
-    """What to tell the driver while the status is bad; empty when there is nothing to say."""
-
-    @property
-    def ok(self) -> bool:
-        return self.alive and self.valid
-
-    def as_dict(self) -> dict[str, Any]:
-        return {
-            "name": self.name,
-            "status": self.status,
-            "alive": self.alive,
-            "valid": self.valid,
-            "ok": self.ok,
-            "age_s": self.age_s,
-            "counters": dict(self.counters),
-            "last_error": self.last_error,
-            "warning": self.warning,
-        }
 
 
 UNUSABLE = "unusable"
@@ -265,4 +253,4 @@ class DeviceStatus:
     t_s: float
     input: str
     """The app's input it feeds: "odometry", "compass", "camera", "scene"."""
-    health: DeviceHealth
+    health: Health

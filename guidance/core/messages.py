@@ -9,9 +9,11 @@ frame time, NMEA line arrival, simulated clock), never read from a clock inside
 
 from __future__ import annotations
 
+import math
+from collections.abc import Mapping
 from dataclasses import dataclass, field
 from enum import IntEnum
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Any
 
 if TYPE_CHECKING:
     from guidance.core.navigator import Decision
@@ -167,23 +169,69 @@ class Prompt:
     """"turn", "landmark", "uncertain", "arrived", "lost", "sensor", "info"."""
 
 
+def _finite(value: float | None) -> float | None:
+    """A JSON-safe number: non-finite values become None (strict JSON has no NaN)."""
+    return value if value is None or math.isfinite(value) else None
+
+
 @dataclass(frozen=True, slots=True)
-class InputStatus:
-    """Health of one input (SPEC section 6; openpilot's SubMaster alive/valid)."""
+class Health:
+    """The one health record (SPEC section 6; openpilot's alive/valid), for an input and for a
+    component alike: a driver's ``health()``, the pipeline's view of an input
+    (``Pipeline.statuses()``), telemetry's, the recorder's and the speaker's. The health
+    message carries ``as_dict`` of each (docs/reliability.md lists what each fault sets)."""
 
     name: str
+    status: str
+    """One word. Drivers and inputs: "starting", "ok", "silent", "disconnected", "invalid",
+    "ended", "stopped"; components add their own ("up", "down", "disk_full", "failed",
+    "recording", "text_fallback"...)."""
     alive: bool
+    """Data (or the component's work) is arriving."""
     valid: bool
-    rate_hz: float
-    age_s: float | None
-    expected_rate_hz: float | None
+    """What arrives is usable."""
+    age_s: float | None = None
+    """Seconds since the last accepted message; None before the first (or not applicable)."""
     detail: str = ""
+    """Why it is not ok, or the last error, in words."""
+    warning: str = ""
+    """What to tell the driver (or the operator) while it is not ok; empty otherwise."""
+    counters: Mapping[str, int] = field(default_factory=dict)
+    info: Mapping[str, str] = field(default_factory=dict)
+    """Facts in words, e.g. the recorder's current file or telemetry's mode."""
+    rate_hz: float | None = None
+    """Measured message rate (inputs)."""
+    expected_rate_hz: float | None = None
+    """The rate the input should have; None for event-driven inputs and components."""
+
+    @property
+    def ok(self) -> bool:
+        return self.alive and self.valid
+
+    def as_dict(self) -> dict[str, Any]:
+        """The record as plain JSON-safe values (non-finite numbers become None)."""
+        return {
+            "name": self.name,
+            "status": self.status,
+            "alive": self.alive,
+            "valid": self.valid,
+            "ok": self.ok,
+            "age_s": _finite(self.age_s),
+            "rate_hz": _finite(self.rate_hz),
+            "expected_rate_hz": _finite(self.expected_rate_hz),
+            "detail": self.detail,
+            "warning": self.warning,
+            "counters": {str(k): int(v) for k, v in self.counters.items()},
+            "info": {str(k): str(v) for k, v in self.info.items()},
+        }
 
 
 @dataclass(frozen=True, slots=True)
 class HealthChange:
+    """An input whose alive/valid flags flipped (``Outputs.health``)."""
+
     t_s: float
-    status: InputStatus
+    status: Health
 
 
 @dataclass(frozen=True, slots=True)

@@ -39,8 +39,8 @@ from guidance.core.messages import (
     ExitTaken,
     GoalUpdate,
     HeadingFix,
+    Health,
     HealthChange,
-    InputStatus,
     IntersectionScene,
     LandmarkFix,
     Priority,
@@ -603,7 +603,8 @@ class Pipeline:
     def target(self) -> tuple[float, float, str, int | None]:
         return self.navigator.target(self.estimator.x)
 
-    def statuses(self, t_s: float) -> dict[str, InputStatus]:
+    def statuses(self, t_s: float) -> dict[str, Health]:
+        """Each input's health now (the health message carries them as they are)."""
         return self.health.statuses(t_s)
 
     # -- checkpoints ----------------------------------------------------------------------------

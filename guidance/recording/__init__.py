@@ -21,5 +21,5 @@ Files rotate by size and age and the oldest are deleted beyond a total cap.
 Writing happens on a thread fed by a bounded queue: ``record*`` never blocks,
 and when the queue is full the message is dropped and counted. A full disk
 (ENOSPC, EDQUOT, or EFBIG from a file-size limit) stops the recording, sets
-``health().disk_full`` and counts the error; the caller carries on.
+``health().status`` to "disk_full" and counts the error; the caller carries on.
 """

@@ -18,11 +18,12 @@ from typing import Any
 
 from guidance.core.messages import (
     CameraFrame,
+    Health,
 )
 from guidance.recording.config import RecordingConfig
 from guidance.recording.files import _STOP, _Item, _OpenFile
 from guidance.recording.foxglove import FoxgloveView
-from guidance.recording.health import RecorderHealth
+from guidance.recording.health import recorder_health
 from guidance.recording.topics import _DISK_FULL_ERRNOS
 from guidance.telemetry.messages import heading_deg_true
 from guidance.telemetry.sink import Build, MessageSink
@@ -103,19 +104,21 @@ class Recorder(MessageSink):
     def __exit__(self, *_exc: object) -> None:
         self.close()
 
-    def health(self) -> RecorderHealth:
+    def health(self) -> Health:
         cur = self._current
-        return RecorderHealth(
+        return recorder_health(
             recording=self._accepting,
             disk_full=self._disk_full,
-            written=self._written,
-            dropped=self._dropped,
-            errors=self._errors,
-            files_deleted=self._deleted,
-            current_file=str(cur.path) if cur is not None else "",
-            bytes_written=self._bytes,
-            last_error=self._last_error,
             failed=self._failed,
+            counters={
+                "written": self._written,
+                "dropped": self._dropped,
+                "errors": self._errors,
+                "files_deleted": self._deleted,
+                "bytes_written": self._bytes,
+            },
+            current_file=str(cur.path) if cur is not None else "",
+            detail=self._last_error,
         )
 
     # -- recording (any thread, never blocks) --------------------------------------------------
@@ -177,8 +180,8 @@ class Recorder(MessageSink):
         """The sink port (``guidance.telemetry.sink``): one bounded FIFO for every kind."""
         return self._put(f"/{kind}", t_s, partial(build, vehicle_id=self.config.vehicle_id))
 
-    def own_health(self) -> tuple[str, Mapping[str, Any]]:
-        return "recorder", self.health().as_dict()
+    def own_health(self) -> Health:
+        return self.health()
 
     record_state = MessageSink.send_state
     record_decision = MessageSink.send_decision

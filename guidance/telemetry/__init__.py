@@ -5,7 +5,7 @@ process owns one zenoh session and publishes, under ``guidance/<vehicle_id>/``:
 
 * ``state`` (pose, covariance, 2-sigma ellipse, speed, target, method, lost),
 * ``decision``, ``prompt``, ``landmark`` (matches and rejections with reasons),
-* ``health`` (per input: alive, valid, rate_hz, age_s; plus telemetry itself),
+* ``health`` (one ``Health`` record per input and per component, telemetry's own included),
 
 as JSON objects carrying ``schema`` ("guidance.<kind>/<version>"), ``t_s`` (the
 car's monotonic clock, the same time base as the estimator) and

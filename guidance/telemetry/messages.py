@@ -10,7 +10,7 @@ from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 from typing import TYPE_CHECKING, Any
 
-from guidance.core.messages import EstimateState, LandmarkFix
+from guidance.core.messages import EstimateState, Health, LandmarkFix
 from guidance.core.model import heading_to_compass
 from guidance.errors import UserError
 from guidance.telemetry.keys import schema_tag
@@ -284,55 +284,28 @@ def landmark_message(
     return msg
 
 
-@dataclass(frozen=True, slots=True)
-class InputHealth:
-    """Health of one input (odometry, compass, camera, scene...)."""
-
-    alive: bool
-    valid: bool
-    rate_hz: float
-    age_s: float | None
-    expected_rate_hz: float | None = None
-    detail: str = ""
-
-
-def _input_dict(h: InputHealth | Mapping[str, Any]) -> dict[str, Any]:
-    if isinstance(h, InputHealth):
-        return {
-            "alive": h.alive,
-            "valid": h.valid,
-            "rate_hz": _num(h.rate_hz),
-            "age_s": _num(h.age_s),
-            "expected_rate_hz": _num(h.expected_rate_hz),
-            "detail": h.detail,
-        }
-    return {
-        "alive": bool(h.get("alive", False)),
-        "valid": bool(h.get("valid", False)),
-        "rate_hz": _num(h.get("rate_hz")),
-        "age_s": _num(h.get("age_s")),
-        "expected_rate_hz": _num(h.get("expected_rate_hz")),
-        "detail": str(h.get("detail", "")),
-    }
-
-
 def health_message(
     t_s: float,
-    inputs: Mapping[str, InputHealth | Mapping[str, Any]],
+    inputs: Mapping[str, Health],
     *,
     vehicle_id: str,
-    components: Mapping[str, Mapping[str, Any]] | None = None,
+    components: Mapping[str, Health | Mapping[str, Any]] | None = None,
     seq: int = 0,
     wall_time_unix_s: float | None = None,
 ) -> dict[str, Any]:
-    """The ``guidance.health`` message; ``ok`` is true when every input is alive and valid."""
-    ins = {name: _input_dict(h) for name, h in inputs.items()}
+    """The ``guidance.health`` message: each input's and component's ``Health.as_dict()``
+    (a component may also be a free-form mapping: the estimator, the loop); ``ok`` is true
+    when every input is alive and valid."""
+    comps = {
+        name: h.as_dict() if isinstance(h, Health) else dict(h)
+        for name, h in (components or {}).items()
+    }
     msg = _envelope("health", vehicle_id, seq, t_s, wall_time_unix_s)
     msg.update(
         {
-            "ok": all(v["alive"] and v["valid"] for v in ins.values()),
-            "inputs": ins,
-            "components": {k: dict(v) for k, v in (components or {}).items()},
+            "ok": all(h.ok for h in inputs.values()),
+            "inputs": {name: h.as_dict() for name, h in inputs.items()},
+            "components": comps,
         }
     )
     return msg
@@ -373,6 +346,25 @@ def _obj(title: str, props: Mapping[str, Any]) -> dict[str, Any]:
     }
 
 
+_HEALTH: dict[str, Any] = {
+    "type": "object",
+    "description": "guidance.core.messages.Health.as_dict(): one record for inputs and components",
+    "properties": {
+        "name": {"type": "string"},
+        "status": {"type": "string"},
+        "alive": {"type": "boolean"},
+        "valid": {"type": "boolean"},
+        "ok": {"type": "boolean"},
+        "age_s": _NUM,
+        "rate_hz": _NUM,
+        "expected_rate_hz": _NUM,
+        "detail": {"type": "string"},
+        "warning": {"type": "string"},
+        "counters": {"type": "object", "additionalProperties": {"type": "integer"}},
+        "info": {"type": "object", "additionalProperties": {"type": "string"}},
+    },
+}
+"""The schema of one ``Health.as_dict()``."""
 _LAT = {"type": ["number", "null"], "description": "WGS-84 latitude, degrees (null: no origin)"}
 _LON = {"type": ["number", "null"], "description": "WGS-84 longitude, degrees (null: no origin)"}
 _GEO_TARGET: dict[str, Any] = {
@@ -492,21 +484,12 @@ MESSAGE_SCHEMAS: dict[str, dict[str, Any]] = {
         "guidance.health",
         {
             "ok": {"type": "boolean"},
-            "inputs": {
+            "inputs": {"type": "object", "additionalProperties": _HEALTH},
+            "components": {
                 "type": "object",
-                "additionalProperties": {
-                    "type": "object",
-                    "properties": {
-                        "alive": {"type": "boolean"},
-                        "valid": {"type": "boolean"},
-                        "rate_hz": _NUM,
-                        "age_s": _NUM,
-                        "expected_rate_hz": _NUM,
-                        "detail": {"type": "string"},
-                    },
-                },
+                "description": "by name: a Health record (telemetry, recorder, voice) or a "
+                "free-form object (estimator, loop)",
             },
-            "components": {"type": "object"},
         },
     ),
 }

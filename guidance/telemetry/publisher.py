@@ -6,13 +6,14 @@ import logging
 import threading
 import time
 from collections import deque
-from collections.abc import Callable, Mapping
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from functools import partial
 from typing import TYPE_CHECKING, Any
 
 import zenoh
 
+from guidance.core.messages import Health
 from guidance.errors import UserError
 from guidance.telemetry.config import TelemetryConfig
 from guidance.telemetry.keys import (
@@ -45,62 +46,6 @@ log = logging.getLogger(__name__)
 
 # -- the car side ---------------------------------------------------------------------------------
 TELEMETRY_DOWN_WARNING = "Remote monitoring is offline."
-
-
-@dataclass(frozen=True, slots=True)
-class TelemetryHealth:
-    """What ``Telemetry.health()`` reports (and the health message carries)."""
-
-    status: str
-    """"disabled", "starting", "up", "down" (no session, retrying) or "closed"."""
-    connected: bool
-    """Peer mode: the session is open. Client mode: a router is connected."""
-    peers: int
-    routers: int
-    published: int
-    dropped: Mapping[str, int]
-    goals_accepted: int
-    goals_refused: int
-    last_error: str
-    client_mode: bool = False
-
-    @property
-    def alive(self) -> bool:
-        """The zenoh session is open."""
-        return self.status == "up"
-
-    @property
-    def valid(self) -> bool:
-        """Messages can leave the car: peer mode with a session, or client mode with a router."""
-        return self.alive and (self.connected or not self.client_mode)
-
-    @property
-    def ok(self) -> bool:
-        return self.alive and self.valid
-
-    @property
-    def warning(self) -> str:
-        """Shown to the operator, not worth interrupting the driver for (telemetry is optional)."""
-        if self.status == "down" or (self.status == "up" and not self.valid):
-            return TELEMETRY_DOWN_WARNING
-        return ""
-
-    def as_dict(self) -> dict[str, Any]:
-        return {
-            "alive": self.alive,
-            "valid": self.valid,
-            "ok": self.ok,
-            "warning": self.warning,
-            "status": self.status,
-            "connected": self.connected,
-            "peers": self.peers,
-            "routers": self.routers,
-            "published": self.published,
-            "dropped": dict(self.dropped),
-            "goals_accepted": self.goals_accepted,
-            "goals_refused": self.goals_refused,
-            "last_error": self.last_error,
-        }
 
 
 @dataclass(slots=True)
@@ -202,8 +147,8 @@ class Telemetry(MessageSink):
         """The sink port (``guidance.telemetry.sink``): latest-value slot or FIFO by kind."""
         return self._put(kind, partial(build, vehicle_id=self.vehicle_id))
 
-    def own_health(self) -> tuple[str, Mapping[str, Any]]:
-        return "telemetry", self.health().as_dict()
+    def own_health(self) -> Health:
+        return self.health()
 
     publish_state = MessageSink.send_state
     publish_decision = MessageSink.send_decision
@@ -240,20 +185,35 @@ class Telemetry(MessageSink):
             self._count_drop_locked(reason)
 
     # -- health -------------------------------------------------------------------------------
-    def health(self) -> TelemetryHealth:
+    def health(self) -> Health:
+        """``status`` "disabled", "starting", "up", "down" (no session, retrying) or "closed";
+        ``alive``: the zenoh session is open; ``valid``: messages can leave the car (peer mode
+        with a session, client mode with a router connected). ``counters``: peers, routers,
+        published, goals_accepted, goals_refused, dropped and ``dropped_<reason>`` for each
+        reason; ``info``: mode. The warning is for the operator: telemetry is optional."""
         with self._lock:
             dropped = dict(self._dropped)
-        return TelemetryHealth(
-            status=self._status,
-            connected=self._connected,
-            peers=self._peers,
-            routers=self._routers,
-            published=self._published,
-            dropped=dropped,
-            goals_accepted=self._goals_accepted,
-            goals_refused=self._goals_refused,
-            last_error=self._last_error,
-            client_mode=self.config.mode == "client",
+        status = self._status
+        alive = status == "up"
+        valid = alive and (self._connected or self.config.mode != "client")
+        down = status == "down" or (alive and not valid)
+        return Health(
+            "telemetry",
+            status,
+            alive,
+            valid,
+            detail=self._last_error,
+            warning=TELEMETRY_DOWN_WARNING if down else "",
+            counters={
+                "peers": self._peers,
+                "routers": self._routers,
+                "published": self._published,
+                "goals_accepted": self._goals_accepted,
+                "goals_refused": self._goals_refused,
+                "dropped": sum(dropped.values()),
+                **{f"dropped_{reason}": n for reason, n in dropped.items()},
+            },
+            info={"mode": self.config.mode},
         )
 
     def has_subscribers(self, kind: str | None = None) -> bool:

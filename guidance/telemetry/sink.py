@@ -15,9 +15,8 @@ from collections.abc import Callable, Mapping, Sequence
 from functools import partial
 from typing import TYPE_CHECKING, Any
 
-from guidance.core.messages import EstimateState, ExitTaken, LandmarkFix, TurnCompleted
+from guidance.core.messages import EstimateState, ExitTaken, Health, LandmarkFix, TurnCompleted
 from guidance.telemetry.messages import (
-    InputHealth,
     LandmarkMatch,
     LandmarkRejection,
     TargetLike,
@@ -107,8 +106,8 @@ class MessageSink:
         """Queue one message of ``kind``; never blocks; False when it was refused or dropped."""
         raise NotImplementedError
 
-    def own_health(self) -> tuple[str, Mapping[str, Any]] | None:
-        """This sink's own health, added to the health messages it carries."""
+    def own_health(self) -> Health | None:
+        """This sink's own health, added (under its name) to the health messages it carries."""
         return None
 
     # -- one helper per output kind ------------------------------------------------------------
@@ -154,14 +153,14 @@ class MessageSink:
     def send_health(
         self,
         t_s: float,
-        inputs: Mapping[str, InputHealth | Mapping[str, Any]],
+        inputs: Mapping[str, Health],
         *,
-        components: Mapping[str, Mapping[str, Any]] | None = None,
+        components: Mapping[str, Health | Mapping[str, Any]] | None = None,
     ) -> bool:
         comps = dict(components or {})
         own = self.own_health()
         if own is not None:
-            comps[own[0]] = own[1]
+            comps[own.name] = own
         return self.publish(
             "health", t_s, partial(health_message, t_s, dict(inputs), components=comps)
         )

@@ -191,7 +191,7 @@ def health_summary(health: Mapping[str, Any] | None) -> str:
         elif not h.get("valid", False):
             problems.append(f"{plain(name)} invalid")
     tel = _mapping(_mapping(health.get("components")).get("telemetry"))
-    drops = sum(int(v) for v in _mapping(tel.get("dropped")).values() if _num(v) is not None)
+    drops = int(_num(_mapping(tel.get("counters")).get("dropped")) or 0)
     text = ", ".join(problems) if problems else "ok"
     return f"{text} ({drops} dropped)" if drops else text
 

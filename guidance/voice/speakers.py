@@ -13,12 +13,10 @@ import threading
 import time
 import wave
 from collections.abc import Callable, Mapping
-from dataclasses import dataclass
 from typing import Protocol, TextIO
 
 from guidance.app.ports import Speaker
-from guidance.core.health import DeviceHealth
-from guidance.core.messages import Priority
+from guidance.core.messages import Health, Priority
 from guidance.voice.queue import (
     DEFAULT_QUEUE_SIZE,
     DEFAULT_RATE_WPM,
@@ -40,30 +38,26 @@ SPEECH_FAILED_WARNING = "Voice prompts failed. Prompts are shown as text."
 """Shown (it cannot be spoken) when the speech engine is missing or fails."""
 
 
-@dataclass(frozen=True, slots=True)
-class SpeakerHealth(DeviceHealth):
-    """A speaker's health: the drivers' record (same keys, docs/reliability.md).
+def _speaker_health(
+    name: str, failed_reason: str | None, counters: Mapping[str, int], closed: bool = False
+) -> Health:
+    """A speaker's health, the drivers' record (docs/reliability.md).
 
     ``alive``: prompts reach the driver (spoken, or shown as text after a failure);
     ``valid``: they are spoken as configured. ``status`` is "ok", "text_fallback" (the
-    engine failed or never started) or "stopped". ``age_s`` is always None.
+    engine failed or never started) or "stopped"; ``detail`` says why. ``age_s`` is None.
     """
-
-
-def _speaker_health(
-    name: str, failed_reason: str | None, counters: Mapping[str, int], closed: bool = False
-) -> SpeakerHealth:
     if failed_reason is not None:
-        return SpeakerHealth(
+        return Health(
             name,
             "text_fallback",
             alive=True,
             valid=False,
             counters=counters,
-            last_error=failed_reason,
+            detail=failed_reason,
             warning=SPEECH_FAILED_WARNING,
         )
-    return SpeakerHealth(
+    return Health(
         name, "stopped" if closed else "ok", alive=not closed, valid=not closed, counters=counters
     )
 
@@ -115,7 +109,7 @@ class TextSpeaker:
         with self._lock:
             return dict(self._counts)
 
-    def health(self) -> SpeakerHealth:
+    def health(self) -> Health:
         return _speaker_health("voice", self.fallback_reason, self.stats())
 
 
@@ -210,7 +204,7 @@ class _QueuedSpeaker:
         with self._lock:
             return {**self._queue.stats(), **self._counts, "failed": int(self.failed)}
 
-    def health(self) -> SpeakerHealth:
+    def health(self) -> Health:
         """'text_fallback' after the engine failed; a WAV keeps what was recorded."""
         counters = self.stats()
         if self._failover.failed:

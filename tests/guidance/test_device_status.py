@@ -11,9 +11,11 @@ from pathlib import Path
 from drivers.compass import SerialCompass, SerialCompassConfig
 from guidance.app.app import App
 from guidance.core.estimator import EstimatorConfig
-from guidance.core.health import DeviceHealth, DeviceStatus
+from guidance.core.health import DeviceStatus
+from guidance.core.messages import Health
 from guidance.core.navigator import NavigatorConfig
 from guidance.core.pipeline import Pipeline, PipelineConfig
+from guidance.telemetry.messages import health_message
 from guidance.voice.speakers import TextSpeaker
 
 
@@ -49,17 +51,23 @@ def test_a_compass_whose_port_is_gone_is_said_disconnected_in_its_own_words(
     assert "Warning: compass" not in said  # not twice, in other words
     st = pipeline.statuses(pipeline.t_s or 0.0)["compass"]
     assert not st.valid and "disconnected" in st.detail and "ttyUSB-missing" in st.detail
+    assert st.status == "disconnected" and st.warning.startswith("Compass disconnected.")
 
 
 def test_a_driver_flip_back_to_ok_clears_it() -> None:
     p = _pipeline()
     warning = "Compass disconnected. Heading is getting less certain."
-    bad = DeviceHealth(
-        "serial_compass", "disconnected", False, False, last_error="gone", warning=warning
-    )
+    bad = Health("serial_compass", "disconnected", False, False, detail="gone", warning=warning)
     out = p.feed(DeviceStatus(1.0, "compass", bad))
     assert [pr.text for pr in out.prompts] == [bad.warning]
     assert p.feed(DeviceStatus(1.5, "compass", bad)).prompts == []  # once per episode
-    ok = DeviceHealth("serial_compass", "ok", True, True)
+    # the same record, as it is, from the driver through the pipeline to the health message
+    st = p.statuses(1.5)["compass"]
+    assert (st.status, st.alive, st.valid, st.warning) == ("disconnected", False, False, warning)
+    msg = health_message(1.5, p.statuses(1.5), vehicle_id="car1")
+    assert msg["ok"] is False and msg["inputs"]["compass"] == st.as_dict()
+    assert msg["inputs"]["compass"]["detail"] == "disconnected: gone"
+    ok = Health("serial_compass", "ok", True, True)
     p.feed(DeviceStatus(2.0, "compass", ok))
     assert p.health.device_status("compass") == "ok"
+    assert p.statuses(2.0)["compass"].status != "disconnected"

@@ -34,9 +34,8 @@ REPO = Path(__file__).resolve().parents[2]
 
 PUBLISHER = r"""
 import math, sys, time
-from guidance.core.messages import Ellipse, EstimateState
+from guidance.core.messages import Ellipse, EstimateState, Health
 from guidance.telemetry.config import TelemetryConfig
-from guidance.telemetry.messages import InputHealth
 from guidance.telemetry.publisher import Telemetry
 port, vid = int(sys.argv[1]), sys.argv[2]
 tel = Telemetry(TelemetryConfig(vehicle_id=vid, listen=(f"tcp/127.0.0.1:{port}",)))
@@ -51,7 +50,8 @@ while True:
     tel.publish_state(st, speed_mps=10.0, target=(300.0, 0.0, "goal", None), goal=(300.0, 0.0))
     if i % 25 == 0:
         tel.publish_prompt(t, f"In 200 metres, turn left ({i})", kind="turn")
-        tel.publish_health(t, {"odometry": InputHealth(True, True, 50.0, 0.02)})
+        odometry = Health("odometry", "ok", True, True, 0.02, rate_hz=50.0)
+        tel.publish_health(t, {"odometry": odometry})
     i += 1
     next_t += 0.02
     time.sleep(max(0.0, next_t - time.monotonic()))
@@ -141,7 +141,7 @@ def test_fleet_view_rows_gaps_late_join_and_vanishing_cars() -> None:
                 "compass": {"alive": False, "valid": False},
                 "odometry": {"alive": True, "valid": True},
             },
-            components={"telemetry": {"dropped": {"superseded": 3}}},
+            components={"telemetry": {"counters": {"dropped": 3, "dropped_superseded": 3}}},
         )
     )
     car = view.cars["car1"]
@@ -191,7 +191,7 @@ def awkward_fleet() -> FleetView:
             seq=1,
             t_s=1.0,
             inputs={"compass": {"alive": False}, "camera": {"alive": True, "valid": False}},
-            components={"telemetry": {"dropped": {"superseded": 3}}},
+            components={"telemetry": {"counters": {"dropped": 3, "dropped_superseded": 3}}},
         )
     )
     s2 = state(1, 1.0, 2.0, 1.0)

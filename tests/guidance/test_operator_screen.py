@@ -36,7 +36,7 @@ from guidance.app.screen import OperatorScreen, render_rows
 from guidance.core.estimator import EstimatorConfig
 from guidance.core.messages import (
     HeadingFix,
-    InputStatus,
+    Health,
     IntersectionScene,
     TurnCompleted,
     WheelOdometry,
@@ -132,14 +132,16 @@ def test_uncertainty_and_heading_words() -> None:
 
 def test_unhealthy_input_and_unknown_heading_are_flagged() -> None:
     view = OperatorView()
+    odometry = Health("odometry", "silent", False, False, 3.0, rate_hz=0.0, expected_rate_hz=20.0)
     view.set_live(
-        inputs={"odometry": InputStatus("odometry", False, False, 0.0, 3.0, 20.0)},
+        inputs={"odometry": odometry},
         target=None, heading_known=False, speed_mps=0.0, co_driver="", co_driver_ok=False,
     )  # fmt: skip
     rows = view.rows()
     assert ("INPUT", "odometry silent 0.0/20 Hz", "bad") in rows
+    compass = Health("compass", "starting", True, True, None, rate_hz=0.0, expected_rate_hz=5.0)
     view.set_live(
-        inputs={"compass": InputStatus("compass", True, True, 0.0, None, 5.0)},
+        inputs={"compass": compass},
         target=None, heading_known=True, speed_mps=0.0, co_driver="", co_driver_ok=False,
     )  # fmt: skip
     assert ("INPUT", "compass starting 0.0/5 Hz", "warn") in view.rows()  # not "ok" yet

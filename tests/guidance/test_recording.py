@@ -26,6 +26,7 @@ from guidance.core.messages import (
     CameraFrame,
     Ellipse,
     EstimateState,
+    Health,
     IntersectionScene,
     TurnCompleted,
 )
@@ -34,7 +35,7 @@ from guidance.recording.config import RecordingConfig
 from guidance.recording.reader import Reader
 from guidance.recording.topics import INPUT_TOPICS, OUTPUT_TOPICS, TOPICS
 from guidance.recording.writer import Recorder
-from guidance.telemetry.messages import InputHealth, LandmarkRejection
+from guidance.telemetry.messages import LandmarkRejection
 
 REPO = Path(__file__).resolve().parents[2]
 
@@ -70,7 +71,7 @@ def record_drive(rec: Recorder, n: int = 200) -> None:
         rec.record(topic, event.t_s, body)
     rec.record_prompt(10.6, "In 15 metres, turn left", kind="turn", priority=1)
     rec.record_landmark(10.7, rejections=[LandmarkRejection("outside_gate", 3)], gated=1)
-    rec.record_health(10.8, {"odometry": InputHealth(True, True, 100.0, 0.01)})
+    rec.record_health(10.8, {"odometry": Health("odometry", "ok", True, True, 0.01, rate_hz=100.0)})
 
 
 def test_round_trip_in_log_time_order_with_schemas_foxglove_reads(tmp_path: Path) -> None:
@@ -78,7 +79,8 @@ def test_round_trip_in_log_time_order_with_schemas_foxglove_reads(tmp_path: Path
     with Recorder(cfg) as rec:
         record_drive(rec)
     health = rec.health()
-    assert health.errors == 0 and health.dropped == 0 and not health.recording
+    assert health.counters["errors"] == 0 and health.counters["dropped"] == 0
+    assert (health.status, health.alive) == ("stopped", False)
     assert len(rec.files) == 1
 
     reader = Reader(tmp_path)
@@ -167,7 +169,7 @@ rec = Recorder(cfg)
 rec.start()
 for i in range(n):
     rec.record_can(i * 0.001, 0x100 + i % 7, bytes(8))
-while rec.health().written < n:
+while rec.health().counters["written"] < n:
     time.sleep(0.005)
 time.sleep(float(sys.argv[4]))
 print("ready", flush=True)
@@ -249,9 +251,10 @@ def test_rotation_by_size_with_a_total_cap(tmp_path: Path) -> None:
             rec.record_can(i * 0.01, i, bytes(8))
             if i % 200 == 0:
                 time.sleep(0.01)  # let the queue drain
-    h = rec.health()
-    assert h.errors == 0 and h.dropped == 0
-    assert len(rec.files) >= 8 and h.files_deleted == len(rec.files) - len(list(tmp_path.iterdir()))
+    h = rec.health().counters
+    assert h["errors"] == 0 and h["dropped"] == 0
+    assert len(rec.files) >= 8
+    assert h["files_deleted"] == len(rec.files) - len(list(tmp_path.iterdir()))
     kept = sorted(tmp_path.glob("*.mcap"))
     assert sum(p.stat().st_size for p in kept) <= cfg.max_total_size_bytes + cfg.max_file_size_bytes
     assert kept == rec.files[-len(kept) :]  # the newest survive
@@ -288,9 +291,9 @@ def test_full_queue_drops_and_counts_without_blocking(tmp_path: Path) -> None:
             took.append(time.perf_counter() - t0)
     finally:
         rec.close()
-    h = rec.health()
-    assert h.dropped == 200 - accepted and h.dropped > 150
-    assert h.written == accepted
+    h = rec.health().counters
+    assert h["dropped"] == 200 - accepted and h["dropped"] > 150
+    assert h["written"] == accepted
     took.sort()  # the writer takes 10 ms per message: a blocking call would wait that long
     assert took[int(0.99 * (len(took) - 1))] < 0.001 and took[-1] < 0.5
 
@@ -300,7 +303,7 @@ def fill_until_full(rec: Recorder, limit: int = 200_000) -> int:
         rec.record_can(i * 0.001, i, os.urandom(8))
         if i % 100 == 0:
             time.sleep(0.002)
-        if rec.health().disk_full:
+        if rec.health().status == "disk_full":
             return i
     raise AssertionError("the disk never filled")
 
@@ -333,8 +336,9 @@ def test_disk_full_on_a_tiny_tmpfs_stops_recording_and_flags_it(tiny_tmpfs: Path
     finally:
         rec.close()
     h = rec.health()
-    assert h.disk_full and not h.recording and h.errors >= 1 and h.dropped >= 1
-    assert "No space left on device" in h.last_error
+    assert h.status == "disk_full" and not h.alive and not h.valid
+    assert h.counters["errors"] >= 1 and h.counters["dropped"] >= 1
+    assert "No space left on device" in h.detail
     got = list(Reader(tiny_tmpfs))
     assert len(got) > 100  # what reached the disk before it filled is readable
 
@@ -348,7 +352,7 @@ from guidance.recording.writer import Recorder
 rec = Recorder(RecordingConfig(directory=sys.argv[1], chunk_size_bytes=4096, compression="none"))
 rec.start()
 i = 0
-while not rec.health().disk_full and i < 100_000:
+while rec.health().status != "disk_full" and i < 100_000:
     rec.record_can(i * 0.001, i, bytes(8)); i += 1
     if i % 100 == 0:
         time.sleep(0.002)
@@ -368,8 +372,8 @@ def test_file_size_limit_stops_recording_and_the_process_keeps_running(tmp_path:
     )
     assert r.returncode == 0, r.stderr
     h = json.loads(r.stdout)
-    assert h["disk_full"] and h["still_running"] and not h["accepted_after"]
-    assert h["errors"] >= 1 and "File too large" in h["last_error"]
+    assert h["status"] == "disk_full" and h["still_running"] and not h["accepted_after"]
+    assert h["counters"]["errors"] >= 1 and "File too large" in h["detail"]
     assert "recording stopped (disk full)" in r.stderr  # logged once
     assert r.stderr.count("recording stopped") == 1
     assert len(list(Reader(tmp_path))) > 100
@@ -380,7 +384,8 @@ def test_a_malformed_message_is_an_error_and_recording_goes_on(tmp_path: Path) -
         rec.record_decision(object())  # type: ignore[arg-type]
         rec.record("/custom", 1.0, {"bad": {1, 2}})  # a set is not JSON
         rec.record("/custom", 2.0, {"ok": True})
-    assert rec.health().errors == 2 and rec.health().written == 1
+    h = rec.health()
+    assert h.counters["errors"] == 2 and h.counters["written"] == 1
     (msg,) = list(Reader(tmp_path))
     assert msg.topic == "/custom" and msg.data == {"ok": True, "t_s": 2.0}
 
@@ -405,7 +410,8 @@ def test_unwritable_directory_is_a_flag_not_an_exception(tmp_path: Path) -> None
     rec.start()
     assert rec.record_nmea(0.0, "x") is False
     rec.close()
-    assert rec.health().errors == 1 and not rec.health().recording
+    h = rec.health()
+    assert h.counters["errors"] == 1 and not h.alive and h.status == "failed"
 
 
 def test_recording_config_table() -> None:

@@ -24,12 +24,12 @@ from pathlib import Path
 
 import pytest
 
-from guidance.core.messages import Ellipse, EstimateState, LandmarkFix
+from guidance.core.messages import Ellipse, EstimateState, Health, LandmarkFix
 from guidance.core.navigator import Decision, ExitOption
 from guidance.errors import UserError
 from guidance.telemetry.client import MonitorClient, TelemetryEvent
 from guidance.telemetry.config import TelemetryConfig, TlsConfig
-from guidance.telemetry.messages import InputHealth, LandmarkRejection
+from guidance.telemetry.messages import LandmarkRejection
 from guidance.telemetry.publisher import Telemetry
 from guidance.telemetry.session import open_session, parse_goal, session_config
 
@@ -214,8 +214,19 @@ def test_every_message_kind_is_published(car_port: int) -> None:
         tel.publish_health(
             3.0,
             {
-                "odometry": InputHealth(True, True, 50.0, 0.02, 50.0),
-                "compass": InputHealth(False, False, 0.0, 6.5, 10.0, "silent"),
+                "odometry": Health(
+                    "odometry", "ok", True, True, 0.02, rate_hz=50.0, expected_rate_hz=50.0
+                ),
+                "compass": Health(
+                    "compass",
+                    "silent",
+                    False,
+                    False,
+                    6.5,
+                    "silent for 6.5 s",
+                    rate_hz=0.0,
+                    expected_rate_hz=10.0,
+                ),
             },
         )
         got: dict[str, dict] = {}
@@ -236,14 +247,22 @@ def test_every_message_kind_is_published(car_port: int) -> None:
     h = got["health"]
     assert h["ok"] is False
     assert h["inputs"]["compass"] == {
+        "name": "compass",
+        "status": "silent",
         "alive": False,
         "valid": False,
-        "rate_hz": 0.0,
+        "ok": False,
         "age_s": 6.5,
+        "rate_hz": 0.0,
         "expected_rate_hz": 10.0,
-        "detail": "silent",
+        "detail": "silent for 6.5 s",
+        "warning": "",
+        "counters": {},
+        "info": {},
     }
-    assert h["components"]["telemetry"]["status"] in ("starting", "up")
+    tel_health = h["components"]["telemetry"]
+    assert tel_health["status"] in ("starting", "up") and tel_health["name"] == "telemetry"
+    assert tel_health["counters"]["published"] >= 0 and tel_health["info"] == {"mode": "peer"}
 
 
 def test_non_finite_numbers_become_null(car_port: int) -> None:
@@ -279,7 +298,8 @@ def test_a_malformed_message_is_counted_and_publishing_goes_on(car_port: int) ->
         tel.publish_state(make_state(t_s=5.0))
         e = wait_for(mon, lambda e: e.kind == "state")
         assert e.message is not None and e.message["t_s"] == 5.0
-        assert wait_until(lambda: tel.health().dropped == {"encode_error": 1})
+        assert wait_until(lambda: tel.health().counters.get("dropped_encode_error") == 1)
+        assert tel.health().counters["dropped"] == 1
 
 
 # -- rate, liveliness, late join ---------------------------------------------------------------
@@ -318,7 +338,7 @@ def test_late_joiner_gets_the_latest_state_at_once(car_port: int) -> None:
             tel.publish_state(make_state(t_s=float(i), x_m=float(i)))
             time.sleep(0.05)
         tel.publish_prompt(2.0, "Arrived")
-        assert wait_until(lambda: tel.health().published >= 4)
+        assert wait_until(lambda: tel.health().counters["published"] >= 4)
         with MonitorClient([tcp(car_port)]) as mon:
             wait_for(mon, lambda e: e.kind == "alive")
             mon.query_latest()
@@ -346,7 +366,7 @@ def test_remote_goal_is_refused_by_default(car_port: int) -> None:
             mon.send_goal("car4", 100.0, 200.0)
             time.sleep(0.2)
         assert goals == []
-        assert tel.health().goals_accepted == 0
+        assert tel.health().counters["goals_accepted"] == 0
 
 
 def test_remote_goal_accepted_when_enabled_and_handed_to_the_event_loop(car_port: int) -> None:
@@ -387,7 +407,8 @@ def test_remote_goal_accepted_when_enabled_and_handed_to_the_event_loop(car_port
     goal, on_loop_thread, tel = asyncio.run(main())
     assert goal == (350.0, -120.0)
     assert on_loop_thread
-    assert tel.health().goals_accepted == 1 and tel.health().goals_refused == 1
+    counters = tel.health().counters
+    assert counters["goals_accepted"] == 1 and counters["goals_refused"] == 1
 
 
 @pytest.mark.parametrize(
@@ -431,7 +452,7 @@ def test_unreachable_router_keeps_the_car_running_then_connects(car_port: int) -
     router = None
     try:
         assert wait_until(lambda: tel.health().status == "down", 5.0)
-        assert "Unable to connect" in tel.health().last_error
+        assert "Unable to connect" in tel.health().detail
         took = []
         for i in range(500):
             t0 = time.perf_counter()
@@ -439,11 +460,12 @@ def test_unreachable_router_keeps_the_car_running_then_connects(car_port: int) -
             tel.publish_prompt(float(i), "p")
             took.append(time.perf_counter() - t0)
         assert_never_blocks(took)
-        dropped = tel.health().dropped
-        assert dropped.get("superseded", 0) > 400 and dropped.get("fifo_full", 0) > 400
+        dropped = tel.health().counters
+        assert dropped.get("dropped_superseded", 0) > 400
+        assert dropped.get("dropped_fifo_full", 0) > 400
 
         router = open_session(session_config(mode="router", listen=[tcp(car_port)]))
-        assert wait_until(lambda: tel.health().status == "up" and tel.health().connected, 10.0)
+        assert wait_until(lambda: tel.health().status == "up" and tel.health().valid, 10.0)
         with MonitorClient([tcp(car_port)]) as mon:
             wait_for(mon, lambda e: e.kind == "alive" and e.vehicle_id == "car6")
             assert wait_until(tel.has_subscribers)
@@ -464,13 +486,14 @@ def test_port_in_use_reports_down_without_raising(car_port: int) -> None:
         with Telemetry(TelemetryConfig(listen=(tcp(car_port),), retry_period_s=0.2)) as tel:
             tel.publish_state(make_state())
             assert wait_until(lambda: tel.health().status == "down")
-            assert "Address already in use" in tel.health().last_error
+            assert "Address already in use" in tel.health().detail
 
 
 def test_disabled_telemetry_opens_nothing() -> None:
     with Telemetry(TelemetryConfig(enabled=False)) as tel:
         tel.publish_state(make_state())
-        assert tel.health().status == "disabled" and tel.health().published == 0
+        h = tel.health()
+        assert h.status == "disabled" and h.counters["published"] == 0
 
 
 # -- configuration ------------------------------------------------------------------------------

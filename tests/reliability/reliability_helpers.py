@@ -9,8 +9,10 @@ from pathlib import Path
 
 REPO = Path(__file__).resolve().parents[2]
 
-HEALTH_KEYS = frozenset({"status", "alive", "valid", "ok", "warning", "last_error"})
-"""Keys every component's ``health().as_dict()`` carries (docs/reliability.md)."""
+HEALTH_KEYS = frozenset(
+    {"name", "status", "alive", "valid", "ok", "age_s", "detail", "warning", "counters", "info"}
+)
+"""Keys every ``Health.as_dict()`` carries, a driver's or a component's (docs/reliability.md)."""
 
 
 def wait_until(cond: Callable[[], bool], timeout_s: float = 5.0, what: str = "") -> None:

@@ -214,7 +214,7 @@ def test_unknown_ids_and_error_frames_are_ignored(rig: Rig) -> None:
     h = rig.odo.health()
     assert h.ok, h
     s = rig.odo.stats()
-    assert s["error_frames"] == 10 and "error frame" in h.last_error
+    assert s["error_frames"] == 10 and "error frame" in h.detail
     assert s["ignored"] == 400 + 10 + 8 and s["rejected"] == 0
     check_distance(rig, 39 * PERIOD_S)
 
@@ -257,7 +257,7 @@ def test_missing_bus_is_disconnected_with_a_warning_and_keeps_trying() -> None:
         wait_until(lambda: odo.stats().get("bus_errors", 0) >= 3)
         h = odo.health()
         assert (h.status, h.alive, h.valid) == ("disconnected", False, False)
-        assert h.warning == WARNINGS["disconnected"] and "nocan7" in h.last_error
+        assert h.warning == WARNINGS["disconnected"] and "nocan7" in h.detail
     finally:
         odo.stop()
     assert odo.health().status == "stopped"

@@ -105,7 +105,7 @@ def test_garbage_checksums_unplug_and_replug(
                 k += 1
             h = compass.health()
             assert (h.status, h.alive, h.valid) == ("invalid", True, False)
-            assert h.warning == WARNINGS["invalid"] and "checksum" in h.last_error
+            assert h.warning == WARNINGS["invalid"] and "checksum" in h.detail
             assert set(h.as_dict()) >= HEALTH_KEYS
 
             sim.unplug()  # 6-8 s: the USB adapter is pulled

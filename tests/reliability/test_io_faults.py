@@ -23,7 +23,7 @@ from reliability_helpers import HEALTH_KEYS, REPO, closed_port, wait_until
 
 from drivers.camera import WARNINGS as CAMERA_WARNINGS
 from drivers.camera import CameraConfig, OpenCvCamera
-from guidance.core.messages import CameraFrame, Ellipse, EstimateState
+from guidance.core.messages import CameraFrame, Ellipse, EstimateState, Health
 from guidance.recording.config import RecordingConfig
 from guidance.recording.health import DISK_FULL_WARNING
 from guidance.recording.writer import Recorder
@@ -104,13 +104,16 @@ def test_zenoh_unreachable_degrades_to_a_flag_and_publishing_never_blocks() -> N
             t0 = time.perf_counter()
             tel.publish_state(state(float(i)))
             tel.publish_prompt(float(i), "Turn left")
-            tel.publish_health(float(i), {"can": {"alive": True, "valid": True}})
+            tel.publish_health(float(i), {"can": Health("can", "ok", True, True)})
             took.append(time.perf_counter() - t0)
         h = tel.health()
         assert (h.status, h.alive, h.valid, h.ok) == ("down", False, False, False)
-        assert h.warning == TELEMETRY_DOWN_WARNING and "connect" in h.last_error.lower()
+        assert h.warning == TELEMETRY_DOWN_WARNING and "connect" in h.detail.lower()
         assert set(h.as_dict()) >= HEALTH_KEYS
-        assert sum(h.dropped.values()) > 1500  # superseded or pushed out: counted
+        assert h.counters["dropped"] > 1500  # superseded or pushed out: counted
+        assert h.counters["dropped"] == sum(
+            n for k, n in h.counters.items() if k.startswith("dropped_")
+        )
     finally:
         t0 = time.monotonic()
         tel.close()
@@ -139,7 +142,7 @@ def test_missing_speech_engine_falls_back_to_text_and_says_so(
     speaker.close()
     h = speaker.health()
     assert (h.status, h.alive, h.valid) == ("text_fallback", True, False)
-    assert h.warning == SPEECH_FAILED_WARNING and "espeak-ng not found" in h.last_error
+    assert h.warning == SPEECH_FAILED_WARNING and "espeak-ng not found" in h.detail
     assert h.counters["shown"] == 3 and shown.getvalue().count("[prompt") == 3
     assert not (tmp_path / "p.wav").exists()
     assert sum("no speech engine" in r.getMessage() for r in caplog.records) == 1
@@ -173,7 +176,7 @@ def test_speech_engine_failing_mid_drive_keeps_the_wav_and_goes_to_text(
         speaker.close()
     h = speaker.health()
     assert (h.status, h.alive, h.valid) == ("text_fallback", True, False)
-    assert h.warning == SPEECH_FAILED_WARNING and "exit status 3" in h.last_error
+    assert h.warning == SPEECH_FAILED_WARNING and "exit status 3" in h.detail
     assert h.counters["spoken"] == 1 and h.counters["shown_as_text"] == 3
     text = shown.getvalue()
     assert all(p in text for p in ("Go straight", "Turn right", "You have arrived"))
@@ -193,7 +196,7 @@ from guidance.recording.writer import Recorder
 rec = Recorder(RecordingConfig(directory=sys.argv[1], chunk_size_bytes=4096, compression="none"))
 rec.start()
 i = 0
-while not rec.health().disk_full and i < 100_000:
+while rec.health().status != "disk_full" and i < 100_000:
     rec.record_nmea(i * 0.01, "$HCHDG,90.0,,,,*7C"); i += 1
     if i % 100 == 0:
         time.sleep(0.002)
@@ -221,31 +224,33 @@ def test_disk_full_stops_the_recording_flags_it_and_the_process_goes_on(tmp_path
     out = json.loads(r.stdout)
     h = out["health"]
     assert set(h) >= HEALTH_KEYS
-    assert (h["status"], h["alive"], h["valid"], h["disk_full"]) == (
-        "disk_full",
-        False,
-        False,
-        True,
-    )
-    assert h["warning"] == DISK_FULL_WARNING and "File too large" in h["last_error"]
-    assert h["dropped"] >= 2000 and out["went_on"] == 2000 and out["p99_s"] < 0.001
+    assert (h["status"], h["alive"], h["valid"]) == ("disk_full", False, False)
+    assert h["warning"] == DISK_FULL_WARNING and "File too large" in h["detail"]
+    assert h["counters"]["dropped"] >= 2000 and out["went_on"] == 2000 and out["p99_s"] < 0.001
     assert out["worst_s"] < 0.5
     assert r.stderr.count("recording stopped") == 1
 
 
-# -- every component answers health() with the same keys ----------------------------------------
+# -- every component answers health() with the one record -----------------------------------------
 def test_components_share_the_health_keys(tmp_path: Path) -> None:
     rec = Recorder(RecordingConfig(directory=str(tmp_path)))
     rec.start()
     rec.record_nmea(0.0, "x")
     rec.close()
-    records = [
-        rec.health().as_dict(),
-        Telemetry(TelemetryConfig(enabled=False)).health().as_dict(),
-        TextSpeaker(io.StringIO()).health().as_dict(),
-        OpenCvCamera(CameraConfig(source=97)).health().as_dict(),
+    healths = [
+        rec.health(),
+        Telemetry(TelemetryConfig(enabled=False)).health(),
+        TextSpeaker(io.StringIO()).health(),
+        OpenCvCamera(CameraConfig(source=97)).health(),
     ]
-    for rec_dict in records:
+    assert all(isinstance(h, Health) for h in healths)
+    assert [h.name for h in healths] == ["recorder", "telemetry", "voice", "camera"]
+    assert {"written", "dropped", "errors", "files_deleted", "bytes_written"} <= set(
+        healths[0].counters
+    ) and "current_file" in healths[0].info
+    assert {"published", "dropped", "peers", "routers"} <= set(healths[1].counters)
+    assert {"said", "shown"} <= set(healths[2].counters)
+    for rec_dict in (h.as_dict() for h in healths):
         assert set(rec_dict) >= HEALTH_KEYS, rec_dict
         assert rec_dict["ok"] == (rec_dict["alive"] and rec_dict["valid"])
         assert (rec_dict["warning"] == "") or not rec_dict["ok"]

@@ -117,8 +117,8 @@ def test_zenoh_errors_never_echo_a_password(
     for where in (caplog.text, json.dumps(health), published, str(err.value)):
         assert SECRET not in where and NUMERIC_SECRET not in where
     # ...and the message still says what is wrong and where.
-    assert "bad zenoh configuration" in health["last_error"]
-    assert ("2:" in health["last_error"]) if kind == "syntax" else ("string" in str(err.value))
+    assert "bad zenoh configuration" in health["detail"]
+    assert ("2:" in health["detail"]) if kind == "syntax" else ("string" in str(err.value))
 
 
 def test_redact_text_keeps_what_a_user_needs() -> None:
