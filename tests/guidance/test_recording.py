@@ -238,14 +238,16 @@ def test_sigkill_after_a_quiet_second_loses_nothing(tmp_path: Path) -> None:
 
 
 def test_rotation_by_size_with_a_total_cap(tmp_path: Path) -> None:
+    # A file starts with every topic's schema (about 25 KB): the size cap is above that, so
+    # each file holds messages (with 16 KiB every message opened a new file).
     cfg = RecordingConfig(
         directory=str(tmp_path),
         chunk_size_bytes=2048,
-        max_file_size_bytes=16 * 1024,
-        max_total_size_bytes=48 * 1024,
+        max_file_size_bytes=48 * 1024,
+        max_total_size_bytes=144 * 1024,
         compression="none",
     )
-    n = 3000
+    n = 4000
     with Recorder(cfg) as rec:
         for i in range(n):
             rec.record_can(i * 0.01, i, bytes(8))
