@@ -17,12 +17,8 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from drivers.can_odometry import (
-    MAX_CONSECUTIVE_SPIKES,
-    CanOdometry,
-    CanOdometryConfig,
-    WheelSpeedDecoder,
-)
+from drivers.can_decode import MAX_CONSECUTIVE_SPIKES, WheelSpeedDecoder
+from drivers.can_odometry import CanOdometry, CanOdometryConfig
 from drivers.profiles import PROFILES, get_profile, honda_checksum, load_dbc
 from guidance.app.ports import OdometrySource
 from guidance.core.messages import WheelOdometry
@@ -291,7 +287,7 @@ def test_front_wheel_fallback_when_rears_read_zero(
 ) -> None:
     dec = WheelSpeedDecoder(profile)
     period = get_profile(profile).message_period_s
-    with caplog.at_level(logging.WARNING, logger="drivers.can_odometry"):
+    with caplog.at_level(logging.WARNING, logger="drivers.can_decode"):
         out = drive(dec, profile, [(0.0, 0.0, 8.0, 8.2)] * 21 + [(8.0, 8.0, 8.0, 8.0)] * 5)
     assert dec.front_fallback == 20
     assert sum(o.d_left_m for o in out[:20]) == pytest.approx(quantised(profile, 8.0) * 20 * period)
@@ -411,6 +407,64 @@ def test_can_odometry_survives_a_missing_device(caplog: pytest.LogCaptureFixture
         assert time.monotonic() - t0 < 1.0
     assert odo.stats()["bus_errors"] >= 3
     assert sum("unavailable" in r.getMessage() for r in caplog.records) == 1
+
+
+def test_a_lost_bus_is_logged_once_back_once_and_each_flip_reaches_the_status_sink(
+    caplog: pytest.LogCaptureFixture, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """The bus is missing (two failed opens), then opens but fails at its first read (three
+    times: a socketcan interface that is down), then works. One warning for the loss, one for
+    the return at the first frame, never one per retry; "disconnected" reaches the status sink
+    at once, and once, and the return to ok after it (the reader base's ``_set_connected``)."""
+    channel = f"test_{uuid.uuid4().hex}"
+    cfg = CanOdometryConfig(
+        interface="virtual", channel=channel, profile="toyota", clock="frame",
+        reconnect_initial_s=0.01, reconnect_max_s=0.02, receive_timeout_s=0.02,
+    )  # fmt: skip
+    odo = CanOdometry(cfg)
+    real_open = odo._open_bus
+    opens = 0
+
+    def flaky_open() -> can.BusABC:
+        nonlocal opens
+        opens += 1
+        if opens <= 2:
+            raise OSError(19, "No such device")
+        bus = real_open()
+        if opens <= 5:
+
+            def down(timeout: float | None = None) -> can.Message | None:
+                raise OSError(100, "Network is down")
+
+            monkeypatch.setattr(bus, "recv", down)
+        return bus
+
+    monkeypatch.setattr(odo, "_open_bus", flaky_open)
+    statuses: list[str] = []
+    odo.set_status_sink(lambda h: statuses.append(h.status))
+    with caplog.at_level(logging.WARNING, logger="drivers.can_odometry"):
+        odo.start(lambda _: None)
+        try:
+            assert statuses == ["disconnected"]  # at start, not at the next health()
+            deadline = time.monotonic() + 5.0
+            while odo.stats().get("reconnects", 0) < 4 and time.monotonic() < deadline:
+                time.sleep(0.005)
+            with can.Bus(interface="virtual", channel=channel, preserve_timestamps=True) as tx:
+                for i in range(30):
+                    for m in frame("toyota", 10.0 + i * 0.0125, 3.0, 3.0):
+                        tx.send(m)
+                while statuses[-1] != "ok" and time.monotonic() < deadline:
+                    time.sleep(0.01)
+        finally:
+            odo.stop()
+    s = odo.stats()
+    assert (s["bus_errors"], s["reconnects"], s["disconnects"]) == (5, 4, 1)
+    messages = [r.getMessage() for r in caplog.records]
+    assert sum("unavailable" in m for m in messages) == 1, messages
+    assert sum("is back" in m for m in messages) == 1, messages
+    assert "CAN bus virtual/" in messages[0] and "No such device" in messages[0]
+    assert statuses.count("disconnected") == 1 and "ok" in statuses, statuses
+    assert statuses.index("disconnected") < statuses.index("ok")
 
 
 def test_sink_errors_are_counted_and_reading_continues() -> None:

@@ -27,7 +27,7 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 from reliability_helpers import REPO
 
-from drivers.can_odometry import MAX_SPEED_MPS, REJECT_REASONS, WheelSpeedDecoder
+from drivers.can_decode import MAX_SPEED_MPS, REJECT_REASONS, WheelSpeedDecoder
 from drivers.compass import LineAssembler, NmeaCompassParser
 from drivers.profiles import PROFILES, get_profile, honda_checksum, load_dbc
 from guidance.app.magnetic import compass_heading_to_theta
