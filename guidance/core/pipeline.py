@@ -18,18 +18,17 @@ import logging
 import math
 from collections import Counter
 from collections.abc import Mapping
-from dataclasses import asdict, dataclass, field
+from dataclasses import asdict
 
 import numpy as np
 
 from guidance.core import prompts
 from guidance.core.announce import due_announcements
 from guidance.core.compass_cal import CompassCalibration
-from guidance.core.estimator import EstimatorConfig, PoseEstimator
+from guidance.core.estimator import PoseEstimator
 from guidance.core.health import (
     CompassJudge,
     DeviceStatus,
-    HealthConfig,
     HealthMonitor,
 )
 from guidance.core.messages import (
@@ -40,7 +39,6 @@ from guidance.core.messages import (
     GoalUpdate,
     HeadingFix,
     Health,
-    HealthChange,
     IntersectionScene,
     LandmarkFix,
     Priority,
@@ -49,11 +47,11 @@ from guidance.core.messages import (
     WheelOdometry,
 )
 from guidance.core.model import compass_to_heading, wrap_angle
-from guidance.core.navigator import Decision, Landmark, Navigator, NavigatorConfig
-from guidance.core.pipeline_state import PipelineState, _InState
-from guidance.core.prompts import Units
+from guidance.core.navigator import Decision, Navigator
+from guidance.core.pipeline_config import INPUT_KINDS, Input, Outputs, PipelineConfig
+from guidance.core.pipeline_state import Pending, PipelineState, _InState
 from guidance.core.snapshot_check import check_snapshot
-from guidance.core.turns import TurnDetector, TurnDetectorConfig
+from guidance.core.turns import TurnDetector
 
 log = logging.getLogger(__name__)
 
@@ -62,50 +60,6 @@ UNCERTAIN_HYSTERESIS = 0.8
 """The uncertainty warning re-arms once the major axis is back below this fraction of it."""
 HEALTH_EVAL_PERIOD_S = 0.25
 """Health is re-evaluated at most this often on the message clock."""
-
-
-Input = (
-    WheelOdometry
-    | CompassHeading
-    | HeadingFix
-    | LandmarkFix
-    | IntersectionScene
-    | TurnCompleted
-    | GoalUpdate
-    | Approach
-    | DeviceStatus
-)
-
-INPUT_KINDS: dict[type, str] = {
-    WheelOdometry: "odometry",
-    CompassHeading: "compass",
-    HeadingFix: "compass",
-    LandmarkFix: "landmark",
-    IntersectionScene: "scene",
-    TurnCompleted: "scene",
-    GoalUpdate: "goal",
-    Approach: "scene",
-}
-"""Which health record an input type feeds."""
-
-
-@dataclass(slots=True)
-class Outputs:
-    """What one input (or tick) caused."""
-
-    accepted: bool = True
-    reason: str | None = None
-    decisions: list[Decision] = field(default_factory=list)
-    prompts: list[Prompt] = field(default_factory=list)
-    landmark_updates: list[LandmarkFix] = field(default_factory=list)
-    landmark_rejections: list[tuple[LandmarkFix, str]] = field(default_factory=list)
-    turns: list[TurnCompleted] = field(default_factory=list)
-    exits_taken: list[ExitTaken] = field(default_factory=list)
-    health: list[HealthChange] = field(default_factory=list)
-    state: EstimateState | None = None
-    """The estimate, when a state publication is due (``state_period_s`` of message time)."""
-    arrived: bool = False
-    lost: bool = False
 
 
 # ----------------------------------------------------------------------------- the pipeline
@@ -127,75 +81,6 @@ def gap_spread_m(speed_before_mps: float, gap_s: float) -> float:
     """2-sigma widening after an odometry gap: the last speed over the gap, plus what the car
     could have gained meanwhile (1/2 a t^2). 11 m/s for 5 s: 55 m + 37.5 m."""
     return speed_before_mps * gap_s + 0.5 * GAP_ACCEL_MPS2 * gap_s * gap_s
-
-
-@dataclass(frozen=True, slots=True)
-class PipelineConfig:
-    """Everything the core needs; built from the TOML config (``guidance.config``) or the sim."""
-
-    estimator: EstimatorConfig
-    navigator: NavigatorConfig
-    start_xy_m: tuple[float, float]
-    goal_xy_m: tuple[float, float]
-    start_heading_rad: float | None = None
-    """None: taken from the first compass reading."""
-    landmarks: tuple[Landmark, ...] = ()
-    declination_deg: float = 0.0
-    mounting_offset_deg: float = 0.0
-    compass_deviation_deg: tuple[float, ...] = ()
-    """The compass deviation card A..E (``guidance calibrate``); empty: not calibrated."""
-    compass_unusable_after_s: float = 20.0
-    """A compass whose readings are mostly rejected for this long is reported unusable."""
-    units: Units = Units.METRIC
-    state_period_s: float = 0.1
-    expected_rates_hz: Mapping[str, float | None] = field(
-        default_factory=lambda: {"odometry": 50.0, "compass": 5.0}
-    )
-    health: HealthConfig = field(default_factory=HealthConfig)
-    turn_detector: TurnDetectorConfig = field(default_factory=TurnDetectorConfig)
-    straight_after_m: float = 25.0
-    """A decision with no turn reported this far past the intersection was 'straight on'."""
-    uncertain_warn_m: float = 50.0
-    """Say "position uncertain" when the major axis grows past this."""
-    stop_at_arrival: bool = True
-    """Arrival ends guidance (the sim); otherwise the car waits for a new goal."""
-    resume_gap_inflation: bool = True
-    """After an odometry silence, inflate the position by the distance possibly driven."""
-
-    def describe(self) -> dict[str, object]:
-        """Plain data for the recording's session record and the checkpoint."""
-        return {
-            "estimator": asdict(self.estimator),
-            "navigator": {
-                k: (v.value if hasattr(v, "value") else v)
-                for k, v in asdict(self.navigator).items()
-            },
-            "start_xy_m": list(self.start_xy_m),
-            "goal_xy_m": list(self.goal_xy_m),
-            "start_heading_rad": self.start_heading_rad,
-            "landmarks": [asdict(lm) for lm in self.landmarks],
-            "declination_deg": self.declination_deg,
-            "mounting_offset_deg": self.mounting_offset_deg,
-            "compass_deviation_deg": list(self.compass_deviation_deg),
-            "compass_unusable_after_s": self.compass_unusable_after_s,
-            "units": self.units.value,
-            "state_period_s": self.state_period_s,
-            "expected_rates_hz": dict(self.expected_rates_hz),
-            "straight_after_m": self.straight_after_m,
-            "uncertain_warn_m": self.uncertain_warn_m,
-            "stop_at_arrival": self.stop_at_arrival,
-        }
-
-
-@dataclass(slots=True)
-class _Pending:
-    decision: Decision
-    heading_before_rad: float
-    resolve_at_odometer_m: float
-    announced: set[str] = field(default_factory=set)
-    """Announcements made for it: "now" (distance unknown), "early", "before"."""
-    reach_odometer_m: float = -math.inf
-    """A turn detected before the car gets near the intersection belongs to the one before."""
 
 
 class Pipeline:
@@ -239,7 +124,7 @@ class Pipeline:
         )
         self.counts: Counter[str] = Counter()
         self.last_decision: Decision | None = None
-        self._pending: _Pending | None = None
+        self._pending: Pending | None = None
         self._last_t: float | None = None
         self._last_odo_t: float | None = None
         self._next_state_t = -math.inf
@@ -432,7 +317,7 @@ class Pipeline:
         self.last_decision = decision
         out.decisions.append(decision)
         ahead = to_b or 0.0
-        self._pending = _Pending(
+        self._pending = Pending(
             decision,
             heading,
             self.st.odometer_m + ahead + self.config.straight_after_m,
@@ -611,19 +496,6 @@ class Pipeline:
     def snapshot(self) -> dict[str, object]:
         """The whole state as JSON-able data (estimator, navigator memory, bookkeeping)."""
         est = self.estimator
-        pending = None
-        if self._pending is not None:
-            pending = {
-                "decision": _decision_to_dict(self._pending.decision),
-                "heading_before_rad": self._pending.heading_before_rad,
-                "resolve_at_odometer_m": self._pending.resolve_at_odometer_m,
-                "announced": sorted(self._pending.announced),
-                "reach_odometer_m": (
-                    self._pending.reach_odometer_m
-                    if math.isfinite(self._pending.reach_odometer_m)
-                    else None
-                ),
-            }
         return {
             "x": est.x.tolist(),
             "P": est.P.tolist(),
@@ -631,7 +503,7 @@ class Pipeline:
             "navigator": self.navigator.memory(),
             "turns": self.turns.snapshot(),
             "decisions": self.navigator.decisions,
-            "pending": pending,
+            "pending": None if self._pending is None else self._pending.to_dict(),
             **asdict(self.st),
             "counts": dict(self.counts),
         }
@@ -671,29 +543,9 @@ class Pipeline:
         if isinstance(counts, dict):
             self.counts = Counter({str(k): int(v) for k, v in counts.items()})
         pending = snap.get("pending")
-        self._pending = None
-        if isinstance(pending, dict):
-            self._pending = _Pending(
-                _decision_from_dict(pending["decision"]),
-                float(pending["heading_before_rad"]),
-                float(pending["resolve_at_odometer_m"]),
-                set(pending.get("announced", [])),
-                float(pending.get("reach_odometer_m") or -math.inf),
-            )
+        self._pending = Pending.from_dict(pending) if isinstance(pending, dict) else None
+        if self._pending is not None:
             self.last_decision = self._pending.decision
         if isinstance(last, int | float):
             self._last_t = float(last)
             self._last_odo_t = float(last)
-
-
-def _decision_to_dict(d: Decision) -> dict[str, object]:
-    return asdict(d)
-
-
-def _decision_from_dict(data: object) -> Decision:
-    from guidance.core.navigator import ExitOption
-
-    assert isinstance(data, dict)
-    opts = tuple(ExitOption(**o) for o in data["options"])
-    fields_ = {k: v for k, v in data.items() if k != "options"}
-    return Decision(options=opts, **fields_)

@@ -1,0 +1,129 @@
+"""What the pipeline takes and gives: the ``Input`` union, which health record each input feeds,
+``Outputs`` (what one input caused) and ``PipelineConfig`` (built from the TOML config by
+``guidance.app.config``, or by the simulator)."""
+
+from __future__ import annotations
+
+from collections.abc import Mapping
+from dataclasses import asdict, dataclass, field
+
+from guidance.core.estimator import EstimatorConfig
+from guidance.core.health import DeviceStatus, HealthConfig
+from guidance.core.messages import (
+    Approach,
+    CompassHeading,
+    EstimateState,
+    ExitTaken,
+    GoalUpdate,
+    HeadingFix,
+    HealthChange,
+    IntersectionScene,
+    LandmarkFix,
+    Prompt,
+    TurnCompleted,
+    WheelOdometry,
+)
+from guidance.core.navigator import Decision, Landmark, NavigatorConfig
+from guidance.core.prompts import Units
+from guidance.core.turns import TurnDetectorConfig
+
+Input = (
+    WheelOdometry
+    | CompassHeading
+    | HeadingFix
+    | LandmarkFix
+    | IntersectionScene
+    | TurnCompleted
+    | GoalUpdate
+    | Approach
+    | DeviceStatus
+)
+
+INPUT_KINDS: dict[type, str] = {
+    WheelOdometry: "odometry",
+    CompassHeading: "compass",
+    HeadingFix: "compass",
+    LandmarkFix: "landmark",
+    IntersectionScene: "scene",
+    TurnCompleted: "scene",
+    GoalUpdate: "goal",
+    Approach: "scene",
+}
+"""Which health record an input type feeds."""
+
+
+@dataclass(slots=True)
+class Outputs:
+    """What one input (or tick) caused."""
+
+    accepted: bool = True
+    reason: str | None = None
+    decisions: list[Decision] = field(default_factory=list)
+    prompts: list[Prompt] = field(default_factory=list)
+    landmark_updates: list[LandmarkFix] = field(default_factory=list)
+    landmark_rejections: list[tuple[LandmarkFix, str]] = field(default_factory=list)
+    turns: list[TurnCompleted] = field(default_factory=list)
+    exits_taken: list[ExitTaken] = field(default_factory=list)
+    health: list[HealthChange] = field(default_factory=list)
+    state: EstimateState | None = None
+    """The estimate, when a state publication is due (``state_period_s`` of message time)."""
+    arrived: bool = False
+    lost: bool = False
+
+
+@dataclass(frozen=True, slots=True)
+class PipelineConfig:
+    """Everything the core needs; built from the TOML config (``guidance.config``) or the sim."""
+
+    estimator: EstimatorConfig
+    navigator: NavigatorConfig
+    start_xy_m: tuple[float, float]
+    goal_xy_m: tuple[float, float]
+    start_heading_rad: float | None = None
+    """None: taken from the first compass reading."""
+    landmarks: tuple[Landmark, ...] = ()
+    declination_deg: float = 0.0
+    mounting_offset_deg: float = 0.0
+    compass_deviation_deg: tuple[float, ...] = ()
+    """The compass deviation card A..E (``guidance calibrate``); empty: not calibrated."""
+    compass_unusable_after_s: float = 20.0
+    """A compass whose readings are mostly rejected for this long is reported unusable."""
+    units: Units = Units.METRIC
+    state_period_s: float = 0.1
+    expected_rates_hz: Mapping[str, float | None] = field(
+        default_factory=lambda: {"odometry": 50.0, "compass": 5.0}
+    )
+    health: HealthConfig = field(default_factory=HealthConfig)
+    turn_detector: TurnDetectorConfig = field(default_factory=TurnDetectorConfig)
+    straight_after_m: float = 25.0
+    """A decision with no turn reported this far past the intersection was 'straight on'."""
+    uncertain_warn_m: float = 50.0
+    """Say "position uncertain" when the major axis grows past this."""
+    stop_at_arrival: bool = True
+    """Arrival ends guidance (the sim); otherwise the car waits for a new goal."""
+    resume_gap_inflation: bool = True
+    """After an odometry silence, inflate the position by the distance possibly driven."""
+
+    def describe(self) -> dict[str, object]:
+        """Plain data for the recording's session record and the checkpoint."""
+        return {
+            "estimator": asdict(self.estimator),
+            "navigator": {
+                k: (v.value if hasattr(v, "value") else v)
+                for k, v in asdict(self.navigator).items()
+            },
+            "start_xy_m": list(self.start_xy_m),
+            "goal_xy_m": list(self.goal_xy_m),
+            "start_heading_rad": self.start_heading_rad,
+            "landmarks": [asdict(lm) for lm in self.landmarks],
+            "declination_deg": self.declination_deg,
+            "mounting_offset_deg": self.mounting_offset_deg,
+            "compass_deviation_deg": list(self.compass_deviation_deg),
+            "compass_unusable_after_s": self.compass_unusable_after_s,
+            "units": self.units.value,
+            "state_period_s": self.state_period_s,
+            "expected_rates_hz": dict(self.expected_rates_hz),
+            "straight_after_m": self.straight_after_m,
+            "uncertain_warn_m": self.uncertain_warn_m,
+            "stop_at_arrival": self.stop_at_arrival,
+        }
