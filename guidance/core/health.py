@@ -10,7 +10,7 @@ from collections import deque
 from collections.abc import Mapping
 from dataclasses import dataclass
 
-from guidance.core.messages import Health, HealthChange
+from guidance.core.messages import DeviceStatus, Health, HealthChange
 
 # ----------------------------------------------------------------------------- health
 
@@ -243,14 +243,3 @@ class CompassJudge:
 
     def _why(self) -> str:
         return f"{UNUSABLE}: {self.reason}" if self.unusable else ""
-
-
-@dataclass(frozen=True, slots=True)
-class DeviceStatus:
-    """A driver's status flip, delivered through the ordinary message path (rare): what only
-    the driver knows (its device disconnected) and the sentence it wants said."""
-
-    t_s: float
-    input: str
-    """The app's input it feeds: "odometry", "compass", "camera", "scene"."""
-    health: Health

@@ -227,6 +227,17 @@ class Health:
 
 
 @dataclass(frozen=True, slots=True)
+class DeviceStatus:
+    """A driver's status flip, delivered through the ordinary message path (rare): what only
+    the driver knows (its device disconnected) and the sentence it wants said."""
+
+    t_s: float
+    input: str
+    """The app's input it feeds: "odometry", "compass", "camera", "scene"."""
+    health: Health
+
+
+@dataclass(frozen=True, slots=True)
 class HealthChange:
     """An input whose alive/valid flags flipped (``Outputs.health``)."""
 

@@ -8,10 +8,11 @@ from collections.abc import Mapping
 from dataclasses import asdict, dataclass, field
 
 from guidance.core.estimator import EstimatorConfig
-from guidance.core.health import DeviceStatus, HealthConfig
+from guidance.core.health import HealthConfig
 from guidance.core.messages import (
     Approach,
     CompassHeading,
+    DeviceStatus,
     EstimateState,
     ExitTaken,
     GoalUpdate,

@@ -91,7 +91,8 @@ def nmea_inputs(path: Path, start_s: float, rate_hz: float) -> Iterator[CompassH
 
 def can_inputs(path: Path, profile: str) -> Iterator[WheelOdometry]:
     """Wheel odometry of a CAN log through the car's decoder (python-can readers)."""
-    from drivers.can_odometry import LogReadResult, WheelSpeedDecoder, read_can_log
+    from drivers.can_decode import WheelSpeedDecoder
+    from drivers.can_odometry import LogReadResult, read_can_log
 
     if not path.is_file():
         raise UserError(f"{path}: no such file")

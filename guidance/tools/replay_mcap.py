@@ -102,7 +102,7 @@ def mcap_inputs(
                 yield msg
 
     def raw_inputs() -> Iterator[Input]:
-        from drivers.can_odometry import WheelSpeedDecoder
+        from drivers.can_decode import WheelSpeedDecoder
         from drivers.compass import NmeaCompassParser
 
         decoder = WheelSpeedDecoder(profile)

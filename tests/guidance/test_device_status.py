@@ -11,8 +11,7 @@ from pathlib import Path
 from drivers.compass import SerialCompass, SerialCompassConfig
 from guidance.app.app import App
 from guidance.core.estimator import EstimatorConfig
-from guidance.core.health import DeviceStatus
-from guidance.core.messages import Health
+from guidance.core.messages import DeviceStatus, Health
 from guidance.core.navigator import NavigatorConfig
 from guidance.core.pipeline import Pipeline, PipelineConfig
 from guidance.telemetry.messages import health_message
