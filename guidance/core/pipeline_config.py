@@ -7,6 +7,7 @@ from __future__ import annotations
 from collections.abc import Mapping
 from dataclasses import asdict, dataclass, field
 
+from guidance.core.codec import InputMessage
 from guidance.core.estimator import EstimatorConfig
 from guidance.core.health import HealthConfig
 from guidance.core.messages import (
@@ -28,17 +29,9 @@ from guidance.core.navigator import Decision, Landmark, NavigatorConfig
 from guidance.core.prompts import Units
 from guidance.core.turns import TurnDetectorConfig
 
-Input = (
-    WheelOdometry
-    | CompassHeading
-    | HeadingFix
-    | LandmarkFix
-    | IntersectionScene
-    | TurnCompleted
-    | GoalUpdate
-    | Approach
-    | DeviceStatus
-)
+Input = InputMessage | DeviceStatus
+"""Everything the pipeline is fed: the recorded inputs (``codec.InputMessage``) and the drivers'
+status flips."""
 
 INPUT_KINDS: dict[type, str] = {
     WheelOdometry: "odometry",
