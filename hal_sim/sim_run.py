@@ -1,9 +1,13 @@
-"""``guidance run`` on the simulated devices, and a landmark database made as a user makes one.
+"""The simulated devices, ``guidance run`` on them, and a landmark database made as a user
+makes one.
 
-A car TOML whose ``[sim]`` table says ``devices = true`` (config/sim-landmarks.toml) makes
-``guidance run`` drive the simulated city instead of opening hardware: CAN frames on a
-python-can virtual bus, NMEA on a pseudo-terminal, the simulated camera, and the car's own
-wiring (``guidance.app.build``, ``App``, the real recogniser). Its landmark database is the
+``open_sim_devices`` puts the car's devices on simulated buses, read by the real drivers:
+wheel speeds as CAN frames on a python-can virtual bus into ``CanOdometry``, headings as NMEA
+on a pseudo-terminal into ``SerialCompass``, the roadway scene and the world's landmark
+sightings; ``open_sim_camera`` adds the simulated camera and the real recogniser. A car TOML
+whose ``[sim]`` table says ``devices = true`` (config/sim-landmarks.toml) makes ``guidance run``
+drive the simulated city on them instead of opening hardware, through the car's own wiring
+(``guidance.app.build``, ``App``, the real recogniser). Its landmark database is the
 ``[landmarks] database``, built on first use the way a user builds one: the city's landmark
 photos written to a folder with a ``landmarks.csv``, then ``landmark-db init`` and
 ``landmark-db import``.
@@ -11,19 +15,109 @@ photos written to a folder with a ``landmarks.csv``, then ``landmark-db init`` a
 
 from __future__ import annotations
 
+import contextlib
 import csv
 import io
+import itertools
+import os
 import sys
+from collections.abc import Callable, Iterator
 from contextlib import redirect_stdout
-from dataclasses import replace
+from dataclasses import dataclass, replace
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
+from drivers.can_odometry import CanOdometry, CanOdometryConfig
+from drivers.compass import SerialCompass, SerialCompassConfig
 from guidance.errors import UserError
-from hal_sim.sim_camera import SIM_ORIGIN, SimLandmark, facade, photo_seed
-from hal_sim.sim_scene import landmark_name
+from hal_sim.sim_camera import SIM_ORIGIN, SimCamera, SimLandmark, facade, photo_seed
+from hal_sim.sim_can import SimCanWheels
+from hal_sim.sim_compass import SimCompassPty
+from hal_sim.sim_scene import SimScene, SimSightings, SimWorld, landmark_name
+
+if TYPE_CHECKING:
+    from guidance.app.app import Source
+    from guidance.core.navigator import Landmark
+    from hal_sim.sim_cli import DriveOptions
+    from landmark_db.recognise import Recogniser
+
+_channel_ids = itertools.count()
+
+
+@dataclass
+class SimDevices:
+    """The car's devices on simulated buses (``open_sim_devices``)."""
+
+    wheels: SimCanWheels
+    odometry: CanOdometry
+    scene: SimScene
+    sightings: SimSightings
+    pty: SimCompassPty | None = None
+    compass: SerialCompass | None = None
+
+    def sources(self) -> dict[str, Source]:
+        """The app's sources, as ``guidance run`` names them."""
+        out: dict[str, Source] = {"odometry": self.odometry}
+        if self.compass is not None:
+            out["compass"] = self.compass
+        out["scene"] = self.scene
+        out["landmark"] = self.sightings
+        return out
+
+
+@contextlib.contextmanager
+def open_sim_devices(
+    world: SimWorld, profile: str, clock: Callable[[], float], *, compass: bool = True
+) -> Iterator[SimDevices]:
+    """The devices of ``world`` (the compass with ``compass``), closed on the way out (on an
+    error too); ``profile`` is the car's CAN profile, ``clock`` the compass's."""
+    channel = f"sim-can-{os.getpid()}-{next(_channel_ids)}"
+    with contextlib.ExitStack() as stack:
+        wheels = SimCanWheels(channel, profile=profile).open()
+        stack.callback(wheels.close)
+        odo = CanOdometry(CanOdometryConfig(interface="virtual", channel=channel,
+                          profile=profile, clock="frame", bitrate=None))  # fmt: skip
+        stack.callback(_stop, odo)
+        pty = reader = None
+        if compass:
+            pty = SimCompassPty()
+            stack.callback(pty.close)
+            reader = SerialCompass(SerialCompassConfig(port=pty.port, baudrate=4800), clock=clock)
+            stack.callback(_stop, reader)
+        yield SimDevices(wheels, odo, SimScene(world), SimSightings(world), pty, reader)
+
+
+def _stop(source: CanOdometry | SerialCompass) -> None:
+    with contextlib.suppress(Exception):
+        source.stop()
+
+
+def open_sim_camera(
+    world: SimWorld, opts: DriveOptions, out_dir: Path
+) -> tuple[SimCamera, Recogniser, tuple[Landmark, ...]]:
+    """The simulated camera, the real recogniser on a database of the city's landmarks, and
+    the navigator's landmark list with the database ids (``guidance sim --camera``)."""
+    from guidance.core.navigator import Landmark
+    from hal_sim.sim_camera import build_sim_landmark_db
+    from landmark_db.recognise import Recogniser, RecogniserConfig
+
+    if opts.landmark_db:  # made as a user makes one: photos + CSV + landmark-db import
+        from landmark_db.store import open_db
+
+        lms = import_sim_landmark_db(opts.landmark_db, world.lm_xy, opts.seed)
+        db = open_db(opts.landmark_db, readonly=True)
+    else:
+        out_dir.mkdir(parents=True, exist_ok=True)
+        path = out_dir / f"landmarks-seed{opts.seed}.sqlite"
+        for old in out_dir.glob(f"landmarks-seed{opts.seed}.sqlite*"):
+            old.unlink()
+        db, lms = build_sim_landmark_db(path, world.lm_xy, opts.seed)
+    recogniser = Recogniser(db, RecogniserConfig(sighting_range_m=world.sim.sighting_range_m))
+    camera = SimCamera(lms, opts.seed)
+    landmarks = tuple(Landmark(lm.id, lm.x_m, lm.y_m, landmark_name(i)) for i, lm in enumerate(lms))
+    return camera, recogniser, landmarks
 
 
 def import_sim_landmark_db(
@@ -93,7 +187,8 @@ def run_on_simulated_devices(config_path: str, *, as_json: bool = False) -> int:
     line (``outcome``, ``landmark_updates``, ``prompts``...)."""
     import json
 
-    from hal_sim.drive import DriveOptions, options_from_config, print_summary, run_drive
+    from hal_sim.drive import run_drive
+    from hal_sim.sim_cli import DriveOptions, options_from_config, print_summary
 
     opts, cfg = options_from_config(config_path, DriveOptions())
     if cfg.landmark_db is not None:

@@ -21,7 +21,7 @@ from guidance.version import version_text
 
 _COMMAND_MODULES = (
     "hal_sim.cli",  # study
-    "hal_sim.drive",  # sim
+    "hal_sim.sim_cli",  # sim
     "drivers.cli",  # odometry, compass
     "guidance.app.run",  # run
     "guidance.tools.monitor",  # monitor
