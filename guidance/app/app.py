@@ -288,9 +288,8 @@ class App:
                 "frames_dropped": self.counts["frames_dropped"],
             },
         }
-        speaker_health = getattr(self.speaker, "health", None)  # not every speaker has one
-        voice = speaker_health() if callable(speaker_health) else None
-        if isinstance(voice, Health):
+        if self.speaker is not None:
+            voice = self.speaker.health()
             comps[voice.name] = voice
         for sink in self.sinks:
             sink.send_health(t_s, inputs, components=comps)
@@ -322,11 +321,10 @@ class App:
                         for src in self.sources.values():
                             record_raw_inputs(src, self.recorder)
                     for name, src in self.sources.items():
-                        set_status_sink = getattr(src, "set_status_sink", None)
-                        if callable(set_status_sink):  # the driver's status flips, as inputs
-                            set_status_sink(partial(self._device_status, name))
-                        if callable(getattr(src, "set_backlog", None)):
-                            src.set_backlog(self.backlog)  # type: ignore[attr-defined]
+                        if isinstance(src, ports.ReportsStatus):  # status flips, as inputs
+                            src.set_status_sink(partial(self._device_status, name))
+                        if isinstance(src, ports.BackPressured):
+                            src.set_backlog(self.backlog)
                         src.start(self.source_sink)
                         self._started_sources.append(src)
                         log.info("started %s (%s)", name, getattr(src, "name", name))
@@ -439,24 +437,26 @@ class App:
 def record_raw_inputs(source: Source, recorder: InputRecorder) -> bool:
     """Record the raw units a driver reads (``/can`` frames, ``/nmea`` lines) as it reads them,
     through the readers' supported hook (``ThreadedSource.set_raw_sink``). True when set."""
-    set_raw_sink = getattr(source, "set_raw_sink", None)
-    if not callable(set_raw_sink):
+    if not isinstance(source, ports.RecordsRaw):
         return False
 
-    def raw_sink(kind: str, t_s: float, f: Mapping[str, Any]) -> None:
+    def raw_sink(kind: str, t_s: float, f: Mapping[str, object]) -> None:
         if kind == "can":
+            ident, data = f["id"], f["data"]
+            if not (isinstance(ident, int) and isinstance(data, bytes | bytearray)):
+                return  # not a frame the drivers make
             recorder.record_can(
                 t_s,
-                int(f["id"]),
-                bytes(f["data"]),
+                ident,
+                bytes(data),
                 is_extended_id=bool(f["is_extended_id"]),
                 is_error_frame=bool(f["is_error_frame"]),
                 channel=str(f["channel"]),
             )
         elif kind == "nmea":
-            recorder.record_nmea(t_s, f["line"], port=str(f["port"]))
+            recorder.record_nmea(t_s, str(f["line"]), port=str(f["port"]))
 
-    set_raw_sink(raw_sink)
+    source.set_raw_sink(raw_sink)
     return True
 
 

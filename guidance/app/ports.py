@@ -23,6 +23,7 @@ from guidance.core.messages import (
     CameraFrame,
     CompassHeading,
     EstimateState,
+    Health,
     IntersectionScene,
     LandmarkFix,
     TurnCompleted,
@@ -50,6 +51,32 @@ class Source(Protocol[T_co]):
     def start(self, sink: Callable[[T_co], None]) -> None: ...
     def stop(self) -> None: ...
     def stats(self) -> Mapping[str, int]: ...
+
+
+RawSink = Callable[[str, float, Mapping[str, object]], None]
+"""``(kind, t_s, fields)``: "can" with id, data, is_extended_id, is_error_frame, channel;
+"nmea" with line, port (``drivers._reader.ThreadedSource`` offers each unit it reads)."""
+
+
+@runtime_checkable
+class ReportsStatus(Protocol):
+    """A source that hands its status flips (``disconnected``...) to a sink (the drivers)."""
+
+    def set_status_sink(self, status_sink: Callable[[Health], None] | None) -> None: ...
+
+
+@runtime_checkable
+class BackPressured(Protocol):
+    """A source that holds (merges or drops) data while the consumer's backlog is too long."""
+
+    def set_backlog(self, backlog: Callable[[], int], limit: int = ...) -> None: ...
+
+
+@runtime_checkable
+class RecordsRaw(Protocol):
+    """A source that offers every raw unit it reads (CAN frame, NMEA line) before decoding."""
+
+    def set_raw_sink(self, raw_sink: RawSink | None) -> None: ...
 
 
 @runtime_checkable
@@ -124,6 +151,9 @@ class Speaker(Protocol):
     def say(self, text: str, priority: int = 0, t_s: float | None = None) -> None: ...
     def close(self, drain: bool = True) -> None:
         """Stop; with ``drain`` finish what is queued first (a WAV file), else cut it."""
+
+    def health(self) -> Health:
+        """The voice's record ("ok", "text_fallback" after an engine failure, "stopped")."""
 
 
 @runtime_checkable
