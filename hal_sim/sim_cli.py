@@ -16,7 +16,10 @@ from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
+from guidance.config_tables import rule
 from guidance.errors import UserError
+
+METHODS = ("straight_to_goal", "landmark_to_landmark", "hybrid")
 
 if TYPE_CHECKING:
     from guidance.app.build import OutputSettings
@@ -28,7 +31,7 @@ class DriveOptions:
     """Everything a simulated drive depends on (the CLI flags)."""
 
     seed: int = 7
-    method: str = "hybrid"
+    method: str = field(default="hybrid", metadata=rule(choices=METHODS))
     compass_deg: float | None = 20.0
     density_per_km2: float = 1.0
     detection_rate: float = 0.6
@@ -37,14 +40,14 @@ class DriveOptions:
     goal_max_m: float = 2500.0
     speed: float | None = None
     """Simulated seconds per wall second; None: as fast as possible."""
-    voice: str = "auto"
+    voice: str = field(default="auto", metadata=rule(choices=("auto", "none", "wav")))
     """auto (speak if possible), none, or wav (``voice_to``)."""
-    voice_to: str | None = None
-    out: str = "out/sim"
+    voice_to: str | None = field(default=None, metadata=rule(path=True))
+    out: str = field(default="out/sim", metadata=rule(path=True))
     png: bool = True
     record: bool = True
     telemetry: bool = True
-    checkpoint: str | None = None
+    checkpoint: str | None = field(default=None, metadata=rule(path=True))
     checkpoint_interval_s: float = 5.0
     can_silent: tuple[float, float] | None = None
     """Fault: no CAN frames from t to t + duration (simulated seconds)."""
@@ -53,7 +56,7 @@ class DriveOptions:
     camera_hz: float | None = None
     """Simulated camera (``hal_sim.sim_camera``) + the real landmark recogniser at this frame
     rate (simulated time), instead of the world's sighting events."""
-    landmark_db: str | None = None
+    landmark_db: str | None = field(default=None, metadata=rule(path=True))
     """With ``camera_hz``: the landmark database, built with ``landmark-db import`` from the
     city's photos on first use (hal_sim/sim_run.py); None: a throwaway one under ``out``."""
     devices: bool = False
@@ -64,9 +67,11 @@ class DriveOptions:
     least 35 m) decides when the driver hears it, as in the car. The studies use 30 m."""
     cap_factor: float = 3.0
     cap_extra_m: float = 2000.0
-    config: str | None = None
-    vehicle_id: str = "sim1"
-    profile: str = "gm_global_a"
+    config: str | None = field(default=None, metadata=rule(read=False))
+    vehicle_id: str = field(default="sim1", metadata=rule(read=False))
+    """From ``[vehicle] id``."""
+    profile: str = field(default="gm_global_a", metadata=rule(read=False))
+    """From ``[odometry] profile``."""
     print_prompts: bool = True
     duration_s: float | None = None
     """Field protocol (SPEC 5): on arrival a new random goal is set and driving goes on until
@@ -120,23 +125,28 @@ class DriveResult:
 
 
 def options_from_config(path: str, opts: DriveOptions) -> tuple[DriveOptions, Any]:
-    """Read a sim TOML config (config/sim.toml); its [sim] table gives option defaults."""
+    """Read a sim TOML config (config/sim.toml): its ``[sim]`` table, read by the one table
+    loader (``guidance.config_tables``), gives the drive's defaults; ``[navigation] method``
+    and ``[estimator] compass_two_sigma_deg`` fill what ``[sim]`` leaves out; the vehicle id and
+    the CAN profile come from ``[vehicle]`` and ``[odometry]``. Paths are taken from the config
+    file's folder, like every path in a config."""
     from guidance.app.config import load_config
+    from guidance.config_tables import from_table
 
     cfg = load_config(path, require_goal=False)
-    known = {f for f in DriveOptions.__dataclass_fields__}
-    changes: dict[str, Any] = {}
-    for key, value in cfg.sim.items():
-        if key not in known or key in ("config",):
-            raise UserError(f"[sim] unknown key {key!r}")
-        changes[key] = tuple(value) if isinstance(value, list) else value
-    changes["method"] = changes.get("method", cfg.pipeline.navigator.method.value)
-    sigma = cfg.pipeline.estimator.compass_two_sigma_deg
-    changes.setdefault("compass_deg", sigma)
-    changes["vehicle_id"] = cfg.vehicle_id
+    base = replace(
+        opts,
+        method=cfg.pipeline.navigator.method.value,
+        compass_deg=cfg.pipeline.estimator.compass_two_sigma_deg,
+    )
+    try:
+        opts = from_table(DriveOptions, cfg.sim, "sim", Path(path).resolve().parent, base=base)
+    except UserError as e:
+        raise UserError(f"{path}: {e}") from None
+    opts = replace(opts, vehicle_id=cfg.vehicle_id)
     if cfg.odometry is not None:
-        changes["profile"] = cfg.odometry.config.profile
-    return replace(opts, **changes), cfg
+        opts = replace(opts, profile=cfg.odometry.config.profile)
+    return opts, cfg
 
 
 def output_settings(
@@ -240,13 +250,13 @@ def register(sub: Any) -> None:
     p.add_argument(
         "--method",
         default=None,
-        choices=("straight_to_goal", "landmark_to_landmark", "hybrid"),
+        choices=METHODS,
         help="navigation method (default hybrid)",
     )
     p.add_argument(
         "--compass-deg",
         type=_compass_arg,
-        default="20",
+        default=argparse.SUPPRESS,
         metavar="D|none",
         help="compass 2-sigma error in degrees, or none (default 20)",
     )
@@ -310,7 +320,7 @@ def register(sub: Any) -> None:
         metavar="S",
         help="field protocol: a new random goal on each arrival until S simulated seconds",
     )
-    p.set_defaults(func=_cli_sim, compass_given=None)
+    p.set_defaults(func=_cli_sim)
 
 
 def _cli_sim(args: argparse.Namespace) -> int:
@@ -338,7 +348,7 @@ def _cli_sim(args: argparse.Namespace) -> int:
         value = getattr(args, flag)
         if value is not None:
             changes[key] = value
-    if "--compass-deg" in " ".join(sys.argv) or app_config is None:
+    if "compass_deg" in vars(args):  # given on the command line: it wins over the config
         changes["compass_deg"] = args.compass_deg
     if args.realtime:
         changes["speed"] = 1.0

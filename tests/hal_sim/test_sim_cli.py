@@ -1,0 +1,68 @@
+"""``guidance sim``'s options: a sim TOML's ``[sim]`` through the one table loader, and the
+command line over it (explicit precedence, no peeking at sys.argv)."""
+
+from __future__ import annotations
+
+import argparse
+from pathlib import Path
+
+import pytest
+
+from guidance.core import law
+from guidance.errors import UserError
+from hal_sim.sim_cli import METHODS, DriveOptions, options_from_config, register
+
+REPO = Path(__file__).resolve().parents[2]
+
+
+def _config(tmp_path: Path, sim: str, estimator: str = "") -> Path:
+    text = (REPO / "config" / "sim.toml").read_text()
+    text = text.replace("[sim]\nseed = 7\n", f"[sim]\n{sim}\n", 1)  # seed: the default
+    if estimator:
+        text = text.replace("[estimator]\n", f"[estimator]\n{estimator}\n", 1)
+    path = tmp_path / "conf" / "sim.toml"
+    path.parent.mkdir()
+    path.write_text(text)
+    return path
+
+
+def _parse(*argv: str) -> argparse.Namespace:
+    parser = argparse.ArgumentParser()
+    register(parser.add_subparsers())
+    return parser.parse_args(["sim", *argv])
+
+
+def test_the_method_names_are_the_laws() -> None:
+    assert METHODS == law.METHOD_NAMES
+
+
+def test_sim_table_values_paths_and_the_config_s_defaults(tmp_path: Path) -> None:
+    path = _config(tmp_path, 'out = "drives"\ncan_silent = [10, 5]')
+    opts, cfg = options_from_config(str(path), DriveOptions())
+    assert opts.seed == 7 and opts.can_silent == (10.0, 5.0)
+    assert opts.out == str(path.parent / "drives")  # from the config's folder, not the cwd
+    assert opts.method == cfg.pipeline.navigator.method.value
+    assert opts.compass_deg == cfg.pipeline.estimator.compass_two_sigma_deg
+    assert opts.vehicle_id == cfg.vehicle_id
+
+
+@pytest.mark.parametrize(
+    ("sim", "message"),
+    [
+        ("seed = true", r"sim\.toml: \[sim\] seed must be an integer, not True"),
+        ("sead = 3", r"sim\.toml: \[sim\] unknown key\(s\): sead \(known: "),
+        ('method = "fastest"', r"\[sim\] method must be one of straight_to_goal, "),
+        ('vehicle_id = "x"', r"unknown key\(s\): vehicle_id "),  # [vehicle] id says it
+    ],
+)
+def test_a_bad_sim_table_is_one_line_naming_the_file(
+    tmp_path: Path, sim: str, message: str
+) -> None:
+    with pytest.raises(UserError, match=message):
+        options_from_config(str(_config(tmp_path, sim)), DriveOptions())
+
+
+def test_the_compass_flag_is_given_or_not_no_argv_peeking() -> None:
+    assert "compass_deg" not in vars(_parse())
+    assert _parse("--compass-deg", "none").compass_deg is None
+    assert _parse("--compass-deg", "30").compass_deg == 30.0
