@@ -1,6 +1,6 @@
 """``guidance sim``: a simulated drive through the full in-car stack (issue 4, ``make demo``).
 
-The simulated world (``hal_sim.sim_scene.SimWorld``) drives the truth. Its wheel speeds go out
+The simulated world (``hal_sim.sim_world.SimWorld``) drives the truth. Its wheel speeds go out
 as CAN frames encoded with the reference car's DBC on a python-can virtual bus
 (``SimCanWheels``) and come back through the real ``CanOdometry`` driver; its compass headings
 go out as NMEA sentences into a pseudo-terminal (``SimCompassPty``) read by the real
@@ -46,7 +46,7 @@ from hal_sim.sim_checks import check_drive_options, stop_on_signals
 from hal_sim.sim_cli import DriveOptions, DriveResult, output_settings, wav_has_speech
 from hal_sim.sim_cli import options_from_config as options_from_config  # its former home
 from hal_sim.sim_run import SimDevices, open_sim_camera, open_sim_devices
-from hal_sim.sim_scene import SimWorld, StepEvents, WorldSpec
+from hal_sim.sim_world import SimWorld, StepEvents, WorldSpec
 
 if TYPE_CHECKING:
     from hal_sim.sim_camera import SimCamera

@@ -35,7 +35,8 @@ from guidance.errors import UserError
 from hal_sim.sim_camera import SIM_ORIGIN, SimCamera, SimLandmark, facade, photo_seed
 from hal_sim.sim_can import SimCanWheels
 from hal_sim.sim_compass import SimCompassPty
-from hal_sim.sim_scene import SimScene, SimSightings, SimWorld, landmark_name
+from hal_sim.sim_scene import SimScene, SimSightings
+from hal_sim.sim_world import SimWorld, landmark_name
 
 if TYPE_CHECKING:
     from guidance.app.app import Source
