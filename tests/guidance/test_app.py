@@ -1,5 +1,6 @@
 """The asyncio app around the pipeline: live health with real drivers, the co-driver keyboard,
-the recogniser hook, and the pipeline's own bookkeeping. Real components, no mocks."""
+the recogniser hook, checkpoints and systemd. Real components, no mocks (the pipeline alone:
+tests/guidance/core/test_pipeline.py)."""
 
 from __future__ import annotations
 
@@ -26,9 +27,6 @@ from guidance.core.estimator import EstimatorConfig
 from guidance.core.messages import (
     CameraFrame,
     EstimateState,
-    GoalUpdate,
-    HeadingFix,
-    IntersectionScene,
     LandmarkFix,
     WheelOdometry,
 )
@@ -155,62 +153,6 @@ def test_co_driver_keyboard_drives_decisions_and_corrects_the_memory() -> None:
     counts = mem["mem_counts"][decision.intersection_id]  # type: ignore[index]
     used = {round(math.degrees(h)): c for h, c in zip(headings, counts, strict=True) if c > 0}
     assert used == {-90: 1}  # the right turn (south) is remembered, not the advised left
-
-
-def test_no_turn_after_the_intersection_means_straight_on() -> None:
-    p = _pipeline(goal_xy_m=(0.0, 1000.0), straight_after_m=20.0)
-    out = p.feed(IntersectionScene(0.0, (math.pi / 2, 0.0), distance_m=30.0))
-    assert out.decisions[0].exit_index == 0 and out.prompts[0].text == "In 30 metres, turn left"
-    taken = []
-    for k in range(60):
-        taken += p.feed(WheelOdometry(0.1 * (k + 1), 1.0, 1.0)).exits_taken
-    assert len(taken) == 1
-    assert taken[0].exit_index == 1 and not taken[0].followed and taken[0].source == "no_turn"
-
-
-def test_detected_turn_confirms_the_advice() -> None:
-    p = _pipeline(goal_xy_m=(0.0, 1000.0))
-    p.feed(IntersectionScene(0.0, (math.pi / 2, 0.0), distance_m=10.0))
-    taken = []
-    t = 0.0
-    track = p.config.estimator.track_m
-    for k in range(60):  # 10 m straight, a 90-degree left over 10 m, then straight on
-        dth = math.pi / 2 / 10 if 10 <= k < 20 else 0.0
-        t += 0.1
-        out = p.feed(WheelOdometry(t, 1.0 - 0.5 * track * dth, 1.0 + 0.5 * track * dth))
-        taken += out.exits_taken
-    assert len(taken) == 1 and taken[0].followed and taken[0].source == "detected"
-
-
-def test_goal_update_and_arrival() -> None:
-    p = _pipeline(goal_xy_m=(50.0, 0.0), stop_at_arrival=False)
-    arrived = []
-    for k in range(40):
-        out = p.feed(WheelOdometry(0.1 * (k + 1), 1.0, 1.0))
-        arrived += [pr.text for pr in out.prompts if pr.kind == "arrived"]
-    assert arrived == ["You have arrived at your destination"]
-    out = p.feed(GoalUpdate(4.1, 500.0, 0.0))
-    assert out.prompts[0].text == "New destination set" and not p.arrived
-
-
-def test_snapshot_restore_gives_the_same_future() -> None:
-    """A restored pipeline computes exactly what the original does from then on."""
-    a = _pipeline(goal_xy_m=(0.0, 1000.0))
-    msgs: list[Any] = [WheelOdometry(0.1 * (k + 1), 1.0, 1.02) for k in range(30)]
-    msgs.insert(10, IntersectionScene(1.05, (math.pi / 2, 0.0, -math.pi / 2), 20.0))
-    for m in msgs:
-        a.feed(m)
-    b = _pipeline(goal_xy_m=(0.0, 1000.0))
-    b.restore(a.snapshot())
-    more: list[Any] = [WheelOdometry(3.0 + 0.1 * k, 1.0, 1.0) for k in range(40)]
-    more.insert(5, IntersectionScene(3.45, (math.pi / 2, 0.0), 15.0))
-    for m in more:
-        oa, ob = a.feed(m), b.feed(m)
-        assert [d.exit_index for d in oa.decisions] == [d.exit_index for d in ob.decisions]
-        assert [e.exit_index for e in oa.exits_taken] == [e.exit_index for e in ob.exits_taken]
-    assert np.array_equal(a.estimator.x, b.estimator.x)
-    assert np.array_equal(a.estimator.P, b.estimator.P)
-    assert a.navigator.memory() == b.navigator.memory()
 
 
 # ----------------------------------------------------------------------------- recogniser hook
@@ -405,43 +347,6 @@ directory = "rec"
     assert {"/session", "/can", "/nmea", "/odometry", "/compass", "/state", "/health"} <= topics
 
 
-def test_known_distance_gives_an_early_and_a_just_before_announcement() -> None:
-    """Organic Maps timing: early (30 s ahead, 200 m at least) and again within 8 s."""
-    from guidance.core.messages import Approach
-
-    p = _pipeline(goal_xy_m=(0.0, 2000.0))
-    t = 0.0
-    for _ in range(20):  # cruise at 11 m/s
-        t += 0.1
-        p.feed(WheelOdometry(t, 1.1, 1.1))
-    out = p.feed(IntersectionScene(t, (math.pi / 2, 0.0), distance_m=400.0))
-    said = [pr.text for pr in out.prompts]
-    assert said == ["In 400 metres, turn left"]
-    distance = 400.0
-    while distance > 20.0:
-        t += 0.1
-        distance -= 1.1
-        said += [pr.text for pr in p.feed(WheelOdometry(t, 1.1, 1.1)).prompts]
-        said += [pr.text for pr in p.feed(HeadingFix(t, 0.0)).prompts]  # compass: east
-        said += [pr.text for pr in p.feed(Approach(t, distance)).prompts]
-    assert said == ["In 400 metres, turn left", "In 90 metres, turn left"]  # 8 s x 11 m/s
-
-
-def test_straight_on_is_announced_once() -> None:
-    from guidance.core.messages import Approach
-
-    p = _pipeline(goal_xy_m=(2000.0, 0.0))
-    for k in range(20):
-        p.feed(WheelOdometry(0.1 * (k + 1), 1.1, 1.1))
-    said = [pr.text for pr in p.feed(IntersectionScene(2.0, (math.pi / 2, 0.0), 300.0)).prompts]
-    for k in range(250):
-        t = 2.1 + 0.1 * k
-        said += [pr.text for pr in p.feed(WheelOdometry(t, 1.1, 1.1)).prompts]
-        said += [pr.text for pr in p.feed(HeadingFix(t, 0.0)).prompts]
-        said += [pr.text for pr in p.feed(Approach(t, 300.0 - 1.1 * k)).prompts]
-    assert said == ["In 90 metres, continue straight"]  # once, at the final announcement (8 s)
-
-
 def test_a_sensor_silent_from_the_start_is_reported() -> None:
     """No CAN frame ever arrives (wrong channel, unplugged adapter): flagged after the timeout
     on the loop's own clock, spoken once, and the loop keeps running."""
@@ -463,23 +368,3 @@ def test_a_sensor_silent_from_the_start_is_reported() -> None:
     st = pipeline.statuses(time.monotonic())["odometry"]
     assert not st.alive and st.detail == "silent since start"
     assert len(app.loop_lag_s) > 50
-
-
-def test_restore_after_a_reboot_does_not_carry_the_old_clock() -> None:
-    """The laptop's monotonic clock restarts with it: a checkpoint's times must not make every
-    new input 'out of order'. Within one clock (the simulation) they are kept."""
-    a = _pipeline()
-    for k in range(30):
-        a.feed(WheelOdometry(1000.0 + 0.1 * k, 1.0, 1.0))
-    snap = a.snapshot()
-    rebooted = _pipeline()
-    rebooted.restore(snap, same_clock=False)
-    assert rebooted.feed(WheelOdometry(5.0, 1.0, 1.0)).accepted
-    assert rebooted.odometer_m == pytest.approx(31.0)
-    same = _pipeline()
-    same.restore(snap)
-    assert same.feed(WheelOdometry(5.0, 1.0, 1.0)).reason == "out_of_order"
-    before = rebooted.estimator.major_axis_m
-    rebooted.inflate_position(40.0)  # 4 s down at 10 m/s: 40 m more 2-sigma radius
-    major = rebooted.estimator.major_axis_m  # the full axis: twice the 2-sigma radius
-    assert major == pytest.approx(2 * math.hypot(before / 2, 40.0), rel=0.05)
