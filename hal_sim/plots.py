@@ -8,12 +8,11 @@ point). Matplotlib with the Agg backend (no display).
 
 from __future__ import annotations
 
-import math
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from guidance.core import model
+from guidance.tools.plotting import covariance_patch
 
 
 @dataclass
@@ -31,11 +30,7 @@ class DriveTrace:
 
 
 def _ellipse_patch(x: float, y: float, P: list[list[float]], label: str | None) -> Any:
-    from matplotlib.patches import Ellipse
-
-    a, b, ang = model.ellipse_axes(P[0][0], P[0][1], P[1][1], model.CHI2_2D_2SIGMA)
-    return Ellipse((x, y), 2 * a, 2 * b, angle=math.degrees(ang), fill=False, ec="tab:red",
-                   lw=0.8, alpha=0.7, label=label)  # fmt: skip
+    return covariance_patch(x, y, P, ec="tab:red", lw=0.8, alpha=0.7, label=label)
 
 
 def plot_drive(path: str, world: Any, trace: DriveTrace, outcome: str, opts: Any) -> None:

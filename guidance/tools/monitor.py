@@ -62,7 +62,8 @@ def write_snapshot(view: FleetView, path: Path) -> Path:
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
-    from matplotlib.patches import Ellipse as EllipsePatch
+
+    from guidance.tools.plotting import ellipse_patch
 
     fig, ax = plt.subplots(figsize=(8, 8), dpi=100)
     try:
@@ -77,18 +78,7 @@ def write_snapshot(view: FleetView, path: Path) -> Path:
                 ax.plot(xs, ys, "-", color=colour, lw=1.2, label=f"{label} track")
                 ax.plot(xs[-1:], ys[-1:], "o", color=colour, ms=6)
             for x, y, a, b, th in car.ellipses:
-                ax.add_patch(
-                    EllipsePatch(
-                        (x, y),
-                        2 * a,
-                        2 * b,
-                        angle=math.degrees(th),
-                        fill=False,
-                        color=colour,
-                        lw=0.6,
-                        alpha=0.5,
-                    )
-                )
+                ax.add_patch(ellipse_patch(x, y, a, b, th, color=colour, lw=0.6, alpha=0.5))
             s = car.state or {}
             ell = s.get("ellipse") or {}
             if all(isinstance(v, int | float) for v in (s.get("x_m"), s.get("y_m"))) and all(
@@ -96,17 +86,12 @@ def write_snapshot(view: FleetView, path: Path) -> Path:
                 for k in ("semi_major_m", "semi_minor_m", "orientation_rad")
             ):
                 ax.add_patch(
-                    EllipsePatch(
-                        (s["x_m"], s["y_m"]),
-                        2 * ell["semi_major_m"],
-                        2 * ell["semi_minor_m"],
-                        angle=math.degrees(ell["orientation_rad"]),
-                        fill=False,
-                        color=colour,
-                        lw=1.5,
+                    ellipse_patch(
+                        s["x_m"], s["y_m"], ell["semi_major_m"], ell["semi_minor_m"],
+                        ell["orientation_rad"], color=colour, lw=1.5,
                         label=None if drew_ellipse else "2-sigma ellipse",
                     )
-                )
+                )  # fmt: skip
                 drew_ellipse = True
             target, goal = s.get("target") or {}, s.get("goal") or {}
             if isinstance(target.get("x_m"), int | float):
