@@ -3,7 +3,7 @@
 Runs, side by side in one process on one core:
 
 1. a fixed input sequence (wheel increments, compass fixes, landmark fixes)
-   through ``hal_sim.engine.filter_sequence`` and through the app's
+   through ``hal_sim.ekf.filter_sequence`` and through the app's
    ``PoseEstimator`` (filterpy): the covariances must agree to 1e-9;
 2. the same seeded range-study trials through ``hal_sim.engine`` and
    ``hal_sim.reference`` (same world, same random numbers): mean lost distance
@@ -26,7 +26,7 @@ import numpy as np
 
 from guidance.core.estimator import PoseEstimator
 from guidance.core.navigator import Method, NavigatorConfig
-from hal_sim import engine, params, reference, studies
+from hal_sim import ekf, engine, params, reference, studies
 from hal_sim.params import SimParams
 
 
@@ -56,7 +56,7 @@ def covariance_check(sim: SimParams, compass_deg: float, n: int) -> float:
     p = params.pack(sim, est_cfg, NavigatorConfig(), 1.0)
     inputs = fixed_inputs(n, 5)
     est = PoseEstimator(est_cfg, 0.0, 0.0, 0.0)
-    xs, Ps = engine.filter_sequence(est.x.copy(), est.P.copy(), inputs, p)
+    xs, Ps = ekf.filter_sequence(est.x.copy(), est.P.copy(), inputs, p)
     xr, Pr = reference.filter_sequence(est, inputs, sim.landmark_sigma_m)
     return max(float(np.abs(Pr - Ps).max()), float(np.abs(xr - xs).max()))
 

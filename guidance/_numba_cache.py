@@ -22,6 +22,7 @@ COMPILED_SOURCES = (
     "guidance/core/law.py",
     "hal_sim/params.py",
     "hal_sim/world.py",
+    "hal_sim/ekf.py",
     "hal_sim/engine.py",
 )
 

@@ -1,10 +1,13 @@
 """The fast study engine: one Monte Carlo trial as one numba-compiled loop.
 
-It steps ``hal_sim.world`` and runs the estimator math of ``guidance.core.model``
-and the navigator math of ``guidance.core.law`` — the same functions the in-car
-application uses — without Python in the loop. ``hal_sim.reference`` runs the
-same trial through the filterpy estimator and the ``Navigator`` class; the
-benchmark ``benchmarks/study_speed.py`` checks that the two agree.
+It steps ``hal_sim.world`` and runs the estimator steps of ``hal_sim.ekf`` (the
+math of ``guidance.core.model``) and the decision step of ``guidance.core.law`` —
+the same functions the in-car application uses — without Python in the loop.
+``hal_sim.reference`` runs the same trial through the filterpy estimator and the
+``Navigator`` class; the benchmark ``benchmarks/study_speed.py`` checks that the
+two agree. The trial's bookkeeping (``begin_trial``, ``end_step``,
+``finish_trial``: the lost check, arrival and the next goal, the samples, the
+true error) is written once, here, and both loops call it.
 
 A trial (SPEC section 5):
 
@@ -17,19 +20,19 @@ A trial (SPEC section 5):
 from __future__ import annotations
 
 import math
+from typing import NamedTuple
 
 import numpy as np
 from numba import njit
 
 from guidance.core import law, model
-from hal_sim import world
+from hal_sim import ekf, world
 from hal_sim.params import (
     I_AREA_MAX,
     I_AREA_MIN,
     I_ARRIVE,
     I_BLOCK_MAX,
     I_BLOCK_MIN,
-    I_COMPASS_GATE,
     I_COMPASS_PERIOD,
     I_COMPASS_SIGMA,
     I_DEAD_FRAC,
@@ -46,14 +49,10 @@ from hal_sim.params import (
     I_LM_SIGMA,
     I_LOOKAHEAD,
     I_LOST,
-    I_MAG_ALPHA,
     I_MAG_BIAS_MAX,
     I_MAG_BIAS_MIN,
-    I_MAG_DETECT,
     I_MAG_FRAC,
     I_MAG_NOISE,
-    I_MAG_OFF,
-    I_MAG_ON,
     I_MAX_WHEEL_STEP,
     I_ONEWAY_FRAC,
     I_QUANTUM,
@@ -135,116 +134,6 @@ def sample_distance_m(i: int, n: int, p: np.ndarray) -> float:
 
 
 @njit(cache=True, error_model="numpy")
-def predict(
-    x: np.ndarray,
-    P: np.ndarray,
-    P_next: np.ndarray,
-    F: np.ndarray,
-    G: np.ndarray,
-    Q: np.ndarray,
-    dl: float,
-    dr: float,
-    track: float,
-    quantum: float,
-    slip: float,
-) -> None:
-    """EKF predict from wheel increments (SPEC 2), in place, with the functions filterpy gets."""
-    d, dth = model.odometry_increment(dl, dr, track)
-    model.motion_jacobians(x[2], dl, dr, track, F, G)
-    model.process_noise(
-        G, model.wheel_noise_var(dl, quantum, slip), model.wheel_noise_var(dr, quantum, slip), Q
-    )
-    x[0], x[1], x[2] = model.motion_predict(x[0], x[1], x[2], d, dth)
-    model.predict_covariance(P, F, Q, P_next)
-    P[:, :] = P_next
-
-
-COMPASS_ACCEPTED = 0
-COMPASS_GATED = 1
-COMPASS_INTERFERENCE = 2
-
-
-@njit(cache=True, error_model="numpy")
-def compass_update(
-    x: np.ndarray, P: np.ndarray, z: float, var: float, p: np.ndarray, det: np.ndarray
-) -> int:
-    """Compass update in place, after the interference detector and the gate.
-
-    ``det`` holds the detector's (level, active) between calls. While it is
-    active readings are rejected: the heading is left to odometry and its
-    variance grows honestly, instead of being dragged by a biased field.
-    Returns COMPASS_ACCEPTED, COMPASS_GATED or COMPASS_INTERFERENCE.
-    """
-    y, S = model.heading_innovation(x, P, z, var)
-    nis = y * y / S
-    if p[I_MAG_DETECT] > 0.0:
-        level, active = model.interference_update(
-            det[0], det[1] > 0.0, nis, p[I_MAG_ALPHA], p[I_MAG_ON], p[I_MAG_OFF]
-        )
-        det[0] = level
-        det[1] = 1.0 if active else 0.0
-        if active:
-            return COMPASS_INTERFERENCE
-    if nis > p[I_COMPASS_GATE]:
-        return COMPASS_GATED
-    model.heading_update(x, P, y, S, var)
-    return COMPASS_ACCEPTED
-
-
-@njit(cache=True, error_model="numpy")
-def landmark_update_xy(
-    x: np.ndarray,
-    P: np.ndarray,
-    zx: float,
-    zy: float,
-    var: float,
-    gate: float,
-    work: np.ndarray,
-) -> bool:
-    """Gated landmark position update in place; False when the gate rejects it."""
-    y0, y1, s00, s01, s11 = model.position_innovation(x, P, zx, zy, var)
-    if model.mahalanobis_sq_2d(y0, y1, s00, s01, s11) > gate:
-        return False
-    model.position_update(x, P, y0, y1, s00, s01, s11, var, work)
-    return True
-
-
-@njit(cache=True, error_model="numpy")
-def filter_sequence(
-    x0: np.ndarray, P0: np.ndarray, inputs: np.ndarray, p: np.ndarray
-) -> tuple[np.ndarray, np.ndarray]:
-    """Run the study engine's filter over fixed inputs; returns every step's (x, P).
-
-    ``inputs`` rows are (dl, dr, compass or NaN, landmark x or NaN, landmark y).
-    Used to check the engine against the app's filterpy estimator.
-    """
-    n = inputs.shape[0]
-    xs = np.empty((n, 3))
-    Ps = np.empty((n, 3, 3))
-    x = x0.copy()
-    P = P0.copy()
-    P_next = np.empty((3, 3))
-    F = np.empty((3, 3))
-    G = np.empty((3, 2))
-    Q = np.empty((3, 3))
-    work = np.empty((3, 3))
-    det = np.array([1.0, 0.0])
-    for i in range(n):
-        dl, dr = inputs[i, 0], inputs[i, 1]
-        if abs(dl) <= p[I_MAX_WHEEL_STEP] and abs(dr) <= p[I_MAX_WHEEL_STEP]:
-            predict(x, P, P_next, F, G, Q, dl, dr, p[I_TRACK], p[I_QUANTUM], p[I_SLIP])
-        if p[I_COMPASS_SIGMA] > 0.0 and not math.isnan(inputs[i, 2]):
-            compass_update(x, P, inputs[i, 2], p[I_COMPASS_SIGMA] ** 2, p, det)
-        if not math.isnan(inputs[i, 3]):
-            landmark_update_xy(
-                x, P, inputs[i, 3], inputs[i, 4], p[I_LM_SIGMA] ** 2, p[I_LM_GATE], work
-            )
-        xs[i] = x
-        Ps[i] = P
-    return xs, Ps
-
-
-@njit(cache=True, error_model="numpy")
 def setup_trial(
     trial_seed: int, study: int, density: float, p: np.ndarray
 ) -> tuple[
@@ -291,6 +180,173 @@ def setup_trial(
     return xs, ys, adj, net, lm_xy, node_start, node_lms, ts, ns, goal, area, mag
 
 
+class Trial(NamedTuple):
+    """One trial's bookkeeping between steps, shared by the compiled loop and ``hal_sim.reference``.
+
+    Scalars only, and replaced rather than changed (``end_step`` returns the
+    next one): in the compiled loop they stay in registers, where an array would
+    cost two reference counts a step.
+    """
+
+    goal: int  # the goal's node
+    goal_x: float
+    goal_y: float
+    cap_m: float  # the distance cap: timeout
+    max_steps: int  # beyond this many steps the trial is stuck
+    next_sample: int  # index of the next major-axis sample
+    next_sample_m: float  # where it is taken (inf when all are taken)
+    max_err2: float  # the largest squared true position error so far
+    true_lost_at_m: float  # where the truth got lost (TRUE_LOST_FRACTION); NaN: not yet
+    goals: int  # goals reached
+
+
+STEP_ON = -1
+"""``end_step``: the trial goes on."""
+STEP_NEW_GOAL = -2
+"""``end_step``: a goal was reached and the trial goes on (range study): draw the next goal
+with ``next_goal`` and forget the passed landmarks. Any other status is the outcome."""
+
+
+@njit(cache=True, error_model="numpy")
+def begin_trial(
+    study: int,
+    goal: int,
+    area: float,
+    n_landmarks: int,
+    xs: np.ndarray,
+    ys: np.ndarray,
+    ts: np.ndarray,
+    p: np.ndarray,
+    samples: np.ndarray,
+) -> tuple[np.ndarray, Trial]:
+    """(result vector, bookkeeping) of a trial from ``setup_trial``; ``samples`` set to NaN.
+
+    The result holds what is known at the start (distances to the goal, area,
+    landmarks); ``finish_trial`` fills in the rest.
+    """
+    res = np.full(N_RESULT, math.nan)
+    samples[:] = math.nan
+    nx = xs.shape[0]
+    gx, gy = xs[goal % nx], ys[goal // nx]
+    sx, sy = ts[world.T_X], ts[world.T_Y]
+    res[RES_EUCLID_M] = math.hypot(gx - sx, gy - sy)
+    res[RES_MANHATTAN_M] = abs(gx - sx) + abs(gy - sy)
+    res[RES_AREA_KM2] = area
+    res[RES_N_LANDMARKS] = n_landmarks
+    if study == STUDY_RANGE:
+        cap = p[I_RANGE_CAP]
+    else:
+        cap = p[I_LM_CAP_FACTOR] * res[RES_MANHATTAN_M] + p[I_LM_CAP_EXTRA]
+    max_steps = int(STUCK_FACTOR * cap / (p[I_TURN_V] * p[I_DT])) + 1000
+    n = samples.shape[0]
+    first_m = sample_distance_m(0, n, p) if n > 0 else math.inf
+    none = 0
+    return res, Trial(goal, gx, gy, cap, max_steps, none, first_m, 0.0, math.nan, none)
+
+
+@njit(cache=True, error_model="numpy", inline="always")
+def end_step(
+    trial: Trial,
+    samples: np.ndarray,
+    driven_m: float,
+    true_x: float,
+    true_y: float,
+    est_x: float,
+    est_y: float,
+    major: float,
+    step: int,
+    study: int,
+    p: np.ndarray,
+) -> tuple[int, Trial]:
+    """The trial's bookkeeping after the estimator's updates of one step: (status, next Trial).
+
+    In order: the true error (and where the truth got lost), the major-axis
+    samples due by the distance driven, then the end of the trial: lost (major
+    axis over the limit), arrived (the estimate within the arrival radius of the
+    goal: the landmark study ends, the range study goes on, ``STEP_NEW_GOAL``),
+    timeout (the distance cap), stuck (``Trial.max_steps``). The status is
+    ``STEP_ON``, ``STEP_NEW_GOAL`` or the outcome.
+
+    Inlined into the compiled loop; it takes scalars and the loop's own argument
+    arrays only, as other arrays would be reference-counted at every step.
+    """
+    max_err2 = trial.max_err2
+    true_lost_at_m = trial.true_lost_at_m
+    ex, ey = true_x - est_x, true_y - est_y
+    err2 = ex * ex + ey * ey
+    if err2 > max_err2:
+        max_err2 = err2
+        if err2 > (TRUE_LOST_FRACTION * p[I_LOST]) ** 2 and math.isnan(true_lost_at_m):
+            true_lost_at_m = driven_m
+    next_sample = trial.next_sample
+    next_sample_m = trial.next_sample_m
+    n = samples.shape[0]
+    while driven_m >= next_sample_m:
+        samples[next_sample] = major
+        next_sample += 1
+        next_sample_m = sample_distance_m(next_sample, n, p) if next_sample < n else math.inf
+    goals = trial.goals
+    status = STEP_ON
+    if major > p[I_LOST]:
+        status = OUTCOME_LOST
+    elif (est_x - trial.goal_x) ** 2 + (est_y - trial.goal_y) ** 2 <= p[I_ARRIVE] ** 2:
+        goals += 1
+        status = OUTCOME_ARRIVED if study == STUDY_LANDMARKS else STEP_NEW_GOAL
+    if status < 0:
+        if driven_m >= trial.cap_m:
+            status = OUTCOME_TIMEOUT
+        elif step >= trial.max_steps:
+            status = OUTCOME_STUCK
+    return status, Trial(
+        trial.goal, trial.goal_x, trial.goal_y, trial.cap_m, trial.max_steps,
+        next_sample, next_sample_m, max_err2, true_lost_at_m, goals,
+    )  # fmt: skip
+
+
+@njit(cache=True, error_model="numpy")
+def next_goal(trial: Trial, xs: np.ndarray, ys: np.ndarray, net: np.ndarray) -> Trial:
+    """The range study's next goal: a random node of the network other than the one reached."""
+    goal = world.random_node(net)
+    while goal == trial.goal:
+        goal = world.random_node(net)
+    nx = xs.shape[0]
+    return Trial(
+        goal, xs[goal % nx], ys[goal // nx], trial.cap_m, trial.max_steps, trial.next_sample,
+        trial.next_sample_m, trial.max_err2, trial.true_lost_at_m, trial.goals,
+    )  # fmt: skip
+
+
+@njit(cache=True, error_model="numpy")
+def finish_trial(
+    res: np.ndarray,
+    trial: Trial,
+    outcome: int,
+    ts: np.ndarray,
+    ns: np.ndarray,
+    x: np.ndarray,
+    step: int,
+    lm_updates: int,
+    compass_rejects: int,
+    landmark_rejects: int,
+    interference_rejects: int,
+) -> None:
+    """The rest of the result vector at the end of a trial; the counts are the estimator's."""
+    res[RES_OUTCOME] = outcome
+    res[RES_DRIVEN_M] = ts[world.T_DRIVEN]
+    if outcome == OUTCOME_LOST:
+        res[RES_LOST_AT_M] = ts[world.T_DRIVEN]
+    res[RES_TRUE_LOST_AT_M] = trial.true_lost_at_m
+    res[RES_TURNS] = ns[world.R_TURNS]
+    res[RES_FINAL_ERR_M] = math.hypot(ts[world.T_X] - x[0], ts[world.T_Y] - x[1])
+    res[RES_GOALS] = trial.goals
+    res[RES_STEPS] = step
+    res[RES_MAX_ERR_M] = math.sqrt(trial.max_err2)
+    res[RES_LANDMARK_UPDATES] = lm_updates
+    res[RES_COMPASS_REJECTS] = compass_rejects
+    res[RES_LANDMARK_REJECTS] = landmark_rejects
+    res[RES_INTERFERENCE_REJECTS] = interference_rejects
+
+
 @njit(cache=True, error_model="numpy")
 def run_trial(
     trial_seed: int,
@@ -304,22 +360,9 @@ def run_trial(
     xs, ys, adj, net, lm_xy, node_start, node_lms, ts, ns, goal, area, mag = setup_trial(
         trial_seed, study, density, p
     )
-    res = np.full(N_RESULT, math.nan)
-    nx = xs.shape[0]
-    gx, gy = xs[goal % nx], ys[goal // nx]
-    sx, sy = ts[world.T_X], ts[world.T_Y]
-    res[RES_EUCLID_M] = math.hypot(gx - sx, gy - sy)
-    res[RES_MANHATTAN_M] = abs(gx - sx) + abs(gy - sy)
-    res[RES_AREA_KM2] = area
-    res[RES_N_LANDMARKS] = lm_xy.shape[0]
-    if study == STUDY_RANGE:
-        cap = p[I_RANGE_CAP]
-    else:
-        cap = p[I_LM_CAP_FACTOR] * res[RES_MANHATTAN_M] + p[I_LM_CAP_EXTRA]
-
-    max_steps = int(STUCK_FACTOR * cap / (p[I_TURN_V] * p[I_DT])) + 1000
+    res, trial = begin_trial(study, goal, area, lm_xy.shape[0], xs, ys, ts, p, samples)
     # Estimator state.
-    x = np.array([sx, sy, ts[world.T_TH]])
+    x = np.array([ts[world.T_X], ts[world.T_Y], ts[world.T_TH]])
     sp = p[I_INIT_POS_SIGMA]
     sh = p[I_INIT_HEAD_SIGMA]
     P = np.diag(np.array([sp * sp, sp * sp, sh * sh]))
@@ -332,6 +375,7 @@ def run_trial(
     lm_var = p[I_LM_SIGMA] ** 2
     compass_var = p[I_COMPASS_SIGMA] ** 2
     has_compass = p[I_COMPASS_SIGMA] > 0.0
+    det = np.array([1.0, 0.0])
     # Navigator state.
     mem_xy = np.zeros((MAX_MEMORY, 2))
     mem_h = np.zeros((MAX_MEMORY, MAX_EXITS))
@@ -350,22 +394,12 @@ def run_trial(
          p[I_LOOKAHEAD]]
     )  # fmt: skip
     period = p[I_COMPASS_PERIOD]
-    n_samples = samples.shape[0]
-    for i in range(n_samples):
-        samples[i] = math.nan
-    next_sample = 0
-    next_sample_m = sample_distance_m(0, n_samples, p)
     lm_updates = 0
-    goals = 0
     c_rej = 0
     l_rej = 0
     i_rej = 0
-    max_err2 = 0.0
-    true_lost2 = (TRUE_LOST_FRACTION * p[I_LOST]) ** 2
-    arrive2 = p[I_ARRIVE] ** 2
-    det = np.array([1.0, 0.0])
-    outcome = OUTCOME_TIMEOUT
     step = 0
+    status = STEP_ON
     while True:
         world.world_step(
             ts,
@@ -384,63 +418,36 @@ def run_trial(
         step += 1
         dl, dr = events[0], events[1]
         if abs(dl) <= p[I_MAX_WHEEL_STEP] and abs(dr) <= p[I_MAX_WHEEL_STEP]:
-            predict(x, P, P_next, F, G, Q, dl, dr, track, p[I_QUANTUM], p[I_SLIP])
+            ekf.predict(x, P, P_next, F, G, Q, dl, dr, track, p[I_QUANTUM], p[I_SLIP])
         if has_compass and not math.isnan(events[2]):
             z = events[2]
             if p[I_MAG_FRAC] > 0.0:
                 z = world.disturb_compass(mag, adj, ns, z, p[I_MAG_NOISE])
-            code = compass_update(x, P, z, compass_var, p, det)
-            if code == COMPASS_GATED:
+            code = ekf.compass_update(x, P, z, compass_var, p, det)
+            if code == ekf.COMPASS_GATED:
                 c_rej += 1
-            elif code == COMPASS_INTERFERENCE:
+            elif code == ekf.COMPASS_INTERFERENCE:
                 i_rej += 1
         landmark_update = False
         if events[3] >= 0.0:
             k = int(events[3])
-            if landmark_update_xy(x, P, lm_xy[k, 0], lm_xy[k, 1], lm_var, p[I_LM_GATE], work):
+            if ekf.landmark_update_xy(x, P, lm_xy[k, 0], lm_xy[k, 1], lm_var, p[I_LM_GATE], work):
                 lm_updates += 1
                 passed[k] = True
                 landmark_update = True
             else:
                 l_rej += 1
-        ex, ey = ts[world.T_X] - x[0], ts[world.T_Y] - x[1]
-        err2 = ex * ex + ey * ey
-        if err2 > max_err2:
-            max_err2 = err2
-            if err2 > true_lost2 and math.isnan(res[RES_TRUE_LOST_AT_M]):
-                res[RES_TRUE_LOST_AT_M] = ts[world.T_DRIVEN]
         major = model.major_axis_m(P)
         mode = law.next_mode(method, mode, major, p[I_HYBRID_SWITCH], landmark_update)
-        driven = ts[world.T_DRIVEN]
-        while driven >= next_sample_m:
-            samples[next_sample] = major
-            next_sample += 1
-            next_sample_m = (
-                sample_distance_m(next_sample, n_samples, p)
-                if next_sample < n_samples
-                else math.inf
-            )
-        if major > p[I_LOST]:
-            res[RES_LOST_AT_M] = driven
-            outcome = OUTCOME_LOST
+        status, trial = end_step(
+            trial, samples, ts[world.T_DRIVEN], ts[world.T_X], ts[world.T_Y], x[0], x[1], major,
+            step, study, p,
+        )  # fmt: skip
+        if status >= 0:
             break
-        if (x[0] - gx) ** 2 + (x[1] - gy) ** 2 <= arrive2:
-            goals += 1
-            if study == STUDY_LANDMARKS:
-                outcome = OUTCOME_ARRIVED
-                break
-            new_goal = world.random_node(net)
-            while new_goal == goal:
-                new_goal = world.random_node(net)
-            goal = new_goal
-            gx, gy = xs[goal % nx], ys[goal // nx]
+        if status == STEP_NEW_GOAL:
+            trial = next_goal(trial, xs, ys, net)
             passed[:] = False
-        if driven >= cap:
-            outcome = OUTCOME_TIMEOUT
-            break
-        if step >= max_steps:
-            outcome = OUTCOME_STUCK
-            break
         if events[4] > 0.0:
             # The intersection ahead: project the estimate to it, then decide.
             b = ns[world.R_B]
@@ -453,20 +460,10 @@ def run_trial(
             hs = headings[:n_exits]
             best, _k, _revisit, n_mem, _target = law.decide_exit(
                 ix, iy, P[0, 0], P[0, 1], P[1, 1], hs, mem_xy, mem_h, mem_c, n_mem, passed,
-                lm_xy, gx, gy, mode, decide_params, penalties, costs,
+                lm_xy, trial.goal_x, trial.goal_y, mode, decide_params, penalties, costs,
             )  # fmt: skip
             ns[world.R_C] = adj[b, dirs[best]]
-    res[RES_OUTCOME] = outcome
-    res[RES_DRIVEN_M] = ts[world.T_DRIVEN]
-    res[RES_LANDMARK_UPDATES] = lm_updates
-    res[RES_TURNS] = ns[world.R_TURNS]
-    res[RES_FINAL_ERR_M] = math.hypot(ts[world.T_X] - x[0], ts[world.T_Y] - x[1])
-    res[RES_GOALS] = goals
-    res[RES_STEPS] = step
-    res[RES_COMPASS_REJECTS] = c_rej
-    res[RES_LANDMARK_REJECTS] = l_rej
-    res[RES_INTERFERENCE_REJECTS] = i_rej
-    res[RES_MAX_ERR_M] = math.sqrt(max_err2)
+    finish_trial(res, trial, status, ts, ns, x, step, lm_updates, c_rej, l_rej, i_rej)
     return res
 
 

@@ -1,8 +1,10 @@
 """The reference study engine: the same trial as ``hal_sim.engine``, run through the app's classes.
 
 The world (city, vehicle, sensors) is stepped by the same compiled functions
-with the same random numbers; estimation goes through ``PoseEstimator``
-(filterpy) and decisions through ``Navigator``. It is about a hundred times
+with the same random numbers, and the trial's bookkeeping (lost check, arrival
+and the next goal, samples, true error) is the engine's own; only estimation
+goes through ``PoseEstimator`` (filterpy) instead of ``hal_sim.ekf``, and
+decisions through ``Navigator``. It is about a hundred times
 slower than the compiled engine and exists to show that the fast engine
 computes what the application computes (``benchmarks/study_speed.py``, tests).
 """
@@ -22,12 +24,9 @@ from hal_sim.params import (
     I_COMPASS_PERIOD,
     I_DETECT,
     I_DT,
-    I_LM_CAP_EXTRA,
-    I_LM_CAP_FACTOR,
     I_LM_SIGMA,
     I_MAG_FRAC,
     I_MAG_NOISE,
-    I_RANGE_CAP,
 )
 
 
@@ -41,38 +40,27 @@ def run_trial(
     nav_cfg: NavigatorConfig,
     n_samples: int,
 ) -> tuple[np.ndarray, np.ndarray]:
-    """One trial; returns (result vector as ``engine.RESULT_NAMES``, major-axis samples)."""
+    """One trial; returns (result vector as ``engine.RESULT_NAMES``, major-axis samples).
+
+    The world and the bookkeeping are the engine's (``engine.begin_trial``,
+    ``end_step``, ``finish_trial``); only the estimator and the navigator differ.
+    """
     xs, ys, adj, net, lm_xy, node_start, node_lms, ts, ns, goal, area, mag = engine.setup_trial(
         trial_seed, study, density, p
     )
-    nx = xs.shape[0]
-    res = np.full(engine.N_RESULT, math.nan)
-    samples = np.full(n_samples, math.nan)
-    gx, gy = float(xs[goal % nx]), float(ys[goal // nx])
-    sx, sy = float(ts[world.T_X]), float(ts[world.T_Y])
-    res[engine.RES_EUCLID_M] = math.hypot(gx - sx, gy - sy)
-    res[engine.RES_MANHATTAN_M] = abs(gx - sx) + abs(gy - sy)
-    res[engine.RES_AREA_KM2] = area
-    res[engine.RES_N_LANDMARKS] = lm_xy.shape[0]
-    if study == engine.STUDY_RANGE:
-        cap = p[I_RANGE_CAP]
-    else:
-        cap = p[I_LM_CAP_FACTOR] * res[engine.RES_MANHATTAN_M] + p[I_LM_CAP_EXTRA]
-    nav_cfg = replace(nav_cfg, method=method)
-    est = PoseEstimator(est_cfg, sx, sy, float(ts[world.T_TH]))
+    samples = np.empty(n_samples)
+    res, trial = engine.begin_trial(study, goal, area, len(lm_xy), xs, ys, ts, p, samples)
+    est = PoseEstimator(est_cfg, float(ts[world.T_X]), float(ts[world.T_Y]), float(ts[world.T_TH]))
     landmarks = [Landmark(k, float(lm_xy[k, 0]), float(lm_xy[k, 1])) for k in range(len(lm_xy))]
-    nav = Navigator((gx, gy), nav_cfg, landmarks)
+    nav = Navigator((trial.goal_x, trial.goal_y), replace(nav_cfg, method=method), landmarks)
     lm_seen = -np.ones(len(lm_xy), dtype=np.int64)
     events = np.zeros(8)
     dirs = np.empty(4, dtype=np.int64)
     period = float(p[I_COMPASS_PERIOD])
     dt = float(p[I_DT])
     lm_sigma = float(p[I_LM_SIGMA])
-    next_sample = 0
-    lm_updates = goals = 0
-    outcome = engine.OUTCOME_TIMEOUT
+    lm_updates = 0
     step = 0
-    max_err = 0.0
     while True:
         world.world_step(
             ts, ns, xs, ys, lm_xy, node_start, node_lms, lm_seen, p,
@@ -92,43 +80,21 @@ def run_trial(
             fix = LandmarkFix(t, k, float(lm_xy[k, 0]), float(lm_xy[k, 1]), lm_sigma)
             landmark_ok = est.process(fix).accepted
         major = est.major_axis_m
-        xe = est.x
-        err = math.hypot(float(ts[world.T_X]) - xe[0], float(ts[world.T_Y]) - xe[1])
-        if err > max_err:
-            max_err = err
-            if err > engine.TRUE_LOST_FRACTION * est.config.lost_major_axis_m and math.isnan(
-                res[engine.RES_TRUE_LOST_AT_M]
-            ):
-                res[engine.RES_TRUE_LOST_AT_M] = float(ts[world.T_DRIVEN])
         if landmark_ok:
             lm_updates += 1
             nav.on_landmark_fix(int(events[3]), major)
         else:
             nav.update_mode(major)
-        driven = float(ts[world.T_DRIVEN])
-        while next_sample < n_samples and driven >= engine.sample_distance_m(
-            next_sample, n_samples, p
-        ):
-            samples[next_sample] = major
-            next_sample += 1
         x = est.x
-        if major > est.config.lost_major_axis_m:
-            res[engine.RES_LOST_AT_M] = driven
-            outcome = engine.OUTCOME_LOST
+        status, trial = engine.end_step(
+            trial, samples, ts[world.T_DRIVEN], ts[world.T_X], ts[world.T_Y], x[0], x[1], major,
+            step, study, p,
+        )  # fmt: skip
+        if status >= 0:
             break
-        if nav.arrived(x):
-            goals += 1
-            if study == engine.STUDY_LANDMARKS:
-                outcome = engine.OUTCOME_ARRIVED
-                break
-            new_goal = world.random_node(net)
-            while new_goal == goal:
-                new_goal = world.random_node(net)
-            goal = new_goal
-            gx, gy = float(xs[goal % nx]), float(ys[goal // nx])
-            nav.set_goal((gx, gy))
-        if driven >= cap:
-            break
+        if status == engine.STEP_NEW_GOAL:
+            trial = engine.next_goal(trial, xs, ys, net)
+            nav.set_goal((trial.goal_x, trial.goal_y))
         if events[4] > 0.0:
             b = int(ns[world.R_B])
             n_exits = world.exits_at(adj, b, ns[world.R_A], dirs)
@@ -137,25 +103,18 @@ def run_trial(
             headings = [float(world.DIR_HEADING[dirs[e]]) for e in range(n_exits)]
             decision = nav.decide(t, at, est.P, headings)
             ns[world.R_C] = adj[b, dirs[decision.exit_index]]
-    res[engine.RES_OUTCOME] = outcome
-    res[engine.RES_DRIVEN_M] = ts[world.T_DRIVEN]
-    res[engine.RES_LANDMARK_UPDATES] = lm_updates
-    res[engine.RES_TURNS] = ns[world.R_TURNS]
-    x = est.x
-    res[engine.RES_FINAL_ERR_M] = math.hypot(ts[world.T_X] - x[0], ts[world.T_Y] - x[1])
-    res[engine.RES_GOALS] = goals
-    res[engine.RES_STEPS] = step
-    res[engine.RES_COMPASS_REJECTS] = est.rejections["compass_gate"]
-    res[engine.RES_LANDMARK_REJECTS] = est.rejections["landmark_gate"]
-    res[engine.RES_INTERFERENCE_REJECTS] = est.rejections["magnetic_interference"]
-    res[engine.RES_MAX_ERR_M] = max_err
+    rej = est.rejections
+    engine.finish_trial(
+        res, trial, status, ts, ns, est.x, step, lm_updates,
+        rej["compass_gate"], rej["landmark_gate"], rej["magnetic_interference"],
+    )  # fmt: skip
     return res, samples
 
 
 def filter_sequence(
     est: PoseEstimator, inputs: np.ndarray, landmark_sigma_m: float
 ) -> tuple[np.ndarray, np.ndarray]:
-    """``engine.filter_sequence`` through the app's estimator: every step's (x, P).
+    """``ekf.filter_sequence`` through the app's estimator: every step's (x, P).
 
     ``inputs`` rows are (dl, dr, compass or NaN, landmark x or NaN, landmark y); step i
     is stamped 0.1 (i + 1) s.

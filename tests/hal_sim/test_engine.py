@@ -9,7 +9,7 @@ import pytest
 
 from guidance.core.estimator import PoseEstimator
 from guidance.core.navigator import Method, NavigatorConfig
-from hal_sim import engine, params, reference, studies
+from hal_sim import ekf, engine, params, reference, studies
 from hal_sim.params import SimParams
 
 
@@ -42,7 +42,7 @@ def test_filter_matches_filterpy_estimator_on_fixed_inputs(compass_deg: float | 
     p = params.pack(sim, cfg, NavigatorConfig(), 1.0)
     inputs = _inputs(2000, 1)
     est = PoseEstimator(cfg, 10.0, -5.0, 0.3)
-    xs, Ps = engine.filter_sequence(est.x.copy(), est.P.copy(), inputs, p)
+    xs, Ps = ekf.filter_sequence(est.x.copy(), est.P.copy(), inputs, p)
     xr, Pr = reference.filter_sequence(est, inputs, sim.landmark_sigma_m)
     np.testing.assert_allclose(Pr, Ps, rtol=0, atol=1e-9)
     np.testing.assert_allclose(xr, xs, rtol=0, atol=1e-9)
@@ -100,3 +100,35 @@ def test_landmark_trials_use_landmarks_and_arrive() -> None:
     # Manhattan distance driven is at least the straight-line distance.
     arrived = outcome == engine.OUTCOME_ARRIVED
     assert (res[arrived, engine.RES_DRIVEN_M] >= res[arrived, engine.RES_EUCLID_M] - 60.0).all()
+
+
+def test_trial_bookkeeping_ends_and_continues_trials_in_order() -> None:
+    """``engine.end_step``, the one definition both loops use: samples, then lost before
+    arrival, a new goal only while the trial goes on, timeout and stuck last."""
+    sim = SimParams()
+    p = params.pack(sim, params.estimator_config(sim, 20.0), NavigatorConfig(), 1.0)
+    xs, ys, _adj, net, lm, _ns0, _nl, ts, _ns, goal, area, _mag = engine.setup_trial(3, 0, 0.0, p)
+    samples = np.zeros(4)
+    res, trial = engine.begin_trial(engine.STUDY_RANGE, goal, area, len(lm), xs, ys, ts, p, samples)
+    assert np.isnan(samples).all()
+    assert res[engine.RES_EUCLID_M] <= res[engine.RES_MANHATTAN_M]
+    gx, gy = trial.goal_x, trial.goal_y
+    lost = float(p[params.I_LOST])
+
+    def step(trial: engine.Trial, driven: float, at: tuple[float, float], major: float,
+             n: int = 10, study: int = engine.STUDY_RANGE) -> tuple[int, engine.Trial]:  # fmt: skip
+        return engine.end_step(trial, samples, driven, gx, gy, at[0], at[1], major, n, study, p)
+
+    away = (gx + 1e4, gy)
+    status, t1 = step(trial, trial.next_sample_m, away, 5.0)
+    assert status == engine.STEP_ON
+    assert t1.next_sample == 1 and samples[0] == 5.0
+    assert t1.max_err2 == pytest.approx(1e8) and t1.true_lost_at_m == trial.next_sample_m
+    assert step(t1, 0.0, (gx, gy), lost + 1.0)[0] == engine.OUTCOME_LOST  # lost beats arrival
+    status, t2 = step(t1, 0.0, (gx, gy), 5.0)
+    assert status == engine.STEP_NEW_GOAL and t2.goals == 1
+    t3 = engine.next_goal(t2, xs, ys, net)
+    assert t3.goal != t2.goal and (t3.goal_x, t3.goal_y) != (gx, gy)
+    assert step(t1, 0.0, (gx, gy), 5.0, study=engine.STUDY_LANDMARKS)[0] == engine.OUTCOME_ARRIVED
+    assert step(t1, trial.cap_m, (gx, gy), 5.0)[0] == engine.OUTCOME_TIMEOUT  # no new goal
+    assert step(t1, 0.0, away, 5.0, n=trial.max_steps)[0] == engine.OUTCOME_STUCK
