@@ -140,16 +140,67 @@ def test_no_module_over_600_lines() -> None:
     assert not shrunk, f"now short enough, take them off KNOWN_LONG: {shrunk}"
 
 
-def test_the_numba_cache_key_covers_every_compiled_source() -> None:
-    """A moved module must not silently drop out of the cache key (stale compiled code)."""
-    from guidance._numba_cache import COMPILED_SOURCES
+def _project_files(module: str) -> list[Path]:
+    """The file of a project module (``a/b.py`` or ``a/b/__init__.py``); [] for any other."""
+    path = ROOT / module.replace(".", "/")
+    return [f for f in (path.with_suffix(".py"), path / "__init__.py") if f.is_file()]
 
-    missing = [rel for rel in COMPILED_SOURCES if not (ROOT / rel).is_file()]
-    assert not missing, f"listed but absent: {missing}"
+
+NUMBA_DECORATORS = {"njit", "jit", "vectorize", "guvectorize", "cfunc", "jitclass", "stencil"}
+
+
+def _compiles(path: Path) -> bool:
+    """True when a module defines numba-compiled code (a numba decorator, however imported)."""
+    for node in ast.walk(ast.parse(path.read_text(), filename=str(path))):
+        if isinstance(node, ast.FunctionDef | ast.ClassDef):
+            for d in node.decorator_list:
+                f = d.func if isinstance(d, ast.Call) else d
+                name = f.attr if isinstance(f, ast.Attribute) else getattr(f, "id", "")
+                if name in NUMBA_DECORATORS:
+                    return True
+    return False
+
+
+def test_the_numba_cache_key_covers_every_compiled_source() -> None:
+    """Every module with numba-compiled code, and every project module it imports (functions and
+    constants are compiled in), is in the cache key: a new or moved module cannot silently
+    drop out of it (stale compiled code). Each package declares its own sources, so
+    ``guidance`` names no other package for them."""
+    from guidance import _numba_cache
+
+    key = {str(p.relative_to(ROOT)) for p in _numba_cache.compiled_sources()}
+    missing = sorted(rel for rel in key if not (ROOT / rel).is_file())
+    assert not missing, f"declared in NUMBA_SOURCES but absent: {missing}"
+    packages = sorted(d.name for d in ROOT.iterdir() if (d / "__init__.py").is_file())
     compiled = {
         str(p.relative_to(ROOT))
-        for pkg in ("guidance", "hal_sim")
+        for pkg in packages
         for p in (ROOT / pkg).rglob("*.py")
-        if "@njit" in p.read_text()
+        if _compiles(p)
     }
-    assert compiled <= set(COMPILED_SOURCES), compiled - set(COMPILED_SOURCES)
+    assert compiled, "no compiled module found: the scan is broken"
+    assert compiled <= key, f"add to their package's NUMBA_SOURCES: {sorted(compiled - key)}"
+    imported: set[Path] = set()
+    for rel in compiled:
+        tree = ast.parse((ROOT / rel).read_text())
+        for node in ast.walk(tree):
+            if isinstance(node, ast.ImportFrom) and node.module and not node.level:
+                targets = [f"{node.module}.{a.name}" for a in node.names]
+                found = [f for t in targets for f in _project_files(t) if f.name != "__init__.py"]
+                imported |= set(found or _project_files(node.module))
+            elif isinstance(node, ast.Import):
+                imported |= {f for a in node.names for f in _project_files(a.name)}
+    deps = {str(f.relative_to(ROOT)) for f in imported if f.name != "__init__.py"}
+    assert deps <= key, f"compiled code imports these, add them: {sorted(deps - key)}"
+    assert "hal_sim" not in (ROOT / "guidance/_numba_cache.py").read_text()
+
+
+def test_the_numba_cache_key_is_the_same_from_a_checkout_that_is_not_installed(
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    """Without the distribution's package list, the package folders next to guidance."""
+    from guidance import _numba_cache
+
+    installed = _numba_cache.compiled_sources()
+    monkeypatch.setattr(_numba_cache, "_DISTRIBUTION", "no-such-distribution")
+    assert _numba_cache.compiled_sources() == installed

@@ -1,1 +1,4 @@
 """The pure core: messages, math, estimator, navigator, prompts, pipeline (no I/O)."""
+
+NUMBA_SOURCES = ("model.py", "law.py")
+"""The core's compiled sources, for numba's cache key (``guidance/_numba_cache.py``)."""
