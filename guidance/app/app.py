@@ -256,11 +256,10 @@ class App:
                 ]
                 sink.send_landmark(t, matches=out.landmark_updates, rejections=rejections)
             if out.state is not None:
-                tx, ty, kind, tid = p.target()
                 sink.send_state(
                     out.state,
                     speed_mps=p.speed_mps,
-                    target=(tx, ty, kind, tid),
+                    target=p.target(),
                     goal=p.navigator.goal,
                     method=self.method,
                     mode=p.navigator.mode,
@@ -454,7 +453,9 @@ def record_raw_inputs(source: Source, recorder: InputRecorder) -> bool:
                 channel=str(f["channel"]),
             )
         elif kind == "nmea":
-            recorder.record_nmea(t_s, str(f["line"]), port=str(f["port"]))
+            line = f["line"]  # bytes as read (the recorder decodes them)
+            if isinstance(line, bytes | str):
+                recorder.record_nmea(t_s, line, port=str(f["port"]))
 
     source.set_raw_sink(raw_sink)
     return True
