@@ -33,7 +33,7 @@ from guidance.telemetry.client import MonitorClient
 CAR = r"""
 import json, sys, time
 import numpy as np
-from guidance.core.messages import Ellipse, EstimateState
+from guidance.core.messages import Ellipse, EstimateState, Target
 from guidance.telemetry.config import TelemetryConfig
 from guidance.telemetry.publisher import Telemetry
 port, rate, duration = int(sys.argv[1]), float(sys.argv[2]), float(sys.argv[3])
@@ -51,7 +51,7 @@ for i in range(n):
     time.sleep(max(0.0, next_t - time.monotonic()))
     t0 = time.monotonic()
     tel.publish_state(EstimateState(t0, 1.0 * i, 2.0, 0.5, cov, ell, False, True),
-                      speed_mps=8.0, target=(300.0, 100.0, "goal", None), method="hybrid")
+                      speed_mps=8.0, target=Target(300.0, 100.0, "goal", None), method="hybrid")
     cost[i] = time.monotonic() - t0
 time.sleep(0.5)
 h = tel.health()

@@ -23,6 +23,7 @@ from guidance.core.messages import (
     ExitTaken,
     Health,
     IntersectionScene,
+    Target,
 )
 from guidance.core.model import heading_to_compass
 from guidance.core.prompts import manoeuvre
@@ -122,7 +123,7 @@ class OperatorView:
         self.state: EstimateState | None = None
         self.heading_known = True
         self.speed_mps = 0.0
-        self.target: tuple[float, float, str, int | None] | None = None
+        self.target: Target | None = None
         self.inputs: dict[str, Health] = {}
         self.co_driver = ""
         self.co_driver_style = ""
@@ -184,7 +185,7 @@ class OperatorView:
         self,
         *,
         inputs: Mapping[str, Health],
-        target: tuple[float, float, str, int | None] | None,
+        target: Target | None,
         heading_known: bool,
         speed_mps: float,
         co_driver: str,
@@ -210,7 +211,7 @@ class OperatorView:
     def _target_text(self) -> str:
         if self.target is None:
             return "-"
-        tx, ty, kind, tid = self.target
+        tx, ty, kind, tid = self.target.x_m, self.target.y_m, self.target.kind, self.target.id
         name = "goal" if kind == "goal" else f"landmark {self.landmark_names.get(tid or -1, tid)}"
         if self.state is None:
             return name

@@ -175,6 +175,17 @@ def _finite(value: float | None) -> float | None:
 
 
 @dataclass(frozen=True, slots=True)
+class Target:
+    """Where the navigator is heading (SPEC 3): the goal, or a landmark by its id."""
+
+    x_m: float
+    y_m: float
+    kind: str = "goal"
+    """"goal" or "landmark"."""
+    id: int | None = None
+
+
+@dataclass(frozen=True, slots=True)
 class Health:
     """The one health record (SPEC section 6; openpilot's alive/valid), for an input and for a
     component alike: a driver's ``health()``, the pipeline's view of an input

@@ -16,6 +16,7 @@ from enum import StrEnum
 import numpy as np
 
 from guidance.core import law, model
+from guidance.core.messages import Target
 
 
 class Method(StrEnum):
@@ -149,8 +150,8 @@ class Navigator:
                 self._passed[k] = True
         self.update_mode(major_axis_m, landmark_update=True)
 
-    def target(self, x: np.ndarray) -> tuple[float, float, str, int | None]:
-        """The current target: (x, y, kind, landmark id or None)."""
+    def target(self, x: np.ndarray) -> Target:
+        """The current target: the goal, or the landmark the car aims at."""
         if self._mode == law.MODE_LANDMARK and len(self.landmarks):
             self._mark_passed(x)
             k = law.landmark_target(
@@ -158,8 +159,8 @@ class Navigator:
             )
             if k >= 0:
                 lm = self.landmarks[k]
-                return lm.x_m, lm.y_m, "landmark", lm.id
-        return self.goal[0], self.goal[1], "goal", None
+                return Target(lm.x_m, lm.y_m, "landmark", lm.id)
+        return Target(self.goal[0], self.goal[1], "goal", None)
 
     def _mark_passed(self, x: np.ndarray) -> None:
         r = self.config.landmark_pass_radius_m

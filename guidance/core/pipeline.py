@@ -43,6 +43,7 @@ from guidance.core.messages import (
     LandmarkFix,
     Priority,
     Prompt,
+    Target,
     TurnCompleted,
     WheelOdometry,
 )
@@ -485,7 +486,7 @@ class Pipeline:
     def state(self) -> EstimateState:
         return self.estimator.state()
 
-    def target(self) -> tuple[float, float, str, int | None]:
+    def target(self) -> Target:
         return self.navigator.target(self.estimator.x)
 
     def statuses(self, t_s: float) -> dict[str, Health]:

@@ -10,7 +10,7 @@ from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 from typing import TYPE_CHECKING, Any
 
-from guidance.core.messages import EstimateState, Health, LandmarkFix
+from guidance.core.messages import EstimateState, Health, LandmarkFix, Target
 from guidance.core.model import heading_to_compass
 from guidance.errors import UserError
 from guidance.telemetry.keys import schema_tag
@@ -40,29 +40,12 @@ def _envelope(
     }
 
 
-@dataclass(frozen=True, slots=True)
-class Target:
-    """Where the navigator is heading: the goal or a landmark."""
-
-    x_m: float
-    y_m: float
-    kind: str = "goal"
-    id: int | None = None
-
-
-TargetLike = Target | tuple[float, float, str, int | None] | tuple[float, float]
-
-
-def _target_dict(target: TargetLike | None) -> dict[str, Any] | None:
+def _target_dict(target: Target | None) -> dict[str, Any] | None:
     if target is None:
         return None
-    if isinstance(target, Target):
-        x, y, kind, tid = target.x_m, target.y_m, target.kind, target.id
-    else:
-        x, y = target[0], target[1]
-        kind = str(target[2]) if len(target) > 2 else "goal"
-        tid = target[3] if len(target) > 3 else None
-    return {"x_m": _num(x), "y_m": _num(y), "kind": kind, "id": None if tid is None else int(tid)}
+    tid = target.id
+    return {"x_m": _num(target.x_m), "y_m": _num(target.y_m), "kind": target.kind,
+            "id": None if tid is None else int(tid)}  # fmt: skip
 
 
 def _wrap_deg(angle_rad: float) -> float | None:
@@ -120,7 +103,7 @@ def state_message(
     seq: int = 0,
     wall_time_unix_s: float | None = None,
     speed_mps: float | None = None,
-    target: TargetLike | None = None,
+    target: Target | None = None,
     goal: tuple[float, float] | None = None,
     method: str | None = None,
     mode: str | None = None,
@@ -194,7 +177,7 @@ def decision_message(
                 }
                 for o in d.options
             ],
-            "target": _target_dict((d.target_x_m, d.target_y_m, d.target_kind, d.target_id)),
+            "target": _target_dict(Target(d.target_x_m, d.target_y_m, d.target_kind, d.target_id)),
             "intersection_id": int(d.intersection_id),
             "revisit": bool(d.revisit),
             "mode": d.mode,
@@ -221,18 +204,6 @@ def prompt_message(
 
 
 @dataclass(frozen=True, slots=True)
-class LandmarkMatch:
-    """A camera match accepted as a position fix."""
-
-    landmark_id: int
-    x_m: float
-    y_m: float
-    sigma_m: float
-    score: float | None = None
-    name: str = ""
-
-
-@dataclass(frozen=True, slots=True)
 class LandmarkRejection:
     """A candidate (or a whole frame) that did not give a fix, and why.
 
@@ -249,7 +220,7 @@ def landmark_message(
     t_s: float,
     *,
     vehicle_id: str,
-    matches: Sequence[LandmarkMatch | LandmarkFix] = (),
+    matches: Sequence[LandmarkFix] = (),
     rejections: Sequence[LandmarkRejection] = (),
     gated: int | None = None,
     seq: int = 0,
@@ -266,8 +237,8 @@ def landmark_message(
                     "x_m": _num(m.x_m),
                     "y_m": _num(m.y_m),
                     "sigma_m": _num(m.sigma_m),
-                    "score": _num(m.score) if isinstance(m, LandmarkMatch) else None,
-                    "name": m.name if isinstance(m, LandmarkMatch) else "",
+                    "score": None,  # kept for readers of guidance.landmark/1
+                    "name": "",
                 }
                 for m in matches
             ],

@@ -15,11 +15,16 @@ from collections.abc import Callable, Mapping, Sequence
 from functools import partial
 from typing import TYPE_CHECKING, Any
 
-from guidance.core.messages import EstimateState, ExitTaken, Health, LandmarkFix, TurnCompleted
+from guidance.core.messages import (
+    EstimateState,
+    ExitTaken,
+    Health,
+    LandmarkFix,
+    Target,
+    TurnCompleted,
+)
 from guidance.telemetry.messages import (
-    LandmarkMatch,
     LandmarkRejection,
-    TargetLike,
     _envelope,
     _num,
     _obj,
@@ -116,7 +121,7 @@ class MessageSink:
         state: EstimateState,
         *,
         speed_mps: float | None = None,
-        target: TargetLike | None = None,
+        target: Target | None = None,
         goal: tuple[float, float] | None = None,
         method: str | None = None,
         mode: str | None = None,
@@ -140,7 +145,7 @@ class MessageSink:
         self,
         t_s: float,
         *,
-        matches: Sequence[LandmarkMatch | LandmarkFix] = (),
+        matches: Sequence[LandmarkFix] = (),
         rejections: Sequence[LandmarkRejection] = (),
         gated: int | None = None,
     ) -> bool:

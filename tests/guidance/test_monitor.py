@@ -34,7 +34,7 @@ REPO = Path(__file__).resolve().parents[2]
 
 PUBLISHER = r"""
 import math, sys, time
-from guidance.core.messages import Ellipse, EstimateState, Health
+from guidance.core.messages import Ellipse, EstimateState, Health, Target
 from guidance.telemetry.config import TelemetryConfig
 from guidance.telemetry.publisher import Telemetry
 port, vid = int(sys.argv[1]), sys.argv[2]
@@ -47,7 +47,7 @@ while True:
     cov = ((a * a / 4, 0.0, 0.0), (0.0, 1.0, 0.0), (0.0, 0.0, 0.01))
     st = EstimateState(t, 10.0 * t, 5.0 * math.sin(t), 0.3, cov, Ellipse(a, 1.0, 0.2, 2 * a),
                        False, True)
-    tel.publish_state(st, speed_mps=10.0, target=(300.0, 0.0, "goal", None), goal=(300.0, 0.0))
+    tel.publish_state(st, speed_mps=10.0, target=Target(300.0, 0.0), goal=(300.0, 0.0))
     if i % 25 == 0:
         tel.publish_prompt(t, f"In 200 metres, turn left ({i})", kind="turn")
         odometry = Health("odometry", "ok", True, True, 0.02, rate_hz=50.0)

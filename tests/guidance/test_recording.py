@@ -28,6 +28,7 @@ from guidance.core.messages import (
     EstimateState,
     Health,
     IntersectionScene,
+    Target,
     TurnCompleted,
 )
 from guidance.errors import UserError
@@ -60,7 +61,7 @@ def record_drive(rec: Recorder, n: int = 200) -> None:
             rec.record_state(
                 make_state(t + 0.003, float(i)),
                 speed_mps=7.0,
-                target=(100.0, 50.0, "goal", None),
+                target=Target(100.0, 50.0, "goal", None),
                 method="straight_to_goal",
             )
     for event in (

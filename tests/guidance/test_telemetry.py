@@ -24,7 +24,7 @@ from pathlib import Path
 
 import pytest
 
-from guidance.core.messages import Ellipse, EstimateState, Health, LandmarkFix
+from guidance.core.messages import Ellipse, EstimateState, Health, LandmarkFix, Target
 from guidance.core.navigator import Decision, ExitOption
 from guidance.errors import UserError
 from guidance.telemetry.client import MonitorClient, TelemetryEvent
@@ -38,7 +38,7 @@ ZENOH_EXAMPLES = REPO / "config" / "zenoh"
 
 PUBLISHER = r"""
 import sys, time
-from guidance.core.messages import Ellipse, EstimateState
+from guidance.core.messages import Ellipse, EstimateState, Target
 from guidance.telemetry.config import TelemetryConfig
 from guidance.telemetry.publisher import Telemetry
 port, vid, rate = int(sys.argv[1]), sys.argv[2], float(sys.argv[3])
@@ -49,7 +49,7 @@ while True:
     t = time.monotonic()
     cov = ((4.0, 0.0, 0.0), (0.0, 1.0, 0.0), (0.0, 0.0, 0.01))
     state = EstimateState(t, float(i), 0.0, 0.0, cov, Ellipse(2.0, 1.0, 0.0, 4.0), False, True)
-    tel.publish_state(state, speed_mps=5.0, target=(100.0, 0.0, "goal", None))
+    tel.publish_state(state, speed_mps=5.0, target=Target(100.0, 0.0, "goal", None))
     if i % 25 == 0:
         tel.publish_prompt(t, f"prompt {i}", kind="turn")
     i += 1
@@ -138,7 +138,7 @@ def test_state_reaches_a_subscriber_with_the_documented_fields(car_port: int) ->
         tel.publish_state(
             make_state(),
             speed_mps=8.5,
-            target=(300.0, 120.0, "landmark", 4),
+            target=Target(300.0, 120.0, "landmark", 4),
             goal=(500.0, 200.0),
             method="hybrid",
             mode="landmark",

@@ -125,15 +125,16 @@ def test_landmark_to_landmark_picks_one_nearer_the_goal_never_behind() -> None:
         Landmark(4, 100.0, -900.0),
     ]
     nav = Navigator((1000.0, 0.0), NavigatorConfig(method=Method.LANDMARK_TO_LANDMARK), lms)
-    _, _, kind, tid = nav.target(np.array([0.0, 0.0, 0.0]))
+    tgt = nav.target(np.array([0.0, 0.0, 0.0]))
+    kind, tid = tgt.kind, tgt.id
     assert (kind, tid) == ("landmark", 2)
     nav.on_landmark_fix(2, 30.0)
-    assert nav.target(np.array([300.0, 50.0, 0.0]))[3] == 3
+    assert nav.target(np.array([300.0, 50.0, 0.0])).id == 3
     # passed by proximity too
-    assert nav.target(np.array([595.0, 0.0, 0.0]))[2] == "goal"
+    assert nav.target(np.array([595.0, 0.0, 0.0])).kind == "goal"
     for lm_id in (1, 4):
         assert lm_id not in {
-            nav.target(np.array([float(x), 0.0, 0.0]))[3] for x in range(0, 600, 50)
+            nav.target(np.array([float(x), 0.0, 0.0])).id for x in range(0, 600, 50)
         }
 
 
@@ -143,7 +144,7 @@ def test_landmark_to_landmark_falls_back_to_goal() -> None:
         NavigatorConfig(method=Method.LANDMARK_TO_LANDMARK),
         [Landmark(1, -500.0, 0.0)],
     )
-    assert nav.target(np.array([0.0, 0.0, 0.0]))[2] == "goal"
+    assert nav.target(np.array([0.0, 0.0, 0.0])).kind == "goal"
 
 
 def test_hybrid_switches_at_50m_and_back_after_a_landmark_update() -> None:
@@ -151,9 +152,9 @@ def test_hybrid_switches_at_50m_and_back_after_a_landmark_update() -> None:
     nav = Navigator((1000.0, 0.0), NavigatorConfig(method=Method.HYBRID), lms)
     x = np.array([0.0, 0.0, 0.0])
     nav.update_mode(40.0)
-    assert nav.mode == "goal" and nav.target(x)[2] == "goal"
+    assert nav.mode == "goal" and nav.target(x).kind == "goal"
     nav.update_mode(55.0)
-    assert nav.mode == "landmark" and nav.target(x)[2] == "landmark"
+    assert nav.mode == "landmark" and nav.target(x).kind == "landmark"
     nav.update_mode(45.0)  # shrinking without a landmark update does not switch back
     assert nav.mode == "landmark"
     nav.on_landmark_fix(1, 60.0)  # an update that leaves it above 50 m: still landmarks
