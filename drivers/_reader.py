@@ -67,6 +67,10 @@ class ThreadedSource(Generic[T]):
     """'the <sink_kind> sink raised; continuing'."""
     announce_first_connect: ClassVar[bool] = False
     """Log (info) the first successful open, not only losing and finding the device again."""
+    unit: ClassVar[str] = "frames"
+    """The counter of the units of data read ("frames", "lines"): ``stats()["read"]``."""
+    join_timeout_s: float = JOIN_TIMEOUT_S
+    """How long ``stop()`` waits for each thread."""
 
     def __init__(
         self,
@@ -142,7 +146,7 @@ class ThreadedSource(Generic[T]):
         self._stop.set()
         self._wake()
         for t in self._threads:
-            t.join(timeout=JOIN_TIMEOUT_S)
+            t.join(timeout=self.join_timeout_s)
             if t.is_alive():  # pragma: no cover - a read ignored its timeout
                 role = t.name.removeprefix(f"{self.name}-")
                 self._log.error("%s: %s thread did not stop", self.name, role)
@@ -151,9 +155,13 @@ class ThreadedSource(Generic[T]):
         self._health.stopped()
 
     def stats(self) -> dict[str, int]:
+        """The parser's or decoder's counters and the reader's, with ``read``: the units of data
+        read (``unit``: frames, lines; one name whatever the device) next to the parser's
+        ``rejected``: what the app's garbled-input check reads."""
         with self._lock:
             out = self._source_stats()
             out.update(self._counts)
+        out["read"] = out.get(self.unit, 0)
         return out
 
     def health(self) -> Health:

@@ -407,6 +407,7 @@ class SerialCompass(ThreadedSource[CompassHeading]):
     """
 
     sink_kind = "compass"
+    unit = "lines"
     announce_first_connect = True
 
     def __init__(

@@ -165,6 +165,7 @@ class EvdevKeys(ThreadedSource[SceneMessage]):
     """Co-driver keys from a Linux input device (see the module docstring)."""
 
     sink_kind: ClassVar[str] = "scene"
+    unit: ClassVar[str] = "lines"
     announce_first_connect: ClassVar[bool] = True
 
     def __init__(

@@ -21,8 +21,10 @@ import time
 import tty
 from collections import Counter
 from collections.abc import Callable
+from dataclasses import dataclass
 from typing import TextIO
 
+from drivers._reader import ThreadedSource
 from guidance.core.co_driver import ExitsTyped, SceneParseError, parse_line, to_scene
 from guidance.core.messages import IntersectionScene, TurnCompleted
 
@@ -172,19 +174,32 @@ def _stream_feedback(stream: TextIO) -> Feedback:
 # --------------------------------------------------------------------------- the source
 
 
-class KeyboardScene:
+@dataclass(frozen=True, slots=True)
+class KeyboardTiming:
+    """The reader base's timing for a keyboard: silence is the co-driver's, not a fault."""
+
+    stale_after_s: float = 86400.0
+    reconnect_max_s: float = 5.0
+
+
+class KeyboardScene(ThreadedSource[SceneMessage]):
     """``RoadwayScene`` from co-driver lines on a text stream (stdin by default).
 
-    A daemon thread reads lines (blocking I/O stays off the event loop, HOUSE_STYLE) and hands
-    each to ``CoDriverLines``, which calls ``sink`` with an ``IntersectionScene`` or
-    ``TurnCompleted``. ``heading_fn`` gives the current estimated heading (rad); ``clock``
-    stamps the line (the message clock). ``feedback`` (a text stream or a callable; default
-    stderr) gets the acknowledgement of every line, the answer to a bad one and the help.
+    A reader thread (``drivers._reader.ThreadedSource``: blocking I/O stays off the event loop,
+    a failing sink is counted and logged once) reads lines and hands each to ``CoDriverLines``,
+    which calls ``sink`` with an ``IntersectionScene`` or ``TurnCompleted``. ``heading_fn``
+    gives the current estimated heading (rad); ``clock`` stamps the line (the message clock).
+    ``feedback`` (a text stream or a callable; default stderr) gets the acknowledgement of
+    every line, the answer to a bad one and the help. The end of the input is the status
+    "ended" (the co-driver's keyboard is gone).
 
     With ``echo`` (the live operator screen) and a terminal, the terminal is read key by key
     (cbreak mode, no terminal echo: the screen owns the terminal) and every key is
     acknowledged on ``echo`` with the line so far; the terminal's mode is restored on stop.
     """
+
+    sink_kind = "scene"
+    unit = "lines"
 
     def __init__(
         self,
@@ -197,34 +212,18 @@ class KeyboardScene:
         clock: Callable[[], float] = time.monotonic,
         name: str = "keyboard",
     ) -> None:
-        self.name = name
+        super().__init__(name, KeyboardTiming(), clock=clock, warnings={})
         self._stream = stream
         write = feedback if feedback is None or callable(feedback) else _stream_feedback(feedback)
         self.lines = CoDriverLines(
             name, heading_fn, clock=clock, feedback=write, echo=echo, on_command=on_command
         )
         self._per_key = echo is not None
-        self._thread: threading.Thread | None = None
-        self._stop = threading.Event()
+        # A thread blocked in readline on a terminal cannot be woken: it is a daemon and
+        # delivers nothing after stop(). Key by key, the reader wakes within 0.2 s.
+        self.join_timeout_s = 1.0 if self._per_key else 0.2
 
-    def start(self, sink: Callable[[SceneMessage], None]) -> None:
-        if self._thread is not None:
-            raise RuntimeError(f"{self.name} already started")
-        self._stop.clear()
-        self._thread = threading.Thread(
-            target=self._run, args=(sink,), name=f"{self.name}-reader", daemon=True
-        )
-        self._thread.start()
-
-    def stop(self) -> None:
-        """Stop taking lines. A thread blocked in ``readline`` on a terminal cannot be woken;
-        it is a daemon and delivers nothing after this."""
-        self._stop.set()
-        thread, self._thread = self._thread, None
-        if thread is not None:  # key by key: the reader wakes within 0.2 s and restores the tty
-            thread.join(timeout=1.0 if self._per_key else 0.2)
-
-    def stats(self) -> dict[str, int]:
+    def _source_stats(self) -> dict[str, int]:
         return self.lines.stats()
 
     def describe(self) -> str:
@@ -236,25 +235,27 @@ class KeyboardScene:
         return self.lines.handle(line, sink)
 
     def _run(self, sink: Callable[[SceneMessage], None]) -> None:
+        def deliver(msg: SceneMessage) -> None:  # a failing sink: counted, logged once
+            self._deliver(sink, msg)
+
         stream = self._stream if self._stream is not None else sys.stdin
         if self._per_key and _is_tty(stream):
-            self._run_keys(stream.fileno(), sink)
+            self._run_keys(stream.fileno(), deliver)
             return
         while not self._stop.is_set():
             try:
                 line = stream.readline()
             except (OSError, ValueError) as exc:  # closed stream
                 log.warning("%s: input closed (%s)", self.name, exc)
+                self._health.ended()
                 return
             if not line:  # end of input: the co-driver's keyboard is gone
                 log.info("%s: end of input", self.name)
+                self._health.ended()
                 return
             if self._stop.is_set():
                 return
-            try:
-                self.handle_line(line, sink)
-            except Exception:
-                log.exception("%s: the scene sink raised; continuing", self.name)
+            self.handle_line(line, deliver)
 
     def _run_keys(self, fd: int, sink: Callable[[SceneMessage], None]) -> None:
         """Key by key from a terminal in cbreak mode; Ctrl-C still interrupts."""
@@ -280,10 +281,7 @@ class KeyboardScene:
         """One typed character: acknowledged on echo; Enter hands the line on."""
         if ch in "\r\n":
             self.lines.echo(f"key Enter: {buffer!r}" if buffer else "key Enter: empty line")
-            try:
-                self.handle_line(buffer, sink)
-            except Exception:
-                log.exception("%s: the scene sink raised; continuing", self.name)
+            self.handle_line(buffer, sink)
             return ""
         if ch in "\x7f\b":
             buffer = buffer[:-1]

@@ -50,7 +50,9 @@ class Source(Protocol[T_co]):
 
     def start(self, sink: Callable[[T_co], None]) -> None: ...
     def stop(self) -> None: ...
-    def stats(self) -> Mapping[str, int]: ...
+    def stats(self) -> Mapping[str, int]:
+        """Counters by name; ``read`` (units of data judged) and ``rejected`` (of those, by the
+        parser) when the source judges its data: the pipeline's garbled-input check."""
 
 
 RawSink = Callable[[str, float, Mapping[str, object]], None]

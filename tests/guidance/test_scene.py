@@ -3,8 +3,10 @@
 from __future__ import annotations
 
 import io
+import logging
 import math
 import threading
+import time
 
 import numpy as np
 import pytest
@@ -94,7 +96,7 @@ def test_keyboard_scene_reads_lines_on_its_thread_and_reports_bad_ones() -> None
     assert isinstance(got[1], TurnCompleted)
     assert got[1].source == "co-driver"
     assert "unknown exit 'bogus'" in feedback.getvalue()
-    assert scene.stats() == {"lines": 3, "rejected": 1, "intersections": 1, "turns": 1}
+    assert scene.stats() == {"lines": 3, "rejected": 1, "intersections": 1, "turns": 1, "read": 3}
 
 
 # ----------------------------------------------------------------------------- turn detection
@@ -166,3 +168,25 @@ def test_detector_state_survives_a_snapshot() -> None:
         assert (ra is None) == (rb is None)
         if ra is not None and rb is not None:
             assert ra.heading_change_rad == rb.heading_change_rad
+
+
+def test_keyboard_is_a_reader_on_the_drivers_base_a_failing_sink_is_counted_and_logged_once(
+    caplog: pytest.LogCaptureFixture,
+) -> None:
+    """KeyboardScene on drivers._reader.ThreadedSource: the sink raising on every line is
+    counted (sink_errors), logged once, and the end of the input is the status "ended"."""
+    stream = io.StringIO("l s\nl s\nl s\n")
+
+    def sink(msg: object) -> None:
+        raise RuntimeError("loop gone")
+
+    scene = KeyboardScene(lambda: 0.0, stream=stream, feedback=io.StringIO())
+    with caplog.at_level(logging.ERROR, logger="drivers.keyboard"):
+        scene.start(sink)
+        deadline = time.monotonic() + 5.0
+        while scene.health().status != "ended" and time.monotonic() < deadline:
+            time.sleep(0.01)
+        assert scene.health().status == "ended"
+        scene.stop()
+    assert scene.stats()["sink_errors"] == 3
+    assert sum("sink raised" in r.getMessage() for r in caplog.records) == 1

@@ -115,6 +115,7 @@ def test_garbage_bad_checksums_and_long_lines_are_counted(sim: SimCompassPty) ->
     assert s["rejected_too_long"] == 1
     assert s["rejected_unknown_type"] == 1
     assert s["lines"] == s["headings"] + s["rejected"] == 6
+    assert s["read"] == 6  # the reader's one name for the units it read (app health)
 
 
 def test_unplug_and_replug_reconnects_and_logs_once_each_way(
