@@ -183,12 +183,6 @@ class Recorder(MessageSink):
     def own_health(self) -> Health:
         return self.health()
 
-    record_state = MessageSink.send_state
-    record_decision = MessageSink.send_decision
-    record_prompt = MessageSink.send_prompt
-    record_landmark = MessageSink.send_landmark
-    record_health = MessageSink.send_health
-
     def _put(self, topic: str, t_s: float, build: Callable[..., dict[str, Any]]) -> bool:
         if not self._accepting:
             if self._failed:

@@ -150,12 +150,6 @@ class Telemetry(MessageSink):
     def own_health(self) -> Health:
         return self.health()
 
-    publish_state = MessageSink.send_state
-    publish_decision = MessageSink.send_decision
-    publish_prompt = MessageSink.send_prompt
-    publish_landmark = MessageSink.send_landmark
-    publish_health = MessageSink.send_health
-
     def _put(self, kind: str, build: Callable[..., dict[str, Any]]) -> bool:
         if not self.config.enabled or self._stop.is_set():
             return False

@@ -47,11 +47,11 @@ while True:
     cov = ((a * a / 4, 0.0, 0.0), (0.0, 1.0, 0.0), (0.0, 0.0, 0.01))
     st = EstimateState(t, 10.0 * t, 5.0 * math.sin(t), 0.3, cov, Ellipse(a, 1.0, 0.2, 2 * a),
                        False, True)
-    tel.publish_state(st, speed_mps=10.0, target=Target(300.0, 0.0), goal=(300.0, 0.0))
+    tel.send_state(st, speed_mps=10.0, target=Target(300.0, 0.0), goal=(300.0, 0.0))
     if i % 25 == 0:
-        tel.publish_prompt(t, f"In 200 metres, turn left ({i})", kind="turn")
+        tel.send_prompt(t, f"In 200 metres, turn left ({i})", kind="turn")
         odometry = Health("odometry", "ok", True, True, 0.02, rate_hz=50.0)
-        tel.publish_health(t, {"odometry": odometry})
+        tel.send_health(t, {"odometry": odometry})
     i += 1
     next_t += 0.02
     time.sleep(max(0.0, next_t - time.monotonic()))

@@ -58,7 +58,7 @@ def record_drive(rec: Recorder, n: int = 200) -> None:
             image = rng.integers(0, 255, (120, 160, 3), dtype=np.uint8)
             rec.record_camera(CameraFrame(t + 0.002, image, "front"), file_ref=f"frames/{i}.png")
         if i % 5 == 0:
-            rec.record_state(
+            rec.send_state(
                 make_state(t + 0.003, float(i)),
                 speed_mps=7.0,
                 target=Target(100.0, 50.0, "goal", None),
@@ -70,9 +70,9 @@ def record_drive(rec: Recorder, n: int = 200) -> None:
     ):
         topic, body = to_record(event)
         rec.record(topic, event.t_s, body)
-    rec.record_prompt(10.6, "In 15 metres, turn left", kind="turn", priority=1)
-    rec.record_landmark(10.7, rejections=[LandmarkRejection("outside_gate", 3)], gated=1)
-    rec.record_health(10.8, {"odometry": Health("odometry", "ok", True, True, 0.01, rate_hz=100.0)})
+    rec.send_prompt(10.6, "In 15 metres, turn left", kind="turn", priority=1)
+    rec.send_landmark(10.7, rejections=[LandmarkRejection("outside_gate", 3)], gated=1)
+    rec.send_health(10.8, {"odometry": Health("odometry", "ok", True, True, 0.01, rate_hz=100.0)})
 
 
 def test_round_trip_in_log_time_order_with_schemas_foxglove_reads(tmp_path: Path) -> None:
@@ -384,7 +384,7 @@ def test_file_size_limit_stops_recording_and_the_process_keeps_running(tmp_path:
 
 def test_a_malformed_message_is_an_error_and_recording_goes_on(tmp_path: Path) -> None:
     with Recorder(RecordingConfig(directory=str(tmp_path))) as rec:
-        rec.record_decision(object())  # type: ignore[arg-type]
+        rec.send_decision(object())  # type: ignore[arg-type]
         rec.record("/custom", 1.0, {"bad": {1, 2}})  # a set is not JSON
         rec.record("/custom", 2.0, {"ok": True})
     h = rec.health()

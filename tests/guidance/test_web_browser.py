@@ -268,7 +268,7 @@ def test_tiles_come_only_from_the_configured_server_and_cover_the_car(tmp_path: 
         driver = browser(tmp_path)
         try:
             for i in range(20):  # a short drive north-east of the origin
-                tel.publish_state(
+                tel.send_state(
                     EstimateState(float(i), 300.0 + 5 * i, 200.0 + 5 * i, 0.8, cov,
                                   Ellipse(10.0, 10.0, 0.0, 20.0), False, True),
                     goal=(600.0, 500.0),

@@ -102,9 +102,9 @@ def test_zenoh_unreachable_degrades_to_a_flag_and_publishing_never_blocks() -> N
         took = []
         for i in range(1000):
             t0 = time.perf_counter()
-            tel.publish_state(state(float(i)))
-            tel.publish_prompt(float(i), "Turn left")
-            tel.publish_health(float(i), {"can": Health("can", "ok", True, True)})
+            tel.send_state(state(float(i)))
+            tel.send_prompt(float(i), "Turn left")
+            tel.send_health(float(i), {"can": Health("can", "ok", True, True)})
             took.append(time.perf_counter() - t0)
         h = tel.health()
         assert (h.status, h.alive, h.valid, h.ok) == ("down", False, False, False)
