@@ -43,7 +43,6 @@ from guidance.core.messages import (
     EstimateState,
     Health,
     LandmarkFix,
-    WheelOdometry,
 )
 from guidance.telemetry.messages import LandmarkRejection
 
@@ -112,8 +111,6 @@ class App:
         self.listeners: list[Callable[[Input | None, Outputs], None]] = []
         self.counts: Counter[str] = Counter()
         self.loop_lag_s: deque[float] = deque(maxlen=LATENCY_SAMPLES)
-        self.odometry_latency_s: deque[float] = deque(maxlen=LATENCY_SAMPLES)
-        self.measure_latency = False
         self.stop_event = asyncio.Event()
         self._loop: asyncio.AbstractEventLoop | None = None
         self.source_sink: Callable[[Message], None] = self.sink
@@ -166,8 +163,6 @@ class App:
         self._record_input(msg)
         out = self.pipeline.feed(msg)
         self.counts[type(msg).__name__] += 1
-        if self.measure_latency and isinstance(msg, WheelOdometry):
-            self.odometry_latency_s.append(self.clock() - msg.t_s)
         self._handle(msg, out)
         return out
 
