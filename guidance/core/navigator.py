@@ -17,6 +17,7 @@ import numpy as np
 
 from guidance.core import law, model
 from guidance.core.messages import Target
+from guidance.core.snapshot_check import integer
 
 
 class Method(StrEnum):
@@ -253,7 +254,7 @@ class Navigator:
         goal = memory["goal"]
         assert isinstance(goal, list)
         self.goal = (float(goal[0]), float(goal[1]))
-        self._mode = int(memory["mode"])  # type: ignore[call-overload]
+        self._mode = integer(memory["mode"], "navigator.mode", hi=1)
         self._passed[:] = np.asarray(memory["passed"], dtype=np.bool_)
         xy = np.asarray(memory["mem_xy"], dtype=float).reshape(-1, 2)
         n = len(xy)

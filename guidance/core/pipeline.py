@@ -51,7 +51,7 @@ from guidance.core.model import compass_to_heading, wrap_angle
 from guidance.core.navigator import Decision, Navigator
 from guidance.core.pipeline_config import INPUT_KINDS, Input, Outputs, PipelineConfig
 from guidance.core.pipeline_state import Pending, PipelineState, _InState
-from guidance.core.snapshot_check import check_snapshot
+from guidance.core.snapshot_check import check_snapshot, integer
 from guidance.core.turns import TurnDetector
 
 log = logging.getLogger(__name__)
@@ -536,7 +536,7 @@ class Pipeline:
         nav = snap["navigator"]
         assert isinstance(nav, dict)
         self.navigator.restore(nav)
-        self.navigator.decisions = int(snap.get("decisions", 0))  # type: ignore[call-overload]
+        self.navigator.decisions = integer(snap.get("decisions", 0), "decisions")
         turns = snap.get("turns")
         if isinstance(turns, dict):
             self.turns.restore(turns)

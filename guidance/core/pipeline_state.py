@@ -10,6 +10,7 @@ from dataclasses import asdict, dataclass, field, fields
 from typing import TYPE_CHECKING, Generic, TypeVar, overload
 
 from guidance.core.navigator import Decision, ExitOption
+from guidance.core.snapshot_check import number
 
 if TYPE_CHECKING:
     from guidance.core.pipeline import Pipeline
@@ -76,17 +77,11 @@ class Pending:
         reach = data.get("reach_odometer_m")
         return cls(
             decision,
-            _number(data["heading_before_rad"]),
-            _number(data["resolve_at_odometer_m"]),
+            number(data["heading_before_rad"], "pending.heading_before_rad"),
+            number(data["resolve_at_odometer_m"], "pending.resolve_at_odometer_m"),
             {str(a) for a in announced} if isinstance(announced, list) else set(),
             float(reach) if isinstance(reach, int | float) else -math.inf,
         )
-
-
-def _number(value: object) -> float:
-    if not isinstance(value, int | float):
-        raise ValueError(f"expected a number, got {value!r}")
-    return float(value)
 
 
 V = TypeVar("V")

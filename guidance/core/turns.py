@@ -13,6 +13,7 @@ from dataclasses import dataclass
 
 from guidance.core.messages import TurnCompleted
 from guidance.core.model import wrap_angle
+from guidance.core.snapshot_check import integer, number
 
 # --------------------------------------------------------------------------- turn detection
 
@@ -92,6 +93,6 @@ class TurnDetector:
         assert isinstance(samples, list)
         self._samples = deque((float(a), float(b)) for a, b in samples)
         last = snap.get("last_raw")
-        self._last_raw = None if last is None else float(last)  # type: ignore[arg-type]
-        self._unwrapped = float(snap.get("unwrapped", 0.0))  # type: ignore[arg-type]
-        self.turns = int(snap.get("turns", 0))  # type: ignore[call-overload]
+        self._last_raw = None if last is None else number(last, "turns.last_raw")
+        self._unwrapped = number(snap.get("unwrapped", 0.0), "turns.unwrapped")
+        self.turns = integer(snap.get("turns", 0), "turns.turns")
