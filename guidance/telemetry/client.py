@@ -49,11 +49,16 @@ RING_KINDS = ("state", "health")
 """Kinds whose latest values matter: a ``RingChannel`` that drops the oldest when full."""
 FIFO_KINDS = tuple(k for k in KINDS if k not in RING_KINDS)
 """Kinds where every message matters: a ``FifoChannel`` that makes zenoh wait when full."""
-_POLL_MIN_S = 0.0005
-_POLL_MAX_S = 0.002
-"""zenoh's channels have no wait across several channels: an idle ``get`` polls them, backing
-off from 0.5 ms to 2 ms, so an event waits at most about 2 ms for a reader that is waiting
-(measured: about 2 % of a core while idle, median publish-to-get latency about 1 ms)."""
+REPLY_POLL_S = 0.002
+"""zenoh's channels cannot be waited on together. Each message or liveliness change also sets
+a wake-up event (a callback subscriber on the same keys, declared after the channels), which
+an idle ``get`` waits on; late-join replies have no such callback, so while a query is open
+``get`` looks at its channel every 2 ms."""
+IDLE_CHECK_S = 0.05
+"""An idle ``get`` looks at the channels at least this often even without a wake-up."""
+_SETTLE_S = (0.0002, 0.0005, 0.001)
+"""After a wake-up that found nothing yet (the callback ran before the sample reached its
+channel), the channels are looked at again after these pauses."""
 
 _T = TypeVar("_T")
 
@@ -68,8 +73,8 @@ class TelemetryEvent:
     key: str
     message: Mapping[str, Any] | None
     received_s: float
-    """Monitor's monotonic clock when the client took it from zenoh's channel: within a poll
-    interval of its arrival while the reader keeps up, later when the reader is behind."""
+    """Monitor's monotonic clock when the client took it from zenoh's channel: as it arrives
+    while a reader waits in ``get``, later when the reader is behind."""
     late_join: bool = False
     """True when it came from the query of the latest values, not a live publication."""
 
@@ -140,6 +145,8 @@ class MonitorClient:
         self._replies: list[zenoh.Handler[zenoh.Reply]] = []
         self._replies_lock = threading.Lock()
         self._batch: deque[TelemetryEvent] = deque()
+        self._wake = threading.Event()
+        self._wakers: list[zenoh.Subscriber[None]] = []
         self.received = 0
         self.undecodable = 0
 
@@ -176,7 +183,17 @@ class MonitorClient:
         )
         self._entities.append(lively)
         self._liveliness = lively.handler
+        # Declared last, so zenoh has pushed a sample into its channel before this callback
+        # runs; the callback does nothing but wake a waiting get (no queue of its own).
+        wake = self._wake_up
+        self._wakers = [
+            session.declare_subscriber(f"{KEY_PREFIX}/{v}/*", wake),
+            session.liveliness().declare_subscriber(f"{KEY_PREFIX}/{v}", wake),
+        ]
         return self
+
+    def _wake_up(self, _sample: zenoh.Sample) -> None:
+        self._wake.set()
 
     def _subscribe(
         self,
@@ -200,6 +217,7 @@ class MonitorClient:
     def close(self) -> None:
         session, self._session = self._session, None
         self._entities.clear()
+        self._wakers = []
         self._messages = []
         self._liveliness = None
         with self._replies_lock:
@@ -232,17 +250,26 @@ class MonitorClient:
     def get(self, timeout_s: float | None = None) -> TelemetryEvent | None:
         """The next event, waiting up to ``timeout_s`` (None: for ever); None if none came."""
         deadline = None if timeout_s is None else time.monotonic() + timeout_s
-        pause = _POLL_MIN_S
+        woken = False
         while True:
             if not self._batch:
+                self._wake.clear()
                 self._take_waiting()
+                for pause in _SETTLE_S if woken else ():
+                    if self._batch:
+                        break
+                    time.sleep(pause)
+                    self._take_waiting()
             if self._batch:
                 return self._batch.popleft()
             now = time.monotonic()
             if deadline is not None and now >= deadline:
                 return None
-            time.sleep(pause if deadline is None else min(pause, deadline - now))
-            pause = min(2.0 * pause, _POLL_MAX_S)
+            with self._replies_lock:
+                wait = REPLY_POLL_S if self._replies else IDLE_CHECK_S
+            if deadline is not None:
+                wait = min(wait, deadline - now)
+            woken = self._wake.wait(wait)
 
     def send_goal(self, vehicle_id: str, x_m: float, y_m: float) -> None:
         """Ask a car to drive to a new goal (it obeys only if its config and ACL allow)."""
