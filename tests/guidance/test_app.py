@@ -23,15 +23,14 @@ from drivers.can_odometry import CanOdometry, CanOdometryConfig
 from drivers.keyboard import KeyboardScene
 from guidance.app.app import App
 from guidance.app.ports import Recognised
-from guidance.core.estimator import EstimatorConfig
 from guidance.core.messages import (
     CameraFrame,
     EstimateState,
     LandmarkFix,
     WheelOdometry,
 )
-from guidance.core.navigator import Landmark, Method, NavigatorConfig
-from guidance.core.pipeline import Outputs, Pipeline, PipelineConfig
+from guidance.core.navigator import Landmark
+from guidance.core.pipeline import Outputs, Pipeline
 from guidance.voice.speakers import TextSpeaker
 from hal_sim.lockstep import LockstepSink
 from hal_sim.sim_can import SimCanWheels
@@ -44,27 +43,16 @@ def no_leaks(leak_check: Callable[..., AbstractContextManager[None]]) -> Iterato
         yield
 
 
-def _pipeline(**kw: Any) -> Pipeline:
-    base: dict[str, Any] = {
-        "estimator": EstimatorConfig(compass_two_sigma_deg=20.0),
-        "navigator": NavigatorConfig(method=Method.STRAIGHT_TO_GOAL),
-        "start_xy_m": (0.0, 0.0),
-        "goal_xy_m": (1000.0, 400.0),
-        "start_heading_rad": 0.0,
-        "expected_rates_hz": {"odometry": 20.0},
-    }
-    base.update(kw)
-    return Pipeline(PipelineConfig(**base))
-
-
 # ----------------------------------------------------------------------------- live health
 
 
-def test_silent_can_flags_odometry_and_warns_while_the_app_keeps_running() -> None:
+def test_silent_can_flags_odometry_and_warns_while_the_app_keeps_running(
+    make_pipeline: Callable[..., Pipeline],
+) -> None:
     """Real CanOdometry on a virtual bus; the simulated wheels stop sending for 2 s."""
     channel = f"test-app-{os.getpid()}"
     speech = io.StringIO()
-    pipeline = _pipeline()
+    pipeline = make_pipeline()
     changes: list[tuple[float, bool]] = []
 
     def listen(_msg: Any, out: Outputs) -> None:
@@ -104,14 +92,16 @@ def test_silent_can_flags_odometry_and_warns_while_the_app_keeps_running() -> No
 # ----------------------------------------------------------------------------- co-driver
 
 
-def test_co_driver_keyboard_drives_decisions_and_corrects_the_memory() -> None:
+def test_co_driver_keyboard_drives_decisions_and_corrects_the_memory(
+    make_pipeline: Callable[..., Pipeline],
+) -> None:
     """Exits typed on the keyboard -> a decision and a spoken prompt; "turned right" against
     the advice moves the navigator's memory of that intersection to the exit really taken."""
     r_fd, w_fd = os.pipe()
     reader = os.fdopen(r_fd, "r")
     writer = os.fdopen(w_fd, "w")
     speech = io.StringIO()
-    pipeline = _pipeline(goal_xy_m=(0.0, 1000.0))  # the goal is north: "turn left" from east
+    pipeline = make_pipeline(goal_xy_m=(0.0, 1000.0))  # the goal is north: "turn left" from east
     taken: list[Any] = []
     clock_t = [0.0]
 
@@ -205,8 +195,10 @@ class _SlowRecogniser:
         return {"frames": self.calls}
 
 
-def test_recogniser_runs_off_the_loop_on_the_latest_frame() -> None:
-    pipeline = _pipeline(landmarks=(Landmark(7, 3.0, 0.0, "church"),))
+def test_recogniser_runs_off_the_loop_on_the_latest_frame(
+    make_pipeline: Callable[..., Pipeline],
+) -> None:
+    pipeline = make_pipeline(landmarks=(Landmark(7, 3.0, 0.0, "church"),))
     recogniser = _SlowRecogniser()
     speech = io.StringIO()
 
@@ -228,10 +220,12 @@ def test_recogniser_runs_off_the_loop_on_the_latest_frame() -> None:
     assert (app.lag_summary()["loop_lag_p50_ms"] or 0.0) < 10.0
 
 
-def test_app_writes_checkpoints_on_the_message_clock(tmp_path: Path) -> None:
+def test_app_writes_checkpoints_on_the_message_clock(
+    make_pipeline: Callable[..., Pipeline], tmp_path: Path
+) -> None:
     from guidance.app.checkpoint import Checkpointer, load_checkpoint
 
-    pipeline = _pipeline()
+    pipeline = make_pipeline()
     ck = Checkpointer(tmp_path / "ck.json", interval_s=1.0)
     app = App(pipeline, checkpointer=ck, checkpoint_extra=lambda: {"note": "x"})
     for k in range(35):
@@ -347,12 +341,12 @@ directory = "rec"
     assert {"/session", "/can", "/nmea", "/odometry", "/compass", "/state", "/health"} <= topics
 
 
-def test_a_sensor_silent_from_the_start_is_reported() -> None:
+def test_a_sensor_silent_from_the_start_is_reported(make_pipeline: Callable[..., Pipeline]) -> None:
     """No CAN frame ever arrives (wrong channel, unplugged adapter): flagged after the timeout
     on the loop's own clock, spoken once, and the loop keeps running."""
     channel = f"test-app-silent-{os.getpid()}"
     speech = io.StringIO()
-    pipeline = _pipeline()
+    pipeline = make_pipeline()
 
     async def scenario() -> App:
         odo = CanOdometry(CanOdometryConfig(interface="virtual", channel=channel, bitrate=None))

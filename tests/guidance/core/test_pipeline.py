@@ -4,12 +4,12 @@ announcement timing, arrival and a new goal, checkpoints that give the same futu
 from __future__ import annotations
 
 import math
+from collections.abc import Callable
 from typing import Any
 
 import numpy as np
 import pytest
 
-from guidance.core.estimator import EstimatorConfig
 from guidance.core.messages import (
     Approach,
     GoalUpdate,
@@ -17,25 +17,13 @@ from guidance.core.messages import (
     IntersectionScene,
     WheelOdometry,
 )
-from guidance.core.navigator import Method, NavigatorConfig
-from guidance.core.pipeline import Pipeline, PipelineConfig
+from guidance.core.pipeline import Pipeline
 
 
-def _pipeline(**kw: Any) -> Pipeline:
-    base: dict[str, Any] = {
-        "estimator": EstimatorConfig(compass_two_sigma_deg=20.0),
-        "navigator": NavigatorConfig(method=Method.STRAIGHT_TO_GOAL),
-        "start_xy_m": (0.0, 0.0),
-        "goal_xy_m": (1000.0, 400.0),
-        "start_heading_rad": 0.0,
-        "expected_rates_hz": {"odometry": 20.0},
-    }
-    base.update(kw)
-    return Pipeline(PipelineConfig(**base))
-
-
-def test_no_turn_after_the_intersection_means_straight_on() -> None:
-    p = _pipeline(goal_xy_m=(0.0, 1000.0), straight_after_m=20.0)
+def test_no_turn_after_the_intersection_means_straight_on(
+    make_pipeline: Callable[..., Pipeline],
+) -> None:
+    p = make_pipeline(goal_xy_m=(0.0, 1000.0), straight_after_m=20.0)
     out = p.feed(IntersectionScene(0.0, (math.pi / 2, 0.0), distance_m=30.0))
     assert out.decisions[0].exit_index == 0 and out.prompts[0].text == "In 30 metres, turn left"
     taken = []
@@ -45,8 +33,8 @@ def test_no_turn_after_the_intersection_means_straight_on() -> None:
     assert taken[0].exit_index == 1 and not taken[0].followed and taken[0].source == "no_turn"
 
 
-def test_detected_turn_confirms_the_advice() -> None:
-    p = _pipeline(goal_xy_m=(0.0, 1000.0))
+def test_detected_turn_confirms_the_advice(make_pipeline: Callable[..., Pipeline]) -> None:
+    p = make_pipeline(goal_xy_m=(0.0, 1000.0))
     p.feed(IntersectionScene(0.0, (math.pi / 2, 0.0), distance_m=10.0))
     taken = []
     t = 0.0
@@ -59,8 +47,8 @@ def test_detected_turn_confirms_the_advice() -> None:
     assert len(taken) == 1 and taken[0].followed and taken[0].source == "detected"
 
 
-def test_goal_update_and_arrival() -> None:
-    p = _pipeline(goal_xy_m=(50.0, 0.0), stop_at_arrival=False)
+def test_goal_update_and_arrival(make_pipeline: Callable[..., Pipeline]) -> None:
+    p = make_pipeline(goal_xy_m=(50.0, 0.0), stop_at_arrival=False)
     arrived = []
     for k in range(40):
         out = p.feed(WheelOdometry(0.1 * (k + 1), 1.0, 1.0))
@@ -70,14 +58,14 @@ def test_goal_update_and_arrival() -> None:
     assert out.prompts[0].text == "New destination set" and not p.arrived
 
 
-def test_snapshot_restore_gives_the_same_future() -> None:
+def test_snapshot_restore_gives_the_same_future(make_pipeline: Callable[..., Pipeline]) -> None:
     """A restored pipeline computes exactly what the original does from then on."""
-    a = _pipeline(goal_xy_m=(0.0, 1000.0))
+    a = make_pipeline(goal_xy_m=(0.0, 1000.0))
     msgs: list[Any] = [WheelOdometry(0.1 * (k + 1), 1.0, 1.02) for k in range(30)]
     msgs.insert(10, IntersectionScene(1.05, (math.pi / 2, 0.0, -math.pi / 2), 20.0))
     for m in msgs:
         a.feed(m)
-    b = _pipeline(goal_xy_m=(0.0, 1000.0))
+    b = make_pipeline(goal_xy_m=(0.0, 1000.0))
     b.restore(a.snapshot())
     more: list[Any] = [WheelOdometry(3.0 + 0.1 * k, 1.0, 1.0) for k in range(40)]
     more.insert(5, IntersectionScene(3.45, (math.pi / 2, 0.0), 15.0))
@@ -90,9 +78,11 @@ def test_snapshot_restore_gives_the_same_future() -> None:
     assert a.navigator.memory() == b.navigator.memory()
 
 
-def test_known_distance_gives_an_early_and_a_just_before_announcement() -> None:
+def test_known_distance_gives_an_early_and_a_just_before_announcement(
+    make_pipeline: Callable[..., Pipeline],
+) -> None:
     """Organic Maps timing: early (30 s ahead, 200 m at least) and again within 8 s."""
-    p = _pipeline(goal_xy_m=(0.0, 2000.0))
+    p = make_pipeline(goal_xy_m=(0.0, 2000.0))
     t = 0.0
     for _ in range(20):  # cruise at 11 m/s
         t += 0.1
@@ -110,8 +100,8 @@ def test_known_distance_gives_an_early_and_a_just_before_announcement() -> None:
     assert said == ["In 400 metres, turn left", "In 90 metres, turn left"]  # 8 s x 11 m/s
 
 
-def test_straight_on_is_announced_once() -> None:
-    p = _pipeline(goal_xy_m=(2000.0, 0.0))
+def test_straight_on_is_announced_once(make_pipeline: Callable[..., Pipeline]) -> None:
+    p = make_pipeline(goal_xy_m=(2000.0, 0.0))
     for k in range(20):
         p.feed(WheelOdometry(0.1 * (k + 1), 1.1, 1.1))
     said = [pr.text for pr in p.feed(IntersectionScene(2.0, (math.pi / 2, 0.0), 300.0)).prompts]
@@ -123,18 +113,20 @@ def test_straight_on_is_announced_once() -> None:
     assert said == ["In 90 metres, continue straight"]  # once, at the final announcement (8 s)
 
 
-def test_restore_after_a_reboot_does_not_carry_the_old_clock() -> None:
+def test_restore_after_a_reboot_does_not_carry_the_old_clock(
+    make_pipeline: Callable[..., Pipeline],
+) -> None:
     """The laptop's monotonic clock restarts with it: a checkpoint's times must not make every
     new input 'out of order'. Within one clock (the simulation) they are kept."""
-    a = _pipeline()
+    a = make_pipeline()
     for k in range(30):
         a.feed(WheelOdometry(1000.0 + 0.1 * k, 1.0, 1.0))
     snap = a.snapshot()
-    rebooted = _pipeline()
+    rebooted = make_pipeline()
     rebooted.restore(snap, same_clock=False)
     assert rebooted.feed(WheelOdometry(5.0, 1.0, 1.0)).accepted
     assert rebooted.odometer_m == pytest.approx(31.0)
-    same = _pipeline()
+    same = make_pipeline()
     same.restore(snap)
     assert same.feed(WheelOdometry(5.0, 1.0, 1.0)).reason == "out_of_order"
     before = rebooted.estimator.major_axis_m
