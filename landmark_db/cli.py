@@ -86,8 +86,16 @@ def cmd_add(args: argparse.Namespace) -> None:
             print(HEADER)
             print_landmark_row(lm.id, db)
             return
+        name = args.name or path.stem
+        same = db.by_name(name)
+        if same is not None and not args.same_name:  # names are spoken and used by --to
+            raise UserError(
+                f"a landmark named {safe(name)!r} exists (id {same.id}): add this photo to it "
+                f"with --to {same.id}, give the new one another --name, or --same-name to keep "
+                "both"
+            )
         lid = db.add(
-            args.name or path.stem,
+            name,
             path.read_bytes(),
             facing_deg=args.facing,
             position_sigma_m=args.sigma,
@@ -224,7 +232,12 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("db")
     p.add_argument("image")
     p.add_argument("--to", metavar="ID|NAME", help="add the photo to this landmark")
-    p.add_argument("--name")
+    p.add_argument("--name", help="the landmark's name (default: the image's file name)")
+    p.add_argument(
+        "--same-name",
+        action="store_true",
+        help="add a new landmark even when one has this name already (refused otherwise)",
+    )
     p.add_argument("--latlon", nargs=2, type=float, metavar=("LAT", "LON"))
     p.add_argument("--xy", nargs=2, type=float, metavar=("X", "Y"), help="local metres")
     p.add_argument("--facing", type=float, help="heading the photo faces (deg clockwise from N)")

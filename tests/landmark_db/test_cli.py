@@ -220,3 +220,25 @@ def test_bad_nmea_and_marks_are_one_line_errors(
     assert code == 2 and "no valid GPS fixes" in err
     code, _, err = run(capsys, "survey", db, str(frames), "--marks", str(tmp_path / "bad.csv"))
     assert code == 2 and "bad mark" in err
+
+
+def test_add_refuses_a_second_landmark_under_an_existing_name(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """Names are spoken ("Passing the bakery") and used by --to: a second "bakery" elsewhere
+    is refused with the way out, unless asked for."""
+    db = str(tmp_path / "m.sqlite")
+    assert run(capsys, "init", db, "--origin", "42.444", "-76.5019")[0] == 0
+    photos = tmp_path / "photos"
+    a, b = _photos(photos, [41, 42])
+    assert run(capsys, "add", db, str(photos / a), "--xy", "0", "0", "--name", "bakery")[0] == 0
+    code, _, err = run(capsys, "add", db, str(photos / b), "--xy", "300", "0", "--name", "bakery")
+    assert code != 0 and "a landmark named 'bakery' exists (id 1)" in err and "--to 1" in err
+    with open_db(db) as store:
+        assert len(list(store.landmarks())) == 1  # nothing written
+    code, out, _ = run(capsys, "add", db, str(photos / b), "--to", "bakery")
+    assert code == 0 and "added photo" in out
+    code, out, _ = run(
+        capsys, "add", db, str(photos / b), "--xy", "300", "0", "--name", "bakery", "--same-name"
+    )
+    assert code == 0 and "added landmark 2" in out
