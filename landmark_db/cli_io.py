@@ -232,7 +232,7 @@ def cmd_survey(args: argparse.Namespace) -> None:
         frames = sv.frames_from_video(src)
     else:
         raise UserError(f"{src}: no such video or folder")
-    with open_db(args.db, readonly=False) as db:
+    with open_db(args.db, readonly=False) as db, db.batch():  # the whole survey, or nothing
         saved, notes = sv.survey(
             db, frames, marks, track, args.prefix, args.max_gap, args.sigma, args.frames_per_mark
         )

@@ -242,3 +242,21 @@ def test_add_refuses_a_second_landmark_under_an_existing_name(
         capsys, "add", db, str(photos / b), "--xy", "300", "0", "--name", "bakery", "--same-name"
     )
     assert code == 0 and "added landmark 2" in out
+
+
+def test_a_survey_is_one_transaction_a_bad_mark_leaves_the_file_as_it_was(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """The second mark's position is beyond any city: the survey stops with one line and the
+    first mark, already saved in the transaction, is rolled back with it (no half survey)."""
+    frames = tmp_path / "frames"
+    _photos(frames, [80, 81, 82, 83])
+    marks = tmp_path / "marks.csv"
+    marks.write_text("t_s,name,x_m,y_m\n1.0,first,10,20\n2.5,far,1e9,0\n")
+    db = str(tmp_path / "s.sqlite")
+    main(["init", db, "--origin", "0", "0"])
+    capsys.readouterr()
+    code, _, err = run(capsys, "survey", db, str(frames), "--marks", str(marks))
+    assert code != 0 and "landmark-db: error:" in err and "Traceback" not in err
+    with open_db(db) as ro:
+        assert list(ro.landmarks()) == []
