@@ -30,7 +30,8 @@ from guidance.core.pipeline import Outputs, Pipeline, PipelineConfig
 from hal_sim.sim_can import SimCanWheels
 
 SPEED_MPS = 10.0
-BLAST_S = 3.0
+BLAST_S = 10.0
+"""As long as the flood measured in issue 14 (20,000 frames/s for 10 s)."""
 RATE_HZ = 20_000.0
 
 
