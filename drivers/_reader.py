@@ -71,6 +71,9 @@ class ThreadedSource(Generic[T]):
     """The counter of the units of data read ("frames", "lines"): ``stats()["read"]``."""
     join_timeout_s: float = JOIN_TIMEOUT_S
     """How long ``stop()`` waits for each thread."""
+    may_outlive_stop: ClassVar[bool] = False
+    """A thread may stay blocked in a read nothing can wake (``readline`` on a terminal): it is
+    a daemon that delivers nothing after ``stop()``, so that is not an error."""
 
     def __init__(
         self,
@@ -147,9 +150,12 @@ class ThreadedSource(Generic[T]):
         self._wake()
         for t in self._threads:
             t.join(timeout=self.join_timeout_s)
-            if t.is_alive():  # pragma: no cover - a read ignored its timeout
+            if t.is_alive():
                 role = t.name.removeprefix(f"{self.name}-")
-                self._log.error("%s: %s thread did not stop", self.name, role)
+                if self.may_outlive_stop:  # blocked in a read nothing can wake: a daemon
+                    self._log.debug("%s: %s thread left blocked in its read", self.name, role)
+                else:  # pragma: no cover - a read ignored its timeout
+                    self._log.error("%s: %s thread did not stop", self.name, role)
         self._threads = []
         self._on_stop()
         self._health.stopped()

@@ -200,6 +200,7 @@ class KeyboardScene(ThreadedSource[SceneMessage]):
 
     sink_kind = "scene"
     unit = "lines"
+    may_outlive_stop = True  # readline on a terminal cannot be woken
 
     def __init__(
         self,

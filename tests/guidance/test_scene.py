@@ -5,6 +5,7 @@ from __future__ import annotations
 import io
 import logging
 import math
+import os
 import threading
 import time
 
@@ -190,3 +191,25 @@ def test_keyboard_is_a_reader_on_the_drivers_base_a_failing_sink_is_counted_and_
         scene.stop()
     assert scene.stats()["sink_errors"] == 3
     assert sum("sink raised" in r.getMessage() for r in caplog.records) == 1
+
+
+def test_stopping_a_keyboard_blocked_in_readline_is_quick_and_not_an_error(
+    caplog: pytest.LogCaptureFixture,
+) -> None:
+    """A terminal's readline cannot be woken: stop() returns within its short join and leaves
+    the daemon thread blocked, logged at debug only (a normal shutdown must not log errors)."""
+    r, w = os.pipe()
+    stream = os.fdopen(r, "r")
+    scene = KeyboardScene(lambda: 0.0, stream=stream, feedback=io.StringIO())
+    try:
+        with caplog.at_level(logging.DEBUG, logger="drivers.keyboard"):
+            scene.start(lambda msg: None)
+            t0 = time.monotonic()
+            scene.stop()
+            assert time.monotonic() - t0 < 1.0
+        assert not [rec for rec in caplog.records if rec.levelno >= logging.WARNING]
+        assert any("left blocked" in rec.getMessage() for rec in caplog.records)
+    finally:
+        os.close(w)  # end of input: the blocked thread returns
+        time.sleep(0.1)
+        stream.close()
