@@ -44,7 +44,6 @@ from hal_sim.params import SimParams, estimator_config
 from hal_sim.plots import DriveTrace, plot_drive
 from hal_sim.sim_checks import check_drive_options, stop_on_signals
 from hal_sim.sim_cli import DriveOptions, DriveResult, output_settings, wav_has_speech
-from hal_sim.sim_cli import options_from_config as options_from_config  # its former home
 from hal_sim.sim_run import SimDevices, open_sim_camera, open_sim_devices
 from hal_sim.sim_world import SimWorld, StepEvents, WorldSpec
 
@@ -95,6 +94,9 @@ class SimDrive:
         spec = WorldSpec(opts.seed, opts.area_km2, opts.goal_min_m, opts.goal_max_m,
                          opts.density_per_km2, opts.detection_rate)  # fmt: skip
         self.world = world = SimWorld(spec, sim, est_cfg, nav_cfg)
+        # Compile the numba step now, on a copy, before any replay: the copy draws from numba's
+        # one random generator, so a fresh drive and a resumed one must draw it at the same point.
+        copy.deepcopy(world).step()
         self.origin = SIM_ORIGIN_LAT_LON
         if app_config is not None and app_config.origin_lat_lon_deg is not None:
             self.origin = app_config.origin_lat_lon_deg
@@ -156,7 +158,6 @@ class SimDrive:
                 async with open_outputs(settings, self.clock) as outputs:
                     self.outputs = outputs
                     self._build_app()
-                    copy.deepcopy(self.world).step()  # compile the numba step before the loop
                     async with self.app.running():
                         outcome = await self._drive()
                         self._track_point()
@@ -355,7 +356,7 @@ class SimDrive:
     # -- checkpoints ----------------------------------------------------------------------------
     def _resume(self, path: str) -> None:
         """The drive's own checkpoint (same seed and method only): the world replayed to its
-        step, the pipeline restored (checked on a throwaway first); a bad file moved aside."""
+        step, the pipeline restored (every value checked first); a bad file moved aside."""
         self.checkpointer = Checkpointer(path, self.opts.checkpoint_interval_s)
         doc = load_checkpoint(path)
         if doc is None:
@@ -367,9 +368,8 @@ class SimDrive:
                 f"method {extra.get('method')}; delete it or use the same options"
             )
         try:  # a damaged or hostile checkpoint: one line, and it is moved aside
-            Pipeline(self.pipeline_config).restore(doc["pipeline"])  # checked on a throwaway
+            self.pipeline.restore(doc["pipeline"])  # checked first: a bad value changes nothing
             self.world.replay_to(int(extra["step"]), extra["route"])
-            self.pipeline.restore(doc["pipeline"])
             self.trace.truth = [(float(a), float(b)) for a, b in extra.get("track_truth", [])]
             self.trace.est = [(float(a), float(b)) for a, b in extra.get("track_est", [])]
         except (ValueError, KeyError, TypeError, IndexError, AttributeError) as exc:

@@ -25,7 +25,7 @@ from collections.abc import Callable, Iterator
 from contextlib import redirect_stdout
 from dataclasses import dataclass, replace
 from pathlib import Path
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING
 
 import numpy as np
 
@@ -207,8 +207,3 @@ def run_on_simulated_devices(config_path: str, *, as_json: bool = False) -> int:
     if as_json:
         sys.stdout.write(json.dumps(result.to_json()) + "\n")
     return 0 if result.outcome in ("arrived", "time_limit") else 1
-
-
-def devices_are_simulated(cfg: Any) -> bool:
-    """The config asks ``guidance run`` to drive the simulated devices."""
-    return bool(cfg.sim.get("devices", False))

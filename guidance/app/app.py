@@ -224,10 +224,29 @@ class App:
             self.recorder.record_camera(frame)
 
     def _handle(self, msg: Input | None, out: Outputs) -> None:
-        p = self.pipeline
         if self.speaker is not None:
             for prompt in out.prompts:
                 self.speaker.say(prompt.text, prompt.priority, prompt.t_s)
+        if self.sinks:
+            self._send(out)
+        if out.health and msg is None:
+            self._publish_health(out.health[0].t_s)
+        elif out.health:
+            self._next_health_pub = -math.inf  # publish at the next tick
+        for listener in self.listeners:
+            listener(msg, out)
+
+    def _send(self, out: Outputs) -> None:
+        """Every output to every sink; what a message needs beyond the output is computed
+        once, not once per sink."""
+        p = self.pipeline
+        landmark_t, rejections = None, []
+        if out.landmark_updates or out.landmark_rejections:
+            landmark_t = (out.landmark_updates or [f for f, _ in out.landmark_rejections])[0].t_s
+            rejections = [
+                LandmarkRejection(r, fix.landmark_id) for fix, r in out.landmark_rejections
+            ]
+        target = p.target() if out.state is not None else None
         for sink in self.sinks:
             for prompt in out.prompts:
                 sink.send_prompt(prompt.t_s, prompt.text, kind=prompt.kind,
@@ -238,28 +257,12 @@ class App:
                 sink.send_turn(turn)
             for taken in out.exits_taken:
                 sink.send_exit(taken)
-            if out.landmark_updates or out.landmark_rejections:
-                t = (out.landmark_updates or [f for f, _ in out.landmark_rejections])[0].t_s
-                rejections = [
-                    LandmarkRejection(reason, fix.landmark_id)
-                    for fix, reason in out.landmark_rejections
-                ]
-                sink.send_landmark(t, matches=out.landmark_updates, rejections=rejections)
+            if landmark_t is not None:
+                sink.send_landmark(landmark_t, matches=out.landmark_updates, rejections=rejections)
             if out.state is not None:
-                sink.send_state(
-                    out.state,
-                    speed_mps=p.speed_mps,
-                    target=p.target(),
-                    goal=p.navigator.goal,
-                    method=self.method,
-                    mode=p.navigator.mode,
-                )
-        if out.health and msg is None:
-            self._publish_health(out.health[0].t_s)
-        elif out.health:
-            self._next_health_pub = -math.inf  # publish at the next tick
-        for listener in self.listeners:
-            listener(msg, out)
+                sink.send_state(out.state, speed_mps=p.speed_mps, target=target,
+                                goal=p.navigator.goal, method=self.method,
+                                mode=p.navigator.mode)  # fmt: skip
 
     def _publish_health(self, t_s: float) -> None:
         if not self.sinks:

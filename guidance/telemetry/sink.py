@@ -11,6 +11,7 @@ output kind is one encoder, one schema and one line in ``encode_outputs``.
 from __future__ import annotations
 
 import math
+from abc import ABC, abstractmethod
 from collections.abc import Callable, Mapping, Sequence
 from functools import partial
 from typing import TYPE_CHECKING, Any
@@ -101,15 +102,15 @@ SINK_SCHEMAS: dict[str, dict[str, Any]] = {
 """Schemas of the output kinds added with the sink (the others: ``MESSAGE_SCHEMAS``)."""
 
 
-class MessageSink:
-    """Where outputs go. Subclasses implement ``publish`` and ``own_health``."""
+class MessageSink(ABC):
+    """Where outputs go. Subclasses implement ``publish`` (and may report ``own_health``)."""
 
     origin_lat_lon_deg: tuple[float, float] | None = None
     """WGS-84 origin of the local frame: state messages then carry latitude/longitude."""
 
+    @abstractmethod
     def publish(self, kind: str, t_s: float, build: Build) -> bool:
         """Queue one message of ``kind``; never blocks; False when it was refused or dropped."""
-        raise NotImplementedError
 
     def own_health(self) -> Health | None:
         """This sink's own health, added (under its name) to the health messages it carries."""
