@@ -375,18 +375,19 @@ class Pipeline:
     def _after_step(self, t: float, out: Outputs, mode_done: bool = False) -> None:
         est = self.estimator
         major = est.major_axis_m
+        lost = major > est.config.lost_major_axis_m  # the estimator's lost, axis computed once
         if not mode_done:
             self.navigator.update_mode(major)
         if self._pending is not None and self.st.odometer_m >= self._pending.resolve_at_odometer_m:
             self._resolve(t, 0.0, "no_turn", out)
         warn = self.config.uncertain_warn_m
-        if not self.st.uncertain_said and major > warn and not est.lost:
+        if not self.st.uncertain_said and major > warn and not lost:
             self.st.uncertain_said = True
             self._say(out, t, prompts.position_uncertain(major, self.config.units), Priority.SAFETY,
                       "uncertain")  # fmt: skip
         elif self.st.uncertain_said and major < UNCERTAIN_HYSTERESIS * warn:
             self.st.uncertain_said = False
-        if est.lost:
+        if lost:
             out.lost = True
             if not self.st.lost_said:
                 self.st.lost_said = True
@@ -395,7 +396,7 @@ class Pipeline:
                     self.st.finished = True
         elif self.st.lost_said and major < UNCERTAIN_HYSTERESIS * est.config.lost_major_axis_m:
             self.st.lost_said = False
-        if not est.lost and not self.st.arrived and self.navigator.arrived(est.x):
+        if not lost and not self.st.arrived and self.navigator.arrived(est.x):
             self.st.arrived = True
             out.arrived = True
             self._say(out, t, prompts.arrived(), Priority.GUIDANCE, "arrived")
