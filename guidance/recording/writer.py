@@ -22,7 +22,7 @@ from guidance.core.messages import (
 )
 from guidance.recording.config import RecordingConfig
 from guidance.recording.files import _STOP, _Item, _OpenFile
-from guidance.recording.foxglove import FoxgloveView
+from guidance.recording.foxglove import FoxgloveView, stamp
 from guidance.recording.health import recorder_health
 from guidance.recording.topics import _DISK_FULL_ERRNOS
 from guidance.telemetry.messages import heading_deg_true
@@ -280,9 +280,8 @@ class Recorder(MessageSink):
             if jpeg is not None:
                 self._last_thumb_t_s = frame.t_s
                 body["thumbnail"] = True
-                sec = math.floor(frame.t_s)
                 thumb = {
-                    "timestamp": {"sec": sec, "nsec": round((frame.t_s - sec) * 1e9)},
+                    "timestamp": stamp(frame.t_s),
                     "frame_id": frame.source or "camera",
                     "format": "jpeg",
                     "data": base64.b64encode(jpeg).decode("ascii"),

@@ -11,7 +11,7 @@ from dataclasses import dataclass
 from typing import TYPE_CHECKING, Any
 
 from guidance.core.messages import EstimateState, Health, LandmarkFix, Target
-from guidance.core.model import heading_to_compass
+from guidance.core.model import heading_to_compass, wrap_angle
 from guidance.errors import UserError
 from guidance.telemetry.keys import schema_tag
 
@@ -49,8 +49,8 @@ def _target_dict(target: Target | None) -> dict[str, Any] | None:
 
 
 def _wrap_deg(angle_rad: float) -> float | None:
-    deg = math.degrees(math.atan2(math.sin(angle_rad), math.cos(angle_rad)))
-    return _num(deg)
+    """Degrees in (-180, 180]; None for a non-finite angle (the field, not the message, is lost)."""
+    return _num(math.degrees(wrap_angle(angle_rad))) if math.isfinite(angle_rad) else None
 
 
 Origin = tuple[float, float]

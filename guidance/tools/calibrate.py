@@ -13,13 +13,12 @@ from __future__ import annotations
 
 import argparse
 import json
-import os
 import re
 import sys
-import tempfile
 from pathlib import Path
 from typing import Any
 
+from guidance.app.checkpoint import write_atomic
 from guidance.core.compass_cal import (
     FitResult,
     calibrate_from_drive,
@@ -89,13 +88,9 @@ def write_card(config: Path, values: list[float]) -> None:
             lines[old] = entry
         else:
             lines.insert(start + 1, entry)
-    fd, tmp = tempfile.mkstemp(dir=config.parent, prefix=f".{config.name}.", suffix=".tmp")
-    try:
-        with os.fdopen(fd, "w", encoding="utf-8") as f:
-            f.writelines(lines)
-        os.replace(tmp, config)
+    try:  # the car reads it: old or new, never half, with the mode it had
+        write_atomic(config, "".join(lines).encode("utf-8"), config.stat().st_mode & 0o777)
     except OSError as exc:
-        Path(tmp).unlink(missing_ok=True)
         raise UserError(f"cannot write {config}: {exc.strerror or exc}") from None
 
 

@@ -724,3 +724,11 @@ def test_mtls_access_control_only_the_operator_certificate_sets_a_goal(
     assert goals == [(20.0, 5.0)], "only CN=operator (2nd monitor) may set a goal"
     assert seen["viewer"] == {"connected": True, "alive": True, "state": True, "late_state": True}
     assert seen["no-certificate"]["connected"] is False and not seen["no-certificate"]["state"]
+
+
+def test_a_non_finite_angle_loses_its_field_not_the_message() -> None:
+    from guidance.telemetry.messages import _wrap_deg
+
+    assert _wrap_deg(math.inf) is None and _wrap_deg(math.nan) is None
+    assert _wrap_deg(3 * math.pi) == pytest.approx(180.0)
+    assert _wrap_deg(-math.pi / 2) == pytest.approx(-90.0)

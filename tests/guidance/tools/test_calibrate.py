@@ -142,8 +142,11 @@ def test_a_straight_drive_fits_the_offset_only_and_says_so(tmp_path: Path) -> No
 def test_write_card_adds_a_compass_table_when_there_is_none(tmp_path: Path) -> None:
     car = tmp_path / "car.toml"
     car.write_text("[vehicle]\nid = 'x'\n")
+    car.chmod(0o640)  # readable by the car's service group, as it was set up
     write_card(car, [1.0, 2.0, 3.0, 4.0, 5.0])
     assert tomllib.loads(car.read_text())["compass"]["deviation_deg"] == [1.0, 2.0, 3.0, 4.0, 5.0]
+    assert car.stat().st_mode & 0o777 == 0o640  # the rewrite keeps the file's mode
+    assert [f.name for f in tmp_path.iterdir()] == ["car.toml"]  # no temporary file left
 
 
 def test_bad_inputs_are_one_line_errors(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
