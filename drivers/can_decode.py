@@ -196,8 +196,9 @@ class WheelSpeedDecoder:
         rear = self._wheel_pair(values, p.rear)
         if rear is None:
             return None
-        if self._shared:
-            front = self._wheel_pair(values, p.front, count=False)
+        if self._shared:  # the fronts only matter when both rears read zero (the fallback)
+            stopped = rear == (0.0, 0.0) and self.profile.allow_front_fallback
+            front = self._wheel_pair(values, p.front, count=False) if stopped else None
         else:
             latest = self._front_latest
             fresh = latest.t is not None and abs(t - latest.t) <= self.max_gap_s

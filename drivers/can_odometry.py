@@ -25,7 +25,7 @@ from drivers.can_decode import MAX_GAP_S, REJECT_REASONS, WheelSpeedDecoder
 from drivers.candump import read_candump
 from drivers.clock import ClockMapper
 from drivers.profiles import VehicleProfile, get_profile
-from guidance.core.messages import Health, WheelOdometry
+from guidance.core.messages import WheelOdometry
 from guidance.errors import UserError
 
 log = logging.getLogger(__name__)
@@ -115,17 +115,10 @@ class CanOdometry(ThreadedSource[WheelOdometry]):
 
     # OdometrySource ------------------------------------------------------------------------------
 
-    def health(self) -> Health:
-        """alive: wheel-speed frames arriving; valid: most of the recent ones usable."""
-        counters = self.stats()
-        with self._lock:
-            counters["gap_ms"] = round(self.decoder.gap_s * 1000.0)
-        return self._health.evaluate(counters)
-
     # internals ---------------------------------------------------------------------------------
 
     def _source_stats(self) -> dict[str, int]:
-        return self.decoder.stats()
+        return {**self.decoder.stats(), "gap_ms": round(self.decoder.gap_s * 1000.0)}
 
     def _on_start(self) -> None:
         """Open the bus; a bus that is down now is retried by the reader, not fatal."""
