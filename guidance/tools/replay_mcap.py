@@ -11,6 +11,7 @@ from collections.abc import Iterator, Mapping
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
+from guidance.core.codec import TOPICS
 from guidance.core.messages import TurnCompleted
 from guidance.errors import UserError
 from guidance.tools.replay_session import well_formed_output
@@ -19,15 +20,8 @@ if TYPE_CHECKING:
     from guidance.core.pipeline import Input
     from guidance.recording.scan import Damage
 
-INPUT_TOPICS = (
-    "/odometry",
-    "/compass",
-    "/heading",
-    "/landmark_fix",
-    "/scene",
-    "/approach",
-    "/goal",
-)
+INPUT_TOPICS = tuple(dict.fromkeys(TOPICS.values()))
+"""Every processed-input topic, from the codec's one table: a new input type is replayed."""
 
 
 # ----------------------------------------------------------------------------- MCAP
@@ -56,7 +50,8 @@ def _decoded(topic: str, data: Mapping[str, Any], skipped: list[str]) -> Input |
         return None
 
 
-RAW_TOPICS = ("/can", "/nmea", "/heading", "/landmark_fix", "/scene", "/approach", "/goal")
+RAW_TOPICS = ("/can", "/nmea", *(t for t in INPUT_TOPICS if t not in ("/odometry", "/compass")))
+"""With ``raw``: the CAN frames and NMEA lines instead of the odometry and compass they gave."""
 
 
 def mcap_inputs(
