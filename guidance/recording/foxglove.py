@@ -311,13 +311,6 @@ class FoxgloveView:
         if geo is not None:
             out.append(("/truth/location", location_fix(t, geo, None, frame_id="truth",
                                                         color=_GREEN)))  # fmt: skip
-        if self._truth.add(t, x, y):
-            pts = [_point(px, py) for px, py in self._truth.points]
-            lines = [_line(0, pts, _GREEN, 2.0)] if len(pts) >= 2 else []
-            out.append(
-                (
-                    "/foxglove/scene",
-                    {"deletions": [], "entities": [_entity(t, "truth", lines=lines)]},
-                )
-            )
+        if self._truth.add(t, x, y):  # the growing piece only, like the estimated track
+            out.append(("/foxglove/scene", {"deletions": [], "entities": [self._truth.piece(t)]}))
         return out

@@ -24,7 +24,7 @@ from mcap.reader import make_reader
 from guidance.core.messages import Ellipse, EstimateState
 from guidance.core.pipeline import Pipeline
 from guidance.recording.config import RecordingConfig
-from guidance.recording.foxglove import SCHEMA_OF_TOPIC, ellipse_points
+from guidance.recording.foxglove import SCHEMA_OF_TOPIC, TRACK_PIECE, ellipse_points
 from guidance.recording.foxglove_schemas import json_schema, to_protobuf
 from guidance.recording.reader import Reader
 from guidance.recording.writer import Recorder
@@ -118,6 +118,8 @@ def test_foxglove_views_carry_the_estimate_truth_prompts_and_scene(drive: Any) -
         for ent in update["entities"]:
             ids.add(ent["id"].split("/")[0])
             assert ent["frame_id"] == "map"
+            if ent["id"].startswith(("truth", "track")):  # pieces, never the whole path again
+                assert all(len(line["points"]) <= TRACK_PIECE + 1 for line in ent["lines"])
     assert {"estimate", "goal", "track", "truth", "landmarks"} <= ids
     est = next(ent for u in fox["/foxglove/scene"] for ent in u["entities"]
                if ent["id"] == "estimate")  # fmt: skip
