@@ -1,11 +1,11 @@
-"""Magnetic declination from the World Magnetic Model, and compass reading -> filter heading.
+"""Magnetic declination from the World Magnetic Model.
 
 pygeomag (a port of NOAA's reference C code) ships the WMM coefficient files from WMM-2010 to
 WMM-2025; the model whose 5-year life span holds the date is chosen, so old logs get the model
 of their day and today's drives get WMM-2025 (valid 2025.0-2030.0, released 11/13/2024).
 
-The conversion itself is ``guidance.model.compass_to_heading`` (SPEC section 2): the one tested
-definition shared with the simulator. This module only decides what to feed it.
+The reading -> filter heading conversion is ``guidance.core.compass_cal.compass_heading_to_theta``
+(the pipeline's); this module gives it the declination of the place and date.
 """
 
 from __future__ import annotations
@@ -17,8 +17,6 @@ import math
 
 from pygeomag import GeoMag, decimal_year_from_date
 
-from guidance.core.messages import CompassHeading
-from guidance.core.model import compass_to_heading
 from guidance.errors import UserError
 
 log = logging.getLogger(__name__)
@@ -81,15 +79,3 @@ def declination_deg(
     if result.in_blackout_zone:
         log.warning("declination at %.3f, %.3f is unreliable (magnetic pole)", lat_deg, lon_deg)
     return float(result.d)
-
-
-def compass_heading_to_theta(
-    reading: CompassHeading, declination_deg: float, mounting_offset_deg: float = 0.0
-) -> float:
-    """Filter heading (rad, CCW from east, SPEC section 7) of the car from a compass reading.
-
-    ``mounting_offset_deg`` is added to the reading (clockwise positive): the angle from the
-    compass's forward mark to the car's forward axis. True headings (HDT) skip the declination.
-    """
-    vehicle_deg = reading.heading_deg + mounting_offset_deg
-    return float(compass_to_heading(vehicle_deg, 0.0 if reading.is_true else declination_deg))

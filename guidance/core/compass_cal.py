@@ -31,6 +31,9 @@ from typing import Final, Literal
 import numpy as np
 import numpy.typing as npt
 
+from guidance.core.messages import CompassHeading
+from guidance.core.model import compass_to_heading
+
 FloatArray = npt.NDArray[np.float64]
 BoolArray = npt.NDArray[np.bool_]
 Terms = Literal["offset only", "offset + 2 harmonics"]
@@ -135,6 +138,22 @@ class CompassCalibration:
     @property
     def is_identity(self) -> bool:
         return all(getattr(self, name) == 0.0 for name in _NAMES)
+
+
+def compass_heading_to_theta(
+    reading: CompassHeading,
+    declination_deg: float,
+    mounting_offset_deg: float = 0.0,
+    card: CompassCalibration | None = None,
+) -> float:
+    """Filter heading (rad, CCW from east, SPEC section 7) of the car from a compass reading:
+    the deviation ``card`` (when calibrated), then the mounting offset (clockwise positive: the
+    angle from the compass's forward mark to the car's forward axis), then the declination,
+    which a true heading (HDT) skips. The pipeline's one conversion (``Pipeline.compass_fix``).
+    """
+    deg = reading.heading_deg if card is None else card.apply(reading.heading_deg)
+    decl = 0.0 if reading.is_true else declination_deg
+    return float(compass_to_heading(deg + mounting_offset_deg, decl))
 
 
 def _problem(cal: CompassCalibration) -> str | None:

@@ -24,7 +24,7 @@ import numpy as np
 
 from guidance.core import prompts
 from guidance.core.announce import due_announcements
-from guidance.core.compass_cal import CompassCalibration
+from guidance.core.compass_cal import CompassCalibration, compass_heading_to_theta
 from guidance.core.estimator import PoseEstimator
 from guidance.core.health import (
     CompassJudge,
@@ -47,7 +47,7 @@ from guidance.core.messages import (
     TurnCompleted,
     WheelOdometry,
 )
-from guidance.core.model import compass_to_heading, wrap_angle
+from guidance.core.model import wrap_angle
 from guidance.core.navigator import Decision, Navigator
 from guidance.core.pipeline_config import INPUT_KINDS, Input, Outputs, PipelineConfig
 from guidance.core.pipeline_state import Pending, PipelineState, _InState
@@ -181,13 +181,12 @@ class Pipeline:
 
     # -- inputs -------------------------------------------------------------------------------
     def compass_fix(self, msg: CompassHeading) -> HeadingFix:
-        """A compass reading as a filter heading: mounting offset, then declination unless true."""
+        """A compass reading as a filter heading: card, mounting offset, declination unless true."""
         cfg = self.config
-        decl = 0.0 if msg.is_true else cfg.declination_deg
-        reading = msg.heading_deg
-        if self._deviation is not None:
-            reading = self._deviation.apply(reading)
-        return HeadingFix(msg.t_s, compass_to_heading(reading + cfg.mounting_offset_deg, decl))
+        theta = compass_heading_to_theta(
+            msg, cfg.declination_deg, cfg.mounting_offset_deg, self._deviation
+        )
+        return HeadingFix(msg.t_s, theta)
 
     def _odometry(self, msg: WheelOdometry, out: Outputs) -> None:
         held, self._held_odometry = self._held_odometry, None
