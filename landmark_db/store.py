@@ -310,7 +310,7 @@ def create_db(
     if not p.parent.is_dir():
         raise LandmarkDbError(f"folder {p.parent} does not exist")
     ext = extractor or ExtractorConfig()
-    conn = sqlite3.connect(p, check_same_thread=False)
+    conn = _connect(p, readonly=False)  # as open_db's: foreign keys on (ON DELETE CASCADE)
     try:
         conn.executescript(f"BEGIN; {V1} COMMIT;")
         with conn:

@@ -247,3 +247,13 @@ def test_feature_blobs_round_trip_and_reject_garbage() -> None:
     with pytest.raises(ValueError):
         Features.from_blobs(f.keypoint_blob()[:-4], f.descriptor_blob(), f.width, f.height)
     assert decode_image(encode_image(img)).shape == img.shape
+
+
+def test_a_new_file_is_open_as_open_db_opens_one_foreign_keys_on(tmp_path: Path) -> None:
+    """create_db and open_db give the same connection: the schema's ON DELETE CASCADE holds
+    from the first write, not only after the file is reopened."""
+    from landmark_db.geo import Origin
+    from landmark_db.store import create_db
+
+    with create_db(tmp_path / "new.sqlite", Origin(42.444, -76.5019)) as db:
+        assert db._conn.execute("PRAGMA foreign_keys").fetchone()[0] == 1
