@@ -527,12 +527,13 @@ class Pipeline:
             mem_capacity=nav_cfg.max_intersections,
             mem_width=nav_cfg.max_exits,
         )
+        st = PipelineState.from_snapshot(snap)  # checked too, before anything changes
         est = self.estimator
         est.set_state(np.asarray(snap["x"], dtype=float), np.asarray(snap["P"], dtype=float))
         last = snap.get("last_t_s") if same_clock else None
         if isinstance(last, int | float):
             est._last_t = float(last)  # the estimator's time order survives the restart
-        self.st = PipelineState.from_snapshot(snap)
+        self.st = st
         nav = snap["navigator"]
         assert isinstance(nav, dict)
         self.navigator.restore(nav)

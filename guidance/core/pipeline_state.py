@@ -10,7 +10,13 @@ from dataclasses import asdict, dataclass, field, fields
 from typing import TYPE_CHECKING, Generic, TypeVar, overload
 
 from guidance.core.navigator import Decision, ExitOption
-from guidance.core.snapshot_check import number
+from guidance.core.snapshot_check import (
+    MAX_ODOMETER_M,
+    MAX_SPEED_MPS,
+    SnapshotError,
+    integer,
+    number,
+)
 
 if TYPE_CHECKING:
     from guidance.core.pipeline import Pipeline
@@ -34,13 +40,29 @@ class PipelineState:
 
     @classmethod
     def from_snapshot(cls, snap: Mapping[str, object]) -> PipelineState:
-        """Each field from ``snap`` (checked by ``check_snapshot`` first) as its own type."""
+        """Each field from ``snap``, checked by its own type (a bool is true or false, a count
+        a non-negative integer, a number finite and within its bounds): ``SnapshotError``
+        names the first bad one. A field added later is checked without another list."""
         out = cls()
         for f in fields(cls):
-            if f.name in snap:
-                kind = type(getattr(out, f.name))
-                setattr(out, f.name, kind(snap[f.name]))
+            if f.name not in snap:
+                continue
+            v = snap[f.name]
+            default = getattr(out, f.name)
+            if isinstance(default, bool):
+                if not isinstance(v, bool):
+                    raise SnapshotError(f"{f.name} must be true or false, not {type(v).__name__}")
+            elif isinstance(default, int):
+                v = integer(v, f.name)
+            else:
+                v = number(v, f.name, *_BOUNDS.get(f.name, (-MAX_NUMBER, MAX_NUMBER)))
+            setattr(out, f.name, v)
         return out
+
+
+_BOUNDS = {"odometer_m": (0.0, MAX_ODOMETER_M), "speed_mps": (-MAX_SPEED_MPS, MAX_SPEED_MPS)}
+"""A number field's bounds in a checkpoint (others: finite and at most ``MAX_NUMBER``)."""
+MAX_NUMBER = 1e12
 
 
 @dataclass(slots=True)

@@ -133,3 +133,29 @@ def test_restore_after_a_reboot_does_not_carry_the_old_clock(
     rebooted.inflate_position(40.0)  # 4 s down at 10 m/s: 40 m more 2-sigma radius
     major = rebooted.estimator.major_axis_m  # the full axis: twice the 2-sigma radius
     assert major == pytest.approx(2 * math.hypot(before / 2, 40.0), rel=0.05)
+
+
+@pytest.mark.parametrize(
+    ("key", "value", "message"),
+    [
+        ("arrived", "false", "arrived must be true or false"),
+        ("prompt_count", -1, "prompt_count is outside"),
+        ("odometer_m", 1e300, "odometer_m = 1e\\+300 is outside"),
+        ("speed_mps", float("nan"), "speed_mps must be finite"),
+    ],
+)
+def test_a_checkpoint_with_a_bad_state_field_is_refused_and_nothing_changes(
+    make_pipeline: Callable[..., Pipeline], key: str, value: object, message: str
+) -> None:
+    """Every PipelineState field is checked by its type (no second list to forget one)."""
+    from guidance.core.snapshot_check import SnapshotError
+
+    a = make_pipeline()
+    for k in range(10):
+        a.feed(WheelOdometry(0.1 * (k + 1), 1.0, 1.0))
+    snap = {**a.snapshot(), key: value}
+    b = make_pipeline()
+    before = (b.estimator.x.copy(), b.odometer_m)
+    with pytest.raises(SnapshotError, match=message):
+        b.restore(snap)
+    assert np.array_equal(b.estimator.x, before[0]) and b.odometer_m == before[1]
