@@ -179,6 +179,15 @@ def remember_intersection(
 
 
 @njit(cache=True, error_model="numpy")
+def mark_passed(x: float, y: float, lm_xy: np.ndarray, passed: np.ndarray, radius_m: float) -> None:
+    """Mark the landmarks within ``radius_m`` of (x, y) as passed (they stop being targets)."""
+    r2 = radius_m * radius_m
+    for m in range(lm_xy.shape[0]):
+        if (lm_xy[m, 0] - x) ** 2 + (lm_xy[m, 1] - y) ** 2 <= r2:
+            passed[m] = True
+
+
+@njit(cache=True, error_model="numpy")
 def decide_exit(
     ix: float,
     iy: float,
@@ -219,10 +228,7 @@ def decide_exit(
     tx, ty = goal_x, goal_y
     target = -1
     if mode == MODE_LANDMARK and lm_xy.shape[0] > 0:
-        r2 = pass_r * pass_r
-        for m in range(lm_xy.shape[0]):
-            if (lm_xy[m, 0] - ix) ** 2 + (lm_xy[m, 1] - iy) ** 2 <= r2:
-                passed[m] = True
+        mark_passed(ix, iy, lm_xy, passed, pass_r)
         target = landmark_target(ix, iy, goal_x, goal_y, lm_xy, passed)
         if target >= 0:
             tx, ty = lm_xy[target, 0], lm_xy[target, 1]

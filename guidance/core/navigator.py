@@ -152,21 +152,22 @@ class Navigator:
         self.update_mode(major_axis_m, landmark_update=True)
 
     def target(self, x: np.ndarray) -> Target:
-        """The current target: the goal, or the landmark the car aims at."""
+        """The current target (a view: the goal, or the landmark the car aims at from ``x``).
+
+        Landmarks within the pass radius of ``x`` count as passed for this answer only: the
+        navigator marks them passed at the next decision (``law.decide_exit``), as the study
+        engine does, so showing the target never changes what the car decides."""
         if self._mode == law.MODE_LANDMARK and len(self.landmarks):
-            self._mark_passed(x)
+            passed = self._passed.copy()
+            law.mark_passed(float(x[0]), float(x[1]), self._lm_xy, passed,
+                            self.config.landmark_pass_radius_m)  # fmt: skip
             k = law.landmark_target(
-                float(x[0]), float(x[1]), self.goal[0], self.goal[1], self._lm_xy, self._passed
+                float(x[0]), float(x[1]), self.goal[0], self.goal[1], self._lm_xy, passed
             )
             if k >= 0:
                 lm = self.landmarks[k]
                 return Target(lm.x_m, lm.y_m, "landmark", lm.id)
         return Target(self.goal[0], self.goal[1], "goal", None)
-
-    def _mark_passed(self, x: np.ndarray) -> None:
-        r = self.config.landmark_pass_radius_m
-        d = np.hypot(self._lm_xy[:, 0] - x[0], self._lm_xy[:, 1] - x[1])
-        self._passed |= d <= r
 
     # -- the decision -------------------------------------------------------
     def decide(

@@ -201,3 +201,19 @@ def test_empty_memory_round_trip() -> None:
         other.decide(1.0, x, _P(2.0), [NORTH, EAST]).options
         == nav.decide(1.0, x, _P(2.0), [NORTH, EAST]).options
     )
+
+
+def test_showing_the_target_never_changes_what_the_navigator_decides() -> None:
+    """target() is a view (the display asks it ten times a second when outputs are on): a
+    landmark it treats as passed is marked passed only by the next decision, as in the study
+    engine, so a car with telemetry decides exactly as one without."""
+    lms = [Landmark(1, 300.0, 0.0), Landmark(2, 600.0, 0.0)]
+    cfg = NavigatorConfig(method=Method.LANDMARK_TO_LANDMARK)
+    shown, quiet = Navigator((1000.0, 0.0), cfg, lms), Navigator((1000.0, 0.0), cfg, lms)
+    assert shown.target(np.array([298.0, 0.0, 0.0])).id == 2  # landmark 1 is being passed
+    assert shown.memory() == quiet.memory()
+    P = np.diag([25.0, 25.0, 0.01])
+    for nav in (shown, quiet):
+        nav.decide(1.0, np.array([298.0, 0.0, 0.0]), P, [0.0, math.pi / 2])
+    assert shown.memory() == quiet.memory()
+    assert shown.memory()["passed"] == [True, False]  # the decision marked it
