@@ -4,6 +4,7 @@
 
 from __future__ import annotations
 
+import functools
 import json
 import math
 from collections.abc import Mapping, Sequence
@@ -81,9 +82,16 @@ def lat_lon_deg(x_m: float | None, y_m: float | None, origin: Origin | None) -> 
         return None
     if not (math.isfinite(x_m) and math.isfinite(y_m)):
         return None
+    return _geodetic(float(x_m), float(y_m), float(origin[0]), float(origin[1]))
+
+
+@functools.lru_cache(maxsize=256)
+def _geodetic(x_m: float, y_m: float, lat0: float, lon0: float) -> Origin:
+    """pymap3d's ENU -> WGS-84 (about 0.13 ms). Cached: the goal and the target stay the same
+    from one state message to the next, and telemetry and the recorder each build the same one."""
     import pymap3d
 
-    lat, lon, _h = pymap3d.enu2geodetic(x_m, y_m, 0.0, origin[0], origin[1], 0.0)
+    lat, lon, _h = pymap3d.enu2geodetic(x_m, y_m, 0.0, lat0, lon0, 0.0)
     return float(lat), float(lon)
 
 
