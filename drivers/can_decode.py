@@ -69,8 +69,8 @@ class WheelSpeedDecoder:
 
     ``feed`` returns a ``WheelOdometry`` for every rear wheel-speed frame that closes a valid
     interval; ``None`` for anything else (other ids, the first frame, rejected frames). The
-    output time is the frame timestamp plus ``clock_offset_s`` (the live driver moves wall-clock
-    frame times onto the monotonic clock with it).
+    output time is the frame's timestamp (the live driver maps wall-clock stamps onto the
+    monotonic clock before feeding: ``drivers.clock.ClockMapper``).
     """
 
     def __init__(
@@ -80,13 +80,11 @@ class WheelSpeedDecoder:
         max_gap_s: float = MAX_GAP_S,
         max_speed_mps: float = MAX_SPEED_MPS,
         max_accel_mps2: float = MAX_ACCEL_MPS2,
-        clock_offset_s: float = 0.0,
     ) -> None:
         self.profile = get_profile(profile) if isinstance(profile, str) else profile
         self.max_gap_s = max_gap_s
         self.max_speed_mps = max_speed_mps
         self.max_accel_mps2 = max_accel_mps2
-        self.clock_offset_s = clock_offset_s
         db = load_dbc(self.profile.dbc_file)
         p = self.profile
         self._rear_msg = db.get_message_by_frame_id(p.rear.frame_id)
@@ -295,7 +293,7 @@ class WheelSpeedDecoder:
         self.distance_m += abs(0.5 * (d_left + d_right))
         self.integrated_s += dt
         self.max_speed_seen_mps = max(self.max_speed_seen_mps, abs(0.5 * (now[0] + now[1])))
-        return WheelOdometry(t_s=t + self.clock_offset_s, d_left_m=d_left, d_right_m=d_right)
+        return WheelOdometry(t_s=t, d_left_m=d_left, d_right_m=d_right)
 
     def _anchor(self, t: float, used: tuple[float, float]) -> None:
         self._spikes_in_row = 0

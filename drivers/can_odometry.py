@@ -163,7 +163,6 @@ class CanOdometry(ThreadedSource[WheelOdometry]):
     def _resync_clock(self) -> None:
         """Wall-clock frame stamps are mapped onto the monotonic clock frame by frame
         (``drivers.clock.ClockMapper``: steps followed and reported, glitches ignored)."""
-        self.decoder.clock_offset_s = 0.0
         self._clock_map = ClockMapper()
 
     def _bus_failed(self, exc: BaseException) -> None:
@@ -218,7 +217,7 @@ class CanOdometry(ThreadedSource[WheelOdometry]):
             if self._raw_sink is not None:  # recording raw frames: built only then
                 self._offer_raw(
                     "can",
-                    float(msg.timestamp) + float(self.decoder.clock_offset_s),
+                    float(msg.timestamp),
                     {
                         "id": msg.arbitration_id,
                         "data": bytes(msg.data),
