@@ -26,6 +26,7 @@ import numpy as np
 from numba import njit
 
 from guidance.core import law, model
+from guidance.core.navigator import NavigatorConfig
 from hal_sim import ekf, world
 from hal_sim.params import (
     I_AREA_MAX,
@@ -122,8 +123,11 @@ RESULT_NAMES = (
     "true_lost_at_m",
 )
 
-MAX_MEMORY = 4096
+MAX_MEMORY = NavigatorConfig().max_intersections
+"""The intersections a trial remembers: the car's own default (``law.decide_exit`` forgets the
+oldest half when full, so the engine and the car must agree on the size)."""
 MAX_EXITS = 4
+"""The grid city's intersections have at most four exits."""
 
 
 @njit(cache=True, error_model="numpy")
