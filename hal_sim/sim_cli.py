@@ -324,7 +324,6 @@ def register(sub: Any) -> None:
 
 
 def _cli_sim(args: argparse.Namespace) -> int:
-    from hal_sim.drive import run_drive
 
     opts = DriveOptions()
     app_config = None
@@ -364,16 +363,26 @@ def _cli_sim(args: argparse.Namespace) -> int:
         changes["png"] = False
     opts = replace(opts, **changes)
 
+    drive_and_report(opts, app_config, as_json=args.json)
+    return 0
+
+
+def drive_and_report(opts: DriveOptions, app_config: Any, *, as_json: bool) -> DriveResult:
+    """One simulated drive with its prompts printed as they come, then the summary and, with
+    ``as_json``, the result as the last stdout line (``guidance sim``, and ``guidance run`` on
+    the simulated devices)."""
+    from hal_sim.drive import run_drive
+
     def printer(line: str) -> None:
         sys.stdout.write(line + "\n")
         sys.stdout.flush()
 
     result = run_drive(opts, printer, app_config)
     print_summary(result, opts)
-    if args.json:
+    if as_json:
         sys.stdout.write(json.dumps(result.to_json()) + "\n")
     sys.stdout.flush()
-    return 0
+    return result
 
 
 def print_summary(result: DriveResult, opts: DriveOptions) -> None:

@@ -20,7 +20,6 @@ import csv
 import io
 import itertools
 import os
-import sys
 from collections.abc import Callable, Iterator
 from contextlib import redirect_stdout
 from dataclasses import dataclass, replace
@@ -186,10 +185,7 @@ def run_on_simulated_devices(config_path: str, *, as_json: bool = False) -> int:
     """``guidance run --config`` with ``[sim] devices = true``: one simulated drive through the
     car's wiring; prints the prompts, the summary and, with ``as_json``, the result as the last
     line (``outcome``, ``landmark_updates``, ``prompts``...)."""
-    import json
-
-    from hal_sim.drive import run_drive
-    from hal_sim.sim_cli import DriveOptions, options_from_config, print_summary
+    from hal_sim.sim_cli import DriveOptions, drive_and_report, options_from_config
 
     opts, cfg = options_from_config(config_path, DriveOptions())
     if cfg.landmark_db is not None:
@@ -199,11 +195,5 @@ def run_on_simulated_devices(config_path: str, *, as_json: bool = False) -> int:
     elif cfg.voice.backend == "wav" and cfg.voice.wav_path:
         opts = replace(opts, voice_to=cfg.voice.wav_path)
 
-    def printer(line: str) -> None:
-        sys.stdout.write(line + "\n")
-
-    result = run_drive(opts, printer=printer, app_config=cfg)
-    print_summary(result, opts)
-    if as_json:
-        sys.stdout.write(json.dumps(result.to_json()) + "\n")
+    result = drive_and_report(opts, cfg, as_json=as_json)
     return 0 if result.outcome in ("arrived", "time_limit") else 1
