@@ -12,6 +12,7 @@ from guidance.errors import UserError
 
 
 def register(sub: Any) -> None:
+    register_check(sub)
     study = sub.add_parser(
         "study",
         help="run a Monte Carlo study (range without a map, or landmarks)",
@@ -136,3 +137,44 @@ def _print_summary(console: Any, summary: dict[str, Any], out: Path, table_cls: 
             )
     console.print(t)
     console.print(f"results in {out}/ (summary.json, trials.csv, figures)")
+
+
+def register_check(sub: Any) -> None:
+    """``guidance check-guidance REC``: the truth oracle (``hal_sim.oracle``) on a recorded
+    simulated drive."""
+    p = sub.add_parser(
+        "check-guidance",
+        help="check every spoken manoeuvre of a recorded simulated drive against its truth",
+        description=(
+            "Reads a recording of `guidance sim` (or `guidance run` on the simulated devices) "
+            "and checks each turn prompt against the turn the car then made, the spoken "
+            "distances against the distance to go, the margin before each turn and repeats. "
+            "Exit 0 when all hold, 1 when not."
+        ),
+    )
+    p.add_argument("recording", help="an .mcap file or a folder of rotated files")
+    p.add_argument("--json", action="store_true", help="the figures as one JSON line")
+    p.set_defaults(func=_cli_check)
+
+
+def _cli_check(args: argparse.Namespace) -> int:
+    from hal_sim.oracle import from_recording
+
+    res = from_recording(args.recording)
+    if args.json:
+        print(json.dumps({
+            "turn_prompts": res.turn_prompts,
+            "manoeuvres_checked": res.manoeuvres_checked,
+            "wrong": len(res.wrong),
+            "distances_checked": res.distances_checked,
+            "distances_ok": res.distances_ok,
+            "turns": res.turns,
+            "unannounced": len(res.unannounced),
+            "late": len(res.late),
+            "repeats": len(res.repeats),
+            "min_margin_s": min(res.margins_s) if res.margins_s else None,
+            "ok": res.ok(),
+        }))  # fmt: skip
+    else:
+        print(res.summary())
+    return 0 if res.ok() else 1

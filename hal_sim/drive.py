@@ -88,12 +88,7 @@ class SimDrive:
         self.method = _method(opts.method)
         self.field_protocol = opts.duration_s is not None
         self.end_t = math.inf if opts.duration_s is None else opts.duration_s
-        sim = SimParams(decision_distance_m=opts.decision_distance_m)
-        est_cfg = estimator_config(sim, opts.compass_deg)
-        nav_cfg = NavigatorConfig(method=self.method)
-        spec = WorldSpec(opts.seed, opts.area_km2, opts.goal_min_m, opts.goal_max_m,
-                         opts.density_per_km2, opts.detection_rate)  # fmt: skip
-        self.world = world = SimWorld(spec, sim, est_cfg, nav_cfg)
+        self.world = world = make_world(opts)
         # Compile the numba step now, on a copy, before any replay: the copy draws from numba's
         # one random generator, so a fresh drive and a resumed one must draw it at the same point.
         copy.deepcopy(world).step()
@@ -106,26 +101,9 @@ class SimDrive:
         landmarks: tuple[Landmark, ...] = world.landmarks()
         if opts.camera_hz is not None:
             self.camera, self.recogniser, landmarks = open_sim_camera(world, opts, Path(opts.out))
-        sx, sy, th0 = world.start_pose
-        gx, gy = world.goal_xy
-        rates: dict[str, float | None] = {"odometry": 1.0 / world.dt_s}
-        if opts.compass_deg is not None:
-            rates["compass"] = sim.compass_rate_hz
-        self.pipeline_config = PipelineConfig(
-            estimator=est_cfg,
-            navigator=nav_cfg,
-            start_xy_m=(sx, sy),
-            goal_xy_m=(gx, gy),
-            start_heading_rad=th0,
-            landmarks=landmarks,
-            declination_deg=self.decl,
-            expected_rates_hz=rates,
-            stop_at_arrival=not self.field_protocol,
-        )
+        self.pipeline_config = drive_pipeline_config(world, opts, landmarks, self.decl)
         self.pipeline = Pipeline(self.pipeline_config)
-        manhattan = abs(gx - sx) + abs(gy - sy)
-        self.cap_m = math.inf if self.field_protocol else (
-            opts.cap_factor * manhattan + opts.cap_extra_m)  # fmt: skip
+        self.cap_m = drive_cap_m(world, opts)
         self.trace = DriveTrace()
         self.checkpointer: Checkpointer | None = None
         self.resumed_at: float | None = None
@@ -299,15 +277,25 @@ class SimDrive:
         return t >= self.end_t
 
     async def _follow_scene(self, ev: StepEvents) -> None:
-        """The co-driver: the scene ahead, the next intersection announced, the advice taken."""
+        """The co-driver: the intersection ahead reported once in view (and the one after it
+        when that is in view too), its distance as the car approaches, the advice taken."""
         scene, p = self.dev.scene, self.pipeline
         scene.update(ev)
-        if ev.decide:
-            before = p.navigator.decisions
-            scene.announce(ev)
+        msg = scene.due_report(ev)
+        before = p.reports
+        if msg is not None:
+            scene.send(msg)
             await self.lockstep.drained()
-            if p.navigator.decisions > before and p.last_decision:
-                scene.follow(p.last_decision.exit_index)
+            if p.reports > before:  # taken (not refused for want of a heading)
+                scene.reported(p.reports)
+        scene.follow(p.planned_exit)
+        msg = scene.due_next(ev)
+        before = p.reports
+        if msg is not None:
+            scene.send(msg)
+            await self.lockstep.drained()
+            if p.reports > before:
+                scene.reported_next(p.reports)
 
     async def _pace(self, t: float) -> None:
         """``--speed``: simulated seconds per wall second."""
@@ -423,6 +411,47 @@ class SimDrive:
             frames_sent=self.dev.wheels.frames_sent,
             compass_lines=self.dev.pty.sentences_written if self.dev.pty is not None else 0,
         )
+
+
+def make_world(opts: DriveOptions) -> SimWorld:
+    """The simulated city and car of a drive's options (the seed fixes both)."""
+    sim = SimParams(decision_distance_m=opts.decision_distance_m)
+    est_cfg = estimator_config(sim, opts.compass_deg)
+    nav_cfg = NavigatorConfig(method=_method(opts.method))
+    spec = WorldSpec(opts.seed, opts.area_km2, opts.goal_min_m, opts.goal_max_m,
+                     opts.density_per_km2, opts.detection_rate)  # fmt: skip
+    return SimWorld(spec, sim, est_cfg, nav_cfg)
+
+
+def drive_pipeline_config(
+    world: SimWorld, opts: DriveOptions, landmarks: tuple[Landmark, ...], declination_deg: float
+) -> PipelineConfig:
+    """The car's pipeline for a simulated drive: the world's filter and navigator settings, its
+    start and goal, the landmarks the car knows."""
+    sx, sy, th0 = world.start_pose
+    rates: dict[str, float | None] = {"odometry": 1.0 / world.dt_s}
+    if opts.compass_deg is not None:
+        rates["compass"] = world.sim.compass_rate_hz
+    return PipelineConfig(
+        estimator=world.est,
+        navigator=world.nav,
+        start_xy_m=(sx, sy),
+        goal_xy_m=world.goal_xy,
+        start_heading_rad=th0,
+        landmarks=landmarks,
+        declination_deg=declination_deg,
+        expected_rates_hz=rates,
+        stop_at_arrival=opts.duration_s is None,
+    )
+
+
+def drive_cap_m(world: SimWorld, opts: DriveOptions) -> float:
+    """How far a drive may go before it ends as a timeout (a multiple of the Manhattan
+    distance to the goal; none on the field protocol)."""
+    if opts.duration_s is not None:
+        return math.inf
+    (sx, sy, _), (gx, gy) = world.start_pose, world.goal_xy
+    return opts.cap_factor * (abs(gx - sx) + abs(gy - sy)) + opts.cap_extra_m
 
 
 async def drive_async(

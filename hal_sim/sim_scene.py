@@ -19,21 +19,37 @@ from collections.abc import Callable
 from typing import Any
 
 from guidance.core.messages import Approach, IntersectionScene, LandmarkFix
+from guidance.core.model import wrap_angle
 from hal_sim import world
 from hal_sim.sim_world import SimWorld, StepEvents
 
 
 class SimScene:
-    """``RoadwayScene`` from the city graph: exits of the next intersection, with its distance."""
+    """``RoadwayScene`` from the city graph, and the simulated driver who follows the advice.
+
+    Each intersection is reported once, when it comes into view (``decision_distance_m``), with
+    its true exits and its distance (``due_report``); with ``report_next``, the one after it is
+    reported too as soon as it is in view behind it (``due_next``), so a "then" can be said.
+    The driver follows the exit the car plans for each report (``follow``, every step: a
+    changed instruction is followed until the car is through). ``exits_line`` is the same
+    intersection as a co-driver would type it, relative to the road it is approached on."""
 
     name = "sim_scene"
 
-    def __init__(self, world_: SimWorld) -> None:
+    def __init__(self, world_: SimWorld, report_next: bool = True) -> None:
         self.world = world_
+        self.report_next = report_next
         self._sink: Callable[[Any], None] | None = None
         self._counts: Counter[str] = Counter()
         self.approaching = False
         self._next_update_t = -math.inf
+        self._b = -1
+        """The world's next node, once reported (or taken over from ``_next``)."""
+        self._seq: int | None = None
+        """The car's report number for ``_b``."""
+        self._followed: int | None = None
+        self._next: tuple[int, int | None] | None = None
+        """(node, report number) of the intersection after ``_b``, reported ahead."""
 
     def start(self, sink: Callable[[Any], None]) -> None:
         self._sink = sink
@@ -44,20 +60,79 @@ class SimScene:
     def stats(self) -> dict[str, int]:
         return dict(self._counts)
 
-    def announce(self, ev: StepEvents) -> IntersectionScene:
-        """Tell the app about the intersection ahead (call when ``ev.decide``)."""
-        exits = self.world.exits()
-        msg = IntersectionScene(ev.t_s, tuple(exits), ev.to_intersection_m)
-        self._counts["intersections"] += 1
+    def send(self, msg: Any) -> None:
         if self._sink is not None:
             self._sink(msg)
+
+    def due_report(self, ev: StepEvents) -> IntersectionScene | None:
+        """The intersection ahead, the first time it is in view (None: nothing new to report;
+        one already reported behind the previous one is taken over, not reported again)."""
+        b = int(self.world.ns[world.R_B])
+        if b == self._b:
+            return None
+        if self._next is not None and self._next[0] == b:
+            self.world.exits()
+            self._b, self._seq, self._followed = b, self._next[1], None
+            self._next = None
+            return None
+        if not ev.decide:
+            return None
+        self._b, self._seq, self._followed, self._next = b, None, None, None
+        msg = IntersectionScene(ev.t_s, tuple(self.world.exits()), ev.to_intersection_m)
+        self._counts["intersections"] += 1
         return msg
 
-    def follow(self, exit_index: int) -> None:
-        """The simulated driver does as told."""
+    def reported(self, seq: int) -> None:
+        """The car took the last ``due_report`` as its report ``seq``."""
+        self._seq = seq
+
+    def exits_line(self) -> str:
+        """The intersection ahead as a co-driver types it ("l s r"), relative to the road it
+        is approached on (the street the car is on now, even while it is still turning in)."""
+        road = float(self.world.ts[world.T_SEG_H])
+        words = []
+        for h in self.world.exits():
+            rel = math.degrees(wrap_angle(h - road))
+            words.append(min(_TYPED, key=lambda k: abs(wrap_angle(math.radians(_TYPED[k] - rel)))))
+        return " ".join(words)
+
+    def follow(self, planned: Callable[[int], int | None]) -> None:
+        """The simulated driver does as told: the exit the car plans now for the intersection
+        ahead (until the world has committed to it)."""
+        if self._seq is None or int(self.world.ns[world.R_B]) != self._b:
+            return
+        exit_index = planned(self._seq)
+        if exit_index is None or exit_index == self._followed:
+            return
+        if self._followed is not None:
+            self._counts["changed"] += 1
         self._counts["followed"] += 1
+        self._followed = exit_index
         self.world.take_exit(exit_index)
         self.approaching = True
+
+    def due_next(self, ev: StepEvents) -> IntersectionScene | None:
+        """With ``report_next``: the intersection after the one ahead, once the driver knows
+        which way to leave that one and it is in view too."""
+        if not self.report_next or self._followed is None or self._next is not None:
+            return None
+        c = int(self.world.ns[world.R_C])
+        if c < 0:
+            return None
+        b = self._b
+        bx, by = world.node_pos(self.world.xs, self.world.ys, b)
+        cx, cy = world.node_pos(self.world.xs, self.world.ys, c)
+        dist = ev.to_intersection_m + math.hypot(cx - bx, cy - by)
+        if dist > self.world.sim.decision_distance_m:
+            return None
+        headings = self.world.exits_of(c, b)
+        self._next = (c, None)
+        self._counts["intersections"] += 1
+        return IntersectionScene(ev.t_s, tuple(headings), dist)
+
+    def reported_next(self, seq: int) -> None:
+        if self._next is not None:
+            self._next = (self._next[0], seq)
 
     def update(self, ev: StepEvents, every_s: float = 0.5) -> None:
         """While driving up to a decided intersection, tell the app how far it is (the second
@@ -68,8 +143,12 @@ class SimScene:
         decided = int(self.world.ns[world.R_C]) >= 0  # the next exit is chosen: approaching it
         if (self.approaching or decided) and ev.t_s >= self._next_update_t:
             self._next_update_t = ev.t_s + every_s
-            if self._sink is not None:
-                self._sink(Approach(ev.t_s, ev.to_intersection_m))
+            self.send(Approach(ev.t_s, ev.to_intersection_m))
+
+
+_TYPED = {"s": 0.0, "l": 90.0, "r": -90.0, "u": 180.0, "bl": 45.0, "br": -45.0, "hl": 135.0,
+          "hr": -135.0}  # fmt: skip
+"""Co-driver tokens by their angle (degrees, left positive): ``guidance.core.co_driver``."""
 
 
 class SimSightings:

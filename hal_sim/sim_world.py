@@ -64,6 +64,8 @@ class SimWorld:
     ) -> None:
         self.spec = spec
         self.sim = sim
+        self.est = est
+        self.nav = nav
         self.p = pack(sim, est, nav, spec.detection_rate, true_compass_two_sigma_deg)
         world.seed(spec.seed)
         aspect = float(np.random.default_rng(spec.seed).uniform(0.8, 1.25))
@@ -182,6 +184,13 @@ class SimWorld:
         n = world.exits_at(self.adj, int(self.ns[world.R_B]), self.ns[world.R_A], self._dirs)
         self._pending_dirs = [int(self._dirs[e]) for e in range(n)]
         return [float(world.DIR_HEADING[d]) for d in self._pending_dirs]
+
+    def exits_of(self, node: int, came_from: int) -> list[float]:
+        """Headings of the exits of ``node`` reached from ``came_from`` (an intersection
+        further ahead), in the order ``exits()`` will give them there."""
+        dirs = np.empty(4, dtype=np.int64)
+        n = world.exits_at(self.adj, int(node), int(came_from), dirs)
+        return [float(world.DIR_HEADING[int(dirs[e])]) for e in range(n)]
 
     def take_exit(self, index: int) -> None:
         """The simulated driver commits to exit ``index`` of the last ``exits()``."""

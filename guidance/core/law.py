@@ -188,6 +188,115 @@ def mark_passed(x: float, y: float, lm_xy: np.ndarray, passed: np.ndarray, radiu
 
 
 @njit(cache=True, error_model="numpy")
+def mark_passed_along(
+    x0: float, y0: float, x1: float, y1: float, lm_xy: np.ndarray, passed: np.ndarray,
+    radius_m: float,
+) -> None:  # fmt: skip
+    """Mark the landmarks within ``radius_m`` of the road from (x0, y0) to (x1, y1): the car
+    passes them on its way to an intersection still ahead."""
+    dx, dy = x1 - x0, y1 - y0
+    L2 = dx * dx + dy * dy
+    r2 = radius_m * radius_m
+    for m in range(lm_xy.shape[0]):
+        px, py = lm_xy[m, 0] - x0, lm_xy[m, 1] - y0
+        u = 0.0 if L2 <= 0.0 else min(1.0, max(0.0, (px * dx + py * dy) / L2))
+        ex, ey = px - u * dx, py - u * dy
+        if ex * ex + ey * ey <= r2:
+            passed[m] = True
+
+
+@njit(cache=True, error_model="numpy")
+def choose_exit(
+    ix: float,
+    iy: float,
+    headings: np.ndarray,
+    mem_headings: np.ndarray,
+    mem_counts: np.ndarray,
+    k: int,
+    passed: np.ndarray,
+    lm_xy: np.ndarray,
+    goal_x: float,
+    goal_y: float,
+    mode: int,
+    params: np.ndarray,
+    penalties_out: np.ndarray,
+    costs_out: np.ndarray,
+) -> tuple[int, int]:
+    """The law at an intersection at (ix, iy) that is remembered intersection k (-1: new):
+    tabu penalties, passed landmarks marked in ``passed``, the target, every exit's cost.
+    Returns (best exit, target landmark index or -1 for the goal). Changes no memory."""
+    tabu, tol, pass_r, lookahead = params[2], params[3], params[4], params[5]
+    exit_penalties(headings, mem_headings, mem_counts, k, tabu, tol, penalties_out)
+    tx, ty = goal_x, goal_y
+    target = -1
+    if mode == MODE_LANDMARK and lm_xy.shape[0] > 0:
+        mark_passed(ix, iy, lm_xy, passed, pass_r)
+        target = landmark_target(ix, iy, goal_x, goal_y, lm_xy, passed)
+        if target >= 0:
+            tx, ty = lm_xy[target, 0], lm_xy[target, 1]
+    best = exit_costs(ix, iy, headings, tx, ty, penalties_out, lookahead, costs_out)
+    return best, target
+
+
+@njit(cache=True, error_model="numpy")
+def evaluate_exit(
+    ix: float,
+    iy: float,
+    pxx: float,
+    pxy: float,
+    pyy: float,
+    headings: np.ndarray,
+    mem_xy: np.ndarray,
+    mem_headings: np.ndarray,
+    mem_counts: np.ndarray,
+    n_mem: int,
+    passed: np.ndarray,
+    lm_xy: np.ndarray,
+    goal_x: float,
+    goal_y: float,
+    mode: int,
+    params: np.ndarray,
+    penalties_out: np.ndarray,
+    costs_out: np.ndarray,
+) -> tuple[int, int, int]:
+    """The decision for an intersection still ahead, predicted at (ix, iy): the same law as
+    ``decide_exit`` without remembering anything (the car re-evaluates it as it approaches
+    and ``commit_exit`` records the exit it took once it is there). ``passed`` is marked:
+    pass a copy to keep it. Returns (best exit, remembered intersection or -1, target)."""
+    k = match_intersection(ix, iy, pxx, pxy, pyy, mem_xy, n_mem, params[0], params[1])
+    best, target = choose_exit(
+        ix, iy, headings, mem_headings, mem_counts, k, passed, lm_xy, goal_x, goal_y, mode,
+        params, penalties_out, costs_out,
+    )  # fmt: skip
+    return best, k, target
+
+
+@njit(cache=True, error_model="numpy")
+def commit_exit(
+    ix: float,
+    iy: float,
+    pxx: float,
+    pxy: float,
+    pyy: float,
+    heading_taken: float,
+    mem_xy: np.ndarray,
+    mem_headings: np.ndarray,
+    mem_counts: np.ndarray,
+    n_mem: int,
+    params: np.ndarray,
+) -> tuple[int, bool, int]:
+    """The car went through an intersection at (ix, iy) by the exit ``heading_taken``:
+    recognise a revisit or remember a new intersection, count the exit (the tabu memory).
+    Returns (intersection index, revisit, new memory count)."""
+    k = match_intersection(ix, iy, pxx, pxy, pyy, mem_xy, n_mem, params[0], params[1])
+    revisit = k >= 0
+    if not revisit:
+        k, n_mem = remember_intersection(mem_xy, mem_headings, mem_counts, n_mem, ix, iy)
+    record_exit(mem_headings, mem_counts, k, heading_taken, params[3])
+    return k, revisit, n_mem
+
+
+@njit(cache=True, error_model="numpy")
 def decide_exit(
     ix: float,
     iy: float,
@@ -209,31 +318,25 @@ def decide_exit(
     costs_out: np.ndarray,
 ) -> tuple[int, int, bool, int, int]:
     """The whole SPEC 3 step at an intersection reached at (ix, iy) with position covariance
-    (pxx, pxy, pyy): recognise a revisit, remember a new intersection, tabu penalties, mark
-    passed landmarks and pick the target, cost every exit, record the chosen one.
+    (pxx, pxy, pyy), decided and taken at once (the study engine, whose car always follows):
+    recognise a revisit, remember a new intersection, tabu penalties, mark passed landmarks
+    and pick the target, cost every exit, record the chosen one (``choose_exit`` between
+    ``commit_exit``'s two halves, so the car's evaluate-then-commit is the same law).
 
     ``params`` = (revisit gate chi2, revisit floor variance m^2, tabu step rad, exit match
     tolerance rad, landmark pass radius m, lookahead m) (``DECIDE_PARAMS``).
     Returns (best exit, intersection index, revisit, new memory count, target landmark index
-    or -1 for the goal). Shared by ``Navigator.decide`` and the study engine.
+    or -1 for the goal).
     """
-    gate, floor2, tabu, tol, pass_r, lookahead = (
-        params[0], params[1], params[2], params[3], params[4], params[5],
-    )  # fmt: skip
-    k = match_intersection(ix, iy, pxx, pxy, pyy, mem_xy, n_mem, gate, floor2)
+    k = match_intersection(ix, iy, pxx, pxy, pyy, mem_xy, n_mem, params[0], params[1])
     revisit = k >= 0
     if not revisit:
         k, n_mem = remember_intersection(mem_xy, mem_headings, mem_counts, n_mem, ix, iy)
-    exit_penalties(headings, mem_headings, mem_counts, k, tabu, tol, penalties_out)
-    tx, ty = goal_x, goal_y
-    target = -1
-    if mode == MODE_LANDMARK and lm_xy.shape[0] > 0:
-        mark_passed(ix, iy, lm_xy, passed, pass_r)
-        target = landmark_target(ix, iy, goal_x, goal_y, lm_xy, passed)
-        if target >= 0:
-            tx, ty = lm_xy[target, 0], lm_xy[target, 1]
-    best = exit_costs(ix, iy, headings, tx, ty, penalties_out, lookahead, costs_out)
-    record_exit(mem_headings, mem_counts, k, headings[best], tol)
+    best, target = choose_exit(
+        ix, iy, headings, mem_headings, mem_counts, k, passed, lm_xy, goal_x, goal_y, mode,
+        params, penalties_out, costs_out,
+    )  # fmt: skip
+    record_exit(mem_headings, mem_counts, k, headings[best], params[3])
     return best, k, revisit, n_mem, target
 
 

@@ -173,10 +173,10 @@ class Navigator:
     def decide(
         self, t_s: float, x: np.ndarray, P: np.ndarray, exit_headings: Sequence[float]
     ) -> Decision:
-        """Choose an exit at an intersection reached at estimate ``x`` with covariance ``P``."""
-        if not exit_headings:
-            raise ValueError("an intersection needs at least one exit")
-        headings = np.array([model.wrap_angle(float(h)) for h in exit_headings])
+        """Choose an exit at an intersection reached at estimate ``x`` with covariance ``P``,
+        and record it as taken (``law.decide_exit``: the study engine's step, for a car that
+        decides at the intersection and always follows)."""
+        headings = self._headings(exit_headings)
         self.update_mode(float(model.major_axis_m(P)))
         penalties = np.zeros(len(headings))
         costs = np.zeros(len(headings))
@@ -186,17 +186,84 @@ class Navigator:
             self._passed, self._lm_xy, self.goal[0], self.goal[1], self._mode, self._params,
             penalties, costs,
         )  # fmt: skip
+        self.decisions += 1
+        return self._decision(t_s, float(x[2]), headings, penalties, costs, best, k, revisit,
+                              target)  # fmt: skip
+
+    def evaluate(
+        self,
+        t_s: float,
+        at_xy: tuple[float, float],
+        P: np.ndarray,
+        exit_headings: Sequence[float],
+        approach_heading_rad: float,
+        from_xy: tuple[float, float] | None = None,
+    ) -> Decision:
+        """The decision for an intersection still ahead, predicted at ``at_xy`` and approached
+        on a road of heading ``approach_heading_rad`` (the turns are relative to it), from the
+        car at ``from_xy`` (the landmarks it passes on the way are passed by then). Nothing
+        is remembered (``law.evaluate_exit``): the car re-evaluates as it approaches and
+        ``commit`` records the exit it took once it is through."""
+        headings = self._headings(exit_headings)
+        penalties = np.zeros(len(headings))
+        costs = np.zeros(len(headings))
+        passed = self._passed.copy()
+        if from_xy is not None and len(self.landmarks):
+            law.mark_passed_along(float(from_xy[0]), float(from_xy[1]), float(at_xy[0]),
+                                  float(at_xy[1]), self._lm_xy, passed,
+                                  self.config.landmark_pass_radius_m)  # fmt: skip
+        best, k, target = law.evaluate_exit(
+            float(at_xy[0]), float(at_xy[1]), float(P[0, 0]), float(P[0, 1]), float(P[1, 1]),
+            headings, self._mem_xy, self._mem_headings, self._mem_counts, self._n_mem,
+            passed, self._lm_xy, self.goal[0], self.goal[1], self._mode,
+            self._params, penalties, costs,
+        )  # fmt: skip
+        return self._decision(t_s, approach_heading_rad, headings, penalties, costs, best, k,
+                              k >= 0, target)  # fmt: skip
+
+    def commit(self, xy: tuple[float, float], P: np.ndarray, heading_taken_rad: float) -> int:
+        """The car went through an intersection at ``xy`` (the estimate when it got there) by
+        the exit of heading ``heading_taken_rad``: remembered, landmarks there passed, the exit
+        counted for the tabu law (``law.commit_exit``). Returns the intersection's index."""
+        x, y = float(xy[0]), float(xy[1])
+        k, _revisit, self._n_mem = law.commit_exit(
+            x, y, float(P[0, 0]), float(P[0, 1]), float(P[1, 1]),
+            float(model.wrap_angle(heading_taken_rad)), self._mem_xy, self._mem_headings,
+            self._mem_counts, self._n_mem, self._params,
+        )  # fmt: skip
+        if len(self.landmarks):
+            law.mark_passed(x, y, self._lm_xy, self._passed, self.config.landmark_pass_radius_m)
+        self.decisions += 1
+        return int(k)
+
+    @staticmethod
+    def _headings(exit_headings: Sequence[float]) -> np.ndarray:
+        if not exit_headings:
+            raise ValueError("an intersection needs at least one exit")
+        return np.array([model.wrap_angle(float(h)) for h in exit_headings])
+
+    def _decision(
+        self,
+        t_s: float,
+        heading: float,
+        headings: np.ndarray,
+        penalties: np.ndarray,
+        costs: np.ndarray,
+        best: int,
+        k: int,
+        revisit: bool,
+        target: int,
+    ) -> Decision:
         if target >= 0:
             lm = self.landmarks[target]
             tx, ty, kind, tid = lm.x_m, lm.y_m, "landmark", lm.id
         else:
             tx, ty, kind, tid = self.goal[0], self.goal[1], "goal", None
-        self.decisions += 1
         options = tuple(
             ExitOption(
                 index=i,
                 heading_rad=float(h),
-                turn_rad=float(model.wrap_angle(h - float(x[2]))),
+                turn_rad=float(model.wrap_angle(h - heading)),
                 angle_cost_rad=float(costs[i] - penalties[i]),
                 penalty_rad=float(penalties[i]),
                 cost_rad=float(costs[i]),
@@ -226,13 +293,6 @@ class Navigator:
             mode=self.mode,
             reason=reason,
         )
-
-    def move_exit_use(self, k: int, advised_rad: float, taken_rad: float) -> None:
-        """The driver took another exit than advised at intersection k: correct the memory."""
-        law.move_exit_use(
-            self._mem_headings, self._mem_counts, k, advised_rad, taken_rad,
-            self.config.exit_match_tol_rad,
-        )  # fmt: skip
 
     @property
     def remembered_intersections(self) -> int:

@@ -23,9 +23,9 @@ from dataclasses import asdict
 import numpy as np
 
 from guidance.core import prompts
-from guidance.core.announce import due_announcements
 from guidance.core.compass_cal import CompassCalibration, compass_heading_to_theta
 from guidance.core.estimator import PoseEstimator
+from guidance.core.guide import Guide
 from guidance.core.health import (
     CompassJudge,
     DeviceStatus,
@@ -35,7 +35,6 @@ from guidance.core.messages import (
     Approach,
     CompassHeading,
     EstimateState,
-    ExitTaken,
     GoalUpdate,
     HeadingFix,
     Health,
@@ -47,10 +46,10 @@ from guidance.core.messages import (
     TurnCompleted,
     WheelOdometry,
 )
-from guidance.core.model import wrap_angle
 from guidance.core.navigator import Decision, Navigator
+from guidance.core.odometry_gap import dead_reckon, gap_spread_m
 from guidance.core.pipeline_config import INPUT_KINDS, Input, Outputs, PipelineConfig
-from guidance.core.pipeline_state import Pending, PipelineState, _InState
+from guidance.core.pipeline_state import PipelineState, _InState
 from guidance.core.snapshot_check import check_snapshot, integer
 from guidance.core.turns import TurnDetector
 
@@ -73,15 +72,12 @@ GAP_HOLD_S = 5.0
 """An odometry increment this long after the previous one waits for the next to confirm its
 time (a glitch stamping one frame far ahead must not widen the estimate by hours of driving)."""
 
-GAP_ACCEL_MPS2 = 3.0
-"""The most a car gains in speed per second in town (0-100 km/h in 9 s): bounds what it may
-have driven beyond its last speed during an odometry gap."""
+__all__ = ["Input", "Outputs", "Pipeline", "PipelineConfig", "gap_spread_m"]
 
-
-def gap_spread_m(speed_before_mps: float, gap_s: float) -> float:
-    """2-sigma widening after an odometry gap: the last speed over the gap, plus what the car
-    could have gained meanwhile (1/2 a t^2). 11 m/s for 5 s: 55 m + 37.5 m."""
-    return speed_before_mps * gap_s + 0.5 * GAP_ACCEL_MPS2 * gap_s * gap_s
+DR_AFTER_S = 0.1
+DR_AFTER_PERIODS = 3.0
+"""Odometry this late (the larger of the two: 0.1 s, three frames) is dead-reckoned over until
+it comes: a stale estimate with a tight ellipse would put the truth outside it."""
 
 
 class Pipeline:
@@ -107,7 +103,10 @@ class Pipeline:
         self._landmark_said: dict[int, float] = {}
         """Inputs the driver has been warned about (by the pipeline or in the driver's words)."""
         self._held_odometry: WheelOdometry | None = None
-        self._last_manoeuvre = ""
+        self._dr_to_t: float | None = None
+        """Dead reckoning through an odometry gap: the time it has reached (None: no gap)..."""
+        self._dr_m = 0.0
+        """...and the distance it has moved the estimate."""
         if not self.st.heading_known:
             P = self.estimator.P
             P[2, 2] = math.pi**2
@@ -124,8 +123,7 @@ class Pipeline:
             calibrated=self._deviation is not None or config.mounting_offset_deg != 0.0,
         )
         self.counts: Counter[str] = Counter()
-        self.last_decision: Decision | None = None
-        self._pending: Pending | None = None
+        self.guide = Guide(config, self.navigator, self._say, self.counts, lambda: self.speed_mps)
         self._last_t: float | None = None
         self._last_odo_t: float | None = None
         self._next_state_t = -math.inf
@@ -145,6 +143,8 @@ class Pipeline:
         self.health.observe(kind, t)
         if self._last_t is None or t > self._last_t:
             self._last_t = t
+        if isinstance(msg, CompassHeading | HeadingFix) and not self.st.finished:
+            self._dead_reckon(t)
         if isinstance(msg, GoalUpdate):
             self._set_goal(msg, out)
         elif self.st.finished:
@@ -209,40 +209,67 @@ class Pipeline:
 
     def _odometry_step(self, msg: WheelOdometry, gap: float | None, out: Outputs) -> None:
         est = self.estimator
+        timeout = self.health.timeout_s("odometry")
+        d_wheels = 0.5 * (msg.d_left_m + msg.d_right_m)
+        # Beyond the dead-input timeout (>= 1 s, the decoder's longest bridged gap) the distance
+        # driven meanwhile was not integrated: it is dead-reckoned at the speed *before* the gap
+        # (the increment after it covers one frame, not the gap). Within it, the increment
+        # covers the gap, so what dead reckoning already moved comes off it.
+        long_gap = self.config.resume_gap_inflation and gap is not None and gap > timeout
+        ahead_m = self._dr_m
+        if long_gap:
+            self._dead_reckon(msg.t_s)
+        elif ahead_m > 0.0:
+            msg = WheelOdometry(msg.t_s, msg.d_left_m - ahead_m, msg.d_right_m - ahead_m)
         r = est.process(msg)
         out.accepted, out.reason = r.accepted, r.reason
         self._judge_time("odometry", r.reason)
         if not r.accepted:
             return
-        d = 0.5 * (msg.d_left_m + msg.d_right_m)
         if gap is not None and gap > 0:
-            # Beyond the dead-input timeout (>= 1 s, the decoder's longest bridged gap) the
-            # distance driven meanwhile was not integrated: widen the estimate for it, by the
-            # speed *before* the gap (the increment after it covers one frame, not the gap).
-            if self.config.resume_gap_inflation and gap > self.health.timeout_s("odometry"):
-                self._inflate_after_gap(gap, out)
+            if long_gap:
+                log.warning("odometry resumed after %.1f s: dead-reckoned %.0f m at %.1f m/s",
+                            gap, self._dr_m, self.st.speed_mps)  # fmt: skip
+                self.counts["odometry_gaps"] += 1
             else:
-                self.st.speed_mps = abs(d) / gap
+                self.st.speed_mps = abs(d_wheels) / gap
+        if not long_gap:
+            self.st.odometer_m = max(0.0, self.st.odometer_m - ahead_m)
+        self._dr_to_t, self._dr_m = None, 0.0
         self._last_odo_t = msg.t_s
-        self.st.odometer_m += abs(d)
+        self.st.odometer_m += abs(d_wheels)
         x = est.x
         turn = self.turns.update(msg.t_s, float(x[2]), self.st.odometer_m)
         if turn is not None:
             out.turns.append(turn)
-            pending = self._pending
-            if pending is None or self.st.odometer_m >= pending.reach_odometer_m:
-                self._resolve(turn.t_s, turn.heading_change_rad, "detected", out)
+        self.guide.step(msg.t_s, est, self.st.odometer_m, turn, out)
         self._after_step(msg.t_s, out)
 
-    def _inflate_after_gap(self, gap_s: float, out: Outputs) -> None:
-        """Odometry came back after a silence: the car may have moved meanwhile (issue 7)."""
-        spread = gap_spread_m(self.st.speed_mps, gap_s)
-        self.inflate_position(spread)
-        log.warning("odometry resumed after %.1f s: position inflated by %.0f m", gap_s, spread)
-        self.counts["gap_inflations"] += 1
+    def _dead_reckon(self, t: float) -> None:
+        """Odometry overdue (a CAN dropout, or a frame late) while the heading is known: the
+        estimate moves on at the last speed along its heading, widened along the road by what
+        the car could have gained or lost (``guidance.core.odometry_gap``), up to ``t``. Called
+        at each compass reading in the silence and when odometry resumes."""
+        last = self._last_odo_t
+        rate = self.health.expected.get("odometry")
+        if last is None or not rate or not self.config.resume_gap_inflation:
+            return
+        if not self.st.heading_known or t - last <= max(DR_AFTER_S, DR_AFTER_PERIODS / rate):
+            return
+        start = last if self._dr_to_t is None else self._dr_to_t
+        if t <= start:
+            return
+        est = self.estimator
+        x, P = dead_reckon(est.x, est.P, self.st.speed_mps, start - last, t - last)
+        est.set_state(x, P)
+        moved = abs(self.st.speed_mps) * (t - start)
+        self.st.odometer_m += moved
+        self._dr_m += moved
+        self._dr_to_t = t
 
     def inflate_position(self, spread_m: float) -> None:
-        """Widen the position uncertainty by ``spread_m`` (a 2-sigma distance, both axes)."""
+        """Widen the position uncertainty by ``spread_m`` (a 2-sigma distance, both axes: a
+        restart, where nothing is known of what the car did meanwhile)."""
         if not (math.isfinite(spread_m) and spread_m > 0):
             return
         est = self.estimator
@@ -287,6 +314,7 @@ class Pipeline:
                 self._landmark_said[fix.landmark_id] = fix.t_s
                 self._say(out, fix.t_s, prompts.landmark_confirmed(name), Priority.INFO, "landmark")
             self._after_step(fix.t_s, out, mode_done=True)
+            self.guide.landmark_fix(fix.t_s, self.estimator, self.st.odometer_m, out)
         else:
             out.landmark_rejections.append((fix, r.reason or "rejected"))
             self._after_step(fix.t_s, out)
@@ -302,63 +330,16 @@ class Pipeline:
                 self._waiting_said = True
                 self._say(out, scene.t_s, prompts.waiting_for_heading(), Priority.SAFETY, "info")
             return
-        est = self.estimator
-        x = est.x
-        heading = float(x[2])
-        if self._pending is not None:  # a new intersection before the old one resolved
-            self._resolve(scene.t_s, None, "superseded", out)
-        to_b = scene.distance_m
-        if to_b is not None and math.isfinite(to_b):
-            at = np.array([x[0] + to_b * math.cos(x[2]), x[1] + to_b * math.sin(x[2]), x[2]])
-        else:
-            to_b = None
-            at = x
-        decision = self.navigator.decide(scene.t_s, at, est.P, scene.exit_headings_rad)
-        self.last_decision = decision
-        out.decisions.append(decision)
-        ahead = to_b or 0.0
-        self._pending = Pending(
-            decision,
-            heading,
-            self.st.odometer_m + ahead + self.config.straight_after_m,
-            reach_odometer_m=self.st.odometer_m + ahead - self.config.turn_detector.window_m,
-        )
-        if to_b is None:  # in the car: say it now, right after the exits are known
-            self._pending.announced.add("now")
-            text = prompts.decision_prompt(decision, None, self.config.units)
-            self._say(out, scene.t_s, text, Priority.GUIDANCE, "turn")
-        else:
-            self._announce(scene.t_s, to_b, out)
+        self.guide.report(scene, self.estimator, self.st.odometer_m, out)
 
     def _approach(self, msg: Approach, out: Outputs) -> None:
-        if self._pending is not None and math.isfinite(msg.distance_m):
-            self._announce(msg.t_s, msg.distance_m, out)
-
-    def _announce(self, t: float, distance_m: float, out: Outputs) -> None:
-        """Early and just-before announcements, scaled by speed (``guidance.voice``'s Organic
-        Maps timing). A "continue straight" gets one announcement only."""
-
-        pending = self._pending
-        assert pending is not None
-        d = pending.decision
-        due = due_announcements(distance_m, self.st.speed_mps, pending.announced)
-        if not due:
-            return
-        kind = due[0]
-        straight = prompts.manoeuvre(d.turn_rad) == "continue straight"
-        pending.announced.add(kind)
-        if straight and kind == "early":
-            return  # straight through needs no early warning (OsmAnd, Organic Maps)
-        if straight and self._last_manoeuvre == "continue straight":
-            self.counts["straight_not_repeated"] += 1  # says nothing new at the next one
-            return
-        self._last_manoeuvre = prompts.manoeuvre(d.turn_rad)
-        text = prompts.decision_prompt(d, max(0.0, distance_m), self.config.units)
-        self._say(out, t, text, Priority.GUIDANCE, "turn")
+        self.guide.approach(msg, self.estimator, self.st.odometer_m, out)
 
     def _turn(self, turn: TurnCompleted, out: Outputs) -> None:
         out.turns.append(turn)
-        self._resolve(turn.t_s, turn.heading_change_rad, turn.source, out)
+        if not self.guide.co_driver_turn(turn, self.estimator, out):
+            log.info("turn of %.0f deg reported with no intersection ahead",
+                     math.degrees(turn.heading_change_rad))  # fmt: skip
         self.turns.reset()  # the co-driver's report replaces what the heading would show
 
     def _set_goal(self, goal: GoalUpdate, out: Outputs) -> None:
@@ -377,8 +358,6 @@ class Pipeline:
         lost = major > est.config.lost_major_axis_m  # the estimator's lost, axis computed once
         if not mode_done:
             self.navigator.update_mode(major)
-        if self._pending is not None and self.st.odometer_m >= self._pending.resolve_at_odometer_m:
-            self._resolve(t, 0.0, "no_turn", out)
         warn = self.config.uncertain_warn_m
         if not self.st.uncertain_said and major > warn and not lost:
             self.st.uncertain_said = True
@@ -404,38 +383,6 @@ class Pipeline:
         if t >= self._next_state_t:
             self._next_state_t = t + self.config.state_period_s
             out.state = est.state()
-
-    def _resolve(self, t: float, change_rad: float | None, source: str, out: Outputs) -> None:
-        """Which exit did the driver take? Correct the navigator's memory if not the advised one."""
-        pending = self._pending
-        if pending is None:
-            if source != "no_turn":
-                log.info(
-                    "turn of %.0f deg with no intersection announced", math.degrees(change_rad or 0)
-                )
-            return
-        self._pending = None
-        d = pending.decision
-        if change_rad is None:  # superseded: assume the advice was followed
-            out.exits_taken.append(ExitTaken(t, d, d.exit_index, True, source))
-            return
-        actual_heading = wrap_angle(pending.heading_before_rad + change_rad)
-        if source == "detected":  # the heading now: right even when decided mid-turn
-            actual_heading = float(self.estimator.x[2])
-        best = min(d.options, key=lambda o: abs(wrap_angle(o.heading_rad - actual_heading))).index
-        followed = best == d.exit_index
-        out.exits_taken.append(ExitTaken(t, d, best, followed, source))
-        if not followed:
-            self.counts["advice_not_followed"] += 1
-            log.info(
-                "driver took exit %d, not the advised %d (%s): memory corrected",
-                best,
-                d.exit_index,
-                source,
-            )
-            self.navigator.move_exit_use(
-                d.intersection_id, d.exit_heading_rad, d.options[best].heading_rad
-            )
 
     def _device_status(self, msg: DeviceStatus, out: Outputs) -> None:
         """A driver's status flip: its own sentence is what the driver hears ("Wheel speed bus
@@ -489,6 +436,20 @@ class Pipeline:
     def target(self) -> Target:
         return self.navigator.target(self.estimator.x)
 
+    @property
+    def last_decision(self) -> Decision | None:
+        """The latest decision made (for any intersection ahead)."""
+        return self.guide.last_decision
+
+    @property
+    def reports(self) -> int:
+        """Intersection reports taken so far (each ``Ahead.seq``)."""
+        return self.guide.reports
+
+    def planned_exit(self, seq: int) -> int | None:
+        """The exit planned now for intersection report ``seq`` (None: not decided yet)."""
+        return self.guide.planned_exit(seq)
+
     def statuses(self, t_s: float) -> dict[str, Health]:
         """Each input's health now (the health message carries them as they are)."""
         return self.health.statuses(t_s)
@@ -504,7 +465,7 @@ class Pipeline:
             "navigator": self.navigator.memory(),
             "turns": self.turns.snapshot(),
             "decisions": self.navigator.decisions,
-            "pending": None if self._pending is None else self._pending.to_dict(),
+            "guide": self.guide.snapshot(),
             **asdict(self.st),
             "counts": dict(self.counts),
         }
@@ -542,12 +503,12 @@ class Pipeline:
         if isinstance(turns, dict):
             self.turns.restore(turns)
         counts = snap.get("counts", {})
-        if isinstance(counts, dict):
-            self.counts = Counter({str(k): int(v) for k, v in counts.items()})
-        pending = snap.get("pending")
-        self._pending = Pending.from_dict(pending) if isinstance(pending, dict) else None
-        if self._pending is not None:
-            self.last_decision = self._pending.decision
+        if isinstance(counts, dict):  # in place: the guide counts into the same table
+            self.counts.clear()
+            self.counts.update({str(k): int(v) for k, v in counts.items()})
+        guide = snap.get("guide")
+        if isinstance(guide, dict):
+            self.guide.restore(guide)
         if isinstance(last, int | float):
             self._last_t = float(last)
             self._last_odo_t = float(last)

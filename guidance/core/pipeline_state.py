@@ -4,12 +4,10 @@ plain attributes for their readers (ARCHITECTURE.md change 5)."""
 
 from __future__ import annotations
 
-import math
 from collections.abc import Mapping
-from dataclasses import asdict, dataclass, field, fields
+from dataclasses import dataclass, fields
 from typing import TYPE_CHECKING, Generic, TypeVar, overload
 
-from guidance.core.navigator import Decision, ExitOption
 from guidance.core.snapshot_check import (
     MAX_ODOMETER_M,
     MAX_SPEED_MPS,
@@ -63,47 +61,6 @@ class PipelineState:
 _BOUNDS = {"odometer_m": (0.0, MAX_ODOMETER_M), "speed_mps": (-MAX_SPEED_MPS, MAX_SPEED_MPS)}
 """A number field's bounds in a checkpoint (others: finite and at most ``MAX_NUMBER``)."""
 MAX_NUMBER = 1e12
-
-
-@dataclass(slots=True)
-class Pending:
-    """The decision the car is acting on, until the exit it took is known (``_resolve``)."""
-
-    decision: Decision
-    heading_before_rad: float
-    resolve_at_odometer_m: float
-    announced: set[str] = field(default_factory=set)
-    """Announcements made for it: "now" (distance unknown), "early", "before"."""
-    reach_odometer_m: float = -math.inf
-    """A turn detected before the car gets near the intersection belongs to the one before."""
-
-    def to_dict(self) -> dict[str, object]:
-        """JSON-able (the checkpoint): a set as a sorted list, -inf as None."""
-        reach = self.reach_odometer_m
-        return {
-            "decision": asdict(self.decision),
-            "heading_before_rad": self.heading_before_rad,
-            "resolve_at_odometer_m": self.resolve_at_odometer_m,
-            "announced": sorted(self.announced),
-            "reach_odometer_m": reach if math.isfinite(reach) else None,
-        }
-
-    @classmethod
-    def from_dict(cls, data: Mapping[str, object]) -> Pending:
-        """``to_dict`` read back (its values checked by ``check_snapshot`` first)."""
-        dec = data["decision"]
-        assert isinstance(dec, dict)
-        opts = tuple(ExitOption(**o) for o in dec["options"])
-        decision = Decision(options=opts, **{k: v for k, v in dec.items() if k != "options"})
-        announced = data.get("announced", [])
-        reach = data.get("reach_odometer_m")
-        return cls(
-            decision,
-            number(data["heading_before_rad"], "pending.heading_before_rad"),
-            number(data["resolve_at_odometer_m"], "pending.resolve_at_odometer_m"),
-            {str(a) for a in announced} if isinstance(announced, list) else set(),
-            float(reach) if isinstance(reach, int | float) else -math.inf,
-        )
 
 
 V = TypeVar("V")

@@ -114,6 +114,12 @@ def decision_prompt(
     return turn_prompt(decision.turn_rad, distance_m, units)
 
 
+def changed(text: str) -> str:
+    """A new instruction for an intersection already announced: said as a change, never
+    silently ("Change of plan: in 120 metres, turn right")."""
+    return f"Change of plan: {text[:1].lower()}{text[1:]}"
+
+
 def landmark_confirmed(name: str = "") -> str:
     """A landmark fix, said by the place's name ("Passing the town hall: position confirmed");
     a bare number or an internal id is never read out."""

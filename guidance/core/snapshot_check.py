@@ -147,46 +147,60 @@ def check_turns(turns: object) -> None:
     integer(turns.get("turns", 0), "turns.turns")
 
 
-def check_pending(pending: object) -> None:
-    if pending is None:
-        return
-    if not isinstance(pending, dict):
-        raise SnapshotError(f"pending must be a table, not {type(pending).__name__}")
-    d = pending.get("decision")
+def check_decision(d: object, where: str) -> None:
+    """A decision as a checkpoint holds it (``dataclasses.asdict`` of ``Decision``)."""
     if not isinstance(d, dict):
-        raise SnapshotError("pending.decision must be a table")
+        raise SnapshotError(f"{where} must be a table")
     for key in ("t_s", "exit_heading_rad", "turn_rad", "target_x_m", "target_y_m"):
-        number(d.get(key), f"pending.decision.{key}")
-    integer(d.get("exit_index"), "pending.decision.exit_index", 0, 64)
-    integer(d.get("intersection_id"), "pending.decision.intersection_id", -1, MAX_COUNT)
+        number(d.get(key), f"{where}.{key}")
+    integer(d.get("exit_index"), f"{where}.exit_index", 0, 64)
+    integer(d.get("intersection_id"), f"{where}.intersection_id", -1, MAX_COUNT)
     for key in ("target_kind", "mode", "reason"):
         if not isinstance(d.get(key), str) or len(str(d.get(key))) > 200:
-            raise SnapshotError(f"pending.decision.{key} must be a short text")
+            raise SnapshotError(f"{where}.{key} must be a short text")
     if d.get("target_id") is not None:
-        integer(d.get("target_id"), "pending.decision.target_id", -(2**63), 2**63 - 1)
+        integer(d.get("target_id"), f"{where}.target_id", -(2**63), 2**63 - 1)
     if not isinstance(d.get("revisit"), bool):
-        raise SnapshotError("pending.decision.revisit must be true or false")
-    options = _list(d.get("options"), "pending.decision.options", 64)
+        raise SnapshotError(f"{where}.revisit must be true or false")
+    options = _list(d.get("options"), f"{where}.options", 64)
     names = ("heading_rad", "turn_rad", "angle_cost_rad", "penalty_rad", "cost_rad")
     for i, o in enumerate(options):
         if not isinstance(o, dict) or set(o) != {"index", *names}:
-            raise SnapshotError(f"pending.decision.options[{i}] must have index and {names}")
-        integer(o["index"], f"pending.decision.options[{i}].index", 0, 64)
+            raise SnapshotError(f"{where}.options[{i}] must have index and {names}")
+        integer(o["index"], f"{where}.options[{i}].index", 0, 64)
         for key in names:
-            number(o[key], f"pending.decision.options[{i}].{key}")
+            number(o[key], f"{where}.options[{i}].{key}")
+    if not 0 <= int(d["exit_index"]) < len(options):
+        raise SnapshotError(f"{where}.exit_index is not one of its options")
     expected = {"t_s", "exit_index", "exit_heading_rad", "turn_rad", "options", "target_x_m",
                 "target_y_m", "target_kind", "target_id", "intersection_id", "revisit", "mode",
                 "reason"}  # fmt: skip
     if set(d) != expected:
-        raise SnapshotError("pending.decision has unknown or missing fields")
-    number(pending.get("heading_before_rad"), "pending.heading_before_rad")
-    number(pending.get("resolve_at_odometer_m"), "pending.resolve_at_odometer_m")
-    if pending.get("reach_odometer_m") is not None:
-        number(pending["reach_odometer_m"], "pending.reach_odometer_m")
-    announced = _list(pending.get("announced", []), "pending.announced", 64)
-    for a in announced:
-        if not isinstance(a, str | int) or isinstance(a, bool):
-            raise SnapshotError("pending.announced must hold names")
+        raise SnapshotError(f"{where} has unknown or missing fields")
+
+
+def check_guide(guide: object) -> None:
+    """The intersections ahead (``guidance.core.guide.Guide.snapshot``)."""
+    if guide is None:
+        return
+    if not isinstance(guide, dict):
+        raise SnapshotError(f"guide must be a table, not {type(guide).__name__}")
+    ahead = _list(guide.get("ahead", []), "guide.ahead", 4)
+    for i, a in enumerate(ahead):
+        if not isinstance(a, dict):
+            raise SnapshotError(f"guide.ahead[{i}] must be a table")
+        if a.get("decision") is not None:
+            check_decision(a["decision"], f"guide.ahead[{i}].decision")
+        exits = _list(a.get("exits_rad"), f"guide.ahead[{i}].exits_rad", 64)
+        if not exits:
+            raise SnapshotError(f"guide.ahead[{i}].exits_rad is empty")
+        for h in exits:
+            number(h, f"guide.ahead[{i}].exits_rad")
+        announced = _list(a.get("announced", []), f"guide.ahead[{i}].announced", 8)
+        if not all(isinstance(x, str) for x in announced):
+            raise SnapshotError(f"guide.ahead[{i}].announced must hold names")
+    _matrix(guide.get("history", []), "guide.history", 0, 4, max_rows=MAX_TURN_SAMPLES)
+    integer(guide.get("reports", 0), "guide.reports")
 
 
 def check_snapshot(
@@ -213,4 +227,4 @@ def check_snapshot(
         raise SnapshotError("counts must be a table of at most 1000 names")
     for k, v in counts.items():
         integer(v, f"counts.{str(k)[:40]!r}")
-    check_pending(snap.get("pending"))
+    check_guide(snap.get("guide"))

@@ -39,4 +39,7 @@ def warm_up() -> None:
         p.feed(CompassHeading(0.2, 90.0))
         p.feed(LandmarkFix(0.3, 1, 2.0, 0.0, 5.0))
         p.feed(IntersectionScene(0.4, (0.0, math.pi / 2), 30.0))
+        nav, P = p.navigator, p.estimator.P  # the car's evaluate-then-commit (guidance.core.guide)
+        nav.evaluate(0.5, (30.0, 0.0), P, (0.0, math.pi / 2), 0.0, (0.0, 0.0))
+        nav.commit((30.0, 0.0), P[:2, :2], 0.0)
         p.state()

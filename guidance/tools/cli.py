@@ -20,7 +20,7 @@ from guidance.errors import UserError
 from guidance.version import version_text
 
 _COMMAND_MODULES = (
-    "hal_sim.cli",  # study
+    "hal_sim.cli",  # study, check-guidance
     "hal_sim.sim_cli",  # sim
     "drivers.cli",  # odometry, compass
     "guidance.app.run",  # run

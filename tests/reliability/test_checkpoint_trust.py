@@ -10,6 +10,7 @@ from __future__ import annotations
 import copy
 import json
 import logging
+import math
 import subprocess
 import sys
 import textwrap
@@ -147,7 +148,10 @@ def _mutations() -> dict[str, Any]:
         "counts text": setp("counts", {"a": "many"}),
         "bool as number": setp("decisions", True),
         "turn samples a table": setp("turns.samples", {"a": 1}),
-        "pending garbage": setp("pending", {"decision": {"t_s": 1}}),
+        "guide garbage": setp("guide", {"ahead": [{"decision": {"t_s": 1}, "exits_rad": [0]}]}),
+        "guide exits NaN": setp("guide", {"ahead": [{"exits_rad": [math.nan]}]}),
+        "guide 9 ahead": setp("guide", {"ahead": [{"exits_rad": [0.0]}] * 9}),
+        "guide history rows": setp("guide.history", [[0.0, 1.0]]),
         "pipeline a list": lambda s: s.clear(),
     }
 

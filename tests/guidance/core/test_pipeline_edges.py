@@ -7,14 +7,15 @@ import math
 import pytest
 
 from guidance.core.estimator import REANCHOR_AFTER, EstimatorConfig
-from guidance.core.messages import WheelOdometry
+from guidance.core.messages import HeadingFix, WheelOdometry
 from guidance.core.navigator import NavigatorConfig
-from guidance.core.pipeline import GAP_ACCEL_MPS2, Pipeline, PipelineConfig, gap_spread_m
+from guidance.core.odometry_gap import GAP_ACCEL_MPS2, gap_spread_m
+from guidance.core.pipeline import Pipeline, PipelineConfig
 
 
 def _pipeline() -> Pipeline:
     cfg = PipelineConfig(
-        estimator=EstimatorConfig(compass_two_sigma_deg=None),
+        estimator=EstimatorConfig(compass_two_sigma_deg=20.0),
         navigator=NavigatorConfig(),
         start_xy_m=(0.0, 0.0),
         goal_xy_m=(1e6, 0.0),
@@ -25,24 +26,48 @@ def _pipeline() -> Pipeline:
     return Pipeline(cfg)
 
 
-def test_a_5_s_dropout_at_11_mps_widens_by_the_distance_it_could_not_measure() -> None:
+def test_a_5_s_dropout_at_11_mps_is_dead_reckoned_along_the_road_not_widened_as_a_circle() -> None:
+    """Issue 20, item 4: the heading and the speed are known through a CAN dropout, only the
+    distance is not. The estimate moves on at the last speed along its heading, widened along
+    the road by what the car could have gained or lost (1/2 a t^2 as 2-sigma), across it only
+    by the heading's own uncertainty."""
     p = _pipeline()
     t, step = 0.0, 11.0 * 0.05
-    for _ in range(200):  # 10 s at 11 m/s, 20 Hz
+    for _ in range(200):  # 10 s at 11 m/s east, 20 Hz
         t += 0.05
         p.feed(WheelOdometry(t, step, step))
+    x_before = float(p.estimator.x[0])
     before = p.estimator.P[:2, :2].copy()
+    for k in range(30):  # the compass goes on through the gap (6 Hz, heading east)
+        p.feed(HeadingFix(t + (k + 1) / 6.0, 0.0))
     p.feed(WheelOdometry(t + 5.0, step, step))  # the first increment after 5 s of silence
-    assert p.counts["gap_inflations"] == 1
-    added = p.estimator.P[0, 0] - before[0, 0]
-    spread = 2.0 * math.sqrt(added)  # the 2-sigma distance the widening stands for
-    unmeasured = 11.0 * 5.0  # about 55 m went unmeasured
-    assert spread >= unmeasured
-    assert math.isclose(spread, unmeasured + 0.5 * GAP_ACCEL_MPS2 * 25.0, rel_tol=0.02)
+    p.feed(WheelOdometry(t + 5.05, step, step))  # confirms the new time base
+    assert p.counts["odometry_gaps"] == 1
+    moved = float(p.estimator.x[0]) - x_before
+    assert moved == pytest.approx(11.0 * 5.05 + step, abs=1.5)  # the 55 m it could not measure
+    along = 2.0 * math.sqrt(p.estimator.P[0, 0] - before[0, 0])
+    across = 2.0 * math.sqrt(max(0.0, p.estimator.P[1, 1] - before[1, 1]))
+    assert along == pytest.approx(0.5 * GAP_ACCEL_MPS2 * 5.05**2, rel=0.1)  # 38 m, not 92 m
+    assert across < 0.3 * along
+    assert p.estimator.major_axis_m < 100.0  # not lost
     assert math.isclose(p.speed_mps, 11.0, rel_tol=0.01)  # the speed before the gap is kept
 
 
-def test_the_spread_is_the_last_speed_plus_what_could_be_gained() -> None:
+def test_without_a_compass_a_dropout_widens_across_too_but_the_car_is_not_lost() -> None:
+    """No compass: the car may have turned a corner in the gap (the heading's random walk at
+    a town corner's yaw rate), so the spread grows across as well; still not lost."""
+    p = _pipeline()
+    t, step = 0.0, 11.0 * 0.05
+    for _ in range(200):
+        t += 0.05
+        p.feed(WheelOdometry(t, step, step))
+    p.feed(WheelOdometry(t + 5.0, step, step))
+    p.feed(WheelOdometry(t + 5.05, step, step))
+    assert p.counts["odometry_gaps"] == 1
+    assert p.estimator.major_axis_m < 100.0
+
+
+def test_a_restart_spread_is_the_last_speed_plus_what_could_be_gained() -> None:
     assert gap_spread_m(11.0, 5.0) == 55.0 + 37.5
     assert gap_spread_m(0.0, 2.0) == 0.5 * GAP_ACCEL_MPS2 * 4.0  # standing: could have set off
 
@@ -84,7 +109,7 @@ def test_a_frame_stamped_an_hour_ahead_neither_widens_nor_freezes_the_estimate()
             assert p.feed(WheelOdometry(t, step, step)).accepted
         runs.append(p)
     clean, glitched = runs
-    assert glitched.counts["time_glitch_dropped"] == 1 and glitched.counts["gap_inflations"] == 0
+    assert glitched.counts["time_glitch_dropped"] == 1 and glitched.counts["odometry_gaps"] == 0
     assert glitched.estimator.major_axis_m == pytest.approx(clean.estimator.major_axis_m)
     assert glitched.estimator.x[0] == pytest.approx(clean.estimator.x[0])
 

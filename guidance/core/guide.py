@@ -1,0 +1,538 @@
+"""The intersections reported ahead (pure): which exit to take, what to say, which exit was taken.
+
+An intersection report (``IntersectionScene``) is a place on the car's road: ``distance_m``
+ahead when it is known (the simulator, a detector), or "the next intersection" when it is not
+(the co-driver). Each report becomes an ``Ahead`` in a short queue, first the nearest:
+
+* **The road it is approached on.** The turn to announce is the law's exit heading relative to
+  the heading the car will have on approach to *that* intersection, computed each time it is
+  announced: the car's own heading once it is steady on that road, or, for an intersection
+  reported behind another one still ahead (the simulator sees the next two; a report that
+  comes in while the car is still turning out of the previous one), the exit heading chosen
+  there. A co-driver's exits are typed relative to the car; when the report comes in during a
+  turn they are taken against the road after the turn (``relative``).
+* **Re-evaluated, never silently changed.** The decision is re-evaluated as the car
+  approaches (every ``EVAL_EVERY_M`` and at each ``Approach``, with nothing remembered:
+  ``Navigator.evaluate``). A changed exit after something was said is announced as a change;
+  once the just-before prompt is out, or a later intersection was reported behind it (the car
+  is committed), it is frozen.
+* **The exit taken, from what the car did.** An intersection is resolved from the car's heading
+  through it (the turn detector on the estimated heading, which the compass and odometry
+  drive), with the distance where it is known: a turn once the car is near it, or
+  ``straight_after_m`` past it with no turn. With no distance, never by distance alone: by a
+  detected turn, a co-driver's turn report, or, once the co-driver has reported the next
+  intersection (so this one is behind), ``straight_after_m`` of steady heading after that.
+  Only then is the intersection remembered for the tabu law, at the estimate where the car got
+  to it, with the exit it really took (``Navigator.commit``).
+* **"Then".** When the next intersection after the announced one is decided and within
+  ``prompts.THEN_MAX_GAP_M`` of it, its manoeuvre is appended ("..., then turn right").
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+from collections import Counter
+from collections.abc import Callable, Mapping
+from dataclasses import replace
+
+import numpy as np
+
+from guidance.core import prompts
+from guidance.core.announce import due_announcements
+from guidance.core.estimator import PoseEstimator
+from guidance.core.messages import (
+    Approach,
+    ExitTaken,
+    IntersectionScene,
+    Priority,
+    TurnCompleted,
+)
+from guidance.core.model import wrap_angle
+from guidance.core.navigator import Decision, ExitOption, Navigator
+from guidance.core.pipeline_config import Outputs, PipelineConfig
+from guidance.core.road import Ahead, RoadHistory
+from guidance.core.snapshot_check import integer
+
+log = logging.getLogger(__name__)
+
+EVAL_EVERY_M = 10.0
+"""The decision ahead is re-evaluated after this much travel (and at each ``Approach``)."""
+CHANGE_MARGIN_RAD = math.radians(25.0)
+"""Once an instruction was said, another exit replaces it only if it is this much cheaper
+(two exits of nearly equal cost, the goal straight beyond a T junction, swap with the
+estimate's wobble; a change the driver hears must be worth it). It is changed once at most,
+and never after the just-before prompt."""
+SAME_PLACE_M = 20.0
+"""A report within this distance (or 15 %) of one already ahead is the same intersection."""
+UNKNOWN_AHEAD_M = 50.0
+"""Where "the next intersection" (distance unknown) is taken to be for the law: a town
+block's least length ahead (never the intersection the car has just left behind)."""
+PASSED_STRAIGHT_M = 10.0
+"""No distance: once the next intersection is reported (so the car is at or in this one), a
+heading that has not turned over this much travel means the car went straight on (a car that
+turns at a corner a few metres ahead has turned by half within it)."""
+REPEAT_S = 5.0
+"""The same sentence is not said twice within this time (unless it says a change)."""
+ROAD_STEADY_M = 20.0
+"""The car's own heading is the road's once it has been steady over this much travel."""
+PASS_MARGIN_M = 5.0
+"""The next intersection is announced once the car is this far past the one before it."""
+MAX_AHEAD = 4
+"""Intersections kept ahead at once (a co-driver who reports far ahead)."""
+
+Say = Callable[[Outputs, float, str, int, str], None]
+
+
+class Guide:
+    """The queue of intersections ahead and everything said and decided about them (see the
+    module doc). The pipeline calls ``report``, ``approach``, ``co_driver_turn`` and, after
+    every odometry step, ``step``; ``landmark_fix`` after an accepted fix."""
+
+    def __init__(
+        self,
+        config: PipelineConfig,
+        navigator: Navigator,
+        say: Say,
+        counts: Counter[str],
+        speed_fn: Callable[[], float],
+    ) -> None:
+        self.config = config
+        self._speed = speed_fn
+        self.navigator = navigator
+        self._say = say
+        self.counts = counts
+        td = config.turn_detector
+        self.history = RoadHistory(td.settle_m, td.settle_tol_rad)
+        self.ahead: list[Ahead] = []
+        self.reports = 0
+        self.last_decision: Decision | None = None
+        self.last_said = ""
+        """The last turn manoeuvre said (a straight after a straight is not repeated)."""
+        self._said_at: dict[str, float] = {}
+
+    # -- inputs ---------------------------------------------------------------------------------
+    def report(
+        self, scene: IntersectionScene, est: PoseEstimator, odometer_m: float, out: Outputs
+    ) -> None:
+        """A reported intersection: queued, decided when its road is known, announced."""
+        heading = float(est.x[2])
+        d = scene.distance_m
+        known = d is not None and math.isfinite(d)
+        self.reports += 1
+        at = odometer_m + max(0.0, float(d)) if known and d is not None else None
+        if at is not None:
+            tol = max(SAME_PLACE_M, 0.15 * (at - odometer_m))
+            same = next(
+                (a for a in self.ahead if a.at_odometer_m is not None
+                 and abs(a.at_odometer_m - at) <= tol and a.at_odometer_m > odometer_m),
+                None,
+            )  # fmt: skip
+            if same is not None and same.exits_rad == tuple(scene.exit_headings_rad):
+                same.at_odometer_m = at  # the same intersection again: a better distance
+                self.counts["report_repeated"] += 1
+                self._evaluate(same, est, odometer_m, scene.t_s, out)
+                self.announce(scene.t_s, odometer_m, out)
+                return
+        else:
+            for a in self.ahead:  # the co-driver reports the next one: the earlier are behind
+                if a.at_odometer_m is None and a.passed_odometer_m is None:
+                    a.passed_odometer_m = odometer_m
+                    a.passed_heading_rad = heading
+        for a in self.ahead:
+            a.frozen = True  # the car is committed to the exits before this one
+        item = Ahead(self.reports, scene.t_s, tuple(scene.exit_headings_rad), heading,
+                     relative=not known, at_odometer_m=at)  # fmt: skip
+        self.ahead.append(item)
+        if at is not None:
+            self.ahead.sort(key=lambda a: math.inf if a.at_odometer_m is None else a.at_odometer_m)
+        while len(self.ahead) > MAX_AHEAD:
+            self.ahead.pop(0)
+            self.counts["ahead_dropped"] += 1
+        self._update(scene.t_s, est, odometer_m, out, force=True)
+
+    def approach(self, msg: Approach, est: PoseEstimator, odometer_m: float, out: Outputs) -> None:
+        """The distance to an intersection ahead: re-anchors the one it matches, re-evaluates."""
+        d = msg.distance_m
+        if not math.isfinite(d):
+            return
+        cands = [a for a in self.ahead if a.at_odometer_m is not None
+                 and a.at_odometer_m > odometer_m - 1.0]  # fmt: skip
+        if cands:
+            a = min(cands, key=lambda a: abs((a.at_odometer_m or 0.0) - odometer_m - d))
+            assert a.at_odometer_m is not None
+            if abs(a.at_odometer_m - odometer_m - d) <= max(15.0, 0.2 * d):
+                a.at_odometer_m = odometer_m + max(0.0, d)
+        self._update(msg.t_s, est, odometer_m, out, force=True)
+
+    def co_driver_turn(self, turn: TurnCompleted, est: PoseEstimator, out: Outputs) -> bool:
+        """The co-driver says which way the car went: the first intersection ahead resolved
+        with it. False when nothing was ahead."""
+        first = self._first_unresolved()
+        if first is None:
+            return False
+        base = first.approach_heading_rad
+        heading = float(est.x[2]) if base is None else wrap_angle(base + turn.heading_change_rad)
+        self._resolve(first, turn.t_s, heading, turn.source, est, out)
+        return True
+
+    def landmark_fix(self, t_s: float, est: PoseEstimator, odometer_m: float, out: Outputs) -> None:
+        """The estimate jumped: the decisions ahead are looked at again."""
+        self._update(t_s, est, odometer_m, out, force=True, jumped=True)
+
+    def step(
+        self,
+        t_s: float,
+        est: PoseEstimator,
+        odometer_m: float,
+        turn: TurnCompleted | None,
+        out: Outputs,
+    ) -> None:
+        """After each odometry step: the road history, arrivals at intersections, exits taken,
+        re-evaluation and announcements."""
+        x = est.x
+        self.history.add(odometer_m, float(x[0]), float(x[1]), float(x[2]))
+        first = self._first_unresolved()
+        if first is not None:
+            self._check_resolution(first, t_s, est, odometer_m, turn, out)
+        elif turn is not None:
+            log_turn_without_intersection(turn)
+        self._update(t_s, est, odometer_m, out, force=False)
+
+    # -- resolution -----------------------------------------------------------------------------
+    def _first_unresolved(self) -> Ahead | None:
+        return self.ahead[0] if self.ahead else None
+
+    def _check_resolution(
+        self,
+        a: Ahead,
+        t_s: float,
+        est: PoseEstimator,
+        odometer_m: float,
+        turn: TurnCompleted | None,
+        out: Outputs,
+    ) -> None:
+        cfg = self.config
+        heading = float(est.x[2])
+        if a.at_odometer_m is not None:
+            if a.reached is None and odometer_m >= a.at_odometer_m:
+                a.reached = _reached(est)
+            near = odometer_m >= a.at_odometer_m - cfg.turn_detector.window_m
+            if turn is not None and near:
+                self._resolve(a, t_s, heading, "detected", est, out)
+            elif odometer_m >= a.at_odometer_m + cfg.straight_after_m:
+                self._resolve(a, t_s, heading, "no_turn", est, out)
+            return
+        if turn is not None and a.approach_heading_rad is not None:
+            self._resolve(a, t_s, heading, "detected", est, out)
+        elif (
+            a.passed_odometer_m is not None
+            and a.passed_heading_rad is not None
+            and odometer_m >= a.passed_odometer_m + PASSED_STRAIGHT_M
+            and self.history.steady(odometer_m)
+            and abs(wrap_angle(heading - a.passed_heading_rad))
+            < 0.5 * cfg.turn_detector.min_turn_rad
+        ):
+            self._resolve(a, t_s, heading, "passed", est, out)
+
+    def _resolve(
+        self, a: Ahead, t_s: float, heading: float, source: str, est: PoseEstimator, out: Outputs
+    ) -> None:
+        """``a`` is behind the car, which left it with ``heading``: the exit taken, remembered."""
+        self.ahead.remove(a)
+        d = a.decision
+        if d is None:  # never decided (its road never became known): nothing to remember
+            self.counts["resolved_undecided"] += 1
+            return
+        best = min(d.options, key=lambda o: abs(wrap_angle(o.heading_rad - heading))).index
+        followed = best == d.exit_index
+        if not followed:
+            self.counts["advice_not_followed"] += 1
+            # Intersections reported behind this one were on the road of the advised exit.
+            dropped = [b for b in self.ahead if b.t_s <= t_s and b.at_odometer_m is not None]
+            for b in dropped:
+                self.ahead.remove(b)
+            self.counts["ahead_dropped"] += len(dropped)
+        reached = a.reached
+        if reached is None:  # distance unknown: where the turn began, else where it was passed
+            back = self.config.turn_detector.settle_m + 5.0 if source == "detected" else 0.0
+            odo = (a.passed_odometer_m if a.passed_odometer_m is not None and source != "detected"
+                   else self.history_odometer() - back)  # fmt: skip
+            xy = self.history.at(odo)
+            P = est.P
+            x = est.x
+            px, py = xy if xy is not None else (float(x[0]), float(x[1]))
+            reached = (px, py, float(P[0, 0]), float(P[0, 1]), float(P[1, 1]))
+        rx, ry, pxx, pxy, pyy = reached
+        Pm = np.array([[pxx, pxy], [pxy, pyy]])
+        k = self.navigator.commit((rx, ry), Pm, d.options[best].heading_rad)
+        nxt = self.ahead[0] if self.ahead else None
+        if nxt is not None and nxt.relative and nxt.approach_heading_rad is None:
+            nxt.approach_heading_rad = d.options[best].heading_rad  # the road it is typed on
+        out.exits_taken.append(
+            ExitTaken(t_s, replace(d, intersection_id=k), best, followed, source)
+        )
+
+    def history_odometer(self) -> float:
+        s = self.history._s
+        return s[-1][0] if s else 0.0
+
+    # -- decisions and announcements ------------------------------------------------------------
+    def _update(
+        self,
+        t_s: float,
+        est: PoseEstimator,
+        odometer_m: float,
+        out: Outputs,
+        *,
+        force: bool,
+        jumped: bool = False,
+    ) -> None:
+        """Approach roads, decisions (re-evaluated every ``EVAL_EVERY_M`` where the distance is
+        known; with none, where the intersection is stays unknown, so only a jump of the
+        estimate re-evaluates it), then what is due to be said."""
+        prev: Ahead | None = None
+        steady = self.history.steady(odometer_m)
+        on_road = self.history.steady(odometer_m, ROAD_STEADY_M)
+        for i, a in enumerate(self.ahead[:2]):
+            if i == 0 or (prev is not None and prev.decision is not None):
+                self._set_approach(a, prev, est, odometer_m, steady, on_road)
+                due = force or odometer_m - a.last_eval_odometer_m >= EVAL_EVERY_M
+                if a.at_odometer_m is None and a.decision is not None:
+                    due = jumped
+                if a.approach_heading_rad is not None and due:
+                    self._evaluate(a, est, odometer_m, t_s, out, jumped)
+            prev = a
+        self.announce(t_s, odometer_m, out)
+
+    def _set_approach(
+        self,
+        a: Ahead,
+        prev: Ahead | None,
+        est: PoseEstimator,
+        odometer_m: float,
+        steady: bool,
+        on_road: bool,
+    ) -> None:
+        """The heading of the road ``a`` is approached on: the car's own once it has been
+        steady on that road for ``ROAD_STEADY_M`` (a turn's tail, a U-turn settling back onto
+        the road, must not name the manoeuvre), else the exit chosen at the intersection
+        before it."""
+        on_its_road = prev is None or (
+            prev.at_odometer_m is not None and odometer_m > prev.at_odometer_m + 5.0
+        )
+        if a.relative:
+            # Typed relative to the car: fixed once, against the road after any turn.
+            if a.approach_heading_rad is None:
+                if prev is None and steady:
+                    a.approach_heading_rad = float(est.x[2])
+                elif (
+                    prev is not None
+                    and prev.decision is not None
+                    and prev.passed_odometer_m is None
+                ):
+                    a.approach_heading_rad = prev.decision.exit_heading_rad
+            return
+        near = a.at_odometer_m is not None and odometer_m >= a.at_odometer_m - 10.0
+        if on_its_road and on_road and (a.approach_heading_rad is None or not near):
+            a.approach_heading_rad = self.history.road_heading(float(est.x[2]))
+        elif prev is not None and prev.decision is not None and a.approach_heading_rad is None:
+            a.approach_heading_rad = prev.decision.exit_heading_rad
+
+    def _predicted_xy(self, a: Ahead, est: PoseEstimator, odometer_m: float) -> tuple[float, float]:
+        """Where the car will be at ``a``: along its approach road from the car, or from the
+        intersection before it."""
+        x = est.x
+        base_xy, base_odo = (float(x[0]), float(x[1])), odometer_m
+        i = self.ahead.index(a)
+        if i > 0:
+            prev = self.ahead[i - 1]
+            if prev.at_odometer_m is not None and prev.at_odometer_m > odometer_m:
+                base_xy = self._predicted_xy(prev, est, odometer_m)
+                base_odo = prev.at_odometer_m
+        if a.approach_heading_rad is None:
+            return base_xy
+        known = a.at_odometer_m
+        ahead = UNKNOWN_AHEAD_M if known is None else max(0.0, known - base_odo)
+        h = a.approach_heading_rad
+        return base_xy[0] + ahead * math.cos(h), base_xy[1] + ahead * math.sin(h)
+
+    def _evaluate(
+        self,
+        a: Ahead,
+        est: PoseEstimator,
+        odometer_m: float,
+        t_s: float,
+        out: Outputs,
+        jumped: bool = False,
+    ) -> None:
+        """The law for ``a`` now. Once its instruction was said, another exit replaces it only
+        after the estimate jumped (a landmark fix), where the distance is known, and by more
+        than ``CHANGE_MARGIN_RAD``: the target the law picks drifts as the car drives, and a
+        driver told one way must not hear the other for that."""
+        exits = a.exits_now()
+        if exits is None or a.approach_heading_rad is None:
+            return
+        a.last_eval_odometer_m = odometer_m
+        at = self._predicted_xy(a, est, odometer_m)
+        x = est.x
+        new = self.navigator.evaluate(
+            t_s, at, est.P, exits, a.approach_heading_rad, (float(x[0]), float(x[1]))
+        )
+        old = a.decision
+        if old is not None and new.exit_index != old.exit_index:
+            keep = a.frozen or (
+                a.said_exit >= 0
+                and (
+                    a.at_odometer_m is None  # no distance: no telling how close it is now
+                    or not jumped
+                    or new.options[old.exit_index].cost_rad - CHANGE_MARGIN_RAD
+                    <= new.options[new.exit_index].cost_rad
+                )
+            )
+            if keep:  # the same exit, turned relative to today's approach heading
+                self.counts["change_kept"] += 1
+                o = new.options[old.exit_index]
+                a.decision = _with_exit(new, o)
+                return
+            self.counts["decision_changed"] += 1
+        a.decision = new
+        if old is None or new.exit_index != old.exit_index:
+            self.last_decision = new
+            out.decisions.append(new)
+
+    def announce(self, t_s: float, odometer_m: float, out: Outputs) -> None:
+        """What is due for the next intersection still ahead of the car."""
+        i, a = self._announce_target(odometer_m)
+        if a is None or a.decision is None:
+            return
+        d = a.decision
+        action = prompts.manoeuvre(d.turn_rad)
+        changed = a.said_exit >= 0 and a.said_exit != d.exit_index
+        straight = action == "continue straight"
+        if a.at_odometer_m is None:
+            if "now" in a.announced and not changed:
+                return
+            a.announced.add("now")
+            if straight and not changed and self.last_said == "continue straight":
+                self.counts["straight_not_repeated"] += 1  # the screen shows it; nothing new
+                a.said, a.said_exit = action, d.exit_index
+                return
+            text = prompts.turn_prompt(d.turn_rad, None, self.config.units, *self._then(i, a))
+            self._speak(a, out, t_s, text, action, changed)
+            return
+        distance = max(0.0, a.at_odometer_m - odometer_m)
+        due = due_announcements(distance, self._speed(), a.announced)
+        if not due and not changed:
+            return
+        if due:
+            a.announced.add(due[0])
+            if due[0] == "before":
+                a.frozen = True  # what the driver hears just before is what the car does
+        if straight and not changed and (not due or due[0] == "early"):
+            return  # straight through needs no early warning (OsmAnd, Organic Maps)
+        if straight and not changed and self.last_said == "continue straight":
+            self.counts["straight_not_repeated"] += 1
+            a.said, a.said_exit = action, d.exit_index
+            return
+        text = prompts.turn_prompt(d.turn_rad, distance, self.config.units, *self._then(i, a))
+        self._speak(a, out, t_s, text, action, changed)
+
+    def _announce_target(self, odometer_m: float) -> tuple[int, Ahead | None]:
+        """The next intersection still ahead: the first one the car has not reached, once it
+        is ``PASS_MARGIN_M`` past every one before it (a distance is a few metres off; the
+        driver must not hear the next manoeuvre while still at the previous corner)."""
+        for i, a in enumerate(self.ahead):
+            if a.at_odometer_m is not None:
+                if a.at_odometer_m > odometer_m:
+                    return i, a
+                if odometer_m < a.at_odometer_m + PASS_MARGIN_M:
+                    return -1, None
+            elif a.passed_odometer_m is None:  # distance unknown: once the ones before are behind
+                return (i, a) if i == 0 else (-1, None)
+        return -1, None
+
+    def _then(self, i: int, a: Ahead) -> tuple[float | None, float | None]:
+        if i + 1 >= len(self.ahead):
+            return None, None
+        b = self.ahead[i + 1]
+        if b.decision is None or a.at_odometer_m is None or b.at_odometer_m is None:
+            return None, None
+        return b.decision.turn_rad, b.at_odometer_m - a.at_odometer_m
+
+    def _speak(
+        self, a: Ahead, out: Outputs, t_s: float, text: str, action: str, changed: bool
+    ) -> None:
+        assert a.decision is not None
+        exit_index = a.decision.exit_index
+        if changed:
+            text = prompts.changed(text)
+            a.frozen = True  # one change at most
+        last_t = self._said_at.get(text)
+        if last_t is not None and t_s - last_t < REPEAT_S and not changed:
+            if a.said_exit >= 0:  # the same words again so soon tell nothing
+                self.counts["repeat_not_said"] += 1
+                return
+            text += " again"  # another intersection with the same manoeuvre, right after
+        self._said_at = {k: v for k, v in self._said_at.items() if t_s - v < REPEAT_S}
+        self._said_at[text] = t_s
+        a.said, a.said_exit = action, exit_index
+        self.last_said = action
+        self._say(out, t_s, text, Priority.GUIDANCE, "turn")
+        i = self.ahead.index(a)
+        if i + 1 < len(self.ahead) and ", then " in text:
+            nxt = self.ahead[i + 1]
+            if nxt.decision is not None:
+                nxt.said = prompts.manoeuvre(nxt.decision.turn_rad)
+                nxt.said_exit = nxt.decision.exit_index
+
+    # -- views and checkpoints ------------------------------------------------------------------
+    def planned_exit(self, seq: int) -> int | None:
+        """The exit now planned for report ``seq`` (the simulated driver follows it)."""
+        for a in self.ahead:
+            if a.seq == seq and a.decision is not None:
+                return a.decision.exit_index
+        return None
+
+    def next_ahead(self, odometer_m: float) -> tuple[Decision | None, float | None]:
+        """The decision for the next intersection still ahead and its distance (None: unknown)."""
+        _i, a = self._announce_target(odometer_m)
+        if a is None:
+            return None, None
+        dist = None if a.at_odometer_m is None else max(0.0, a.at_odometer_m - odometer_m)
+        return a.decision, dist
+
+    def snapshot(self) -> dict[str, object]:
+        return {
+            "ahead": [a.to_dict() for a in self.ahead],
+            "history": self.history.snapshot(),
+            "reports": self.reports,
+            "last_said": self.last_said,
+        }
+
+    def restore(self, snap: Mapping[str, object]) -> None:
+        ahead = snap.get("ahead", [])
+        if not isinstance(ahead, list) or len(ahead) > MAX_AHEAD:
+            raise ValueError(f"guide.ahead must be a list of at most {MAX_AHEAD}")
+        self.ahead = [Ahead.from_dict(a) for a in ahead if isinstance(a, dict)]
+        self.history.restore(snap.get("history", []))
+        self.reports = integer(snap.get("reports", 0), "guide.reports")
+        self.last_said = str(snap.get("last_said", ""))[:40]
+        decided = [a.decision for a in self.ahead if a.decision is not None]
+        self.last_decision = decided[-1] if decided else None
+
+
+def _reached(est: PoseEstimator) -> tuple[float, float, float, float, float]:
+    x, P = est.x, est.P
+    return float(x[0]), float(x[1]), float(P[0, 0]), float(P[0, 1]), float(P[1, 1])
+
+
+def _with_exit(d: Decision, o: ExitOption) -> Decision:
+    """``d`` with the exit ``o`` chosen (a change the margin did not allow)."""
+    return replace(d, exit_index=o.index, exit_heading_rad=o.heading_rad, turn_rad=o.turn_rad)
+
+
+def log_turn_without_intersection(turn: TurnCompleted) -> None:
+    log.info(
+        "turn of %.0f deg with no intersection announced", math.degrees(turn.heading_change_rad)
+    )

@@ -1,0 +1,197 @@
+"""What the car keeps about the road (pure): each intersection reported ahead (``Ahead``, a
+checkpoint's plain data), and the estimate along the road behind it (``RoadHistory``: where the
+car was when it got somewhere, whether it is on a road or in a turn, the road's heading).
+``guidance.core.guide`` decides and speaks with them."""
+
+from __future__ import annotations
+
+import math
+from collections import deque
+from collections.abc import Mapping
+from dataclasses import asdict, dataclass, field, fields
+
+from guidance.core.model import wrap_angle
+from guidance.core.navigator import Decision, ExitOption
+from guidance.core.snapshot_check import check_decision, integer, number
+
+HISTORY_M = 120.0
+"""How much of the road behind is kept (position and heading every metre)."""
+ROAD_MEAN_M = 60.0
+"""The approach road's heading is the estimate's mean heading over up to this much of it."""
+
+
+@dataclass(slots=True)
+class Ahead:
+    """One intersection reported ahead, until the car has gone through it."""
+
+    seq: int
+    """Its report's number (1, 2, ...): what the simulated driver follows."""
+    t_s: float
+    exits_rad: tuple[float, ...]
+    """As reported: absolute headings, or (``relative``) the car's heading plus the typed
+    direction, the car's heading at the report being ``report_heading_rad``."""
+    report_heading_rad: float
+    relative: bool
+    at_odometer_m: float | None
+    """Where it is along the road (the pipeline's odometer); None: unknown (the co-driver)."""
+    approach_heading_rad: float | None = None
+    """The heading of the road it is approached on, once known (estimate frame)."""
+    decision: Decision | None = None
+    announced: set[str] = field(default_factory=set)
+    """Announcements made for it: "now" (distance unknown), "early", "before", "then"."""
+    said: str = ""
+    """The manoeuvre last said for it (the repeat rule reads it)."""
+    said_exit: int = -1
+    """The exit it was said for (-1: nothing said): another exit later is a change."""
+    frozen: bool = False
+    passed_odometer_m: float | None = None
+    """Distance unknown: the odometer when a later report said the car is through it."""
+    passed_heading_rad: float | None = None
+    """The heading then (straight on if it has not changed ``guide.PASSED_STRAIGHT_M`` later)."""
+    reached: tuple[float, float, float, float, float] | None = None
+    """(x, y, Pxx, Pxy, Pyy) of the estimate when the car got there (the tabu memory's place)."""
+    last_eval_odometer_m: float = -math.inf
+
+    def exits_now(self) -> tuple[float, ...] | None:
+        """The exits in the estimate frame, or None while the approach road is unknown."""
+        if not self.relative:
+            return self.exits_rad
+        if self.approach_heading_rad is None:
+            return None
+        base = self.approach_heading_rad - self.report_heading_rad
+        return tuple(wrap_angle(h + base) for h in self.exits_rad)
+
+    def to_dict(self) -> dict[str, object]:
+        """JSON-able (the checkpoint)."""
+        d: dict[str, object] = {f.name: getattr(self, f.name) for f in fields(self)}
+        d["exits_rad"] = list(self.exits_rad)
+        d["announced"] = sorted(self.announced)
+        d["reached"] = None if self.reached is None else list(self.reached)
+        d["last_eval_odometer_m"] = None
+        d["decision"] = None if self.decision is None else asdict(self.decision)
+        return d
+
+    @classmethod
+    def from_dict(cls, data: Mapping[str, object]) -> Ahead:
+        """``to_dict`` read back; every number checked (``SnapshotError`` on a bad one)."""
+
+        def opt(key: str) -> float | None:
+            v = data.get(key)
+            return None if v is None else number(v, f"ahead.{key}")
+
+        exits = data.get("exits_rad")
+        announced = data.get("announced", [])
+        reached = data.get("reached")
+        dec = data.get("decision")
+        decision = None
+        if isinstance(dec, dict):
+            check_decision(dec, "ahead.decision")
+            opts = tuple(ExitOption(**o) for o in dec["options"])
+            decision = Decision(options=opts, **{k: v for k, v in dec.items() if k != "options"})
+        if not isinstance(exits, list) or not 0 < len(exits) <= 64:
+            raise ValueError("ahead.exits_rad must be a list of 1-64 headings")
+        return cls(
+            seq=integer(data.get("seq"), "ahead.seq"),
+            t_s=number(data.get("t_s"), "ahead.t_s"),
+            exits_rad=tuple(number(h, "ahead.exits_rad") for h in exits),
+            report_heading_rad=number(data.get("report_heading_rad"), "ahead.report_heading"),
+            relative=bool(data.get("relative")),
+            at_odometer_m=opt("at_odometer_m"),
+            approach_heading_rad=opt("approach_heading_rad"),
+            decision=decision,
+            announced={str(a) for a in announced} if isinstance(announced, list) else set(),
+            said=str(data.get("said", ""))[:40],
+            said_exit=integer(data.get("said_exit", -1), "ahead.said_exit", -1, 64),
+            frozen=bool(data.get("frozen")),
+            passed_odometer_m=opt("passed_odometer_m"),
+            passed_heading_rad=opt("passed_heading_rad"),
+            reached=(
+                None
+                if not isinstance(reached, list) or len(reached) != 5
+                else tuple(number(v, "ahead.reached") for v in reached)  # type: ignore[arg-type]
+            ),
+        )
+
+
+class RoadHistory:
+    """The estimate along the road behind the car, one sample per metre of travel: where the
+    car was when it got to an intersection, and whether its heading is steady now."""
+
+    def __init__(self, steady_m: float, steady_tol_rad: float) -> None:
+        self.steady_m, self.steady_tol_rad = steady_m, steady_tol_rad
+        self._s: deque[tuple[float, float, float, float]] = deque()
+        self._unwrapped = 0.0
+        self._last_raw: float | None = None
+
+    def clear(self) -> None:
+        self._s.clear()
+        self._last_raw = None
+
+    def add(self, odometer_m: float, x: float, y: float, heading_rad: float) -> None:
+        if self._last_raw is None:
+            self._unwrapped = heading_rad
+        else:
+            self._unwrapped += wrap_angle(heading_rad - self._last_raw)
+        self._last_raw = heading_rad
+        s = self._s
+        if s and odometer_m - s[-1][0] < 1.0:
+            return
+        s.append((odometer_m, x, y, self._unwrapped))
+        while s and odometer_m - s[0][0] > HISTORY_M:
+            s.popleft()
+
+    def steady(self, odometer_m: float, span_m: float | None = None) -> bool:
+        """The heading has stayed within the tolerance over the last ``span_m`` (default
+        ``steady_m``) of travel (so the car is on a road, not in a turn)."""
+        span = self.steady_m if span_m is None else span_m
+        if len(self._s) <= 1:  # not driven yet (the start): not in a turn
+            return True
+        if odometer_m - self._s[-1][0] > 2.0:  # dead-reckoned through a gap: not seen
+            return False
+        lo = hi = self._unwrapped
+        covered = 0.0
+        for odo, _x, _y, h in reversed(self._s):
+            lo, hi = min(lo, h), max(hi, h)
+            if hi - lo > self.steady_tol_rad:
+                return False
+            covered = odometer_m - odo
+            if covered >= span:
+                return True
+        return self._s[0][0] <= 1.0  # not turned since the drive began
+
+    def road_heading(self, heading_rad: float) -> float:
+        """The heading of the road the car is on: the mean over the stretch behind it that
+        stays within the tolerance of the latest sample (up to ``ROAD_MEAN_M``), so the
+        compass's and the filter's wobble does not swing a point far ahead."""
+        s = self._s
+        if not s:
+            return heading_rad
+        last_odo, last_h = s[-1][0], s[-1][3]
+        total, n = 0.0, 0
+        for odo, _x, _y, h in reversed(s):
+            if abs(h - last_h) > self.steady_tol_rad or last_odo - odo > ROAD_MEAN_M:
+                break
+            total += h
+            n += 1
+        return wrap_angle(total / n)
+
+    def at(self, odometer_m: float) -> tuple[float, float] | None:
+        """The estimate where the odometer read ``odometer_m`` (the nearest sample kept)."""
+        if not self._s:
+            return None
+        best = min(self._s, key=lambda s: abs(s[0] - odometer_m))
+        return best[1], best[2]
+
+    def snapshot(self) -> list[list[float]]:
+        return [list(s) for s in self._s]
+
+    def restore(self, samples: object) -> None:
+        self.clear()
+        if isinstance(samples, list):
+            for s in samples[-int(HISTORY_M) - 2 :]:
+                if isinstance(s, list) and len(s) == 4:
+                    o, x, y, h = (number(v, "guide.history") for v in s)
+                    self._s.append((o, x, y, h))
+            if self._s:
+                self._unwrapped = self._s[-1][3]
+                self._last_raw = wrap_angle(self._unwrapped)

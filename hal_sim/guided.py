@@ -1,0 +1,176 @@
+"""Quick simulated trips straight through the car's ``Pipeline``, checked by the truth oracle.
+
+``guided_drive`` steps the same world as ``guidance sim`` (``hal_sim.drive.make_world``, the
+same pipeline configuration) and the same simulated co-driver (``SimScene``: reports once in
+view, the next one behind it, ``Approach`` distances, the driver following the car's plan),
+but feeds the pipeline its messages directly instead of through CAN frames and a serial
+pseudo-terminal: a trip takes a fraction of a second, so the test suite and
+``benchmarks/guidance_truth.py`` can check hundreds of them. With ``codriver`` the reports are
+typed lines instead (``drivers.keyboard.CoDriverLines``: exits relative to the road, no
+distance, reported as soon as the previous intersection is behind), the case of a real car.
+
+Every output with a truth is kept for ``hal_sim.oracle.check``: the true track, each report's
+true distance (also for the co-driver's reports, which carry none), the prompts, and the
+estimate against the truth (``inside_2sigma``: the share of steps where the truth is inside
+the 2-sigma ellipse, over a window such as a CAN dropout).
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Callable
+from dataclasses import dataclass, field, replace
+
+import numpy as np
+
+from drivers.can_odometry import MAX_GAP_S
+from drivers.keyboard import CoDriverLines
+from guidance.core.messages import Approach, HeadingFix, LandmarkFix, Prompt, WheelOdometry
+from guidance.core.model import CHI2_2D_2SIGMA, wrap_angle
+from guidance.core.pipeline import Input, Pipeline
+from hal_sim import world as world_mod
+from hal_sim.drive import drive_cap_m, drive_pipeline_config, make_world
+from hal_sim.oracle import CheckResult, Report, SpokenPrompt, TruthSample, check
+from hal_sim.sim_cli import DriveOptions
+from hal_sim.sim_scene import SimScene
+
+TRUTH_EVERY = 5
+"""Truth samples every this many world steps (10 Hz at the world's 50 Hz)."""
+
+
+@dataclass(slots=True)
+class GuidedTrip:
+    """One trip's outcome and everything the oracle needs."""
+
+    opts: DriveOptions
+    codriver: bool
+    outcome: str = "timeout"
+    truth: list[TruthSample] = field(default_factory=list)
+    reports: list[Report] = field(default_factory=list)
+    prompts: list[SpokenPrompt] = field(default_factory=list)
+    driven_m: float = 0.0
+    inside: list[tuple[float, bool]] = field(default_factory=list)
+    """(t, truth inside the 2-sigma ellipse) per truth sample."""
+    exits_not_followed: int = 0
+
+    def check(self) -> CheckResult:
+        return check(self.truth, self.reports, self.prompts)
+
+    def inside_2sigma(self, t0: float = -math.inf, t1: float = math.inf) -> float:
+        """The share of samples in [t0, t1) with the truth inside the 2-sigma ellipse."""
+        sel = [ok for t, ok in self.inside if t0 <= t < t1]
+        return sum(sel) / len(sel) if sel else 1.0
+
+
+def _in(window: tuple[float, float] | None, t: float) -> bool:
+    return window is not None and window[0] <= t < window[0] + window[1]
+
+
+def guided_drive(
+    opts: DriveOptions,
+    *,
+    codriver: bool = False,
+    report_next: bool = True,
+    on_prompt: Callable[[Prompt], None] | None = None,
+) -> GuidedTrip:
+    """One trip (see the module doc); ``opts`` as for ``guidance sim`` (its faults
+    ``can_silent`` and ``compass_garbage`` too: no odometry, or no compass, in that window)."""
+    opts = replace(opts, camera_hz=None)
+    world = make_world(opts)
+    pipeline = Pipeline(drive_pipeline_config(world, opts, world.landmarks(), 0.0))
+    trip = GuidedTrip(opts, codriver)
+    scene = SimScene(world, report_next=report_next and not codriver)
+    dt = world.dt_s
+
+    def feed(msg: Input) -> None:
+        if isinstance(msg, Approach):  # the co-driver's distances place it for the oracle too
+            trip.reports.append(Report(msg.t_s, msg.distance_m))
+        out = pipeline.feed(msg)
+        for pr in out.prompts:
+            trip.prompts.append(SpokenPrompt(pr.t_s, pr.text, pr.kind))
+            if on_prompt is not None:
+                on_prompt(pr)
+        trip.exits_not_followed += sum(not e.followed for e in out.exits_taken)
+
+    def oracle_only(msg: Input) -> None:  # the co-driver gives no distance: the oracle's alone
+        if isinstance(msg, Approach):
+            trip.reports.append(Report(msg.t_s, msg.distance_m))
+
+    scene.start(oracle_only if codriver else feed)
+    lines = CoDriverLines(
+        "co-driver", lambda: float(pipeline.estimator.x[2]), clock=lambda: world.t_s,
+        feedback=lambda _text: None,
+    )  # fmt: skip
+    cap = drive_cap_m(world, opts)
+    sigma = world.sim.landmark_sigma_m
+    missed: list[tuple[float, float, float]] = []  # increments lost in a CAN silence
+    at_node: dict[int, int] = {}  # node -> index in trip.reports, until the car is through
+    while True:
+        seg_before = float(world.ts[world_mod.T_SEG_H])
+        ev = world.step()
+        if ev.passed:  # the exact turn at the node just passed, for the oracle
+            k = at_node.pop(int(world.ns[world_mod.R_A]), None)
+            if k is not None:
+                turn = wrap_angle(float(world.ts[world_mod.T_SEG_H]) - seg_before)
+                trip.reports[k] = replace(trip.reports[k], true_turn_rad=turn)
+        t = ev.t_s
+        dl, dr = ev.left_mps * dt, ev.right_mps * dt
+        if _in(opts.can_silent, t):
+            missed.append((t, dl, dr))
+        else:
+            if missed and t - missed[0][0] <= MAX_GAP_S:  # the decoder bridges a short gap
+                dl += sum(m[1] for m in missed)
+                dr += sum(m[2] for m in missed)
+            missed.clear()
+            feed(WheelOdometry(t, dl, dr))
+        compass = ev.heading_rad is not None and opts.compass_deg is not None
+        if compass and ev.heading_rad is not None and not _in(opts.compass_garbage, t):
+            feed(HeadingFix(t, ev.heading_rad))
+        if ev.landmark is not None:
+            x, y = world.lm_xy[ev.landmark]
+            feed(LandmarkFix(t, ev.landmark, float(x), float(y), sigma))
+        pipeline.tick(t)
+        if world.step_count % TRUTH_EVERY == 0:
+            _sample(trip, world.truth, t, pipeline)
+        if pipeline.finished:
+            trip.outcome = "arrived" if pipeline.arrived else "lost"
+            break
+        if world.driven_m >= cap:
+            break
+        scene.update(ev)
+        msg = scene.due_report(ev)
+        before = pipeline.reports
+        if msg is not None:
+            at_node[int(world.ns[world_mod.R_B])] = len(trip.reports)
+            trip.reports.append(Report(t, float(ev.to_intersection_m)))
+            if codriver:
+                lines.handle(scene.exits_line(), feed)
+            else:
+                feed(msg)
+            if pipeline.reports > before:
+                scene.reported(pipeline.reports)
+        scene.follow(pipeline.planned_exit)
+        msg = scene.due_next(ev)
+        before = pipeline.reports
+        if msg is not None:
+            assert msg.distance_m is not None
+            at_node[int(world.ns[world_mod.R_C])] = len(trip.reports)
+            trip.reports.append(Report(t, msg.distance_m))
+            feed(msg)
+            if pipeline.reports > before:
+                scene.reported_next(pipeline.reports)
+    _sample(trip, world.truth, world.t_s, pipeline)
+    trip.driven_m = world.driven_m
+    return trip
+
+
+def _sample(trip: GuidedTrip, truth: tuple[float, float, float], t: float, p: Pipeline) -> None:
+    tx, ty, th = truth
+    trip.truth.append(TruthSample(t, tx, ty, th))
+    x, P = p.estimator.x, p.estimator.P
+    e = np.array([tx - x[0], ty - x[1]])
+    try:
+        d2 = float(e @ np.linalg.solve(P[:2, :2], e))
+    except np.linalg.LinAlgError:
+        d2 = math.inf
+    trip.inside.append((t, d2 <= CHI2_2D_2SIGMA))
