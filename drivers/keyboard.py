@@ -50,6 +50,9 @@ HELP_LINES: tuple[str, ...] = (
     " l30 r60 or +30 -120 (degrees, left positive); keypad 8 4 6 7 9 1 3 2",
     "turn taken: tl, turned left, t 4 (keypad: 0 then the exit key, e.g. 0 4)",
     "commands: ? or help (this help), repeat (keypad *), mute (keypad /)",
+    "report each intersection once, as soon as you see it (right after the previous one is"
+    " fine), as seen from the street the car will be on; the next report tells the car the"
+    " previous one is behind; turns are seen by the car, a turn report only settles it sooner",
 )
 
 _LABEL_WORDS = {

@@ -294,7 +294,10 @@ def register(sub: Any) -> None:
         type=float,
         default=None,
         metavar="M",
-        help="the simulated co-driver reports the next intersection M metres ahead (30)",
+        help=(
+            "the simulated co-driver reports each intersection when it is M metres ahead "
+            "(default 250: as soon as it comes into view; the studies use 30)"
+        ),
     )
     p.add_argument("--no-telemetry", action="store_true", help="no Zenoh telemetry")
     p.add_argument("--no-record", action="store_true", help="no MCAP recording")

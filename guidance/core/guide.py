@@ -87,7 +87,7 @@ Say = Callable[[Outputs, float, str, int, str], None]
 class Guide:
     """The queue of intersections ahead and everything said and decided about them (see the
     module doc). The pipeline calls ``report``, ``approach``, ``co_driver_turn`` and, after
-    every odometry step, ``step``; ``landmark_fix`` after an accepted fix."""
+    every odometry step, ``step``; ``replan`` after an accepted landmark fix or a new goal."""
 
     def __init__(
         self,
@@ -176,8 +176,9 @@ class Guide:
         self._resolve(first, turn.t_s, heading, turn.source, est, out)
         return True
 
-    def landmark_fix(self, t_s: float, est: PoseEstimator, odometer_m: float, out: Outputs) -> None:
-        """The estimate jumped: the decisions ahead are looked at again."""
+    def replan(self, t_s: float, est: PoseEstimator, odometer_m: float, out: Outputs) -> None:
+        """The estimate jumped (a landmark fix) or the goal moved: the decisions ahead are looked
+        at again, and may change even once said (``_evaluate``)."""
         self._update(t_s, est, odometer_m, out, force=True, jumped=True)
 
     def step(

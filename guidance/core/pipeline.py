@@ -314,7 +314,7 @@ class Pipeline:
                 self._landmark_said[fix.landmark_id] = fix.t_s
                 self._say(out, fix.t_s, prompts.landmark_confirmed(name), Priority.INFO, "landmark")
             self._after_step(fix.t_s, out, mode_done=True)
-            self.guide.landmark_fix(fix.t_s, self.estimator, self.st.odometer_m, out)
+            self.guide.replan(fix.t_s, self.estimator, self.st.odometer_m, out)
         else:
             out.landmark_rejections.append((fix, r.reason or "rejected"))
             self._after_step(fix.t_s, out)
@@ -350,6 +350,7 @@ class Pipeline:
         self.st.arrived = False
         self.st.finished = False
         self._say(out, goal.t_s, "New destination set", Priority.INFO, "info")
+        self.guide.replan(goal.t_s, self.estimator, self.st.odometer_m, out)
 
     # -- after every estimator step -------------------------------------------------------------
     def _after_step(self, t: float, out: Outputs, mode_done: bool = False) -> None:

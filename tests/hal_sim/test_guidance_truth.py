@@ -197,3 +197,34 @@ def test_spoken_distances_and_margins_are_reported_per_km() -> None:
     assert res.km > 0.5 and res.prompts_per_km > 0
     assert all(m >= 3.0 for m in res.margins_s)
     assert math.isfinite(res.distance_ok_frac)
+
+
+def test_guidance_run_on_the_simulated_devices_checked_through_its_recording(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """``guidance run --config`` with ``[sim] devices = true`` (the README's way to try the
+    in-car process): its recording passes the oracle, and so does ``guidance check-guidance``."""
+    import re
+
+    from guidance.tools.cli import main
+
+    repo = Path(__file__).resolve().parents[2]
+    text = (repo / "config" / "sim.toml").read_text()
+    text = re.sub(r'directory = ".*"', f'directory = "{tmp_path / "rec"}"', text)
+    text = text.replace(
+        "[sim]\n",
+        f'[sim]\ndevices = true\ntelemetry = false\npng = false\nvoice = "none"\n'
+        f'out = "{tmp_path}"\n',
+    )
+    text = re.sub(r"seed = 7", "seed = 17", text)
+    text = re.sub(r"density_per_km2 = 1.0", "density_per_km2 = 5.0", text)
+    cfg = tmp_path / "sim.toml"
+    cfg.write_text(text)
+    assert main(["run", "--config", str(cfg), "--json"]) == 0
+    files = sorted(tmp_path.rglob("*.mcap"))
+    assert files
+    res = from_recording(files[0])
+    assert res.manoeuvres_checked >= 3 and res.ok(), res.summary()
+    capsys.readouterr()
+    assert main(["check-guidance", str(files[0]), "--json"]) == 0
+    assert '"wrong": 0' in capsys.readouterr().out
