@@ -110,6 +110,8 @@ class Guide:
         self.last_said = ""
         """The last turn manoeuvre said (a straight after a straight is not repeated)."""
         self._said_at: dict[str, float] = {}
+        self.last_exit_heading_rad: float | None = None
+        """The exit the car took at the last intersection it went through (estimate frame)."""
 
     # -- inputs ---------------------------------------------------------------------------------
     def report(
@@ -270,6 +272,7 @@ class Guide:
         nxt = self.ahead[0] if self.ahead else None
         if nxt is not None and nxt.relative and nxt.approach_heading_rad is None:
             nxt.approach_heading_rad = d.options[best].heading_rad  # the road it is typed on
+        self.last_exit_heading_rad = d.options[best].heading_rad
         out.exits_taken.append(
             ExitTaken(t_s, replace(d, intersection_id=k), best, followed, source)
         )
@@ -339,6 +342,15 @@ class Guide:
             a.approach_heading_rad = self.history.road_heading(float(est.x[2]))
         elif prev is not None and prev.decision is not None and a.approach_heading_rad is None:
             a.approach_heading_rad = prev.decision.exit_heading_rad
+        elif prev is None and a.approach_heading_rad is None and steady:
+            # Just out of a turn: the exit it took is the road, if the car has kept to it.
+            taken = self.last_exit_heading_rad
+            heading = float(est.x[2])
+            if (
+                taken is not None
+                and abs(wrap_angle(heading - taken)) <= self.history.steady_tol_rad
+            ):
+                a.approach_heading_rad = taken
 
     def _predicted_xy(self, a: Ahead, est: PoseEstimator, odometer_m: float) -> tuple[float, float]:
         """Where the car will be at ``a``: along its approach road from the car, or from the

@@ -144,7 +144,7 @@ class Pipeline:
         if self._last_t is None or t > self._last_t:
             self._last_t = t
         if isinstance(msg, CompassHeading | HeadingFix) and not self.st.finished:
-            self._dead_reckon(t)
+            self._dead_reckon(t, out)
         if isinstance(msg, GoalUpdate):
             self._set_goal(msg, out)
         elif self.st.finished:
@@ -218,7 +218,7 @@ class Pipeline:
         long_gap = self.config.resume_gap_inflation and gap is not None and gap > timeout
         ahead_m = self._dr_m
         if long_gap:
-            self._dead_reckon(msg.t_s)
+            self._dead_reckon(msg.t_s, None)
         elif ahead_m > 0.0:
             msg = WheelOdometry(msg.t_s, msg.d_left_m - ahead_m, msg.d_right_m - ahead_m)
         r = est.process(msg)
@@ -245,7 +245,7 @@ class Pipeline:
         self.guide.step(msg.t_s, est, self.st.odometer_m, turn, out)
         self._after_step(msg.t_s, out)
 
-    def _dead_reckon(self, t: float) -> None:
+    def _dead_reckon(self, t: float, out: Outputs | None) -> None:
         """Odometry overdue (a CAN dropout, or a frame late) while the heading is known: the
         estimate moves on at the last speed along its heading, widened along the road by what
         the car could have gained or lost (``guidance.core.odometry_gap``), up to ``t``. Called
@@ -266,6 +266,8 @@ class Pipeline:
         self.st.odometer_m += moved
         self._dr_m += moved
         self._dr_to_t = t
+        if out is not None:  # the intersections ahead move on with it (announcements due)
+            self.guide.step(t, est, self.st.odometer_m, None, out)
 
     def inflate_position(self, spread_m: float) -> None:
         """Widen the position uncertainty by ``spread_m`` (a 2-sigma distance, both axes: a
