@@ -287,7 +287,7 @@ class SimDrive:
             scene.send(msg)
             await self.lockstep.drained()
             if p.reports > before:  # taken (not refused for want of a heading)
-                scene.reported(p.reports)
+                scene.reported(p.last_report_seq)
         scene.follow(p.planned_exit)
         msg = scene.due_next(ev)
         before = p.reports
@@ -295,7 +295,7 @@ class SimDrive:
             scene.send(msg)
             await self.lockstep.drained()
             if p.reports > before:
-                scene.reported_next(p.reports)
+                scene.reported_next(p.last_report_seq)
 
     async def _pace(self, t: float) -> None:
         """``--speed``: simulated seconds per wall second."""

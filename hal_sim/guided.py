@@ -148,7 +148,7 @@ def guided_drive(
             else:
                 feed(msg)
             if pipeline.reports > before:
-                scene.reported(pipeline.reports)
+                scene.reported(pipeline.last_report_seq)
         scene.follow(pipeline.planned_exit)
         msg = scene.due_next(ev)
         before = pipeline.reports
@@ -158,7 +158,7 @@ def guided_drive(
             trip.reports.append(Report(t, msg.distance_m))
             feed(msg)
             if pipeline.reports > before:
-                scene.reported_next(pipeline.reports)
+                scene.reported_next(pipeline.last_report_seq)
     _sample(trip, world.truth, world.t_s, pipeline)
     trip.driven_m = world.driven_m
     return trip

@@ -168,7 +168,12 @@ def _problem(cal: CompassCalibration) -> str | None:
         if abs(v) > MAX_HARMONIC_DEG:
             return (
                 f"{name} = {v:g} exceeds ±{MAX_HARMONIC_DEG:g} degrees: the car's own field "
-                "swamps the earth's there; move the compass away from iron and magnets"
+                "is nearly as strong as the earth's there, more than a deviation card can "
+                "correct. What to do: mount the compass away from steel, speakers and wiring "
+                "(the roof, a mast), or use a compass with its own hard-iron calibration "
+                "(a 3-axis magnetometer calibrated by its maker's figure-of-eight routine), "
+                "or run uncalibrated: leave the card out and the car model's wide compass "
+                "bias prior takes it"
             )
     # Single-valued card: d(corrected)/d(reading) > 0 everywhere, or the card says the compass
     # turns backwards while the car turns, which no compass does: the fit or the data are wrong.

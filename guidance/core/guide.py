@@ -106,6 +106,9 @@ class Guide:
         self.history = RoadHistory(td.settle_m, td.settle_tol_rad)
         self.ahead: list[Ahead] = []
         self.reports = 0
+        self.last_seq = 0
+        """The report number of the intersection the last report was about (a new one, or
+        one already ahead reported again, e.g. by a simulator resumed from a checkpoint)."""
         self.last_decision: Decision | None = None
         self.last_said = ""
         """The last turn manoeuvre said (a straight after a straight is not repeated)."""
@@ -133,6 +136,7 @@ class Guide:
             if same is not None and same.exits_rad == tuple(scene.exit_headings_rad):
                 same.at_odometer_m = at  # the same intersection again: a better distance
                 self.counts["report_repeated"] += 1
+                self.last_seq = same.seq
                 self._evaluate(same, est, odometer_m, scene.t_s, out)
                 self.announce(scene.t_s, odometer_m, out)
                 return
@@ -143,6 +147,7 @@ class Guide:
                     a.passed_heading_rad = heading
         for a in self.ahead:
             a.frozen = True  # the car is committed to the exits before this one
+        self.last_seq = self.reports
         item = Ahead(self.reports, scene.t_s, tuple(scene.exit_headings_rad), heading,
                      relative=not known, at_odometer_m=at)  # fmt: skip
         self.ahead.append(item)
@@ -520,6 +525,7 @@ class Guide:
             "ahead": [a.to_dict() for a in self.ahead],
             "history": self.history.snapshot(),
             "reports": self.reports,
+            "last_seq": self.last_seq,
             "last_said": self.last_said,
         }
 
@@ -530,6 +536,7 @@ class Guide:
         self.ahead = [Ahead.from_dict(a) for a in ahead if isinstance(a, dict)]
         self.history.restore(snap.get("history", []))
         self.reports = integer(snap.get("reports", 0), "guide.reports")
+        self.last_seq = integer(snap.get("last_seq", 0), "guide.last_seq")
         self.last_said = str(snap.get("last_said", ""))[:40]
         decided = [a.decision for a in self.ahead if a.decision is not None]
         self.last_decision = decided[-1] if decided else None

@@ -449,6 +449,11 @@ class Pipeline:
         """Intersection reports taken so far (each ``Ahead.seq``)."""
         return self.guide.reports
 
+    @property
+    def last_report_seq(self) -> int:
+        """The report number of the intersection the last report was about."""
+        return self.guide.last_seq
+
     def planned_exit(self, seq: int) -> int | None:
         """The exit planned now for intersection report ``seq`` (None: not decided yet)."""
         return self.guide.planned_exit(seq)

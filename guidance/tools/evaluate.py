@@ -18,6 +18,7 @@ from __future__ import annotations
 
 import argparse
 import csv
+import itertools
 import json
 import math
 import re
@@ -25,7 +26,7 @@ import sys
 from collections.abc import Sequence
 from dataclasses import dataclass, fields
 from pathlib import Path
-from typing import TextIO
+from typing import Any, TextIO
 
 import numpy as np
 import numpy.typing as npt
@@ -95,21 +96,41 @@ class Evaluation:
     median_axis_ratio: float | None  # 2-sigma semi-major axis / true error
     heading_mean_abs_err_deg: float | None = None
     heading_final_err_deg: float | None = None  # estimate - truth, wrapped to +-180
+    # The error split along the truth's direction of travel and across it (moving steps only).
+    split_steps: int = 0
+    along_rms_m: float | None = None
+    across_rms_m: float | None = None
+    along_final_m: float | None = None  # + the estimate is behind the truth
+    across_final_m: float | None = None  # + the truth is to the left of the estimate
+    along_nees: float | None = None  # mean (error / sigma)^2 along: 1 for an honest filter
+    across_nees: float | None = None
+    segments: tuple[dict[str, float], ...] = ()
+    """Per part of the drive (``SEGMENTS`` equal lengths of truth path): its start and end
+    (m along the path), steps, truth inside 2-sigma and mean NEES."""
 
-    def as_dict(self) -> dict[str, float | int]:
-        """The figures with stable snake_case keys; undefined ones (None) are left out."""
-        out: dict[str, float | int] = {}
+    def as_dict(self) -> dict[str, object]:
+        """The figures with stable snake_case keys; undefined ones (None, or not finite) are
+        left out, so the JSON holds only finite numbers."""
+        out: dict[str, object] = {}
         for f in fields(self):
             value = getattr(self, f.name)
-            if value is not None:
+            if f.name == "segments":
+                out[f.name] = [{k: v for k, v in seg.items() if math.isfinite(v)} for seg in value]
+            elif value is not None and (not isinstance(value, float) or math.isfinite(value)):
                 out[f.name] = value
         return out
 
 
 def _read_columns(
-    path: Path, what: str, required: Sequence[str], optional: Sequence[str] = ()
+    path: Path,
+    what: str,
+    required: Sequence[str],
+    optional: Sequence[str] = (),
+    nullable: Sequence[str] = (),
 ) -> tuple[dict[str, FloatArray], list[int]]:
-    """The wanted columns as arrays and the file line of each row; UserError on bad input."""
+    """The wanted columns as arrays and the file line of each row; UserError on bad input.
+    A ``nullable`` column may be empty or ``nan`` on a row (NaN there: undefined, e.g. the GPS
+    course of a car standing still)."""
     line = 1
     try:
         with path.open(newline="", encoding="utf-8-sig") as f:
@@ -133,6 +154,9 @@ def _read_columns(
                         f"{path}: line {line}: {len(row)} fields, the header has {len(names)}"
                     )
                 for col, i in index.items():
+                    if col in nullable and row[i].strip().lower() in ("", "nan"):
+                        values[col].append(math.nan)
+                        continue
                     try:
                         if not _DECIMAL.match(row[i].strip()):  # no 1_0_0, 0x10, "１２"
                             raise ValueError(row[i])
@@ -181,9 +205,12 @@ def read_track(path: Path) -> Track:
 
 def read_truth(path: Path) -> Truth:
     """Read a truth CSV (``t,east_m,north_m[,heading_deg]``); UserError naming file and line."""
-    cols, lines = _read_columns(path, "truth", TRUTH_COLUMNS, ("heading_deg",))
+    cols, lines = _read_columns(path, "truth", TRUTH_COLUMNS, ("heading_deg",), ("heading_deg",))
     _check_time(path, cols["t"], lines, strict=True)
-    return Truth(cols["t"], cols["east_m"], cols["north_m"], cols.get("heading_deg"))
+    heading = cols.get("heading_deg")
+    if heading is not None and not np.any(np.isfinite(heading)):
+        heading = None  # a column with no value at all
+    return Truth(cols["t"], cols["east_m"], cols["north_m"], heading)
 
 
 def _wrap_deg(a: FloatArray) -> FloatArray:
@@ -256,10 +283,13 @@ def evaluate(track: Track, truth: Truth) -> Evaluation:
 
     head_mean: float | None = None
     head_final: float | None = None
-    if truth.heading_deg is not None:
-        ref_h = np.interp(tq, tt, np.unwrap(truth.heading_deg, period=360.0))
-        dh = _wrap_deg(track.heading_deg[sel] - ref_h)
-        head_mean, head_final = float(np.mean(np.abs(dh))), float(dh[-1])
+    if truth.heading_deg is not None:  # the rows that have one (standing still: none)
+        have = np.isfinite(truth.heading_deg)
+        if np.count_nonzero(have) >= 2:
+            ref_h = np.interp(tq, tt[have], np.unwrap(truth.heading_deg[have], period=360.0))
+            dh = _wrap_deg(track.heading_deg[sel] - ref_h)
+            head_mean, head_final = float(np.mean(np.abs(dh))), float(dh[-1])
+    split = along_across(t, (ref_e, ref_n), (ex, en), (a, b, c))
 
     return Evaluation(
         steps=n,
@@ -281,7 +311,73 @@ def evaluate(track: Track, truth: Truth) -> Evaluation:
         median_axis_ratio=float(np.median(ratio)) if ratio.size else None,
         heading_mean_abs_err_deg=head_mean,
         heading_final_err_deg=head_final,
+        **split,
+        segments=_segments(t, ref_e, ref_n, nees, ok),
     )
+
+
+SEGMENTS = 4
+MOVING_MPS = 0.5
+"""Below this truth speed the direction of travel is undefined: no along/across split."""
+
+
+def along_across(
+    t: FloatArray,
+    ref: tuple[FloatArray, FloatArray],
+    err: tuple[FloatArray, FloatArray],
+    cov: tuple[FloatArray, FloatArray, FloatArray],
+) -> dict[str, Any]:
+    """The error (truth - estimate) split along the truth's direction of travel (from its
+    positions, so a truth without headings works too) and across it, with each part's own
+    variance from the covariance: u^T P u. An ellipse long across the road and thin along it
+    shows as a small ``across_nees`` and a large ``along_nees``."""
+    e, n = ref
+    dt = np.gradient(t)
+    ve, vn = (
+        np.gradient(e) / np.where(dt > 0, dt, np.inf),
+        np.gradient(n) / np.where(dt > 0, dt, np.inf),
+    )
+    speed = np.hypot(ve, vn)
+    a, b, c = cov
+    use = (speed >= MOVING_MPS) & (a > 0) & (c > 0) & (a * c - b * b > 1e-12 * a * c)
+    if np.count_nonzero(use) < 2:
+        return {"split_steps": int(np.count_nonzero(use))}
+    ue, un = ve[use] / speed[use], vn[use] / speed[use]
+    ee, en = err[0][use], err[1][use]
+    along = ee * ue + en * un
+    across = -ee * un + en * ue
+    aa, bb, cc = a[use], b[use], c[use]
+    var_along = aa * ue * ue + 2 * bb * ue * un + cc * un * un
+    var_across = aa * un * un - 2 * bb * ue * un + cc * ue * ue
+    return {
+        "split_steps": int(along.size),
+        "along_rms_m": float(np.sqrt(np.mean(along**2))),
+        "across_rms_m": float(np.sqrt(np.mean(across**2))),
+        "along_final_m": float(along[-1]),
+        "across_final_m": float(across[-1]),
+        "along_nees": float(np.mean(along**2 / var_along)),
+        "across_nees": float(np.mean(across**2 / np.maximum(var_across, 1e-12))),
+    }
+
+
+def _segments(
+    t: FloatArray, e: FloatArray, n: FloatArray, nees: FloatArray, ok: npt.NDArray[np.bool_]
+) -> tuple[dict[str, float], ...]:
+    """Consistency per ``SEGMENTS`` equal parts of the truth path (where it goes wrong)."""
+    s = np.concatenate([[0.0], np.cumsum(np.hypot(np.diff(e), np.diff(n)))])[ok]
+    if s.size < SEGMENTS or s[-1] <= 0:
+        return ()
+    edges = np.linspace(0.0, float(s[-1]), SEGMENTS + 1)
+    out = []
+    for lo, hi in itertools.pairwise(edges):
+        m = (s >= lo) & ((s < hi) | (hi == edges[-1]))
+        k = int(np.count_nonzero(m))
+        out.append({
+            "from_m": float(lo), "to_m": float(hi), "steps": float(k),
+            "inside_2sigma_frac": float(np.mean(nees[m] <= NEES_2SIGMA)) if k else math.nan,
+            "mean_nees": float(np.mean(nees[m])) if k else math.nan,
+        })  # fmt: skip
+    return tuple(out)
 
 
 def _num(value: float | None, fmt: str) -> str:
@@ -319,6 +415,22 @@ def format_report(ev: Evaluation) -> str:
         f"{MEAN_NEES_EXPECTED:.0f} (fewer inside or a larger NEES: overconfident),",
         "  axis ratio about 1.7 for a round ellipse, more for a long one",
     ]
+    if ev.along_nees is not None:
+        lines += [
+            f"error along the direction of travel and across it ({ev.split_steps} moving steps)",
+            row("rms along / across", f"{ev.along_rms_m:.2f} / {ev.across_rms_m:.2f}", "m"),
+            row("final along / across", f"{ev.along_final_m:+.1f} / {ev.across_final_m:+.1f}", "m"),
+            row("(error/sigma)^2 along", f"{ev.along_nees:.2f}", "", "(1 for an honest filter)"),
+            row("(error/sigma)^2 across", f"{ev.across_nees:.2f}", "", "(1 for an honest filter)"),
+        ]
+    if ev.segments:
+        lines.append("by part of the drive (truth path)")
+        for seg in ev.segments:
+            inside, nees = seg["inside_2sigma_frac"], seg["mean_nees"]
+            pct = _num(100 * inside if math.isfinite(inside) else None, ".1f")
+            mean = _num(nees if math.isfinite(nees) else None, ".2f")
+            span = f"{seg['from_m']:.0f}-{seg['to_m']:.0f} m"
+            lines.append(row(span, pct, "%", f"inside, mean NEES {mean}"))
     if ev.heading_mean_abs_err_deg is not None:
         lines += [
             "heading error (estimate - truth)",

@@ -158,8 +158,11 @@ def test_too_few_readings_and_bad_input() -> None:
 def test_an_unusable_fit_is_refused() -> None:
     readings = np.linspace(0.0, 360.0, 100, endpoint=False)
     magnetic = readings + 50.0 * np.sin(np.radians(readings))  # the car's field ~ the earth's
-    with pytest.raises(ValueError, match="unusable: b_deg = 50"):
+    with pytest.raises(ValueError, match="unusable: b_deg = 50") as caught:
         fit_deviation(readings, magnetic)
+    # Issue 21: the refusal says what the user can do about it.
+    text = str(caught.value)
+    assert "What to do" in text and "away from steel" in text and "run uncalibrated" in text
 
 
 def test_from_mapping_round_trip_and_validation() -> None:

@@ -255,11 +255,15 @@ def test_bad_truth_files(tmp_path: Path) -> None:
     no_t = write_csv(tmp_path / "no_t.csv", ["time", "east_m", "north_m"], rows)
     with pytest.raises(UserError, match=r"no_t.csv: line 1: the truth header lacks t$"):
         read_truth(no_t)
-    nan_h = write_csv(
+    nan_h = write_csv(  # an undefined course (standing still) is allowed, infinity is not
         tmp_path / "nan_h.csv", ["t", "east_m", "north_m", "heading_deg"], [[*rows[0], "NaN"]]
     )
+    assert read_truth(nan_h).heading_deg is None
+    inf_h = write_csv(
+        tmp_path / "inf_h.csv", ["t", "east_m", "north_m", "heading_deg"], [[*rows[0], "inf"]]
+    )
     with pytest.raises(UserError, match=r"line 2: heading_deg is not finite"):
-        read_truth(nan_h)
+        read_truth(inf_h)
     (tmp_path / "empty.csv").write_text("")
     with pytest.raises(UserError, match=r"empty truth file"):
         read_truth(tmp_path / "empty.csv")
@@ -358,3 +362,52 @@ def test_numbers_in_a_csv_are_plain_decimals(tmp_path: Path) -> None:
         truth.write_text(f"t,east_m,north_m\n0,0,0\n1,{bad},0\n")
         with pytest.raises(UserError, match="not a number"):
             read_truth(truth)
+
+
+# ----------------------------------------------------------------------------- issue 21, item 4
+
+
+def test_a_truth_heading_may_be_empty_or_nan_on_some_rows(tmp_path: Path) -> None:
+    """Standing still, a GPS course is undefined: those rows leave the heading empty or nan."""
+    truth = line_truth()
+    rows = []
+    for k, (t, e, n) in enumerate(zip(truth.t_s, truth.east_m, truth.north_m, strict=True)):
+        h = "" if k % 5 == 0 else ("nan" if k % 7 == 0 else "90.0")
+        rows.append((float(t), e, n, h))
+    path = write_csv(tmp_path / "truth.csv", ("t", "east_m", "north_m", "heading_deg"), rows)
+    read = read_truth(path)
+    assert read.heading_deg is not None and np.isnan(read.heading_deg).sum() > 0
+    ev = evaluate(make_track(truth, (0.0, 1.0), (4.0, 0.0, 4.0), heading_offset_deg=2.0), read)
+    assert ev.heading_mean_abs_err_deg == pytest.approx(2.0)
+    empty = write_csv(tmp_path / "none.csv", ("t", "east_m", "north_m", "heading_deg"),
+                      [(repr(t), e, n, "") for t, e, n, *_ in rows])  # fmt: skip
+    assert read_truth(empty).heading_deg is None
+    bad = write_csv(tmp_path / "bad.csv", ("t", "east_m", "north_m"), [(repr(T0), "", 0.0)])
+    with pytest.raises(UserError, match="east_m is not a number"):
+        read_truth(bad)  # only the heading may be missing
+
+
+def test_the_error_is_split_along_and_across_the_direction_of_travel() -> None:
+    """East-bound: an estimate 3 m behind and 4 m to the right of the truth, with a covariance
+    long across the road (north) and thin along it (east): the split shows which is which."""
+    truth = line_truth()
+    track = make_track(truth, (-3.0, -4.0), (1.0, 0.0, 64.0))
+    ev = evaluate(track, truth)
+    assert ev.along_rms_m == pytest.approx(3.0) and ev.across_rms_m == pytest.approx(4.0)
+    assert ev.along_final_m == pytest.approx(3.0)  # + behind: the truth is ahead
+    assert ev.across_final_m == pytest.approx(4.0)  # + the truth is to the left
+    assert ev.along_nees == pytest.approx(9.0) and ev.across_nees == pytest.approx(16.0 / 64.0)
+    assert len(ev.segments) == 4 and all(s["steps"] > 0 for s in ev.segments)
+
+
+def test_the_json_holds_only_finite_numbers(tmp_path: Path) -> None:
+    truth = line_truth()
+    track = make_track(truth, (0.0, 0.0), (1.0, 0.0, 1.0))  # zero error: ratios undefined
+    out = io.StringIO()
+    tr = write_track(tmp_path / "track.csv", track)
+    tp = write_csv(tmp_path / "truth.csv", ("t", "east_m", "north_m"),
+                   [(float(t), e, n) for t, e, n in zip(truth.t_s, truth.east_m, truth.north_m,
+                                                      strict=True)])  # fmt: skip
+    assert run(tr, tp, as_json=True, out=out) == 0
+    doc = json.loads(out.getvalue().strip().splitlines()[-1], parse_constant=pytest.fail)
+    assert "along_nees" in doc and isinstance(doc["segments"], list)
