@@ -328,6 +328,8 @@ def parse_config(
         if est.has(key):
             est_kwargs[key] = est.number(key, positive=True)
     car_overrides: dict[str, float] = {}
+    if noise_model == "car" and "initial_position_sigma_m" in est_kwargs:
+        car_overrides["initial_position_sigma_m"] = est_kwargs["initial_position_sigma_m"]
     for key in CAR_KEYS:
         if est.has(key):
             if noise_model != "car":

@@ -91,18 +91,21 @@ CAR_MODEL: dict[str, float] = {
     "wheel_quantum_m": 0.0,
     "wheel_slip_frac": 0.0,
     "wheel_walk_var_m2_per_m": 5e-6,
-    "scale_sigma": 0.01,
+    "scale_sigma": 0.02,
     "diff_sigma": 3e-4,
     "diff_walk_var_per_m": 1e-10,
     "compass_bias_walk_deg2_per_s": 0.15,
+    "initial_position_sigma_m": 3.0,
 }
 """The car model's defaults (``[estimator] model = "car"``); each value's reason and the
 real-drive figures behind it are in docs/estimation.md. Wheel speeds on CAN are speeds, not
 tick counts, so there is no per-increment quantisation; the random part of the wheel noise is
-a walk in distance (2.2 mm per sqrt(m) per wheel); a common scale error of 1 % (tyre wear and
-pressure; real drives: -0.9 %, +0.7 %) and a left/right difference of 0.03 % (0.1 mm of
-rolling radius; real drives: 0.039 %, 0.032 %) are states; the compass bias drifts 3 degrees
-a minute (real RAV4: about 3 degrees after the first 20 s)."""
+a walk in distance (2.2 mm per sqrt(m) per wheel); a common scale error of 2 % for a car nobody
+calibrated (tyre wear takes up to 2.2 % off the rolling radius over a tyre's life, tyres of one
+size differ by up to 1.5 %, pressure, load and speed 0.5 %, and the speed signal carries
+whatever scaling its maker chose: issue 21) and a left/right difference of 0.03 % (0.1 mm of
+rolling radius) are states; the compass bias drifts 3 degrees a minute (real RAV4: about 3
+degrees after the first 20 s); the operator's start is a point picked on a map, 3 m (1 sigma)."""
 CAR_COMPASS_UNCALIBRATED = {"compass_bias_sigma_deg": 60.0, "compass_bias_turn_deg2_per_rad": 250.0}
 """No deviation card: real in-car magnetometers read 40-90 degrees off, and the uncorrected
 deviation changes by about 20 degrees over a quarter turn."""

@@ -135,4 +135,22 @@ def test_smartloc_berlin_odometry_only_is_honest(tmp_path: Path) -> None:
     truth = SHARED / "smartloc_berlin_potsdamer_platz_truth.csv"
     ev = _replay_and_evaluate(tmp_path, log, car, truth)
     assert ev["inside_2sigma_frac"] >= 0.80  # the paper's model: 97 %, but 6x too wide
-    assert ev["median_axis_ratio"] <= 3.0  # the paper's model: 6.0
+    assert ev["median_axis_ratio"] <= 4.0  # the paper's model: 6.0
+    assert 0.3 <= ev["along_nees"] <= 1.5 and 0.3 <= ev["across_nees"] <= 1.5
+
+
+@pytest.mark.parametrize("start_heading_deg", [17.0, 19.0])
+def test_smartloc_berlin_is_honest_with_the_start_heading_a_degree_off(
+    tmp_path: Path, start_heading_deg: float
+) -> None:
+    """Issue 21: an operator's start heading is good to about a degree; the figure must not
+    hang on it (before: 85 % inside at 18 deg, 75 % at 17 deg)."""
+    log = SHARED / "smartloc_berlin_potsdamer_platz.log"
+    if not log.is_file():
+        pytest.skip("../shared/data/realdrives (smartLoc, CC BY-SA) not present")
+    text = (REPO / "config" / "realdrives" / "smartloc_berlin.toml").read_text()
+    car = tmp_path / "berlin.toml"
+    car.write_text(text.replace("heading_deg = 18.0 ", f"heading_deg = {start_heading_deg} "))
+    truth = SHARED / "smartloc_berlin_potsdamer_platz_truth.csv"
+    ev = _replay_and_evaluate(tmp_path, log, car, truth)
+    assert ev["inside_2sigma_frac"] >= 0.80
