@@ -30,7 +30,8 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from guidance.core.estimator import EstimatorConfig, car_model
-from guidance.core.messages import HeadingFix, WheelOdometry
+from guidance.core.learned import LearnedParams
+from guidance.core.messages import HeadingFix, LandmarkFix, WheelOdometry
 from guidance.core.model import CHI2_2D_2SIGMA, wrap_angle
 from guidance.core.navigator import NavigatorConfig
 from guidance.core.pipeline import Pipeline, PipelineConfig
@@ -105,20 +106,37 @@ class CarResult:
     axis_ratio: list[float] = field(default_factory=list)
     lost_at_error_m: float | None = None
     final_error_m: float = 0.0
+    final_major_axis_m: float = 0.0
+    learned: LearnedParams | None = None
 
     @property
     def inside(self) -> float:
         return float(np.mean(np.asarray(self.nees) <= CHI2_2D_2SIGMA)) if self.nees else 1.0
 
 
+FIX_SIGMA_M = 5.0
+"""A landmark fix in the population: the truth plus this much noise (1 sigma), unbiased (the
+world's own sighting model puts the car at the landmark when it comes within 20 m: a bias
+along the road that would teach the scale wrongly)."""
+
+
 def drive_car(
-    seed: int, errors: CarErrors, *, compass: bool, distance_m: float = 1500.0
+    seed: int,
+    errors: CarErrors,
+    *,
+    compass: bool,
+    distance_m: float = 1500.0,
+    landmarks_per_km2: float = 0.0,
+    learned: LearnedParams | None = None,
 ) -> CarResult:
-    """One car, ``distance_m`` of random route in the city of ``seed`` (module doc)."""
+    """One car, ``distance_m`` of random route in the city of ``seed`` (module doc); with
+    ``landmarks_per_km2``, fixes where the world has sightings (60 % detected); with
+    ``learned``, the drive starts from what an earlier drive learned."""
     rng = np.random.default_rng([seed, 99])
     sim = SimParams()
     est0 = estimator_config(sim, 20.0 if compass else None)
-    world = SimWorld(WorldSpec(seed, 4.0, 300.0, 800.0, 0.0, 0.0), sim, est0, NavigatorConfig())
+    spec = WorldSpec(seed, 4.0, 300.0, 800.0, landmarks_per_km2, 0.6)
+    world = SimWorld(spec, sim, est0, NavigatorConfig())
     est = car_model(
         EstimatorConfig(track_m=TRACK_M, compass_two_sigma_deg=None if not compass else 30.0),
         calibrated=False,
@@ -138,6 +156,8 @@ def drive_car(
         stop_at_arrival=False,
     )
     p = Pipeline(cfg)
+    if learned is not None:
+        learned.apply(p.estimator)
     res = CarResult(errors, compass)
     left = right = 0.0
     drift = 0.0
@@ -173,11 +193,19 @@ def drive_car(
                 + math.radians(drift + float(rng.normal()) * errors.compass_noise_deg)
             )
             p.feed(HeadingFix(ev.t_s, wrap_angle(reading)))
+        if ev.landmark is not None:
+            fx = x + float(rng.normal()) * FIX_SIGMA_M
+            fy = y + float(rng.normal()) * FIX_SIGMA_M
+            p.feed(LandmarkFix(ev.t_s, ev.landmark, fx, fy, FIX_SIGMA_M))
         if step % SAMPLE_EVERY == 0:
             _sample(res, p, x, y, th)
     res.driven_m = world.driven_m
     xe = p.estimator.x
     res.final_error_m = math.hypot(prev[0] - xe[0], prev[1] - xe[1])
+    res.final_major_axis_m = p.estimator.major_axis_m
+    res.learned = LearnedParams.from_estimator(
+        p.estimator, "sim", world.t_s, world.driven_m, learned
+    )
     return res
 
 

@@ -334,6 +334,14 @@ def register(sub: Any) -> None:
         action="store_true",
         help="MCAP: decode the raw /can frames and /nmea lines again (with --profile)",
     )
+    p.add_argument(
+        "--learned",
+        type=Path,
+        default=None,
+        metavar="FILE.json",
+        help="raw logs, car model: start from this car's learned parameters (if the file "
+        "exists) and save what the drive learned into it",
+    )
     p.add_argument("--json", action="store_true", help="last stdout line: the result as JSON")
     p.add_argument("--write-expected", type=Path, default=None, help="write outputs as JSON")
     p.set_defaults(func=_cli_replay)
@@ -461,7 +469,18 @@ def _replay_raw(
         streams.append(nmea_inputs(args.nmea, _first_can_time(path), args.nmea_rate))
     merged = heapq.merge(*streams, key=lambda m: m.t_s)
     current.append(Pipeline(pcfg))
-    return replay(current[-1], merged, speed=args.speed, on_output=on_output)
+    if args.learned is None:
+        return replay(current[-1], merged, speed=args.speed, on_output=on_output)
+    from guidance.app.config import load_config
+    from guidance.app.learned_file import save_after, start_from_learned
+
+    vid = load_config(args.config, require_goal=False).vehicle_id if args.config else "replay"
+    est = current[-1].estimator
+    before, note = start_from_learned(est, args.learned, vid, _first_can_time(path))
+    sys.stderr.write(f"guidance replay: {note}\n")
+    res = replay(current[-1], merged, speed=args.speed, on_output=on_output)
+    save_after(est, args.learned, vid, res.last_t_s or 0.0, res.odometer_m, before)
+    return res
 
 
 def _print_result(

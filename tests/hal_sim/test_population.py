@@ -34,3 +34,27 @@ def test_a_car_with_the_filters_own_errors_is_inside_most_of_the_time() -> None:
     res = drive_car(7, car, compass=False)
     assert res.inside >= 0.8 and len(res.nees) > 100
     assert res.final_error_m > 0.0
+
+
+def test_a_second_drive_from_learned_parameters_has_a_smaller_ellipse_and_is_still_honest() -> None:
+    """Issue 21, item 3: each car learns on a drive with landmark fixes; its next drive (another
+    route, no landmarks, a day later) starts from what it learned, widened for the day."""
+    from guidance.core.estimator import EstimatorConfig, car_model
+
+    cfg = car_model(EstimatorConfig(compass_two_sigma_deg=None), calibrated=False)
+    rng = np.random.default_rng(424242)
+    learned_runs, fresh_runs, taught = [], [], 0
+    for i in range(40):
+        car = draw_car(rng)
+        first = drive_car(6000 + i, car, compass=False, landmarks_per_km2=40.0, distance_m=3000.0)
+        assert first.learned is not None
+        day_later = first.learned.widened(first.learned.saved_unix_s + 86400.0, cfg)
+        taught += day_later.scale_sigma < 0.5 * cfg.scale_sigma  # the scale was learned
+        learned_runs.append(drive_car(7000 + i, car, compass=False, learned=day_later))
+        fresh_runs.append(drive_car(7000 + i, car, compass=False))
+    assert taught >= 30  # most routes pass landmarks
+    with_learned = population(learned_runs)
+    assert with_learned.inside >= 0.80, with_learned.summary()
+    axis_learned = np.median([r.final_major_axis_m for r in learned_runs])
+    axis_priors = np.median([r.final_major_axis_m for r in fresh_runs])
+    assert axis_learned < axis_priors

@@ -154,3 +154,25 @@ def test_smartloc_berlin_is_honest_with_the_start_heading_a_degree_off(
     truth = SHARED / "smartloc_berlin_potsdamer_platz_truth.csv"
     ev = _replay_and_evaluate(tmp_path, log, car, truth)
     assert ev["inside_2sigma_frac"] >= 0.80
+
+
+def test_a_second_replay_starts_from_what_the_first_learned(tmp_path: Path) -> None:
+    """``guidance replay ... --learned FILE``: the first drive saves the car's wheel scale,
+    left/right difference and compass bias; the next starts from them: a smaller ellipse,
+    still honest."""
+    if not COMMA_NMEA.is_file():
+        pytest.skip("the comma2k19 compass capture is not present")
+    learned = tmp_path / "rav4.learned.json"
+    figures = []
+    for run in (1, 2):
+        track = tmp_path / f"track{run}.csv"
+        _cli("replay", str(COMMA_LOG), "--nmea", str(COMMA_NMEA), "--config", str(COMMA_CAR),
+             "--track", str(track), "--learned", str(learned))  # fmt: skip
+        out = _cli("evaluate", "--track", str(track), "--truth", str(COMMA_TRUTH), "--json")
+        figures.append(json.loads(out.strip().splitlines()[-1]))
+        assert learned.is_file()
+    first, second = figures
+    assert second["inside_2sigma_frac"] >= 0.80
+    assert second["median_axis_ratio"] < first["median_axis_ratio"]
+    doc = json.loads(learned.read_text())
+    assert doc["schema"] == "guidance.learned/1" and doc["vehicle_id"] == "rav4"

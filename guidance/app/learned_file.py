@@ -1,0 +1,86 @@
+"""One car's learned-parameters file (``guidance.core.learned``): JSON, atomic, versioned.
+
+Written with the checkpoint's ``write_atomic`` (temp file, fsync, rename: a SIGKILL leaves the
+old file or the new one, never a mix). Read with every value checked; a file that fails (not
+JSON, another schema, a value out of bounds, another vehicle's) is refused with one line and
+the car starts from its priors, so a damaged or tampered file never makes it confident.
+"""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+from guidance.app.checkpoint import write_atomic
+from guidance.core.estimator import PoseEstimator
+from guidance.core.learned import LearnedParams
+
+
+def load_learned(path: Path, vehicle_id: str) -> tuple[LearnedParams | None, str | None]:
+    """(the parameters, None), or (None, the one line why they were refused); (None, None)
+    when there is no file yet."""
+    if not path.exists():
+        return None, None
+    try:
+        data = json.loads(path.read_bytes())
+    except (OSError, ValueError) as exc:
+        return None, f"{path}: learned parameters unreadable ({exc}): starting from the priors"
+    if not isinstance(data, dict):
+        return (
+            None,
+            f"{path}: learned parameters refused (not a JSON object): starting from the priors",
+        )
+    try:
+        params = LearnedParams.from_dict(data)
+    except ValueError as exc:
+        return None, f"{path}: learned parameters refused ({exc}): starting from the priors"
+    if params.vehicle_id != vehicle_id:
+        return None, (
+            f"{path}: learned parameters are vehicle {params.vehicle_id!r}'s, not "
+            f"{vehicle_id!r}: starting from the priors"
+        )
+    return params, None
+
+
+def save_learned(path: Path, params: LearnedParams) -> None:
+    """Write atomically: readers see the old file or the new one."""
+    write_atomic(path, (json.dumps(params.to_dict(), indent=1) + "\n").encode())
+
+
+def start_from_learned(
+    est: PoseEstimator, path: Path, vehicle_id: str, now_unix_s: float
+) -> tuple[LearnedParams | None, str]:
+    """Start a fresh car-model filter from the file (widened for the time since): what was
+    used, and one line saying so (or why not)."""
+    params, refused = load_learned(path, vehicle_id)
+    if params is None:
+        return None, refused or f"{path}: no learned parameters yet: starting from the priors"
+    used = params.widened(now_unix_s, est.config)
+    used.apply(est)
+    days = max(0.0, now_unix_s - params.saved_unix_s) / 86400.0
+    bias = (
+        ""
+        if used.compass_bias_deg is None or used.compass_bias_sigma_deg is None
+        else f", compass bias {used.compass_bias_deg:+.1f} +- {used.compass_bias_sigma_deg:.1f} deg"
+    )
+    return used, (
+        f"{path}: starting from learned parameters ({params.distance_m / 1000:.1f} km, "
+        f"{days:.1f} days old): wheel scale {100 * used.scale:+.2f} +- "
+        f"{100 * used.scale_sigma:.2f} %, left/right {100 * used.diff:+.3f} +- "
+        f"{100 * used.diff_sigma:.3f} %{bias}"
+    )
+
+
+def save_after(
+    est: PoseEstimator,
+    path: Path,
+    vehicle_id: str,
+    now_unix_s: float,
+    driven_m: float,
+    before: LearnedParams | None,
+) -> LearnedParams | None:
+    """Save what the filter knows now (nothing for the paper model)."""
+    params = LearnedParams.from_estimator(est, vehicle_id, now_unix_s, driven_m, before)
+    if params is not None:
+        save_learned(path, params)
+    return params

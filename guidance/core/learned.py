@@ -1,0 +1,161 @@
+"""Parameters each car learns and keeps (pure): the car model's persistent states across drives.
+
+The car model estimates the wheel-speed scale ``k``, the left/right difference ``kd`` and the
+compass bias ``b`` as it drives (landmark fixes teach ``k`` along the road; the compass and the
+turns teach ``b`` and ``kd``). ``LearnedParams.from_estimator`` takes them with their variances
+at the end of a drive; the next drive starts from them (``apply``), their uncertainty widened
+with the time since (``widened``): tyre pressure and wear move the scale and the difference
+between drives, and whatever moved in the car moves the compass bias at the filter's own drift
+rate. Nothing is ever more certain than it was measured, and nothing wider than the
+uncalibrated prior. A value outside physical bounds is refused (``from_dict`` raises
+``ValueError`` naming it), as openpilot refuses a learned-parameter file that fails its sanity
+checks. The file itself (atomic, versioned) is ``guidance.app.learned_file``.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Mapping
+from dataclasses import asdict, dataclass, fields, replace
+
+from guidance.core import model
+from guidance.core.estimator import EstimatorConfig, PoseEstimator
+
+SCHEMA = "guidance.learned/1"
+SCALE_VAR_PER_DAY = (0.001**2) / 30.0
+"""Between drives the scale's variance grows by (0.1 %)^2 a month: tyres lose about 0.1 bar of
+pressure a month and wear about 0.05 % of their rolling radius (2.2 % over a tyre's life)."""
+DIFF_VAR_PER_DAY = (0.0001**2) / 30.0
+"""The left/right difference's by (0.01 %)^2 a month (a pressure difference of ~0.05 bar)."""
+MAX_ABS_SCALE = 0.10
+MAX_ABS_DIFF = 0.005
+"""Beyond these a learned value is absurd (a 10 % scale is a wrong DBC; 0.5 % a flat tyre)."""
+
+
+@dataclass(frozen=True, slots=True)
+class LearnedParams:
+    """One car's learned persistent errors and their 1-sigma uncertainty."""
+
+    vehicle_id: str
+    saved_unix_s: float
+    """When they were taken, on the drive's own clock (Unix seconds on a real car)."""
+    distance_m: float
+    """Distance driven on the drives that taught them."""
+    scale: float
+    scale_sigma: float
+    diff: float
+    diff_sigma: float
+    compass_bias_deg: float | None = None
+    compass_bias_sigma_deg: float | None = None
+
+    @classmethod
+    def from_estimator(
+        cls,
+        est: PoseEstimator,
+        vehicle_id: str,
+        now_unix_s: float,
+        distance_m: float,
+        before: LearnedParams | None = None,
+    ) -> LearnedParams | None:
+        """The car model's states now (None for the paper model, which has none); the
+        distance adds to that of ``before``, the drive's own starting values."""
+        if est.n <= model.N_STATE:
+            return None
+        x, P = est.x, est.P
+
+        def sd(i: int) -> float:
+            return math.sqrt(max(0.0, float(P[i, i])))
+
+        bias = est.config.compass_two_sigma_deg is not None
+        return cls(
+            vehicle_id=vehicle_id,
+            saved_unix_s=float(now_unix_s),
+            distance_m=float(distance_m) + (before.distance_m if before is not None else 0.0),
+            scale=float(x[model.STATE_SCALE]),
+            scale_sigma=sd(model.STATE_SCALE),
+            diff=float(x[model.STATE_DIFF]),
+            diff_sigma=sd(model.STATE_DIFF),
+            compass_bias_deg=math.degrees(float(x[model.STATE_BIAS])) if bias else None,
+            compass_bias_sigma_deg=math.degrees(sd(model.STATE_BIAS)) if bias else None,
+        )
+
+    def widened(self, now_unix_s: float, config: EstimatorConfig) -> LearnedParams:
+        """The uncertainty after the time since they were taken, never wider than ``config``'s
+        own (uncalibrated) priors."""
+        days = max(0.0, now_unix_s - self.saved_unix_s) / 86400.0
+        scale = math.sqrt(self.scale_sigma**2 + SCALE_VAR_PER_DAY * days)
+        diff = math.sqrt(self.diff_sigma**2 + DIFF_VAR_PER_DAY * days)
+        bias = self.compass_bias_sigma_deg
+        if bias is not None:
+            walk = config.compass_bias_walk_deg2_per_s * days * 86400.0
+            bias = min(math.sqrt(bias**2 + walk), config.compass_bias_sigma_deg or math.inf)
+        return replace(
+            self,
+            scale_sigma=min(scale, config.scale_sigma or math.inf),
+            diff_sigma=min(diff, config.diff_sigma or math.inf),
+            compass_bias_sigma_deg=bias,
+        )
+
+    def apply(self, est: PoseEstimator) -> None:
+        """Start ``est`` (a car model's fresh filter) from these values: each state's mean and
+        variance, its correlations with the others cleared."""
+        if est.n <= model.N_STATE:
+            return
+        x, P = est.x, est.P
+        states = [(model.STATE_SCALE, self.scale, self.scale_sigma),
+                  (model.STATE_DIFF, self.diff, self.diff_sigma)]  # fmt: skip
+        if (
+            est.config.compass_two_sigma_deg is not None
+            and self.compass_bias_deg is not None
+            and self.compass_bias_sigma_deg is not None
+        ):
+            states.append((model.STATE_BIAS, math.radians(self.compass_bias_deg),
+                           math.radians(self.compass_bias_sigma_deg)))  # fmt: skip
+        for i, value, sigma in states:
+            x[i] = value
+            P[i, :] = 0.0
+            P[:, i] = 0.0
+            P[i, i] = sigma * sigma
+        est.set_state(x, P)
+
+    def to_dict(self) -> dict[str, object]:
+        return {"schema": SCHEMA, **asdict(self)}
+
+    @classmethod
+    def from_dict(cls, data: Mapping[str, object]) -> LearnedParams:
+        """Read back with every value checked (``ValueError`` naming the first bad one)."""
+        if data.get("schema") != SCHEMA:
+            raise ValueError(f"schema is {data.get('schema')!r}, not {SCHEMA!r}")
+        unknown = set(data) - {"schema", *(f.name for f in fields(cls))}
+        if unknown:
+            raise ValueError(f"unknown fields: {', '.join(sorted(unknown))}")
+        vid = data.get("vehicle_id")
+        if not isinstance(vid, str) or not 0 < len(vid) <= 64:
+            raise ValueError("vehicle_id must be a text of 1-64 characters")
+
+        def num(key: str, lo: float, hi: float) -> float:
+            v = data.get(key)
+            if isinstance(v, bool) or not isinstance(v, int | float) or not math.isfinite(v):
+                raise ValueError(f"{key} must be a finite number, not {v!r}")
+            if not lo <= float(v) <= hi:
+                raise ValueError(f"{key} = {v} is outside [{lo:g}, {hi:g}]")
+            return float(v)
+
+        bias = bias_sigma = None
+        if (
+            data.get("compass_bias_deg") is not None
+            or data.get("compass_bias_sigma_deg") is not None
+        ):
+            bias = num("compass_bias_deg", -180.0, 180.0)
+            bias_sigma = num("compass_bias_sigma_deg", 1e-6, 180.0)
+        return cls(
+            vehicle_id=vid,
+            saved_unix_s=num("saved_unix_s", 0.0, 1e11),
+            distance_m=num("distance_m", 0.0, 1e9),
+            scale=num("scale", -MAX_ABS_SCALE, MAX_ABS_SCALE),
+            scale_sigma=num("scale_sigma", 1e-6, 1.0),
+            diff=num("diff", -MAX_ABS_DIFF, MAX_ABS_DIFF),
+            diff_sigma=num("diff_sigma", 1e-8, 0.1),
+            compass_bias_deg=bias,
+            compass_bias_sigma_deg=bias_sigma,
+        )

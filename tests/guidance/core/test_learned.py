@@ -1,0 +1,69 @@
+"""Learned parameters (guidance/core/learned.py): taken from the filter, widened with time,
+applied to the next drive, refused when absurd."""
+
+from __future__ import annotations
+
+import math
+
+import pytest
+
+from guidance.core.estimator import EstimatorConfig, PoseEstimator, car_model
+from guidance.core.learned import SCHEMA, LearnedParams
+from guidance.core.messages import WheelOdometry
+
+
+def _car(compass: bool = True) -> PoseEstimator:
+    cfg = car_model(EstimatorConfig(compass_two_sigma_deg=30.0 if compass else None),
+                    calibrated=False)  # fmt: skip
+    return PoseEstimator(cfg, 0.0, 0.0, 0.0)
+
+
+def test_taken_from_the_filter_and_applied_to_the_next_one() -> None:
+    est = _car()
+    for k in range(100):
+        est.process(WheelOdometry(0.1 * (k + 1), 1.0, 1.0))
+    p = LearnedParams.from_estimator(est, "car1", 1000.0, 100.0)
+    assert p is not None and p.scale_sigma == pytest.approx(0.02, rel=0.05)
+    nxt = _car()
+    learned = LearnedParams("car1", 0.0, 500.0, 0.012, 0.004, 0.0002, 0.0001, 35.0, 4.0)
+    learned.apply(nxt)
+    assert nxt.x[3] == pytest.approx(0.012) and math.sqrt(nxt.P[3, 3]) == pytest.approx(0.004)
+    assert math.degrees(nxt.x[5]) == pytest.approx(35.0)
+    assert nxt.P[0, 3] == 0.0 and nxt.P[3, 5] == 0.0
+    assert (
+        LearnedParams.from_estimator(PoseEstimator(EstimatorConfig(), 0, 0, 0), "x", 0, 0) is None
+    )
+
+
+def test_widened_with_the_time_since_and_never_wider_than_the_prior() -> None:
+    cfg = _car().config
+    p = LearnedParams("car1", 0.0, 500.0, 0.012, 0.004, 0.0002, 0.0001, 35.0, 4.0)
+    same = p.widened(0.0, cfg)
+    assert same.scale_sigma == pytest.approx(0.004) and same.compass_bias_sigma_deg == 4.0
+    month = p.widened(30 * 86400.0, cfg)
+    assert month.scale_sigma == pytest.approx(math.hypot(0.004, 0.001))
+    assert month.compass_bias_sigma_deg == cfg.compass_bias_sigma_deg  # the car's field moved
+    years = p.widened(3e9, cfg)
+    assert years.scale_sigma == cfg.scale_sigma and years.diff_sigma == cfg.diff_sigma
+    assert years.scale == p.scale  # the value stays; only how sure the car is of it changes
+
+
+@pytest.mark.parametrize(
+    ("key", "value", "why"),
+    [
+        ("schema", "guidance.learned/0", "schema"),
+        ("scale", 0.5, "scale = 0.5 is outside"),
+        ("scale", float("nan"), "scale must be a finite number"),
+        ("scale_sigma", 0.0, "scale_sigma = 0.0 is outside"),
+        ("diff", True, "diff must be a finite number"),
+        ("vehicle_id", "", "vehicle_id"),
+        ("compass_bias_deg", 400.0, "compass_bias_deg = 400"),
+        ("extra", 1, "unknown fields: extra"),
+    ],
+)
+def test_an_absurd_or_tampered_value_is_refused_by_name(key: str, value: object, why: str) -> None:
+    good = LearnedParams("car1", 0.0, 500.0, 0.012, 0.004, 0.0002, 0.0001, 35.0, 4.0).to_dict()
+    assert good["schema"] == SCHEMA
+    assert LearnedParams.from_dict(good).scale == 0.012
+    with pytest.raises(ValueError, match=why):
+        LearnedParams.from_dict({**good, key: value})
