@@ -201,8 +201,11 @@ def start_checkpoints(
     if not path:
         return None
     identity = trip_identity(vehicle_id, pipeline.config.describe())
+    done = "not resumed"
     if resume:
         doc = load_checkpoint(path, identity)
         age_s = checkpoint_age_s(doc, time.time()) if doc is not None else math.inf
-        resume_from_checkpoint(pipeline, doc, age_s, max_age_s, path)
-    return Checkpointer(path, interval_s, identity)
+        done = resume_from_checkpoint(pipeline, doc, age_s, max_age_s, path)
+    ck = Checkpointer(path, interval_s, identity)
+    ck.resumed = done == "resumed"
+    return ck

@@ -73,6 +73,8 @@ class Checkpointer:
         self.path = Path(path)
         self.identity = dict(identity) if identity is not None else None
         self.interval_s = interval_s
+        self.resumed = False
+        """This run continues a trip from the checkpoint (``start_checkpoints``)."""
         self.saved = 0
         self.errors = 0
         self._next_t = -math.inf

@@ -104,6 +104,9 @@ async def run_car(
         vehicle_id=cfg.vehicle_id,
         resume=resume,
     )
+    learned = _start_learned(
+        cfg, pipeline, resumed=checkpointer is not None and checkpointer.resumed
+    )
     # Devices are built (and their configs checked) before anything starts.
     sources: dict[str, Source] = {}
     if cfg.odometry is not None:
@@ -205,8 +208,36 @@ async def run_car(
             if screen != "off":
                 opscreen.stop()
         app.save_checkpoint(time.monotonic(), finished=True)  # a clean stop: not resumed
+        _save_learned(cfg, pipeline, learned)
         log.warning("stopping: %s", json.dumps(app.lag_summary()))
     return 0
+
+
+def _start_learned(cfg: Any, pipeline: Any, *, resumed: bool) -> Any:
+    """``[checkpoint] learned_path``: a fresh start begins from the car's learned parameters
+    (a resumed trip already carries them in its state). One log line either way."""
+    from guidance.app.learned_file import start_from_learned
+
+    if not cfg.checkpoint.learned_path or resumed:
+        return None
+    used, note = start_from_learned(
+        pipeline.estimator, Path(cfg.checkpoint.learned_path), cfg.vehicle_id, time.time()
+    )
+    (log.info if used is not None else log.warning)("%s", note)
+    return used
+
+
+def _save_learned(cfg: Any, pipeline: Any, before: Any) -> None:
+    """At a clean stop: what this drive taught the car, for the next one."""
+    from guidance.app.learned_file import save_after
+
+    if not cfg.checkpoint.learned_path:
+        return
+    try:
+        save_after(pipeline.estimator, Path(cfg.checkpoint.learned_path), cfg.vehicle_id,
+                   time.time(), pipeline.odometer_m, before)  # fmt: skip
+    except OSError as exc:
+        log.error("learned parameters not saved to %s: %s", cfg.checkpoint.learned_path, exc)
 
 
 # ----------------------------------------------------------------------------- CLI

@@ -49,6 +49,10 @@ class CheckpointSettings:
     interval_s: float = field(default=5.0, metadata=rule(positive=True))
     max_age_s: float = field(default=600.0, metadata=rule(positive=True))
     """An older checkpoint (wall clock) is not resumed: the car may be anywhere by now."""
+    learned_path: str = field(default="", metadata=rule(path=True))
+    """The car's learned parameters (``guidance.app.learned_file``): read at a fresh start
+    (not when a checkpoint is resumed, which carries them), written at a clean stop. Empty:
+    none kept."""
 
 
 @dataclass(frozen=True, slots=True)

@@ -306,6 +306,7 @@ backend = "none"
 [checkpoint]
 path = "ck.json"
 interval_s = 0.5
+learned_path = "learned.json"
 [telemetry]
 enabled = false
 [recording]
@@ -340,6 +341,11 @@ directory = "rec"
     files = list((tmp_path / "rec").glob("*.mcap"))
     topics = {m.topic for m in Reader(files)}
     assert {"/session", "/can", "/nmea", "/odometry", "/compass", "/state", "/health"} <= topics
+    # Issue 21: the clean stop saved what the car learned, for its next drive.
+    from guidance.app.learned_file import load_learned
+
+    learned, why = load_learned(tmp_path / "learned.json", "t1")
+    assert why is None and learned is not None and 10.0 < learned.distance_m < 30.0
 
 
 def test_a_sensor_silent_from_the_start_is_reported(make_pipeline: Callable[..., Pipeline]) -> None:
