@@ -136,27 +136,6 @@ def record_exit(
 
 
 @njit(cache=True, error_model="numpy")
-def move_exit_use(
-    mem_headings: np.ndarray,
-    mem_counts: np.ndarray,
-    k: int,
-    advised_rad: float,
-    taken_rad: float,
-    match_tol_rad: float,
-) -> None:
-    """The driver took another exit than advised: one use moves from advised to taken."""
-    if not 0 <= k < mem_counts.shape[0]:
-        return
-    for j in range(mem_headings.shape[1]):
-        if mem_counts[k, j] > 0 and abs(wrap_angle(advised_rad - mem_headings[k, j])) <= (
-            match_tol_rad
-        ):
-            mem_counts[k, j] -= 1
-            break
-    record_exit(mem_headings, mem_counts, k, taken_rad, match_tol_rad)
-
-
-@njit(cache=True, error_model="numpy")
 def remember_intersection(
     mem_xy: np.ndarray, mem_headings: np.ndarray, mem_counts: np.ndarray, n_mem: int,
     x: float, y: float,

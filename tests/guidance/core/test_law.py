@@ -65,15 +65,31 @@ def test_record_exit_counts_uses_of_the_same_exit_within_the_tolerance() -> None
     assert pen[0] == 0.0  # a new intersection has no penalties
 
 
-def test_move_exit_use_moves_one_count_from_the_advised_to_the_taken_exit() -> None:
-    _, mem_h, mem_c = _memory()
-    law.record_exit(mem_h, mem_c, 1, 0.0, TOL)
-    law.move_exit_use(mem_h, mem_c, 1, 0.0, math.pi, TOL)
-    assert mem_c[1].sum() == 1
-    j = int(np.argmax(mem_c[1]))
-    assert mem_h[1, j] == pytest.approx(math.pi)
-    law.move_exit_use(mem_h, mem_c, 7, 0.0, math.pi, TOL)  # out of range: nothing happens
-    assert mem_c.sum() == 1
+def test_evaluate_remembers_nothing_and_commit_counts_the_exit_really_taken() -> None:
+    """The car's two halves of the law (issue 20): ``evaluate_exit`` for an intersection ahead
+    leaves the memory as it was; ``commit_exit`` at the intersection remembers it (or finds
+    the revisit) and counts the exit taken, which need not be the advised one."""
+    mem_xy, mem_h, mem_c = _memory()
+    params = np.array([CHI2_2D_2SIGMA, 64.0, math.radians(60.0), TOL, 20.0, 10.0])
+    headings = np.array([0.0, math.pi / 2])
+    pen, cost = np.empty(2), np.empty(2)
+    passed = np.zeros(0, dtype=np.bool_)
+    lm = np.zeros((0, 2))
+    best, k, target = law.evaluate_exit(0.0, 0.0, 4.0, 0.0, 4.0, headings, mem_xy, mem_h, mem_c,
+                                        0, passed, lm, 100.0, 0.0, law.MODE_GOAL, params, pen,
+                                        cost)  # fmt: skip
+    assert best == 0 and k == -1 and target == -1 and mem_c.sum() == 0
+    k, revisit, n = law.commit_exit(0.0, 0.0, 4.0, 0.0, 4.0, math.pi / 2, mem_xy, mem_h, mem_c,
+                                    0, params)  # fmt: skip
+    assert (k, revisit, n) == (0, False, 1)
+    assert mem_c[0].sum() == 1 and mem_h[0, int(np.argmax(mem_c[0]))] == pytest.approx(math.pi / 2)
+    best, k, _ = law.evaluate_exit(
+        1.0, 0.0, 4.0, 0.0, 4.0, headings, mem_xy, mem_h, mem_c, n, passed, lm, 100.0, 0.0,
+        law.MODE_GOAL, params, pen, cost,
+    )  # fmt: skip
+    assert k == 0 and pen[1] == pytest.approx(math.radians(60.0)) and mem_c.sum() == 1
+    k, revisit, n = law.commit_exit(2.0, 0.0, 4.0, 0.0, 4.0, 0.0, mem_xy, mem_h, mem_c, n, params)
+    assert (k, revisit, n) == (0, True, 1) and mem_c[0].sum() == 2
 
 
 def test_remember_forgets_the_oldest_half_when_memory_is_full() -> None:
