@@ -21,12 +21,10 @@ import math
 from collections.abc import Callable
 from dataclasses import dataclass, field, replace
 
-import numpy as np
-
 from drivers.can_odometry import MAX_GAP_S
 from drivers.keyboard import CoDriverLines
 from guidance.core.messages import Approach, HeadingFix, LandmarkFix, Prompt, WheelOdometry
-from guidance.core.model import CHI2_2D_2SIGMA, wrap_angle
+from guidance.core.model import CHI2_2D_2SIGMA, mahalanobis_sq_2d, wrap_angle
 from guidance.core.pipeline import Input, Pipeline
 from hal_sim import world as world_mod
 from hal_sim.drive import drive_cap_m, drive_pipeline_config, make_world
@@ -34,8 +32,8 @@ from hal_sim.oracle import CheckResult, Report, SpokenPrompt, TruthSample, check
 from hal_sim.sim_cli import DriveOptions
 from hal_sim.sim_scene import SimScene
 
-TRUTH_EVERY = 5
-"""Truth samples every this many world steps (10 Hz at the world's 50 Hz)."""
+TRUTH_EVERY = 1
+"""Truth samples every this many world steps (the world's 10 Hz, as the recorder's /truth)."""
 
 
 @dataclass(slots=True)
@@ -168,9 +166,5 @@ def _sample(trip: GuidedTrip, truth: tuple[float, float, float], t: float, p: Pi
     tx, ty, th = truth
     trip.truth.append(TruthSample(t, tx, ty, th))
     x, P = p.estimator.x, p.estimator.P
-    e = np.array([tx - x[0], ty - x[1]])
-    try:
-        d2 = float(e @ np.linalg.solve(P[:2, :2], e))
-    except np.linalg.LinAlgError:
-        d2 = math.inf
+    d2 = mahalanobis_sq_2d(tx - x[0], ty - x[1], P[0, 0], P[0, 1], P[1, 1])
     trip.inside.append((t, d2 <= CHI2_2D_2SIGMA))

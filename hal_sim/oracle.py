@@ -351,4 +351,3 @@ def from_recording(path: str | Path) -> CheckResult:
             f"{path}: no intersection reports with a distance: nothing to place the prompts at"
         )
     return check(truth, reports, prompts)
-

@@ -32,7 +32,7 @@ import numpy as np
 from guidance.core.estimator import EstimatorConfig, car_model
 from guidance.core.learned import LearnedParams
 from guidance.core.messages import HeadingFix, LandmarkFix, WheelOdometry
-from guidance.core.model import CHI2_2D_2SIGMA, wrap_angle
+from guidance.core.model import CHI2_2D_2SIGMA, mahalanobis_sq_2d, wrap_angle
 from guidance.core.navigator import NavigatorConfig
 from guidance.core.pipeline import Pipeline, PipelineConfig
 from hal_sim import world as world_mod
@@ -213,10 +213,7 @@ def _sample(res: CarResult, p: Pipeline, x: float, y: float, th: float) -> None:
     est = p.estimator
     xe, P = est.x, est.P[:2, :2]
     e = np.array([x - xe[0], y - xe[1]])
-    try:
-        nees = float(e @ np.linalg.solve(P, e))
-    except np.linalg.LinAlgError:
-        return
+    nees = mahalanobis_sq_2d(float(e[0]), float(e[1]), P[0, 0], P[0, 1], P[1, 1])
     u = np.array([math.cos(th), math.sin(th)])
     n = np.array([-u[1], u[0]])
     res.nees.append(nees)

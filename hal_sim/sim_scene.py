@@ -18,6 +18,7 @@ from collections import Counter
 from collections.abc import Callable
 from typing import Any
 
+from guidance.core.co_driver import EXIT_TOKENS
 from guidance.core.messages import Approach, IntersectionScene, LandmarkFix
 from guidance.core.model import wrap_angle
 from hal_sim import world
@@ -92,8 +93,8 @@ class SimScene:
         road = float(self.world.ts[world.T_SEG_H])
         words = []
         for h in self.world.exits():
-            rel = math.degrees(wrap_angle(h - road))
-            words.append(min(_TYPED, key=lambda k: abs(wrap_angle(math.radians(_TYPED[k] - rel)))))
+            rel = wrap_angle(h - road)
+            words.append(min(_TYPED, key=lambda k: abs(wrap_angle(_TYPED[k] - rel))))
         return " ".join(words)
 
     def follow(self, planned: Callable[[int], int | None]) -> None:
@@ -146,9 +147,8 @@ class SimScene:
             self.send(Approach(ev.t_s, ev.to_intersection_m))
 
 
-_TYPED = {"s": 0.0, "l": 90.0, "r": -90.0, "u": 180.0, "bl": 45.0, "br": -45.0, "hl": 135.0,
-          "hr": -135.0}  # fmt: skip
-"""Co-driver tokens by their angle (degrees, left positive): ``guidance.core.co_driver``."""
+_TYPED = {tok: EXIT_TOKENS[tok] for tok in ("s", "l", "r", "u", "bl", "br", "hl", "hr")}
+"""The co-driver's short tokens and their angles (rad, left positive), from the parser's table."""
 
 
 class SimSightings:

@@ -265,7 +265,7 @@ class Guide:
         if reached is None:  # distance unknown: where the turn began, else where it was passed
             back = self.config.turn_detector.settle_m + 5.0 if source == "detected" else 0.0
             odo = (a.passed_odometer_m if a.passed_odometer_m is not None and source != "detected"
-                   else self.history_odometer() - back)  # fmt: skip
+                   else self.history.last_odometer_m - back)  # fmt: skip
             xy = self.history.at(odo)
             P = est.P
             x = est.x
@@ -282,10 +282,6 @@ class Guide:
             ExitTaken(t_s, replace(d, intersection_id=k), best, followed, source)
         )
 
-    def history_odometer(self) -> float:
-        s = self.history._s
-        return s[-1][0] if s else 0.0
-
     # -- decisions and announcements ------------------------------------------------------------
     def _update(
         self,
@@ -300,9 +296,14 @@ class Guide:
         """Approach roads, decisions (re-evaluated every ``EVAL_EVERY_M`` where the distance is
         known; with none, where the intersection is stays unknown, so only a jump of the
         estimate re-evaluates it), then what is due to be said."""
+        if not self.ahead:
+            return
         prev: Ahead | None = None
-        steady = self.history.steady(odometer_m)
-        on_road = self.history.steady(odometer_m, ROAD_STEADY_M)
+        steady_for = self.history.steady_for_m(
+            odometer_m, max(ROAD_STEADY_M, self.history.steady_m)
+        )
+        steady = steady_for >= self.history.steady_m
+        on_road = steady_for >= ROAD_STEADY_M
         for i, a in enumerate(self.ahead[:2]):
             if i == 0 or (prev is not None and prev.decision is not None):
                 self._set_approach(a, prev, est, odometer_m, steady, on_road)

@@ -18,14 +18,6 @@ GAP_ACCEL_MPS2 = 3.0
 harder than this ends within v/a seconds, after which the distance lost, v t - v^2 / 2a, stays
 below 1/2 a t^2): bounds what it may have driven beyond or short of its last speed."""
 
-
-def gap_spread_m(speed_before_mps: float, gap_s: float) -> float:
-    """2-sigma radius after an odometry gap when nothing is known of the heading either (a
-    restart: the car may have driven anywhere): the last speed over the gap plus what the car
-    could have gained meanwhile (1/2 a t^2). 11 m/s for 5 s: 55 m + 37.5 m."""
-    return speed_before_mps * gap_s + 0.5 * GAP_ACCEL_MPS2 * gap_s * gap_s
-
-
 GAP_YAW_RATE_RADPS = 0.6
 """How fast a town car's heading can change: a 7 m radius corner at 15 km/h (v / r). Through
 a gap the heading is a random walk with this rate per root second, so the compass, the only

@@ -47,7 +47,7 @@ from guidance.core.messages import (
     WheelOdometry,
 )
 from guidance.core.navigator import Decision, Navigator
-from guidance.core.odometry_gap import dead_reckon, gap_spread_m
+from guidance.core.odometry_gap import dead_reckon
 from guidance.core.pipeline_config import INPUT_KINDS, Input, Outputs, PipelineConfig
 from guidance.core.pipeline_state import PipelineState, _InState
 from guidance.core.snapshot_check import check_snapshot, integer
@@ -71,8 +71,6 @@ LANDMARK_REPEAT_S = 30.0
 GAP_HOLD_S = 5.0
 """An odometry increment this long after the previous one waits for the next to confirm its
 time (a glitch stamping one frame far ahead must not widen the estimate by hours of driving)."""
-
-__all__ = ["Input", "Outputs", "Pipeline", "PipelineConfig", "gap_spread_m"]
 
 DR_AFTER_S = 0.1
 DR_AFTER_PERIODS = 3.0

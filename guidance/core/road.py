@@ -144,20 +144,32 @@ class RoadHistory:
         """The heading has stayed within the tolerance over the last ``span_m`` (default
         ``steady_m``) of travel (so the car is on a road, not in a turn)."""
         span = self.steady_m if span_m is None else span_m
+        return self.steady_for_m(odometer_m, span) >= span
+
+    def steady_for_m(self, odometer_m: float, up_to_m: float) -> float:
+        """How far back the heading has stayed within the tolerance, looking no further than
+        ``up_to_m`` (one walk answers every span up to it): infinite before the car has
+        driven or when it has not turned since the drive began, 0 across a dead-reckoned gap
+        (the road was not seen)."""
         if len(self._s) <= 1:  # not driven yet (the start): not in a turn
-            return True
+            return math.inf
         if odometer_m - self._s[-1][0] > 2.0:  # dead-reckoned through a gap: not seen
-            return False
+            return 0.0
         lo = hi = self._unwrapped
         covered = 0.0
         for odo, _x, _y, h in reversed(self._s):
             lo, hi = min(lo, h), max(hi, h)
             if hi - lo > self.steady_tol_rad:
-                return False
+                return covered
             covered = odometer_m - odo
-            if covered >= span:
-                return True
-        return self._s[0][0] <= 1.0  # not turned since the drive began
+            if covered >= up_to_m:
+                return covered
+        return math.inf if self._s[0][0] <= 1.0 else covered  # not turned since the start
+
+    @property
+    def last_odometer_m(self) -> float:
+        """The odometer at the newest sample (0 before any)."""
+        return self._s[-1][0] if self._s else 0.0
 
     def road_heading(self, heading_rad: float) -> float:
         """The heading of the road the car is on: the mean over the stretch behind it that

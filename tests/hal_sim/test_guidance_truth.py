@@ -167,9 +167,7 @@ def _inside_from_recording(path: str, t0: float, t1: float) -> float:
     """The share of /state messages in [t0, t1) whose 2-sigma ellipse holds the truth."""
     import bisect
 
-    import numpy as np
-
-    from guidance.core.model import CHI2_2D_2SIGMA
+    from guidance.core.model import CHI2_2D_2SIGMA, mahalanobis_sq_2d
     from guidance.recording.reader import Reader
 
     truth: list[tuple[float, float, float]] = []
@@ -185,8 +183,8 @@ def _inside_from_recording(path: str, t0: float, t1: float) -> float:
     ok = []
     for t, x, y, cov in states:
         i = min(max(bisect.bisect_left(ts, t), 0), len(truth) - 1)
-        e = np.array([truth[i][1] - x, truth[i][2] - y])
-        ok.append(float(e @ np.linalg.solve(np.array(cov), e)) <= CHI2_2D_2SIGMA)
+        d2 = mahalanobis_sq_2d(truth[i][1] - x, truth[i][2] - y, cov[0][0], cov[0][1], cov[1][1])
+        ok.append(d2 <= CHI2_2D_2SIGMA)
     assert ok, "no state messages in the window"
     return sum(ok) / len(ok)
 

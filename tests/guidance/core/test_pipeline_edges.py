@@ -9,7 +9,7 @@ import pytest
 from guidance.core.estimator import REANCHOR_AFTER, EstimatorConfig
 from guidance.core.messages import HeadingFix, WheelOdometry
 from guidance.core.navigator import NavigatorConfig
-from guidance.core.odometry_gap import GAP_ACCEL_MPS2, gap_spread_m
+from guidance.core.odometry_gap import GAP_ACCEL_MPS2
 from guidance.core.pipeline import Pipeline, PipelineConfig
 
 
@@ -65,11 +65,6 @@ def test_without_a_compass_a_dropout_widens_across_too_but_the_car_is_not_lost()
     p.feed(WheelOdometry(t + 5.05, step, step))
     assert p.counts["odometry_gaps"] == 1
     assert p.estimator.major_axis_m < 100.0
-
-
-def test_a_restart_spread_is_the_last_speed_plus_what_could_be_gained() -> None:
-    assert gap_spread_m(11.0, 5.0) == 55.0 + 37.5
-    assert gap_spread_m(0.0, 2.0) == 0.5 * GAP_ACCEL_MPS2 * 4.0  # standing: could have set off
 
 
 def test_no_turn_advice_until_the_heading_is_known() -> None:
