@@ -200,6 +200,7 @@ async def run_car(
             opscreen.fold(lambda v: v.add(time.time(), "info", f"NO CO-DRIVER INPUT: {no_input}",
                                           "bad"))  # fmt: skip
             operator.say(NO_INPUT_PROMPT, Priority.SAFETY, time.monotonic())
+        keeper = asyncio.create_task(_keep_learned(cfg, pipeline, learned, stop))
         try:
             if screen != "off":
                 opscreen.start()
@@ -207,6 +208,7 @@ async def run_car(
         finally:
             if screen != "off":
                 opscreen.stop()
+            keeper.cancel()
         app.save_checkpoint(time.monotonic(), finished=True)  # a clean stop: not resumed
         _save_learned(cfg, pipeline, learned)
         log.warning("stopping: %s", json.dumps(app.lag_summary()))
@@ -225,6 +227,33 @@ def _start_learned(cfg: Any, pipeline: Any, *, resumed: bool) -> Any:
     )
     (log.info if used is not None else log.warning)("%s", note)
     return used
+
+
+async def _keep_learned(cfg: Any, pipeline: Any, before: Any, stop: asyncio.Event) -> None:
+    """Every ``[checkpoint] learned_interval_s`` while the car drives: what it has learned so
+    far (taken on the loop, written off it: the write fsyncs)."""
+    from guidance.app.learned_file import save_learned
+    from guidance.core.learned import LearnedParams
+
+    if not cfg.checkpoint.learned_path:
+        return
+    path = Path(cfg.checkpoint.learned_path)
+    loop = asyncio.get_running_loop()
+    while True:
+        try:
+            await asyncio.wait_for(stop.wait(), cfg.checkpoint.learned_interval_s)
+            return  # the clean stop saves
+        except TimeoutError:
+            pass
+        params = LearnedParams.from_estimator(
+            pipeline.estimator, cfg.vehicle_id, time.time(), pipeline.odometer_m, before
+        )
+        if params is None:
+            return  # the paper model learns nothing
+        try:
+            await loop.run_in_executor(None, save_learned, path, params)
+        except OSError as exc:
+            log.error("learned parameters not saved to %s: %s", path, exc)
 
 
 def _save_learned(cfg: Any, pipeline: Any, before: Any) -> None:

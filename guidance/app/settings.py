@@ -51,8 +51,11 @@ class CheckpointSettings:
     """An older checkpoint (wall clock) is not resumed: the car may be anywhere by now."""
     learned_path: str = field(default="", metadata=rule(path=True))
     """The car's learned parameters (``guidance.app.learned_file``): read at a fresh start
-    (not when a checkpoint is resumed, which carries them), written at a clean stop. Empty:
-    none kept."""
+    (not when a checkpoint is resumed, which carries them), written every ``learned_interval_s``
+    and at a clean stop. Empty: none kept."""
+    learned_interval_s: float = field(default=60.0, metadata=rule(positive=True))
+    """How often (wall clock) a drive's learned parameters are saved while it goes on, so a
+    killed process whose checkpoint is too old to resume keeps what the drive learned."""
 
 
 @dataclass(frozen=True, slots=True)

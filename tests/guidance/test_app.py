@@ -307,6 +307,7 @@ backend = "none"
 path = "ck.json"
 interval_s = 0.5
 learned_path = "learned.json"
+learned_interval_s = 0.5
 [telemetry]
 enabled = false
 [recording]
@@ -321,6 +322,11 @@ directory = "rec"
             wheels.start()
             pty.start()
             await asyncio.sleep(2.0)
+            # Issue 21: saved while driving, so a SIGKILL now would keep what was learned.
+            from guidance.app.learned_file import load_learned
+
+            during, _ = load_learned(tmp_path / "learned.json", "t1")
+            assert during is not None and during.distance_m > 0.0
             os.kill(os.getpid(), signal.SIGTERM)
             return await asyncio.wait_for(task, 10.0)
 
