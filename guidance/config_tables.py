@@ -264,6 +264,31 @@ def _check(value: Any, r: Rule, where: str, key: str) -> Any:
     return value
 
 
+def field_default(cls: type, name: str) -> Any:
+    """The default of ``cls``'s field ``name``, where it is written (so another table that
+    offers the same setting does not write it again)."""
+    f = next(f for f in dataclasses.fields(cls) if f.name == name)
+    if f.default_factory is not dataclasses.MISSING:
+        return f.default_factory()
+    if f.default is dataclasses.MISSING:
+        raise TypeError(f"{cls.__name__}.{name} has no default")
+    return f.default
+
+
+def plain(obj: Any) -> Any:
+    """A dataclass as the plain data ``from_table`` reads back: nested dataclasses as tables,
+    enums as their values, tuples as lists (``from_table(type(x), plain(x), ...) == x``)."""
+    if dataclasses.is_dataclass(obj) and not isinstance(obj, type):
+        return {f.name: plain(getattr(obj, f.name)) for f in dataclasses.fields(obj) if f.init}
+    if isinstance(obj, enum.Enum):
+        return obj.value
+    if isinstance(obj, Mapping):
+        return {str(k): plain(v) for k, v in obj.items()}
+    if isinstance(obj, list | tuple):
+        return [plain(v) for v in obj]
+    return obj
+
+
 # ----------------------------------------------------------------------------- messages
 
 _NAMES: dict[object, tuple[str, str]] = {

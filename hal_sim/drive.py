@@ -25,6 +25,7 @@ import logging
 import math
 import time
 from collections.abc import Callable
+from dataclasses import replace
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
@@ -88,7 +89,8 @@ class SimDrive:
         self.method = _method(opts.method)
         self.field_protocol = opts.duration_s is not None
         self.end_t = math.inf if opts.duration_s is None else opts.duration_s
-        self.world = world = make_world(opts)
+        base = app_config.pipeline if app_config is not None else None
+        self.world = world = make_world(opts, base.navigator if base is not None else None)
         # Compile the numba step now, on a copy, before any replay: the copy draws from numba's
         # one random generator, so a fresh drive and a resumed one must draw it at the same point.
         copy.deepcopy(world).step()
@@ -101,7 +103,7 @@ class SimDrive:
         landmarks: tuple[Landmark, ...] = world.landmarks()
         if opts.camera_hz is not None:
             self.camera, self.recogniser, landmarks = open_sim_camera(world, opts, Path(opts.out))
-        self.pipeline_config = drive_pipeline_config(world, opts, landmarks, self.decl)
+        self.pipeline_config = drive_pipeline_config(world, opts, landmarks, self.decl, base)
         self.pipeline = Pipeline(self.pipeline_config)
         self.cap_m = drive_cap_m(world, opts)
         self.trace = DriveTrace()
@@ -413,36 +415,49 @@ class SimDrive:
         )
 
 
-def make_world(opts: DriveOptions) -> SimWorld:
-    """The simulated city and car of a drive's options (the seed fixes both)."""
+def make_world(opts: DriveOptions, navigator: NavigatorConfig | None = None) -> SimWorld:
+    """The simulated city and car of a drive's options (the seed fixes both); ``navigator``:
+    the configured car's (``[navigation]``), with the drive's method."""
     sim = SimParams(decision_distance_m=opts.decision_distance_m)
     est_cfg = estimator_config(sim, opts.compass_deg)
-    nav_cfg = NavigatorConfig(method=_method(opts.method))
+    nav_cfg = replace(navigator or NavigatorConfig(), method=_method(opts.method))
     spec = WorldSpec(opts.seed, opts.area_km2, opts.goal_min_m, opts.goal_max_m,
                      opts.density_per_km2, opts.detection_rate)  # fmt: skip
     return SimWorld(spec, sim, est_cfg, nav_cfg)
 
 
 def drive_pipeline_config(
-    world: SimWorld, opts: DriveOptions, landmarks: tuple[Landmark, ...], declination_deg: float
+    world: SimWorld,
+    opts: DriveOptions,
+    landmarks: tuple[Landmark, ...],
+    declination_deg: float,
+    base: PipelineConfig | None = None,
 ) -> PipelineConfig:
-    """The car's pipeline for a simulated drive: the world's filter and navigator settings, its
-    start and goal, the landmarks the car knows."""
+    """The car's pipeline for a simulated drive: the configured car (``base``, the TOML's
+    pipeline: its ``[navigation]``, ``[health]``, turn detector, units and state rate; else
+    the defaults) on the world's sensors: the world's filter settings (its noise is the
+    world's), navigator, start and goal, the landmarks the car knows, the simulated compass's
+    (uncalibrated, true-mounted) readings and the simulated devices' rates."""
     sx, sy, th0 = world.start_pose
     rates: dict[str, float | None] = {"odometry": 1.0 / world.dt_s}
     if opts.compass_deg is not None:
         rates["compass"] = world.sim.compass_rate_hz
-    return PipelineConfig(
-        estimator=world.est,
-        navigator=world.nav,
-        start_xy_m=(sx, sy),
-        goal_xy_m=world.goal_xy,
-        start_heading_rad=th0,
-        landmarks=landmarks,
-        declination_deg=declination_deg,
-        expected_rates_hz=rates,
-        stop_at_arrival=opts.duration_s is None,
-    )
+    world_fields: dict[str, Any] = {
+        "estimator": world.est,
+        "navigator": world.nav,
+        "start_xy_m": (sx, sy),
+        "goal_xy_m": world.goal_xy,
+        "start_heading_rad": th0,
+        "landmarks": landmarks,
+        "declination_deg": declination_deg,
+        "mounting_offset_deg": 0.0,
+        "compass_deviation_deg": (),
+        "expected_rates_hz": rates,
+        "stop_at_arrival": opts.duration_s is None,
+    }
+    if base is None:
+        return PipelineConfig(**world_fields)
+    return replace(base, **world_fields)
 
 
 def drive_cap_m(world: SimWorld, opts: DriveOptions) -> float:

@@ -29,18 +29,18 @@ from guidance.app.settings import (
     HEALTH_RULES,
     CheckpointSettings,
     LoopSettings,
+    NavigationSettings,
     SceneSettings,
     VehicleSettings,
     VoiceSettings,
     read_scene,
 )
 from guidance.app.tables import _check_document, _Table
-from guidance.config_tables import from_table, key_name
+from guidance.config_tables import field_default, from_table, key_name
 from guidance.core.estimator import EstimatorConfig, car_model
 from guidance.core.health import HealthConfig
-from guidance.core.navigator import Landmark, Method, NavigatorConfig
+from guidance.core.navigator import Landmark
 from guidance.core.pipeline import PipelineConfig
-from guidance.core.prompts import Units
 from guidance.errors import UserError
 from guidance.recording.config import RecordingConfig
 from guidance.telemetry.config import TelemetryConfig
@@ -294,27 +294,15 @@ def parse_config(
         (gx, gy), _ = _point(goal_t, origin)
         goal_t.done()
 
-    nav = _Table("navigation", data.get("navigation", {}))
-    method = nav.string("method", "hybrid", tuple(m.value for m in Method))
-    units = nav.string("units", "metric", tuple(u.value for u in Units))
-    nav_kwargs: dict[str, Any] = {"method": Method(method)}
-    for key in ("arrival_radius_m", "hybrid_switch_m", "lookahead_m", "landmark_pass_radius_m"):
-        if nav.has(key):
-            nav_kwargs[key] = nav.number(key, positive=True)
-    if nav.has("tabu_step_deg"):
-        nav_kwargs["tabu_step_rad"] = math.radians(nav.number("tabu_step_deg", lo=0.0) or 0.0)
-    straight_after = nav.number("straight_after_m", 25.0, positive=True)
-    uncertain_warn = nav.number("uncertain_warn_m", 50.0, positive=True)
-    stop_at_arrival = nav.boolean("stop_at_arrival", False)
-    nav.done()
+    nav = from_table(NavigationSettings, data.get("navigation", {}), "navigation")
 
     est = _Table("estimator", data.get("estimator", {}))
     compass_sigma: float | None
-    raw_sigma = est.get("compass_two_sigma_deg", 30.0)
-    if raw_sigma is False:
+    default_sigma = field_default(EstimatorConfig, "compass_two_sigma_deg")
+    if est.get("compass_two_sigma_deg", default_sigma) is False:
         compass_sigma = None
     else:
-        compass_sigma = est.number("compass_two_sigma_deg", 30.0, positive=True)
+        compass_sigma = est.number("compass_two_sigma_deg", default_sigma, positive=True)
     noise_model = est.string("model", "car", ("car", "paper"))
     est_kwargs: dict[str, Any] = {"compass_two_sigma_deg": compass_sigma}
     for key in (
@@ -347,7 +335,8 @@ def parse_config(
     mounting = ct.number("mounting_offset_deg", 0.0, lo=-180.0, hi=180.0) or 0.0
     declination = ct.number("declination_deg", None, lo=-180.0, hi=180.0)
     deviation = _deviation(ct.get("deviation_deg"))
-    unusable_after = ct.number("unusable_after_s", 20.0, positive=True) or 20.0
+    unusable_default = field_default(PipelineConfig, "compass_unusable_after_s")
+    unusable_after = ct.number("unusable_after_s", unusable_default, positive=True)
     when = (
         default_date
         if ct.get("date") is None and default_date
@@ -420,7 +409,7 @@ def parse_config(
         est_config = car_model(est_config, calibrated=calibrated, **car_overrides)
     pipeline = PipelineConfig(
         estimator=est_config,
-        navigator=NavigatorConfig(**nav_kwargs),
+        navigator=nav.navigator(),
         start_xy_m=(sx, sy),
         goal_xy_m=(gx, gy),
         start_heading_rad=(None if start_heading is None else math.radians(90.0 - start_heading)),
@@ -428,14 +417,14 @@ def parse_config(
         declination_deg=declination or 0.0,
         mounting_offset_deg=mounting,
         compass_deviation_deg=deviation,
-        compass_unusable_after_s=unusable_after,
-        units=Units(units),
+        compass_unusable_after_s=unusable_after or unusable_default,
+        units=nav.units,
         state_period_s=1.0 / loop.state_rate_hz,
         expected_rates_hz=rates,
         health=health,
-        straight_after_m=straight_after or 25.0,
-        uncertain_warn_m=uncertain_warn or 50.0,
-        stop_at_arrival=stop_at_arrival,
+        straight_after_m=nav.straight_after_m,
+        uncertain_warn_m=nav.uncertain_warn_m,
+        stop_at_arrival=nav.stop_at_arrival,
     )
     sim = data.get("sim", {})
     if not isinstance(sim, Mapping):

@@ -1,16 +1,61 @@
 """The config tables that map 1:1 onto a dataclass, read by ``guidance.config_tables.from_table``
-(``[vehicle]``, ``[scene]``, ``[voice]``, ``[health]``, ``[loop]``, ``[checkpoint]``): each
-field is a key, its type and ``rule`` say what the key takes (docs/app.md, "Configuration")."""
+(``[vehicle]``, ``[navigation]``, ``[scene]``, ``[voice]``, ``[health]``, ``[loop]``,
+``[checkpoint]``): each field is a key, its type and ``rule`` say what the key takes
+(docs/app.md, "Configuration"). A setting that the core's own config also has takes its default
+from there (``field_default``): each default is written once."""
 
 from __future__ import annotations
 
+import dataclasses
+import math
 from collections.abc import Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
 
 from guidance.app.backends import SCENE_BACKENDS
-from guidance.config_tables import Rule, from_table, rule
+from guidance.config_tables import Rule, field_default, from_table, rule
+from guidance.core.navigator import Method, NavigatorConfig
+from guidance.core.pipeline_config import PipelineConfig
+from guidance.core.prompts import Units
 from guidance.errors import UserError
+
+_NAV = NavigatorConfig()
+_UNITS: Units = field_default(PipelineConfig, "units")
+_STRAIGHT_AFTER_M: float = field_default(PipelineConfig, "straight_after_m")
+_UNCERTAIN_WARN_M: float = field_default(PipelineConfig, "uncertain_warn_m")
+_STOP_AT_ARRIVAL: bool = field_default(PipelineConfig, "stop_at_arrival")
+
+
+@dataclass(frozen=True, slots=True)
+class NavigationSettings:
+    """``[navigation]``: the navigator's settings and the pipeline's advice distances; the
+    defaults are ``NavigatorConfig``'s and ``PipelineConfig``'s."""
+
+    method: Method = _NAV.method
+    units: Units = _UNITS
+    arrival_radius_m: float = field(default=_NAV.arrival_radius_m, metadata=rule(positive=True))
+    hybrid_switch_m: float = field(default=_NAV.hybrid_switch_m, metadata=rule(positive=True))
+    lookahead_m: float = field(default=_NAV.lookahead_m, metadata=rule(positive=True))
+    landmark_pass_radius_m: float = field(
+        default=_NAV.landmark_pass_radius_m, metadata=rule(positive=True)
+    )
+    tabu_step_deg: float | None = field(default=None, metadata=rule(lo=0.0))
+    """Degrees (the navigator's ``tabu_step_rad``); None: its default."""
+    straight_after_m: float = field(default=_STRAIGHT_AFTER_M, metadata=rule(positive=True))
+    uncertain_warn_m: float = field(default=_UNCERTAIN_WARN_M, metadata=rule(positive=True))
+    stop_at_arrival: bool = _STOP_AT_ARRIVAL
+
+    def navigator(self) -> NavigatorConfig:
+        deg = self.tabu_step_deg
+        return dataclasses.replace(
+            _NAV,
+            tabu_step_rad=_NAV.tabu_step_rad if deg is None else math.radians(deg),
+            method=self.method,
+            arrival_radius_m=self.arrival_radius_m,
+            hybrid_switch_m=self.hybrid_switch_m,
+            lookahead_m=self.lookahead_m,
+            landmark_pass_radius_m=self.landmark_pass_radius_m,
+        )
 
 
 @dataclass(frozen=True, slots=True)

@@ -32,7 +32,11 @@ class Method(StrEnum):
 
 @dataclass(frozen=True, slots=True)
 class NavigatorConfig:
-    method: Method = Method.STRAIGHT_TO_GOAL
+    """The navigator's settings; each default is the car's (``[navigation]`` reads these)."""
+
+    method: Method = Method.HYBRID
+    """SPEC's best of the three: straight to the goal, landmark to landmark once the 2-sigma
+    major axis exceeds ``hybrid_switch_m``."""
     tabu_step_rad: float = math.radians(60.0)
     """Penalty added per earlier use of the same exit at the same intersection."""
     lookahead_m: float = 10.0

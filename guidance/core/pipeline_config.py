@@ -5,8 +5,9 @@
 from __future__ import annotations
 
 from collections.abc import Mapping
-from dataclasses import asdict, dataclass, field
+from dataclasses import dataclass, field
 
+from guidance.config_tables import plain
 from guidance.core.codec import InputMessage
 from guidance.core.estimator import EstimatorConfig
 from guidance.core.health import HealthConfig
@@ -84,40 +85,23 @@ class PipelineConfig:
     """A compass whose readings are mostly rejected for this long is reported unusable."""
     units: Units = Units.METRIC
     state_period_s: float = 0.1
-    expected_rates_hz: Mapping[str, float | None] = field(
-        default_factory=lambda: {"odometry": 50.0, "compass": 5.0}
-    )
+    expected_rates_hz: Mapping[str, float | None] = field(default_factory=dict)
+    """Each input's expected rate, Hz (the device tables say; ``None`` or absent: no
+    expectation, so it is never reported silent)."""
     health: HealthConfig = field(default_factory=HealthConfig)
     turn_detector: TurnDetectorConfig = field(default_factory=TurnDetectorConfig)
     straight_after_m: float = 25.0
     """A decision with no turn reported this far past the intersection was 'straight on'."""
     uncertain_warn_m: float = 50.0
     """Say "position uncertain" when the major axis grows past this."""
-    stop_at_arrival: bool = True
-    """Arrival ends guidance (the sim); otherwise the car waits for a new goal."""
+    stop_at_arrival: bool = False
+    """Arrival ends guidance (a simulated trip); otherwise the car waits for a new goal."""
     resume_gap_inflation: bool = True
     """After an odometry silence, inflate the position by the distance possibly driven."""
 
     def describe(self) -> dict[str, object]:
-        """Plain data for the recording's session record and the checkpoint."""
-        return {
-            "estimator": asdict(self.estimator),
-            "navigator": {
-                k: (v.value if hasattr(v, "value") else v)
-                for k, v in asdict(self.navigator).items()
-            },
-            "start_xy_m": list(self.start_xy_m),
-            "goal_xy_m": list(self.goal_xy_m),
-            "start_heading_rad": self.start_heading_rad,
-            "landmarks": [asdict(lm) for lm in self.landmarks],
-            "declination_deg": self.declination_deg,
-            "mounting_offset_deg": self.mounting_offset_deg,
-            "compass_deviation_deg": list(self.compass_deviation_deg),
-            "compass_unusable_after_s": self.compass_unusable_after_s,
-            "units": self.units.value,
-            "state_period_s": self.state_period_s,
-            "expected_rates_hz": dict(self.expected_rates_hz),
-            "straight_after_m": self.straight_after_m,
-            "uncertain_warn_m": self.uncertain_warn_m,
-            "stop_at_arrival": self.stop_at_arrival,
-        }
+        """Plain data for the recording's session record and the checkpoint's trip identity:
+        every field (``config_tables.plain``), so ``from_table(PipelineConfig, ...)`` rebuilds
+        exactly this car (``guidance.tools.replay_session``)."""
+        out: dict[str, object] = plain(self)
+        return out

@@ -31,8 +31,6 @@ def warm_up() -> None:
                 goal_xy_m=(500.0, 500.0),
                 start_heading_rad=0.0,
                 landmarks=(Landmark(1, 50.0, 0.0, "warm-up"),),
-                expected_rates_hz={},
-                stop_at_arrival=False,
             )
         )
         p.feed(WheelOdometry(0.1, 1.0, 1.05))

@@ -283,8 +283,6 @@ def _default_pipeline(start_heading_deg: float | None) -> PipelineConfig:
         start_heading_rad=(
             None if start_heading_deg is None else math.radians(90.0 - start_heading_deg)
         ),
-        expected_rates_hz={},
-        stop_at_arrival=False,
     )
 
 

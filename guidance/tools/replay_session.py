@@ -14,10 +14,10 @@ from __future__ import annotations
 import math
 import re
 from collections.abc import Mapping
-from enum import Enum
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
+from guidance.config_tables import from_table
 from guidance.errors import UserError
 
 if TYPE_CHECKING:
@@ -26,6 +26,8 @@ if TYPE_CHECKING:
 MAX_COORD_M = 1e8
 MAX_LANDMARKS = 100_000
 MAX_VALUE = 1e9
+MAX_ITEMS = 64
+"""Any other list or table in the record (rates, the deviation card, a config table)."""
 POSITIVE = frozenset(
     {
         "track_m",
@@ -39,157 +41,98 @@ POSITIVE = frozenset(
         "state_period_s",
         "straight_after_m",
         "uncertain_warn_m",
+        "silence_periods",
+        "min_timeout_s",
+        "min_turn_rad",
+        "window_m",
+        "settle_m",
+        "settle_tol_rad",
     }
 )
 """Settings that must be above zero (a zero track or period divides by zero)."""
-INT_LIMITS = {"max_intersections": (1, 100_000), "max_exits": (1, 64)}
-"""Integer settings that size the navigator's arrays."""
+INT_LIMITS = {
+    "max_intersections": (1, 100_000),
+    "max_exits": (1, 64),
+    "min_reads_for_validity": (1, 1_000_000),
+}
+"""Integer settings that size the navigator's arrays (or count reads)."""
+RANGES = {
+    "declination_deg": (-180.0, 180.0),
+    "mounting_offset_deg": (-360.0, 360.0),
+    "compass_deviation_deg": (-90.0, 90.0),
+    "compass_unusable_after_s": (0.1, 1e6),
+    "start_heading_rad": (-7.0, 7.0),
+    "state_period_s": (1e-3, 60.0),
+    "expected_rates_hz": (1e-3, 1e4),
+    "max_reject_fraction": (0.0, 1.0),
+}
+"""Ranges beyond finite and ``MAX_VALUE`` (a list's or a table's items take its key's)."""
+COORDINATES = frozenset({"start_xy_m", "goal_xy_m", "x_m", "y_m"})
 _SESSION_FILE = re.compile(r"^(?P<key>.+-\d{8}-\d{6})-\d{4}\.mcap$")
+PREFIX = "the recording's /session record: "
 
 
-def _bad(where: str, why: str) -> UserError:
-    return UserError(f"the recording's /session record: {where} {why}")
+def _bad(where: str, key: str, why: str) -> UserError:
+    return UserError(f"{PREFIX}[{where}] {key} {why}")
 
 
-def _num(v: object, where: str, lo: float = 0.0, hi: float = MAX_VALUE) -> float:
-    if isinstance(v, bool) or not isinstance(v, int | float):
-        raise _bad(where, f"must be a number, not {type(v).__name__}")
-    try:
-        f = float(v)
-    except OverflowError:
-        raise _bad(where, "is out of range") from None
-    if not math.isfinite(f):
-        raise _bad(where, f"must be finite, not {f}")
-    if not lo <= f <= hi:
-        raise _bad(where, f"= {f:.6g} is outside [{lo:.6g}, {hi:.6g}]")
-    if where.rsplit(".", 1)[-1] in POSITIVE and f <= 0:
-        raise _bad(where, "must be > 0")
-    return f
-
-
-def _table(v: object, where: str) -> Mapping[str, Any]:
-    if not isinstance(v, Mapping):
-        raise _bad(where, f"must be a table, not {type(v).__name__}")
-    return v
-
-
-def _settings(d: Mapping[str, Any], cls: type, where: str) -> dict[str, Any]:
-    """The fields of a config dataclass from ``d``: known names only, numbers checked."""
-    import dataclasses
-
-    fields = {f.name: f for f in dataclasses.fields(cls)}
-    out: dict[str, Any] = {}
-    for key, value in d.items():
-        name = f"{where}.{str(key)[:40]}"
-        if key not in fields:
-            raise _bad(name, "is not a setting of this version")
-        default = fields[key].default
-        if key in INT_LIMITS:
-            lo, hi = INT_LIMITS[key]
-            if isinstance(value, bool) or not isinstance(value, int) or not lo <= value <= hi:
-                raise _bad(name, f"must be an integer in [{lo}, {hi}]")
-            out[key] = value
-        elif isinstance(default, bool):
-            if not isinstance(value, bool):
-                raise _bad(name, "must be true or false")
-            out[key] = value
-        elif isinstance(default, str | Enum):
-            if not isinstance(value, str) or len(value) > 100:
-                raise _bad(name, "must be a short text")
-            out[key] = value
-        elif value is None and default is None:
-            out[key] = None
-        else:
-            out[key] = _num(value, name)
-    return out
+def _limits(v: object, where: str, key: str, name: str) -> None:
+    """What the types do not say, checked before the types are read: sizes (a million
+    landmarks), finite numbers within ``MAX_VALUE`` or their own range, integers that size
+    arrays, settings that must be > 0. ``name`` is the setting a list item or a rate belongs
+    to; a value of the wrong type is left to ``from_table``, which names what was expected."""
+    if isinstance(v, Mapping):
+        if len(v) > (MAX_ITEMS if key else 100):
+            raise _bad(where, key, f"has more than {MAX_ITEMS} entries")
+        inner = f"{where}.{key}" if key else where
+        for k, x in v.items():
+            sub = str(k)[:40]
+            _limits(x, inner, sub, name if name == "expected_rates_hz" else sub)
+    elif isinstance(v, list):
+        cap = MAX_LANDMARKS if name == "landmarks" else MAX_ITEMS
+        if len(v) > cap:
+            raise _bad(where, key, f"must be a list of at most {cap}")
+        for i, x in enumerate(v):
+            _limits(x, where, f"{key}[{i}]", name)
+    elif isinstance(v, int | float) and not isinstance(v, bool):
+        if name == "id":
+            if abs(v) >= 2**63:
+                raise _bad(where, key, "must be a 64-bit integer")
+            return
+        if name in INT_LIMITS:
+            lo, hi = INT_LIMITS[name]
+            if not isinstance(v, int) or not lo <= v <= hi:
+                raise _bad(where, key, f"must be an integer in [{lo}, {hi}]")
+            return
+        try:
+            f = float(v)
+        except OverflowError:
+            raise _bad(where, key, "is out of range") from None
+        if not math.isfinite(f):
+            raise _bad(where, key, f"must be finite, not {f}")
+        lim = MAX_COORD_M if name in COORDINATES else MAX_VALUE
+        low, high = RANGES.get(name, (-lim, lim))
+        if not low <= f <= high:
+            raise _bad(where, key, f"= {f:.6g} is outside [{low:.6g}, {high:.6g}]")
+        if name in POSITIVE and f <= 0:
+            raise _bad(where, key, "must be > 0")
 
 
 def pipeline_config_from_session(session: Mapping[str, Any]) -> PipelineConfig:
-    """Rebuild the pipeline configuration from a recording's ``/session`` record (checked)."""
-    from guidance.core.estimator import EstimatorConfig
-    from guidance.core.health import HealthConfig
-    from guidance.core.navigator import Landmark, Method, NavigatorConfig
-    from guidance.core.pipeline import PipelineConfig
-    from guidance.core.prompts import Units
+    """Rebuild the pipeline configuration from a recording's ``/session`` record (checked):
+    ``PipelineConfig.describe()`` read back by the config loader, so the replay is the car
+    that was recorded, ``[health]`` and the turn detector included. A record from before a
+    setting existed keeps that setting's default."""
+    from guidance.core.pipeline_config import PipelineConfig
 
     d = session.get("pipeline") if isinstance(session, Mapping) else None
     if not isinstance(d, Mapping):
         raise UserError("the recording's /session record has no pipeline configuration")
-    est = _settings(_table(d.get("estimator", {}), "estimator"), EstimatorConfig, "estimator")
-    nav = _settings(_table(d.get("navigator", {}), "navigator"), NavigatorConfig, "navigator")
+    _limits(d, "pipeline", "", "")
     try:
-        nav["method"] = Method(nav.get("method", Method.STRAIGHT_TO_GOAL.value))
-        units = Units(d.get("units", "metric"))
-    except ValueError as exc:
-        raise _bad("method or units", str(exc)) from None
-
-    def xy(key: str) -> tuple[float, float]:
-        v = d.get(key)
-        if not isinstance(v, list | tuple) or len(v) != 2:
-            raise _bad(key, "must be [x, y]")
-        return (
-            _num(v[0], key, -MAX_COORD_M, MAX_COORD_M),
-            _num(v[1], key, -MAX_COORD_M, MAX_COORD_M),
-        )
-
-    landmarks = d.get("landmarks", [])
-    if not isinstance(landmarks, list) or len(landmarks) > MAX_LANDMARKS:
-        raise _bad("landmarks", f"must be a list of at most {MAX_LANDMARKS}")
-    lms = []
-    for i, lm in enumerate(landmarks):
-        t = _table(lm, f"landmarks[{i}]")
-        lm_id = t.get("id")
-        if isinstance(lm_id, bool) or not isinstance(lm_id, int) or abs(lm_id) >= 2**63:
-            raise _bad(f"landmarks[{i}].id", "must be an integer")
-        name = t.get("name", "")
-        if not isinstance(name, str) or set(t) - {"id", "x_m", "y_m", "name"}:
-            raise _bad(f"landmarks[{i}]", "must hold id, x_m, y_m and a name")
-        x = _num(t.get("x_m"), f"landmarks[{i}].x_m", -MAX_COORD_M, MAX_COORD_M)
-        y = _num(t.get("y_m"), f"landmarks[{i}].y_m", -MAX_COORD_M, MAX_COORD_M)
-        lms.append(Landmark(lm_id, x, y, name[:200]))
-    heading = d.get("start_heading_rad")
-    rates = _table(d.get("expected_rates_hz", {}), "expected_rates_hz")
-    if len(rates) > 16:
-        raise _bad("expected_rates_hz", "has too many inputs")
-    deviation = d.get("compass_deviation_deg", [])
-    if not isinstance(deviation, list) or len(deviation) > 16:
-        raise _bad("compass_deviation_deg", "must be a short list")
-    stop = d.get("stop_at_arrival", True)
-    if not isinstance(stop, bool):
-        raise _bad("stop_at_arrival", "must be true or false")
-    try:
-        return PipelineConfig(
-            estimator=EstimatorConfig(**est),
-            navigator=NavigatorConfig(**nav),
-            start_xy_m=xy("start_xy_m"),
-            goal_xy_m=xy("goal_xy_m"),
-            start_heading_rad=None
-            if heading is None
-            else _num(heading, "start_heading_rad", -7, 7),
-            landmarks=tuple(lms),
-            declination_deg=_num(d.get("declination_deg", 0.0), "declination_deg", -180, 180),
-            mounting_offset_deg=_num(
-                d.get("mounting_offset_deg", 0.0), "mounting_offset_deg", -360, 360
-            ),
-            compass_deviation_deg=tuple(
-                _num(v, "compass_deviation_deg", -90, 90) for v in deviation
-            ),
-            compass_unusable_after_s=_num(
-                d.get("compass_unusable_after_s", 20.0), "compass_unusable_after_s", 0.1, 1e6
-            ),
-            units=units,
-            state_period_s=_num(d.get("state_period_s", 0.1), "state_period_s", 1e-3, 60),
-            expected_rates_hz={
-                str(k)[:40]: None if v is None else _num(v, f"expected_rates_hz.{k}", 1e-3, 1e4)
-                for k, v in rates.items()
-            },
-            health=HealthConfig(),
-            straight_after_m=_num(d.get("straight_after_m", 25.0), "straight_after_m"),
-            uncertain_warn_m=_num(d.get("uncertain_warn_m", 50.0), "uncertain_warn_m"),
-            stop_at_arrival=stop,
-        )
-    except (TypeError, ValueError) as exc:  # a setting the dataclasses themselves refuse
-        raise _bad("pipeline", f"cannot be used: {str(exc)[:120]}") from None
+        return from_table(PipelineConfig, d, "pipeline")
+    except UserError as exc:
+        raise UserError(f"{PREFIX}{str(exc)[:300]}") from None
 
 
 def recording_sessions(path: Path) -> list[list[Path]]:

@@ -4,10 +4,12 @@ command line over it (explicit precedence, no peeking at sys.argv)."""
 from __future__ import annotations
 
 import argparse
+from dataclasses import replace
 from pathlib import Path
 
 import pytest
 
+from guidance.config_tables import plain
 from guidance.core import law
 from guidance.errors import UserError
 from hal_sim.sim_cli import METHODS, DriveOptions, options_from_config, register
@@ -44,6 +46,26 @@ def test_sim_table_values_paths_and_the_config_s_defaults(tmp_path: Path) -> Non
     assert opts.method == cfg.pipeline.navigator.method.value
     assert opts.compass_deg == cfg.pipeline.estimator.compass_two_sigma_deg
     assert opts.vehicle_id == cfg.vehicle_id
+
+
+def test_the_simulator_runs_the_configured_car(tmp_path: Path) -> None:
+    """Issue 25: ``guidance sim --config`` drives the car of the TOML: its [navigation] and
+    [health] (not only the method), on the world's sensors, and records them for replay."""
+    from guidance.core.health import HealthConfig
+    from hal_sim.drive import SimDrive
+
+    path = _config(tmp_path, "")
+    text = path.read_text().replace(
+        'method = "hybrid"\n', 'method = "hybrid"\nlookahead_m = 15.0\n'
+    )
+    path.write_text(text + "\n[health]\nsilence_periods = 3.0\n")
+    opts, cfg = options_from_config(str(path), DriveOptions())
+    drive = SimDrive(replace(opts, voice="none", out=str(tmp_path / "out")), None, cfg)
+    pc = drive.pipeline_config
+    assert pc.health == HealthConfig(silence_periods=3.0)
+    assert pc.navigator.lookahead_m == 15.0 and drive.world.nav.lookahead_m == 15.0
+    assert pc.estimator == drive.world.est  # the filter matches the simulated sensors
+    assert pc.describe()["health"] == {**plain(HealthConfig()), "silence_periods": 3.0}
 
 
 @pytest.mark.parametrize(
