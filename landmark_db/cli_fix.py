@@ -193,12 +193,16 @@ def cmd_migrate(args: argparse.Namespace) -> None:
     path = Path(args.db)
     if not path.is_file():
         raise UserError(f"{path}: no such file")
+    target = path.resolve()  # a symbolic link stays one: the file it names is migrated
+    mode = stat.S_IMODE(target.stat().st_mode)
+    if not mode & 0o222 or not os.access(target, os.W_OK):
+        raise UserError(f"{path} is read-only (mode {mode:04o}): nothing migrated")
     quarantine = _Quarantine(Path(args.quarantine)) if args.quarantine else None
-    tmp = path.with_name(f".{path.name}.migrate-{os.getpid()}.tmp")
+    tmp = target.with_name(f".{target.name}.migrate-{os.getpid()}.tmp")
     try:
-        _copy(path, tmp)
+        _copy(target, tmp)
         for side in ("-wal", "-journal"):
-            other = path.with_name(path.name + side)
+            other = target.with_name(target.name + side)
             if other.exists() and other.stat().st_size > 0:
                 raise UserError(f"{path}: {other.name} beside it: another program has it open")
         with open_db(tmp, readonly=False) as db:  # the schema migrations, on the copy
@@ -229,7 +233,7 @@ def cmd_migrate(args: argparse.Namespace) -> None:
             os.fsync(fd)
         finally:
             os.close(fd)
-        os.replace(tmp, path)
+        os.replace(tmp, target)
     finally:
         with contextlib.suppress(FileNotFoundError):
             tmp.unlink()

@@ -172,3 +172,23 @@ def test_remove_and_edit_mend_one_landmark_each(
         assert lms[2].position_sigma_m == 4.0 and lms[3].position_sigma_m == 2.5
         assert lms[4].name == "moved" and lms[4].x_m == pytest.approx(120.0)
         assert lms[2].source == lms[3].source == "s"  # an edit keeps what it was not asked
+
+
+def test_migrate_follows_a_symlink_and_refuses_a_read_only_file(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    real = tmp_path / "data" / "old.sqlite"
+    real.parent.mkdir()
+    _v2_file(real)
+    link = tmp_path / "city.sqlite"
+    link.symlink_to(real)
+    real.chmod(0o444)
+    before = _digest(real)
+    code, _, err = run(capsys, "migrate", str(link), "--quarantine", str(tmp_path / "q"))
+    assert code == 2 and "read-only (mode 0444)" in err and len(err.splitlines()) == 1
+    assert _digest(real) == before
+    real.chmod(0o644)
+    code, _, err = run(capsys, "migrate", str(link), "--quarantine", str(tmp_path / "q"))
+    assert code == 0, err
+    assert link.is_symlink() and _version(real) == 3  # the link stays, its file is migrated
+    assert sorted(p.name for p in real.parent.iterdir()) == ["old.sqlite"]
