@@ -270,11 +270,10 @@ class PoseEstimator:
             raise ValueError(f"state of size {x.shape[0]} cannot fill a {self.n}-state filter")
         self.set_pose(float(x[0]), float(x[1]), float(x[2]), P[:3, :3])
 
-    def state_problem(self, x: np.ndarray | None = None, P: np.ndarray | None = None) -> str | None:
-        """Why a state (default: this filter's own) is not a valid one for it (``state_limits``:
-        the one definition the checkpoint and learned-parameter checks use), or None."""
-        x, P = (self.x if x is None else x), (self.P if P is None else P)
-        return state_limits.state_problem(list(x), P, np.diag(self.prior_covariance()).tolist())
+    def state_problem(self) -> str | None:
+        """Why this state is not valid (``state_limits``, as a checkpoint is judged), or None."""
+        prior = np.diag(self.prior_covariance()).tolist()
+        return state_limits.state_problem(list(self._kf.x), self.P, prior)
 
     def heading_from_compass(self, theta_rad: float, compass_var: float) -> None:
         """Take the heading from a compass reading (no heading known yet).
