@@ -15,12 +15,12 @@ from pathlib import Path
 
 from guidance.errors import UserError
 from landmark_db.cli_args import HEADER, area, area_args, print_landmark_row, safe
+from landmark_db.cli_fix import add_fix_parsers
 from landmark_db.cli_io import add_io_parsers, add_kwargs
 from landmark_db.cli_match import add_match_parsers
 from landmark_db.features import EXTRACTOR_VERSIONS, PHOTO_MAX_SIDE_PX, ExtractorConfig
 from landmark_db.gate import GATE_PROBABILITY_2SIGMA
 from landmark_db.geo import Origin
-from landmark_db.schema import SCHEMA_VERSION
 from landmark_db.store import (
     DEFAULT_POSITION_SIGMA_M,
     create_db,
@@ -53,18 +53,6 @@ def cmd_init(args: argparse.Namespace) -> None:
             f"created {db.path} (origin {origin.lat_deg:.6f}, {origin.lon_deg:.6f};"
             f" features {db.extractor.ident})"
         )
-
-
-def cmd_migrate(args: argparse.Namespace) -> None:
-    """Schema migrations, then features recomputed where the extractor (or its version)
-    changed; ``--extractor`` switches the file to another extractor."""
-    path = Path(args.db)
-    if not path.is_file():
-        raise UserError(f"{path}: no such file")
-    with open_db(path, readonly=False) as db:  # applies the schema migrations
-        ext = _extractor(args) if args.extractor else db.extractor
-        n = db.refresh_features(ext)
-        print(f"{path}: schema v{SCHEMA_VERSION}; features {ext.ident} ({n} photo(s) recomputed)")
 
 
 def cmd_add(args: argparse.Namespace) -> None:
@@ -223,10 +211,7 @@ def build_parser() -> argparse.ArgumentParser:
     _extractor_args(p, _EXT.kind)
     p.set_defaults(func=cmd_init)
 
-    p = sub.add_parser("migrate", help="bring an older file to the current schema and features")
-    p.add_argument("db")
-    _extractor_args(p, None)
-    p.set_defaults(func=cmd_migrate)
+    add_fix_parsers(sub, _extractor_args)
 
     p = sub.add_parser("add", help="add a landmark photo at a position, or a photo --to one")
     p.add_argument("db")

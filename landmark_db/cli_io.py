@@ -84,20 +84,26 @@ def read_csv(path: Path) -> list[dict[str, str]]:
     return rows
 
 
+def _resolved(path: Path, what: str) -> Path:
+    """``path`` through its symbolic links; a loop of them (RuntimeError before Python 3.13,
+    OSError after) or another failure is one line naming ``what``."""
+    try:
+        return path.resolve()
+    except RuntimeError:
+        raise UserError(f"{what}: a loop of symbolic links") from None
+    except OSError as exc:
+        raise UserError(f"{what}: {exc.strerror or exc}") from None
+
+
 def _image_path(root: Path, value: str, allow_outside: bool) -> Path:
     """The photo a CSV row names: inside the import folder (no absolute path, no ``..``,
     no symbolic link out of it) unless ``allow_outside``; at most ``MAX_PHOTO_BYTES``."""
     rel = Path(value)
-    if not allow_outside:
-        if rel.is_absolute() or ".." in rel.parts:
-            raise UserError(f"image {value!r} is outside the folder (--allow-outside permits it)")
-        image = (root / rel).resolve()
-        if not image.is_relative_to(root):
-            raise UserError(
-                f"image {value!r} leads outside the folder (--allow-outside permits it)"
-            )
-    else:
-        image = (root / rel).resolve()
+    if not allow_outside and (rel.is_absolute() or ".." in rel.parts):
+        raise UserError(f"image {value!r} is outside the folder (--allow-outside permits it)")
+    image = _resolved(root / rel, f"image {value!r}")
+    if not allow_outside and not image.is_relative_to(root):
+        raise UserError(f"image {value!r} leads outside the folder (--allow-outside permits it)")
     if not image.is_file():
         raise UserError(f"{image} not found")
     if image.stat().st_size > MAX_PHOTO_BYTES:
@@ -161,7 +167,7 @@ def cmd_import(args: argparse.Namespace) -> None:
     rows = read_csv(csv_path)
     if not rows:
         raise UserError(f"{csv_path}: no rows")
-    root = folder.resolve()
+    root = _resolved(folder, str(folder))
     with open_db(args.db, readonly=False) as db:
         groups: dict[str, int] = {}
         done = {"added": 0, "updated": 0, "photo": 0}

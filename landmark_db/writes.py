@@ -180,6 +180,17 @@ class LandmarkWriter(PhotoStore):
                     "INSERT INTO landmark_index VALUES (?, ?, ?, ?, ?)", (lid, x, x, y, y)
                 )
 
+    def rename(self, landmark_id: int, name: str) -> None:
+        """A landmark's new name (checked as ``add`` checks one)."""
+        self._writable()
+        _check_name(name)
+        with self._lock, self._tx():
+            n = self._conn.execute(
+                "UPDATE landmarks SET name = ? WHERE id = ?", (name, landmark_id)
+            ).rowcount
+            if n == 0:
+                raise LandmarkDbError(f"no landmark {landmark_id}")
+
     def remove(self, landmark_id: int) -> bool:
         """Delete a landmark with its photos, features and index row; False if absent."""
         self._writable()
@@ -195,13 +206,21 @@ class LandmarkWriter(PhotoStore):
         return n > 0
 
 
-def _check_name(name: str) -> None:
+def name_problem(name: str) -> str | None:
+    """Why ``name`` cannot be a landmark's, or None."""
     if not name.strip():
-        raise LandmarkDbError("a landmark needs a name")
+        return "a landmark needs a name"
     if len(name) > MAX_NAME_CHARS:
-        raise LandmarkDbError(f"a landmark name has at most {MAX_NAME_CHARS} characters")
+        return f"a landmark name has at most {MAX_NAME_CHARS} characters"
     if any(unicodedata.category(ch)[0] == "C" for ch in name):
-        raise LandmarkDbError(f"landmark name {name!r} holds control characters")
+        return f"landmark name {name!r} holds control characters"
+    return None
+
+
+def _check_name(name: str) -> None:
+    why = name_problem(name)
+    if why is not None:
+        raise LandmarkDbError(why)
 
 
 def _sigma(value: float) -> float:

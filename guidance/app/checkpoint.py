@@ -79,6 +79,7 @@ class Checkpointer:
         self.errors = 0
         self._next_t = -math.inf
         self._failing = False
+        remove_stale_temps(self.path)  # a write a SIGKILL cut short in an earlier run
 
     def due(self, t_s: float) -> bool:
         return t_s >= self._next_t
@@ -145,6 +146,56 @@ def write_atomic(path: Path, data: bytes, mode: int = 0o644) -> None:
             os.fsync(dfd)
         finally:
             os.close(dfd)
+
+
+STALE_TEMP_AGE_S = 600.0
+"""A temporary file of ``write_atomic`` older than this is stale whoever holds its pid (a write
+takes milliseconds; the pid may have been reused)."""
+
+
+def _alive(pid: int) -> bool:
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    except PermissionError:  # alive, another user's
+        return True
+    except (OverflowError, ValueError):
+        return False
+    return True
+
+
+def remove_stale_temps(path: str | Path) -> int:
+    """Remove what ``write_atomic`` left beside ``path`` when a SIGKILL or a power cut ended
+    it mid-write (``.<name>.<pid>.tmp``): those whose process is gone, this process's own (it
+    has no write in flight when it starts), and any older than ``STALE_TEMP_AGE_S``. A live
+    process's fresh one is left alone. Returns how many were removed (each is logged)."""
+    p = Path(path)
+    prefix = f".{p.name}."
+    removed = 0
+    try:
+        candidates = [q for q in p.parent.iterdir() if q.name.startswith(prefix)]
+    except OSError:
+        return 0
+    for tmp in candidates:
+        pid_text = tmp.name[len(prefix) : -len(".tmp")]
+        if not (tmp.name.endswith(".tmp") and pid_text.isdigit()):
+            continue
+        try:
+            age_s = time.time() - tmp.lstat().st_mtime
+        except OSError:
+            continue
+        pid = int(pid_text)
+        if pid != os.getpid() and _alive(pid) and age_s < STALE_TEMP_AGE_S:
+            continue
+        try:
+            tmp.unlink()
+        except OSError as exc:
+            log.warning("stale temporary file %s not removed: %s", tmp, exc.strerror or exc)
+            continue
+        removed += 1
+        log.warning("removed %s, left by an interrupted write (process %d)", tmp.name, pid)
+    return removed
 
 
 def set_aside(path: str | Path, why: str) -> Path | None:

@@ -2,7 +2,8 @@
 
 Written with the checkpoint's ``write_atomic`` (temp file, fsync, rename: a SIGKILL leaves the
 old file or the new one, never a mix). Read with every value checked; a file that fails (not
-JSON, another schema, a value out of bounds, another vehicle's) is refused with one line and
+JSON, larger than ``MAX_BYTES``, another schema, a value out of the physical bounds of
+``guidance.core.state_limits``, another vehicle's) is refused with one line and
 the car starts from its priors, so a damaged or tampered file never makes it confident.
 """
 
@@ -11,9 +12,12 @@ from __future__ import annotations
 import json
 from pathlib import Path
 
-from guidance.app.checkpoint import write_atomic
+from guidance.app.checkpoint import remove_stale_temps, write_atomic
 from guidance.core.estimator import PoseEstimator
 from guidance.core.learned import LearnedParams
+
+MAX_BYTES = 64 << 10
+"""The file is a few hundred bytes; a larger one (or ``/dev/zero``) is not read."""
 
 
 def load_learned(path: Path, vehicle_id: str) -> tuple[LearnedParams | None, str | None]:
@@ -22,9 +26,14 @@ def load_learned(path: Path, vehicle_id: str) -> tuple[LearnedParams | None, str
     if not path.exists():
         return None, None
     try:
-        data = json.loads(path.read_bytes())
-    except (OSError, ValueError) as exc:
-        return None, f"{path}: learned parameters unreadable ({exc}): starting from the priors"
+        with path.open("rb") as f:
+            raw = f.read(MAX_BYTES + 1)
+        if len(raw) > MAX_BYTES:
+            raise ValueError(f"larger than {MAX_BYTES >> 10} KiB")
+        data = json.loads(raw)
+    except (OSError, ValueError, RecursionError) as exc:
+        why = exc.strerror if isinstance(exc, OSError) and exc.strerror else str(exc)[:120]
+        return None, f"{path}: learned parameters unreadable ({why}): starting from the priors"
     if not isinstance(data, dict):
         return (
             None,
@@ -52,6 +61,7 @@ def start_from_learned(
 ) -> tuple[LearnedParams | None, str]:
     """Start a fresh car-model filter from the file (widened for the time since): what was
     used, and one line saying so (or why not)."""
+    remove_stale_temps(path)  # a save a SIGKILL cut short
     params, refused = load_learned(path, vehicle_id)
     if params is None:
         return None, refused or f"{path}: no learned parameters yet: starting from the priors"

@@ -17,7 +17,7 @@ from typing import Any
 import numpy as np
 from filterpy.kalman import ExtendedKalmanFilter
 
-from guidance.core import model
+from guidance.core import model, state_limits
 from guidance.core.messages import Ellipse, EstimateState, HeadingFix, LandmarkFix, WheelOdometry
 
 Input = WheelOdometry | HeadingFix | LandmarkFix
@@ -269,6 +269,11 @@ class PoseEstimator:
         if x.shape[0] < 3 or P.shape[0] < 3 or P.shape[0] != P.shape[1]:
             raise ValueError(f"state of size {x.shape[0]} cannot fill a {self.n}-state filter")
         self.set_pose(float(x[0]), float(x[1]), float(x[2]), P[:3, :3])
+
+    def state_problem(self) -> str | None:
+        """Why this state is not valid (``state_limits``, as a checkpoint is judged), or None."""
+        prior = np.diag(self.prior_covariance()).tolist()
+        return state_limits.state_problem(list(self._kf.x), self.P, prior)
 
     def heading_from_compass(self, theta_rad: float, compass_var: float) -> None:
         """Take the heading from a compass reading (no heading known yet).

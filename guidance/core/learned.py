@@ -7,7 +7,8 @@ at the end of a drive; the next drive starts from them (``apply``), their uncert
 with the time since (``widened``): tyre pressure and wear move the scale and the difference
 between drives, and whatever moved in the car moves the compass bias at the filter's own drift
 rate. Nothing is ever more certain than it was measured, and nothing wider than the
-uncalibrated prior. A value outside physical bounds is refused (``from_dict`` raises
+uncalibrated prior. A value outside physical bounds (``guidance.core.state_limits``, the
+ranges a checkpoint's states are held to as well) is refused (``from_dict`` raises
 ``ValueError`` naming it), as openpilot refuses a learned-parameter file that fails its sanity
 checks. The file itself (atomic, versioned) is ``guidance.app.learned_file``.
 """
@@ -20,6 +21,14 @@ from dataclasses import asdict, dataclass, fields, replace
 
 from guidance.core import model
 from guidance.core.estimator import EstimatorConfig, PoseEstimator
+from guidance.core.state_limits import (
+    MAX_ABS_BIAS_DEG,
+    MAX_ABS_DIFF,
+    MAX_ABS_SCALE,
+    MAX_BIAS_SIGMA_DEG,
+    MAX_DIFF_SIGMA,
+    MAX_SCALE_SIGMA,
+)
 
 SCHEMA = "guidance.learned/1"
 SCALE_VAR_PER_DAY = (0.001**2) / 30.0
@@ -27,9 +36,6 @@ SCALE_VAR_PER_DAY = (0.001**2) / 30.0
 pressure a month and wear about 0.05 % of their rolling radius (2.2 % over a tyre's life)."""
 DIFF_VAR_PER_DAY = (0.0001**2) / 30.0
 """The left/right difference's by (0.01 %)^2 a month (a pressure difference of ~0.05 bar)."""
-MAX_ABS_SCALE = 0.10
-MAX_ABS_DIFF = 0.005
-"""Beyond these a learned value is absurd (a 10 % scale is a wrong DBC; 0.5 % a flat tyre)."""
 
 
 @dataclass(frozen=True, slots=True)
@@ -146,16 +152,16 @@ class LearnedParams:
             data.get("compass_bias_deg") is not None
             or data.get("compass_bias_sigma_deg") is not None
         ):
-            bias = num("compass_bias_deg", -180.0, 180.0)
-            bias_sigma = num("compass_bias_sigma_deg", 1e-6, 180.0)
+            bias = num("compass_bias_deg", -MAX_ABS_BIAS_DEG, MAX_ABS_BIAS_DEG)
+            bias_sigma = num("compass_bias_sigma_deg", 1e-6, MAX_BIAS_SIGMA_DEG)
         return cls(
             vehicle_id=vid,
             saved_unix_s=num("saved_unix_s", 0.0, 1e11),
             distance_m=num("distance_m", 0.0, 1e9),
             scale=num("scale", -MAX_ABS_SCALE, MAX_ABS_SCALE),
-            scale_sigma=num("scale_sigma", 1e-6, 1.0),
+            scale_sigma=num("scale_sigma", 1e-6, MAX_SCALE_SIGMA),
             diff=num("diff", -MAX_ABS_DIFF, MAX_ABS_DIFF),
-            diff_sigma=num("diff_sigma", 1e-8, 0.1),
+            diff_sigma=num("diff_sigma", 1e-8, MAX_DIFF_SIGMA),
             compass_bias_deg=bias,
             compass_bias_sigma_deg=bias_sigma,
         )

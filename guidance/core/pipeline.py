@@ -493,6 +493,7 @@ class Pipeline:
             n_landmarks=len(self.navigator.landmarks),
             mem_capacity=nav_cfg.max_intersections,
             mem_width=nav_cfg.max_exits,
+            prior_variances=np.diag(self.estimator.prior_covariance()).tolist(),
         )
         st = PipelineState.from_snapshot(snap)  # checked too, before anything changes
         est = self.estimator

@@ -4,7 +4,8 @@ A checkpoint is a file from outside the process: it may be damaged, hand-edited,
 version or written by a process that had already gone wrong. ``check_snapshot`` looks at every
 value ``Pipeline.restore`` reads and raises ``SnapshotError`` (one line, naming the field) unless
 each is of the right type (numbers are JSON numbers, never text or booleans), finite, within the
-bounds the consumer needs (a covariance symmetric and positive-definite, a position within
+bounds the consumer needs (a covariance as the estimator judges one and the learned states
+within their physical range, ``state_limits``; a position within
 ``MAX_OFFSET_M`` of the trip's start, a speed a car can drive) and of a bounded size (the
 navigator's memory fits its arrays). Nothing is changed: ``restore`` runs only after it passed.
 """
@@ -15,6 +16,8 @@ import math
 from collections.abc import Mapping, Sequence
 
 import numpy as np
+
+from guidance.core.state_limits import state_problem
 
 MAX_OFFSET_M = 200_000.0
 """A restored position farther than this from the trip's start is not believed (an urban trip)."""
@@ -83,8 +86,17 @@ def _matrix(v: object, where: str, rows: int, cols: int, max_rows: int | None = 
     return out
 
 
-def check_state(x: object, P: object, n_state: int, start_xy: tuple[float, float]) -> None:
-    """The estimator state: a vector of 3 or ``n_state`` numbers and its covariance."""
+def check_state(
+    x: object,
+    P: object,
+    n_state: int,
+    start_xy: tuple[float, float],
+    prior_variances: Sequence[float] | None = None,
+) -> None:
+    """The estimator state: a vector of 3 or ``n_state`` numbers and its covariance, valid as
+    the estimator judges one (``state_limits.state_problem``: positive-definite but for the
+    states whose ``prior_variances`` are zero by design, the learned states within their
+    physical range)."""
     xs = _list(x, "x", n_state)
     if len(xs) not in (3, n_state):
         raise SnapshotError(f"x must have 3 or {n_state} values, not {len(xs)}")
@@ -98,14 +110,11 @@ def check_state(x: object, P: object, n_state: int, start_xy: tuple[float, float
     if abs(vec[2]) > 100.0:
         raise SnapshotError(f"x[2] (heading) = {vec[2]:.6g} rad is not an angle")
     cov = _matrix(P, "P", len(vec), len(vec))
-    if not np.allclose(cov, cov.T, rtol=1e-6, atol=1e-9):
-        raise SnapshotError("P is not symmetric")
     if max(cov[0, 0], cov[1, 1]) > MAX_SIGMA_M**2:
         raise SnapshotError(f"P: a position sigma above {MAX_SIGMA_M:.0f} m")
-    try:
-        np.linalg.cholesky(cov)
-    except np.linalg.LinAlgError:
-        raise SnapshotError("P is not positive-definite") from None
+    why = state_problem(vec, cov, prior_variances)
+    if why is not None:
+        raise SnapshotError(why)
 
 
 def check_navigator(nav: object, n_landmarks: int, capacity: int, width: int) -> None:
@@ -211,11 +220,13 @@ def check_snapshot(
     n_landmarks: int,
     mem_capacity: int,
     mem_width: int,
+    prior_variances: Sequence[float] | None = None,
 ) -> None:
-    """Raise ``SnapshotError`` unless every value ``Pipeline.restore`` reads is usable."""
+    """Raise ``SnapshotError`` unless every value ``Pipeline.restore`` reads is usable;
+    ``prior_variances``: the estimator's (``check_state``)."""
     if not isinstance(snap, dict):
         raise SnapshotError(f"the snapshot must be a table, not {type(snap).__name__}")
-    check_state(snap.get("x"), snap.get("P"), n_state, start_xy)
+    check_state(snap.get("x"), snap.get("P"), n_state, start_xy, prior_variances)
     if snap.get("last_t_s") is not None:
         _number(snap, "last_t_s", -1e12, 1e12, 0.0)
     check_navigator(snap.get("navigator"), n_landmarks, mem_capacity, mem_width)

@@ -5,6 +5,7 @@ from __future__ import annotations
 import heapq
 import json
 import logging
+import math
 import struct
 from collections.abc import Iterable, Iterator, Sequence
 from pathlib import Path
@@ -53,8 +54,9 @@ class Reader:
     ``log_time_order=False`` gives them in the order they were written (the
     order the application recorded them). Files cut short by a crash are read
     up to the damage and listed in ``recovered``; damaged chunks (CRC) and records are left out
-    and counted in ``damage``, the rest is read; messages that are not JSON objects are skipped
-    and counted in ``skipped``.
+    and counted in ``damage``, the rest is read; messages that are not JSON objects (or are
+    nested too deep, or carry a time that is no finite number) are skipped and counted in
+    ``skipped`` (the reasons in ``skipped_why``).
     """
 
     def __init__(
@@ -69,6 +71,8 @@ class Reader:
         self.log_time_order = log_time_order
         self.recovered: list[Path] = []
         self.skipped = 0
+        self.skipped_why: list[str] = []
+        """Why the first (up to 20) skipped messages were skipped."""
         self.damage = Damage()
         """What could not be read: chunks failing their CRC, broken records (``scan``)."""
 
@@ -128,23 +132,47 @@ class Reader:
                     yield record.log_time, rec
         if self.damage.truncated_files > truncated:
             self.recovered.append(path)
-            log.info("recording %s is cut short: read up to the damage", path)
+            log.info(
+                "recording %s is cut short: read up to the damage (`guidance recording repair`"
+                " writes a complete copy other MCAP tools open)",
+                path,
+            )
         if self.log_time_order:
             found.sort(key=lambda pair: pair[0])
             yield from found
 
     def _decode(self, topic: str, message: Message) -> RecordedMessage | None:
+        """The message as a JSON object with a finite time, or None (counted in ``skipped``,
+        the first reasons in ``skipped_why``): not JSON, nested too deep for the parser
+        (``RecursionError``), not an object, or a ``t_s`` that is no finite number (10^400)."""
+        why = ""
         try:
             data = json.loads(message.data)
-        except ValueError:
-            data = None
-        if not isinstance(data, dict):
+        except RecursionError:
+            data, why = None, "its JSON is nested too deep"
+        except ValueError as exc:
+            data, why = None, f"not JSON ({str(exc)[:60]})"
+        if data is not None and not isinstance(data, dict):
+            why = f"a JSON {type(data).__name__}, not an object"
+        t_s: float = message.log_time / 1e9
+        if isinstance(data, dict):
+            raw = data.get("t_s")
+            if isinstance(raw, int | float) and not isinstance(raw, bool):
+                try:
+                    t_s = float(raw)
+                except OverflowError:
+                    t_s = math.inf
+                if not math.isfinite(t_s):
+                    why = "t_s is not a finite number"
+        if why:
             self.skipped += 1
+            if len(self.skipped_why) < 20:
+                self.skipped_why.append(
+                    f"{topic} at log time {message.log_time / 1e9:.3f} s: {why}"
+                )
             return None
-        t_s = data.get("t_s")
-        if not isinstance(t_s, int | float) or isinstance(t_s, bool):
-            t_s = message.log_time / 1e9
-        return RecordedMessage(topic, float(t_s), data)
+        assert isinstance(data, dict)
+        return RecordedMessage(topic, t_s, data)
 
 
 def _summary(f: Any) -> Any:

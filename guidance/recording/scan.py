@@ -20,7 +20,7 @@ from pathlib import Path
 
 from mcap.data_stream import ReadDataStream
 from mcap.opcode import Opcode
-from mcap.records import Channel, Chunk, Message, Schema
+from mcap.records import Channel, Chunk, Message, Metadata, Schema
 
 MAGIC = b"\x89MCAP0\r\n"
 _U64 = struct.Struct("<Q")
@@ -123,8 +123,10 @@ def _resync(data: bytes | mmap.mmap, pos: int) -> tuple[Chunk, bytes, int, int] 
     return None
 
 
-def _top_record(opcode: int, body: bytes) -> Channel | Schema | Message | None:
+def _top_record(opcode: int, body: bytes) -> Channel | Schema | Message | Metadata | None:
     stream = ReadDataStream(BytesIO(body))
+    if opcode == Opcode.METADATA:
+        return Metadata.read(stream)
     if opcode == Opcode.CHANNEL:
         return Channel.read(stream)
     if opcode == Opcode.SCHEMA:
@@ -134,8 +136,9 @@ def _top_record(opcode: int, body: bytes) -> Channel | Schema | Message | None:
     return None
 
 
-def scan_records(path: Path, damage: Damage) -> Iterator[Channel | Schema | Message]:
-    """Channels, schemas and messages of one file in written order, past damage (counted)."""
+def scan_records(path: Path, damage: Damage) -> Iterator[Channel | Schema | Message | Metadata]:
+    """Channels, schemas, messages and metadata of one file in written order, past damage
+    (counted)."""
     with path.open("rb") as f:
         try:
             data: bytes | mmap.mmap = mmap.mmap(f.fileno(), 0, access=mmap.ACCESS_READ)
@@ -150,7 +153,7 @@ def scan_records(path: Path, damage: Damage) -> Iterator[Channel | Schema | Mess
 
 def _scan(
     data: bytes | mmap.mmap, path: Path, damage: Damage
-) -> Iterator[Channel | Schema | Message]:
+) -> Iterator[Channel | Schema | Message | Metadata]:
     n = len(data)
     pos = len(MAGIC)
     if data[: len(MAGIC)] != MAGIC:

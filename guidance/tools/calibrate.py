@@ -5,20 +5,19 @@ takes) starts with the car standing at a known true heading (``[start] heading_d
 car's TOML, or ``--start-heading-deg``); wheel odometry carries that heading through the drive
 as the reference, and ``guidance.core.compass_cal`` fits ``deviation = A + B sin h + C cos h +
 D sin 2h + E cos 2h`` to the readings (docs/estimation.md, "Calibrating the compass"). With
-``--write`` the card goes into the TOML as ``[compass] deviation_deg = [A, B, C, D, E]``; the
-car then applies it to every reading before the declination.
+``--write`` the card goes into the TOML as ``[compass] deviation_deg = [A, B, C, D, E]``
+(``guidance.tools.car_toml``: edited with tomlkit, loaded back before it replaces the file);
+the car then applies it to every reading before the declination.
 """
 
 from __future__ import annotations
 
 import argparse
 import json
-import re
 import sys
 from pathlib import Path
 from typing import Any
 
-from guidance.app.checkpoint import write_atomic
 from guidance.core.compass_cal import (
     FitResult,
     calibrate_from_drive,
@@ -26,6 +25,7 @@ from guidance.core.compass_cal import (
 )
 from guidance.core.model import heading_to_compass
 from guidance.errors import UserError
+from guidance.tools.car_toml import write_card
 from guidance.tools.replay import can_inputs, nmea_inputs, raw_setup
 
 
@@ -65,33 +65,6 @@ def calibrate(
 def card(result: FitResult) -> list[float]:
     c = result.calibration
     return [round(v, 2) for v in (c.a_deg, c.b_deg, c.c_deg, c.d_deg, c.e_deg)]
-
-
-_COMPASS_HEADER = re.compile(r"^\s*\[compass\]\s*(#.*)?$")
-_TABLE_HEADER = re.compile(r"^\s*\[")
-_DEVIATION_LINE = re.compile(r"^\s*deviation_deg\s*=")
-
-
-def write_card(config: Path, values: list[float]) -> None:
-    """Put ``deviation_deg = [...]`` into the ``[compass]`` table, keeping everything else."""
-    lines = config.read_text(encoding="utf-8").splitlines(keepends=True)
-    entry = f"deviation_deg = {json.dumps(values)}  # guidance calibrate: A, B, C, D, E\n"
-    start = next((i for i, ln in enumerate(lines) if _COMPASS_HEADER.match(ln)), None)
-    if start is None:
-        lines += ["\n" if lines and lines[-1].strip() else "", "[compass]\n", entry]
-    else:
-        end = next(
-            (i for i in range(start + 1, len(lines)) if _TABLE_HEADER.match(lines[i])), len(lines)
-        )
-        old = next((i for i in range(start + 1, end) if _DEVIATION_LINE.match(lines[i])), None)
-        if old is not None:
-            lines[old] = entry
-        else:
-            lines.insert(start + 1, entry)
-    try:  # the car reads it: old or new, never half, with the mode it had
-        write_atomic(config, "".join(lines).encode("utf-8"), config.stat().st_mode & 0o777)
-    except OSError as exc:
-        raise UserError(f"cannot write {config}: {exc.strerror or exc}") from None
 
 
 def register(sub: Any) -> None:
@@ -137,8 +110,9 @@ def _cli(args: argparse.Namespace) -> int:
     if res.note:
         w(f"note: {res.note}\n")
     if args.write:
-        write_card(config, values)
-        w(f"written to {config} as [compass] deviation_deg\n")
+        target = write_card(config, values)
+        via = f" (the file it links to: {target})" if target != config.absolute() else ""
+        w(f"written to {config} as [compass] deviation_deg{via}\n")
     else:
         w(f"not written: add --write to put it into {config}\n")
     if args.json:

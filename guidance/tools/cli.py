@@ -28,6 +28,7 @@ _COMMAND_MODULES = (
     "guidance.tools.replay",  # replay
     "guidance.tools.evaluate",  # evaluate
     "guidance.tools.calibrate",  # calibrate
+    "guidance.tools.recording_cli",  # recording repair
 )
 
 

@@ -23,7 +23,9 @@ import json
 import math
 import re
 import sys
-from collections.abc import Sequence
+import warnings
+from array import array
+from collections.abc import Iterator, Sequence
 from dataclasses import dataclass, fields
 from pathlib import Path
 from typing import Any, TextIO
@@ -47,6 +49,11 @@ NEES_2SIGMA = CHI2_2D_2SIGMA  # d^2 bound of the 2-sigma ellipse, 2 dof
 INSIDE_2SIGMA_EXPECTED = 1.0 - math.exp(-NEES_2SIGMA / 2.0)  # 0.865 for an honest filter
 MEAN_NEES_EXPECTED = 2.0
 MIN_ERROR_M = 1e-6  # steps with a smaller true error are left out of the axis ratio
+MAX_INPUT_BYTES = 128 << 20
+MAX_ROWS = 1_000_000
+MAX_LINE_CHARS = 4096
+"""Bounds of what is read (14 h of a 20 Hz truth fit): ``/dev/zero``, a file without line breaks
+or a runaway log is refused with one line, never read into memory whole."""
 
 
 @dataclass(frozen=True, eq=False)
@@ -133,8 +140,10 @@ def _read_columns(
     course of a car standing still)."""
     line = 1
     try:
+        if path.is_file() and path.stat().st_size > MAX_INPUT_BYTES:
+            raise UserError(f"{path}: the {what} file is larger than {MAX_INPUT_BYTES >> 20} MiB")
         with path.open(newline="", encoding="utf-8-sig") as f:
-            reader = csv.reader(f)
+            reader = csv.reader(_bounded_lines(f, path, what))
             header = next(reader, None)
             if header is None:
                 raise UserError(f"{path}: empty {what} file (no header line)")
@@ -143,12 +152,14 @@ def _read_columns(
             if missing:
                 raise UserError(f"{path}: line 1: the {what} header lacks {', '.join(missing)}")
             index = {c: names.index(c) for c in (*required, *optional) if c in names}
-            values: dict[str, list[float]] = {c: [] for c in index}
+            values: dict[str, array[float]] = {c: array("d") for c in index}
             lines: list[int] = []
             for row in reader:
                 line = reader.line_num
                 if not any(cell.strip() for cell in row):
                     continue
+                if len(lines) >= MAX_ROWS:
+                    raise UserError(f"{path}: the {what} file has more than {MAX_ROWS:,} rows")
                 if len(row) != len(names):
                     raise UserError(
                         f"{path}: line {line}: {len(row)} fields, the header has {len(names)}"
@@ -180,6 +191,34 @@ def _read_columns(
     return {c: np.asarray(v, dtype=np.float64) for c, v in values.items()}, lines
 
 
+def _bounded_lines(f: TextIO, path: Path, what: str) -> Iterator[str]:
+    """The lines of ``f``, each at most ``MAX_LINE_CHARS`` and all at most ``MAX_INPUT_BYTES``
+    characters: ``/dev/zero`` or a file without line breaks is refused, never read whole."""
+    total = 0
+    while True:
+        line = f.readline(MAX_LINE_CHARS + 1)
+        if not line:
+            return
+        if len(line) > MAX_LINE_CHARS:
+            raise UserError(
+                f"{path}: a line of the {what} file is longer than {MAX_LINE_CHARS:,} characters:"
+                " is it a CSV file?"
+            )
+        total += len(line)
+        if total > MAX_INPUT_BYTES:
+            raise UserError(f"{path}: the {what} file is larger than {MAX_INPUT_BYTES >> 20} MiB")
+        yield line
+
+
+def plain(value: float) -> str:
+    """A number as a person reads it: ``100.0``, ``1.5e+307``, never ``np.float64(100.0)`` or
+    three hundred digits."""
+    v = float(value)
+    if not math.isfinite(v):
+        return "n/a"
+    return f"{v:.3f}" if abs(v) < 1e12 else f"{v:.6g}"
+
+
 def _check_time(path: Path, t: FloatArray, lines: list[int], strict: bool) -> None:
     step = np.diff(t)
     bad = np.flatnonzero(step <= 0 if strict else step < 0)
@@ -187,7 +226,7 @@ def _check_time(path: Path, t: FloatArray, lines: list[int], strict: bool) -> No
         k = int(bad[0]) + 1
         how = "does not increase" if strict and t[k] == t[k - 1] else "goes back"
         raise UserError(
-            f"{path}: line {lines[k]}: time {t[k]!r} {how} after {t[k - 1]!r} "
+            f"{path}: line {lines[k]}: time {plain(t[k])} {how} after {plain(t[k - 1])} "
             f"(line {lines[k - 1]}): the rows must be in time order"
         )
 
@@ -249,9 +288,9 @@ def evaluate(track: Track, truth: Truth) -> Evaluation:
     if n < 2:
         raise UserError(
             f"only {n} of the {track.t_s.size} track rows fall inside the truth's time span "
-            f"{t_lo:.3f} to {t_hi:.3f} s "
-            f"(track: {track.t_s[0]:.3f} to {track.t_s[-1]:.3f} s); at least 2 are needed: "
-            "are both files in the same time base?"
+            f"{plain(t_lo)} to {plain(t_hi)} s "
+            f"(track: {plain(track.t_s[0])} to {plain(track.t_s[-1])} s); at least 2 are needed:"
+            " are both files in the same time base?"
         )
     t = track.t_s[sel]
     tt, tq = truth.t_s - t_lo, t - t_lo  # small numbers for the interpolation
@@ -380,8 +419,12 @@ def _segments(
     return tuple(out)
 
 
-def _num(value: float | None, fmt: str) -> str:
-    return "n/a" if value is None else format(value, fmt)
+def _num(value: float | None, fmt: str = ".2f") -> str:
+    """A figure of the report: n/a when undefined or not finite, a short exponent form when
+    too large for ``fmt`` to be read."""
+    if value is None or not math.isfinite(value):
+        return "n/a"
+    return format(value, fmt) if abs(value) < 1e9 else format(value, ".3g")
 
 
 def format_report(ev: Evaluation) -> str:
@@ -390,19 +433,19 @@ def format_report(ev: Evaluation) -> str:
     def row(label: str, value: str, unit: str = "", note: str = "") -> str:
         return f"  {label:<26}{value:>10} {unit:<4}{note}".rstrip()
 
-    pct = "" if ev.final_error_pct is None else f"({ev.final_error_pct:.2f} % of the path)"
+    pct = "" if ev.final_error_pct is None else f"({_num(ev.final_error_pct)} % of the path)"
     lines = [
-        f"{ev.steps} steps over {ev.duration_s:.1f} s from t = {ev.t_start_s:.3f} s "
+        f"{ev.steps} steps over {_num(ev.duration_s, '.1f')} s from t = {plain(ev.t_start_s)} s "
         f"({ev.excluded_steps} track rows outside the truth's time span left out)",
-        row("truth path length", f"{ev.path_m:.1f}", "m"),
+        row("truth path length", _num(ev.path_m, ".1f"), "m"),
         "position error (APE, translation part, no alignment)",
-        row("rmse", f"{ev.ape_rmse_m:.2f}", "m"),
-        row("mean", f"{ev.ape_mean_m:.2f}", "m"),
-        row("median", f"{ev.ape_median_m:.2f}", "m"),
-        row("std", f"{ev.ape_std_m:.2f}", "m"),
-        row("min", f"{ev.ape_min_m:.2f}", "m"),
-        row("max", f"{ev.ape_max_m:.2f}", "m"),
-        row("final", f"{ev.final_error_m:.2f}", "m", pct),
+        row("rmse", _num(ev.ape_rmse_m), "m"),
+        row("mean", _num(ev.ape_mean_m), "m"),
+        row("median", _num(ev.ape_median_m), "m"),
+        row("std", _num(ev.ape_std_m), "m"),
+        row("min", _num(ev.ape_min_m), "m"),
+        row("max", _num(ev.ape_max_m), "m"),
+        row("final", _num(ev.final_error_m), "m", pct),
         f"consistency of the 2-sigma ellipse ({ev.nees_steps} steps with a usable covariance)",
         row(
             "truth inside the ellipse",
@@ -418,34 +461,44 @@ def format_report(ev: Evaluation) -> str:
     if ev.along_nees is not None:
         lines += [
             f"error along the direction of travel and across it ({ev.split_steps} moving steps)",
-            row("rms along / across", f"{ev.along_rms_m:.2f} / {ev.across_rms_m:.2f}", "m"),
-            row("final along / across", f"{ev.along_final_m:+.1f} / {ev.across_final_m:+.1f}", "m"),
-            row("(error/sigma)^2 along", f"{ev.along_nees:.2f}", "", "(1 for an honest filter)"),
-            row("(error/sigma)^2 across", f"{ev.across_nees:.2f}", "", "(1 for an honest filter)"),
+            row("rms along / across", f"{_num(ev.along_rms_m)} / {_num(ev.across_rms_m)}", "m"),
+            row(
+                "final along / across",
+                f"{_num(ev.along_final_m, '+.1f')} / {_num(ev.across_final_m, '+.1f')}",
+                "m",
+            ),
+            row("(error/sigma)^2 along", _num(ev.along_nees), "", "(1 for an honest filter)"),
+            row("(error/sigma)^2 across", _num(ev.across_nees), "", "(1 for an honest filter)"),
         ]
     if ev.segments:
         lines.append("by part of the drive (truth path)")
         for seg in ev.segments:
             inside, nees = seg["inside_2sigma_frac"], seg["mean_nees"]
-            pct = _num(100 * inside if math.isfinite(inside) else None, ".1f")
-            mean = _num(nees if math.isfinite(nees) else None, ".2f")
-            span = f"{seg['from_m']:.0f}-{seg['to_m']:.0f} m"
+            pct = _num(100 * inside, ".1f")
+            mean = _num(nees, ".2f")
+            span = f"{_num(seg['from_m'], '.0f')}-{_num(seg['to_m'], '.0f')} m"
             lines.append(row(span, pct, "%", f"inside, mean NEES {mean}"))
     if ev.heading_mean_abs_err_deg is not None:
         lines += [
             "heading error (estimate - truth)",
-            row("mean abs", f"{ev.heading_mean_abs_err_deg:.2f}", "deg"),
+            row("mean abs", _num(ev.heading_mean_abs_err_deg), "deg"),
             row("final", _num(ev.heading_final_err_deg, "+.2f"), "deg"),
         ]
     return "\n".join(lines) + "\n"
 
 
 def run(track_path: Path, truth_path: Path, *, as_json: bool, out: TextIO) -> int:
-    """Read, evaluate and write the report (then, with ``as_json``, one JSON line)."""
-    ev = evaluate(read_track(track_path), read_truth(truth_path))
+    """Read, evaluate and write the report (then, with ``as_json``, one JSON line).
+
+    Extreme inputs (1e308, a variance of 1e-320) overflow inside the figures; those come out
+    undefined ("n/a", left out of the JSON), so numpy's overflow warnings are not printed."""
+    track, truth = read_track(track_path), read_truth(truth_path)
+    with np.errstate(all="ignore"), warnings.catch_warnings():
+        warnings.simplefilter("ignore", RuntimeWarning)
+        ev = evaluate(track, truth)
     out.write(format_report(ev).rstrip("\n") + "\n")
     if as_json:
-        out.write(json.dumps(ev.as_dict()) + "\n")
+        out.write(json.dumps(ev.as_dict(), allow_nan=False) + "\n")  # only finite numbers
     return 0
 
 

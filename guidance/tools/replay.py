@@ -424,13 +424,14 @@ def _replay_mcap(
             f"guidance replay: {where}: {len(skipped)} damaged records left out "
             f"(first: {skipped[0]})\n"
         )
-    if damage.any:
+    if damage.any or damage.truncated_files:
+        from guidance.recording.repair import damage_text, repair_hint
+
         sys.stderr.write(
-            f"guidance replay: {where}: damaged recording: {damage.bad_chunks} chunks failed "
-            f"their CRC or decoding, {damage.bad_records} broken records, "
-            f"{damage.skipped_bytes} bytes skipped; the rest was replayed"
+            f"guidance replay: {where}: damaged recording: {damage_text(damage)}; the rest was"
+            " replayed"
             + (f" (first: {damage.notes[0]})" if damage.notes else "")
-            + "\n"
+            + f"; {repair_hint(files[0])}\n"
         )
     summary = _print_result(res, problems, args)
     summary["files"] = [f.name for f in files]

@@ -18,6 +18,7 @@ from guidance.tools.replay_session import well_formed_output
 
 if TYPE_CHECKING:
     from guidance.core.pipeline import Input
+    from guidance.recording.reader import Reader
     from guidance.recording.scan import Damage
 
 INPUT_TOPICS = tuple(dict.fromkeys(TOPICS.values()))
@@ -48,6 +49,13 @@ def _decoded(topic: str, data: Mapping[str, Any], skipped: list[str]) -> Input |
     except CodecError as exc:
         skipped.append(str(exc))
         return None
+
+
+def skipped_messages(reader: Reader, bad: list[str]) -> None:
+    """Add the messages ``reader`` skipped (no JSON object, nested too deep, a time of 10^400)
+    to ``bad``, one entry each, so a replay counts and names them as damaged records."""
+    bad.extend(reader.skipped_why)
+    bad.extend(["a message that is no usable JSON"] * (reader.skipped - len(reader.skipped_why)))
 
 
 RAW_TOPICS = ("/can", "/nmea", *(t for t in INPUT_TOPICS if t not in ("/odometry", "/compass")))
@@ -84,6 +92,7 @@ def mcap_inputs(
     def read(topics: tuple[str, ...]) -> Iterator[Any]:
         reader = Reader(path, topics=topics, log_time_order=False)
         yield from reader
+        skipped_messages(reader, bad)
         if damage is not None:
             for key in ("bad_chunks", "bad_records", "skipped_bytes", "truncated_files"):
                 setattr(damage, key, getattr(damage, key) + getattr(reader.damage, key))
@@ -159,9 +168,12 @@ def recorded_outputs(
     from guidance.recording.reader import Reader
 
     out: dict[str, list[dict[str, Any]]] = {"/decision": [], "/state": []}
-    for rec in Reader(path, topics=list(out), log_time_order=False):
+    reader = Reader(path, topics=list(out), log_time_order=False)
+    for rec in reader:
         if well_formed_output(rec.topic, rec.data):
             out[rec.topic].append(rec.data)
         elif bad is not None:
             bad.append(f"{rec.topic}: a recorded output without finite numbers")
+    if bad is not None:
+        skipped_messages(reader, bad)
     return out

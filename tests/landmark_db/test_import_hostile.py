@@ -152,6 +152,19 @@ def test_import_is_contained_to_its_folder(
     assert _counts(db) == (1, 1)
 
 
+@pytest.mark.parametrize("allow_outside", [False, True])
+def test_a_symlink_loop_in_the_csv_is_one_line(
+    db: str, photos: Path, capsys: pytest.CaptureFixture[str], allow_outside: bool
+) -> None:
+    (photos / "a.png").symlink_to(photos / "b.png")
+    (photos / "b.png").symlink_to(photos / "a.png")
+    _csv(photos, "f1.png,good,0,0,3", "a.png,loop,10,0,3")
+    argv = ["import", db, str(photos)] + (["--allow-outside"] if allow_outside else [])
+    line = _one_error_line(*run(capsys, *argv)[::2])
+    assert "landmarks.csv:3" in line and "a loop of symbolic links" in line
+    assert _counts(db) == (0, 0)  # nothing imported
+
+
 def test_import_twice_updates_and_never_duplicates(
     db: str, photos: Path, capsys: pytest.CaptureFixture[str]
 ) -> None:

@@ -141,7 +141,7 @@ def test_a_straight_drive_fits_the_offset_only_and_says_so(tmp_path: Path) -> No
 
 def test_write_card_adds_a_compass_table_when_there_is_none(tmp_path: Path) -> None:
     car = tmp_path / "car.toml"
-    car.write_text("[vehicle]\nid = 'x'\n")
+    car.write_text("[vehicle]\nid = 'x'\n[start]\nlat_deg = 42.44\nlon_deg = -76.5\n")
     car.chmod(0o640)  # readable by the car's service group, as it was set up
     write_card(car, [1.0, 2.0, 3.0, 4.0, 5.0])
     assert tomllib.loads(car.read_text())["compass"]["deviation_deg"] == [1.0, 2.0, 3.0, 4.0, 5.0]

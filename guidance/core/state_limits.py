@@ -1,0 +1,94 @@
+"""What a valid estimator state is: one definition (issue 23, items 6 and 13).
+
+Used where a state comes from outside the filter: a checkpoint (``snapshot_check``), the car's
+learned-parameter file (``guidance.core.learned``), and by the estimator itself
+(``PoseEstimator.state_problem``), so the three can never disagree.
+
+* **The car model's persistent states** have a physical range: the wheel-speed scale error
+  ``k`` and the left/right difference ``kd`` are fractions a tyre or a DBC can plausibly be
+  off by, the compass bias an angle. A scale of 1e6 (100 m read as 100,000 km) or -1 (the
+  estimate frozen) is a damaged file, never a state. Their 1-sigma is bounded the same way.
+* **The covariance** must be symmetric and positive-definite, except that a state whose prior
+  variance is zero by design (the compass bias of a car without a compass, before the first
+  odometry input gives it its random walk) may have a zero variance, with a zero row and
+  column: that is the filter's own state, not a fault.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Sequence
+
+import numpy as np
+
+from guidance.core import model
+
+MAX_ABS_SCALE = 0.10
+"""Wheel-speed scale error, a fraction: beyond 10 % the DBC or the tyre size is wrong."""
+MAX_ABS_DIFF = 0.005
+"""Right-minus-left wheel scale difference: 0.5 % is a flat tyre."""
+MAX_ABS_BIAS_DEG = 180.0
+"""Compass bias: any angle, but an angle (the filter does not wrap it)."""
+MAX_SCALE_SIGMA = 1.0
+MAX_DIFF_SIGMA = 0.1
+MAX_BIAS_SIGMA_DEG = 180.0
+"""1-sigma bounds of the three (wider than any prior: a sigma beyond them is no knowledge)."""
+
+LEARNED_STATES: tuple[tuple[int, str, float, float], ...] = (
+    (model.STATE_SCALE, "wheel scale", MAX_ABS_SCALE, MAX_SCALE_SIGMA),
+    (model.STATE_DIFF, "left/right difference", MAX_ABS_DIFF, MAX_DIFF_SIGMA),
+    (model.STATE_BIAS, "compass bias (rad)", math.radians(MAX_ABS_BIAS_DEG),
+     math.radians(MAX_BIAS_SIGMA_DEG)),
+)  # fmt: skip
+"""(state index, name, largest magnitude, largest 1-sigma) of the car model's learned states,
+in the filter's units."""
+
+
+def learned_state_problem(x: Sequence[float], P: np.ndarray) -> str | None:
+    """Why the learned states of a car-model state ``x`` (with covariance ``P``) are outside
+    their physical range, or None (also for a pose-only state, which has none)."""
+    if len(x) <= model.N_STATE:
+        return None
+    for i, name, max_abs, max_sigma in LEARNED_STATES:
+        if not abs(float(x[i])) <= max_abs:
+            return f"x[{i}] ({name}) = {float(x[i]):.6g} is outside +-{max_abs:.6g}"
+        var = float(P[i, i])
+        if var > max_sigma * max_sigma:
+            return f"P[{i}][{i}] ({name}): a 1-sigma of {math.sqrt(var):.6g}, above {max_sigma:.6g}"
+    return None
+
+
+def covariance_problem(P: np.ndarray, prior_variances: Sequence[float] | None = None) -> str | None:
+    """Why ``P`` is no covariance of this filter, or None. ``prior_variances``: the filter's
+    starting variances (``PoseEstimator.prior_covariance``); a state whose prior is zero may
+    have a zero variance (with a zero row and column). None: every state must be uncertain."""
+    n = P.shape[0]
+    if P.shape != (n, n) or not np.all(np.isfinite(P)):
+        return "P is not a finite square matrix"
+    if not np.allclose(P, P.T, rtol=1e-6, atol=1e-9):
+        return "P is not symmetric"
+    diag = np.diag(P)
+    fixed = np.zeros(n, dtype=bool)
+    if prior_variances is not None:
+        prior = np.asarray(prior_variances, dtype=float)[:n]
+        fixed[: prior.size] = prior == 0.0
+    zero = fixed & (diag == 0.0)
+    if np.any(zero):
+        rows = P[zero]
+        if np.any(rows != 0.0):
+            i = int(np.flatnonzero(zero)[0])
+            return f"P: state {i} has no variance but is correlated with others"
+    free = ~zero
+    try:
+        np.linalg.cholesky(P[np.ix_(free, free)])
+    except np.linalg.LinAlgError:
+        return "P is not positive-definite"
+    return None
+
+
+def state_problem(
+    x: Sequence[float], P: np.ndarray, prior_variances: Sequence[float] | None = None
+) -> str | None:
+    """Why ``(x, P)`` is not a valid state, or None: the covariance, then the learned states'
+    ranges (see the module docstring). ``x`` is assumed finite (checked by the caller)."""
+    return covariance_problem(P, prior_variances) or learned_state_problem(x, P)
