@@ -149,12 +149,21 @@ CASES: dict[str, tuple[Callable[[list[Any]], list[Any]], str]] = {
     "session a list": (_session(lambda d: [1, 2]), "no readable /session record"),
     "session a number": (_session(lambda d: 5), "no readable /session record"),
     "session without pipeline": (_session(lambda d: {"schema": 1}), "no pipeline configuration"),
-    "NaN track": (_session(_est("track_m", float("nan"))), "[pipeline.estimator] track_m must be finite"),
+    "NaN track": (
+        _session(_est("track_m", float("nan"))),
+        "[pipeline.estimator] track_m must be finite",
+    ),
     "zero track": (_session(_est("track_m", 0)), "[pipeline.estimator] track_m must be > 0"),
     "text sigma": (_session(_est("wheel_slip_frac", "0.01")), "must be a number"),
     "unknown setting": (_session(_est("warp", 9.0)), "[pipeline.estimator] unknown key(s): warp"),
-    "goal 1e400": (_session(_pipe("goal_xy_m", [float("inf"), 0.0])), "[pipeline] goal_xy_m[0] must be finite"),
-    "start text": (_session(_pipe("start_xy_m", ["a", 1])), "[pipeline] start_xy_m[0] must be a number"),
+    "goal 1e400": (
+        _session(_pipe("goal_xy_m", [float("inf"), 0.0])),
+        "[pipeline] goal_xy_m[0] must be finite",
+    ),
+    "start text": (
+        _session(_pipe("start_xy_m", ["a", 1])),
+        "[pipeline] start_xy_m[0] must be a number",
+    ),
     "landmarks a table": (_session(_pipe("landmarks", {"a": 1})), "landmarks must be a list"),
     "landmark without y": (
         _session(lambda d: d["pipeline"]["landmarks"][0].__delitem__("y_m")),

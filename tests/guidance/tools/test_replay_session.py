@@ -63,8 +63,13 @@ CONFIGS = st.builds(
     goal_xy_m=XY,
     start_heading_rad=st.none() | st.floats(-math.pi, math.pi),
     landmarks=st.lists(
-        st.builds(Landmark, st.integers(-(2**62), 2**62), st.floats(-1e7, 1e7),
-                  st.floats(-1e7, 1e7), st.text(max_size=20)),  # fmt: skip
+        st.builds(
+            Landmark,
+            st.integers(-(2**62), 2**62),
+            st.floats(-1e7, 1e7),
+            st.floats(-1e7, 1e7),
+            st.text(max_size=20),
+        ),
         max_size=4,
     ).map(tuple),
     declination_deg=st.floats(-180, 180),
