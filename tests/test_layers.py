@@ -102,6 +102,13 @@ def test_app_reaches_drivers_only_by_name() -> None:
     assert not bad, "\n".join(bad)
 
 
+def test_voice_never_imports_the_app() -> None:
+    """The voice is a device of the app, not a part of it: its port lives in
+    ``guidance.voice.speaker`` (``guidance.app.ports`` re-exports it)."""
+    bad = _violations("guidance.voice", lambda m: not _under(m, "guidance.app"))
+    assert not bad, "\n".join(bad)
+
+
 def test_only_tools_import_driver_decoders() -> None:
     for package in ("guidance.core", "guidance.voice", "guidance.telemetry", "guidance.recording"):
         bad = _violations(package, lambda m: not _under(m, "drivers"))

@@ -29,6 +29,9 @@ from guidance.core.messages import (
     TurnCompleted,
     WheelOdometry,
 )
+from guidance.voice.speaker import Speaker
+
+__all__ = ["Speaker"]  # the voice's port, named here with the app's other ports
 
 if TYPE_CHECKING:
     from guidance.telemetry.sink import MessageSink
@@ -147,17 +150,6 @@ class NullRecogniser:
 
 
 @runtime_checkable
-class Speaker(Protocol):
-    """Speaks (or writes) driver prompts; never blocks the caller."""
-
-    def say(self, text: str, priority: int = 0, t_s: float | None = None) -> None: ...
-    def close(self, drain: bool = True) -> None:
-        """Stop; with ``drain`` finish what is queued first (a WAV file), else cut it."""
-
-    def health(self) -> Health:
-        """The voice's record ("ok", "text_fallback" after an engine failure, "stopped")."""
-
-
 @runtime_checkable
 class InputRecorder(Protocol):
     """The recorder's input side (``guidance.recording.writer.Recorder``): what arrived, as it

@@ -19,6 +19,8 @@ import math
 import numpy as np
 from numba import njit
 
+from guidance.core import angles
+
 # Chi-square quantiles with 2 degrees of freedom: P(d^2 <= k) = 1 - exp(-k / 2).
 # A "2-sigma ellipse" (d^2 = 4) holds 1 - e^-2 = 86.47% of the mass, not 95%.
 CHI2_2D_2SIGMA = 4.0
@@ -61,15 +63,8 @@ N_STATE_CAR = 6
 """The car model's state: the paper's plus the persistent errors as states (docs/estimation.md)."""
 
 
-@njit(cache=True, error_model="numpy")
-def wrap_angle(a: float) -> float:
-    """Wrap an angle to (-pi, pi]."""
-    if -math.pi < a <= math.pi:  # the common case, without a division
-        return a
-    w = (a + math.pi) % (2.0 * math.pi)
-    if w == 0.0:
-        w = 2.0 * math.pi
-    return w - math.pi
+wrap_angle = njit(cache=True, error_model="numpy")(angles.wrap_angle)
+"""Wrap an angle to (-pi, pi] (``guidance.core.angles``, compiled)."""
 
 
 @njit(cache=True, error_model="numpy")
@@ -299,14 +294,9 @@ def compass_to_heading(compass_deg: float, declination_deg: float) -> float:
     return wrap_angle(math.radians(90.0 - true_deg))
 
 
-@njit(cache=True, error_model="numpy")
-def heading_to_compass(theta: float, declination_deg: float) -> float:
-    """Filter heading (rad) to magnetic compass degrees in [0, 360)."""
-    deg = 90.0 - math.degrees(theta) - declination_deg
-    deg = deg % 360.0
-    if deg >= 360.0:  # -1e-17 % 360.0 rounds to 360.0
-        deg = 0.0
-    return deg
+heading_to_compass = njit(cache=True, error_model="numpy")(angles.heading_to_compass)
+"""Filter heading (rad) to magnetic compass degrees in [0, 360) (``guidance.core.angles``,
+compiled)."""
 
 
 @njit(cache=True, error_model="numpy")

@@ -24,9 +24,9 @@ from collections.abc import Mapping
 from pathlib import Path
 from typing import Literal, TextIO
 
-from guidance.app.ports import Speaker
 from guidance.core.messages import Priority
 from guidance.voice.queue import DEFAULT_QUEUE_SIZE, DEFAULT_RATE_WPM, Clock
+from guidance.voice.speaker import Speaker
 from guidance.voice.speakers import Pyttsx3Speaker, SpeechEngineError, TextSpeaker
 from guidance.voice.wav import WavSpeaker, default_renderer
 

@@ -15,7 +15,6 @@ import wave
 from collections.abc import Callable, Mapping
 from typing import Protocol, TextIO
 
-from guidance.app.ports import Speaker
 from guidance.core.messages import Health, Priority
 from guidance.voice.queue import (
     DEFAULT_QUEUE_SIZE,
@@ -24,6 +23,7 @@ from guidance.voice.queue import (
     Prompt,
     PromptQueue,
 )
+from guidance.voice.speaker import Speaker
 
 log = logging.getLogger(__name__)
 

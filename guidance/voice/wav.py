@@ -15,7 +15,6 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import TextIO
 
-from guidance.app.ports import Speaker
 from guidance.core.messages import Priority
 from guidance.voice.queue import (
     DEFAULT_QUEUE_SIZE,
@@ -24,6 +23,7 @@ from guidance.voice.queue import (
     Prompt,
     PromptQueue,
 )
+from guidance.voice.speaker import Speaker
 from guidance.voice.speakers import (
     SpeechEngineError,
     _Failover,
