@@ -270,6 +270,33 @@ class PoseEstimator:
             raise ValueError(f"state of size {x.shape[0]} cannot fill a {self.n}-state filter")
         self.set_pose(float(x[0]), float(x[1]), float(x[2]), P[:3, :3])
 
+    def restore(self, x: np.ndarray, P: np.ndarray, last_t_s: float | None) -> None:
+        """A checkpoint's state, and its time order when the clock is the same one."""
+        self.set_state(x, P)
+        if last_t_s is not None:
+            self._last_t = float(last_t_s)
+
+    def forget_heading(self) -> None:
+        """No heading known (the first compass reading gives it): its variance a full turn's,
+        uncorrelated with the position."""
+        P = self.P
+        P[2, 2] = math.pi**2
+        P[0, 2] = P[2, 0] = P[1, 2] = P[2, 1] = 0.0
+        x = self.x
+        self.set_pose(float(x[0]), float(x[1]), 0.0, P)
+
+    def inflate_position(self, spread_m: float) -> None:
+        """Widen the position by ``spread_m`` (a 2-sigma distance, both axes: a restart, where
+        nothing is known of what the car did meanwhile); nothing for a non-finite or <= 0."""
+        if not (math.isfinite(spread_m) and spread_m > 0):
+            return
+        P = self.P
+        var = (spread_m / 2.0) ** 2
+        P[0, 0] += var
+        P[1, 1] += var
+        x = self.x
+        self.set_pose(float(x[0]), float(x[1]), float(x[2]), P)
+
     def state_problem(self) -> str | None:
         """Why this state is not valid (``state_limits``, as a checkpoint is judged), or None."""
         prior = np.diag(self.prior_covariance()).tolist()

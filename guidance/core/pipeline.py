@@ -106,11 +106,7 @@ class Pipeline:
         self._dr_m = 0.0
         """...and the distance it has moved the estimate."""
         if not self.st.heading_known:
-            P = self.estimator.P
-            P[2, 2] = math.pi**2
-            P[0, 2] = P[2, 0] = P[1, 2] = P[2, 1] = 0.0
-            x = self.estimator.x
-            self.estimator.set_pose(float(x[0]), float(x[1]), 0.0, P)
+            self.estimator.forget_heading()
         self.navigator = Navigator(config.goal_xy_m, config.navigator, config.landmarks)
         self.turns = TurnDetector(config.turn_detector)
         self.health = HealthMonitor(config.expected_rates_hz, config.health)
@@ -268,17 +264,9 @@ class Pipeline:
             self.guide.step(t, est, self.st.odometer_m, None, out)
 
     def inflate_position(self, spread_m: float) -> None:
-        """Widen the position uncertainty by ``spread_m`` (a 2-sigma distance, both axes: a
-        restart, where nothing is known of what the car did meanwhile)."""
-        if not (math.isfinite(spread_m) and spread_m > 0):
-            return
-        est = self.estimator
-        P = est.P
-        var = (spread_m / 2.0) ** 2
-        P[0, 0] += var
-        P[1, 1] += var
-        x = est.x
-        est.set_pose(float(x[0]), float(x[1]), float(x[2]), P)
+        """Widen the position uncertainty by ``spread_m`` (``PoseEstimator.inflate_position``:
+        a restart)."""
+        self.estimator.inflate_position(spread_m)
 
     def _heading(self, fix: HeadingFix, out: Outputs) -> None:
         est = self.estimator
@@ -496,11 +484,11 @@ class Pipeline:
             prior_variances=np.diag(self.estimator.prior_covariance()).tolist(),
         )
         st = PipelineState.from_snapshot(snap)  # checked too, before anything changes
-        est = self.estimator
-        est.set_state(np.asarray(snap["x"], dtype=float), np.asarray(snap["P"], dtype=float))
         last = snap.get("last_t_s") if same_clock else None
-        if isinstance(last, int | float):
-            est._last_t = float(last)  # the estimator's time order survives the restart
+        same_t = float(last) if isinstance(last, int | float) else None
+        self.estimator.restore(  # the estimator's time order survives a same-clock restart
+            np.asarray(snap["x"], dtype=float), np.asarray(snap["P"], dtype=float), same_t
+        )
         self.st = st
         nav = snap["navigator"]
         assert isinstance(nav, dict)

@@ -265,3 +265,26 @@ def test_an_absurd_landmark_sigma_is_rejected_not_squared_into_overflow() -> Non
         r = est.process(fix)
         assert not r.accepted and r.reason == "implausible_landmark"
     assert np.array_equal(est.P, before) and est.healthy
+
+
+def test_the_estimator_owns_its_covariance_changes() -> None:
+    """Issue 25, change 5: what the pipeline used to write into P (a forgotten heading, a
+    restart's widening, a checkpoint's time order) are the estimator's own methods."""
+    est = PoseEstimator(EstimatorConfig(), x_m=3.0, y_m=4.0, heading_rad=0.5)
+    est.process(WheelOdometry(1.0, 1.0, 1.1))
+    x0 = est.x.copy()
+    est.forget_heading()
+    P = est.P
+    assert P[2, 2] == pytest.approx(math.pi**2) and P[0, 2] == P[1, 2] == 0.0
+    assert est.x[2] == 0.0 and est.x[0] == x0[0] and est.x[1] == x0[1]
+    before = est.P.copy()
+    est.inflate_position(20.0)  # 2-sigma 20 m: 100 m^2 on each axis
+    assert est.P[0, 0] - before[0, 0] == pytest.approx(100.0)
+    assert est.P[1, 1] - before[1, 1] == pytest.approx(100.0)
+    for bad in (math.nan, math.inf, -5.0, 0.0):
+        est.inflate_position(bad)
+    assert est.P[0, 0] - before[0, 0] == pytest.approx(100.0)
+    other = PoseEstimator(EstimatorConfig())
+    other.restore(est.x, est.P, 1.0)
+    assert np.array_equal(other.x, est.x) and np.array_equal(other.P, est.P)
+    assert not other.process(WheelOdometry(-5.0, 1.0, 1.0)).accepted  # the time order survived
