@@ -155,6 +155,7 @@ class MonitorClient:
         self.received = 0
         self.undecodable = 0
         self.bad_keys = 0
+        self._goals_sent = 0
 
     @property
     def _vehicle_chunk(self) -> str:
@@ -284,7 +285,13 @@ class MonitorClient:
             raise UserError("monitor session is not open")
         validate_vehicle_id(vehicle_id)
         body = {"schema": GOAL_SCHEMA, "x_m": float(x_m), "y_m": float(y_m)}
-        session.put(goal_key(vehicle_id), encode(body), encoding=zenoh.Encoding.APPLICATION_JSON)
+        self._goals_sent += 1
+        session.put(
+            goal_key(vehicle_id),
+            encode(body),
+            encoding=zenoh.Encoding.APPLICATION_JSON,
+            source_info=zenoh.SourceInfo(session.id, self._goals_sent),  # the car logs who
+        )
 
     def peers(self) -> int:
         session = self._session
