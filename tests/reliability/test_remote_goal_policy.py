@@ -17,8 +17,12 @@ from __future__ import annotations
 import json
 import logging
 import socket
+import threading
 import time
+from dataclasses import replace
 from pathlib import Path
+from types import SimpleNamespace
+from typing import Any
 
 import pytest
 from reliability_helpers import wait_until
@@ -163,3 +167,45 @@ def test_every_accepted_goal_is_logged_with_its_sender_and_wildcard_goals_are_re
     assert any("a sender zenoh does not name" in m and "x 10.0 m" in m for m in accepted), accepted
     refused = [r.getMessage() for r in caplog.records if "remote goal refused" in r.getMessage()]
     assert any("wildcards" in m for m in refused), refused
+
+
+def test_the_simulator_applies_the_remote_goal_it_accepts(loopback_acl: str) -> None:
+    """A drive with telemetry on loopback: a monitor sends a goal; the car says it and its
+    state carries it (before: logged "accepted", never applied)."""
+    from hal_sim.drive import run_drive
+    from hal_sim.sim_cli import DriveOptions
+
+    port = free_port()
+    tcfg = TelemetryConfig(
+        vehicle_id="simgoal", listen=(tcp(port),), allow_remote_goal=True, zenoh_config=loopback_acl
+    )
+    app_config = SimpleNamespace(telemetry=tcfg, recording=None, origin_lat_lon_deg=None)
+    opts = DriveOptions(seed=7, voice="none", telemetry=True, record=False, png=False)
+    opts = replace(opts, speed=20.0, duration_s=200.0, vehicle_id="simgoal")
+    seen: dict[str, Any] = {}
+
+    def remote() -> None:
+        with MonitorClient([tcp(port)], zenoh_config=loopback_acl) as mon:
+            deadline = time.monotonic() + 20.0
+            while time.monotonic() < deadline:  # the car is driving: its states arrive
+                e = mon.get(0.1)
+                if e is not None and e.kind == "state" and not e.late_join:
+                    break
+            time.sleep(0.3)
+            mon.send_goal("simgoal", 350.0, -120.0)
+            seen["sent"] = True
+            while time.monotonic() < deadline + 10.0:
+                e = mon.get(0.1)
+                if e is not None and e.kind == "state" and e.message:
+                    goal = e.message.get("goal") or {}
+                    if (goal.get("x_m"), goal.get("y_m")) == (350.0, -120.0):
+                        seen["state_goal"] = True
+                        return
+
+    t = threading.Thread(target=remote, name="remote-monitor", daemon=True)
+    t.start()
+    r = run_drive(opts, None, app_config)  # main thread: the drive's signal handlers
+    t.join(30)
+    assert seen.get("sent"), "the monitor never saw the simulated car"
+    assert any(text == "New destination set remotely" for _, text in r.prompt_log), r.prompt_log
+    assert seen.get("state_goal"), "the car's state never carried the remote goal"
