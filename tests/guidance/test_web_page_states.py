@@ -185,6 +185,7 @@ def test_the_page_draws_each_car_on_its_own(driver: Any) -> None:
         assert cls != "error" and "unreachable" not in text, text
         assert undrawn == "bad5" and "not drawn: bad5" in text
         shown = cars(driver)
+        assert shown["good"]["goal"] and shown["good"]["track"], shown["good"]
         for vid in ("bad1", "bad2", "bad3", "bad4"):
             assert shown[vid]["x"] == -50.0 and shown[vid]["card_text"], vid
         geo = driver.execute_script(
