@@ -181,7 +181,7 @@ def test_the_simulator_applies_the_remote_goal_it_accepts(loopback_acl: str) -> 
     )
     app_config = SimpleNamespace(telemetry=tcfg, recording=None, origin_lat_lon_deg=None)
     opts = DriveOptions(seed=7, voice="none", telemetry=True, record=False, png=False)
-    opts = replace(opts, speed=20.0, duration_s=200.0, vehicle_id="simgoal")
+    opts = replace(opts, speed=10.0, duration_s=150.0, vehicle_id="simgoal")
     seen: dict[str, Any] = {}
 
     def remote() -> None:
