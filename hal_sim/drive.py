@@ -135,7 +135,7 @@ class SimDrive:
                 sim = {"seed": self.opts.seed, "method": self.method.value}
                 session = session_record(self.pipeline, self.opts.config or "", sim=sim)
                 settings = output_settings(self.opts, self.app_config, self.origin, session)
-                async with open_outputs(settings, self.clock) as outputs:
+                async with open_outputs(settings, self.clock, on_goal=self._remote_goal) as outputs:
                     self.outputs = outputs
                     self._build_app()
                     async with self.app.running():
@@ -181,6 +181,16 @@ class SimDrive:
             await self._follow_scene(ev)
             await self._pace(ev.t_s)
         return outcome
+
+    def _remote_goal(self, x_m: float, y_m: float) -> None:
+        """A remote goal the telemetry accepted (on the loop): fed to the car as in
+        ``guidance run``, at the simulated time; the world's own goal (its plot, the field
+        protocol's next one) stays as it was."""
+        app = getattr(self, "app", None)
+        if app is None:
+            log.warning("remote goal (%.1f, %.1f) m before the car was built: ignored", x_m, y_m)
+            return
+        app.feed(GoalUpdate(self.world.t_s, x_m, y_m, "remote"))
 
     def _end_state(self) -> str:
         return "arrived" if self.pipeline.arrived else "lost"

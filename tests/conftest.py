@@ -77,3 +77,33 @@ def _leak_check(
 def leak_check() -> LeakCheck:
     """``with leak_check(grace_s=..., ignore_threads=..., virtual_can=..., ptys=...)``."""
     return _leak_check
+
+
+LOOPBACK_ACL = """{
+  // Tests only: zenoh access control that lets every session on the test's loopback link
+  // watch and set goals (remote goals need an access-control config: issue 23, item 7).
+  access_control: {
+    enabled: true,
+    default_permission: "deny",
+    rules: [{
+      id: "guidance-all",
+      permission: "allow",
+      flows: ["ingress", "egress"],
+      messages: ["put", "delete", "declare_subscriber", "query", "reply", "declare_queryable",
+                 "liveliness_token", "declare_liveliness_subscriber", "liveliness_query"],
+      key_exprs: ["guidance/**"],
+    }],
+    subjects: [{ id: "anyone" }],
+    policies: [{ rules: ["guidance-all"], subjects: ["anyone"] }],
+  },
+}
+"""
+
+
+@pytest.fixture
+def loopback_acl(tmp_path: Path) -> str:
+    """A zenoh config file whose access control allows everything under ``guidance/``: what
+    a car needs before it may enable remote goals in a test."""
+    path = tmp_path / "loopback-acl.json5"
+    path.write_text(LOOPBACK_ACL)
+    return str(path)

@@ -3,8 +3,8 @@
 A config can load and still fail at start or silently do the wrong thing: a zenoh config or TLS
 file that is not there, a recording folder that cannot be created, and an ``[odometry]`` table
 without ``profile`` (the CAN messages differ by car; the default would silently be the GM
-reference car's). ``start_problems`` names each in one line; ``--check`` refuses the config on
-the first.
+reference car's), and remote goals enabled without zenoh access control (issue 23, item 7).
+``start_problems`` names each in one line; ``--check`` refuses the config on the first.
 """
 
 from __future__ import annotations
@@ -67,6 +67,12 @@ def start_problems(config_path: str | Path, cfg: AppConfig) -> tuple[list[str], 
         for key, name in files:
             if name and not Path(name).is_file():
                 errors.append(f"[telemetry] {key} {name}: no such file")
+        if tel.allow_remote_goal and not errors:
+            from guidance.telemetry.session import remote_goal_problem
+
+            problem = remote_goal_problem(tel.zenoh_config)
+            if problem is not None:
+                errors.append(problem)
     rec = cfg.recording
     if rec.enabled:
         kind, why = folder_problem(Path(rec.directory))

@@ -337,7 +337,9 @@ class Pipeline:
         self.navigator.set_goal((goal.x_m, goal.y_m))
         self.st.arrived = False
         self.st.finished = False
-        self._say(out, goal.t_s, "New destination set", Priority.INFO, "info")
+        # a goal from the network is said as such: the driver hears who changed the route
+        text = "New destination set remotely" if goal.source == "remote" else "New destination set"
+        self._say(out, goal.t_s, text, Priority.INFO, "info")
         self.guide.replan(goal.t_s, self.estimator, self.st.odometer_m, out)
 
     # -- after every estimator step -------------------------------------------------------------

@@ -36,6 +36,7 @@ from guidance.telemetry.keys import (
     KEY_PREFIX,
     KINDS,
     goal_key,
+    is_vehicle_id,
     parse_key,
     validate_vehicle_id,
 )
@@ -106,7 +107,11 @@ class MonitorClient:
     kind; batches are a few milliseconds apart while the reader keeps up.
 
     ``received`` counts the messages handed out, ``undecodable`` those that were not a JSON
-    object. Nothing counts what the rings overwrote (zenoh does not say), and the FIFOs drop
+    object, ``bad_keys`` the samples (messages, late-join replies, liveliness tokens) whose key
+    is not ``guidance/<vehicle id>[/<kind>]`` with a valid vehicle id: a key comes from the
+    network, so a rogue peer's ``guidance/a b`` is one dropped, counted sample here, and every
+    event handed out names a valid vehicle id (``validate_vehicle_id`` never fails on it).
+    Nothing counts what the rings overwrote (zenoh does not say), and the FIFOs drop
     nothing: there is no ``dropped`` counter any more.
     """
 
@@ -149,6 +154,8 @@ class MonitorClient:
         self._wakers: list[zenoh.Subscriber[None]] = []
         self.received = 0
         self.undecodable = 0
+        self.bad_keys = 0
+        self._goals_sent = 0
 
     @property
     def _vehicle_chunk(self) -> str:
@@ -278,7 +285,13 @@ class MonitorClient:
             raise UserError("monitor session is not open")
         validate_vehicle_id(vehicle_id)
         body = {"schema": GOAL_SCHEMA, "x_m": float(x_m), "y_m": float(y_m)}
-        session.put(goal_key(vehicle_id), encode(body), encoding=zenoh.Encoding.APPLICATION_JSON)
+        self._goals_sent += 1
+        session.put(
+            goal_key(vehicle_id),
+            encode(body),
+            encoding=zenoh.Encoding.APPLICATION_JSON,
+            source_info=zenoh.SourceInfo(session.id, self._goals_sent),  # the car logs who
+        )
 
     def peers(self) -> int:
         session = self._session
@@ -318,7 +331,8 @@ class MonitorClient:
     def _message_event(self, sample: zenoh.Sample, late_join: bool) -> TelemetryEvent | None:
         key = str(sample.key_expr)
         parsed = parse_key(key)
-        if parsed is None:
+        if parsed is None or not is_vehicle_id(parsed[0]) or parsed[1] not in KINDS:
+            self._bad_key(key)
             return None
         vehicle_id, kind = parsed
         try:
@@ -334,7 +348,18 @@ class MonitorClient:
     def _liveliness_event(self, sample: zenoh.Sample) -> TelemetryEvent | None:
         key = str(sample.key_expr)
         parts = key.split("/")
-        if len(parts) != 2 or parts[0] != KEY_PREFIX:
+        if len(parts) != 2 or parts[0] != KEY_PREFIX or not is_vehicle_id(parts[1]):
+            self._bad_key(key)
             return None
         kind = "alive" if sample.kind == zenoh.SampleKind.PUT else "gone"
         return TelemetryEvent(kind, parts[1], key, None, self._clock())
+
+    def _bad_key(self, key: str) -> None:
+        """A sample under a key no car publishes: dropped and counted, never an event (its id
+        would reach ``query_latest`` and the displays). Logged the first 10 times, then every
+        100th, with the key shown escaped and cut (it is network text)."""
+        self.bad_keys += 1
+        n = self.bad_keys
+        if n <= 10 or n % 100 == 0:
+            shown = ascii(key[:80]) + ("..." if len(key) > 80 else "")
+            log.warning("monitor: dropped a sample under the foreign key %s (%d so far)", shown, n)

@@ -48,8 +48,14 @@ def schema_tag(kind: str) -> str:
     return f"guidance.{kind}/{SCHEMA_VERSION}"
 
 
+def is_vehicle_id(text: str) -> bool:
+    """Whether ``text`` is a valid vehicle id (for ids that come from the network: a bad one
+    is dropped and counted there, not an error)."""
+    return _VEHICLE_ID_RE.fullmatch(text) is not None
+
+
 def validate_vehicle_id(vehicle_id: str) -> str:
-    if not _VEHICLE_ID_RE.match(vehicle_id):
+    if not is_vehicle_id(vehicle_id):
         raise UserError(
             f"vehicle id {vehicle_id!r} must be 1-64 characters from A-Z a-z 0-9 _ . - "
             "(it becomes one chunk of a zenoh key)"

@@ -315,6 +315,21 @@ _TARGET: dict[str, Any] = {
 }
 
 
+def _together(a: str, b: str) -> list[dict[str, Any]]:
+    """Rules that make ``a`` a number only with ``b`` a number, and ``b`` only with ``a``:
+    a point is drawn from both or neither (``lat_deg`` without ``lon_deg``, or with
+    ``lon_deg: null``, cannot be drawn; the web page and the monitor's check agree on it)."""
+
+    def number(k: str) -> dict[str, Any]:
+        return {"required": [k], "properties": {k: {"type": "number"}}}
+
+    return [{"if": number(a), "then": number(b)}, {"if": number(b), "then": number(a)}]
+
+
+_POINT_RULES = [*_together("x_m", "y_m"), *_together("lat_deg", "lon_deg")]
+"""Every point of a state (the car, its target, its goal): coordinates in pairs."""
+
+
 def _obj(title: str, props: Mapping[str, Any]) -> dict[str, Any]:
     return {
         "$schema": "http://json-schema.org/draft-07/schema#",
@@ -349,6 +364,7 @@ _LON = {"type": ["number", "null"], "description": "WGS-84 longitude, degrees (n
 _GEO_TARGET: dict[str, Any] = {
     **_TARGET,
     "properties": {**dict(_TARGET["properties"]), "lat_deg": _LAT, "lon_deg": _LON},
+    "allOf": _POINT_RULES,
 }
 
 MESSAGE_SCHEMAS: dict[str, dict[str, Any]] = {
@@ -362,7 +378,11 @@ MESSAGE_SCHEMAS: dict[str, dict[str, Any]] = {
             "origin": {
                 "type": ["object", "null"],
                 "description": "the local frame's origin (x east, y north metres), WGS-84",
-                "properties": {"lat_deg": {"type": "number"}, "lon_deg": {"type": "number"}},
+                "properties": {
+                    "lat_deg": {"type": "number", "minimum": -90, "maximum": 90},
+                    "lon_deg": {"type": "number", "minimum": -180, "maximum": 180},
+                },
+                "required": ["lat_deg", "lon_deg"],
             },
             "heading_rad": _NUM,
             "heading_deg": _NUM,
@@ -389,6 +409,7 @@ MESSAGE_SCHEMAS: dict[str, dict[str, Any]] = {
             "goal": {
                 "type": ["object", "null"],
                 "properties": {"x_m": _NUM, "y_m": _NUM, "lat_deg": _LAT, "lon_deg": _LON},
+                "allOf": _POINT_RULES,
             },
             "method": {"type": ["string", "null"]},
             "mode": {"type": ["string", "null"]},
@@ -472,3 +493,4 @@ MESSAGE_SCHEMAS: dict[str, dict[str, Any]] = {
         },
     ),
 }
+MESSAGE_SCHEMAS["state"]["allOf"] = _POINT_RULES  # the car's position: coordinates in pairs too

@@ -32,8 +32,10 @@ from guidance.telemetry.redact import redact_text
 from guidance.telemetry.session import (
     _close_at_exit,
     _quiet_close,
+    goal_sender,
     open_session,
     parse_goal,
+    remote_goal_problem,
     session_config,
 )
 from guidance.telemetry.sink import Build, MessageSink
@@ -83,6 +85,10 @@ class Telemetry(MessageSink):
         loop: asyncio.AbstractEventLoop | None = None,
         clock: Callable[[], float] = time.time,
     ) -> None:
+        if config.enabled and config.allow_remote_goal:
+            problem = remote_goal_problem(config.zenoh_config)
+            if problem is not None:
+                raise UserError(problem)  # refuse to start: nobody may steer the car unchecked
         self.config = config
         self.origin_lat_lon_deg = config.origin_lat_lon_deg
         self.vehicle_id = config.vehicle_id
@@ -381,6 +387,8 @@ class Telemetry(MessageSink):
 
     def _on_goal_sample(self, sample: zenoh.Sample) -> None:
         try:
+            if str(sample.key_expr) != goal_key(self.vehicle_id):  # e.g. put on guidance/**
+                raise ValueError("sent to a key with wildcards (every car), not to this car")
             goal = parse_goal(sample.payload.to_bytes(), self.config.max_goal_range_m)
         except ValueError as exc:
             self._goals_refused += 1
@@ -392,7 +400,12 @@ class Telemetry(MessageSink):
                 )
             return
         self._goals_accepted += 1
-        log.info("telemetry: remote goal accepted: x %.1f m, y %.1f m", goal[0], goal[1])
+        log.warning(
+            "telemetry: remote goal accepted from %s: x %.1f m, y %.1f m",
+            goal_sender(sample),
+            goal[0],
+            goal[1],
+        )
         callback = self._on_goal
         if callback is None:
             return

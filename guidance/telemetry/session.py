@@ -61,6 +61,44 @@ def open_session(conf: zenoh.Config) -> zenoh.Session:
         raise UserError(f"cannot open zenoh session: {_zenoh_error_text(exc)}") from None
 
 
+REMOTE_GOAL_NEEDS = (
+    "[telemetry] allow_remote_goal = true needs zenoh access control: a zenoh_config with "
+    'access_control enabled and default_permission "deny" (config/zenoh/car-usrpwd-acl.json5 '
+    "or car-mtls-acl.json5); without it any process that reaches the car could set its goal"
+)
+
+
+def remote_goal_problem(zenoh_config: str) -> str | None:
+    """Why remote goals must not be enabled with this zenoh config file (one line), or None
+    when it enables zenoh's access control with a default of deny (docs/telemetry.md)."""
+    if not zenoh_config:
+        return f"{REMOTE_GOAL_NEEDS} (no zenoh_config is set)"
+    try:
+        conf = zenoh.Config.from_file(zenoh_config)
+        enabled = json.loads(conf.get_json("access_control/enabled"))
+        default = json.loads(conf.get_json("access_control/default_permission"))
+    except (zenoh.ZError, ValueError) as exc:
+        return f"{REMOTE_GOAL_NEEDS} ({zenoh_config}: {_zenoh_error_text(exc)})"
+    if enabled is not True:
+        return f"{REMOTE_GOAL_NEEDS} ({zenoh_config} does not enable access_control)"
+    if default != "deny":
+        return f"{REMOTE_GOAL_NEEDS} ({zenoh_config}: default_permission is {default!r})"
+    return None
+
+
+def goal_sender(sample: zenoh.Sample) -> str:
+    """Who sent a goal, as far as zenoh says: the sending session's id when the sample
+    carries source info (``guidance monitor --send-goal`` sets it; the sender states it, the
+    access control decided it may put), else that zenoh does not name the sender."""
+    try:
+        info = sample.source_info
+        if info is not None:
+            return f"zenoh session {info.source_id.zid}"
+    except Exception as exc:  # an unstable zenoh API: never the reason a goal is lost
+        log.debug("telemetry: no source info on a goal: %s", exc)
+    return "a sender zenoh does not name (no source info)"
+
+
 def parse_goal(payload: bytes, max_range_m: float) -> tuple[float, float]:
     """Validate a goal command: a JSON object with finite ``x_m``, ``y_m`` within range."""
     if len(payload) > 4096:

@@ -6,7 +6,10 @@ distance at most 1e9 m), text at most 4096 characters, at most 20,000 values and
 
 A message that fails is counted and shown as a bad message; nothing of it reaches a display,
 so no ``ellipse`` given as a list, health ``inputs`` as a list or ``x_m`` of 10^400 can end
-the monitor, and no NaN, infinity or 400-digit number is ever drawn.
+the monitor, and no NaN, infinity or 400-digit number is ever drawn. The state's schema also
+says what the web page needs to draw a point: coordinates in pairs (``lat_deg`` only with
+``lon_deg``, a goal's ``x_m`` only with its ``y_m``), an origin with both, in range; a state
+the check passes is one the page can draw (tests/guidance/test_web_page_states.py).
 """
 
 from __future__ import annotations
@@ -105,8 +108,12 @@ def message_problem(kind: str, message: Mapping[str, Any]) -> str | None:
         if error is not None:
             where = "/".join(_shown_key(str(p)) for p in error.absolute_path) or "message"
             # The schema's rule, never the value: a hostile value is not echoed to a display.
-            expected = error.validator_value if error.validator == "type" else error.validator
-            why = f"{where}: not {expected} (got {type(error.instance).__name__})"
+            if error.validator == "required":  # the names come from the schema
+                missing = [k for k in error.validator_value if k not in error.instance]
+                why = f"{where}: {', '.join(missing) or 'a field'} missing"
+            else:
+                expected = error.validator_value if error.validator == "type" else error.validator
+                why = f"{where}: not {expected} (got {type(error.instance).__name__})"
     if why is None:
         return None
     text = " ".join(why.split())

@@ -426,11 +426,14 @@ def test_live_view_table_and_sigusr1_snapshot(
         assert re.search(pattern, block), f"{pattern} not whole in:\n{out}"
 
 
-def test_send_goal_reaches_a_car_that_allows_it() -> None:
+def test_send_goal_reaches_a_car_that_allows_it(loopback_acl: str) -> None:
     port = free_port()
     goals: list[tuple[float, float]] = []
     cfg = TelemetryConfig(
-        vehicle_id="car3", listen=(f"tcp/127.0.0.1:{port}",), allow_remote_goal=True
+        vehicle_id="car3",
+        listen=(f"tcp/127.0.0.1:{port}",),
+        allow_remote_goal=True,
+        zenoh_config=loopback_acl,
     )
     with Telemetry(cfg, on_goal=lambda x, y: goals.append((x, y))):
         r = monitor(

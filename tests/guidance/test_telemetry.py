@@ -369,11 +369,14 @@ def test_remote_goal_is_refused_by_default(car_port: int) -> None:
         assert tel.health().counters["goals_accepted"] == 0
 
 
-def test_remote_goal_accepted_when_enabled_and_handed_to_the_event_loop(car_port: int) -> None:
+def test_remote_goal_accepted_when_enabled_and_handed_to_the_event_loop(
+    car_port: int, loopback_acl: str
+) -> None:
     cfg = TelemetryConfig(
         vehicle_id="car5",
         listen=(tcp(car_port),),
         allow_remote_goal=True,
+        zenoh_config=loopback_acl,
         max_goal_range_m=10_000.0,
     )
 

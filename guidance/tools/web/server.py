@@ -9,13 +9,27 @@ only requests whose ``Host`` is a loopback name (a web page elsewhere cannot rea
 DNS rebinding). Text from the cars is inserted by the page as text, never as HTML, and the
 page's Content-Security-Policy allows scripts and styles from itself only, images from itself
 and the configured tile server.
+
+Robustness (docs/reliability.md): a request must arrive whole within ``REQUEST_TIMEOUT_S`` (each
+read waits at most that long, and a watchdog closes a connection whose request is still not in
+after ``REQUEST_DEADLINE_S``, however slowly it trickles); at most ``MAX_CONNECTIONS`` are
+served at once, the next ones get a 503 and are closed; a client that disconnects early or
+times out is counted, never a traceback; a ``Host`` or path that does not parse is a 400.
+``[v6]:PORT`` binds IPv6. The thread that folds the telemetry survives anything one event
+does: the error is counted (``fold_errors``) and it goes on with the next. Every counter is in
+``/api/fleet`` under ``server``, with the client's ``bad_keys`` (samples under a key no car
+publishes, dropped).
 """
 
 from __future__ import annotations
 
+import contextlib
 import ipaddress
 import json
 import logging
+import re
+import socket
+import sys
 import threading
 import time
 from collections.abc import Callable, Mapping
@@ -34,6 +48,14 @@ log = logging.getLogger(__name__)
 DEFAULT_BIND = "127.0.0.1:8765"
 TRACK_POINTS_SENT = 1500
 """At most this many points of each car's track go to the page (evenly thinned)."""
+REQUEST_TIMEOUT_S = 5.0
+"""A connection on which nothing arrives (or nothing can be sent) for this long is closed."""
+REQUEST_DEADLINE_S = 10.0
+"""A request still not read whole after this long is closed, however slowly it trickles."""
+MAX_CONNECTIONS = 32
+"""Connections served at once (the page holds one or two); beyond: 503 and closed."""
+COUNTERS = ("timeouts", "client_disconnects", "connections_refused", "bad_requests", "errors",
+            "fold_errors")  # fmt: skip
 _ASSETS = {
     "/": ("index.html", "text/html; charset=utf-8"),
     "/index.html": ("index.html", "text/html; charset=utf-8"),
@@ -55,6 +77,22 @@ def parse_bind(text: str) -> tuple[str, int]:
     if not 0 <= port <= 65535:
         raise UserError(f"--web {text!r}: port must be 0-65535")
     return host, port
+
+
+_HOST_HEADER = re.compile(
+    r"(?:\[(?P<v6>[0-9A-Fa-f:.]{2,45})\]|(?P<name>[A-Za-z0-9_.-]{1,253}))(?::[0-9]{1,5})?"
+)
+
+
+def host_name(header: str) -> str:
+    """The host of a ``Host`` header (``name``, ``a.b.c.d``, ``[v6]``, each with an optional
+    ``:port``), lower-cased; ``ValueError`` for anything else (``[::1``, ``[::1]x``)."""
+    m = _HOST_HEADER.fullmatch(header.strip())
+    if m is None:
+        raise ValueError("malformed Host header")
+    if m["v6"] is not None:
+        return str(ipaddress.IPv6Address(m["v6"]))  # ValueError when not an address
+    return m["name"].lower()
 
 
 def is_loopback(host: str) -> bool:
@@ -137,9 +175,9 @@ class WebMonitor:
         self._stop = threading.Event()
         self._threads: list[threading.Thread] = []
         self.loopback_only = is_loopback(host)
-        self.httpd = ThreadingHTTPServer((host, port), _Handler)
-        self.httpd.daemon_threads = True
-        self.httpd.monitor = self  # type: ignore[attr-defined]
+        self.counters = dict.fromkeys(COUNTERS, 0)
+        self._counters_lock = threading.Lock()
+        self.httpd = _Server((host, port), self)
 
     @property
     def url(self) -> str:
@@ -151,7 +189,11 @@ class WebMonitor:
 
     def start(self) -> WebMonitor:
         self.client.query_latest()
-        for name, target in (("web-events", self._events), ("web-http", self.httpd.serve_forever)):
+        for name, target in (
+            ("web-events", self._events),
+            ("web-http", self.httpd.serve_forever),
+            ("web-watchdog", self._watchdog),
+        ):
             t = threading.Thread(target=target, name=name, daemon=True)
             t.start()
             self._threads.append(t)
@@ -170,16 +212,40 @@ class WebMonitor:
     def __exit__(self, *_exc: object) -> None:
         self.close()
 
+    def count(self, name: str) -> int:
+        with self._counters_lock:
+            self.counters[name] += 1
+            return self.counters[name]
+
     def _events(self) -> None:
+        """Fold events until closed; whatever one event does, the next is folded (counted)."""
         while not self._stop.is_set():
-            event = self.client.get(0.25)
-            if event is None:
-                continue
-            with self.lock:
-                new_car = event.kind == "alive" and event.vehicle_id not in self.view.cars
-                self.view.apply(event)
-            if new_car:
-                self.client.query_latest(event.vehicle_id)
+            try:
+                self._fold_next()
+            except Exception as exc:
+                n = self.count("fold_errors")
+                if n <= 10 or n % 100 == 0:
+                    log.error("web: an event could not be folded (%s); %d so far",
+                              type(exc).__name__, n)  # fmt: skip
+                self._stop.wait(0.05)
+
+    def _fold_next(self) -> None:
+        event = self.client.get(0.25)
+        if event is None:
+            return
+        with self.lock:
+            new_car = event.kind == "alive" and event.vehicle_id not in self.view.cars
+            self.view.apply(event)
+        if new_car:
+            self.client.query_latest(event.vehicle_id)
+
+    def _watchdog(self) -> None:
+        """Close the connections whose request is not in after ``REQUEST_DEADLINE_S``."""
+        while not self._stop.wait(0.5):
+            for sock in self.httpd.overdue(time.monotonic()):
+                self.count("timeouts")
+                with contextlib.suppress(OSError):
+                    sock.shutdown(socket.SHUT_RDWR)  # the handler's read ends at once
 
     def fleet(self) -> dict[str, Any]:
         now = self._clock()
@@ -187,11 +253,15 @@ class WebMonitor:
             cars = {**self.view.gone, **self.view.cars}
             out = [car_json(cars[vid], now) for vid in sorted(cars)]
             messages, bad = self.view.messages, self.view.bad_messages
+        with self._counters_lock:
+            server = dict(self.counters)
         return {
             "schema": "guidance.fleet/1",
             "cars": out,
             "messages": messages,
             "bad_messages": bad,
+            "bad_keys": self.client.bad_keys,
+            "server": server,
         }
 
     def page_config(self) -> dict[str, Any]:
@@ -200,11 +270,11 @@ class WebMonitor:
         return {"tiles": self.tiles, "version": version(), "poll_ms": 500}
 
     def host_allowed(self, host_header: str | None) -> bool:
+        """Whether a request with this ``Host`` is answered; ``ValueError`` when it does not
+        parse (``[::1``): a 400."""
+        host = host_name(host_header) if host_header else ""
         if not self.loopback_only:
             return True
-        if not host_header:
-            return False
-        host = urlsplit(f"//{host_header}").hostname or ""
         return is_loopback(host)
 
     def csp(self) -> str:
@@ -218,12 +288,88 @@ class WebMonitor:
         )
 
 
+class _Server(ThreadingHTTPServer):
+    """A ``ThreadingHTTPServer`` with a bound on connections, a deadline per request, IPv6,
+    and a count instead of a traceback for each client that goes away."""
+
+    daemon_threads = True
+    request_queue_size = 64
+
+    def __init__(self, address: tuple[str, int], monitor: WebMonitor) -> None:
+        self.address_family = socket.AF_INET6 if ":" in address[0] else socket.AF_INET
+        self.monitor = monitor
+        self._slots = threading.BoundedSemaphore(MAX_CONNECTIONS)
+        self._reading: dict[socket.socket, float] = {}
+        self._reading_lock = threading.Lock()
+        super().__init__(address, _Handler)
+
+    def process_request(self, request: Any, client_address: Any) -> None:
+        if not self._slots.acquire(blocking=False):
+            self.monitor.count("connections_refused")
+            with contextlib.suppress(OSError):
+                request.settimeout(0.5)
+                request.sendall(
+                    b"HTTP/1.0 503 Service Unavailable\r\nContent-Type: text/plain\r\n"
+                    b"Content-Length: 5\r\nConnection: close\r\n\r\nbusy\n"
+                )
+            self.shutdown_request(request)
+            return
+        self.reading(request, True)
+        try:
+            super().process_request(request, client_address)
+        except BaseException:
+            self.reading(request, False)
+            self._slots.release()
+            raise
+
+    def process_request_thread(self, request: Any, client_address: Any) -> None:
+        try:
+            super().process_request_thread(request, client_address)
+        finally:
+            self.reading(request, False)
+            self._slots.release()
+
+    def reading(self, request: socket.socket, waiting: bool) -> None:
+        """Mark a connection as waiting for its request (or no longer)."""
+        with self._reading_lock:
+            if waiting:
+                self._reading[request] = time.monotonic() + REQUEST_DEADLINE_S
+            else:
+                self._reading.pop(request, None)
+
+    def overdue(self, now: float) -> list[socket.socket]:
+        with self._reading_lock:
+            late = [s for s, deadline in self._reading.items() if deadline <= now]
+            for s in late:
+                del self._reading[s]
+        return late
+
+    def handle_error(self, request: Any, client_address: Any) -> None:
+        exc = sys.exc_info()[1]
+        if isinstance(exc, ConnectionError | TimeoutError):  # gone early, reset, timed out
+            self.monitor.count("client_disconnects")
+            log.debug("web: client %s went away: %s", client_address, exc)
+            return
+        n = self.monitor.count("errors")
+        if n <= 10 or n % 100 == 0:
+            log.error("web: a request failed (%s: %s); %d so far", type(exc).__name__, exc, n)
+
+
 class _Handler(BaseHTTPRequestHandler):
     server_version = "guidance-monitor"
     sys_version = ""
 
+    def setup(self) -> None:
+        self.timeout = REQUEST_TIMEOUT_S  # type: ignore[misc]  # each read and write
+        super().setup()
+
     def log_message(self, format: str, *args: Any) -> None:
         log.debug("web: " + format, *args)
+
+    def log_error(self, format: str, *args: Any) -> None:
+        if any(isinstance(a, TimeoutError) for a in args):
+            self.server.monitor.count("timeouts")  # type: ignore[attr-defined]
+        self.log_message(format, *args)
 
     def _send(self, status: int, body: bytes, ctype: str, extra: Mapping[str, str] = {}) -> None:
         self.send_response(status)
@@ -247,10 +393,17 @@ class _Handler(BaseHTTPRequestHandler):
 
     def do_GET(self) -> None:
         mon: WebMonitor = self.server.monitor  # type: ignore[attr-defined]
-        if not mon.host_allowed(self.headers.get("Host")):
+        self.server.reading(self.connection, False)  # type: ignore[attr-defined]
+        try:
+            allowed = mon.host_allowed(self.headers.get("Host"))
+            path = urlsplit(self.path).path
+        except ValueError:  # e.g. "Host: [::1" or a path "//[x"
+            mon.count("bad_requests")
+            self._send(HTTPStatus.BAD_REQUEST, b"bad request\n", "text/plain")
+            return
+        if not allowed:
             self._send(HTTPStatus.MISDIRECTED_REQUEST, b"wrong host\n", "text/plain")
             return
-        path = urlsplit(self.path).path
         if path == "/api/fleet":
             self._json(mon.fleet())
         elif path == "/api/config":

@@ -56,6 +56,8 @@ def test_goal_update_and_arrival(make_pipeline: Callable[..., Pipeline]) -> None
     assert arrived == ["You have arrived at your destination"]
     out = p.feed(GoalUpdate(4.1, 500.0, 0.0))
     assert out.prompts[0].text == "New destination set" and not p.arrived
+    out = p.feed(GoalUpdate(4.2, 600.0, 0.0, "remote"))  # from the network: said as such
+    assert out.prompts[0].text == "New destination set remotely"
 
 
 def test_snapshot_restore_gives_the_same_future(make_pipeline: Callable[..., Pipeline]) -> None:

@@ -1,6 +1,9 @@
 // guidance monitor --web: polls /api/fleet and draws every car on a local-metre grid
 // (x east, y north), with map tiles underneath when a tile server is configured.
 // Text from the cars is only ever set with textContent, never parsed as HTML.
+// Each car is drawn on its own (try/catch): a state this page cannot draw costs that car its
+// drawing (listed in the status line), never the other cars. The monitor's check
+// (guidance/tools/monitor_check.py, the state's JSON Schema) already rejects such states.
 "use strict";
 
 const SVG = "http://www.w3.org/2000/svg";
@@ -31,6 +34,13 @@ function colour(vid) {
 
 function num(v) { return typeof v === "number" && isFinite(v) ? v : null; }
 
+// [x, y] of an object's two numbers (e.g. "x_m", "y_m"), or null unless both are numbers.
+function pair(o, a, b) {
+  if (!o || typeof o !== "object") return null;
+  const x = num(o[a]), y = num(o[b]);
+  return x === null || y === null ? null : [x, y];
+}
+
 function compass(headingRad) {  // CCW from east (rad) -> clockwise from north (deg)
   let d = (90 - headingRad * 180 / Math.PI) % 360;
   if (d < 0) d += 360;
@@ -40,7 +50,7 @@ function compass(headingRad) {  // CCW from east (rad) -> clockwise from north (
 // Local metres of a car's origin in the page's reference frame (equirectangular: exact
 // enough over a city). Cars without an origin are drawn in their own local metres.
 function offset(origin) {
-  if (!origin || !state.ref) return [0, 0];
+  if (!pair(origin, "lat_deg", "lon_deg") || !state.ref) return [0, 0];
   const lat0 = state.ref.lat_deg * Math.PI / 180;
   const dx = (origin.lon_deg - state.ref.lon_deg) * Math.PI / 180 * EARTH_M * Math.cos(lat0);
   const dy = (origin.lat_deg - state.ref.lat_deg) * Math.PI / 180 * EARTH_M;
@@ -75,12 +85,15 @@ function bounds(cars) {
     else b = [Math.min(b[0], x - r), Math.min(b[1], y - r), Math.max(b[2], x + r), Math.max(b[3], y + r)];
   };
   for (const c of cars) {
-    const [ox, oy] = offset(c.state && c.state.origin);
-    for (const [x, y] of c.track) add(x + ox, y + oy);
-    const s = c.state || {};
-    const e = s.ellipse || {};
-    add(num(s.x_m) === null ? null : s.x_m + ox, num(s.y_m) === null ? null : s.y_m + oy, num(e.semi_major_m) || 0);
-    if (s.goal) add(num(s.goal.x_m) === null ? null : s.goal.x_m + ox, num(s.goal.y_m) === null ? null : s.goal.y_m + oy);
+    try {
+      const [ox, oy] = offset(c.state && c.state.origin);
+      for (const [x, y] of c.track) add(x + ox, y + oy);
+      const s = c.state || {};
+      const e = s.ellipse || {};
+      const at = pair(s, "x_m", "y_m"), goal = pair(s.goal, "x_m", "y_m");
+      if (at) add(at[0] + ox, at[1] + oy, num(e.semi_major_m) || 0);
+      if (goal) add(goal[0] + ox, goal[1] + oy);
+    } catch (err) { /* this car is left out of the bounds; drawCar reports it */ }
   }
   if (!b) b = [-100, -100, 100, 100];
   const pad = Math.max(20, 0.08 * Math.max(b[2] - b[0], b[3] - b[1]));
@@ -160,9 +173,9 @@ function drawCar(c, p, parent) {
                     transform: `rotate(${(-o * 180 / Math.PI).toFixed(2)} ${px} ${py})`,
                     fill: col, stroke: col, "data-semi-major-m": a, "data-semi-minor-m": b }, g);
   }
-  const goal = s.goal, target = s.target;
-  if (goal && num(goal.x_m) !== null) {
-    const gx = p.x(goal.x_m + ox), gy = p.y(goal.y_m + oy);
+  const goal = pair(s.goal, "x_m", "y_m"), target = s.target;
+  if (goal) {
+    const gx = p.x(goal[0] + ox), gy = p.y(goal[1] + oy);
     const pts = [];
     for (let i = 0; i < 10; i++) {
       const r = i % 2 ? 4 : 10, t = Math.PI / 2 + i * Math.PI / 5;
@@ -170,8 +183,9 @@ function drawCar(c, p, parent) {
     }
     el("polygon", { class: "goal", points: pts.join(" "), fill: col }, g);
   }
-  if (target && num(target.x_m) !== null && target.kind !== "goal") {
-    const tx = p.x(target.x_m + ox), ty = p.y(target.y_m + oy);
+  const tp = pair(target, "x_m", "y_m");
+  if (tp && target.kind !== "goal") {
+    const tx = p.x(tp[0] + ox), ty = p.y(tp[1] + oy);
     el("path", { class: "target", stroke: col, d: `M${tx - 6},${ty - 6}L${tx + 6},${ty + 6}M${tx - 6},${ty + 6}L${tx + 6},${ty - 6}` }, g);
   }
   const h = num(s.heading_rad);
@@ -199,12 +213,14 @@ function drawCard(c, ul) {
   const pos = html("div", "position", undefined, li);
   const h = num(s.heading_rad);
   pos.textContent = `x ${fmt(s.x_m, 1, " m")}  y ${fmt(s.y_m, 1, " m")}  hdg ${h === null ? "–" : compass(h).toFixed(0) + "°"}`;
-  if (num(s.lat_deg) !== null) html("div", "geo", `${s.lat_deg.toFixed(6)}, ${s.lon_deg.toFixed(6)}`, li);
+  const geo = pair(s, "lat_deg", "lon_deg");
+  if (geo) html("div", "geo", `${geo[0].toFixed(6)}, ${geo[1].toFixed(6)}`, li);
   const axis = html("div", "axis", `2σ axis ${fmt((s.ellipse || {}).major_axis_m, 1, " m")}`, li);
   if (s.lost) html("span", "lost", " LOST", axis);
-  if (s.goal && num(s.goal.x_m) !== null && num(s.x_m) !== null) {
-    const d = Math.hypot(s.goal.x_m - s.x_m, s.goal.y_m - s.y_m);
-    html("div", "goal-text", `to goal (${s.goal.x_m.toFixed(0)}, ${s.goal.y_m.toFixed(0)}): ${d.toFixed(0)} m`, li);
+  const goal = pair(s.goal, "x_m", "y_m"), at = pair(s, "x_m", "y_m");
+  if (goal && at) {
+    const d = Math.hypot(goal[0] - at[0], goal[1] - at[1]);
+    html("div", "goal-text", `to goal (${goal[0].toFixed(0)}, ${goal[1].toFixed(0)}): ${d.toFixed(0)} m`, li);
   }
   if (s.target && s.target.kind === "landmark") html("div", "target-text", `target: landmark ${s.target.id}`, li);
   html("div", "age", `age ${fmt(c.age_s, 1, " s")}`, li);
@@ -216,8 +232,11 @@ function drawCard(c, ul) {
 function render(fleet) {
   const cars = fleet.cars;
   if (!state.ref) {
-    const withOrigin = cars.find((c) => c.state && c.state.origin);
-    if (withOrigin) state.ref = withOrigin.state.origin;
+    const withOrigin = cars.find((c) => c.state && pair(c.state.origin, "lat_deg", "lon_deg"));
+    if (withOrigin) {
+      const [lat, lon] = pair(withOrigin.state.origin, "lat_deg", "lon_deg");
+      state.ref = { lat_deg: lat, lon_deg: lon };
+    }
   }
   const svg = document.getElementById("map");
   const w = svg.clientWidth || 800, h = svg.clientHeight || 600;
@@ -227,17 +246,25 @@ function render(fleet) {
   drawGrid(p, w, h);
   const g = document.getElementById("cars");
   g.replaceChildren();
-  for (const c of cars.filter((c) => !c.alive)) drawCar(c, p, g);  // live cars on top
-  for (const c of cars.filter((c) => c.alive)) drawCar(c, p, g);
+  const failed = new Set();
+  const each = (list, draw) => {  // one car's failure is that car's alone
+    for (const c of list) {
+      try { draw(c); } catch (err) { failed.add(String(c && c.vehicle_id)); }
+    }
+  };
+  each(cars.filter((c) => !c.alive), (c) => drawCar(c, p, g));  // live cars on top
+  each(cars.filter((c) => c.alive), (c) => drawCar(c, p, g));
   const ul = document.getElementById("cards");
   ul.replaceChildren();
-  for (const c of cars) drawCard(c, ul);
+  each(cars, (c) => drawCard(c, ul));
   document.getElementById("empty").hidden = cars.length > 0;
   const live = cars.filter((c) => c.alive).length;
   const st = document.getElementById("status");
   st.className = "";
   const bad = fleet.bad_messages ? ` · ${fleet.bad_messages} bad messages left out` : "";
-  st.textContent = `${live} live, ${cars.length - live} gone · ${fleet.messages} messages${bad} · ${new Date().toLocaleTimeString()}`;
+  const undrawn = failed.size ? ` · not drawn: ${[...failed].sort().join(", ")}` : "";
+  st.dataset.undrawn = [...failed].sort().join(",");
+  st.textContent = `${live} live, ${cars.length - live} gone · ${fleet.messages} messages${bad}${undrawn} · ${new Date().toLocaleTimeString()}`;
 }
 
 async function poll() {
