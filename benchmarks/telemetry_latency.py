@@ -1,7 +1,7 @@
 """Publish-to-receive latency of telemetry state on loopback (issue 6 acceptance).
 
 Two processes, two zenoh sessions on the same machine: a car process publishes
-``guidance.state`` at --rate Hz through ``Telemetry.send_state`` (the path the
+``guidance.state`` at --rate Hz through ``Telemetry.send`` (the state row) (the path the
 app uses: latest-value slot, publisher thread, zenoh with DROP + express), a
 monitor process (this one) receives it through ``MonitorClient``. ``t_s`` in the
 payload is the car's ``time.monotonic()`` at the publish call and the monitor
@@ -12,7 +12,7 @@ processes of one machine, so the difference is the one-way latency.
 
 Prints the latency median, p90, p99 and max, messages lost (sequence gaps
 seen by the monitor, plus the car's own drop counters), and what a
-``send_state`` call costs the car's loop.
+``send`` call costs the car's loop.
 """
 
 from __future__ import annotations
@@ -34,6 +34,7 @@ CAR = r"""
 import json, sys, time
 import numpy as np
 from guidance.core.messages import Ellipse, EstimateState, Target
+from guidance.outputs.kinds import STATE, OutputContext
 from guidance.telemetry.config import TelemetryConfig
 from guidance.telemetry.publisher import Telemetry
 port, rate, duration = int(sys.argv[1]), float(sys.argv[2]), float(sys.argv[3])
@@ -50,8 +51,8 @@ for i in range(n):
     next_t += period
     time.sleep(max(0.0, next_t - time.monotonic()))
     t0 = time.monotonic()
-    tel.send_state(EstimateState(t0, 1.0 * i, 2.0, 0.5, cov, ell, False, True),
-                      speed_mps=8.0, target=Target(300.0, 100.0, "goal", None), method="hybrid")
+    tel.send(STATE, EstimateState(t0, 1.0 * i, 2.0, 0.5, cov, ell, False, True), OutputContext(
+        speed_mps=8.0, target=Target(300.0, 100.0, "goal", None), method="hybrid"))
     cost[i] = time.monotonic() - t0
 time.sleep(0.5)
 h = tel.health()
@@ -59,7 +60,7 @@ hot = np.empty(2000)  # back-to-back calls: the call itself, without the wake-up
 state = EstimateState(0.0, 0.0, 2.0, 0.5, cov, ell, False, True)
 for i in range(len(hot)):
     t0 = time.perf_counter()
-    tel.send_state(state, speed_mps=8.0)
+    tel.send(STATE, state, OutputContext(speed_mps=8.0))
     hot[i] = time.perf_counter() - t0
 tel.close()
 dropped = {k.removeprefix("dropped_"): v for k, v in h.counters.items() if k.startswith("dropped_")}
@@ -139,12 +140,12 @@ def main() -> int:
             f"   p99 {np.percentile(lat_ms, 99):.3f} ms   max {lat_ms.max():.3f} ms"
         )
     print(
-        f"  send_state call in the {args.rate:g} Hz loop (first call after a sleep): "
+        f"  send call (state) in the {args.rate:g} Hz loop (first call after a sleep): "
         f"median {report['call_median_us']:.1f} us, p99 {report['call_p99_us']:.1f} us, "
         f"max {report['call_max_us']:.1f} us"
     )
     print(
-        f"  send_state call back-to-back (no wake-up cost): median "
+        f"  send call (state) back-to-back (no wake-up cost): median "
         f"{report['hot_median_us']:.1f} us, p99 {report['hot_p99_us']:.1f} us"
     )
     return 0 if len(lat_ms) else 1

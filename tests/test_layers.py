@@ -109,6 +109,29 @@ def test_voice_never_imports_the_app() -> None:
     assert not bad, "\n".join(bad)
 
 
+def test_recording_never_imports_telemetry() -> None:
+    """The recorder and telemetry are two sinks of one output table (``guidance.outputs``):
+    recording a drive never needs the zenoh package."""
+    bad = _violations("guidance.recording", lambda m: not _under(m, "guidance.telemetry"))
+    assert not bad, "\n".join(bad)
+
+
+def test_the_outputs_import_only_the_core() -> None:
+    """The output table, encoders and schemas are pure: the core's values (type-only imports of
+    the heavier core modules; ``test_the_output_path_does_not_load_the_compiler`` checks that
+    numba stays out), nothing of the app, telemetry or the recorder, no zenoh or mcap."""
+
+    def allowed(m: str) -> bool:
+        if _under(m, "guidance"):
+            return any(
+                _under(m, v) for v in ("guidance.outputs", "guidance.core", "guidance.errors")
+            )
+        return not any(_under(m, x) for x in ("zenoh", "mcap", "numba"))
+
+    bad = _violations("guidance.outputs", allowed)
+    assert not bad, "\n".join(bad)
+
+
 def test_only_tools_import_driver_decoders() -> None:
     for package in ("guidance.core", "guidance.voice", "guidance.telemetry", "guidance.recording"):
         bad = _violations(package, lambda m: not _under(m, "drivers"))
@@ -123,7 +146,7 @@ def test_only_tools_import_driver_decoders() -> None:
         "guidance.tools.replay",
         "guidance.app.config",
         "guidance.core.pipeline",
-        "guidance.telemetry.messages",
+        "guidance.outputs.kinds",
     ],
 )
 def test_importing_does_not_load_zenoh(module: str) -> None:
@@ -132,6 +155,24 @@ def test_importing_does_not_load_zenoh(module: str) -> None:
         [sys.executable, "-c", code], capture_output=True, text=True, check=True, cwd=ROOT
     ).stdout.strip()
     assert out == "False", f"import {module} loads zenoh"
+
+
+@pytest.mark.parametrize(
+    "module",
+    [
+        "guidance.outputs.kinds",
+        "guidance.outputs.sink",
+        "guidance.recording.topics",
+        "guidance.tools.monitor_check",
+    ],
+)
+def test_the_output_path_does_not_load_the_compiler(module: str) -> None:
+    """``guidance monitor`` and the recorder's schemas need no numba (issue 25)."""
+    code = f"import sys, {module}; print('numba' in sys.modules)"
+    out = subprocess.run(
+        [sys.executable, "-c", code], capture_output=True, text=True, check=True, cwd=ROOT
+    ).stdout.strip()
+    assert out == "False", f"import {module} loads numba"
 
 
 def test_no_module_over_600_lines() -> None:

@@ -45,7 +45,8 @@ from guidance.core.messages import (
     Health,
     LandmarkFix,
 )
-from guidance.telemetry.messages import LandmarkRejection
+from guidance.outputs.kinds import HEALTH, OUTPUTS, HealthReport, OutputContext
+from guidance.outputs.sink import NO_CONTEXT
 
 if TYPE_CHECKING:  # the estimator stack (filterpy, scipy, numba) loads on first use only
     from guidance.app.ports import OutputSink
@@ -241,32 +242,19 @@ class App:
             listener(msg, out)
 
     def _send(self, out: Outputs) -> None:
-        """Every output to every sink; what a message needs beyond the output is computed
-        once, not once per sink."""
+        """Every output to every sink, kind by kind from the output table; what a message
+        needs beyond the output (the state's context) is computed once, not once per sink."""
         p = self.pipeline
-        landmark_t, rejections = None, []
-        if out.landmark_updates or out.landmark_rejections:
-            landmark_t = (out.landmark_updates or [f for f, _ in out.landmark_rejections])[0].t_s
-            rejections = [
-                LandmarkRejection(r, fix.landmark_id) for fix, r in out.landmark_rejections
-            ]
-        target = p.target() if out.state is not None else None
+        context = NO_CONTEXT
+        if out.state is not None:
+            context = OutputContext(speed_mps=p.speed_mps, target=p.target(),
+                                    goal=p.navigator.goal, method=self.method,
+                                    mode=p.navigator.mode)  # fmt: skip
+        batch = [(kind, list(kind.items(out))) for kind in OUTPUTS if kind.items is not None]
         for sink in self.sinks:
-            for prompt in out.prompts:
-                sink.send_prompt(prompt.t_s, prompt.text, kind=prompt.kind,
-                                 priority=prompt.priority)  # fmt: skip
-            for decision in out.decisions:
-                sink.send_decision(decision)
-            for turn in out.turns:
-                sink.send_turn(turn)
-            for taken in out.exits_taken:
-                sink.send_exit(taken)
-            if landmark_t is not None:
-                sink.send_landmark(landmark_t, matches=out.landmark_updates, rejections=rejections)
-            if out.state is not None:
-                sink.send_state(out.state, speed_mps=p.speed_mps, target=target,
-                                goal=p.navigator.goal, method=self.method,
-                                mode=p.navigator.mode)  # fmt: skip
+            for kind, items in batch:
+                for item in items:
+                    sink.send(kind, item, context)
 
     def _publish_health(self, t_s: float) -> None:
         if not self.sinks:
@@ -287,8 +275,9 @@ class App:
         if self.speaker is not None:
             voice = self.speaker.health()
             comps[voice.name] = voice
+        report = HealthReport(t_s, inputs, comps)
         for sink in self.sinks:
-            sink.send_health(t_s, inputs, components=comps)
+            sink.send(HEALTH, report)
 
     def _device_status(self, name: str, health: Health) -> None:
         """A driver's status flip (on its thread): into the loop like any other input."""

@@ -8,9 +8,8 @@ loop with ``loop.call_soon_threadsafe``. Sources count what they read and what
 they rejected, by reason, in ``stats()``; a bad byte is a counted rejection,
 never an exception out of ``start``/``stop``.
 
-``OutputSink`` is the telemetry's ``MessageSink`` (the one output path, shared by telemetry and
-the recorder); it is named here for type checking only, since importing it loads the
-estimator's math (numba): ``if TYPE_CHECKING: from guidance.app.ports import OutputSink``.
+``OutputSink`` is ``guidance.outputs.sink.MessageSink`` (the one output path, shared by
+telemetry and the recorder: ``publish`` and ``send`` of any row of the output table).
 """
 
 from __future__ import annotations
@@ -34,10 +33,10 @@ from guidance.voice.speaker import Speaker
 __all__ = ["Speaker"]  # the voice's port, named here with the app's other ports
 
 if TYPE_CHECKING:
-    from guidance.telemetry.sink import MessageSink
+    from guidance.outputs.sink import MessageSink
 
     OutputSink: TypeAlias = MessageSink
-    """Where outputs go (telemetry, the recorder): ``publish`` plus one helper per kind."""
+    """Where outputs go (telemetry, the recorder): ``send(kind, item, context)``."""
 
 T_co = TypeVar("T_co", covariant=True)
 

@@ -12,7 +12,7 @@ from mcap.writer import CompressionType
 
 from guidance.config_tables import from_table, rule
 from guidance.errors import UserError
-from guidance.telemetry.messages import check_origin
+from guidance.outputs.messages import check_origin
 
 
 # -- configuration --------------------------------------------------------------------------------

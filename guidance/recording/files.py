@@ -12,9 +12,9 @@ from typing import Any
 
 from mcap.writer import Writer
 
+from guidance.outputs.messages import SCHEMA_VERSION
 from guidance.recording.config import _COMPRESSION, RecordingConfig
 from guidance.recording.topics import LIBRARY, TOPICS, _schema
-from guidance.telemetry.keys import SCHEMA_VERSION
 
 
 class _DirectFile:

@@ -19,7 +19,7 @@ import math
 from collections.abc import Mapping, Sequence
 from typing import Any
 
-from guidance.telemetry.messages import Origin, lat_lon_deg
+from guidance.outputs.messages import Origin, lat_lon_deg
 
 FRAME = "map"
 """The 3D panel's frame: the local frame, x east, y north metres, z up."""

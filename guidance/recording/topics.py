@@ -7,12 +7,9 @@ from collections.abc import Mapping, Sequence
 from typing import Any
 
 from guidance.core import codec
+from guidance.outputs.kinds import OUTPUTS
 from guidance.recording.foxglove import SCHEMA_OF_TOPIC as FOXGLOVE_TOPICS
 from guidance.recording.foxglove_schemas import json_schema
-from guidance.telemetry.messages import (
-    MESSAGE_SCHEMAS,
-)
-from guidance.telemetry.sink import SINK_SCHEMAS
 
 LIBRARY = "guidance-recorder"
 _DISK_FULL_ERRNOS = {errno.ENOSPC, errno.EDQUOT, errno.EFBIG}
@@ -79,16 +76,11 @@ TOPICS: dict[str, dict[str, Any]] = {
     ),
     # the processed inputs replay feeds the pipeline: schemas from the message fields
     **{topic: codec.schema(topic) for topic in dict.fromkeys(codec.TOPICS.values())},
-    "/state": MESSAGE_SCHEMAS["state"],
-    "/decision": MESSAGE_SCHEMAS["decision"],
-    "/prompt": MESSAGE_SCHEMAS["prompt"],
-    "/landmark": MESSAGE_SCHEMAS["landmark"],
-    "/health": MESSAGE_SCHEMAS["health"],
-    "/turn": SINK_SCHEMAS["turn"],
-    "/exit": SINK_SCHEMAS["exit"],
+    # the outputs: one row of the output table each
+    **{k.topic: k.schema for k in OUTPUTS},
     # the published Foxglove schemas (guidance.recording.foxglove): standard viewer panels
     **{topic: json_schema(name) for topic, name in FOXGLOVE_TOPICS.items()},
 }
 """Topic -> JSON Schema (its ``title`` is the MCAP schema name); every topic has one."""
 INPUT_TOPICS = ("/can", "/nmea", "/camera", "/scene")
-OUTPUT_TOPICS = ("/state", "/decision", "/prompt", "/landmark", "/health", "/turn", "/exit")
+OUTPUT_TOPICS = tuple(k.topic for k in OUTPUTS)

@@ -20,13 +20,13 @@ from guidance.core.messages import (
     CameraFrame,
     Health,
 )
+from guidance.outputs.messages import heading_deg_true
+from guidance.outputs.sink import Build, MessageSink
 from guidance.recording.config import RecordingConfig
 from guidance.recording.files import _STOP, _Item, _OpenFile
 from guidance.recording.foxglove import FoxgloveView, stamp
 from guidance.recording.health import recorder_health
 from guidance.recording.topics import _DISK_FULL_ERRNOS
-from guidance.telemetry.messages import heading_deg_true
-from guidance.telemetry.sink import Build, MessageSink
 
 log = logging.getLogger(__name__)
 
@@ -177,7 +177,7 @@ class Recorder(MessageSink):
         return self._put("/truth", t_s, lambda: body)
 
     def publish(self, kind: str, t_s: float, build: Build) -> bool:
-        """The sink port (``guidance.telemetry.sink``): one bounded FIFO for every kind."""
+        """The sink port (``guidance.outputs.sink``): one bounded FIFO for every kind."""
         return self._put(f"/{kind}", t_s, partial(build, vehicle_id=self.config.vehicle_id))
 
     def own_health(self) -> Health:

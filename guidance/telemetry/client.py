@@ -28,6 +28,7 @@ from typing import Any, TypeVar
 import zenoh
 
 from guidance.errors import UserError
+from guidance.outputs.messages import encode
 from guidance.telemetry.config import TlsConfig, check_endpoint
 from guidance.telemetry.keys import (
     _MODES,
@@ -40,7 +41,6 @@ from guidance.telemetry.keys import (
     parse_key,
     validate_vehicle_id,
 )
-from guidance.telemetry.messages import encode
 from guidance.telemetry.redact import _zenoh_error_text
 from guidance.telemetry.session import _close_at_exit, _quiet_close, open_session, session_config
 

@@ -9,8 +9,8 @@ from typing import Any
 
 from guidance.config_tables import from_table, rule
 from guidance.errors import UserError
+from guidance.outputs.messages import check_origin
 from guidance.telemetry.keys import _ENDPOINT_RE, _MODES, DEFAULT_LISTEN, validate_vehicle_id
-from guidance.telemetry.messages import check_origin
 
 
 # -- configuration --------------------------------------------------------------------------------

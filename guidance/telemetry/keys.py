@@ -5,12 +5,13 @@ from __future__ import annotations
 import re
 
 from guidance.errors import UserError
+from guidance.outputs.kinds import OUTPUTS
+from guidance.outputs.messages import SCHEMA_VERSION
 
 KEY_PREFIX = "guidance"
-SCHEMA_VERSION = 1
-KINDS = ("state", "decision", "prompt", "landmark", "health", "turn", "exit")
-"""Message kinds published under ``guidance/<vehicle_id>/<kind>``."""
-LATEST_KINDS = frozenset({"state", "health", "landmark"})
+KINDS = tuple(k.name for k in OUTPUTS)
+"""Message kinds published under ``guidance/<vehicle_id>/<kind>`` (the output table's)."""
+LATEST_KINDS = frozenset(k.name for k in OUTPUTS if k.policy == "latest")
 """Kinds held in a latest-value slot; the others go through a short FIFO."""
 GOAL_SCHEMA = f"guidance.goal/{SCHEMA_VERSION}"
 DEFAULT_PORT = 7447
@@ -42,10 +43,6 @@ def parse_key(key: str) -> tuple[str, str] | None:
     if len(parts) != 3 or parts[0] != KEY_PREFIX:
         return None
     return parts[1], parts[2]
-
-
-def schema_tag(kind: str) -> str:
-    return f"guidance.{kind}/{SCHEMA_VERSION}"
 
 
 def is_vehicle_id(text: str) -> bool:

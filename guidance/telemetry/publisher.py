@@ -15,6 +15,8 @@ import zenoh
 
 from guidance.core.messages import Health
 from guidance.errors import UserError
+from guidance.outputs.messages import encode, schema_tag
+from guidance.outputs.sink import Build, MessageSink
 from guidance.telemetry.config import TelemetryConfig
 from guidance.telemetry.keys import (
     KEY_PREFIX,
@@ -23,10 +25,6 @@ from guidance.telemetry.keys import (
     goal_key,
     key_for,
     liveliness_key,
-    schema_tag,
-)
-from guidance.telemetry.messages import (
-    encode,
 )
 from guidance.telemetry.redact import redact_text
 from guidance.telemetry.session import (
@@ -38,7 +36,6 @@ from guidance.telemetry.session import (
     remote_goal_problem,
     session_config,
 )
-from guidance.telemetry.sink import Build, MessageSink
 
 if TYPE_CHECKING:
     import asyncio
@@ -150,7 +147,7 @@ class Telemetry(MessageSink):
 
     # -- publishing (any thread, never blocks) -----------------------------------------------
     def publish(self, kind: str, t_s: float, build: Build) -> bool:
-        """The sink port (``guidance.telemetry.sink``): latest-value slot or FIFO by kind."""
+        """The sink port (``guidance.outputs.sink``): latest-value slot or FIFO by kind."""
         return self._put(kind, partial(build, vehicle_id=self.vehicle_id))
 
     def own_health(self) -> Health:

@@ -1,6 +1,6 @@
 """Telemetry messages checked once, where the monitors fold them (``FleetView.apply``: the
 live table, ``--json`` and the web page), against the published JSON Schemas
-(``guidance.telemetry.messages.MESSAGE_SCHEMAS``, ``guidance.telemetry.sink.SINK_SCHEMAS``)
+(one per row of the output table, ``guidance.outputs.kinds.OUTPUTS``)
 and against limits no real message comes near: every number finite and at most 1e15 (a
 distance at most 1e9 m), text at most 4096 characters, at most 20,000 values and 32 levels.
 
@@ -20,8 +20,7 @@ from collections.abc import Mapping
 from functools import cache
 from typing import Any
 
-from guidance.telemetry.messages import MESSAGE_SCHEMAS
-from guidance.telemetry.sink import SINK_SCHEMAS
+from guidance.outputs.kinds import OUTPUTS
 
 MAX_NUMBER = 1e15
 """Any number in a message (times, sequence numbers, counters)."""
@@ -33,7 +32,7 @@ MAX_DEPTH = 32
 PROBLEM_CHARS = 120
 """A problem's description is cut to this length (it may quote the message)."""
 
-SCHEMAS: dict[str, dict[str, Any]] = {**MESSAGE_SCHEMAS, **SINK_SCHEMAS}
+SCHEMAS: dict[str, dict[str, Any]] = {k.name: k.schema for k in OUTPUTS}
 
 
 @cache

@@ -14,7 +14,7 @@ from guidance.core.estimator import EstimatorConfig
 from guidance.core.messages import DeviceStatus, Health
 from guidance.core.navigator import NavigatorConfig
 from guidance.core.pipeline import Pipeline, PipelineConfig
-from guidance.telemetry.messages import health_message
+from guidance.outputs.messages import health_message
 from guidance.voice.speakers import TextSpeaker
 
 

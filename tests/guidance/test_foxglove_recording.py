@@ -23,13 +23,14 @@ from mcap.reader import make_reader
 
 from guidance.core.messages import Ellipse, EstimateState
 from guidance.core.pipeline import Pipeline
+from guidance.outputs.messages import heading_deg_true, state_message
+from guidance.outputs.schemas import SCHEMAS
 from guidance.recording.config import RecordingConfig
 from guidance.recording.foxglove import SCHEMA_OF_TOPIC, TRACK_PIECE, ellipse_points
 from guidance.recording.foxglove_schemas import json_schema, to_protobuf
 from guidance.recording.reader import Reader
 from guidance.recording.writer import Recorder
 from guidance.telemetry.config import TelemetryConfig
-from guidance.telemetry.messages import MESSAGE_SCHEMAS, heading_deg_true, state_message
 from guidance.tools.replay import (
     compare_with_recording,
     mcap_inputs,
@@ -186,9 +187,9 @@ def test_state_without_an_origin_has_null_positions_and_validates() -> None:
     msg = state_message(st, vehicle_id="c", goal=(1.0, 2.0))
     assert (msg["lat_deg"], msg["lon_deg"], msg["origin"]) == (None, None, None)
     assert (msg["goal"]["lat_deg"], msg["heading_deg_true"]) == (None, 90.0)
-    jsonschema.validate(msg, MESSAGE_SCHEMAS["state"])
+    jsonschema.validate(msg, SCHEMAS["state"])
     geo = state_message(st, vehicle_id="c", goal=(1.0, 2.0), origin_lat_lon_deg=ORIGIN)
-    jsonschema.validate(geo, MESSAGE_SCHEMAS["state"])
+    jsonschema.validate(geo, SCHEMAS["state"])
     assert geo["lat_deg"] > ORIGIN[0] and geo["lon_deg"] > ORIGIN[1]  # north-east of it
 
 

@@ -34,7 +34,8 @@ REPO = Path(__file__).resolve().parents[2]
 
 PUBLISHER = r"""
 import math, sys, time
-from guidance.core.messages import Ellipse, EstimateState, Health, Target
+from guidance.core.messages import Ellipse, EstimateState, Health, Prompt, Target
+from guidance.outputs.kinds import HEALTH, PROMPT, STATE, HealthReport, OutputContext
 from guidance.telemetry.config import TelemetryConfig
 from guidance.telemetry.publisher import Telemetry
 port, vid = int(sys.argv[1]), sys.argv[2]
@@ -47,11 +48,12 @@ while True:
     cov = ((a * a / 4, 0.0, 0.0), (0.0, 1.0, 0.0), (0.0, 0.0, 0.01))
     st = EstimateState(t, 10.0 * t, 5.0 * math.sin(t), 0.3, cov, Ellipse(a, 1.0, 0.2, 2 * a),
                        False, True)
-    tel.send_state(st, speed_mps=10.0, target=Target(300.0, 0.0), goal=(300.0, 0.0))
+    ctx = OutputContext(speed_mps=10.0, target=Target(300.0, 0.0), goal=(300.0, 0.0))
+    tel.send(STATE, st, ctx)
     if i % 25 == 0:
-        tel.send_prompt(t, f"In 200 metres, turn left ({i})", kind="turn")
+        tel.send(PROMPT, Prompt(t, f"In 200 metres, turn left ({i})", 0, "turn"))
         odometry = Health("odometry", "ok", True, True, 0.02, rate_hz=50.0)
-        tel.send_health(t, {"odometry": odometry})
+        tel.send(HEALTH, HealthReport(t, {"odometry": odometry}))
     i += 1
     next_t += 0.02
     time.sleep(max(0.0, next_t - time.monotonic()))

@@ -28,15 +28,28 @@ from guidance.core.messages import (
     EstimateState,
     Health,
     IntersectionScene,
+    Prompt,
     Target,
     TurnCompleted,
 )
 from guidance.errors import UserError
+from guidance.outputs.kinds import (
+    DECISION,
+    EXIT,
+    HEALTH,
+    LANDMARK,
+    PROMPT,
+    STATE,
+    TURN,
+    HealthReport,
+    LandmarkReport,
+    OutputContext,
+)
+from guidance.outputs.messages import LandmarkRejection
 from guidance.recording.config import RecordingConfig
 from guidance.recording.reader import Reader
 from guidance.recording.topics import INPUT_TOPICS, OUTPUT_TOPICS, TOPICS
 from guidance.recording.writer import Recorder
-from guidance.telemetry.messages import LandmarkRejection
 
 REPO = Path(__file__).resolve().parents[2]
 
@@ -58,11 +71,14 @@ def record_drive(rec: Recorder, n: int = 200) -> None:
             image = rng.integers(0, 255, (120, 160, 3), dtype=np.uint8)
             rec.record_camera(CameraFrame(t + 0.002, image, "front"), file_ref=f"frames/{i}.png")
         if i % 5 == 0:
-            rec.send_state(
+            rec.send(
+                STATE,
                 make_state(t + 0.003, float(i)),
-                speed_mps=7.0,
-                target=Target(100.0, 50.0, "goal", None),
-                method="straight_to_goal",
+                OutputContext(
+                    speed_mps=7.0,
+                    target=Target(100.0, 50.0, "goal", None),
+                    method="straight_to_goal",
+                ),
             )
     for event in (
         IntersectionScene(10.5, (0.0, math.pi / 2), 15.0, ("straight", "left")),
@@ -70,9 +86,14 @@ def record_drive(rec: Recorder, n: int = 200) -> None:
     ):
         topic, body = to_record(event)
         rec.record(topic, event.t_s, body)
-    rec.send_prompt(10.6, "In 15 metres, turn left", kind="turn", priority=1)
-    rec.send_landmark(10.7, rejections=[LandmarkRejection("outside_gate", 3)], gated=1)
-    rec.send_health(10.8, {"odometry": Health("odometry", "ok", True, True, 0.01, rate_hz=100.0)})
+    rec.send(PROMPT, Prompt(10.6, "In 15 metres, turn left", 1, "turn"))
+    rec.send(
+        LANDMARK, LandmarkReport(10.7, rejections=[LandmarkRejection("outside_gate", 3)], gated=1)
+    )
+    rec.send(
+        HEALTH,
+        HealthReport(10.8, {"odometry": Health("odometry", "ok", True, True, 0.01, rate_hz=100.0)}),
+    )
 
 
 def test_round_trip_in_log_time_order_with_schemas_foxglove_reads(tmp_path: Path) -> None:
@@ -384,7 +405,7 @@ def test_file_size_limit_stops_recording_and_the_process_keeps_running(tmp_path:
 
 def test_a_malformed_message_is_an_error_and_recording_goes_on(tmp_path: Path) -> None:
     with Recorder(RecordingConfig(directory=str(tmp_path))) as rec:
-        rec.send_decision(object())  # type: ignore[arg-type]
+        rec.send(DECISION, object())  # type: ignore[arg-type]
         rec.record("/custom", 1.0, {"bad": {1, 2}})  # a set is not JSON
         rec.record("/custom", 2.0, {"ok": True})
     h = rec.health()
@@ -443,14 +464,14 @@ def test_turns_and_exits_taken_leave_the_process(tmp_path: Path) -> None:
     """Outputs the pipeline computes (turns, exits taken) are recorded on their own topics."""
     from guidance.core.messages import ExitTaken
     from guidance.core.navigator import Decision
-    from guidance.telemetry.sink import SINK_SCHEMAS
+    from guidance.outputs.schemas import SCHEMAS
 
     decision = Decision(
         20.0, 1, math.pi / 2, math.pi / 2, (), 100.0, 0.0, "goal", None, 7, False, "goal", "cost"
     )
     with Recorder(RecordingConfig(directory=str(tmp_path))) as rec:
-        assert rec.send_turn(TurnCompleted(21.0, -math.pi / 2, "co-driver"))
-        assert rec.send_exit(ExitTaken(21.5, decision, 2, False, "co-driver"))
+        assert rec.send(TURN, TurnCompleted(21.0, -math.pi / 2, "co-driver"))
+        assert rec.send(EXIT, ExitTaken(21.5, decision, 2, False, "co-driver"))
     msgs = {m.topic: m.data for m in Reader(tmp_path)}
     turn, taken = msgs["/turn"], msgs["/exit"]
     assert turn["schema"] == "guidance.turn/1" and turn["heading_change_deg"] == -90.0
@@ -458,5 +479,5 @@ def test_turns_and_exits_taken_leave_the_process(tmp_path: Path) -> None:
     assert (taken["advised_exit"], taken["taken_exit"], taken["followed"]) == (1, 2, False)
     assert taken["intersection_id"] == 7 and taken["decision_t_s"] == 20.0
     for kind, body in (("turn", turn), ("exit", taken)):
-        props = SINK_SCHEMAS[kind]["properties"]
+        props = SCHEMAS[kind]["properties"]
         assert set(body) <= set(props), set(body) - set(props)

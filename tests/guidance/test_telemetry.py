@@ -24,12 +24,22 @@ from pathlib import Path
 
 import pytest
 
-from guidance.core.messages import Ellipse, EstimateState, Health, LandmarkFix, Target
+from guidance.core.messages import Ellipse, EstimateState, Health, LandmarkFix, Prompt, Target
 from guidance.core.navigator import Decision, ExitOption
 from guidance.errors import UserError
+from guidance.outputs.kinds import (
+    DECISION,
+    HEALTH,
+    LANDMARK,
+    PROMPT,
+    STATE,
+    HealthReport,
+    LandmarkReport,
+    OutputContext,
+)
+from guidance.outputs.messages import LandmarkRejection
 from guidance.telemetry.client import MonitorClient, TelemetryEvent
 from guidance.telemetry.config import TelemetryConfig, TlsConfig
-from guidance.telemetry.messages import LandmarkRejection
 from guidance.telemetry.publisher import Telemetry
 from guidance.telemetry.session import open_session, parse_goal, session_config
 
@@ -38,7 +48,8 @@ ZENOH_EXAMPLES = REPO / "config" / "zenoh"
 
 PUBLISHER = r"""
 import sys, time
-from guidance.core.messages import Ellipse, EstimateState, Target
+from guidance.core.messages import Ellipse, EstimateState, Prompt, Target
+from guidance.outputs.kinds import PROMPT, STATE, OutputContext
 from guidance.telemetry.config import TelemetryConfig
 from guidance.telemetry.publisher import Telemetry
 port, vid, rate = int(sys.argv[1]), sys.argv[2], float(sys.argv[3])
@@ -49,9 +60,9 @@ while True:
     t = time.monotonic()
     cov = ((4.0, 0.0, 0.0), (0.0, 1.0, 0.0), (0.0, 0.0, 0.01))
     state = EstimateState(t, float(i), 0.0, 0.0, cov, Ellipse(2.0, 1.0, 0.0, 4.0), False, True)
-    tel.send_state(state, speed_mps=5.0, target=Target(100.0, 0.0, "goal", None))
+    tel.send(STATE, state, OutputContext(speed_mps=5.0, target=Target(100.0, 0.0, "goal", None)))
     if i % 25 == 0:
-        tel.send_prompt(t, f"prompt {i}", kind="turn")
+        tel.send(PROMPT, Prompt(t, f"prompt {i}", 0, "turn"))
     i += 1
     next_t += period
     time.sleep(max(0.0, next_t - time.monotonic()))
@@ -135,13 +146,16 @@ def test_state_reaches_a_subscriber_with_the_documented_fields(car_port: int) ->
     with Telemetry(cfg) as tel, MonitorClient([tcp(car_port)]) as mon:
         wait_for(mon, lambda e: e.kind == "alive" and e.vehicle_id == "car7")
         assert wait_until(tel.has_subscribers)
-        tel.send_state(
+        tel.send(
+            STATE,
             make_state(),
-            speed_mps=8.5,
-            target=Target(300.0, 120.0, "landmark", 4),
-            goal=(500.0, 200.0),
-            method="hybrid",
-            mode="landmark",
+            OutputContext(
+                speed_mps=8.5,
+                target=Target(300.0, 120.0, "landmark", 4),
+                goal=(500.0, 200.0),
+                method="hybrid",
+                mode="landmark",
+            ),
         )
         msg = wait_for(mon, lambda e: e.kind == "state").message
     assert msg is not None
@@ -200,34 +214,40 @@ def test_every_message_kind_is_published(car_port: int) -> None:
     with Telemetry(cfg) as tel, MonitorClient([tcp(car_port)], vehicle="car2") as mon:
         wait_for(mon, lambda e: e.kind == "alive")
         assert wait_until(tel.has_subscribers)
-        tel.send_decision(decision)
-        tel.send_prompt(2.0, "In 100 metres, turn left", kind="turn", priority=2)
-        tel.send_landmark(
-            2.5,
-            matches=[LandmarkFix(2.5, 17, 120.0, 80.0, 5.0)],
-            rejections=[
-                LandmarkRejection("outside_gate", 9),
-                LandmarkRejection("ratio_test", 11, "12 good of 40"),
-            ],
-            gated=3,
+        tel.send(DECISION, decision)
+        tel.send(PROMPT, Prompt(2.0, "In 100 metres, turn left", 2, "turn"))
+        tel.send(
+            LANDMARK,
+            LandmarkReport(
+                2.5,
+                matches=[LandmarkFix(2.5, 17, 120.0, 80.0, 5.0)],
+                rejections=[
+                    LandmarkRejection("outside_gate", 9),
+                    LandmarkRejection("ratio_test", 11, "12 good of 40"),
+                ],
+                gated=3,
+            ),
         )
-        tel.send_health(
-            3.0,
-            {
-                "odometry": Health(
-                    "odometry", "ok", True, True, 0.02, rate_hz=50.0, expected_rate_hz=50.0
-                ),
-                "compass": Health(
-                    "compass",
-                    "silent",
-                    False,
-                    False,
-                    6.5,
-                    "silent for 6.5 s",
-                    rate_hz=0.0,
-                    expected_rate_hz=10.0,
-                ),
-            },
+        tel.send(
+            HEALTH,
+            HealthReport(
+                3.0,
+                {
+                    "odometry": Health(
+                        "odometry", "ok", True, True, 0.02, rate_hz=50.0, expected_rate_hz=50.0
+                    ),
+                    "compass": Health(
+                        "compass",
+                        "silent",
+                        False,
+                        False,
+                        6.5,
+                        "silent for 6.5 s",
+                        rate_hz=0.0,
+                        expected_rate_hz=10.0,
+                    ),
+                },
+            ),
         )
         got: dict[str, dict] = {}
         deadline = time.monotonic() + 5
@@ -282,7 +302,7 @@ def test_non_finite_numbers_become_null(car_port: int) -> None:
     ):
         wait_for(mon, lambda e: e.kind == "alive")
         assert wait_until(tel.has_subscribers)
-        tel.send_state(bad)
+        tel.send(STATE, bad)
         msg = wait_for(mon, lambda e: e.kind == "state").message
     assert msg is not None and msg["x_m"] is None and msg["covariance"][0][0] is None
 
@@ -294,8 +314,8 @@ def test_a_malformed_message_is_counted_and_publishing_goes_on(car_port: int) ->
     ):
         wait_for(mon, lambda e: e.kind == "alive")
         assert wait_until(tel.has_subscribers)
-        tel.send_decision(object())  # type: ignore[arg-type]
-        tel.send_state(make_state(t_s=5.0))
+        tel.send(DECISION, object())  # type: ignore[arg-type]
+        tel.send(STATE, make_state(t_s=5.0))
         e = wait_for(mon, lambda e: e.kind == "state")
         assert e.message is not None and e.message["t_s"] == 5.0
         assert wait_until(lambda: tel.health().counters.get("dropped_encode_error") == 1)
@@ -335,9 +355,9 @@ def test_monitor_gets_50hz_without_gaps_and_sees_the_car_vanish_after_sigkill(
 def test_late_joiner_gets_the_latest_state_at_once(car_port: int) -> None:
     with Telemetry(TelemetryConfig(vehicle_id="car3", listen=(tcp(car_port),))) as tel:
         for i in range(3):
-            tel.send_state(make_state(t_s=float(i), x_m=float(i)))
+            tel.send(STATE, make_state(t_s=float(i), x_m=float(i)))
             time.sleep(0.05)
-        tel.send_prompt(2.0, "Arrived")
+        tel.send(PROMPT, Prompt(2.0, "Arrived", 0, "info"))
         assert wait_until(lambda: tel.health().counters["published"] >= 4)
         with MonitorClient([tcp(car_port)]) as mon:
             wait_for(mon, lambda e: e.kind == "alive")
@@ -459,8 +479,8 @@ def test_unreachable_router_keeps_the_car_running_then_connects(car_port: int) -
         took = []
         for i in range(500):
             t0 = time.perf_counter()
-            tel.send_state(make_state(t_s=float(i)))
-            tel.send_prompt(float(i), "p")
+            tel.send(STATE, make_state(t_s=float(i)))
+            tel.send(PROMPT, Prompt(float(i), "p", 0, "info"))
             took.append(time.perf_counter() - t0)
         assert_never_blocks(took)
         dropped = tel.health().counters
@@ -472,7 +492,7 @@ def test_unreachable_router_keeps_the_car_running_then_connects(car_port: int) -
         with MonitorClient([tcp(car_port)]) as mon:
             wait_for(mon, lambda e: e.kind == "alive" and e.vehicle_id == "car6")
             assert wait_until(tel.has_subscribers)
-            tel.send_state(make_state(t_s=999.0))
+            tel.send(STATE, make_state(t_s=999.0))
             e = wait_for(mon, lambda e: e.kind == "state" and not e.late_join)
             assert e.message is not None and e.message["t_s"] == 999.0
     finally:
@@ -487,14 +507,14 @@ def test_port_in_use_reports_down_without_raising(car_port: int) -> None:
         blocker.bind(("127.0.0.1", car_port))
         blocker.listen()
         with Telemetry(TelemetryConfig(listen=(tcp(car_port),), retry_period_s=0.2)) as tel:
-            tel.send_state(make_state())
+            tel.send(STATE, make_state())
             assert wait_until(lambda: tel.health().status == "down")
             assert "Address already in use" in tel.health().detail
 
 
 def test_disabled_telemetry_opens_nothing() -> None:
     with Telemetry(TelemetryConfig(enabled=False)) as tel:
-        tel.send_state(make_state())
+        tel.send(STATE, make_state())
         h = tel.health()
         assert h.status == "disabled" and h.counters["published"] == 0
 
@@ -571,7 +591,7 @@ def goal_scenario(
     goals: list[tuple[float, float]] = []
     seen: dict[str, dict[str, bool]] = {}
     with Telemetry(car_cfg, on_goal=lambda x, y: goals.append((x, y))) as tel:
-        tel.send_state(make_state())
+        tel.send(STATE, make_state())
         assert wait_until(lambda: tel.health().status == "up")
         for i, (name, zcfg) in enumerate(monitors.items()):
             mon = MonitorClient([car_endpoint], zenoh_config=zcfg or "")
@@ -580,7 +600,7 @@ def goal_scenario(
                 kinds: set[str] = set()
                 deadline = time.monotonic() + 1.5
                 mon.query_latest()
-                tel.send_state(make_state(t_s=2.0))
+                tel.send(STATE, make_state(t_s=2.0))
                 while time.monotonic() < deadline:
                     e = mon.get(0.05)
                     if e is not None:
@@ -590,7 +610,7 @@ def goal_scenario(
                     if "alive" in kinds and "late_state" not in kinds:
                         mon.query_latest()
                         time.sleep(0.1)
-                    tel.send_state(make_state(t_s=3.0))
+                    tel.send(STATE, make_state(t_s=3.0))
                 mon.send_goal("car1", 10.0 * (i + 1), 5.0)
                 time.sleep(0.4)
                 seen[name] = {
@@ -696,7 +716,7 @@ def test_tls_example_configs_carry_telemetry_on_loopback(tmp_path: Path, car_por
     with Telemetry(car_cfg) as tel, MonitorClient([endpoint], zenoh_config=monitor_cfg) as mon:
         wait_for(mon, lambda e: e.kind == "alive", timeout_s=10)
         assert wait_until(tel.has_subscribers)
-        tel.send_state(make_state(x_m=42.0))
+        tel.send(STATE, make_state(x_m=42.0))
         e = wait_for(mon, lambda e: e.kind == "state")
         assert e.message is not None and e.message["x_m"] == 42.0
         # A plain-TCP session cannot talk to the TLS listener.
@@ -730,7 +750,7 @@ def test_mtls_access_control_only_the_operator_certificate_sets_a_goal(
 
 
 def test_a_non_finite_angle_loses_its_field_not_the_message() -> None:
-    from guidance.telemetry.messages import _wrap_deg
+    from guidance.outputs.messages import _wrap_deg
 
     assert _wrap_deg(math.inf) is None and _wrap_deg(math.nan) is None
     assert _wrap_deg(3 * math.pi) == pytest.approx(180.0)

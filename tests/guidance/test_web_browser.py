@@ -234,6 +234,7 @@ def test_tiles_come_only_from_the_configured_server_and_cover_the_car(tmp_path: 
     from PIL import Image
 
     from guidance.core.messages import Ellipse, EstimateState
+    from guidance.outputs.kinds import STATE, OutputContext
     from guidance.telemetry.client import MonitorClient
     from guidance.telemetry.config import TelemetryConfig
     from guidance.telemetry.publisher import Telemetry
@@ -268,11 +269,9 @@ def test_tiles_come_only_from_the_configured_server_and_cover_the_car(tmp_path: 
         driver = browser(tmp_path)
         try:
             for i in range(20):  # a short drive north-east of the origin
-                tel.send_state(
-                    EstimateState(float(i), 300.0 + 5 * i, 200.0 + 5 * i, 0.8, cov,
-                                  Ellipse(10.0, 10.0, 0.0, 20.0), False, True),
-                    goal=(600.0, 500.0),
-                )  # fmt: skip
+                st = EstimateState(float(i), 300.0 + 5 * i, 200.0 + 5 * i, 0.8, cov,
+                                   Ellipse(10.0, 10.0, 0.0, 20.0), False, True)  # fmt: skip
+                tel.send(STATE, st, OutputContext(goal=(600.0, 500.0)))
                 time.sleep(0.05)
             driver.get(web.url)
             wait_for(lambda: cars(driver).get("tiled", {}).get("x") == 395.0, 20.0, "the car")

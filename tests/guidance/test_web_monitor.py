@@ -17,8 +17,9 @@ from typing import Any
 
 import pytest
 
-from guidance.core.messages import Ellipse, EstimateState
+from guidance.core.messages import Ellipse, EstimateState, Prompt
 from guidance.errors import UserError
+from guidance.outputs.kinds import PROMPT, STATE, OutputContext
 from guidance.telemetry.client import MonitorClient
 from guidance.telemetry.config import TelemetryConfig
 from guidance.telemetry.publisher import Telemetry
@@ -82,13 +83,15 @@ def test_fleet_api_shows_a_live_car_with_its_state_prompt_and_health(
     port = web.httpd.server_address[1]
     cov = ((9.0, 1.0, 0.0), (1.0, 4.0, 0.0), (0.0, 0.0, 0.01))
     for i in range(5):
-        tel.send_state(
-            EstimateState(float(i), 10.0 * i, 0.0, 0.0, cov, Ellipse(6.2, 3.9, 0.2, 12.4), False,
-                          True),
-            goal=(300.0, 0.0),
-        )  # fmt: skip
+        tel.send(
+            STATE,
+            EstimateState(
+                float(i), 10.0 * i, 0.0, 0.0, cov, Ellipse(6.2, 3.9, 0.2, 12.4), False, True
+            ),
+            OutputContext(goal=(300.0, 0.0)),
+        )
         time.sleep(0.1)
-    tel.send_prompt(4.0, "<img src=x onerror=alert(1)> turn left", kind="turn")
+    tel.send(PROMPT, Prompt(4.0, "<img src=x onerror=alert(1)> turn left", 0, "turn"))
 
     def fleet() -> dict[str, Any] | None:
         _status, _h, body = get(port, "/api/fleet")

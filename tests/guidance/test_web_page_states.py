@@ -24,6 +24,7 @@ import pytest
 from test_web_browser import CHROMEDRIVER, CHROMIUM, browser, cars, wait_for
 
 from guidance.core.messages import Ellipse, EstimateState
+from guidance.outputs.kinds import STATE, OutputContext
 from guidance.telemetry.client import MonitorClient
 from guidance.telemetry.config import TelemetryConfig
 from guidance.telemetry.publisher import Telemetry
@@ -88,7 +89,7 @@ class GoodCar:
         while not self._stop.wait(0.05):
             i += 1
             est = EstimateState(i * 0.05, float(i), 0.0, 0.0, COV, Ellipse(2, 2, 0, 4), False, True)
-            self.tel.send_state(est, goal=(400.0, 0.0))
+            self.tel.send(STATE, est, OutputContext(goal=(400.0, 0.0)))
 
     def __enter__(self) -> GoodCar:
         self.tel.start()

@@ -23,7 +23,8 @@ from reliability_helpers import HEALTH_KEYS, REPO, closed_port, wait_until
 
 from drivers.camera import WARNINGS as CAMERA_WARNINGS
 from drivers.camera import CameraConfig, OpenCvCamera
-from guidance.core.messages import CameraFrame, Ellipse, EstimateState, Health
+from guidance.core.messages import CameraFrame, Ellipse, EstimateState, Health, Prompt
+from guidance.outputs.kinds import HEALTH, PROMPT, STATE, HealthReport
 from guidance.recording.config import RecordingConfig
 from guidance.recording.health import DISK_FULL_WARNING
 from guidance.recording.writer import Recorder
@@ -102,9 +103,9 @@ def test_zenoh_unreachable_degrades_to_a_flag_and_publishing_never_blocks() -> N
         took = []
         for i in range(1000):
             t0 = time.perf_counter()
-            tel.send_state(state(float(i)))
-            tel.send_prompt(float(i), "Turn left")
-            tel.send_health(float(i), {"can": Health("can", "ok", True, True)})
+            tel.send(STATE, state(float(i)))
+            tel.send(PROMPT, Prompt(float(i), "Turn left", 0, "info"))
+            tel.send(HEALTH, HealthReport(float(i), {"can": Health("can", "ok", True, True)}))
             took.append(time.perf_counter() - t0)
         h = tel.health()
         assert (h.status, h.alive, h.valid, h.ok) == ("down", False, False, False)

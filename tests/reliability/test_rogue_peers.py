@@ -20,6 +20,7 @@ from typing import Any
 import pytest
 
 from guidance.core.messages import Ellipse, EstimateState
+from guidance.outputs.kinds import STATE
 from guidance.telemetry.client import MonitorClient, TelemetryEvent
 from guidance.telemetry.config import TelemetryConfig
 from guidance.telemetry.publisher import Telemetry
@@ -68,7 +69,7 @@ class Fleet:
         while not self._stop.wait(0.05):
             i += 1
             est = EstimateState(i * 0.05, float(i), 0.0, 0.0, COV, Ellipse(2, 2, 0, 4), False, True)
-            self.car.send_state(est)
+            self.car.send(STATE, est)
             for v in BAD_IDS:
                 self.rogue.put(f"guidance/{v}/state", state_body(v, i))
 

@@ -19,9 +19,9 @@ import pytest
 from reliability_helpers import REPO, closed_port, wait_until
 
 from guidance.errors import UserError
+from guidance.outputs.messages import health_message
 from guidance.telemetry.client import MonitorClient
 from guidance.telemetry.config import TelemetryConfig
-from guidance.telemetry.messages import health_message
 from guidance.telemetry.publisher import Telemetry
 from guidance.telemetry.redact import REDACTED, is_secret_name, redact_secrets, redact_text
 

@@ -1,5 +1,6 @@
-"""Telemetry message encoders and their JSON Schemas (pure: no zenoh; shared with
-``guidance.recording``).
+"""The output encoders: one pure function per output kind, from the core's values to the JSON
+message telemetry publishes and the recorder writes (no zenoh, no mcap, no numba; the kinds
+themselves are listed once, in ``guidance.outputs.kinds``).
 """
 
 from __future__ import annotations
@@ -11,16 +12,30 @@ from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 from typing import TYPE_CHECKING, Any
 
-from guidance.core.messages import EstimateState, Health, LandmarkFix, Target
-from guidance.core.model import heading_to_compass, wrap_angle
+from guidance.core.angles import heading_to_compass, wrap_angle
+from guidance.core.messages import (
+    EstimateState,
+    ExitTaken,
+    Health,
+    LandmarkFix,
+    Target,
+    TurnCompleted,
+)
 from guidance.errors import UserError
-from guidance.telemetry.keys import schema_tag
 
 if TYPE_CHECKING:
     from guidance.core.navigator import Decision
 
 
-# -- message encoders (pure functions, shared with guidance.recording) --------------------------
+SCHEMA_VERSION = 1
+
+
+def schema_tag(kind: str) -> str:
+    """The ``schema`` field of a message: ``guidance.<kind>/<version>``."""
+    return f"guidance.{kind}/{SCHEMA_VERSION}"
+
+
+# -- message encoders (pure functions, shared by telemetry and the recorder) -------------------
 def _num(value: float | None) -> float | None:
     """A JSON-safe float: non-finite values become null (strict JSON has no NaN)."""
     if value is None:
@@ -290,207 +305,41 @@ def health_message(
     return msg
 
 
+def turn_message(
+    turn: TurnCompleted, *, vehicle_id: str, seq: int = 0, wall_time_unix_s: float | None = None
+) -> dict[str, Any]:
+    """The ``guidance.turn`` message: a turn the driver completed (typed or detected)."""
+    msg = _envelope("turn", vehicle_id, seq, turn.t_s, wall_time_unix_s)
+    msg.update(
+        {
+            "heading_change_rad": _num(turn.heading_change_rad),
+            "heading_change_deg": _num(math.degrees(turn.heading_change_rad)),
+            "source": turn.source,
+        }
+    )
+    return msg
+
+
+def exit_message(
+    taken: ExitTaken, *, vehicle_id: str, seq: int = 0, wall_time_unix_s: float | None = None
+) -> dict[str, Any]:
+    """The ``guidance.exit`` message: which exit the driver took at a decided intersection,
+    and whether it was the advised one (a monitor sees "advice not followed")."""
+    d = taken.decision
+    msg = _envelope("exit", vehicle_id, seq, taken.t_s, wall_time_unix_s)
+    msg.update(
+        {
+            "intersection_id": int(d.intersection_id),
+            "decision_t_s": _num(d.t_s),
+            "advised_exit": int(d.exit_index),
+            "taken_exit": int(taken.exit_index),
+            "followed": bool(taken.followed),
+            "source": taken.source,
+        }
+    )
+    return msg
+
+
 def encode(message: Mapping[str, Any]) -> bytes:
     """JSON bytes of a message (compact, strict: no NaN)."""
     return json.dumps(message, separators=(",", ":"), allow_nan=False).encode()
-
-
-# -- JSON Schemas (docs/telemetry.md; MCAP channel schemas) ------------------------------------
-_NUM = {"type": ["number", "null"]}
-_ENVELOPE_PROPS: dict[str, Any] = {
-    "schema": {"type": "string", "description": "name/version, e.g. guidance.state/1"},
-    "vehicle_id": {"type": "string"},
-    "seq": {"type": "integer", "description": "per vehicle and kind; gaps are drops"},
-    "t_s": {"type": ["number", "null"], "description": "car monotonic clock, s"},
-    "wall_time_unix_s": {"type": ["number", "null"], "description": "for logs only, s"},
-}
-_TARGET: dict[str, Any] = {
-    "type": ["object", "null"],
-    "properties": {
-        "x_m": _NUM,
-        "y_m": _NUM,
-        "kind": {"type": "string", "enum": ["goal", "landmark"]},
-        "id": {"type": ["integer", "null"]},
-    },
-}
-
-
-def _together(a: str, b: str) -> list[dict[str, Any]]:
-    """Rules that make ``a`` a number only with ``b`` a number, and ``b`` only with ``a``:
-    a point is drawn from both or neither (``lat_deg`` without ``lon_deg``, or with
-    ``lon_deg: null``, cannot be drawn; the web page and the monitor's check agree on it)."""
-
-    def number(k: str) -> dict[str, Any]:
-        return {"required": [k], "properties": {k: {"type": "number"}}}
-
-    return [{"if": number(a), "then": number(b)}, {"if": number(b), "then": number(a)}]
-
-
-_POINT_RULES = [*_together("x_m", "y_m"), *_together("lat_deg", "lon_deg")]
-"""Every point of a state (the car, its target, its goal): coordinates in pairs."""
-
-
-def _obj(title: str, props: Mapping[str, Any]) -> dict[str, Any]:
-    return {
-        "$schema": "http://json-schema.org/draft-07/schema#",
-        "title": title,
-        "type": "object",
-        "properties": {**_ENVELOPE_PROPS, **props},
-        "required": ["schema", "vehicle_id", "seq", "t_s"],
-    }
-
-
-_HEALTH: dict[str, Any] = {
-    "type": "object",
-    "description": "guidance.core.messages.Health.as_dict(): one record for inputs and components",
-    "properties": {
-        "name": {"type": "string"},
-        "status": {"type": "string"},
-        "alive": {"type": "boolean"},
-        "valid": {"type": "boolean"},
-        "ok": {"type": "boolean"},
-        "age_s": _NUM,
-        "rate_hz": _NUM,
-        "expected_rate_hz": _NUM,
-        "detail": {"type": "string"},
-        "warning": {"type": "string"},
-        "counters": {"type": "object", "additionalProperties": {"type": "integer"}},
-        "info": {"type": "object", "additionalProperties": {"type": "string"}},
-    },
-}
-"""The schema of one ``Health.as_dict()``."""
-_LAT = {"type": ["number", "null"], "description": "WGS-84 latitude, degrees (null: no origin)"}
-_LON = {"type": ["number", "null"], "description": "WGS-84 longitude, degrees (null: no origin)"}
-_GEO_TARGET: dict[str, Any] = {
-    **_TARGET,
-    "properties": {**dict(_TARGET["properties"]), "lat_deg": _LAT, "lon_deg": _LON},
-    "allOf": _POINT_RULES,
-}
-
-MESSAGE_SCHEMAS: dict[str, dict[str, Any]] = {
-    "state": _obj(
-        "guidance.state",
-        {
-            "x_m": _NUM,
-            "y_m": _NUM,
-            "lat_deg": _LAT,
-            "lon_deg": _LON,
-            "origin": {
-                "type": ["object", "null"],
-                "description": "the local frame's origin (x east, y north metres), WGS-84",
-                "properties": {
-                    "lat_deg": {"type": "number", "minimum": -90, "maximum": 90},
-                    "lon_deg": {"type": "number", "minimum": -180, "maximum": 180},
-                },
-                "required": ["lat_deg", "lon_deg"],
-            },
-            "heading_rad": _NUM,
-            "heading_deg": _NUM,
-            "heading_deg_true": {
-                "type": ["number", "null"],
-                "description": "compass heading: degrees clockwise from true north, [0, 360)",
-            },
-            "covariance": {
-                "type": "array",
-                "description": "3x3 over (x_m, y_m, heading_rad)",
-                "items": {"type": "array", "items": _NUM},
-            },
-            "ellipse": {
-                "type": "object",
-                "properties": {
-                    "semi_major_m": _NUM,
-                    "semi_minor_m": _NUM,
-                    "orientation_rad": _NUM,
-                    "major_axis_m": _NUM,
-                },
-            },
-            "speed_mps": _NUM,
-            "target": _GEO_TARGET,
-            "goal": {
-                "type": ["object", "null"],
-                "properties": {"x_m": _NUM, "y_m": _NUM, "lat_deg": _LAT, "lon_deg": _LON},
-                "allOf": _POINT_RULES,
-            },
-            "method": {"type": ["string", "null"]},
-            "mode": {"type": ["string", "null"]},
-            "lost": {"type": "boolean"},
-            "healthy": {"type": "boolean"},
-        },
-    ),
-    "decision": _obj(
-        "guidance.decision",
-        {
-            "exit_index": {"type": "integer"},
-            "exit_heading_rad": _NUM,
-            "turn_rad": _NUM,
-            "turn_deg": _NUM,
-            "options": {
-                "type": "array",
-                "items": {
-                    "type": "object",
-                    "properties": {
-                        "index": {"type": "integer"},
-                        "heading_rad": _NUM,
-                        "turn_rad": _NUM,
-                        "angle_cost_rad": _NUM,
-                        "penalty_rad": _NUM,
-                        "cost_rad": _NUM,
-                    },
-                },
-            },
-            "target": _TARGET,
-            "intersection_id": {"type": "integer"},
-            "revisit": {"type": "boolean"},
-            "mode": {"type": "string"},
-            "reason": {"type": "string"},
-        },
-    ),
-    "prompt": _obj(
-        "guidance.prompt",
-        {"text": {"type": "string"}, "kind": {"type": "string"}, "priority": {"type": "integer"}},
-    ),
-    "landmark": _obj(
-        "guidance.landmark",
-        {
-            "gated": {"type": ["integer", "null"]},
-            "matches": {
-                "type": "array",
-                "items": {
-                    "type": "object",
-                    "properties": {
-                        "landmark_id": {"type": "integer"},
-                        "x_m": _NUM,
-                        "y_m": _NUM,
-                        "sigma_m": _NUM,
-                        "score": _NUM,
-                        "name": {"type": "string"},
-                    },
-                },
-            },
-            "rejections": {
-                "type": "array",
-                "items": {
-                    "type": "object",
-                    "properties": {
-                        "landmark_id": {"type": ["integer", "null"]},
-                        "reason": {"type": "string"},
-                        "detail": {"type": "string"},
-                    },
-                },
-            },
-        },
-    ),
-    "health": _obj(
-        "guidance.health",
-        {
-            "ok": {"type": "boolean"},
-            "inputs": {"type": "object", "additionalProperties": _HEALTH},
-            "components": {
-                "type": "object",
-                "description": "by name: a Health record (telemetry, recorder, voice) or a "
-                "free-form object (estimator, loop)",
-            },
-        },
-    ),
-}
-MESSAGE_SCHEMAS["state"]["allOf"] = _POINT_RULES  # the car's position: coordinates in pairs too
