@@ -7,6 +7,7 @@ from __future__ import annotations
 
 import argparse
 import importlib.metadata
+import math
 import os
 import sqlite3
 import sys
@@ -17,12 +18,20 @@ from guidance.errors import UserError
 from landmark_db.cli_args import HEADER, area, area_args, print_landmark_row, safe
 from landmark_db.cli_io import add_io_parsers, add_kwargs
 from landmark_db.cli_match import add_match_parsers
-from landmark_db.features import EXTRACTOR_VERSIONS, PHOTO_MAX_SIDE_PX, ExtractorConfig
+from landmark_db.features import (
+    EXTRACTOR_VERSIONS,
+    PHOTO_MAX_SIDE_PX,
+    ExtractorConfig,
+    decode_image,
+    extract,
+)
 from landmark_db.gate import GATE_PROBABILITY_2SIGMA
 from landmark_db.geo import Origin
+from landmark_db.matcher import MatchConfig, photo_agreement
 from landmark_db.schema import SCHEMA_VERSION
 from landmark_db.store import (
     DEFAULT_POSITION_SIGMA_M,
+    LandmarkDb,
     create_db,
     open_db,
     query_gate,
@@ -67,6 +76,27 @@ def cmd_migrate(args: argparse.Namespace) -> None:
         print(f"{path}: schema v{SCHEMA_VERSION}; features {ext.ident} ({n} photo(s) recomputed)")
 
 
+def _check_agreement(db: LandmarkDb, lid: int, name: str, path: Path, data: bytes) -> None:
+    """Refuse (one line, with the figures) a photo that does not match the landmark's own
+    photos by the decision rule (``matcher.photo_agreement``)."""
+    try:
+        feats = extract(decode_image(data), db.extractor)
+    except ValueError as exc:
+        raise UserError(f"{path}: not a readable image ({exc})") from exc
+    e = photo_agreement(lid, feats, db.photo_features(lid))
+    if e is None or e.verified:
+        return
+    cfg = MatchConfig()
+    nfa = f"{e.log_nfa:.1f}" if math.isfinite(e.log_nfa) else "none"
+    level = cfg.nfa_needed(db.extractor.kind)
+    raise UserError(
+        f"{path} does not match the photos of landmark {lid} ({safe(name)}): best"
+        f" {e.inliers} inliers, log10 NFA {nfa} (the rule needs <= {level:g}"
+        f" and >= {cfg.min_inliers} inliers); a photo that does not show the same place would"
+        " make the landmark match what it shows: add it as a landmark of its own"
+    )
+
+
 def cmd_add(args: argparse.Namespace) -> None:
     path = Path(args.image)
     if not path.is_file():
@@ -78,8 +108,10 @@ def cmd_add(args: argparse.Namespace) -> None:
             lm = db.find(args.to)
             if lm is None:
                 raise UserError(f"no landmark {args.to!r}")
+            data = path.read_bytes()
+            _check_agreement(db, lm.id, lm.name, path, data)
             pid = db.add_photo(
-                lm.id, path.read_bytes(), facing_deg=args.facing, conditions=args.conditions,
+                lm.id, data, facing_deg=args.facing, conditions=args.conditions,
                 source=path.name,
             )  # fmt: skip
             print(f"added photo {pid} to landmark {lm.id} ({safe(lm.name)})")

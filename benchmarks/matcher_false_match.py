@@ -1,0 +1,184 @@
+"""False-match rate and recall of the landmark decision rule (issue 22; docs/landmarks.md).
+
+``--part synthetic``: the calibration. Simulated facades (``hal_sim.sim_camera``), one photo
+per building; frames of each building, of a look-alike of it (same style and window grid,
+other details) and of an unrelated facade, every frame against every photo of another
+building (the wrong pairs). Prints the tail of ``-log10 NFA`` over the wrong pairs, its
+exponential fit, and the level at which the fitted tail gives ``--target`` false matches per
+frame with ``--photos`` photos compared per frame. This is where ``matcher.MAX_LOG10_NFA``
+comes from; no real photo takes part.
+
+``--part real``: the check, on data the rule was not chosen on. Every ordered pair of
+distinct files of ../shared/data/images and ../shared/data/images2: the wrong pairs (two
+places) with the shipped rule, per pair and per query (a query against every photo of every
+other place), with 95 % Wilson intervals; recall over the positive pairs, by condition.
+
+    python benchmarks/matcher_false_match.py [--part synthetic|real|all]
+"""
+
+from __future__ import annotations
+
+import argparse
+import math
+import time
+from collections import defaultdict
+from pathlib import Path
+
+import cv2
+import numpy as np
+
+from landmark_db.features import PHOTO_MAX_SIDE_PX, ExtractorConfig, extract
+from landmark_db.matcher import MAX_LOG10_NFA, MatchConfig, PairMatcher, PhotoIndex
+from landmark_db.recognise import FRAME_FEATURES
+from landmark_db.wrong_pairs import (
+    positive,
+    query_false_matches,
+    score_pairs,
+    shared_images,
+    wilson,
+    wrong,
+)
+
+SHARED = Path(__file__).resolve().parents[2] / "shared" / "data"
+
+
+def _rate(k: int, n: int) -> str:
+    lo, hi = wilson(k, n)
+    return f"{k}/{n} = {k / max(n, 1):.4f} (95% {lo:.4f}-{hi:.4f})"
+
+
+def synthetic(n_buildings: int, seed: int, target: float, photos: int, kind: str) -> None:
+    from hal_sim.sim_camera import SimCamera, facade
+
+    ext = ExtractorConfig(kind, max_side_px=PHOTO_MAX_SIDE_PX[kind])
+    frame_ext = ext.for_frames(FRAME_FEATURES)
+    det, frame_det = ext.create(), frame_ext.create()
+    cam = SimCamera([], seed)
+    rng = np.random.default_rng([seed, 22])
+    seeds = [int(s) for s in rng.integers(1, 2**40, n_buildings)]
+    index = [PhotoIndex(i, extract(facade(s), ext, det)) for i, s in enumerate(seeds)]
+    frames: list[tuple[int, str, object]] = []  # (building shown or -1, kind, features)
+    for i, s in enumerate(seeds):
+        d = float(rng.uniform(0.0, 20.0))
+        frames.append((i, "landmark", extract(cam.view(facade(s), d), frame_ext, frame_det)))
+        other = int(rng.integers(1, 2**40))
+        look = facade(other, family_seed=s)
+        frames.append((-1, "lookalike", extract(cam.view(look, d), frame_ext, frame_det)))
+        frames.append((-1, "scene", extract(cam.view(facade(other + 1), d), frame_ext, frame_det)))
+    matcher = PairMatcher(MatchConfig())
+    t_wrong: list[float] = []
+    hits = defaultdict(int)
+    n_wrong = defaultdict(int)
+    right_ok = 0
+    for shown, fkind, f in frames:
+        desc = f.for_matching()  # type: ignore[attr-defined]
+        for ph in index:
+            e = matcher.verify(ph.photo_id, f, desc, ph)  # type: ignore[arg-type]
+            if ph.photo_id == shown:
+                right_ok += e.verified
+                continue
+            n_wrong[fkind] += 1
+            hits[fkind] += e.verified
+            t_wrong.append(-e.log_nfa if math.isfinite(e.log_nfa) else -math.inf)
+    t = np.array(t_wrong)
+    n = len(t)
+    print(f"synthetic ({kind}): {n_buildings} buildings, {len(frames)} frames, {n} wrong pairs")
+    for fk in ("landmark", "lookalike", "scene"):
+        print(f"  wrong pairs from {fk} frames verified: {_rate(hits[fk], n_wrong[fk])}")
+    print(f"  right pairs verified: {right_ok}/{n_buildings}")
+    for lvl in (0, 1, 2, 3, 4, 5, 6):
+        print(f"  -log10 NFA > {lvl}: {_rate(int(np.sum(t > lvl)), n)}")
+    # Exponential tail above t0: P(T > t) = p0 exp(-lam (t - t0)); p0 at its upper Wilson
+    # bound, lam at a lower bound (normal approximation of the Gamma), so the fit is
+    # pessimistic on both counts.
+    t0 = 0.0
+    exc = t[t > t0] - t0
+    m = len(exc)
+    if m < 5:
+        print(f"  only {m} wrong pairs above {t0}: no fit")
+        return
+    p0 = wilson(m, n)[1]
+    lam = (m / float(exc.sum())) * max(1.0 - 1.96 / math.sqrt(m), 0.1)
+    per_pair = target / photos
+    level = t0 + math.log(p0 / per_pair) / lam
+    print(
+        f"  tail fit above {t0}: {m} pairs, p0 <= {p0:.4f}, rate >= {lam:.2f} per decade"
+        f" (ORSA's ideal null: {math.log(10):.2f})"
+    )
+    print(
+        f"  level for {target:g} false matches per frame at {photos} photos per frame"
+        f" ({per_pair:.2g} per pair): log10 NFA <= {-level:.2f}"
+        f" (shipped: {MAX_LOG10_NFA[kind]:g})"
+    )
+
+
+def real(images: Path, images2: Path) -> None:
+    ims = shared_images(images, images2)
+    if not ims:
+        print(f"no shared images under {images} or {images2}")
+        return
+    t0 = time.perf_counter()
+    scores = score_pairs(ims)
+    dt = time.perf_counter() - t0
+    cfg = MatchConfig()
+    print(
+        f"real: {len(ims)} images, {len(scores)} ordered pairs scored in {dt:.1f} s; rule:"
+        f" log10 NFA <= {cfg.nfa_needed('rootsift'):g} and >= {cfg.min_inliers} inliers"
+    )
+    groups = sorted({im.group for im in ims})
+    for g in [*groups, "all"]:
+        sel = [s for s in scores if g == "all" or ims[s.query].group == g]
+        w = wrong(ims, sel)
+        fm = sum(s.verified for s in w)
+        print(f"[{g}] wrong pairs verified (false matches per pair): {_rate(fm, len(w))}")
+        qf = query_false_matches(ims, sel)
+        qs = [q for q in qf if g == "all" or ims[q].group == g]
+        print(
+            f"[{g}] queries matching another place (all other places' photos):"
+            f" {_rate(sum(qf[q] for q in qs), len(qs))}"
+        )
+        tw = [-s.log_nfa for s in w if math.isfinite(s.log_nfa)]
+        worst = max(tw, default=-math.inf)
+        print(
+            f"[{g}] most significant wrong pair: log10 NFA {-worst:.2f};"
+            f" most inliers of a wrong pair {max((s.inliers for s in w), default=0)}"
+        )
+        pos = positive(ims, sel)
+        print(f"[{g}] recall over positive pairs: {_rate(sum(s.verified for s in pos), len(pos))}")
+        by: dict[str, list[int]] = defaultdict(lambda: [0, 0])
+        for s in pos:
+            c = ims[s.query].condition or "-"
+            by[c][0] += s.verified
+            by[c][1] += 1
+        cond = ", ".join(f"{c} {a}/{b}" for c, (a, b) in sorted(by.items()))
+        print(f"[{g}] recall by condition: {cond}")
+    # what the old rule (12 inliers) would do on the same pairs, for comparison
+    w = wrong(ims, scores)
+    pos = positive(ims, scores)
+    print(
+        "old rule (>= 12 inliers) on the same pairs: wrong"
+        f" {sum(s.inliers >= 12 for s in w)}/{len(w)}, recall"
+        f" {sum(s.inliers >= 12 for s in pos)}/{len(pos)}"
+    )
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawTextHelpFormatter)
+    ap.add_argument("--part", choices=("synthetic", "real", "all"), default="all")
+    ap.add_argument("--buildings", type=int, default=60)
+    ap.add_argument("--seed", type=int, default=22)
+    ap.add_argument("--target", type=float, default=1e-3, help="false matches per frame")
+    ap.add_argument("--photos", type=int, default=6, help="photos compared per frame")
+    ap.add_argument("--extractor", choices=("rootsift", "orb"), default="rootsift")
+    ap.add_argument("--images", type=Path, default=SHARED / "images")
+    ap.add_argument("--images2", type=Path, default=SHARED / "images2")
+    args = ap.parse_args()
+    cv2.setNumThreads(1)
+    if args.part in ("synthetic", "all"):
+        synthetic(args.buildings, args.seed, args.target, args.photos, args.extractor)
+    if args.part in ("real", "all"):
+        real(args.images, args.images2)
+
+
+if __name__ == "__main__":
+    main()
