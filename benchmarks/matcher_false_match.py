@@ -31,6 +31,7 @@ from landmark_db.features import PHOTO_MAX_SIDE_PX, ExtractorConfig, extract
 from landmark_db.matcher import MAX_LOG10_NFA, MatchConfig, PairMatcher, PhotoIndex
 from landmark_db.recognise import FRAME_FEATURES
 from landmark_db.wrong_pairs import (
+    decide_queries,
     positive,
     query_false_matches,
     score_pairs,
@@ -152,6 +153,25 @@ def real(images: Path, images2: Path) -> None:
             by[c][1] += 1
         cond = ", ".join(f"{c} {a}/{b}" for c, (a, b) in sorted(by.items()))
         print(f"[{g}] recall by condition: {cond}")
+    for several in (False, True):
+        dec = decide_queries(ims, scores, several)
+        label = "several photos per place" if several else "one photo per place"
+        for g in [*groups, "all"]:
+            sel = [d for d in dec if g == "all" or ims[d.query].group == g]
+            full = [d for d in sel if not d.leave_one_out]
+            ok = sum(d.correct(ims) for d in full)
+            fm = sum(d.false(ims) for d in sel)
+            by: dict[str, list[int]] = defaultdict(lambda: [0, 0])
+            for d in full:
+                c = ims[d.query].condition or "-"
+                by[c][0] += d.correct(ims)
+                by[c][1] += 1
+            cond = ", ".join(f"{c} {a}/{b}" for c, (a, b) in sorted(by.items()))
+            print(
+                f"[{g}] queries, {label} (database: every place of both sets): recall"
+                f" {_rate(ok, len(full))}; false matches {fm} of {len(sel)} runs"
+                f" (full + leave-one-out); by condition: {cond}"
+            )
     # what the old rule (12 inliers) would do on the same pairs, for comparison
     w = wrong(ims, scores)
     pos = positive(ims, scores)

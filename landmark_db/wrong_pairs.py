@@ -135,3 +135,75 @@ def wilson(k: int, n: int, z: float = 1.96) -> tuple[float, float]:
     c = (p + z * z / (2 * n)) / d
     h = z * math.sqrt(p * (1.0 - p) / n + z * z / (4 * n * n)) / d
     return max(0.0, c - h), min(1.0, c + h)
+
+
+@dataclass(frozen=True, slots=True)
+class QueryDecision:
+    query: int
+    matched: str | None
+    """The place the recogniser's rule picks (None: nothing verified, or ambiguous)."""
+    leave_one_out: bool
+    """The query's own place was left out: any match is false."""
+
+    def correct(self, images: Sequence[LabelledImage]) -> bool:
+        return not self.leave_one_out and self.matched == images[self.query].place
+
+    def false(self, images: Sequence[LabelledImage]) -> bool:
+        return self.matched is not None and (
+            self.leave_one_out or self.matched != images[self.query].place
+        )
+
+
+def decide_queries(
+    images: Sequence[LabelledImage],
+    scores: Iterable[PairScore],
+    several: bool,
+    ambiguity_ratio: float = 1.5,
+) -> list[QueryDecision]:
+    """Every image as a query against a database of the places, from the pair scores.
+
+    One photo per place (``several`` False): a place's photo is its first file; its other
+    files are queries. Several: every file of a place is a photo of it, except the query
+    itself and its pixel copies (never the query's own photo). Each query is decided by the
+    recogniser's rule (a place scores its best photo: verified first, then the smallest NFA;
+    two verified places within ``ambiguity_ratio`` of each other's inliers: no match), once
+    with every place and once with its own place left out.
+    """
+    first: dict[str, int] = {}
+    for i, im in enumerate(images):
+        first.setdefault(im.place, i)
+    by_query: dict[int, list[PairScore]] = {}
+    for s in scores:
+        by_query.setdefault(s.query, []).append(s)
+    out = []
+    for q, im in enumerate(images):
+        if not several and first[im.place] == q:
+            continue  # this file is its place's photo
+        best: dict[str, PairScore] = {}
+        for s in by_query.get(q, []):
+            if s.same_pixels or (not several and first[images[s.photo].place] != s.photo):
+                continue
+            place = images[s.photo].place
+            b = best.get(place)
+            if b is None or (s.verified, -s.log_nfa, s.inliers) > (
+                b.verified,
+                -b.log_nfa,
+                b.inliers,
+            ):
+                best[place] = s
+        if im.place not in best:
+            continue  # no photo of its place is left to find (a pixel copy only)
+        for loo in (False, True):
+            ok = sorted(
+                (
+                    (s.inliers, p)
+                    for p, s in best.items()
+                    if s.verified and not (loo and p == im.place)
+                ),
+                reverse=True,
+            )
+            pick = None
+            if ok and not (len(ok) > 1 and ok[0][0] < ambiguity_ratio * ok[1][0]):
+                pick = ok[0][1]
+            out.append(QueryDecision(q, pick, loo))
+    return out

@@ -14,6 +14,7 @@ import pytest
 from landmark_db.matcher import MAX_LOG10_NFA, MatchConfig
 from landmark_db.wrong_pairs import (
     LabelledImage,
+    decide_queries,
     positive,
     query_false_matches,
     score_pairs,
@@ -32,6 +33,9 @@ MIN_MARGIN_DECADES = 3.0
 """The most significant wrong pair stays this far above the rule's level (measured 4.9)."""
 MIN_RECALL = 0.6
 """Over the positive pairs (48/72 = 0.67 measured; the wide-viewpoint LePoint pairs fail)."""
+MIN_QUERY_RECALL = 0.8
+"""Over the queries against a database of every place: 20/23 with one photo per place,
+36/41 with several (never the query's own)."""
 
 
 def test_no_wrong_pair_of_the_shared_photos_verifies(shared_images: Path) -> None:
@@ -47,6 +51,11 @@ def test_no_wrong_pair_of_the_shared_photos_verifies(shared_images: Path) -> Non
     assert worst - MAX_LOG10_NFA["rootsift"] >= MIN_MARGIN_DECADES, worst
     pos = positive(ims, scores)
     assert sum(s.verified for s in pos) >= MIN_RECALL * len(pos)
+    for several in (False, True):  # as the recogniser decides, full and leave-one-out runs
+        dec = decide_queries(ims, scores, several)
+        assert [d for d in dec if d.false(ims)] == []
+        full = [d for d in dec if not d.leave_one_out]
+        assert sum(d.correct(ims) for d in full) >= MIN_QUERY_RECALL * len(full)
     # the check has teeth: a rule that lets chance fits through is caught on these pairs
     loose = MatchConfig(max_log10_nfa=math.inf, min_inliers=4)
     assert sum(loose.accepts("rootsift", s.inliers, s.log_nfa) for s in w if s.inliers) > 100
