@@ -28,6 +28,8 @@ from landmark_db.features import (
 from landmark_db.gate import GATE_PROBABILITY_2SIGMA
 from landmark_db.geo import Origin
 from landmark_db.matcher import MatchConfig, photo_agreement
+from landmark_db.query import query_radius
+from landmark_db.recognise import RecogniserConfig
 from landmark_db.schema import SCHEMA_VERSION
 from landmark_db.store import (
     DEFAULT_POSITION_SIGMA_M,
@@ -97,6 +99,34 @@ def _check_agreement(db: LandmarkDb, lid: int, name: str, path: Path, data: byte
     )
 
 
+NEAR_M = 2.0 * RecogniserConfig().sighting_range_m
+"""Two landmarks closer than this can be in view from one place (their sighting discs meet)."""
+
+
+def _check_distinct(db: LandmarkDb, path: Path, data: bytes, where: dict[str, float]) -> None:
+    """Refuse a new landmark whose photo verifies against a landmark within ``NEAR_M``: a
+    match could not tell the two apart, so they are one place (add the photo ``--to`` it)."""
+    try:
+        if "x_m" in where:
+            xy = (where["x_m"], where["y_m"])
+        else:
+            xy = db.origin.to_local(where["lat_deg"], where["lon_deg"])
+        feats = extract(decode_image(data), db.extractor)
+    except ValueError:
+        return  # ``add`` refuses the position or the photo itself, with its own message
+    for c in query_radius(db, xy[0], xy[1], NEAR_M):
+        e = photo_agreement(c.id, feats, db.photo_features(c.id))
+        if e is not None and e.verified:
+            lm = db.get(c.id)
+            name = safe(lm.name) if lm else "?"
+            d = math.hypot(c.x_m - xy[0], c.y_m - xy[1])
+            raise UserError(
+                f"{path} shows landmark {c.id} ({name}) {d:.0f} m away ({e.inliers} inliers,"
+                f" log10 NFA {e.log_nfa:.1f}): a match could not tell the two apart; add the"
+                f" photo to it with --to {c.id}"
+            )
+
+
 def cmd_add(args: argparse.Namespace) -> None:
     path = Path(args.image)
     if not path.is_file():
@@ -126,14 +156,17 @@ def cmd_add(args: argparse.Namespace) -> None:
                 f"with --to {same.id}, give the new one another --name, or --same-name to keep "
                 "both"
             )
+        data = path.read_bytes()
+        kwargs = add_kwargs(lat, lon, x, y)
+        _check_distinct(db, path, data, kwargs)
         lid = db.add(
             name,
-            path.read_bytes(),
+            data,
             facing_deg=args.facing,
             position_sigma_m=args.sigma,
             source=str(path.name),
             conditions=args.conditions,
-            **add_kwargs(lat, lon, x, y),
+            **kwargs,
         )
         print(f"added landmark {lid}")
         print(HEADER)

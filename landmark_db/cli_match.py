@@ -54,6 +54,7 @@ def match_record(query: str, res: RecognitionResult, db: LandmarkDb) -> dict[str
                 "photo_id": e.photo_id,
                 "good_matches": e.good_matches,
                 "inliers": e.inliers,
+                "log10_nfa": round(e.log_nfa, 2) if math.isfinite(e.log_nfa) else None,
                 "result": e.reason or "verified",
             }
             for e in sorted(res.evidence, key=lambda e: (-e.inliers, -e.good_matches))
@@ -71,11 +72,12 @@ def _print_match(
     else:
         out(f"{head}no match: {res.reason}" + (f" ({detail})" if detail else ""))
     out(f"frame features: {res.frame_features}; {res.elapsed_s * 1000:.0f} ms")
-    out(f"{'id':>6}  {'name':<24} {'photo':>6} {'good':>5} {'inliers':>7}  result")
+    out(f"{'id':>6}  {'name':<24} {'photo':>6} {'good':>5} {'inliers':>7} {'log10 NFA':>9}  result")
     for e in sorted(res.evidence, key=lambda e: (-e.inliers, -e.good_matches)):
         out(
             f"{e.landmark_id:>6}  {safe(_name(db, e.landmark_id) or '?'):<24.24} {e.photo_id:>6}"
-            f" {e.good_matches:>5} {e.inliers:>7}  {e.reason or 'verified (' + e.model + ')'}"
+            f" {e.good_matches:>5} {e.inliers:>7} {_nfa(e.log_nfa):>9}"
+            f"  {e.reason or 'verified (' + e.model + ')'}"
         )
 
 

@@ -49,8 +49,8 @@ MIN_MATCHES_FOR_GEOMETRY = 6
 MAX_LOG10_NFA = {"rootsift": -9.5, "orb": -9.0}
 """A pair verifies when log10 NFA is at most this (docs/landmarks.md, "The decision rule")."""
 MIN_INLIERS = 8
-"""And its homography has at least this many MAGSAC++ inliers: a floor that no NFA reaches
-alone for k <= 7 (see the docs), kept so a handful of matches never decides."""
+"""And its homography has at least this many MAGSAC++ inliers: a floor that does not come
+from the null model, so a handful of exact fits on one element never decides alone."""
 RESIDUAL_FLOOR_PX = 0.5
 """Residuals below this count as this (keypoint localisation; keeps alpha away from 0)."""
 FLANN_SEED = 0x5EED

@@ -233,3 +233,48 @@ def test_a_tiny_image_reads_as_too_small_not_as_few_matches(
 def test_config_rejects_nonsense() -> None:
     with pytest.raises(ValueError):
         MatchConfig(min_inliers=3)
+
+
+def test_match_gives_the_same_evidence_in_every_process_and_order(tmp_path: Path) -> None:
+    """Two ``landmark-db match --json`` processes, the images in opposite orders (so each
+    query's photos are indexed after different work): the same evidence for every query."""
+    import json
+    import subprocess
+    import sys
+
+    db = create_db(tmp_path / "m.sqlite", Origin(0.0, 0.0))
+    for i, s in enumerate((71, 72, 73)):
+        db.add(f"f{s}", facade(s), x_m=100.0 * i, y_m=0.0)
+    db.close()
+    names = []
+    for i, (s, d) in enumerate(((71, 15.0), (72, 12.0), (73, 18.0), (74, 10.0))):
+        name = str(tmp_path / f"q{i}.png")
+        cv2.imwrite(name, _view(s, cam_seed=7 + i, distance_m=d))
+        names.append(name)
+
+    def evidence(order: list[str]) -> dict[str, object]:
+        proc = subprocess.run(
+            [sys.executable, "-m", "landmark_db.cli", "match", str(tmp_path / "m.sqlite"),
+             *order, "--json"],
+            capture_output=True, text=True, timeout=120, check=True,
+        )  # fmt: skip
+        recs = [json.loads(line) for line in proc.stdout.splitlines()]
+        return {r["query"]: (r["landmark_id"], r["evidence"]) for r in recs}
+
+    assert evidence(names) == evidence(names[::-1])
+
+
+def test_a_new_landmark_a_match_cannot_tell_from_a_near_one_is_refused(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    db = str(tmp_path / "m.sqlite")
+    assert run(capsys, "init", db, "--origin", "0", "0")[0] == 0
+    for name, img in (("hall.png", facade(43)), ("view.png", _view(43)), ("other.png", _view(44))):
+        cv2.imwrite(str(tmp_path / name), img)
+    assert run(capsys, "add", db, str(tmp_path / "hall.png"), "--xy", "0", "0")[0] == 0
+    code, _, err = run(capsys, "add", db, str(tmp_path / "view.png"), "--xy", "12", "0")
+    assert code == 2 and len(err.strip().splitlines()) == 1
+    assert "shows landmark 1 (hall) 12 m away" in err and "--to 1" in err
+    # another building next door, or the same photo far away: landmarks of their own
+    assert run(capsys, "add", db, str(tmp_path / "other.png"), "--xy", "12", "0")[0] == 0
+    assert run(capsys, "add", db, str(tmp_path / "view.png"), "--xy", "500", "0")[0] == 0
