@@ -1,25 +1,25 @@
-"""Acceptance: recall and precision of recognition on real photos, calibrated on negatives.
+"""Acceptance: recall and precision of recognition on real photos, with negatives.
 
 Input: a landmark database (``landmark-db init`` / ``import``, one or several photos per
 landmark) and a ground-truth CSV with a ``query`` column (an image path, relative to the
-CSV's folder or ``--images``), an ``expected`` column (the landmark's name or id; empty or
-``none`` for a *negative*: a photo of a place that is not in the database) and an optional
-``condition`` column (``viewpoint``, ``zoom``, ``night``...).
+CSV's folder or ``--images``), an ``expected`` column (the landmark's name or id; several
+acceptable ones separated by ``|`` for a photo that shows two; empty or ``none`` for a
+*negative*: a photo of a place that is not in the database) and an optional ``condition``
+column (``viewpoint``, ``zoom``, ``night``...).
 
 Runs, with the single-image check (no gate, no temporal confirmation):
 
-* **full**: every query against every landmark; a match to another landmark is false, any
-  match of a negative is false;
-* **leave-one-out**: every positive query against every landmark *except* its own: any
-  match is false (the look-alike test: the right answer is missing).
+* **full**: every query against every landmark; a match to a landmark it does not show is
+  false, any match of a negative is false;
+* **leave-one-out**: every positive query against every landmark *except* the ones it
+  shows: any match is false (the look-alike test: the right answer is missing).
 
-Scores are recorded at a raw inlier threshold of 4 (``CALIBRATION_MIN_INLIERS``), so one run
-gives every decision at every threshold: a landmark is verified when its best photo's
-inliers reach the threshold, and the recogniser's ambiguity rule picks among the verified
-ones (``decide``). The report: precision and recall at the shipped threshold, recall by
-condition, the inlier distribution of wrong pairs (every landmark other than the expected
-one, both runs), the smallest threshold with zero false matches and the recommended one
-with the margin ``MARGIN`` (docs/landmarks.md).
+Every landmark's evidence is recorded (its best photo's inliers and log10 NFA), so one run
+gives the decision at every level of the rule (``decide``, the recogniser's rule). The
+report: precision and recall at the shipped rule, recall by condition, the most
+significant wrong pairs (every landmark a query does not show, both runs) and the margin
+of the rule over them. The rule itself is not fitted here: ``matcher.MAX_LOG10_NFA`` comes
+from a null model (docs/landmarks.md, "The decision rule").
 
 ``shared_layout`` turns ../shared/data/images (A/B pairs) into such a database and CSV.
 """
@@ -30,9 +30,9 @@ import csv
 import hashlib
 import math
 import tempfile
-from collections import Counter, defaultdict
+from collections import defaultdict
 from collections.abc import Iterator, Sequence
-from dataclasses import dataclass, replace
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 
 import numpy as np
@@ -44,11 +44,6 @@ from landmark_db.recognise import Recogniser, RecogniserConfig
 from landmark_db.store import LandmarkDb, LandmarkDbError, create_db
 
 IMAGE_EXTS = (".png", ".jpg", ".jpeg")
-CALIBRATION_MIN_INLIERS = 4
-FUTURE_PAIRS_FACTOR = 10.0
-"""The recommended threshold must hold for this many times the calibration's wrong pairs."""
-FUTURE_FALSE_MATCHES = 0.05
-"""... with at most this many expected wrong pairs reaching it (``recommended_threshold``)."""
 
 
 @dataclass(frozen=True, slots=True)
@@ -57,6 +52,8 @@ class TruthRow:
     expected: str | None
     """Landmark name (or id) it shows; None for a negative (must match nothing)."""
     condition: str = ""
+    also: tuple[str, ...] = ()
+    """Other landmarks the photo shows (a match to one of them is right too)."""
 
 
 @dataclass(frozen=True, slots=True)
@@ -67,13 +64,25 @@ class Outcome:
     condition: str
     scores: dict[str, int]
     """Landmark name -> inliers of its best photo (0: no plausible homography)."""
+    nfa: dict[str, float] = field(default_factory=dict)
+    """Landmark name -> log10 NFA of its best photo (inf: no plausible homography)."""
+    accept: frozenset[str] = frozenset()
+    """Every landmark the query shows (``expected`` and the others)."""
+
+    def right(self, name: str) -> bool:
+        return not self.leave_one_out and (name == self.expected or name in self.accept)
 
 
-def decide(scores: dict[str, int], threshold: int, ambiguity_ratio: float) -> str | None:
-    """The recogniser's decision from per-landmark scores: the best verified landmark unless
-    a second verified one comes within ``ambiguity_ratio`` (``Recogniser._match``)."""
-    ok = sorted(((v, k) for k, v in scores.items() if v >= threshold), reverse=True)
-    if not ok or (len(ok) > 1 and ok[0][0] < ambiguity_ratio * ok[1][0]):
+def decide(
+    scores: dict[str, int], nfa: dict[str, float], match: MatchConfig, kind: str, ratio: float
+) -> str | None:
+    """The recogniser's decision from per-landmark evidence: the best verified landmark
+    unless a second verified one comes within ``ratio`` of its inliers (``Recogniser._match``)."""
+    ok = sorted(
+        ((v, k) for k, v in scores.items() if match.accepts(kind, v, nfa.get(k, math.inf))),
+        reverse=True,
+    )
+    if not ok or (len(ok) > 1 and ok[0][0] < ratio * ok[1][0]):
         return None
     return ok[0][1]
 
@@ -83,93 +92,88 @@ class AcceptanceReport:
     landmarks: int
     photos: int
     outcomes: tuple[Outcome, ...]
-    threshold: int
-    """The threshold the figures below are at (the shipped default unless overridden)."""
+    match: MatchConfig
+    """The rule the figures below are at (the shipped one unless overridden)."""
+    kind: str
     ambiguity_ratio: float
 
-    def matched(self, o: Outcome, threshold: int | None = None) -> str | None:
-        t = self.threshold if threshold is None else threshold
-        return decide(o.scores, t, self.ambiguity_ratio)
+    def matched(self, o: Outcome, level: float | None = None) -> str | None:
+        m = self.match if level is None else replace(self.match, max_log10_nfa=level)
+        return decide(o.scores, o.nfa, m, self.kind, self.ambiguity_ratio)
+
+    @property
+    def level(self) -> float:
+        return self.match.nfa_needed(self.kind)
 
     @property
     def positives(self) -> int:
         return sum(1 for o in self.outcomes if not o.leave_one_out and o.expected is not None)
 
-    def true_matches(self, threshold: int | None = None) -> int:
-        return sum(
-            1 for o in self.outcomes if o.expected is not None and not o.leave_one_out
-            and self.matched(o, threshold) == o.expected
-        )  # fmt: skip
+    def true_matches(self, level: float | None = None) -> int:
+        out = 0
+        for o in self.outcomes:
+            if o.expected is not None and not o.leave_one_out:
+                m = self.matched(o, level)
+                out += m is not None and o.right(m)
+        return out
 
-    def false_matches(self, threshold: int | None = None) -> list[tuple[Outcome, str]]:
+    def false_matches(self, level: float | None = None) -> list[tuple[Outcome, str]]:
         out = []
         for o in self.outcomes:
-            m = self.matched(o, threshold)
-            if m is not None and (o.leave_one_out or m != o.expected):
+            m = self.matched(o, level)
+            if m is not None and not o.right(m):
                 out.append((o, m))
         return out
 
-    def recall(self, threshold: int | None = None) -> float:
-        return self.true_matches(threshold) / self.positives if self.positives else 0.0
+    def recall(self, level: float | None = None) -> float:
+        return self.true_matches(level) / self.positives if self.positives else 0.0
 
-    def precision(self, threshold: int | None = None) -> float:
-        t, f = self.true_matches(threshold), len(self.false_matches(threshold))
+    def precision(self, level: float | None = None) -> float:
+        t, f = self.true_matches(level), len(self.false_matches(level))
         return t / (t + f) if t + f else 1.0
 
-    def recall_by_condition(self, threshold: int | None = None) -> dict[str, tuple[int, int]]:
+    def recall_by_condition(self, level: float | None = None) -> dict[str, tuple[int, int]]:
         """condition -> (correct, positives) in the full run."""
         out: dict[str, list[int]] = defaultdict(lambda: [0, 0])
         for o in self.outcomes:
             if o.expected is None or o.leave_one_out:
                 continue
+            m = self.matched(o, level)
             out[o.condition or "-"][1] += 1
-            out[o.condition or "-"][0] += self.matched(o, threshold) == o.expected
+            out[o.condition or "-"][0] += m is not None and o.right(m)
         return {k: (v[0], v[1]) for k, v in sorted(out.items())}
 
-    def wrong_scores(self) -> list[tuple[int, Outcome, str]]:
-        """(inliers, outcome, landmark) of every wrong pair, highest first."""
+    def wrong_scores(self) -> list[tuple[float, int, Outcome, str]]:
+        """(log10 NFA, inliers, outcome, landmark) of every wrong pair, most significant
+        first."""
         out = [
-            (v, o, name)
+            (o.nfa.get(name, math.inf), v, o, name)
             for o in self.outcomes
             for name, v in o.scores.items()
-            if o.leave_one_out or name != o.expected
+            if not o.right(name)
         ]
-        return sorted(out, key=lambda t: -t[0])
+        return sorted(out, key=lambda t: (t[0], -t[1]))
+
+    @property
+    def wrong_pairs(self) -> int:
+        return len(self.wrong_scores())
 
     @property
     def max_wrong(self) -> int:
+        """The most inliers any wrong pair reached."""
+        return max((v for _n, v, _o, _name in self.wrong_scores()), default=0)
+
+    @property
+    def most_significant_wrong(self) -> float:
+        """The smallest log10 NFA of a wrong pair (inf when none had a plausible model)."""
         w = self.wrong_scores()
-        return w[0][0] if w else 0
+        return w[0][0] if w else math.inf
 
-    @property
-    def zero_false_threshold(self) -> int:
-        """The smallest threshold at which no wrong pair verifies."""
-        return max(self.max_wrong + 1, CALIBRATION_MIN_INLIERS)
-
-    def tail_ratio(self) -> float:
-        """Fitted ratio of the wrong pairs' inlier tail, P(score >= k + 1) / P(score >= k), over
-        the recorded scores (>= 4): the decay is close to geometric (docs/landmarks.md)."""
-        scores = [v for v, _o, _n in self.wrong_scores() if v >= CALIBRATION_MIN_INLIERS]
-        if len(scores) < 2:
-            return 0.5
-        # maximum likelihood for a geometric distribution shifted to start at 4
-        mean_excess = float(np.mean(scores)) - CALIBRATION_MIN_INLIERS
-        return min(max(mean_excess / (1.0 + mean_excess), 0.05), 0.95)
-
-    @property
-    def recommended_threshold(self) -> int:
-        """The margin: the smallest threshold at which ``FUTURE_PAIRS_FACTOR`` times as many
-        wrong pairs as calibrated would, by the fitted geometric tail, verify fewer than
-        ``FUTURE_FALSE_MATCHES`` times; never below the zero-false threshold + 1."""
-        wrong = self.wrong_scores()
-        n_tail = sum(1 for v, _o, _n in wrong if v >= CALIBRATION_MIN_INLIERS)
-        r = self.tail_ratio()
-        budget = FUTURE_FALSE_MATCHES / (FUTURE_PAIRS_FACTOR * max(n_tail, 1))
-        extra = math.ceil(math.log(budget) / math.log(r)) if n_tail else 0
-        return max(CALIBRATION_MIN_INLIERS + extra, self.zero_false_threshold + 1)
-
-    def wrong_histogram(self) -> dict[int, int]:
-        return dict(sorted(Counter(v for v, _o, _n in self.wrong_scores()).items()))
+    def zero_false_level(self) -> float:
+        """The loosest NFA level (a tenth of a decade below the most significant wrong
+        pair) at which no wrong pair verifies: for the margin, never for choosing."""
+        w = self.most_significant_wrong
+        return math.floor(w * 10.0 - 1.0) / 10.0 if math.isfinite(w) else math.inf
 
 
 def read_truth(path: Path, images_root: Path | None = None) -> list[TruthRow]:
@@ -185,12 +189,14 @@ def read_truth(path: Path, images_root: Path | None = None) -> list[TruthRow]:
         q = (row.get("query") or row.get("image") or "").strip()
         if not q:
             raise LandmarkDbError(f"{path}:{i}: no query image")
-        exp = (row.get("expected") or "").strip()
+        names = [n.strip() for n in (row.get("expected") or "").split("|")]
+        names = [n for n in names if n and n.lower() not in ("none", "-")]
         out.append(
             TruthRow(
                 root / q,
-                None if exp.lower() in ("", "none", "-") else exp,
+                names[0] if names else None,
                 (row.get("condition") or "").strip(),
+                tuple(names[1:]),
             )
         )
     if not out:
@@ -203,12 +209,7 @@ def evaluate_db(
 ) -> AcceptanceReport:
     """Every truth row through the single-image check: full run and leave-one-out."""
     cfg = config or RecogniserConfig()
-    threshold = cfg.match.inliers_needed(db.extractor.kind)
-    raw = replace(
-        cfg,
-        match=replace(cfg.match, min_inliers=CALIBRATION_MIN_INLIERS),
-        max_photos=10**6,
-    )
+    raw = replace(cfg, max_photos=10**6)
     lms = list(db.landmarks())
     names = {lm.id: lm.name for lm in lms}
     by_key = {lm.name: lm.name for lm in lms} | {str(lm.id): lm.name for lm in lms}
@@ -219,23 +220,31 @@ def evaluate_db(
             image = decode_image(row.query.read_bytes())
         except (OSError, ValueError) as exc:
             raise LandmarkDbError(f"{row.query}: {exc}") from exc
-        expected = None
-        if row.expected is not None:
-            expected = by_key.get(row.expected)
-            if expected is None:
-                raise LandmarkDbError(f"{row.query}: no landmark {row.expected!r} in {db.path}")
+        shown: list[str] = []
+        for key in ([row.expected] if row.expected is not None else []) + list(row.also):
+            name = by_key.get(key)
+            if name is None:
+                raise LandmarkDbError(f"{row.query}: no landmark {key!r} in {db.path}")
+            shown.append(name)
+        expected = shown[0] if shown else None
         runs = [(False, list(names))]
         if expected is not None:
-            runs.append((True, [i for i, n in names.items() if n != expected]))
+            runs.append((True, [i for i, n in names.items() if n not in shown]))
         for loo, ids in runs:
             res = rec.match_image(image, ids)
             scores: dict[str, int] = {}
+            nfa: dict[str, float] = {}
             for e in res.evidence:
                 n = names[e.landmark_id]
                 scores[n] = max(scores.get(n, 0), e.inliers)
-            outcomes.append(Outcome(row.query, expected, loo, row.condition, scores))
+                nfa[n] = min(nfa.get(n, math.inf), e.log_nfa)
+            outcomes.append(
+                Outcome(row.query, expected, loo, row.condition, scores, nfa, frozenset(shown))
+            )
     n_photos = sum(db.photo_counts().values())
-    return AcceptanceReport(len(lms), n_photos, tuple(outcomes), threshold, cfg.ambiguity_ratio)
+    return AcceptanceReport(
+        len(lms), n_photos, tuple(outcomes), cfg.match, db.extractor.kind, cfg.ambiguity_ratio
+    )
 
 
 # --- the shared A/B image pairs ---------------------------------------------------------------

@@ -7,6 +7,7 @@ from __future__ import annotations
 
 import argparse
 import importlib.metadata
+import math
 import os
 import sqlite3
 import sys
@@ -18,11 +19,21 @@ from landmark_db.cli_args import HEADER, area, area_args, print_landmark_row, sa
 from landmark_db.cli_fix import add_fix_parsers
 from landmark_db.cli_io import add_io_parsers, add_kwargs
 from landmark_db.cli_match import add_match_parsers
-from landmark_db.features import EXTRACTOR_VERSIONS, PHOTO_MAX_SIDE_PX, ExtractorConfig
+from landmark_db.features import (
+    EXTRACTOR_VERSIONS,
+    PHOTO_MAX_SIDE_PX,
+    ExtractorConfig,
+    decode_image,
+    extract,
+)
 from landmark_db.gate import GATE_PROBABILITY_2SIGMA
 from landmark_db.geo import Origin
+from landmark_db.matcher import MatchConfig, photo_agreement
+from landmark_db.query import query_radius
+from landmark_db.recognise import RecogniserConfig
 from landmark_db.store import (
     DEFAULT_POSITION_SIGMA_M,
+    LandmarkDb,
     create_db,
     open_db,
     query_gate,
@@ -55,6 +66,55 @@ def cmd_init(args: argparse.Namespace) -> None:
         )
 
 
+def _check_agreement(db: LandmarkDb, lid: int, name: str, path: Path, data: bytes) -> None:
+    """Refuse (one line, with the figures) a photo that does not match the landmark's own
+    photos by the decision rule (``matcher.photo_agreement``)."""
+    try:
+        feats = extract(decode_image(data), db.extractor)
+    except ValueError as exc:
+        raise UserError(f"{path}: not a readable image ({exc})") from exc
+    e = photo_agreement(lid, feats, db.photo_features(lid))
+    if e is None or e.verified:
+        return
+    cfg = MatchConfig()
+    nfa = f"{e.log_nfa:.1f}" if math.isfinite(e.log_nfa) else "none"
+    level = cfg.nfa_needed(db.extractor.kind)
+    raise UserError(
+        f"{path} does not match the photos of landmark {lid} ({safe(name)}): best"
+        f" {e.inliers} inliers, log10 NFA {nfa} (the rule needs <= {level:g}"
+        f" and >= {cfg.min_inliers} inliers); a photo that does not show the same place would"
+        " make the landmark match what it shows: add it as a landmark of its own"
+    )
+
+
+NEAR_M = 2.0 * RecogniserConfig().sighting_range_m
+"""Two landmarks closer than this can be in view from one place (their sighting discs meet)."""
+
+
+def _check_distinct(db: LandmarkDb, path: Path, data: bytes, where: dict[str, float]) -> None:
+    """Refuse a new landmark whose photo verifies against a landmark within ``NEAR_M``: a
+    match could not tell the two apart, so they are one place (add the photo ``--to`` it)."""
+    try:
+        if "x_m" in where:
+            xy = (where["x_m"], where["y_m"])
+        else:
+            xy = db.origin.to_local(where["lat_deg"], where["lon_deg"])
+        feats = extract(decode_image(data), db.extractor)
+    except ValueError:
+        return  # ``add`` refuses the position or the photo itself, with its own message
+    for c in query_radius(db, xy[0], xy[1], NEAR_M):
+        e = photo_agreement(c.id, feats, db.photo_features(c.id))
+        if e is not None and e.verified:
+            lm = db.get(c.id)
+            name = safe(lm.name) if lm else "?"
+            d = math.hypot(c.x_m - xy[0], c.y_m - xy[1])
+            raise UserError(
+                f"{path} shows landmark {c.id} ({name}) {d:.0f} m away ({e.inliers} inliers,"
+                f" log10 NFA {e.log_nfa:.1f}): a match could not tell the two apart; add the"
+                f" photo to it with --to {c.id}"
+            )
+
+
 def cmd_add(args: argparse.Namespace) -> None:
     path = Path(args.image)
     if not path.is_file():
@@ -66,8 +126,10 @@ def cmd_add(args: argparse.Namespace) -> None:
             lm = db.find(args.to)
             if lm is None:
                 raise UserError(f"no landmark {args.to!r}")
+            data = path.read_bytes()
+            _check_agreement(db, lm.id, lm.name, path, data)
             pid = db.add_photo(
-                lm.id, path.read_bytes(), facing_deg=args.facing, conditions=args.conditions,
+                lm.id, data, facing_deg=args.facing, conditions=args.conditions,
                 source=path.name,
             )  # fmt: skip
             print(f"added photo {pid} to landmark {lm.id} ({safe(lm.name)})")
@@ -82,14 +144,17 @@ def cmd_add(args: argparse.Namespace) -> None:
                 f"with --to {same.id}, give the new one another --name, or --same-name to keep "
                 "both"
             )
+        data = path.read_bytes()
+        kwargs = add_kwargs(lat, lon, x, y)
+        _check_distinct(db, path, data, kwargs)
         lid = db.add(
             name,
-            path.read_bytes(),
+            data,
             facing_deg=args.facing,
             position_sigma_m=args.sigma,
             source=str(path.name),
             conditions=args.conditions,
-            **add_kwargs(lat, lon, x, y),
+            **kwargs,
         )
         print(f"added landmark {lid}")
         print(HEADER)

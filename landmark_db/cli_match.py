@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import math
 from pathlib import Path
 
 import numpy as np
@@ -12,6 +13,7 @@ from guidance.errors import UserError
 from landmark_db.acceptance import AcceptanceReport, evaluate, evaluate_db, read_truth
 from landmark_db.cli_args import area, area_args, err, out, safe
 from landmark_db.features import decode_image
+from landmark_db.limits import frame_problem
 from landmark_db.recognise import Recogniser, RecognitionResult
 from landmark_db.store import LandmarkDb, open_db, query_gate
 
@@ -52,6 +54,7 @@ def match_record(query: str, res: RecognitionResult, db: LandmarkDb) -> dict[str
                 "photo_id": e.photo_id,
                 "good_matches": e.good_matches,
                 "inliers": e.inliers,
+                "log10_nfa": round(e.log_nfa, 2) if math.isfinite(e.log_nfa) else None,
                 "result": e.reason or "verified",
             }
             for e in sorted(res.evidence, key=lambda e: (-e.inliers, -e.good_matches))
@@ -59,19 +62,22 @@ def match_record(query: str, res: RecognitionResult, db: LandmarkDb) -> dict[str
     }
 
 
-def _print_match(query: str, res: RecognitionResult, db: LandmarkDb, many: bool) -> None:
+def _print_match(
+    query: str, res: RecognitionResult, db: LandmarkDb, many: bool, detail: str | None
+) -> None:
     rec = match_record(query, res, db)
     head = f"{query}: " if many else ""
     if rec["landmark_id"] is not None:
         out(f"{head}match: landmark {rec['landmark_id']} ({rec['name']})")
     else:
-        out(f"{head}no match: {res.reason}")
+        out(f"{head}no match: {res.reason}" + (f" ({detail})" if detail else ""))
     out(f"frame features: {res.frame_features}; {res.elapsed_s * 1000:.0f} ms")
-    out(f"{'id':>6}  {'name':<24} {'photo':>6} {'good':>5} {'inliers':>7}  result")
+    out(f"{'id':>6}  {'name':<24} {'photo':>6} {'good':>5} {'inliers':>7} {'log10 NFA':>9}  result")
     for e in sorted(res.evidence, key=lambda e: (-e.inliers, -e.good_matches)):
         out(
             f"{e.landmark_id:>6}  {safe(_name(db, e.landmark_id) or '?'):<24.24} {e.photo_id:>6}"
-            f" {e.good_matches:>5} {e.inliers:>7}  {e.reason or 'verified (' + e.model + ')'}"
+            f" {e.good_matches:>5} {e.inliers:>7} {_nfa(e.log_nfa):>9}"
+            f"  {e.reason or 'verified (' + e.model + ')'}"
         )
 
 
@@ -104,21 +110,29 @@ def cmd_match(args: argparse.Namespace) -> None:
                     err(f"landmark-db: error: {exc}")
                 continue
             res = rec.match_image(image, ids)
+            detail = frame_problem(image.shape[1], image.shape[0])
             if args.json:
-                out(json.dumps(match_record(path, res, db)))
+                record = match_record(path, res, db)
+                if detail:
+                    record["detail"] = detail
+                out(json.dumps(record))
             else:
-                _print_match(path, res, db, many)
+                _print_match(path, res, db, many, detail)
     if failed:
         raise UserError("")  # each was reported in its line; exit status 2
+
+
+def _nfa(v: float) -> str:
+    return f"{v:.1f}" if math.isfinite(v) else "-"
 
 
 def _print_report(r: AcceptanceReport, verbose: bool) -> None:
     if verbose:
         out(f"{'query':<24} {'run':<5} {'expected':<14} {'matched':<14} best-expected best-wrong")
         for o in r.outcomes:
-            right = o.scores.get(o.expected or "", 0) if not o.leave_one_out else 0
-            wrong = max((v for n, v in o.scores.items() if o.leave_one_out or n != o.expected),
-                        default=0)  # fmt: skip
+            right = max((o.scores.get(n, 0) for n in o.accept), default=0)
+            right = 0 if o.leave_one_out else right
+            wrong = max((v for n, v in o.scores.items() if not o.right(n)), default=0)
             out(
                 f"{o.query.name:<24.24} {'loo' if o.leave_one_out else 'full':<5}"
                 f" {o.expected or '-':<14.14} {r.matched(o) or '-':<14.14} {right:>13} {wrong:>10}"
@@ -131,20 +145,25 @@ def _print_report(r: AcceptanceReport, verbose: bool) -> None:
     )
     false = r.false_matches()
     out(
-        f"at the shipped threshold ({r.threshold} inliers): correct {r.true_matches()};"
-        f" false matches {len(false)}; precision {r.precision():.3f}; recall {r.recall():.3f}"
+        f"at the shipped rule (log10 NFA <= {r.level:g}, >= {r.match.min_inliers} inliers):"
+        f" correct {r.true_matches()}; false matches {len(false)};"
+        f" precision {r.precision():.3f}; recall {r.recall():.3f}"
     )
     for o, got in false:
         out(f"  false match: {o.query.name} ({'loo' if o.leave_one_out else 'full'}) -> {got}")
     by = ", ".join(f"{k} {a}/{b}" for k, (a, b) in r.recall_by_condition().items())
     out(f"recall by condition: {by}")
-    hist = ", ".join(f"{k}: {v}" for k, v in r.wrong_histogram().items())
-    out(f"inliers of wrong pairs (value: pairs): {hist}")
-    z, m = r.zero_false_threshold, r.recommended_threshold
+    worst = r.wrong_scores()[:3]
+    top = "; ".join(f"{o.query.name} -> {name}: {_nfa(n)} ({v} inliers)" for n, v, o, name in worst)
     out(
-        f"zero false matches from {z} inliers (recall {r.recall(z):.3f});"
-        f" with the margin (tail ratio {r.tail_ratio():.2f}): {m} inliers"
-        f" (recall {r.recall(m):.3f})"
+        f"wrong pairs {r.wrong_pairs}; most inliers {r.max_wrong}; most significant"
+        f" (log10 NFA): {top or '-'}"
+    )
+    z = r.zero_false_level()
+    margin = z - r.level if math.isfinite(z) else math.inf
+    out(
+        f"margin of the rule over the wrong pairs: {_nfa(margin)} decades"
+        f" (zero false matches down to {_nfa(z)}, recall there {r.recall(z):.3f})"
     )
 
 

@@ -38,8 +38,12 @@ MAX_PHOTO_PIXELS = 40_000_000
 MAX_PHOTO_ASPECT = 8.0
 MAX_PHOTO_BYTES = 64 * 1024 * 1024
 MIN_PHOTO_FEATURES = 12
-"""A photo with fewer keypoints can never be verified (``matcher.CALIBRATED_MIN_INLIERS``
-is 12 for RootSIFT): it is refused at import and reported by ``check``."""
+"""A photo with fewer keypoints can hardly be verified (``matcher.MIN_INLIERS`` is 8 and
+the NFA level needs more than that in practice): it is refused at import and reported by
+``check``."""
+MIN_FRAME_SIDE_PX = 64
+"""A camera frame or query image smaller than this on a side is unusable (``too_small``):
+SIFT's coarsest octaves need it, and the simulated camera's frames are never smaller."""
 
 MAX_CSV_BYTES = 16 * 1024 * 1024
 MAX_CSV_FIELD_CHARS = 4096
@@ -118,14 +122,30 @@ def _jpeg_size(data: bytes) -> tuple[int, int]:
 
 
 def photo_problem(width: int, height: int) -> str | None:
-    """Why a photo of this size is refused, or None."""
+    """Why a photo of this size is refused, or None. Saying which limit, and the size that
+    would pass when downscaling would do."""
     if min(width, height) < MIN_PHOTO_SIDE_PX:
         return f"{width}x{height} px is smaller than {MIN_PHOTO_SIDE_PX} px on a side"
-    if max(width, height) > MAX_PHOTO_SIDE_PX or width * height > MAX_PHOTO_PIXELS:
-        return (
-            f"{width}x{height} px is larger than {MAX_PHOTO_SIDE_PX} px on a side"
-            f" or {MAX_PHOTO_PIXELS / 1e6:.0f} megapixels"
-        )
     if max(width, height) > MAX_PHOTO_ASPECT * min(width, height):
         return f"{width}x{height} px is narrower than 1:{MAX_PHOTO_ASPECT:g}"
+    s = min(MAX_PHOTO_SIDE_PX / max(width, height), math.sqrt(MAX_PHOTO_PIXELS / (width * height)))
+    if s < 1.0:
+        fit = f"{math.floor(width * s)}x{math.floor(height * s)}"
+        if max(width, height) > MAX_PHOTO_SIDE_PX:
+            what = f"is larger than the {MAX_PHOTO_SIDE_PX} px limit on a side"
+        else:
+            what = (
+                f"({width * height / 1e6:.1f} megapixels) is larger than the"
+                f" {MAX_PHOTO_PIXELS / 1e6:.0f} megapixel limit"
+            )
+        return f"{width}x{height} px {what}: downscaling it to {fit} px or less would do"
+    return None
+
+
+def frame_problem(width: int, height: int) -> str | None:
+    """Why an image is unusable as a query or camera frame, or None."""
+    if min(width, height) < MIN_FRAME_SIDE_PX:
+        return (
+            f"{width}x{height} px is too small to match (at least {MIN_FRAME_SIDE_PX} px on a side)"
+        )
     return None

@@ -3,22 +3,35 @@
 Pipeline: descriptors of both images (``landmark_db.features``); k-nearest-neighbour matching
 (k = 2) from the frame to the photo, by a k-d tree over the photo's RootSIFT descriptors
 (built once per photo and cached by the recogniser) or brute-force Hamming for ORB; Lowe's
-ratio test; one match per photo keypoint; a homography by MAGSAC++ (``cv2.USAC_MAGSAC``);
-the inlier count is the score. Street facades are close to planar, which is why the
-homography is the model.
+ratio test; one match per photo keypoint; a homography by MAGSAC++ (``cv2.USAC_MAGSAC``).
+Street facades are close to planar, which is why the homography is the model.
+
+**Decision: an a-contrario test** (``log10_nfa``; Moisan & Stival 2004, ORSA; Moisan, Moulon
+& Monasse 2012). Under the null hypothesis "wrong pair", the frame positions of the ``n``
+putative matches are independent of where the homography sends their photo points, uniform
+over the region the matches occupy (their convex hull in the frame). The number of false
+alarms of the homography with its ``k`` best-fitting matches is
+``NFA = (n - 4) C(n, k) C(k, 4) alpha_k^(k - 4)``, ``alpha_k = pi e_k^2 / area`` with
+``e_k`` the k-th smallest residual: the expected number of subsets of the putative matches
+that would fit *some* homography that well by chance. A pair is verified when
+``log10 NFA <= MAX_LOG10_NFA``; the level was set from the wrong pairs of synthetic facades
+(look-alikes) and checked on every wrong pair of the shared real photos (docs/landmarks.md,
+"The decision rule").
 
 Plausibility is judged on the *inliers' region*: the bounding box of the inlying photo
-points must map to a convex, non-mirrored quadrilateral in front of the camera. (The whole
-photo's outline was used before; a correct street view whose photo reaches far beyond the
-matched facade had a corner mapped behind the camera and was rejected.)
+points must map to a convex, orientation-preserving quadrilateral in front of the camera.
+A homography is defined up to scale, sign included: it is normalised so its corners' ``w``
+are positive; only mixed signs (the region folds through the horizon) are refused.
 
-The thresholds are calibrated on negatives (``landmark-db acceptance``; docs/landmarks.md):
-``CALIBRATED_MIN_INLIERS`` is twice the most inliers any wrong pair reached, plus one.
-All heavy calls (knnMatch, findHomography) are OpenCV calls that release the GIL.
+Matching is deterministic: the k-d trees are built from a fixed seed of OpenCV's random
+state (``FLANN_SEED``), so a pair's evidence does not depend on what the process matched
+before (MAGSAC++ seeds itself). All heavy calls (knnMatch, findHomography) are OpenCV calls
+that release the GIL.
 """
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 from typing import Any
 
@@ -33,9 +46,15 @@ FAILED_GEOMETRY = "failed_geometry"
 MIN_MATCHES_FOR_GEOMETRY = 6
 """Below this many ratio-test survivors no homography is attempted (4 define one exactly)."""
 
-CALIBRATED_MIN_INLIERS = {"rootsift": 12, "orb": 9}
-"""Inliers needed to accept, per extractor: 2 x (most inliers of a wrong pair) + 1 on the
-calibration set (docs/landmarks.md, "How the thresholds were calibrated")."""
+MAX_LOG10_NFA = {"rootsift": -9.5, "orb": -9.0}
+"""A pair verifies when log10 NFA is at most this (docs/landmarks.md, "The decision rule")."""
+MIN_INLIERS = 8
+"""And its homography has at least this many MAGSAC++ inliers: a floor that does not come
+from the null model, so a handful of exact fits on one element never decides alone."""
+RESIDUAL_FLOOR_PX = 0.5
+"""Residuals below this count as this (keypoint localisation; keeps alpha away from 0)."""
+FLANN_SEED = 0x5EED
+"""OpenCV's random state before a photo's k-d trees are built: the same trees everywhere."""
 REPROJ_PX = {"rootsift": 3.0, "orb": 4.0}
 """MAGSAC++ threshold in frame pixels (frames at 480 px for RootSIFT, 1024 px for ORB)."""
 
@@ -47,8 +66,10 @@ class MatchConfig:
 
     ratio: float = 0.8
     """Lowe's ratio: best distance must be below this fraction of the second best."""
-    min_inliers: int | None = None
-    """MAGSAC++ inliers needed to accept (the score threshold)."""
+    max_log10_nfa: float | None = None
+    """log10 NFA at most this to accept (``MAX_LOG10_NFA`` of the extractor when None)."""
+    min_inliers: int = MIN_INLIERS
+    """MAGSAC++ inliers needed to accept, besides the NFA."""
     ransac_reproj_px: float | None = None
     max_iters: int = 2000
     """MAGSAC++ iterations at most (it stops early when confident)."""
@@ -60,11 +81,15 @@ class MatchConfig:
     def __post_init__(self) -> None:
         if not 0.0 < self.ratio < 1.0:
             raise ValueError("ratio must be in (0, 1)")
-        if self.min_inliers is not None and self.min_inliers < 4:
+        if self.min_inliers < 4:
             raise ValueError("min_inliers must be at least 4")
 
-    def inliers_needed(self, kind: str) -> int:
-        return self.min_inliers if self.min_inliers is not None else CALIBRATED_MIN_INLIERS[kind]
+    def nfa_needed(self, kind: str) -> float:
+        return self.max_log10_nfa if self.max_log10_nfa is not None else MAX_LOG10_NFA[kind]
+
+    def accepts(self, kind: str, inliers: int, log_nfa: float) -> bool:
+        """The decision rule on one pair's evidence."""
+        return inliers >= self.min_inliers and log_nfa <= self.nfa_needed(kind)
 
     def reproj_px(self, kind: str) -> float:
         return self.ransac_reproj_px if self.ransac_reproj_px is not None else REPROJ_PX[kind]
@@ -81,6 +106,8 @@ class MatchEvidence:
     model: str
     reason: str | None
     photo_id: int = 0
+    log_nfa: float = math.inf
+    """log10 of the number of false alarms (``log10_nfa``); inf without a plausible model."""
 
     @property
     def verified(self) -> bool:
@@ -98,6 +125,7 @@ class PhotoIndex:
         if features.kind != "orb" and len(features) >= 2:
             self._flann = CV.FlannBasedMatcher({"algorithm": 1, "trees": trees}, {"checks": checks})
             self._flann.add([self._desc])
+            cv2.setRNGSeed(FLANN_SEED)  # the randomised trees: the same in every process
             self._flann.train()
 
     def knn(self, frame_desc: np.ndarray, bf: Any) -> Any:
@@ -155,27 +183,131 @@ class PairMatcher:
         if H is None or mask is None:
             return MatchEvidence(landmark_id, n_good, 0, "homography", FAILED_GEOMETRY, pid)
         inlier_pts = src.reshape(-1, 2)[mask.ravel() > 0]
-        inliers = len(inlier_pts) if plausible_homography(H, inlier_pts) else 0
-        if inliers >= cfg.inliers_needed(kind):
-            return MatchEvidence(landmark_id, n_good, inliers, "homography", None, pid)
-        reason = FEW_MATCHES if n_good < cfg.inliers_needed(kind) else FAILED_GEOMETRY
-        return MatchEvidence(landmark_id, n_good, inliers, "homography", reason, pid)
+        Hn = plausible_homography(H, inlier_pts)
+        if Hn is None:
+            return MatchEvidence(landmark_id, n_good, 0, "homography", FAILED_GEOMETRY, pid)
+        inliers = len(inlier_pts)
+        lnfa = pair_log10_nfa(Hn, src.reshape(-1, 2), dst.reshape(-1, 2))
+        if cfg.accepts(kind, inliers, lnfa):
+            reason = None
+        else:
+            reason = FEW_MATCHES if n_good < cfg.min_inliers else FAILED_GEOMETRY
+        return MatchEvidence(landmark_id, n_good, inliers, "homography", reason, pid, lnfa)
 
 
-def plausible_homography(H: np.ndarray, points: np.ndarray) -> bool:
-    """The bounding box of ``points`` (photo pixels, the inliers) maps to a convex,
-    non-mirrored quadrilateral in front of the camera."""
+def plausible_homography(H: np.ndarray, points: np.ndarray) -> np.ndarray | None:
+    """``H`` scaled so its ``w`` is positive over the bounding box of ``points`` (photo
+    pixels, the inliers), if that box maps to a convex, orientation-preserving quadrilateral
+    in front of the camera; else None.
+
+    A homography is defined up to a scale, sign included: all four corners with ``w < 0`` is
+    the same view as all with ``w > 0``. Mixed signs mean the box crosses the horizon (a
+    folded, impossible view). With ``w > 0`` the Jacobian determinant is ``det(H) / w^3``,
+    so ``det(H) > 0`` is "not mirrored" everywhere in the box.
+    """
     if len(points) < 4 or not np.all(np.isfinite(H)):
-        return False
-    if np.linalg.det(H[:2, :2]) <= 0.0:
-        return False
+        return None
     x0, y0 = points.min(axis=0)
     x1, y1 = points.max(axis=0)
     if x1 - x0 < 1.0 or y1 - y0 < 1.0:  # all inliers on a line or a point: no plane seen
-        return False
+        return None
     corners = np.array([[x0, y0], [x1, y0], [x1, y1], [x0, y1]], np.float64)
+    H = np.asarray(H, np.float64)
     w = corners @ H[2, :2] + H[2, 2]
-    if np.any(w <= 1e-9):  # a corner maps behind the camera: a folded, impossible view
-        return False
+    if np.all(w < 0.0):
+        H, w = -H, -w
+    scale = float(np.abs(H).max())
+    if scale == 0.0 or np.any(w <= 1e-9 * scale):
+        return None
+    if np.linalg.det(H) <= 0.0:
+        return None
     quad = cv2.perspectiveTransform(corners.reshape(-1, 1, 2), H).reshape(-1, 2)
-    return bool(cv2.isContourConvex(quad.astype(np.float32)))
+    if not np.all(np.isfinite(quad)) or not cv2.isContourConvex(quad.astype(np.float32)):
+        return None
+    return H
+
+
+def nfa_k_grid(n: int, sample: int = 4) -> np.ndarray:
+    """The subset sizes ``log10_nfa`` tries: every k up to 16, then steps of 1/8 (a minimum
+    over fewer k is never below the exact one: the grid can only be more cautious)."""
+    ks = set(range(sample + 1, min(n, 16) + 1))
+    k = 16.0
+    while k < n:
+        k *= 1.125
+        ks.add(min(round(k), n))
+    return np.array(sorted(ks), dtype=np.int64)
+
+
+def log10_nfa(
+    residuals_px: np.ndarray, points_px: np.ndarray, sample: int = 4
+) -> tuple[float, int]:
+    """(log10 NFA, k) of the best k: ORSA's number of false alarms of a model fitted to
+    ``sample`` points, given every putative match's residual and frame position.
+
+    ``NFA(k) = (n - s) C(n, k) C(k, s) alpha_k^(k - s)``, ``alpha_k = pi e_k^2 / area_k``
+    (at most 1), minimised over ``k`` (``nfa_k_grid``). The counting terms are the tests:
+    which ``k`` (``n - s``), which ``k`` matches, which ``s`` of them define the model.
+    ``e_k`` is the k-th smallest residual (at least ``RESIDUAL_FLOOR_PX``) and ``area_k``
+    the area of the convex hull of those ``k`` points in the frame: the null model is
+    "uniform over the region the matched points occupy", so a cluster of matches on one
+    small patch (a sign, a repeated ornament) counts for little.
+    """
+    r = np.asarray(residuals_px, np.float64)
+    n = len(r)
+    if n <= sample:
+        return math.inf, 0
+    order = np.argsort(r)
+    rs = r[order]
+    pts = np.asarray(points_px, np.float32).reshape(-1, 2)[order]
+    lf = np.concatenate(([0.0], np.cumsum(np.log10(np.arange(1, n + 1, dtype=np.float64)))))
+    best, best_k = math.inf, 0
+    for k in nfa_k_grid(n, sample):
+        e = max(float(rs[k - 1]), RESIDUAL_FLOOR_PX)
+        if not math.isfinite(e):
+            break
+        area = float(cv2.contourArea(cv2.convexHull(pts[:k].reshape(-1, 1, 2))))
+        if not area > 0.0:
+            continue
+        log_alpha = min(math.log10(math.pi * e * e / area), 0.0)
+        v = (
+            math.log10(n - sample)
+            + (lf[n] - lf[k] - lf[n - k])
+            + (lf[k] - lf[sample] - lf[k - sample])
+            + (k - sample) * log_alpha
+        )
+        if v < best:
+            best, best_k = v, int(k)
+    return best, best_k
+
+
+def pair_log10_nfa(H: np.ndarray, src: np.ndarray, dst: np.ndarray) -> float:
+    """log10 NFA of homography ``H`` (photo -> frame) over all putative matches ``src`` ->
+    ``dst`` (N x 2), residuals in frame pixels (``log10_nfa``)."""
+    proj = cv2.perspectiveTransform(src.reshape(-1, 1, 2).astype(np.float64), H).reshape(-1, 2)
+    res = np.linalg.norm(proj - dst.astype(np.float64), axis=1)
+    res[~np.isfinite(res)] = np.inf
+    return log10_nfa(res, dst)[0]
+
+
+def photo_agreement(
+    landmark_id: int,
+    new: Features,
+    existing: list[tuple[int, Features]],
+    config: MatchConfig | None = None,
+) -> MatchEvidence | None:
+    """The strongest evidence that photo features ``new`` show the place the ``existing``
+    photos of a landmark show, by the decision rule (``new`` as the frame); None when the
+    landmark has no photo. A photo added to a landmark must verify against one of them, or
+    one stray photo could make the place match what that photo alone shows."""
+    matcher = PairMatcher(config)
+    desc = new.for_matching()
+    best: MatchEvidence | None = None
+    for pid, feats in existing:
+        e = matcher.verify(landmark_id, new, desc, PhotoIndex(pid, feats))
+        if best is None or (e.verified, -e.log_nfa, e.inliers) > (
+            best.verified,
+            -best.log_nfa,
+            best.inliers,
+        ):
+            best = e
+    return best

@@ -47,6 +47,7 @@ from guidance.core.messages import CameraFrame, EstimateState, LandmarkFix
 from guidance.core.model import CHI2_2D_2SIGMA
 from landmark_db.features import ExtractorConfig, extract
 from landmark_db.gate import valid_covariance
+from landmark_db.limits import frame_problem
 from landmark_db.matcher import (
     FAILED_GEOMETRY,
     FEW_MATCHES,
@@ -65,8 +66,10 @@ AMBIGUOUS = "ambiguous"
 NOT_CONSISTENT = "not_consistent"
 REPEAT = "repeat"
 BAD_INPUT = "bad_input"
+TOO_SMALL = "too_small"
 REASONS = (
     NO_CANDIDATE,
+    TOO_SMALL,
     FEW_MATCHES,
     FAILED_GEOMETRY,
     AMBIGUOUS,
@@ -271,6 +274,8 @@ class Recogniser:
         """(reason, verified id, evidence, frame feature count) for one image against ``ids``
         (their photos in order, at most ``max_photos`` of them; None: all). A landmark's
         evidence is its best photo's."""
+        if image.dtype == np.uint8 and frame_problem(image.shape[1], image.shape[0]) is not None:
+            return TOO_SMALL, None, (), 0
         try:
             feats = extract(image, self.frame_extractor, self._detector)
         except ValueError:
@@ -294,7 +299,7 @@ class Recogniser:
             # the ambiguity rule compares each landmark's best photo
             e = self._matcher.verify(lid, feats, desc, photo)
             b = per_lm.get(lid)
-            if b is None or (e.inliers, e.good_matches) > (b.inliers, b.good_matches):
+            if b is None or _strength(e) > _strength(b):
                 per_lm[lid] = e
         evidence = [per_lm[lid] for lid in ids if lid in per_lm]
         ev = tuple(evidence)
@@ -368,6 +373,12 @@ class Recogniser:
             sigma_m=fix_sigma_m(cfg.sighting_range_m, landmark.position_sigma_m),
         )
         return out(None, lid, fix)
+
+
+def _strength(e: MatchEvidence) -> tuple[bool, float, int, int]:
+    """Which of a landmark's photos is its evidence: verified first, then the most
+    significant (smallest NFA), then the most inliers."""
+    return e.verified, -e.log_nfa, e.inliers, e.good_matches
 
 
 def _with_elapsed(r: RecognitionResult, elapsed_s: float) -> RecognitionResult:

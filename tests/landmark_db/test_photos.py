@@ -89,13 +89,13 @@ def test_plausibility_is_judged_on_the_inliers_region() -> None:
     # A strong perspective: photo points beyond x = 500 px map behind the camera (w <= 0).
     H = np.array([[1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [-0.002, 0.0, 1.0]])
     inliers = np.array([[10.0, 10.0], [300.0, 20.0], [280.0, 400.0], [20.0, 380.0]])
-    assert plausible_homography(H, inliers)  # the matched facade: a convex quad in front
+    assert plausible_homography(H, inliers) is not None  # the matched facade, in front
     wide = np.vstack([inliers, [[640.0, 470.0]]])
-    assert not plausible_homography(H, wide)  # the whole photo's outline would be rejected
+    assert plausible_homography(H, wide) is None  # the whole photo's outline is rejected
     mirror = np.diag([-1.0, 1.0, 1.0])
-    assert not plausible_homography(mirror, inliers)
+    assert plausible_homography(mirror, inliers) is None
     line = np.array([[0.0, 5.0], [10.0, 5.0], [20.0, 5.0], [30.0, 5.0]])
-    assert not plausible_homography(np.eye(3), line)  # collinear inliers see no plane
+    assert plausible_homography(np.eye(3), line) is None  # collinear inliers see no plane
 
 
 def test_extractor_identity_round_trips_and_is_stored() -> None:
