@@ -33,9 +33,9 @@ from pathlib import Path
 import cv2
 import numpy as np
 
+from guidance.core.geo import Origin
 from hal_sim.sim_camera import SimCamera, SimCameraConfig, facade
 from landmark_db.features import ExtractorConfig, OrbConfig, encode_image, extract
-from landmark_db.geo import Origin
 from landmark_db.matcher import MatchConfig, PairMatcher, PhotoIndex
 from landmark_db.recognise import Recogniser, RecogniserConfig
 from landmark_db.store import create_db, open_db

@@ -20,8 +20,8 @@ from pathlib import Path
 
 import numpy as np
 
+from guidance.core.geo import Origin
 from landmark_db.features import Features
-from landmark_db.geo import Origin
 from landmark_db.store import LandmarkDb, create_db, open_db, query_gate
 
 RANGE_M = 20.0

@@ -43,6 +43,7 @@ from guidance.errors import UserError
 from hal_sim.lockstep import LockstepSink
 from hal_sim.params import SimParams, estimator_config
 from hal_sim.plots import DriveTrace, plot_drive
+from hal_sim.sim_camera import SIM_ORIGIN
 from hal_sim.sim_checks import check_drive_options, stop_on_signals
 from hal_sim.sim_cli import DriveOptions, DriveResult, output_settings, wav_has_speech
 from hal_sim.sim_run import SimDevices, open_sim_camera, open_sim_devices
@@ -54,7 +55,7 @@ if TYPE_CHECKING:
 
 log = logging.getLogger(__name__)
 
-SIM_ORIGIN_LAT_LON = (42.4440, -76.5019)
+SIM_ORIGIN_LAT_LON = (SIM_ORIGIN.lat_deg, SIM_ORIGIN.lon_deg)
 """Where the simulated city is placed for the magnetic declination (Ithaca, NY)."""
 SIM_DATE = "2026-06-01"
 ELLIPSE_EVERY_M = 150.0

@@ -30,8 +30,8 @@ from pathlib import Path
 import cv2
 import numpy as np
 
+from guidance.core.geo import Origin
 from guidance.core.messages import CameraFrame
-from landmark_db.geo import Origin
 from landmark_db.store import LandmarkDb, create_db
 
 PHOTO_SIZE = (480, 640)

@@ -37,8 +37,8 @@ from pathlib import Path
 
 import numpy as np
 
+from guidance.core.geo import Origin
 from landmark_db.features import ExtractorConfig, decode_image
-from landmark_db.geo import Origin
 from landmark_db.matcher import MatchConfig
 from landmark_db.recognise import Recogniser, RecogniserConfig
 from landmark_db.store import LandmarkDb, LandmarkDbError, create_db

@@ -14,6 +14,7 @@ import sys
 from collections.abc import Sequence
 from pathlib import Path
 
+from guidance.core.geo import Origin
 from guidance.errors import UserError
 from landmark_db.cli_args import HEADER, area, area_args, print_landmark_row, safe
 from landmark_db.cli_fix import add_fix_parsers
@@ -27,7 +28,6 @@ from landmark_db.features import (
     extract,
 )
 from landmark_db.gate import GATE_PROBABILITY_2SIGMA
-from landmark_db.geo import Origin
 from landmark_db.matcher import MatchConfig, photo_agreement
 from landmark_db.query import query_radius
 from landmark_db.recognise import RecogniserConfig

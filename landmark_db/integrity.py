@@ -6,8 +6,8 @@ import hashlib
 import sqlite3
 from dataclasses import dataclass
 
+from guidance.core.geo import Origin
 from landmark_db.features import ExtractorConfig, Features, decode_image
-from landmark_db.geo import Origin
 from landmark_db.limits import (
     MIN_PHOTO_FEATURES,
     agreement_problem,

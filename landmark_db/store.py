@@ -28,8 +28,8 @@ from pathlib import Path
 
 import numpy as np
 
+from guidance.core.geo import Origin
 from landmark_db.features import ExtractorConfig
-from landmark_db.geo import Origin
 from landmark_db.integrity import CheckReport
 from landmark_db.limits import (
     MAX_COORDINATE_M,

@@ -11,8 +11,8 @@ from contextlib import contextmanager
 
 import numpy as np
 
+from guidance.core.geo import Origin
 from landmark_db.features import Features
-from landmark_db.geo import Origin
 from landmark_db.limits import (
     MAX_NAME_CHARS,
     agreement_problem,

@@ -43,12 +43,14 @@ GUIDANCE_VOCABULARY = {
         "guidance.core.messages",
         "guidance.core.health",
         "guidance.core.model",
+        "guidance.core.geo",
         "guidance.errors",
     ),
 }
 """All that ``drivers`` and ``landmark_db`` may import from ``guidance``: the messages and
 health vocabulary, plus the pure co-driver line parser the keyboard driver decodes with, and
-the shared ellipse/Mahalanobis math the landmark gate uses (one definition of the math)."""
+the shared ellipse/Mahalanobis math the landmark gate uses (one definition of the math), and
+the one geodesy (``guidance.core.geo.Origin``)."""
 
 KNOWN_LONG: set[str] = set()
 """Modules still over the limit: none left; the list may only shrink (docs/layout.md)."""

@@ -172,11 +172,10 @@ def _point(
 
 
 def enu_m(lat_deg: float, lon_deg: float, origin: tuple[float, float]) -> tuple[float, float]:
-    """East and north metres of a point from the origin (WGS-84, pymap3d)."""
-    import pymap3d
+    """East and north metres of a point from the origin (``guidance.core.geo.Origin``)."""
+    from guidance.core.geo import Origin
 
-    e, n, _u = pymap3d.geodetic2enu(lat_deg, lon_deg, 0.0, origin[0], origin[1], 0.0)
-    return float(e), float(n)
+    return Origin.of(origin).to_local(lat_deg, lon_deg)
 
 
 CAR_KEYS = (

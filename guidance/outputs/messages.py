@@ -5,13 +5,13 @@ themselves are listed once, in ``guidance.outputs.kinds``).
 
 from __future__ import annotations
 
-import functools
 import json
 import math
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 from typing import TYPE_CHECKING, Any
 
+from guidance.core import geo
 from guidance.core.angles import heading_to_compass, wrap_angle
 from guidance.core.messages import (
     EstimateState,
@@ -69,8 +69,9 @@ def _wrap_deg(angle_rad: float) -> float | None:
     return _num(math.degrees(wrap_angle(angle_rad))) if math.isfinite(angle_rad) else None
 
 
-Origin = tuple[float, float]
-"""(latitude, longitude) in degrees (WGS-84) of the local frame's origin: x east, y north."""
+Origin = geo.LatLon
+"""(latitude, longitude) in degrees (WGS-84) of the local frame's origin: x east, y north (a
+config value; ``guidance.core.geo.Origin`` converts)."""
 
 
 def check_origin(origin: Origin | None) -> None:
@@ -91,23 +92,13 @@ def heading_deg_true(heading_rad: float | None) -> float | None:
 
 
 def lat_lon_deg(x_m: float | None, y_m: float | None, origin: Origin | None) -> Origin | None:
-    """WGS-84 latitude and longitude of a local point (east, north metres from ``origin``),
-    through pymap3d's ENU conversion; None without an origin or a finite point."""
+    """WGS-84 latitude and longitude of a local point (east, north metres from ``origin``,
+    ``guidance.core.geo``); None without an origin or a finite point."""
     if origin is None or x_m is None or y_m is None:
         return None
     if not (math.isfinite(x_m) and math.isfinite(y_m)):
         return None
-    return _geodetic(float(x_m), float(y_m), float(origin[0]), float(origin[1]))
-
-
-@functools.lru_cache(maxsize=256)
-def _geodetic(x_m: float, y_m: float, lat0: float, lon0: float) -> Origin:
-    """pymap3d's ENU -> WGS-84 (about 0.13 ms). Cached: the goal and the target stay the same
-    from one state message to the next, and telemetry and the recorder each build the same one."""
-    import pymap3d
-
-    lat, lon, _h = pymap3d.enu2geodetic(x_m, y_m, 0.0, lat0, lon0, 0.0)
-    return float(lat), float(lon)
+    return geo.Origin.of(origin).to_geodetic(x_m, y_m)
 
 
 def _with_geo(point: dict[str, Any] | None, origin: Origin | None) -> dict[str, Any] | None:

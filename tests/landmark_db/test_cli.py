@@ -9,9 +9,9 @@ import cv2
 import pynmea2
 import pytest
 
+from guidance.core.geo import Origin
 from hal_sim.sim_camera import SimCamera, SimCameraConfig, SimLandmark, facade
 from landmark_db.cli import main
-from landmark_db.geo import Origin
 from landmark_db.store import open_db
 
 ORIGIN = Origin(42.444, -76.5019)

@@ -12,10 +12,10 @@ import cv2
 import numpy as np
 import pytest
 
+from guidance.core.geo import Origin
 from hal_sim.sim_camera import SimCamera, SimCameraConfig, facade
 from landmark_db.cli import main
 from landmark_db.features import encode_image, extract
-from landmark_db.geo import Origin
 from landmark_db.store import create_db, open_db
 
 REPO = Path(__file__).resolve().parents[2]

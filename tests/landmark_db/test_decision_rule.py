@@ -14,12 +14,12 @@ import cv2
 import numpy as np
 import pytest
 
+from guidance.core.geo import Origin
 from hal_sim.sim_camera import SimCamera, SimCameraConfig, facade
 from landmark_db import matcher
 from landmark_db.acceptance import evaluate_db, read_truth
 from landmark_db.cli import main
 from landmark_db.features import ExtractorConfig, extract
-from landmark_db.geo import Origin
 from landmark_db.limits import photo_problem
 from landmark_db.matcher import (
     MatchConfig,

@@ -11,10 +11,10 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 from scipy.stats import chi2
 
+from guidance.core.geo import Origin
 from guidance.core.model import CHI2_2D_2SIGMA
 from landmark_db.features import Features
 from landmark_db.gate import GATE_PROBABILITY_2SIGMA, distance_to_ellipse, ellipse_axes
-from landmark_db.geo import Origin
 from landmark_db.store import create_db, query_gate
 
 

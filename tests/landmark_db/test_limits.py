@@ -22,7 +22,7 @@ def test_every_fix_a_valid_landmark_can_make_is_one_the_estimator_accepts() -> N
 
 
 def test_the_position_limit_keeps_x_y_and_lat_lon_in_agreement() -> None:
-    from landmark_db.geo import Origin
+    from guidance.core.geo import Origin
 
     for lat in (0.0, 48.85, 70.0):
         o = Origin(lat, 2.35)

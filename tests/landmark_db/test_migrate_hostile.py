@@ -12,10 +12,10 @@ from pathlib import Path
 
 import pytest
 
+from guidance.core.geo import Origin
 from hal_sim.sim_camera import facade
 from landmark_db.cli import main
 from landmark_db.features import OrbConfig, encode_image, extract
-from landmark_db.geo import Origin
 from landmark_db.schema import V1, V2
 from landmark_db.store import LandmarkDbError, create_db, open_db
 

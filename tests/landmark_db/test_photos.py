@@ -7,9 +7,9 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from guidance.core.geo import Origin
 from hal_sim.sim_camera import SimCamera, SimCameraConfig, facade
 from landmark_db.features import ExtractorConfig, decode_image, encode_image
-from landmark_db.geo import Origin
 from landmark_db.matcher import plausible_homography
 from landmark_db.recognise import AMBIGUOUS, Recogniser, RecogniserConfig
 from landmark_db.store import LandmarkDb, LandmarkDbError, create_db

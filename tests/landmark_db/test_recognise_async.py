@@ -9,10 +9,10 @@ from pathlib import Path
 import cv2
 import numpy as np
 
+from guidance.core.geo import Origin
 from guidance.core.messages import CameraFrame, Ellipse, EstimateState
 from hal_sim.sim_camera import SimLandmark, facade
 from landmark_db.features import OrbConfig
-from landmark_db.geo import Origin
 from landmark_db.recognise import Recogniser, RecogniserConfig, recognise_async
 from landmark_db.store import create_db
 

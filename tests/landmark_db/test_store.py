@@ -8,9 +8,9 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from guidance.core.geo import Origin
 from hal_sim.sim_camera import facade
 from landmark_db.features import Features, OrbConfig, decode_image, encode_image
-from landmark_db.geo import Origin
 from landmark_db.store import (
     SCHEMA_VERSION,
     LandmarkDb,
@@ -252,7 +252,7 @@ def test_feature_blobs_round_trip_and_reject_garbage() -> None:
 def test_a_new_file_is_open_as_open_db_opens_one_foreign_keys_on(tmp_path: Path) -> None:
     """create_db and open_db give the same connection: the schema's ON DELETE CASCADE holds
     from the first write, not only after the file is reopened."""
-    from landmark_db.geo import Origin
+    from guidance.core.geo import Origin
     from landmark_db.store import create_db
 
     with create_db(tmp_path / "new.sqlite", Origin(42.444, -76.5019)) as db:

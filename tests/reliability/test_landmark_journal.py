@@ -17,9 +17,9 @@ from typing import Any
 import cv2
 import pytest
 
+from guidance.core.geo import Origin
 from hal_sim.sim_camera import facade
 from landmark_db.cli import main
-from landmark_db.geo import Origin
 from landmark_db.schema import LandmarkDbError
 from landmark_db.store import create_db, open_db
 
