@@ -31,7 +31,7 @@ from typing import TYPE_CHECKING, Any
 
 from drivers.can_odometry import MAX_GAP_S
 from guidance.app.app import App
-from guidance.app.build import Outputs, open_outputs, session_record
+from guidance.app.build import OpenOutputs, open_outputs, session_record
 from guidance.app.checkpoint import Checkpointer, load_checkpoint, set_aside
 from guidance.app.magnetic import declination_deg
 from guidance.core.messages import GoalUpdate
@@ -74,7 +74,7 @@ class SimDrive:
     app: App
     lockstep: LockstepSink
     dev: SimDevices
-    outputs: Outputs
+    outputs: OpenOutputs
 
     def __init__(
         self,

@@ -58,9 +58,9 @@ __all__ = [
     "SCHEMA_VERSION",
     "Candidate",
     "CheckReport",
-    "Landmark",
     "LandmarkDb",
     "LandmarkDbError",
+    "LandmarkRecord",
     "Photo",
     "create_db",
     "migrate",
@@ -80,7 +80,7 @@ _FINITE_SQL = f"coalesce({{c}} BETWEEN -{_MAX_FLOAT} AND {_MAX_FLOAT}, 0)"
 
 
 @dataclass(frozen=True, slots=True)
-class Landmark:
+class LandmarkRecord:
     """One landmark row. Positions in degrees and local metres; ``facing_deg`` clockwise from N."""
 
     id: int
@@ -209,7 +209,7 @@ class LandmarkDb(LandmarkWriter):
 
     _NUMBERS = ("lat_deg", "lon_deg", "x_m", "y_m", "facing_deg", "position_sigma_m")
 
-    def _row(self, r: Sequence[object]) -> Landmark:
+    def _row(self, r: Sequence[object]) -> LandmarkRecord:
         """A landmark from a row of ``_COLS``; a value that is not a finite number (a damaged
         file) raises ``LandmarkDbError`` naming the landmark and the column."""
         lid = r[0]
@@ -228,32 +228,32 @@ class LandmarkDb(LandmarkWriter):
         lat, lon, x, y, facing, sigma = nums
         assert lat is not None and lon is not None and x is not None and y is not None
         assert sigma is not None
-        return Landmark(lid, str(r[1]), lat, lon, x, y, facing, sigma, str(r[8]), str(r[9]))
+        return LandmarkRecord(lid, str(r[1]), lat, lon, x, y, facing, sigma, str(r[8]), str(r[9]))
 
     def __len__(self) -> int:
         with self._reading() as c:
             return int(c.execute("SELECT count(*) FROM landmarks").fetchone()[0])
 
-    def landmarks(self) -> Iterator[Landmark]:
+    def landmarks(self) -> Iterator[LandmarkRecord]:
         """All landmarks by id."""
         with self._reading() as c:
             rows = c.execute(f"SELECT {self._COLS} FROM landmarks ORDER BY id").fetchall()
         return (self._row(r) for r in rows)
 
-    def get(self, landmark_id: int) -> Landmark | None:
+    def get(self, landmark_id: int) -> LandmarkRecord | None:
         with self._reading():
             r = self._conn.execute(
                 f"SELECT {self._COLS} FROM landmarks WHERE id = ?", (landmark_id,)
             ).fetchone()
         return None if r is None else self._row(r)
 
-    def find(self, key: str) -> Landmark | None:
+    def find(self, key: str) -> LandmarkRecord | None:
         """A landmark by id (digits) or by exact name (the first such)."""
         if key.isdigit():
             return self.get(int(key))
         return self.by_name(key)
 
-    def by_name(self, name: str) -> Landmark | None:
+    def by_name(self, name: str) -> LandmarkRecord | None:
         """The first landmark (lowest id) with exactly this name."""
         with self._reading():
             r = self._conn.execute(

@@ -61,7 +61,7 @@ class OutputSettings:
 
 
 @dataclass
-class Outputs:
+class OpenOutputs:
     speaker: Speaker | None = None
     telemetry: Telemetry | None = None
     recorder: Recorder | None = None
@@ -116,9 +116,9 @@ async def open_outputs(
     clock: Callable[[], float],
     *,
     on_goal: Callable[[float, float], None] | None = None,
-) -> AsyncIterator[Outputs]:
+) -> AsyncIterator[OpenOutputs]:
     """Open the speaker, telemetry and recorder; close them all when the block ends."""
-    out = Outputs()
+    out = OpenOutputs()
     try:
         if settings.speaker_factory is not None:
             out.speaker = settings.speaker_factory(clock)

@@ -20,7 +20,7 @@ from filterpy.kalman import ExtendedKalmanFilter
 from guidance.core import model, state_limits
 from guidance.core.messages import Ellipse, EstimateState, HeadingFix, LandmarkFix, WheelOdometry
 
-Input = WheelOdometry | HeadingFix | LandmarkFix
+EstimatorInput = WheelOdometry | HeadingFix | LandmarkFix
 
 
 @dataclass(frozen=True, slots=True)
@@ -371,7 +371,7 @@ class PoseEstimator:
         )
 
     # -- the one entry point ------------------------------------------------
-    def process(self, msg: Input) -> StepResult:
+    def process(self, msg: EstimatorInput) -> StepResult:
         """Apply one timestamped input; out-of-order and bad inputs are rejected and counted."""
         kind = type(msg).__name__
         if not math.isfinite(msg.t_s):

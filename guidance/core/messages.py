@@ -12,11 +12,8 @@ from __future__ import annotations
 import math
 from collections.abc import Mapping
 from dataclasses import dataclass, field
-from enum import IntEnum
-from typing import TYPE_CHECKING, Any
-
-if TYPE_CHECKING:
-    from guidance.core.navigator import Decision
+from enum import IntEnum, StrEnum
+from typing import Any
 
 
 @dataclass(frozen=True, slots=True)
@@ -265,3 +262,53 @@ class ExitTaken:
     exit_index: int
     followed: bool
     source: str
+
+
+# -- the navigator's values (guidance.core.navigator makes them) -----------------------------
+class Method(StrEnum):
+    STRAIGHT_TO_GOAL = "straight_to_goal"
+    LANDMARK_TO_LANDMARK = "landmark_to_landmark"
+    HYBRID = "hybrid"
+
+    @property
+    def code(self) -> int:
+        from guidance.core import law  # the compiled law's order (loads numba on first use)
+
+        return law.METHOD_NAMES.index(self.value)
+
+
+@dataclass(frozen=True, slots=True)
+class Landmark:
+    id: int
+    x_m: float
+    y_m: float
+    name: str = ""
+
+
+@dataclass(frozen=True, slots=True)
+class ExitOption:
+    index: int
+    heading_rad: float
+    turn_rad: float
+    """Turn relative to the current heading, CCW positive (left)."""
+    angle_cost_rad: float
+    penalty_rad: float
+    cost_rad: float
+
+
+@dataclass(frozen=True, slots=True)
+class Decision:
+    t_s: float
+    exit_index: int
+    exit_heading_rad: float
+    turn_rad: float
+    options: tuple[ExitOption, ...]
+    target_x_m: float
+    target_y_m: float
+    target_kind: str
+    """"goal" or "landmark"."""
+    target_id: int | None
+    intersection_id: int
+    revisit: bool
+    mode: str
+    reason: str

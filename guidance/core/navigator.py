@@ -1,5 +1,8 @@
 """Intersection navigator (SPEC section 3): which exit to take, toward which target, and why.
 
+Its values (``Method``, ``Landmark``, ``ExitOption``, ``Decision``) are in
+``guidance.core.messages`` with the other values the core hands out; re-exported here.
+
 The math (decision law, revisit matching, tabu penalties, landmark targets,
 hybrid switching) is in ``guidance.law`` and shared with the study engine; this
 class keeps the navigator's memory and returns each decision as a value that
@@ -11,23 +14,12 @@ from __future__ import annotations
 import math
 from collections.abc import Sequence
 from dataclasses import dataclass
-from enum import StrEnum
 
 import numpy as np
 
 from guidance.core import law, model
-from guidance.core.messages import Target
+from guidance.core.messages import Decision, ExitOption, Landmark, Method, Target
 from guidance.core.snapshot_check import integer
-
-
-class Method(StrEnum):
-    STRAIGHT_TO_GOAL = "straight_to_goal"
-    LANDMARK_TO_LANDMARK = "landmark_to_landmark"
-    HYBRID = "hybrid"
-
-    @property
-    def code(self) -> int:
-        return law.METHOD_NAMES.index(self.value)
 
 
 @dataclass(frozen=True, slots=True)
@@ -55,41 +47,7 @@ class NavigatorConfig:
     max_exits: int = 8
 
 
-@dataclass(frozen=True, slots=True)
-class Landmark:
-    id: int
-    x_m: float
-    y_m: float
-    name: str = ""
-
-
-@dataclass(frozen=True, slots=True)
-class ExitOption:
-    index: int
-    heading_rad: float
-    turn_rad: float
-    """Turn relative to the current heading, CCW positive (left)."""
-    angle_cost_rad: float
-    penalty_rad: float
-    cost_rad: float
-
-
-@dataclass(frozen=True, slots=True)
-class Decision:
-    t_s: float
-    exit_index: int
-    exit_heading_rad: float
-    turn_rad: float
-    options: tuple[ExitOption, ...]
-    target_x_m: float
-    target_y_m: float
-    target_kind: str
-    """"goal" or "landmark"."""
-    target_id: int | None
-    intersection_id: int
-    revisit: bool
-    mode: str
-    reason: str
+__all__ = ["Decision", "ExitOption", "Landmark", "Method", "Navigator", "NavigatorConfig"]
 
 
 class Navigator:

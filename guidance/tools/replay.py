@@ -35,7 +35,7 @@ from typing import TYPE_CHECKING, Any
 from guidance.core.messages import CompassHeading, WheelOdometry
 from guidance.errors import UserError
 from guidance.tools.replay_mcap import (
-    INPUT_TOPICS,
+    PROCESSED_TOPICS,
     RAW_TOPICS,
     mcap_inputs,
     message_from_record,
@@ -48,7 +48,7 @@ if TYPE_CHECKING:  # the estimator stack (filterpy, scipy, numba) loads on first
     from guidance.core.pipeline import Input, Outputs, Pipeline, PipelineConfig
 
 __all__ = [
-    "INPUT_TOPICS",
+    "PROCESSED_TOPICS",
     "RAW_TOPICS",
     "mcap_inputs",
     "message_from_record",

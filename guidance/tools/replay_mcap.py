@@ -21,7 +21,7 @@ if TYPE_CHECKING:
     from guidance.recording.reader import Reader
     from guidance.recording.scan import Damage
 
-INPUT_TOPICS = tuple(dict.fromkeys(TOPICS.values()))
+PROCESSED_TOPICS = tuple(dict.fromkeys(TOPICS.values()))
 """Every processed-input topic, from the codec's one table: a new input type is replayed."""
 
 
@@ -58,7 +58,7 @@ def skipped_messages(reader: Reader, bad: list[str]) -> None:
     bad.extend(["a message that is no usable JSON"] * (reader.skipped - len(reader.skipped_why)))
 
 
-RAW_TOPICS = ("/can", "/nmea", *(t for t in INPUT_TOPICS if t not in ("/odometry", "/compass")))
+RAW_TOPICS = ("/can", "/nmea", *(t for t in PROCESSED_TOPICS if t not in ("/odometry", "/compass")))
 """With ``raw``: the CAN frames and NMEA lines instead of the odometry and compass they gave."""
 
 
@@ -100,7 +100,7 @@ def mcap_inputs(
                 damage.note(note)
 
     def inputs() -> Iterator[Input]:
-        for rec in read(INPUT_TOPICS):
+        for rec in read(PROCESSED_TOPICS):
             msg = _decoded(rec.topic, rec.data, bad)
             if msg is not None:
                 yield msg

@@ -32,7 +32,7 @@ DEFAULT_RATE_WPM = 170
 
 
 @dataclass(frozen=True, slots=True)
-class Prompt:
+class QueuedPrompt:
     """One pending prompt. ``seq`` is the arrival order (FIFO within a tier)."""
 
     text: str
@@ -86,7 +86,7 @@ class PromptQueue:
         self._clock = clock
         self._max_age_s = dict(DEFAULT_MAX_AGE_S if max_age_s is None else max_age_s)
         self._cond = threading.Condition()
-        self._items: list[Prompt] = []
+        self._items: list[QueuedPrompt] = []
         self._seq = 0
         self._closed = False
         self._counts = dict.fromkeys(QUEUE_COUNTERS, 0)
@@ -121,7 +121,7 @@ class PromptQueue:
                 self._counts["discarded"] += 1
                 return False
             self._drop_stale(now)
-            new = Prompt(text, tier, t, age, self._seq)
+            new = QueuedPrompt(text, tier, t, age, self._seq)
             self._seq += 1
             if new.is_stale(now):
                 self._counts["dropped_stale"] += 1
@@ -149,12 +149,12 @@ class PromptQueue:
             self._cond.notify()
             return True
 
-    def pop(self, now_s: float | None = None) -> Prompt | None:
+    def pop(self, now_s: float | None = None) -> QueuedPrompt | None:
         """The next prompt to speak now, or None; stale prompts are dropped first."""
         with self._cond:
             return self._pop_locked(self._clock() if now_s is None else now_s)
 
-    def get(self, timeout_s: float | None = None) -> Prompt | None:
+    def get(self, timeout_s: float | None = None) -> QueuedPrompt | None:
         """Block (wall-clock ``timeout_s``) until a fresh prompt is ready; None once closed."""
         deadline = None if timeout_s is None else time.monotonic() + timeout_s
         with self._cond:
@@ -167,7 +167,7 @@ class PromptQueue:
                     return None
                 self._cond.wait(remaining)
 
-    def take_all(self) -> list[Prompt]:
+    def take_all(self) -> list[QueuedPrompt]:
         """Remove and return every pending prompt in speaking order (for a failover)."""
         with self._cond:
             items = sorted(self._items, key=lambda p: (-p.priority, p.seq))
@@ -205,7 +205,7 @@ class PromptQueue:
         self._counts["dropped_stale"] += len(self._items) - len(fresh)
         self._items[:] = fresh
 
-    def _pop_locked(self, now_s: float) -> Prompt | None:
+    def _pop_locked(self, now_s: float) -> QueuedPrompt | None:
         self._drop_stale(now_s)
         if not self._items:
             return None

@@ -20,8 +20,8 @@ from guidance.voice.queue import (
     DEFAULT_QUEUE_SIZE,
     DEFAULT_RATE_WPM,
     Clock,
-    Prompt,
     PromptQueue,
+    QueuedPrompt,
 )
 from guidance.voice.speaker import Speaker
 
@@ -322,7 +322,7 @@ class Pyttsx3Speaker(_QueuedSpeaker):
             with self._lock:
                 self._counts["spoken"] += 1
 
-    def _fail(self, reason: str, current: Prompt | None) -> None:
+    def _fail(self, reason: str, current: QueuedPrompt | None) -> None:
         with self._lock:
             if self._failover.failed:
                 return

@@ -20,8 +20,8 @@ from guidance.voice.queue import (
     DEFAULT_QUEUE_SIZE,
     DEFAULT_RATE_WPM,
     Clock,
-    Prompt,
     PromptQueue,
+    QueuedPrompt,
 )
 from guidance.voice.speaker import Speaker
 from guidance.voice.speakers import (
@@ -155,7 +155,7 @@ class WavSpeaker(_QueuedSpeaker):
         self._frames = 0
         self._free_s = -math.inf  # when the virtual voice is next free
         # Worker-thread state: the prompt being rendered, arrivals not yet queued.
-        self._current: Prompt | None = None
+        self._current: QueuedPrompt | None = None
         self._todo: list[tuple[str, int, float, float | None]] = []
         self.path.parent.mkdir(parents=True, exist_ok=True)
         self._wav = wave.open(str(self.path), "wb")  # noqa: SIM115  (closed by the thread)
