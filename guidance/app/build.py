@@ -84,12 +84,12 @@ def build_speaker(
     """The configured voice (``none`` for no speaker)."""
     if backend == "none":
         return None
-    from guidance.voice import SpeakerKind, make_speaker
+    from guidance.voice import SPEAKER_KINDS, make_speaker
 
-    kinds: dict[str, SpeakerKind] = {"auto": "auto", "voice": "voice", "wav": "wav", "text": "text"}
-    kind = kinds.get(backend)
+    kind = next((k for k in SPEAKER_KINDS if k == backend), None)
     if kind is None:
-        raise UserError(f"[voice] backend must be auto, voice, wav, text or none, not {backend!r}")
+        names = ", ".join((*SPEAKER_KINDS, "none"))
+        raise UserError(f"[voice] backend must be one of {names}, not {backend!r}")
     return make_speaker(
         kind,
         wav_path or None,

@@ -18,6 +18,7 @@ from guidance.core.navigator import Method, NavigatorConfig
 from guidance.core.pipeline_config import PipelineConfig
 from guidance.core.prompts import Units
 from guidance.errors import UserError
+from guidance.voice import SPEAKER_KINDS
 
 _NAV = NavigatorConfig()
 _UNITS: Units = field_default(PipelineConfig, "units")
@@ -63,7 +64,7 @@ class VoiceSettings:
     """``[voice]``."""
 
     backend: str = field(
-        default="auto", metadata=rule(choices=("auto", "voice", "wav", "text", "none"))
+        default="auto", metadata=rule(choices=(*SPEAKER_KINDS, "none"))
     )
     wav_path: str = ""
     voice: str = "en"

@@ -20,6 +20,7 @@ from __future__ import annotations
 
 import logging
 import time
+import typing
 from collections.abc import Mapping
 from pathlib import Path
 from typing import Literal, TextIO
@@ -35,6 +36,8 @@ log = logging.getLogger(__name__)
 # ---------------------------------------------------------------------------- choice
 
 SpeakerKind = Literal["auto", "voice", "wav", "text"]
+SPEAKER_KINDS: tuple[SpeakerKind, ...] = typing.get_args(SpeakerKind)
+"""The one list of speaker names (``[voice] backend`` takes these, or ``none``)."""
 
 
 def make_speaker(
@@ -86,4 +89,4 @@ def make_speaker(
     except SpeechEngineError as e:
         log.warning("no speech engine (%s); prompts are shown as text%s", e, suffix)
         return TextSpeaker(text_stream, clock, fallback_reason=str(e))
-    raise ValueError(f"unknown speaker kind {kind!r}; expected auto, voice, wav or text")
+    raise ValueError(f"unknown speaker kind {kind!r}; expected {', '.join(SPEAKER_KINDS)}")
