@@ -13,25 +13,18 @@ from __future__ import annotations
 
 import asyncio
 import contextlib
-import math
 import os
 import signal
 from pathlib import Path
 from typing import Any
 
-from guidance.errors import UserError
+from guidance.errors import UserError, checked_number
 
 MAX_SEED = 2**32 - 1
 
 
 def _finite(name: str, value: Any, lo: float, hi: float, *, lo_open: bool = False) -> None:
-    if isinstance(value, bool) or not isinstance(value, int | float):
-        raise UserError(f"{name} must be a number, not {value!r}")
-    v = float(value)
-    ok = math.isfinite(v) and (lo < v if lo_open else lo <= v) and v <= hi
-    if not ok:
-        low = f"> {lo:g}" if lo_open else f">= {lo:g}"
-        raise UserError(f"{name} must be a finite number {low} and <= {hi:g}, not {value!r}")
+    checked_number(value, name, lo, hi, lo_open=lo_open)
 
 
 def check_drive_options(opts: Any) -> None:

@@ -4,7 +4,6 @@ the ``photos`` and ``photo_features`` tables (several photos per landmark, issue
 from __future__ import annotations
 
 import hashlib
-import math
 import sqlite3
 import time
 from collections.abc import Iterator
@@ -16,6 +15,7 @@ from typing import Any
 import cv2
 import numpy as np
 
+from guidance.errors import checked_number
 from landmark_db.features import ExtractorConfig, Features, decode_image, encode_image, extract
 from landmark_db.limits import MAX_TEXT_CHARS, MIN_PHOTO_FEATURES, photo_problem
 from landmark_db.schema import LandmarkDbError
@@ -46,10 +46,7 @@ def _check_text(*texts: str) -> None:
 
 
 def _finite(name: str, value: float) -> float:
-    v = float(value)
-    if not math.isfinite(v):
-        raise LandmarkDbError(f"{name} must be a finite number, not {value!r}")
-    return v
+    return checked_number(value, name, error=LandmarkDbError)
 
 
 class PhotoStore:

@@ -63,9 +63,7 @@ class NavigationSettings:
 class VoiceSettings:
     """``[voice]``."""
 
-    backend: str = field(
-        default="auto", metadata=rule(choices=(*SPEAKER_KINDS, "none"))
-    )
+    backend: str = field(default="auto", metadata=rule(choices=(*SPEAKER_KINDS, "none")))
     wav_path: str = ""
     voice: str = "en"
     """The speech engine's voice (espeak-ng: a language code such as en, en-us, de)."""

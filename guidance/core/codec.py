@@ -12,7 +12,6 @@ from __future__ import annotations
 
 import dataclasses
 import functools
-import math
 import types
 import typing
 from collections.abc import Mapping
@@ -28,6 +27,7 @@ from guidance.core.messages import (
     TurnCompleted,
     WheelOdometry,
 )
+from guidance.errors import checked_number
 
 InputMessage = (
     WheelOdometry
@@ -107,12 +107,7 @@ def _coerce(value: Any, hint: Any, where: str) -> Any:
             raise CodecError(f"{where}: expected an integer, got {value!r}")
         return value
     if hint is float:
-        if isinstance(value, bool) or not isinstance(value, int | float):
-            raise CodecError(f"{where}: expected a number, got {value!r}")
-        x = float(value)
-        if not math.isfinite(x):
-            raise CodecError(f"{where}: not a finite number: {value!r}")
-        return x
+        return checked_number(value, where, error=CodecError)
     if hint is str:
         if not isinstance(value, str):
             raise CodecError(f"{where}: expected a string, got {value!r}")

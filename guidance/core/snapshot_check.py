@@ -18,6 +18,7 @@ from collections.abc import Mapping, Sequence
 import numpy as np
 
 from guidance.core.state_limits import state_problem
+from guidance.errors import checked_number
 
 MAX_OFFSET_M = 200_000.0
 """A restored position farther than this from the trip's start is not believed (an urban trip)."""
@@ -41,17 +42,7 @@ def _number(snap: Mapping[str, object], key: str, lo: float, hi: float, default:
 
 def number(v: object, where: str, lo: float = -math.inf, hi: float = math.inf) -> float:
     """``v`` as a finite float in [lo, hi]; only JSON numbers (int or float, not bool)."""
-    if isinstance(v, bool) or not isinstance(v, int | float):
-        raise SnapshotError(f"{where} must be a number, not {type(v).__name__}")
-    try:
-        f = float(v)
-    except OverflowError:
-        raise SnapshotError(f"{where} is out of range") from None
-    if not math.isfinite(f):
-        raise SnapshotError(f"{where} must be finite, not {f}")
-    if not lo <= f <= hi:
-        raise SnapshotError(f"{where} = {f:.6g} is outside [{lo:.6g}, {hi:.6g}]")
-    return f
+    return checked_number(v, where, lo, hi, error=SnapshotError)
 
 
 def integer(v: object, where: str, lo: int = 0, hi: int = MAX_COUNT) -> int:

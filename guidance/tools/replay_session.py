@@ -18,7 +18,7 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 from guidance.config_tables import from_table
-from guidance.errors import UserError
+from guidance.errors import UserError, checked_number
 
 if TYPE_CHECKING:
     from guidance.core.pipeline import PipelineConfig
@@ -104,18 +104,11 @@ def _limits(v: object, where: str, key: str, name: str) -> None:
             if not isinstance(v, int) or not lo <= v <= hi:
                 raise _bad(where, key, f"must be an integer in [{lo}, {hi}]")
             return
-        try:
-            f = float(v)
-        except OverflowError:
-            raise _bad(where, key, "is out of range") from None
-        if not math.isfinite(f):
-            raise _bad(where, key, f"must be finite, not {f}")
         lim = MAX_COORD_M if name in COORDINATES else MAX_VALUE
         low, high = RANGES.get(name, (-lim, lim))
-        if not low <= f <= high:
-            raise _bad(where, key, f"= {f:.6g} is outside [{low:.6g}, {high:.6g}]")
-        if name in POSITIVE and f <= 0:
-            raise _bad(where, key, "must be > 0")
+        positive = name in POSITIVE and low <= 0.0  # > 0 is the binding bound
+        checked_number(v, f"[{where}] {key}", 0.0 if positive else low, high, lo_open=positive,
+                       error=lambda m: UserError(PREFIX + m))  # fmt: skip
 
 
 def pipeline_config_from_session(session: Mapping[str, Any]) -> PipelineConfig:

@@ -151,14 +151,14 @@ CASES: dict[str, tuple[Callable[[list[Any]], list[Any]], str]] = {
     "session without pipeline": (_session(lambda d: {"schema": 1}), "no pipeline configuration"),
     "NaN track": (
         _session(_est("track_m", float("nan"))),
-        "[pipeline.estimator] track_m must be finite",
+        "[pipeline.estimator] track_m must be a finite number",
     ),
-    "zero track": (_session(_est("track_m", 0)), "[pipeline.estimator] track_m must be > 0"),
+    "zero track": (_session(_est("track_m", 0)), "[pipeline.estimator] track_m must be a finite"),
     "text sigma": (_session(_est("wheel_slip_frac", "0.01")), "must be a number"),
     "unknown setting": (_session(_est("warp", 9.0)), "[pipeline.estimator] unknown key(s): warp"),
     "goal 1e400": (
         _session(_pipe("goal_xy_m", [float("inf"), 0.0])),
-        "[pipeline] goal_xy_m[0] must be finite",
+        "[pipeline] goal_xy_m[0] must be a finite number",
     ),
     "start text": (
         _session(_pipe("start_xy_m", ["a", 1])),

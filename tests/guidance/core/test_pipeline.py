@@ -142,8 +142,8 @@ def test_restore_after_a_reboot_does_not_carry_the_old_clock(
     [
         ("arrived", "false", "arrived must be true or false"),
         ("prompt_count", -1, "prompt_count is outside"),
-        ("odometer_m", 1e300, "odometer_m = 1e\\+300 is outside"),
-        ("speed_mps", float("nan"), "speed_mps must be finite"),
+        ("odometer_m", 1e300, "odometer_m must be a finite number >= 0 and <= 1e\\+08"),
+        ("speed_mps", float("nan"), "speed_mps must be a finite number"),
     ],
 )
 def test_a_checkpoint_with_a_bad_state_field_is_refused_and_nothing_changes(

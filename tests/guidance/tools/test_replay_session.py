@@ -117,9 +117,13 @@ def test_a_record_from_before_a_setting_existed_keeps_its_default() -> None:
 @pytest.mark.parametrize(
     ("path", "value", "message"),
     [
-        (("health", "silence_periods"), 0.0, "[pipeline.health] silence_periods must be > 0"),
-        (("health", "max_reject_fraction"), 3.0, "max_reject_fraction = 3 is outside [0, 1]"),
-        (("turn_detector", "window_m"), float("inf"), "window_m must be finite"),
+        (("health", "silence_periods"), 0.0, "[pipeline.health] silence_periods must be a finite"),
+        (
+            ("health", "max_reject_fraction"),
+            3.0,
+            "max_reject_fraction must be a finite number >= 0",
+        ),
+        (("turn_detector", "window_m"), float("inf"), "window_m must be a finite number"),
         (("health", "min_reads_for_validity"), 2.5, "must be an integer in [1, 1000000]"),
         (("turn_detector", "settle_m"), "far", "[pipeline.turn_detector] settle_m must be a"),
     ],
