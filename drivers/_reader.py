@@ -24,7 +24,7 @@ from collections.abc import Callable, Iterable, Mapping
 from typing import ClassVar, Generic, Protocol, Self, TypeVar
 
 from drivers.health import HealthTracker
-from guidance.core.messages import Health
+from guidance.core.messages import Health, RawRecord, RawSink
 
 T = TypeVar("T")
 
@@ -49,7 +49,6 @@ def rejection_counters(counts: Mapping[str, int], reasons: Iterable[str]) -> dic
     return {f"rejected_{reason}": counts.get(reason, 0) for reason in reasons}
 
 
-RawSink = Callable[[str, float, Mapping[str, object]], None]
 """``(kind, t_s, fields)``: "can" with id, data, is_extended_id, is_error_frame, channel;
 "nmea" with line, port."""
 
@@ -106,8 +105,8 @@ class ThreadedSource(Generic[T]):
     # raw input ---------------------------------------------------------------------------------
 
     def set_raw_sink(self, raw_sink: RawSink | None) -> None:
-        """Offer every raw unit read (a CAN frame, an NMEA line) to ``raw_sink(kind, t_s,
-        fields)`` before decoding it: the app records raw inputs through this supported hook
+        """Offer every raw unit read (a ``RawCanFrame``, a ``RawNmeaLine``) to ``raw_sink``
+        before decoding it: the app records raw inputs through this supported hook
         (``/can``, ``/nmea``). A failing raw sink is logged once and never stops the reader."""
         self._raw_sink = raw_sink
 
@@ -117,12 +116,12 @@ class ThreadedSource(Generic[T]):
         the driver knows (its device is gone) reaches the app, the voice and the monitor."""
         self._health.on_flip = status_sink
 
-    def _offer_raw(self, kind: str, t_s: float, fields: Mapping[str, object]) -> None:
+    def _offer_raw(self, record: RawRecord) -> None:
         raw = self._raw_sink
         if raw is None:
             return
         try:
-            raw(kind, t_s, fields)
+            raw(record)
         except Exception:
             self._count("raw_sink_errors")
             if self._counts["raw_sink_errors"] == 1:

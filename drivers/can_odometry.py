@@ -25,7 +25,7 @@ from drivers.can_decode import MAX_GAP_S, REJECT_REASONS, WheelSpeedDecoder
 from drivers.candump import read_candump
 from drivers.clock import ClockMapper
 from drivers.profiles import VehicleProfile, get_profile
-from guidance.core.messages import WheelOdometry
+from guidance.core.messages import RawCanFrame, WheelOdometry
 from guidance.errors import UserError
 
 log = logging.getLogger(__name__)
@@ -216,15 +216,14 @@ class CanOdometry(ThreadedSource[WheelOdometry]):
                 self._health.error(f"CAN error frame (id 0x{msg.arbitration_id:X})")
             if self._raw_sink is not None:  # recording raw frames: built only then
                 self._offer_raw(
-                    "can",
-                    float(msg.timestamp),
-                    {
-                        "id": msg.arbitration_id,
-                        "data": bytes(msg.data),
-                        "is_extended_id": bool(msg.is_extended_id),
-                        "is_error_frame": bool(msg.is_error_frame),
-                        "channel": str(self.config.channel),
-                    },
+                    RawCanFrame(
+                        float(msg.timestamp),
+                        msg.arbitration_id,
+                        bytes(msg.data),
+                        bool(msg.is_extended_id),
+                        bool(msg.is_error_frame),
+                        str(self.config.channel),
+                    )
                 )
             with self._lock:
                 out = self.decoder.feed(msg)

@@ -39,7 +39,7 @@ import pynmea2
 import serial
 
 from drivers._reader import ThreadedSource, rejection_counters
-from guidance.core.messages import CompassHeading
+from guidance.core.messages import CompassHeading, RawNmeaLine
 from guidance.errors import UserError
 
 log = logging.getLogger(__name__)
@@ -514,7 +514,7 @@ class SerialCompass(ThreadedSource[CompassHeading]):
             self._count("bytes", len(chunk))
             for line in assembler.feed(chunk):
                 if self._raw_sink is not None:  # recording raw lines
-                    self._offer_raw("nmea", t_s, {"line": line, "port": str(self.config.port)})
+                    self._offer_raw(RawNmeaLine(t_s, line, str(self.config.port)))
                 with self._lock:
                     out = self.parser.feed_line(line, t_s)
                     outcome = self.parser.last_outcome

@@ -44,6 +44,9 @@ from guidance.core.messages import (
     EstimateState,
     Health,
     LandmarkFix,
+    RawCanFrame,
+    RawNmeaLine,
+    RawRecord,
 )
 from guidance.outputs.kinds import HEALTH, OUTPUTS, HealthReport, OutputContext
 from guidance.outputs.sink import NO_CONTEXT
@@ -429,23 +432,12 @@ def record_raw_inputs(source: Source, recorder: InputRecorder) -> bool:
     if not isinstance(source, ports.RecordsRaw):
         return False
 
-    def raw_sink(kind: str, t_s: float, f: Mapping[str, object]) -> None:
-        if kind == "can":
-            ident, data = f["id"], f["data"]
-            if not (isinstance(ident, int) and isinstance(data, bytes | bytearray)):
-                return  # not a frame the drivers make
-            recorder.record_can(
-                t_s,
-                ident,
-                bytes(data),
-                is_extended_id=bool(f["is_extended_id"]),
-                is_error_frame=bool(f["is_error_frame"]),
-                channel=str(f["channel"]),
-            )
-        elif kind == "nmea":
-            line = f["line"]  # bytes as read (the recorder decodes them)
-            if isinstance(line, bytes | str):
-                recorder.record_nmea(t_s, line, port=str(f["port"]))
+    def raw_sink(r: RawRecord) -> None:
+        if isinstance(r, RawCanFrame):
+            recorder.record_can(r.t_s, r.arbitration_id, r.data, is_extended_id=r.is_extended_id,
+                                is_error_frame=r.is_error_frame, channel=r.channel)  # fmt: skip
+        elif isinstance(r, RawNmeaLine):
+            recorder.record_nmea(r.t_s, r.line, port=r.port)
 
     source.set_raw_sink(raw_sink)
     return True

@@ -25,6 +25,7 @@ from guidance.core.messages import (
     Health,
     IntersectionScene,
     LandmarkFix,
+    RawSink,
     TurnCompleted,
     WheelOdometry,
 )
@@ -57,7 +58,6 @@ class Source(Protocol[T_co]):
         parser) when the source judges its data: the pipeline's garbled-input check."""
 
 
-RawSink = Callable[[str, float, Mapping[str, object]], None]
 """``(kind, t_s, fields)``: "can" with id, data, is_extended_id, is_error_frame, channel;
 "nmea" with line, port (``drivers._reader.ThreadedSource`` offers each unit it reads)."""
 

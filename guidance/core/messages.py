@@ -10,7 +10,7 @@ frame time, NMEA line arrival, simulated clock), never read from a clock inside
 from __future__ import annotations
 
 import math
-from collections.abc import Mapping
+from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
 from enum import IntEnum, StrEnum
 from typing import Any
@@ -312,3 +312,30 @@ class Decision:
     revisit: bool
     mode: str
     reason: str
+
+
+# -- raw device units (the drivers' raw-input hook; the recorder's /can and /nmea) -------------
+@dataclass(frozen=True, slots=True)
+class RawCanFrame:
+    """One CAN frame as the driver read it, before decoding."""
+
+    t_s: float
+    arbitration_id: int
+    data: bytes
+    is_extended_id: bool = False
+    is_error_frame: bool = False
+    channel: str = ""
+
+
+@dataclass(frozen=True, slots=True)
+class RawNmeaLine:
+    """One NMEA line as the driver read it (bytes as they came), before parsing."""
+
+    t_s: float
+    line: bytes | str
+    port: str = ""
+
+
+RawRecord = RawCanFrame | RawNmeaLine
+RawSink = Callable[[RawRecord], None]
+"""The drivers' raw-input hook (``ThreadedSource.set_raw_sink``): every unit read, typed."""
