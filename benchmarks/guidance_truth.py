@@ -25,9 +25,9 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
+from hal_sim.drive_options import DriveOptions
 from hal_sim.guided import guided_drive
 from hal_sim.oracle import CheckResult
-from hal_sim.sim_cli import DriveOptions
 
 METHODS = ("straight_to_goal", "landmark_to_landmark", "hybrid")
 

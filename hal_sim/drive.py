@@ -40,12 +40,12 @@ from guidance.core.navigator import Landmark, Method, NavigatorConfig
 from guidance.core.pipeline import Input, Pipeline, PipelineConfig
 from guidance.core.pipeline import Outputs as PipelineOutputs
 from guidance.errors import UserError
+from hal_sim.drive_options import DriveOptions, DriveResult, output_settings, wav_has_speech
 from hal_sim.lockstep import LockstepSink
 from hal_sim.params import SimParams, estimator_config
 from hal_sim.plots import DriveTrace, plot_drive
 from hal_sim.sim_camera import SIM_ORIGIN
 from hal_sim.sim_checks import check_drive_options, stop_on_signals
-from hal_sim.sim_cli import DriveOptions, DriveResult, output_settings, wav_has_speech
 from hal_sim.sim_run import SimDevices, open_sim_camera, open_sim_devices
 from hal_sim.sim_world import SimWorld, StepEvents, WorldSpec
 

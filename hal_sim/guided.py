@@ -28,8 +28,8 @@ from guidance.core.model import CHI2_2D_2SIGMA, mahalanobis_sq_2d, wrap_angle
 from guidance.core.pipeline import Input, Pipeline
 from hal_sim import world as world_mod
 from hal_sim.drive import drive_cap_m, drive_pipeline_config, make_world
+from hal_sim.drive_options import DriveOptions
 from hal_sim.oracle import CheckResult, Report, SpokenPrompt, TruthSample, check
-from hal_sim.sim_cli import DriveOptions
 from hal_sim.sim_scene import SimScene
 
 TRUTH_EVERY = 1

@@ -40,7 +40,7 @@ from hal_sim.sim_world import SimWorld, landmark_name
 if TYPE_CHECKING:
     from guidance.app.app import Source
     from guidance.core.navigator import Landmark
-    from hal_sim.sim_cli import DriveOptions
+    from hal_sim.drive_options import DriveOptions
     from landmark_db.recognise import Recogniser
 
 _channel_ids = itertools.count()
@@ -185,7 +185,8 @@ def run_on_simulated_devices(config_path: str, *, as_json: bool = False) -> int:
     """``guidance run --config`` with ``[sim] devices = true``: one simulated drive through the
     car's wiring; prints the prompts, the summary and, with ``as_json``, the result as the last
     line (``outcome``, ``landmark_updates``, ``prompts``...)."""
-    from hal_sim.sim_cli import DriveOptions, drive_and_report, options_from_config
+    from hal_sim.drive_options import DriveOptions, options_from_config
+    from hal_sim.sim_cli import drive_and_report
 
     opts, cfg = options_from_config(config_path, DriveOptions())
     if cfg.landmark_db is not None:

@@ -12,9 +12,9 @@ from pathlib import Path
 import pytest
 
 from hal_sim.drive import run_drive
+from hal_sim.drive_options import DriveOptions
 from hal_sim.guided import guided_drive
 from hal_sim.oracle import CheckResult, from_recording
-from hal_sim.sim_cli import DriveOptions
 
 METHODS = ("straight_to_goal", "landmark_to_landmark", "hybrid")
 

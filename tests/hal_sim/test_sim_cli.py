@@ -12,7 +12,8 @@ import pytest
 from guidance.config_tables import plain
 from guidance.core import law
 from guidance.errors import UserError
-from hal_sim.sim_cli import METHODS, DriveOptions, options_from_config, register
+from hal_sim.drive_options import METHODS, DriveOptions, options_from_config
+from hal_sim.sim_cli import register
 
 REPO = Path(__file__).resolve().parents[2]
 

@@ -173,7 +173,7 @@ def test_the_simulator_applies_the_remote_goal_it_accepts(loopback_acl: str) -> 
     """A drive with telemetry on loopback: a monitor sends a goal; the car says it and its
     state carries it (before: logged "accepted", never applied)."""
     from hal_sim.drive import run_drive
-    from hal_sim.sim_cli import DriveOptions
+    from hal_sim.drive_options import DriveOptions
 
     port = free_port()
     tcfg = TelemetryConfig(
