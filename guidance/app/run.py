@@ -136,7 +136,7 @@ async def run_car(
             args.append(conf_cls(device=cfg.scene.device, grab=cfg.scene.grab))
         scene_source = cls(
             *args,
-            lambda: float(pipeline.estimator.x[2]),
+            lambda: pipeline.estimator.heading_rad,
             feedback=feedback,
             echo=opscreen.echo if per_key else None,
             on_command=operator.on_command,

@@ -270,6 +270,11 @@ class PoseEstimator:
             raise ValueError(f"state of size {x.shape[0]} cannot fill a {self.n}-state filter")
         self.set_pose(float(x[0]), float(x[1]), float(x[2]), P[:3, :3])
 
+    @property
+    def heading_rad(self) -> float:
+        """The estimated heading (counter-clockwise from east), ``x[model.STATE_THETA]``."""
+        return float(self._kf.x[model.STATE_THETA])
+
     def restore(self, x: np.ndarray, P: np.ndarray, last_t_s: float | None) -> None:
         """A checkpoint's state, and its time order when the clock is the same one."""
         self.set_state(x, P)

@@ -81,7 +81,7 @@ PASS_MARGIN_M = 5.0
 MAX_AHEAD = 4
 """Intersections kept ahead at once (a co-driver who reports far ahead)."""
 
-Say = Callable[[Outputs, float, str, int, str], None]
+Say = Callable[[Outputs, float, str, Priority, str], None]
 
 
 class Guide:
@@ -121,7 +121,7 @@ class Guide:
         self, scene: IntersectionScene, est: PoseEstimator, odometer_m: float, out: Outputs
     ) -> None:
         """A reported intersection: queued, decided when its road is known, announced."""
-        heading = float(est.x[2])
+        heading = est.heading_rad
         d = scene.distance_m
         known = d is not None and math.isfinite(d)
         self.reports += 1
@@ -179,7 +179,7 @@ class Guide:
         if first is None:
             return False
         base = first.approach_heading_rad
-        heading = float(est.x[2]) if base is None else wrap_angle(base + turn.heading_change_rad)
+        heading = est.heading_rad if base is None else wrap_angle(base + turn.heading_change_rad)
         self._resolve(first, turn.t_s, heading, turn.source, est, out)
         return True
 
@@ -199,7 +199,7 @@ class Guide:
         """After each odometry step: the road history, arrivals at intersections, exits taken,
         re-evaluation and announcements."""
         x = est.x
-        self.history.add(odometer_m, float(x[0]), float(x[1]), float(x[2]))
+        self.history.add(odometer_m, float(x[0]), float(x[1]), est.heading_rad)
         first = self._first_unresolved()
         if first is not None:
             self._check_resolution(first, t_s, est, odometer_m, turn, out)
@@ -221,7 +221,7 @@ class Guide:
         out: Outputs,
     ) -> None:
         cfg = self.config
-        heading = float(est.x[2])
+        heading = est.heading_rad
         if a.at_odometer_m is not None:
             if a.reached is None and odometer_m >= a.at_odometer_m:
                 a.reached = _reached(est)
@@ -335,7 +335,7 @@ class Guide:
             # Typed relative to the car: fixed once, against the road after any turn.
             if a.approach_heading_rad is None:
                 if prev is None and steady:
-                    a.approach_heading_rad = float(est.x[2])
+                    a.approach_heading_rad = est.heading_rad
                 elif (
                     prev is not None
                     and prev.decision is not None
@@ -345,13 +345,13 @@ class Guide:
             return
         near = a.at_odometer_m is not None and odometer_m >= a.at_odometer_m - 10.0
         if on_its_road and on_road and (a.approach_heading_rad is None or not near):
-            a.approach_heading_rad = self.history.road_heading(float(est.x[2]))
+            a.approach_heading_rad = self.history.road_heading(est.heading_rad)
         elif prev is not None and prev.decision is not None and a.approach_heading_rad is None:
             a.approach_heading_rad = prev.decision.exit_heading_rad
         elif prev is None and a.approach_heading_rad is None and steady:
             # Just out of a turn: the exit it took is the road, if the car has kept to it.
             taken = self.last_exit_heading_rad
-            heading = float(est.x[2])
+            heading = est.heading_rad
             if (
                 taken is not None
                 and abs(wrap_angle(heading - taken)) <= self.history.steady_tol_rad

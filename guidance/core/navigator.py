@@ -149,7 +149,8 @@ class Navigator:
             penalties, costs,
         )  # fmt: skip
         self.decisions += 1
-        return self._decision(t_s, float(x[2]), headings, penalties, costs, best, k, revisit,
+        heading = float(x[model.STATE_THETA])
+        return self._decision(t_s, heading, headings, penalties, costs, best, k, revisit,
                               target)  # fmt: skip
 
     def evaluate(

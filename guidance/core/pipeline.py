@@ -232,8 +232,7 @@ class Pipeline:
         self._dr_to_t, self._dr_m = None, 0.0
         self._last_odo_t = msg.t_s
         self.st.odometer_m += abs(d_wheels)
-        x = est.x
-        turn = self.turns.update(msg.t_s, float(x[2]), self.st.odometer_m)
+        turn = self.turns.update(msg.t_s, est.heading_rad, self.st.odometer_m)
         if turn is not None:
             out.turns.append(turn)
         self.guide.step(msg.t_s, est, self.st.odometer_m, turn, out)
@@ -338,7 +337,7 @@ class Pipeline:
         self.st.arrived = False
         self.st.finished = False
         # a goal from the network is said as such: the driver hears who changed the route
-        text = "New destination set remotely" if goal.source == "remote" else "New destination set"
+        text = prompts.new_destination(remote=goal.source == "remote")
         self._say(out, goal.t_s, text, Priority.INFO, "info")
         self.guide.replan(goal.t_s, self.estimator, self.st.odometer_m, out)
 
@@ -391,7 +390,7 @@ class Pipeline:
             name, reason != "out_of_order", "time: stamped before the estimate", aspect="time"
         )
 
-    def _say(self, out: Outputs, t: float, text: str, priority: int, kind: str) -> None:
+    def _say(self, out: Outputs, t: float, text: str, priority: Priority, kind: str) -> None:
         self.st.prompt_count += 1
         out.prompts.append(Prompt(t, text, priority, kind))
 

@@ -146,6 +146,11 @@ def position_uncertain(major_axis_m: float, units: Units = Units.METRIC) -> str:
     return f"Position uncertain, within {format_distance(major_axis_m, units)}"
 
 
+def new_destination(remote: bool) -> str:
+    """A new goal was set (by the operator, or by a remote monitor)."""
+    return "New destination set remotely" if remote else "New destination set"
+
+
 def arrived() -> str:
     return "You have arrived at your destination"
 
