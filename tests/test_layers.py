@@ -120,7 +120,7 @@ def test_recording_never_imports_telemetry() -> None:
 
 def test_the_outputs_import_only_the_core() -> None:
     """The output table, encoders and schemas are pure: the core's values (type-only imports of
-    the heavier core modules; ``test_the_output_path_does_not_load_the_compiler`` checks that
+    the heavier core modules; ``test_importing_does_not_load_a_heavy_package`` checks that
     numba stays out), nothing of the app, telemetry or the recorder, no zenoh or mcap."""
 
     def allowed(m: str) -> bool:
@@ -140,41 +140,43 @@ def test_only_tools_import_driver_decoders() -> None:
         assert not bad, "\n".join(bad)
 
 
-@pytest.mark.parametrize(
-    "module",
-    [
-        "guidance.recording",
-        "guidance.recording.reader",
-        "guidance.tools.replay",
-        "guidance.app.config",
-        "guidance.core.pipeline",
-        "guidance.outputs.kinds",
-    ],
-)
-def test_importing_does_not_load_zenoh(module: str) -> None:
-    code = f"import sys, {module}; print('zenoh' in sys.modules)"
+def _loads(module: str, package: str) -> bool:
+    """Whether importing ``module`` in a fresh interpreter loads ``package``."""
+    code = f"import sys, {module}; print({package!r} in sys.modules)"
     out = subprocess.run(
         [sys.executable, "-c", code], capture_output=True, text=True, check=True, cwd=ROOT
     ).stdout.strip()
-    assert out == "False", f"import {module} loads zenoh"
+    return out == "True"
 
 
-@pytest.mark.parametrize(
-    "module",
-    [
-        "guidance.outputs.kinds",
-        "guidance.outputs.sink",
-        "guidance.recording.topics",
-        "guidance.tools.monitor_check",
-    ],
-)
-def test_the_output_path_does_not_load_the_compiler(module: str) -> None:
-    """``guidance monitor`` and the recorder's schemas need no numba (issue 25)."""
-    code = f"import sys, {module}; print('numba' in sys.modules)"
-    out = subprocess.run(
-        [sys.executable, "-c", code], capture_output=True, text=True, check=True, cwd=ROOT
-    ).stdout.strip()
-    assert out == "False", f"import {module} loads numba"
+LIGHT_IMPORTS = [
+    *(
+        (m, "zenoh")
+        for m in (
+            "guidance.recording",
+            "guidance.recording.reader",
+            "guidance.tools.replay",
+            "guidance.app.config",
+            "guidance.core.pipeline",
+            "guidance.outputs.kinds",
+        )
+    ),
+    # guidance monitor and the recorder's schemas need no compiler (issue 25)
+    *(
+        (m, "numba")
+        for m in (
+            "guidance.outputs.kinds",
+            "guidance.outputs.sink",
+            "guidance.recording.topics",
+            "guidance.tools.monitor_check",
+        )
+    ),
+]
+
+
+@pytest.mark.parametrize(("module", "package"), LIGHT_IMPORTS)
+def test_importing_does_not_load_a_heavy_package(module: str, package: str) -> None:
+    assert not _loads(module, package), f"import {module} loads {package}"
 
 
 def test_no_module_over_600_lines() -> None:
