@@ -51,12 +51,14 @@ def _kill_import_mid_write(path: Path) -> Path:
         stderr=subprocess.DEVNULL,
     )
     deadline = time.monotonic() + 60
+    size0 = path.stat().st_size
     try:
-        while not (journal.exists() and journal.stat().st_size > 0):
+        # Killed once pages of the transaction have reached the file (before that the journal
+        # is not hot: the file is intact and a read-only open rightly reads it as it was).
+        while not (journal.exists() and journal.stat().st_size > 0 and path.stat().st_size > size0):
             assert proc.poll() is None, "the import ended before it was killed"
             assert time.monotonic() < deadline
             time.sleep(0.005)
-        time.sleep(0.3)  # a few photos into the transaction
         os.kill(proc.pid, signal.SIGKILL)
     finally:
         proc.wait(10)
