@@ -40,21 +40,18 @@ def test_a_second_drive_from_learned_parameters_has_a_smaller_ellipse_and_is_sti
     """Issue 21, item 3: each car learns on a drive with landmark fixes; its next drive (another
     route, no landmarks, a day later) starts from what it learned, widened for the day."""
     from guidance.core.estimator import EstimatorConfig, car_model
+    from hal_sim.population import learn_then_drive
 
     cfg = car_model(EstimatorConfig(compass_two_sigma_deg=None), calibrated=False)
     rng = np.random.default_rng(424242)
-    learned_runs, fresh_runs, taught = [], [], 0
-    for i in range(40):
-        car = draw_car(rng)
-        first = drive_car(6000 + i, car, compass=False, landmarks_per_km2=40.0, distance_m=3000.0)
-        assert first.learned is not None
-        day_later = first.learned.widened(first.learned.saved_unix_s + 86400.0, cfg)
-        taught += day_later.scale_sigma < 0.5 * cfg.scale_sigma  # the scale was learned
-        learned_runs.append(drive_car(7000 + i, car, compass=False, learned=day_later))
-        fresh_runs.append(drive_car(7000 + i, car, compass=False))
+    runs = [learn_then_drive(6000 + i, draw_car(rng)) for i in range(40)]
+    taught = 0
+    for r in runs:
+        assert r.first.learned is not None
+        taught += r.first.learned.scale_sigma < 0.5 * cfg.scale_sigma  # the scale was learned
     assert taught >= 30  # most routes pass landmarks
-    with_learned = population(learned_runs)
+    with_learned = population([r.from_learned for r in runs])
     assert with_learned.inside >= 0.80, with_learned.summary()
-    axis_learned = np.median([r.final_major_axis_m for r in learned_runs])
-    axis_priors = np.median([r.final_major_axis_m for r in fresh_runs])
+    axis_learned = np.median([r.from_learned.final_major_axis_m for r in runs])
+    axis_priors = np.median([r.from_priors.final_major_axis_m for r in runs])
     assert axis_learned < axis_priors
