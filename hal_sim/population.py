@@ -25,7 +25,7 @@ The car errors, with heavier tails than the filter's priors (Student t, 4 degree
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 
@@ -84,6 +84,14 @@ def draw_car(rng: np.random.Generator) -> CarErrors:
         start_dx_m=float(rng.normal(0.0, 3.0)),
         start_dy_m=float(rng.normal(0.0, 3.0)),
     )
+
+
+def draw_matched_car(rng: np.random.Generator) -> CarErrors:
+    """A car whose wheel errors are drawn from the filter's own Gaussian priors (scale 2 %,
+    left/right 0.03 %; the start and the wheel walk are the filter's already): the yardstick of
+    a perfectly matched filter for the per-car figures (docs/estimation.md)."""
+    car = draw_car(rng)
+    return replace(car, scale=float(rng.normal(0.0, 0.02)), diff=float(rng.normal(0.0, 3e-4)))
 
 
 def _t4(rng: np.random.Generator, scale: float, limit: float) -> float:

@@ -26,6 +26,22 @@ def test_an_uncalibrated_population_is_honest(compass: bool, cars: int) -> None:
     assert all(r.driven_m >= 1500.0 for r in results)
 
 
+def test_a_perfectly_matched_filter_still_has_cars_below_half_inside() -> None:
+    """The yardstick for "cars below 50 % inside": cars whose errors are drawn from the
+    filter's own Gaussian priors. Their errors are persistent, so a car whose draw lies beyond
+    about 2 sigma is outside for most of its drive: 8-11.5 % of such cars are below 50 %
+    although the population is honest (86.5-88 % inside). The heavier-tailed population's 8 %
+    is at that floor; only aiding or learning (which observe the persistent errors) go below."""
+    from hal_sim.population import draw_matched_car
+
+    rng = np.random.default_rng(20261203)
+    fig = population([drive_car(8000 + i, draw_matched_car(rng), compass=False)
+                      for i in range(200)])  # fmt: skip
+    assert 0.84 <= fig.inside <= 0.91, fig.summary()
+    assert 0.9 <= fig.mean_nees / 2.0 <= 1.15, fig.summary()
+    assert fig.cars_below_half > 0.05, fig.summary()
+
+
 def test_a_car_with_the_filters_own_errors_is_inside_most_of_the_time() -> None:
     """The population's machinery: a car whose errors are exactly the prior's typical ones."""
     from dataclasses import replace
