@@ -146,14 +146,27 @@ def _truth_length(path: Path) -> tuple[float, float, float]:
     return rows[0][0], rows[-1][0], length
 
 
-def test_comma2k19_over_the_truth_span_gives_the_truth_scale(tmp_path: Path) -> None:
-    """The RAV4's wheels measure 0.89 % short of its post-processed truth path (README)."""
+def test_comma2k19_over_the_truth_span_gives_the_truth_scale(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """The RAV4's wheels measure 0.89 % short of its post-processed truth path (README); the
+    learned file is what ``guidance replay --learned`` then starts from."""
     t_from, t_to, truth_m = _truth_length(DATA / "comma2k19_ex1_truth.csv")
-    out = _cli("calibrate", str(DATA / "comma2k19_ex1_wheelspeeds.log"), "--config",
-               str(REPO / "config" / "realdrives" / "comma2k19_ex1.toml"),
-               "--distance-m", f"{truth_m:.2f}", "--from-t", f"{t_from}", "--to-t", f"{t_to}",
+    log, car = (
+        DATA / "comma2k19_ex1_wheelspeeds.log",
+        REPO / "config" / "realdrives" / "comma2k19_ex1.toml",
+    )
+    learned = tmp_path / "rav4.json"
+    out = _cli("calibrate", str(log), "--config", str(car), "--distance-m", f"{truth_m:.2f}",
+               "--from-t", f"{t_from}", "--to-t", f"{t_to}", "--learned", str(learned), "--write",
                "--json")  # fmt: skip
     res = json.loads(out.splitlines()[-1])["wheel_scale"]
     truth_scale = 1.0 / (1.0 - 0.0089) - 1.0
     assert abs(res["scale"] - truth_scale) <= res["scale_sigma"], res
     assert res["scale_sigma"] < 0.002  # 1 m over 1 km, and the wheel noise
+    capsys.readouterr()
+    _cli("replay", str(log), "--config", str(car), "--learned", str(learned))
+    assert (
+        "starting from learned parameters (1.0 km, 0.0 days old): wheel scale +0.94 +- 0.10 %"
+        in (capsys.readouterr().err)
+    )
