@@ -76,6 +76,13 @@ class EstimatorConfig:
     compass_bias_turn_deg2_per_rad: float = 0.0
     """Bias variance added per radian of heading change (the deviation curve left after
     calibration changes with heading)."""
+    heading_second_order: float = 0.0
+    """The second-order term of a heading error, which a linearised filter leaves out: a
+    position lever ``r`` turned by an error ``delta`` also moves ``-r delta^2 / 2`` along
+    itself, ``|r| sigma^2 = |P_xy,theta|``. Its second moment about the (uncorrected) estimate
+    is ``3/4 |P_xy,theta|^2`` (``E[delta^4] = 3 sigma^4``): this factor times
+    ``|P_xy,theta|^2`` is added along the lever as it grows (0.75 in the car model; 0, the
+    paper's linear filter). docs/estimation.md, "The second-order heading term"."""
 
     @property
     def car_model(self) -> bool:
@@ -96,6 +103,7 @@ CAR_MODEL: dict[str, float] = {
     "diff_walk_var_per_m": 1e-10,
     "compass_bias_walk_deg2_per_s": 0.15,
     "initial_position_sigma_m": 3.0,
+    "heading_second_order": 0.75,
 }
 """The car model's defaults (``[estimator] model = "car"``); each value's reason and the
 real-drive figures behind it are in docs/estimation.md. Wheel speeds on CAN are speeds, not
@@ -454,7 +462,14 @@ class PoseEstimator:
             F, Q = Fc, Qc
         self._kf.F = F
         self._kf.Q = Q
+        c0 = np.array(self._kf.P[0:2, 2], dtype=float) if cfg.heading_second_order else None
         self._kf.predict(u=np.array([d, dth]))
+        if c0 is not None:
+            P, c1 = self._kf.P, np.array(self._kf.P[0:2, 2], dtype=float)
+            grow, norm = cfg.heading_second_order * (c1 @ c1 - c0 @ c0), math.hypot(*c1)
+            if grow > 0.0 and norm > 0.0:  # along the lever: perpendicular to dp/dtheta
+                lever = np.array([c1[1], -c1[0]]) / norm
+                P[0:2, 0:2] += grow * np.outer(lever, lever)
         return StepResult(kind, True)
 
     def _update_heading(self, msg: HeadingFix) -> StepResult:
