@@ -462,14 +462,20 @@ class PoseEstimator:
             F, Q = Fc, Qc
         self._kf.F = F
         self._kf.Q = Q
-        c0 = np.array(self._kf.P[0:2, 2], dtype=float) if cfg.heading_second_order else None
+        P, c0 = self._kf.P, 0.0
+        if cfg.heading_second_order > 0.0:
+            c0 = float(P[0, 2]) ** 2 + float(P[1, 2]) ** 2
         self._kf.predict(u=np.array([d, dth]))
-        if c0 is not None:
-            P, c1 = self._kf.P, np.array(self._kf.P[0:2, 2], dtype=float)
-            grow, norm = cfg.heading_second_order * (c1 @ c1 - c0 @ c0), math.hypot(*c1)
-            if grow > 0.0 and norm > 0.0:  # along the lever: perpendicular to dp/dtheta
-                lever = np.array([c1[1], -c1[0]]) / norm
-                P[0:2, 0:2] += grow * np.outer(lever, lever)
+        if cfg.heading_second_order > 0.0:
+            P = self._kf.P
+            cx, cy = float(P[0, 2]), float(P[1, 2])
+            c1 = cx * cx + cy * cy
+            if c1 > c0:  # along the lever (cy, -cx): perpendicular to dp/dtheta
+                g = cfg.heading_second_order * (c1 - c0) / c1
+                P[0, 0] += g * cy * cy
+                P[1, 1] += g * cx * cx
+                P[0, 1] -= g * cx * cy
+                P[1, 0] -= g * cx * cy
         return StepResult(kind, True)
 
     def _update_heading(self, msg: HeadingFix) -> StepResult:
