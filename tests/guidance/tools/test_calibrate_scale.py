@@ -55,15 +55,19 @@ def _cli(*args: str) -> str:
     return buf.getvalue()
 
 
-def _straight_drive(tmp_path: Path, true_m: float = 600.0, v: float = 12.0) -> Path:
-    """A straight drive of ``true_m`` metres whose wheels read 3 % short (a candump log)."""
+def _straight_drive(
+    tmp_path: Path, true_m: float = 600.0, v: float = 12.0, turn_deg: float = 0.0
+) -> Path:
+    """A drive of ``true_m`` metres whose wheels read 3 % short (a candump log), straight or
+    turning by ``turn_deg`` evenly over it."""
     sim = SimCanWheels(profile="toyota")
     dt, t = sim.period_s, 0.0
     log = tmp_path / "straight.log"
     measured = v / (1.0 + TRUE_SCALE)
+    half = 0.5 * 1.62 * math.radians(turn_deg) / true_m * measured  # omega x track / 2
     with can.Logger(str(log)) as writer:
         while t * v < true_m:
-            sim.set_speeds(measured, measured)
+            sim.set_speeds(measured - half, measured + half)
             for msg in sim.encode():
                 msg.timestamp = T0 + t
                 writer.on_message_received(msg)
@@ -106,6 +110,21 @@ def test_two_known_points_on_a_straight(tmp_path: Path) -> None:
     assert not res["written"]
     assert res["known_m"] == pytest.approx(600.0, abs=1.0)
     assert abs(res["scale"] - TRUE_SCALE) <= 2.0 * res["scale_sigma"], res
+
+
+def test_two_known_points_on_a_bend_are_refused(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    log = _straight_drive(tmp_path, turn_deg=45.0)
+    car = tmp_path / "car.toml"
+    car.write_text(CAR)
+    args = ["--points", "48.0,11.0", "48.005,11.0"]
+    assert main(["calibrate", str(log), "--config", str(car), *args]) != 0
+    err = capsys.readouterr().err
+    assert re.search(r"heading spans 4[45] degrees", err) and "--distance-m" in err, err
+    # measured along the road, the same bend is fine
+    out = _cli("calibrate", str(log), "--config", str(car), "--distance-m", "600", "--json")
+    assert abs(json.loads(out.splitlines()[-1])["wheel_scale"]["scale"] - TRUE_SCALE) < 0.002
 
 
 def test_an_absurd_result_is_refused_with_one_line(
