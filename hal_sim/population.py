@@ -25,7 +25,7 @@ The car errors, with heavier tails than the filter's priors (Student t, 4 degree
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 
@@ -86,6 +86,14 @@ def draw_car(rng: np.random.Generator) -> CarErrors:
     )
 
 
+def draw_matched_car(rng: np.random.Generator) -> CarErrors:
+    """A car whose wheel errors are drawn from the filter's own Gaussian priors (scale 2 %,
+    left/right 0.03 %; the start and the wheel walk are the filter's already): the yardstick of
+    a perfectly matched filter for the per-car figures (docs/estimation.md)."""
+    car = draw_car(rng)
+    return replace(car, scale=float(rng.normal(0.0, 0.02)), diff=float(rng.normal(0.0, 3e-4)))
+
+
 def _t4(rng: np.random.Generator, scale: float, limit: float) -> float:
     """A Student-t (4 dof) draw times ``scale``, redrawn beyond ``limit`` (a wheel scale 25 %
     off is a wrong DBC, not a tyre)."""
@@ -105,6 +113,10 @@ class CarResult:
     across2: list[float] = field(default_factory=list)
     axis_ratio: list[float] = field(default_factory=list)
     lost_at_error_m: float | None = None
+    lost_at_m: float | None = None
+    """Distance driven when "lost" was first declared."""
+    axis_m: list[tuple[float, float]] = field(default_factory=list)
+    """(distance driven, 2-sigma major axis) at every sample."""
     final_error_m: float = 0.0
     final_major_axis_m: float = 0.0
     learned: LearnedParams | None = None
@@ -128,10 +140,14 @@ def drive_car(
     distance_m: float = 1500.0,
     landmarks_per_km2: float = 0.0,
     learned: LearnedParams | None = None,
+    stop_when_lost: bool = False,
+    calibrated: bool = False,
 ) -> CarResult:
     """One car, ``distance_m`` of random route in the city of ``seed`` (module doc); with
     ``landmarks_per_km2``, fixes where the world has sightings (60 % detected); with
-    ``learned``, the drive starts from what an earlier drive learned."""
+    ``learned``, the drive starts from what an earlier drive learned; ``stop_when_lost``
+    ends it when "lost" is declared; ``calibrated``: the compass has its deviation card (the
+    filter's calibrated compass prior; ``errors`` are then the card's residuals)."""
     rng = np.random.default_rng([seed, 99])
     sim = SimParams()
     est0 = estimator_config(sim, 20.0 if compass else None)
@@ -139,7 +155,7 @@ def drive_car(
     world = SimWorld(spec, sim, est0, NavigatorConfig())
     est = car_model(
         EstimatorConfig(track_m=TRACK_M, compass_two_sigma_deg=None if not compass else 30.0),
-        calibrated=False,
+        calibrated=calibrated,
     )
     sx, sy, th0 = world.start_pose
     dt = world.dt_s
@@ -199,6 +215,11 @@ def drive_car(
             p.feed(LandmarkFix(ev.t_s, ev.landmark, fx, fy, FIX_SIGMA_M))
         if step % SAMPLE_EVERY == 0:
             _sample(res, p, x, y, th)
+            res.axis_m.append((world.driven_m, p.estimator.major_axis_m))
+            if res.lost_at_m is None and p.estimator.lost:
+                res.lost_at_m = world.driven_m
+                if stop_when_lost:
+                    break
     res.driven_m = world.driven_m
     xe = p.estimator.x
     res.final_error_m = math.hypot(prev[0] - xe[0], prev[1] - xe[1])
@@ -268,4 +289,31 @@ def population(results: list[CarResult]) -> PopulationFigures:
         across_nees=float(np.mean(np.concatenate([r.across2 for r in results]))),
         per_car_inside=per_car,
         lost_errors_m=[r.lost_at_error_m for r in results if r.lost_at_error_m is not None],
+    )
+
+
+@dataclass(slots=True)
+class TwoDrives:
+    """One car's first drive (with landmark fixes: it learns), and its next drive (another
+    route, no landmarks, ``days`` later) from what it learned and from the priors."""
+
+    first: CarResult
+    from_learned: CarResult
+    from_priors: CarResult
+
+
+def learn_then_drive(
+    seed: int, errors: CarErrors, *, compass: bool = False, days: float = 1.0,
+    first_m: float = 3000.0, landmarks_per_km2: float = 40.0,
+) -> TwoDrives:  # fmt: skip
+    """Issue 21, item 3, for one car (``TwoDrives``); the second drive's seed is ``seed + 1000``."""
+    cfg = car_model(EstimatorConfig(compass_two_sigma_deg=None), calibrated=False)
+    first = drive_car(seed, errors, compass=compass, landmarks_per_km2=landmarks_per_km2,
+                      distance_m=first_m)  # fmt: skip
+    assert first.learned is not None  # the car model always has them
+    later = first.learned.widened(first.learned.saved_unix_s + days * 86400.0, cfg)
+    return TwoDrives(
+        first,
+        drive_car(seed + 1000, errors, compass=compass, learned=later),
+        drive_car(seed + 1000, errors, compass=compass),
     )

@@ -186,6 +186,7 @@ CAR_KEYS = (
     "compass_bias_sigma_deg",
     "compass_bias_walk_deg2_per_s",
     "compass_bias_turn_deg2_per_rad",
+    "heading_second_order",
 )
 """The car model's settings in ``[estimator]`` (docs/estimation.md)."""
 

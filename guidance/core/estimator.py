@@ -76,6 +76,13 @@ class EstimatorConfig:
     compass_bias_turn_deg2_per_rad: float = 0.0
     """Bias variance added per radian of heading change (the deviation curve left after
     calibration changes with heading)."""
+    heading_second_order: float = 0.0
+    """The second-order term of a heading error, which a linearised filter leaves out: a
+    position lever ``r`` turned by an error ``delta`` also moves ``-r delta^2 / 2`` along
+    itself, ``|r| sigma^2 = |P_xy,theta|``. Its second moment about the (uncorrected) estimate
+    is ``3/4 |P_xy,theta|^2`` (``E[delta^4] = 3 sigma^4``): this factor times
+    ``|P_xy,theta|^2`` is added along the lever as it grows (0.75 in the car model; 0, the
+    paper's linear filter). docs/estimation.md, "The second-order heading term"."""
 
     @property
     def car_model(self) -> bool:
@@ -96,6 +103,7 @@ CAR_MODEL: dict[str, float] = {
     "diff_walk_var_per_m": 1e-10,
     "compass_bias_walk_deg2_per_s": 0.15,
     "initial_position_sigma_m": 3.0,
+    "heading_second_order": 0.75,
 }
 """The car model's defaults (``[estimator] model = "car"``); each value's reason and the
 real-drive figures behind it are in docs/estimation.md. Wheel speeds on CAN are speeds, not
@@ -459,7 +467,20 @@ class PoseEstimator:
             F, Q = Fc, Qc
         self._kf.F = F
         self._kf.Q = Q
+        P, c0 = self._kf.P, 0.0
+        if cfg.heading_second_order > 0.0:
+            c0 = float(P[0, 2]) ** 2 + float(P[1, 2]) ** 2
         self._kf.predict(u=np.array([d, dth]))
+        if cfg.heading_second_order > 0.0:
+            P = self._kf.P
+            cx, cy = float(P[0, 2]), float(P[1, 2])
+            c1 = cx * cx + cy * cy
+            if c1 > c0:  # along the lever (cy, -cx): perpendicular to dp/dtheta
+                g = cfg.heading_second_order * (c1 - c0) / c1
+                P[0, 0] += g * cy * cy
+                P[1, 1] += g * cx * cx
+                P[0, 1] -= g * cx * cy
+                P[1, 0] -= g * cx * cy
         return StepResult(kind, True)
 
     def _update_heading(self, msg: HeadingFix) -> StepResult:

@@ -8,6 +8,10 @@ D sin 2h + E cos 2h`` to the readings (docs/estimation.md, "Calibrating the comp
 ``--write`` the card goes into the TOML as ``[compass] deviation_deg = [A, B, C, D, E]``
 (``guidance.tools.car_toml``: edited with tomlkit, loaded back before it replaces the file);
 the car then applies it to every reading before the declination.
+
+With ``--distance-m D`` (or ``--points``) the same drive, or another of known length, teaches
+the wheel-speed scale, written with ``--write`` into the car's learned-parameters file
+(``guidance.tools.calibrate_scale``); ``--nmea`` is then optional.
 """
 
 from __future__ import annotations
@@ -25,6 +29,7 @@ from guidance.core.compass_cal import (
 )
 from guidance.core.model import heading_to_compass
 from guidance.errors import UserError
+from guidance.tools import calibrate_scale
 from guidance.tools.car_toml import write_card
 from guidance.tools.replay import can_inputs, nmea_inputs, raw_setup
 
@@ -70,15 +75,17 @@ def card(result: FitResult) -> list[float]:
 def register(sub: Any) -> None:
     p = sub.add_parser(
         "calibrate",
-        help="fit the compass deviation card from a recorded calibration drive",
+        help="fit the compass deviation card, or the wheel scale, from a calibration drive",
         description=(
             "Fit the compass deviation card (A + B sin h + C cos h + D sin 2h + E cos 2h) from a "
             "calibration drive: a CAN log and a time-stamped NMEA capture, starting at a known "
-            "true heading. Best: two slow circles in a car park, one each way (docs/estimation.md)."
+            "true heading. Best: two slow circles in a car park, one each way. With "
+            "--distance-m (or --points), the wheel-speed scale from a drive of known length "
+            "(docs/estimation.md)."
         ),
     )
     p.add_argument("log", type=Path, help="the drive's CAN log (candump .log, .asc, .blf)")
-    p.add_argument("--nmea", type=Path, required=True, help="the compass capture (time-stamped)")
+    p.add_argument("--nmea", type=Path, default=None, help="the compass capture (time-stamped)")
     p.add_argument("--config", required=True, help="the car's TOML (profile, start, place)")
     p.add_argument("--profile", default=None, help="CAN profile (default: the config's)")
     p.add_argument(
@@ -87,12 +94,40 @@ def register(sub: Any) -> None:
         default=None,
         help="true heading at the start, clockwise from north (default: [start])",
     )
-    p.add_argument("--write", action="store_true", help="write the card into the config")
+    p.add_argument(
+        "--write",
+        action="store_true",
+        help="write the card into the config, the wheel scale into the learned file",
+    )
+    calibrate_scale.add_arguments(p)
     p.add_argument("--json", action="store_true", help="last stdout line: the result as JSON")
     p.set_defaults(func=_cli)
 
 
 def _cli(args: argparse.Namespace) -> int:
+    scale = calibrate_scale.wanted(args)
+    if args.nmea is None and not scale:
+        raise UserError("give --nmea (the compass card) or --distance-m/--points (wheel scale)")
+    doc: dict[str, Any] = {}
+    if scale:  # checked (and refused) before anything is written
+        res_scale = calibrate_scale.scale_calibration(args.log, args)
+        text, doc["wheel_scale"] = calibrate_scale.summary(res_scale)
+        sys.stdout.write(text)
+    if args.nmea is not None:
+        doc.update(_card_cli(args))
+    if scale:
+        if args.write:
+            sys.stdout.write(calibrate_scale.write_scale(res_scale, args) + "\n")
+        else:
+            sys.stdout.write("wheel scale not written: add --write to put it into the car's "
+                             "learned parameters\n")  # fmt: skip
+        doc["wheel_scale"]["written"] = bool(args.write)
+    if args.json:
+        sys.stdout.write(json.dumps(doc) + "\n")
+    return 0
+
+
+def _card_cli(args: argparse.Namespace) -> dict[str, Any]:
     config = Path(args.config)
     res = calibrate(
         args.log, args.nmea, args.config, profile=args.profile,
@@ -115,21 +150,14 @@ def _cli(args: argparse.Namespace) -> int:
         w(f"written to {config} as [compass] deviation_deg{via}\n")
     else:
         w(f"not written: add --write to put it into {config}\n")
-    if args.json:
-        w(
-            json.dumps(
-                {
-                    "deviation_deg": values,
-                    "terms": res.terms,
-                    "residual_rms_deg": res.residual_rms_deg,
-                    "residual_max_deg": res.residual_max_deg,
-                    "n_used": res.n_used,
-                    "n_outliers": res.n_outliers,
-                    "coverage_deg": res.coverage_deg,
-                    "note": res.note,
-                    "written": bool(args.write),
-                }
-            )
-            + "\n"
-        )
-    return 0
+    return {
+        "deviation_deg": values,
+        "terms": res.terms,
+        "residual_rms_deg": res.residual_rms_deg,
+        "residual_max_deg": res.residual_max_deg,
+        "n_used": res.n_used,
+        "n_outliers": res.n_outliers,
+        "coverage_deg": res.coverage_deg,
+        "note": res.note,
+        "written": bool(args.write),
+    }
