@@ -24,8 +24,10 @@ stays. So:
   device clock stepped back, confirmed by ``CONFIRM`` late frames in a row (one glitching
   frame moves nothing): re-anchor by the smallest lag among them, within a few frames;
 * late frames whose stamps carry on: reader lag, left alone (the frames keep their stamps'
-  spacing: no distance is made or lost) unless the lag outlasts ``PERSIST_S`` of receive time
-  (and ``WINDOW`` frames): a step back during a silence, or a drift: re-anchor by the lag floor.
+  spacing: no distance is made or lost) unless the lag stays flat (within half the tolerance)
+  for ``PERSIST_S`` of receive time and ``WINDOW`` frames: a step back during a silence, or a
+  drift: re-anchor by the lag floor. A reader that cannot keep up is late by a lag that moves
+  (it falls behind and catches up, by tens of ms at a time), never flat for a second.
 
 Each re-anchoring that is a step is counted and reported with its size. Pure: the caller
 passes both times.
@@ -47,9 +49,10 @@ a virtual bus); stamps in order of reception never go back at all."""
 WINDOW = 20
 """At least this many late frames in a row before a lasting lag re-anchors."""
 PERSIST_S = 1.0
-"""A lag without a stamp going back must last this long (receive time) to be a step or drift:
-reader lag clears far sooner (a 20,000 frames/s flood on 2 cores: late runs of at most 30 ms,
-lag at most 65 ms)."""
+"""A lag without a stamp going back must last this long (receive time), flat, to be a step or
+drift. Reader lag clears sooner (a 20,000 frames/s flood on an idle 2 cores: late runs of at
+most 30 ms, lag at most 65 ms), or moves (the same flood on a loaded machine with a reader
+stalled 40-100 ms every 0.3 s: 0.13-0.44 s behind for seconds, never flat)."""
 
 
 @dataclass(frozen=True, slots=True)
@@ -81,7 +84,7 @@ class ClockMapper:
         """Lags of the late frames since a stamp went back (a step back being confirmed)."""
         self._late_since: float | None = None
         self._late_n = 0
-        self._late_min = 0.0
+        self._late_min = self._late_max = 0.0
         self.clamped = 0
         """Frames stamped in the future that were placed at their receive time instead."""
         self.corrections = 0
@@ -124,15 +127,22 @@ class ClockMapper:
                 step = self._lasting_lag(recv_mono_s, lag)
             if step is not None:
                 mapped += -step.step_s
-        self._last = (recv_mono_s, device_s)
+        if not self._back:  # a frame stamped back, not confirmed yet, is no reference
+            self._last = (recv_mono_s, device_s)
         return min(mapped, recv_mono_s), step  # never in the future, even within tolerance
 
     def _lasting_lag(self, recv_s: float, lag: float) -> ClockStep | None:
-        """A late frame whose stamp carries on: reader lag, unless it lasts (see the module)."""
-        if self._late_since is None:
-            self._late_since, self._late_n, self._late_min = recv_s, 0, lag
+        """A late frame whose stamp carries on: reader lag, unless the lag lasts, and lasts
+        flat (see the module)."""
+        if (
+            self._late_since is None
+            or max(self._late_max, lag) - min(self._late_min, lag) > self.tolerance_s / 2
+        ):  # a new run: the lag moved by more than jitter (a reader catching up, or not)
+            self._late_since, self._late_n = recv_s, 0
+            self._late_min = self._late_max = lag
         self._late_n += 1
         self._late_min = min(self._late_min, lag)
+        self._late_max = max(self._late_max, lag)
         if self._late_n < self.window or recv_s - self._late_since < self.persist_s:
             return None
         assert self.offset_s is not None

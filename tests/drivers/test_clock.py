@@ -59,12 +59,18 @@ FLOOD_HZ = 20_000.0
 
 
 def _flood(
-    seconds: float, *, seed: int = 0, step_at_s: float | None = None, step_s: float = 0.0
+    seconds: float,
+    *,
+    seed: int = 0,
+    step_at_s: float | None = None,
+    step_s: float = 0.0,
+    cost_s: float = 8e-6,
 ) -> list[tuple[float, float, float]]:
     """(recv, device, true) times of a 20,000 frames/s flood read by a reader that stalls (the
     GIL held elsewhere) for 30-120 ms every 0.1-0.5 s, then drains the queue at 8 us a frame:
     the lag pattern measured under the flood of issue 23 (bursts up to ~65 ms), made worse.
-    ``step_s``: the wall clock steps by that much at ``step_at_s``."""
+    ``step_s``: the wall clock steps by that much at ``step_at_s``; ``cost_s``: the reader's
+    time per frame (above 50 us it cannot keep up and falls further behind)."""
     import random
 
     rng = random.Random(seed)
@@ -73,7 +79,7 @@ def _flood(
     stall_at = rng.uniform(0.1, 0.5)
     for k in range(int(seconds * FLOOD_HZ)):
         true = k / FLOOD_HZ
-        reader = max(reader + 8e-6, true + 0.002)
+        reader = max(reader + cost_s, true + 0.002)
         if reader >= stall_at:
             reader += rng.uniform(0.03, 0.12)
             stall_at = reader + rng.uniform(0.1, 0.5)
@@ -93,6 +99,20 @@ def test_reader_lag_in_bursts_is_not_a_clock_step() -> None:
     m = ClockMapper()
     mapped = [m.map(r, d)[0] for r, d, _ in frames]
     assert m.steps == [] and m.corrections == 0 and m.clamped == 0
+    offset = mapped[0] - frames[0][2]
+    assert all(
+        abs(t - true - offset) < 1e-6 for t, (_, _, true) in zip(mapped, frames, strict=True)
+    )
+
+
+def test_a_reader_that_cannot_keep_up_is_not_a_clock_step() -> None:
+    """The reader 10 % slower than the flood for 5 s (and stalling): behind by up to 0.6 s,
+    never catching up. A lag that lasts but moves is the reader's, not the clock's."""
+    frames = _flood(5.0, seed=4, cost_s=55e-6)
+    assert max(r - t for r, _, t in frames) > 0.4
+    m = ClockMapper()
+    mapped = [m.map(r, d)[0] for r, d, _ in frames]
+    assert m.steps == []
     offset = mapped[0] - frames[0][2]
     assert all(
         abs(t - true - offset) < 1e-6 for t, (_, _, true) in zip(mapped, frames, strict=True)
@@ -133,3 +153,14 @@ def test_a_step_back_in_a_silence_is_found_by_its_lasting_lag() -> None:
     after = [m.map(k / 5.0, WALL0 + k / 5.0 - 0.003 - 0.15) for k in range(50, 100)]
     assert len(m.steps) == 1 and m.steps[0].step_s == pytest.approx(-0.15, abs=0.01)
     assert after[-1][0] == pytest.approx(99 / 5.0, abs=0.01)
+
+
+def test_one_frame_stamped_an_hour_back_moves_nothing() -> None:
+    """A glitching frame stamped in the past is one frame in the past (the decoder drops it as
+    time going back); the frames after it are on time, and it is no reference for them."""
+    m = ClockMapper()
+    _drive(m, 50, t0=0.0, wall_shift=0.0)
+    glitch, _ = m.map(50 / 80.0, WALL0 + 50 / 80.0 - 3600.0)
+    later = _drive(m, 50, t0=51 / 80.0, wall_shift=0.0)
+    assert glitch < 0.0 and m.steps == [] and m.corrections == 0
+    assert later[-1][0] == pytest.approx(100 / 80.0, abs=1e-6)

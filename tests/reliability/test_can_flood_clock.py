@@ -23,7 +23,7 @@ from guidance.core.messages import WheelOdometry
 from hal_sim.sim_can import SimCanWheels
 
 SPEED_MPS = 10.0
-FLOOD_S = 3.0
+FLOOD_S = 5.0
 RATE_HZ = 20_000.0
 
 
@@ -89,6 +89,9 @@ def test_a_can_flood_with_a_lagging_reader_is_no_clock_step_and_keeps_the_distan
     assert stats.get("clock_steps", 0) == 0
     assert stats["rejected"] == 0
     assert end_status == "ok" and set(statuses) <= {"starting", "ok"}, statuses
+    # The distance of the span, less at most the first frame's own lag: the anchor it gave is
+    # corrected once the on-time frames show it was late (never a step; this is all that
+    # is lost, once, while every false step of before added its 50 ms of driving).
     distance = sum((i.d_left_m + i.d_right_m) / 2.0 for i in increments)
     truth = SPEED_MPS * (sent[1] - sent[0])
     assert distance == pytest.approx(truth, rel=0.02)
