@@ -6,6 +6,14 @@ thread delivers 640x480 frames at full rate (30 Hz) and ORB landmark matching (O
 detect + describe + brute-force kNN ratio test against a reference photo) runs on every frame
 the matcher can take, in a worker thread (OpenCV releases the GIL).
 
+Two cases, side by side with their ratio: ``idle`` (nothing else running) and ``loaded``: one
+CPU-bound process beside the app (``--busy N`` for more), a program at the default priority
+as on a laptop that runs other things (issue 23, item 9). The benchmark runs at the priority
+the car's systemd unit gives (``Nice=`` of systemd/guidance.service, when this user may
+take it: root, or CAP_SYS_NICE; ``--no-nice`` to measure without), the matcher worker sets
+itself up as in the car (``landmark_db.recognise.worker_setup``: 10 nice levels below the
+app, one OpenCV thread), and the busy process runs at nice 0 in the same session.
+
 Printed figures:
 
 * loop lateness: how late the 100 Hz ticker wakes against its absolute monotonic deadlines
@@ -13,7 +21,8 @@ Printed figures:
 * odometry latency: from a wheel-speed frame's bus timestamp to the end of the estimator
   step it caused (target p99 <= 5 ms).
 
-Usage: ``python benchmarks/loop_latency.py [--seconds 10] [--no-camera] [--record] [--json]``
+Usage: ``python benchmarks/loop_latency.py [--seconds 10] [--case both|idle|loaded] [--busy 1]
+[--no-nice] [--no-camera] [--record] [--json]``
 """
 
 from __future__ import annotations
@@ -23,6 +32,7 @@ import asyncio
 import json
 import math
 import os
+import re
 import sys
 import tempfile
 import threading
@@ -47,7 +57,7 @@ from guidance.core.messages import CameraFrame, EstimateState, WheelOdometry
 from guidance.core.navigator import Method, NavigatorConfig
 from guidance.core.pipeline import Pipeline, PipelineConfig
 from hal_sim.sim_can import SimCanWheels
-from landmark_db.recognise import lower_priority
+from landmark_db.recognise import worker_setup
 
 
 def _texture(seed: int, h: int = 480, w: int = 640) -> np.ndarray:
@@ -123,7 +133,7 @@ class OrbMatcher:
 
     def __init__(self, worker: bool = True) -> None:
         self.pool = (
-            ProcessPoolExecutor(1, mp_context=get_context("spawn"), initializer=lower_priority)
+            ProcessPoolExecutor(1, mp_context=get_context("spawn"), initializer=worker_setup)
             if worker
             else None
         )
@@ -147,12 +157,35 @@ class OrbMatcher:
             self.pool.shutdown()
 
 
+UNIT = Path(__file__).resolve().parents[1] / "systemd" / "guidance.service"
+BUSY = "import os\nos.setpriority(os.PRIO_PROCESS, 0, 0)\nwhile True:\n    pass\n"
+"""Another program: CPU-bound, at the default priority (nice 0, whatever this one has)."""
+
+
+def unit_nice(path: Path = UNIT) -> int:
+    """The ``Nice=`` the car's systemd unit runs guidance at (0 when it sets none)."""
+    m = re.search(r"^Nice=(-?\d+)\s*$", path.read_text(), re.M)
+    return int(m.group(1)) if m else 0
+
+
+def take_unit_priority(nice: int) -> str:
+    """Run this process at ``nice``, as systemd starts the car's; before any thread starts,
+    so every thread (and the worker, which lowers itself) inherits it. What was done."""
+    try:
+        os.setpriority(os.PRIO_PROCESS, 0, nice)
+    except PermissionError:
+        return f"nice {os.getpriority(os.PRIO_PROCESS, 0)} (not allowed to take the unit's {nice})"
+    return f"nice {nice} (the unit's Nice=)"
+
+
 def _pct(values: list[float], q: float) -> float:
     s = sorted(values)
     return s[min(len(s) - 1, max(0, math.ceil(q / 100 * len(s)) - 1))] if s else math.nan
 
 
-async def _run(seconds: float, camera: bool, record: bool, worker: bool) -> dict[str, Any]:
+async def _run(
+    seconds: float, camera: bool, record: bool, worker: bool, busy: int = 0
+) -> dict[str, Any]:
     channel = f"bench-{os.getpid()}"
     pipeline = Pipeline(
         PipelineConfig(
@@ -195,13 +228,20 @@ async def _run(seconds: float, camera: bool, record: bool, worker: bool) -> dict
             wheels.set_speeds(10.0, 10.0)
             async with app.running():
                 wheels.start()
-                await asyncio.sleep(1.0)  # warm up (first frames, thread pool)
-                app.loop_lag_s.clear()
-                latency_s.clear()
-                n0, m0 = app.counts["WheelOdometry"], matcher.calls
-                await asyncio.sleep(seconds)
-                wheels.stop()
-                n1, m1 = app.counts["WheelOdometry"], matcher.calls
+                hogs = [await asyncio.create_subprocess_exec(sys.executable, "-c", BUSY)
+                        for _ in range(busy)]  # fmt: skip
+                try:
+                    await asyncio.sleep(1.0)  # warm up (first frames, thread pool)
+                    app.loop_lag_s.clear()
+                    latency_s.clear()
+                    n0, m0 = app.counts["WheelOdometry"], matcher.calls
+                    await asyncio.sleep(seconds)
+                    wheels.stop()
+                    n1, m1 = app.counts["WheelOdometry"], matcher.calls
+                finally:
+                    for hog in hogs:
+                        hog.kill()
+                        await hog.wait()
     finally:
         matcher.close()
         if recorder is not None:
@@ -211,6 +251,7 @@ async def _run(seconds: float, camera: bool, record: bool, worker: bool) -> dict
     lat = [v * 1e3 for v in latency_s]
     return {
         "seconds": seconds,
+        "busy_processes": busy,
         "camera": camera,
         "record": record,
         "matcher": "worker process" if worker else "thread",
@@ -224,9 +265,43 @@ async def _run(seconds: float, camera: bool, record: bool, worker: bool) -> dict
     }
 
 
+def _ok(r: dict[str, Any]) -> bool:
+    return bool(r["loop_lateness_ms"]["p99"] <= 3.0 and r["odometry_latency_ms"]["p99"] <= 5.0)
+
+
+def _table(cases: dict[str, dict[str, Any]]) -> list[str]:
+    """The cases side by side; with two, the second's ratio to the first."""
+    names = list(cases)
+    head = (
+        f"{'':24s}" + "".join(f"{n:>12s}" for n in names) + ("   ratio" if len(names) == 2 else "")
+    )
+    rows = [head]
+    for what, key, target in (
+        ("loop lateness", "loop_lateness_ms", 3.0),
+        ("odometry latency", "odometry_latency_ms", 5.0),
+    ):
+        for q in ("p50", "p99", "max"):
+            vals = [cases[n][key][q] for n in names]
+            row = f"{what + ' ' + q + ' ms':24s}" + "".join(f"{v:12.3f}" for v in vals)
+            if len(vals) == 2:
+                row += f"   {vals[1] / vals[0]:5.2f}x" if vals[0] > 0 else "       -"
+            if q == "p99":
+                row += f"   (target <= {target:g} ms)"
+            rows.append(row)
+    for label, key, fmt in (("ORB matches Hz", "matches_hz", "{:12.1f}"),
+                            ("match ms (mean)", "match_ms_mean", "{:12.1f}"),
+                            ("odometry Hz", "odometry_hz", "{:12.1f}")):  # fmt: skip
+        rows.append(f"{label:24s}" + "".join(fmt.format(cases[n][key]) for n in names))
+    rows.append(f"{'':24s}" + "".join(f"{'PASS' if _ok(cases[n]) else 'FAIL':>12s}" for n in names))
+    return rows
+
+
 def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--seconds", type=float, default=10.0)
+    ap.add_argument("--seconds", type=float, default=10.0, help="of each case")
+    ap.add_argument("--case", choices=("both", "idle", "loaded"), default="both")
+    ap.add_argument("--busy", type=int, default=1, help="CPU-bound processes in the loaded case")
+    ap.add_argument("--no-nice", action="store_true", help="do not take the unit's Nice=")
     ap.add_argument("--no-camera", action="store_true")
     ap.add_argument("--record", action="store_true", help="also record to MCAP")
     ap.add_argument(
@@ -241,21 +316,32 @@ def main() -> int:
     ap.add_argument("--json", action="store_true")
     args = ap.parse_args()
     sys.setswitchinterval(args.switch_interval_ms / 1e3)
-    r = asyncio.run(_run(args.seconds, not args.no_camera, args.record, not args.thread_matcher))
-    lat, lag = r["odometry_latency_ms"], r["loop_lateness_ms"]
-    ok = lag["p99"] <= 3.0 and lat["p99"] <= 5.0
+    priority = (
+        f"nice {os.getpriority(os.PRIO_PROCESS, 0)}"
+        if args.no_nice
+        else take_unit_priority(unit_nice())
+    )
+    busy = {"idle": 0, "loaded": max(1, args.busy)}
+    names = ["idle", "loaded"] if args.case == "both" else [args.case]
+    cases = {
+        n: asyncio.run(
+            _run(args.seconds, not args.no_camera, args.record, not args.thread_matcher, busy[n])
+        )
+        for n in names
+    }
+    ok = all(_ok(r) for r in cases.values())
     if args.json:
-        print(json.dumps({**r, "pass": ok}))
+        print(json.dumps({**cases, "priority": priority, "pass": ok}))
         return 0 if ok else 1
-    print(f"{r['seconds']:.0f} s, odometry {r['odometry_hz']:.0f} Hz, camera "
-          f"{r['frames_hz']:.0f} fps, ORB matching ({r['matcher']}) {r['matches_hz']:.1f} Hz "
-          f"({r['match_ms_mean']:.0f} ms each), {r['frames_dropped']} frames overwritten"
+    r = cases[names[0]]
+    print(f"{r['seconds']:.0f} s a case, odometry 100 Hz, camera "
+          f"{r['frames_hz']:.0f} fps, ORB matching ({r['matcher']}), "
+          f"{r['frames_dropped']} frames overwritten"
           + (", recording MCAP" if r["record"] else "")
-          + f", GIL switch interval {sys.getswitchinterval() * 1e3:g} ms")  # fmt: skip
-    print(f"loop lateness      p50 {lag['p50']:6.3f} ms  p99 {lag['p99']:6.3f} ms  "
-          f"max {lag['max']:6.2f} ms   (target p99 <= 3 ms)")  # fmt: skip
-    print(f"odometry latency   p50 {lat['p50']:6.3f} ms  p99 {lat['p99']:6.3f} ms  "
-          f"max {lat['max']:6.2f} ms   (target p99 <= 5 ms)")  # fmt: skip
+          + f", GIL switch interval {sys.getswitchinterval() * 1e3:g} ms, {priority}; "
+          f"loaded: {busy['loaded']} CPU-bound process(es) at nice 0")  # fmt: skip
+    for row in _table(cases):
+        print(row)
     print("PASS" if ok else "FAIL")
     return 0 if ok else 1
 

@@ -42,7 +42,13 @@ from guidance.telemetry.keys import (
     validate_vehicle_id,
 )
 from guidance.telemetry.redact import _zenoh_error_text
-from guidance.telemetry.session import _close_at_exit, _quiet_close, open_session, session_config
+from guidance.telemetry.session import (
+    _close_at_exit,
+    _quiet_close,
+    callback_threads,
+    open_session,
+    session_config,
+)
 
 log = logging.getLogger(__name__)
 
@@ -152,6 +158,7 @@ class MonitorClient:
         self._batch: deque[TelemetryEvent] = deque()
         self._wake = threading.Event()
         self._wakers: list[zenoh.Subscriber[None]] = []
+        self._callback_threads: list[threading.Thread] = []
         self.received = 0
         self.undecodable = 0
         self.bad_keys = 0
@@ -193,10 +200,12 @@ class MonitorClient:
         # Declared last, so zenoh has pushed a sample into its channel before this callback
         # runs; the callback does nothing but wake a waiting get (no queue of its own).
         wake = self._wake_up
+        before = threading.enumerate()
         self._wakers = [
             session.declare_subscriber(f"{KEY_PREFIX}/{v}/*", wake),
             session.liveliness().declare_subscriber(f"{KEY_PREFIX}/{v}", wake),
         ]
+        self._callback_threads = callback_threads(before)  # joined at close
         return self
 
     def _wake_up(self, _sample: zenoh.Sample) -> None:
@@ -229,8 +238,9 @@ class MonitorClient:
         self._liveliness = None
         with self._replies_lock:
             self._replies.clear()
+        threads, self._callback_threads = self._callback_threads, []
         if session is not None:
-            _quiet_close(session)
+            _quiet_close(session, threads)
 
     def query_latest(self, vehicle_id: str | None = None, timeout_s: float = 2.0) -> None:
         """Ask the cars (or one) for their latest messages; replies arrive later as events.

@@ -30,6 +30,7 @@ from guidance.telemetry.redact import redact_text
 from guidance.telemetry.session import (
     _close_at_exit,
     _quiet_close,
+    callback_threads,
     goal_sender,
     open_session,
     parse_goal,
@@ -60,6 +61,8 @@ class _Link:
     session: zenoh.Session
     publishers: dict[str, zenoh.Publisher] = field(default_factory=dict)
     others: list[Any] = field(default_factory=list)
+    threads: list[threading.Thread] = field(default_factory=list)
+    """zenoh's threads running this link's Python callbacks: joined when it closes."""
 
 
 GoalCallback = Callable[[float, float], None]
@@ -271,6 +274,7 @@ class Telemetry(MessageSink):
             self._set_down(f"{type(exc).__name__}: {exc}")
             return False
         link = _Link(session)
+        before = threading.enumerate()
         try:
             for kind in KINDS:
                 link.publishers[kind] = session.declare_publisher(
@@ -291,8 +295,9 @@ class Telemetry(MessageSink):
                 )
         except Exception as exc:
             self._set_down(f"declaring telemetry entities failed: {exc}")
-            _quiet_close(session)
+            _quiet_close(session, callback_threads(before))
             return False
+        link.threads = callback_threads(before)
         self._link = link
         self._status = "up"
         self._last_error = ""
@@ -366,7 +371,7 @@ class Telemetry(MessageSink):
     def _close_link(self) -> None:
         link, self._link = self._link, None
         if link is not None:
-            _quiet_close(link.session)
+            _quiet_close(link.session, link.threads)
 
     # -- zenoh callbacks (zenoh threads) -------------------------------------------------------
     def _on_query(self, query: zenoh.Query) -> None:

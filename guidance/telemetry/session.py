@@ -6,8 +6,9 @@ import json
 import logging
 import math
 import threading
+import time
 import weakref
-from collections.abc import Sequence
+from collections.abc import Collection, Sequence
 from pathlib import Path
 from typing import TYPE_CHECKING
 
@@ -127,11 +128,39 @@ def parse_goal(payload: bytes, max_range_m: float) -> tuple[float, float]:
     return x, y
 
 
-def _quiet_close(session: zenoh.Session) -> None:
+CALLBACK_THREAD_MARK = "pyo3-closure"
+"""zenoh-python runs each Python callback (a queryable's, a subscriber's) on a daemon thread
+of its own, named after its target: 'Thread-N (pyo3-closure)'."""
+CALLBACK_JOIN_S = 1.0
+"""How long closing a session waits for its callback threads (they end within a millisecond)."""
+
+
+def callback_threads(before: Collection[threading.Thread]) -> list[threading.Thread]:
+    """zenoh's callback threads started since ``before`` (a ``threading.enumerate()``)."""
+    return [t for t in threading.enumerate() if t not in before and CALLBACK_THREAD_MARK in t.name]
+
+
+def _quiet_close(
+    session: zenoh.Session,
+    threads: Sequence[threading.Thread] = (),
+    timeout_s: float = CALLBACK_JOIN_S,
+) -> None:
+    """Close ``session``, then wait for its callback ``threads`` to end (issue 23, item 8).
+
+    Closing the session ends them, but each needs the GIL once more to return from zenoh's
+    Rust code. A process that finalizes before then kills such a daemon thread with
+    ``pthread_exit`` inside a pyo3 trampoline, whose ``catch_unwind`` swallows the forced
+    unwind: glibc aborts with "FATAL: exception not rethrown" (SIGABRT after a clean stop)."""
     try:
         session.close()
     except Exception as exc:
         log.debug("closing zenoh session: %s", exc)
+    deadline = time.monotonic() + timeout_s
+    for t in threads:
+        if t is not threading.current_thread():
+            t.join(max(0.0, deadline - time.monotonic()))
+            if t.is_alive():
+                log.debug("zenoh callback thread %s still running after close", t.name)
 
 
 _OPEN: weakref.WeakSet[Telemetry | MonitorClient] = weakref.WeakSet()

@@ -91,5 +91,16 @@ def main(argv: Sequence[str] | None = None) -> int:
         return 1
 
 
+def entry() -> None:
+    """The ``guidance`` program (the console script, ``python -m guidance.tools.cli``):
+    ``main``, then the exit. After ``guidance run`` the process ends without the interpreter's
+    finalization, everything flushed first (``guidance.app.run.end_process``)."""
+    code = main()
+    from guidance.app.run import end_process
+
+    end_process(code)  # returns unless a run asked for it
+    sys.exit(code)
+
+
 if __name__ == "__main__":
-    sys.exit(main())
+    entry()

@@ -115,6 +115,9 @@ def test_a_can_flood_is_coalesced_the_loop_queue_stays_bounded_and_no_distance_i
     assert sent and sent[0] > 10_000  # a real flood (several thousand frames per second)
     assert max(backlog) <= BACKLOG_LIMIT + 2  # bounded, not tens of thousands
     assert stats.get("coalesced", 0) > 0
+    # Issue 23, item 10: the reader's lag under the flood is no clock step, and no frame is
+    # rejected as time going back.
+    assert stats.get("clock_steps", 0) == 0 and stats["rejected"] == 0, stats
     lag = app.lag_summary()
     assert lag["loop_lag_max_ms"] is not None and lag["loop_lag_max_ms"] < 500
     # Never a false "odometry silent" while frames arrive (it is true once the flood ended).

@@ -132,6 +132,17 @@ def test_guidance_unit_is_a_watchdogged_notify_service() -> None:
     assert u[("Install", "WantedBy")] == ["multi-user.target"]
 
 
+def test_guidance_unit_gives_the_loop_precedence() -> None:
+    """Issue 23, item 9: a busy laptop must not make the 100 Hz loop late: the unit raises the
+    process above other programs (Nice=) and its cgroup above other units and sessions
+    (CPUWeight=, default 100); no real-time policy (RestrictRealtime=yes stays)."""
+    u = parse_unit(UNITS_DIR / "guidance.service")
+    assert int(u[("Service", "Nice")][0]) <= -5
+    assert int(u[("Service", "CPUWeight")][0]) > 100
+    assert u[("Service", "RestrictRealtime")] == ["yes"]
+    assert ("Service", "CPUSchedulingPolicy") not in u
+
+
 def test_can0_comes_up_at_the_gm_global_a_bitrate() -> None:
     u = parse_unit(UNITS_DIR / "can0-setup.service")
     assert u[("Service", "Type")] == ["oneshot"]
