@@ -13,6 +13,7 @@ import signal
 import stat
 import sys
 import time
+from collections.abc import Callable
 from dataclasses import replace
 from pathlib import Path
 from typing import TYPE_CHECKING, Any, TextIO
@@ -37,6 +38,18 @@ if TYPE_CHECKING:
 log = logging.getLogger(__name__)
 
 SCREEN_MODES = ("auto", "live", "plain", "off")
+
+DeviceRunner = Callable[..., int]
+"""``runner(config_path, *, as_json)``: ``guidance run`` on devices the product does not
+build itself."""
+DEVICE_RUNNERS: dict[str, DeviceRunner] = {}
+"""Registered by whoever provides them (``register_device_runner``): the simulator registers
+"sim" for a config whose ``[sim]`` table says ``devices = true``, so ``guidance`` itself never
+names the simulator's package (ARCHITECTURE.md: the product does not import the simulator)."""
+
+
+def register_device_runner(name: str, runner: DeviceRunner) -> None:
+    DEVICE_RUNNERS[name] = runner
 
 
 def stdin_problem(stream: TextIO | None) -> str:
@@ -333,10 +346,14 @@ def _cli_run(args: argparse.Namespace) -> int:
         return 0
     if not args.config.is_file():
         raise UserError(f"config file not found: {args.config}")
-    from guidance.app.backends import import_backend
     from guidance.app.config import load_config
 
     if load_config(args.config, require_goal=False).sim.get("devices", False):  # simulated city
-        run_sim = import_backend("hal_sim.sim_run:run_on_simulated_devices")
-        return int(run_sim(str(args.config), as_json=args.json))
+        runner = DEVICE_RUNNERS.get("sim")
+        if runner is None:
+            raise UserError(
+                f"{args.config}: [sim] devices = true, but no simulator registered a runner for "
+                "simulated devices (the simulator package registers one when `guidance` starts)"
+            )
+        return int(runner(str(args.config), as_json=args.json))
     return asyncio.run(run_car(str(args.config), resume=not args.fresh, screen=args.screen))
