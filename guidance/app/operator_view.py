@@ -75,10 +75,13 @@ def distance_text(distance_m: float) -> str:
 
 
 def uncertainty_text(major_axis_m: float, lost: bool, lost_major_axis_m: float) -> str:
-    """The 2-sigma major axis and what it means for the operator."""
+    """The 2-sigma major axis and what it means for the operator: "good to about R m" is its
+    half (the 2-sigma semi-major axis, the farthest the true position is likely to be),
+    rounded to 1 m below 10 m, 5 m below 100 m, 10 m above; never 0 and never more than the
+    axis (a 4 m axis once read "about 5 m")."""
     radius = major_axis_m / 2.0
-    step = 5.0 if radius < 100.0 else 10.0
-    about = max(step, round(radius / step) * step)
+    step = 1.0 if radius < 10.0 else 5.0 if radius < 100.0 else 10.0
+    about = max(1.0, round(radius / step) * step)
     axis = f"2-sigma major axis {major_axis_m:.0f} m"
     if lost:
         return f"LOST: {axis} (over {lost_major_axis_m:.0f} m); guidance unreliable"

@@ -123,8 +123,14 @@ def test_uncertainty_and_heading_words() -> None:
         "position good to about 30 m (2-sigma major axis 60 m)"
     )
     assert (
-        uncertainty_text(8.0, False, 100.0) == "position good to about 5 m (2-sigma major axis 8 m)"
+        uncertainty_text(8.0, False, 100.0) == "position good to about 4 m (2-sigma major axis 8 m)"
     )
+    assert uncertainty_text(4.0, False, 100.0).startswith("position good to about 2 m")
+    for tenths in range(5, 5000, 7):  # the radius, rounded: never above the axis, never 0
+        axis = tenths / 10.0
+        about = float(uncertainty_text(axis, False, 1e9).split("about ")[1].split(" m")[0])
+        step = 1.0 if axis < 20 else 5.0 if axis < 200 else 10.0
+        assert 1.0 <= about <= max(1.0, axis) and abs(about - axis / 2) <= step / 2 + 0.5, axis
     assert uncertainty_text(130.0, True, 100.0).startswith("LOST: 2-sigma major axis 130 m")
     assert compass_deg(0.0) == 90.0 and compass_deg(math.pi / 2) == 0.0
     assert compass_deg(-math.pi / 2) == 180.0
