@@ -6,7 +6,6 @@ from __future__ import annotations
 
 import argparse
 import asyncio
-import json
 import logging
 import os
 import signal
@@ -27,6 +26,7 @@ from guidance.app.screen import (
     MutableSpeaker,
     Operator,
     OperatorScreen,
+    ScreenTextStream,
     banner_rows,
 )
 from guidance.errors import UserError
@@ -176,6 +176,9 @@ async def run_car(
             app.feed(GoalUpdate(time.monotonic(), x_m, y_m, "remote"))
 
     async with open_outputs(settings, time.monotonic, on_goal=on_goal) as out:
+        redirect = getattr(out.speaker, "redirect", None)  # the text speaker
+        if screen != "off" and opscreen.live and redirect is not None:
+            redirect(ScreenTextStream(opscreen))  # its lines become SAID rows, not overprint
         speaker = MutableSpeaker(out.speaker) if out.speaker is not None else None
         operator.speaker = speaker
         operator.loop = asyncio.get_running_loop()
@@ -224,8 +227,21 @@ async def run_car(
             keeper.cancel()
         app.save_checkpoint(time.monotonic(), finished=True)  # a clean stop: not resumed
         _save_learned(cfg, pipeline, learned)
-        log.warning("stopping: %s", json.dumps(app.lag_summary()))
+        log.info("%s", stop_line(app.lag_summary()))
     return 0
+
+
+def stop_line(lag: dict[str, float | None]) -> str:
+    """The clean stop's one log line (INFO: a stop asked for is not a warning), readable."""
+
+    def ms(key: str) -> str:
+        v = lag.get(key)
+        return "-" if v is None else f"{v:.1f} ms"
+
+    return (
+        f"stopped cleanly; event-loop lag p50 {ms('loop_lag_p50_ms')}, "
+        f"p99 {ms('loop_lag_p99_ms')}, max {ms('loop_lag_max_ms')}"
+    )
 
 
 def _start_learned(cfg: Any, pipeline: Any, *, resumed: bool) -> Any:
