@@ -12,13 +12,18 @@ for ``t_s``, so age = arrival - t_s is the age of what the monitor shows.
 
 Printed per K: states received (% of those published during the window), each car's largest
 gap between shown states (median over cars), the age of each car's shown state sampled every
-0.1 s (p50/p99/max over cars and samples, and the fraction of samples within 1 s), and the
-monitor's CPU (user+sys seconds / wall seconds, from wait4).
+17 ms (p50/p99/max over cars and samples, and the fraction of samples within 1 s), the
+monitor's CPU (user+sys seconds / wall seconds, from wait4), and in brackets what a reference
+subscriber got from the router and the router's and fleet's CPU (losses upstream of the
+monitor). This zenoh's router refuses client sessions beyond about 350: 1000 cars need
+``--cars-per-session 4``. Figures: docs/telemetry.md, "Measured".
 
     .venv/bin/python benchmarks/monitor_fleet.py --cars 1 10 30 100 --duration 10
-    .venv/bin/python benchmarks/monitor_fleet.py --cars 10 100 --before 4bf690d
+    .venv/bin/python benchmarks/monitor_fleet.py --cars 10 100 300 --before 4bf690d
+    .venv/bin/python benchmarks/monitor_fleet.py --cars 1000 --fleet-procs 4 --cars-per-session 4
+    .venv/bin/python benchmarks/monitor_fleet.py --router-restart 10
 
-``--before REV`` also runs the monitor of git revision REV (its ``guidance`` package extracted
+``--before REV`` also runs the monitor of git revision REV (its packages extracted
 with ``git archive`` into a temporary directory, first on PYTHONPATH), on the same fleet, and
 prints both rows side by side.
 """
@@ -305,6 +310,8 @@ def run_k(
             _pid, _status, usage = os.wait4(mon.pid, 0)
             mon.returncode = 0
             wall = time.monotonic() - start
+            if wall < duration:
+                print(f"  ({label}: the monitor ended after {wall:.1f} s)", file=sys.stderr)
             reader.join(2.0)
             seen.parse()
             cpu = 100.0 * (usage.ru_utime + usage.ru_stime) / wall
@@ -345,6 +352,46 @@ def run_k(
     return rows
 
 
+def router_restart(k: int, rate: float, down_s: float = 2.0) -> tuple[float, int]:
+    """K telemetry cars (the car's own publisher) and one monitor through a router that is
+    killed and, ``down_s`` later, started again on the same port: how long after it is back
+    until every car's state is shown again (max over cars), and how many cars came back."""
+    port = free_port()
+    ep = f"tcp/127.0.0.1:{port}"
+    procs = [_spawn(ROUTER, ep)]
+    try:
+        assert procs[0].stdout is not None and procs[0].stdout.readline().strip() == "up"
+        car = _spawn(FLEET, ep, f"{rate:g}", "0", str(k), "telemetry", "1")
+        procs.append(car)
+        assert car.stdin is not None and car.stdout is not None
+        assert car.stdout.readline().strip() == "up"
+        car.stdin.write("go\n")
+        car.stdin.flush()
+        seen = Seen()
+        mon = _monitor(ep, 20.0 + down_s, None)
+        procs.append(mon)  # type: ignore[arg-type]
+        threading.Thread(target=_read, args=(mon, seen), daemon=True).start()
+        time.sleep(4.0)
+        procs[0].kill()
+        procs[0].wait()
+        time.sleep(down_s)
+        procs[0] = _spawn(ROUTER, ep)
+        assert procs[0].stdout is not None and procs[0].stdout.readline().strip() == "up"
+        up = time.monotonic()
+        time.sleep(12.0)
+        seen.parse()
+        back = [
+            min((a for a, _, _ in rows if a > up), default=None) for rows in seen.states.values()
+        ]
+        times = [b - up for b in back if b is not None]
+        return (max(times) if len(times) == k else float("inf")), len(times)
+    finally:
+        for p in procs:
+            if p.poll() is None:
+                p.kill()
+            p.wait()
+
+
 def _cpu_s(pid: int) -> float:
     """User + system CPU seconds of a running process so far (Linux /proc)."""
     try:
@@ -355,8 +402,9 @@ def _cpu_s(pid: int) -> float:
 
 
 def _before_tree(rev: str, tmp: Path) -> str:
+    packages = ["guidance", "hal_sim", "drivers", "landmark_db"]  # the CLI imports them all
     tar = subprocess.run(
-        ["git", "archive", rev, "guidance"], cwd=ROOT, check=True, capture_output=True
+        ["git", "archive", rev, *packages], cwd=ROOT, check=True, capture_output=True
     ).stdout
     subprocess.run(["tar", "-x", "-C", str(tmp)], input=tar, check=True)
     return str(tmp)
@@ -383,7 +431,21 @@ def main() -> int:
         "client sessions beyond about 350: 4 gives 1000 cars on 250 sessions)",
     )
     ap.add_argument("--before", metavar="REV", help="also run the monitor of this git revision")
+    ap.add_argument(
+        "--router-restart",
+        type=int,
+        metavar="K",
+        help="only: K cars, the router killed and restarted; seconds until all are back",
+    )
     args = ap.parse_args()
+    if args.router_restart:
+        worst, n = router_restart(args.router_restart, args.rate)
+        print(
+            f"router restart, {args.router_restart} cars (the car's Telemetry, client mode): "
+            f"{n} came back without restarting the monitor, the last {worst:.1f} s after the "
+            "router was up again"
+        )
+        return 0
     with tempfile.TemporaryDirectory() as tmp:
         monitors: list[tuple[str, str | None]] = []
         if args.before:
