@@ -34,6 +34,23 @@ log = logging.getLogger(__name__)
 # -- the live source ---------------------------------------------------------------------------
 
 
+def can_hint(interface: str, channel: str, exc: BaseException) -> str:
+    """The usual fix for a bus that does not open, or "" (errno 97: no SocketCAN in this kernel
+    or container; 19 ENODEV: no such interface; 100 ENETDOWN: the interface is down)."""
+    errno = getattr(exc, "errno", None)
+    if interface != "socketcan":
+        return ""
+    up = f"sudo ip link set {channel} up type can bitrate 500000"
+    if errno == 97:
+        return ("this kernel or container has no SocketCAN: load it (sudo modprobe can can_raw) "
+                "or run on the car's computer")  # fmt: skip
+    if errno == 19:
+        return f"no network interface {channel}: plug the CAN adapter in, then {up}"
+    if errno == 100:
+        return f"{channel} is down: {up}"
+    return ""
+
+
 @dataclass(frozen=True, slots=True)
 class CanOdometryConfig:
     """How to reach the car's bus. The python-can interface is chosen here and only here."""
@@ -170,7 +187,12 @@ class CanOdometry(ThreadedSource[WheelOdometry]):
         flip handed to the status sink, by ``_set_connected`` (like the compass and camera)."""
         cfg = self.config
         self._count("bus_errors")
-        self._set_connected(False, f"{cfg.interface}/{cfg.channel}: {type(exc).__name__}: {exc}")
+        hint = can_hint(cfg.interface, cfg.channel, exc)
+        self._set_connected(
+            False,
+            f"{cfg.interface}/{cfg.channel}: {type(exc).__name__}: {exc}"
+            + (f" ({hint})" if hint else ""),
+        )
 
     def _merge(self, held: WheelOdometry, new: WheelOdometry) -> WheelOdometry:
         """Back-pressure: one increment for both (distances summed, the later time)."""

@@ -10,17 +10,20 @@ from typing import Any
 
 from guidance.errors import UserError
 
+STUDIES = ("range", "landmarks", "interference")
+"""range: without a map; landmarks: with them; interference: range with magnetic zones."""
+
 
 def register(sub: Any) -> None:
     register_check(sub)
     study = sub.add_parser(
         "study",
-        help="run a Monte Carlo study (range without a map, or landmarks)",
+        help=f"run a Monte Carlo study ({', '.join(STUDIES)})",
         description="Monte Carlo studies of SPEC section 5; resumable, reproducible from --seed.",
     )
     study.add_argument(
         "which",
-        choices=("range", "landmarks", "interference"),
+        choices=STUDIES,
         help="which study (interference: range with magnetic interference zones)",
     )
     study.add_argument(

@@ -38,7 +38,17 @@ def _window(text: str) -> tuple[float, float]:
         raise argparse.ArgumentTypeError(f"expected START:DURATION seconds, not {text!r}") from None
 
 
+def _run_on_simulated_devices(config_path: str, *, as_json: bool = False) -> int:
+    from hal_sim.sim_run import run_on_simulated_devices
+
+    return run_on_simulated_devices(config_path, as_json=as_json)
+
+
 def register(sub: Any) -> None:
+    from guidance.app.run import register_device_runner
+
+    # `guidance run` on a config with [sim] devices = true drives the simulated city
+    register_device_runner("sim", _run_on_simulated_devices)
     p = sub.add_parser(
         "sim",
         help="a simulated drive through the full in-car stack (make demo)",

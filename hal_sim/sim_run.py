@@ -20,6 +20,8 @@ import csv
 import io
 import itertools
 import os
+import sys
+import time
 from collections.abc import Callable, Iterator
 from contextlib import redirect_stdout
 from dataclasses import dataclass, replace
@@ -132,6 +134,16 @@ def import_sim_landmark_db(
     xy = np.asarray(landmarks_xy, dtype=np.float64).reshape(-1, 2)
     names = [landmark_name(i) for i in range(len(xy))]
     if not _holds(path, names):
+        from landmark_db.cli_io import progress
+
+        t0 = time.monotonic()
+        err = sys.stderr
+        err.write(
+            f"first use: building the landmark database of the simulated city, {path} "
+            f"({len(xy)} landmarks: their photos, then landmark-db init and import; about a "
+            "minute, once; later runs reuse it)\n"
+        )
+        err.flush()
         for old in path.parent.glob(path.name + "*"):
             old.unlink()
         photos = path.parent / f"{path.stem}-photos"
@@ -145,15 +157,18 @@ def import_sim_landmark_db(
                 image = f"landmark{i:05d}.png"
                 cv2.imwrite(str(photos / image), facade(photo_seed(seed, i)))
                 w.writerow([image, names[i], f"{x:.3f}", f"{y:.3f}", "0.5"])
+                progress("writing photos", i + 1, len(xy), err)
         log = io.StringIO()
         with redirect_stdout(log):
             origin = [str(SIM_ORIGIN.lat_deg), str(SIM_ORIGIN.lon_deg)]
             codes = (
                 landmark_db(["init", str(path), "--origin", *origin]),
-                landmark_db(["import", str(path), str(photos)]),
+                landmark_db(["import", str(path), str(photos), "--progress"]),
             )
         if any(c not in (0, None) for c in codes):
             raise UserError(f"landmark-db import of the simulated city failed: {log.getvalue()}")
+        err.write(f"landmark database built in {time.monotonic() - t0:.0f} s: {path}\n")
+        err.flush()
     db = open_db(path, readonly=True)
     try:
         by_name = {lm.name: lm for lm in db.landmarks()}

@@ -5,7 +5,9 @@ from __future__ import annotations
 import argparse
 import csv
 import re
+import sys
 from pathlib import Path
+from typing import TextIO
 
 from guidance.errors import UserError
 from landmark_db.cli_args import out
@@ -157,6 +159,19 @@ def _import_row(
     return "added"
 
 
+def progress(what: str, done: int, total: int, stream: TextIO | None = None) -> None:
+    """``what: done/total (N %)`` on stderr: rewritten in place on a terminal, else one line
+    each tenth (a log stays short)."""
+    stream = stream if stream is not None else sys.stderr
+    tty = stream.isatty()
+    step = max(1, total // 10)
+    if not tty and done % step and done != total:
+        return
+    text = f"{what}: {done}/{total} ({100 * done // max(1, total)} %)"
+    stream.write(f"\r{text}" + ("\n" if done == total or not tty else ""))
+    stream.flush()
+
+
 def cmd_import(args: argparse.Namespace) -> None:
     """All rows or none: one transaction; a landmark already in the file (by name) is updated
     and a photo already there is not added twice, so importing again changes nothing."""
@@ -177,6 +192,8 @@ def cmd_import(args: argparse.Namespace) -> None:
                 for i, row in enumerate(rows, start=2):
                     where = f"{csv_path}:{i}"
                     done[_import_row(db, root, row, groups, args.allow_outside)] += 1
+                    if getattr(args, "progress", False):
+                        progress("importing photos", i - 1, len(rows))
         except (ValueError, OSError, UserError) as exc:
             why = exc.strerror if isinstance(exc, OSError) and exc.strerror else exc
             raise UserError(f"{where}: {why} (nothing imported)") from exc
@@ -267,6 +284,7 @@ def add_io_parsers(sub: argparse._SubParsersAction) -> None:
         action="store_true",
         help="let the image column name files outside FOLDER (absolute paths, ..)",
     )
+    p.add_argument("--progress", action="store_true", help="show progress on stderr")
     p.set_defaults(func=cmd_import)
 
     p = sub.add_parser("export", help="CSV plus an images folder (re-importable)")

@@ -4,6 +4,9 @@ A config can load and still fail at start or silently do the wrong thing: a zeno
 file that is not there, a recording folder that cannot be created, and an ``[odometry]`` table
 without ``profile`` (the CAN messages differ by car; the default would silently be the GM
 reference car's), and remote goals enabled without zenoh access control (issue 23, item 7).
+Devices that cannot be opened now (a compass port that does not exist or this user cannot
+open, a SocketCAN interface that is missing or down, no SocketCAN at all) are warnings with the
+usual fix (issue 24): the drivers keep retrying, a USB adapter may be plugged in later.
 ``start_problems`` names each in one line; ``--check`` refuses the config on the first.
 """
 
@@ -44,6 +47,75 @@ def folder_problem(path: Path) -> tuple[str, str]:
     return "", ""
 
 
+SERIAL_FIX = (
+    "add this user to the port's group (ls -l PORT shows it, often dialout: "
+    "sudo usermod -aG dialout $USER, then log in again)"
+)
+
+
+def serial_problem(port: str) -> str:
+    """Why the compass's serial port cannot be opened now, with the usual fix, or ""."""
+    if not os.path.exists(port):
+        return (
+            f"[compass] port {port} does not exist: is the compass plugged in? "
+            "(ls /dev/serial/by-id/ names USB serial adapters; the driver keeps retrying)"
+        )
+    if not os.access(port, os.R_OK | os.W_OK):
+        return (
+            f"[compass] port {port}: this user cannot open it: {SERIAL_FIX.replace('PORT', port)}"
+        )
+    return ""
+
+
+def socketcan_problem(channel: str, net: Path = Path("/sys/class/net")) -> str:
+    """Why the SocketCAN interface ``channel`` cannot be used now, with the usual fix, or ""."""
+    import socket
+
+    up = f"sudo ip link set {channel} up type can bitrate 500000"
+    try:
+        socket.socket(socket.AF_CAN, socket.SOCK_RAW, socket.CAN_RAW).close()
+    except (OSError, AttributeError) as exc:
+        return (
+            f"[odometry] CAN interface {channel}: SocketCAN is not available here ({exc}): load "
+            "it (sudo modprobe can can_raw) or run on the car's computer"
+        )
+    if not (net / channel).exists():
+        return (
+            f"[odometry] CAN interface {channel} does not exist: plug the CAN adapter in, then "
+            f"{up} (for a test bus: sudo modprobe vcan; sudo ip link add dev {channel} type "
+            f"vcan; sudo ip link set {channel} up)"
+        )
+    try:
+        state = (net / channel / "operstate").read_text().strip()
+        flags = int((net / channel / "flags").read_text().strip(), 16)
+    except (OSError, ValueError):
+        return ""
+    if state == "down" or not flags & 0x1:  # IFF_UP
+        return f"[odometry] CAN interface {channel} is down: {up}"
+    return ""
+
+
+def device_problems(cfg: AppConfig) -> list[str]:
+    """Each configured device that cannot be opened now (it may be plugged in later: the
+    drivers keep retrying, so these are warnings), with the usual fix."""
+    out = []
+    compass = cfg.compass
+    if compass is not None and compass.backend == "nmea_serial":
+        port = str(getattr(compass.config, "port", ""))
+        if port and (why := serial_problem(port)):
+            out.append(why)
+    odo = cfg.odometry
+    if (
+        odo is not None
+        and odo.backend == "can"
+        and getattr(odo.config, "interface", "") == "socketcan"
+    ):
+        channel = str(getattr(odo.config, "channel", ""))
+        if channel and (why := socketcan_problem(channel)):
+            out.append(why)
+    return out
+
+
 def start_problems(config_path: str | Path, cfg: AppConfig) -> tuple[list[str], list[str]]:
     """(errors, warnings): one line for each thing that would make the car start wrong."""
     errors: list[str] = []
@@ -73,6 +145,8 @@ def start_problems(config_path: str | Path, cfg: AppConfig) -> tuple[list[str], 
             problem = remote_goal_problem(tel.zenoh_config)
             if problem is not None:
                 errors.append(problem)
+    if not cfg.sim.get("devices", False):  # the simulator replaces the ports with its own
+        warnings += device_problems(cfg)
     rec = cfg.recording
     if rec.enabled:
         kind, why = folder_problem(Path(rec.directory))

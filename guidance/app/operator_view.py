@@ -75,10 +75,13 @@ def distance_text(distance_m: float) -> str:
 
 
 def uncertainty_text(major_axis_m: float, lost: bool, lost_major_axis_m: float) -> str:
-    """The 2-sigma major axis and what it means for the operator."""
+    """The 2-sigma major axis and what it means for the operator: "good to about R m" is its
+    half (the 2-sigma semi-major axis, the farthest the true position is likely to be),
+    rounded to 1 m below 10 m, 5 m below 100 m, 10 m above; never 0 and never more than the
+    axis (a 4 m axis once read "about 5 m")."""
     radius = major_axis_m / 2.0
-    step = 5.0 if radius < 100.0 else 10.0
-    about = max(step, round(radius / step) * step)
+    step = 1.0 if radius < 10.0 else 5.0 if radius < 100.0 else 10.0
+    about = max(1.0, round(radius / step) * step)
     axis = f"2-sigma major axis {major_axis_m:.0f} m"
     if lost:
         return f"LOST: {axis} (over {lost_major_axis_m:.0f} m); guidance unreliable"
@@ -127,6 +130,8 @@ class OperatorView:
         self.inputs: dict[str, Health] = {}
         self.co_driver = ""
         self.co_driver_style = ""
+        self.voice = ""
+        """The VOICE row: "" (no row), "on", or "MUTED ..." (``set_voice``)."""
         self.arrived = False
         self.last_turn_prompt = ""
         self.events: deque[ScreenEvent] = deque(maxlen=EVENTS_KEPT)
@@ -199,6 +204,18 @@ class OperatorView:
         self.co_driver = co_driver
         self.co_driver_style = "ok" if co_driver_ok else "bad"
 
+    def set_voice(self, muted: bool, not_spoken: int = 0) -> None:
+        """Whether the co-driver muted the voice (and how many prompts went unsaid since)."""
+        if not muted:
+            self.voice = "on"
+            return
+        unsaid = (
+            f"; {not_spoken} prompt{'s' if not_spoken != 1 else ''} not spoken"
+            if not_spoken
+            else ""
+        )
+        self.voice = f"MUTED (warnings still spoken{unsaid}): / or mute to turn it on"
+
     def ack(self, text: str, wall_s: float) -> None:
         """A co-driver key or line acknowledged (or answered, or help)."""
         style = "warn" if text.startswith("?") else ""
@@ -262,11 +279,19 @@ class OperatorView:
             out.append(("INPUT", text, style))
         if self.co_driver:
             out.append(("INPUT", f"co-driver {self.co_driver}", self.co_driver_style))
+        if self.voice:
+            out.append(("VOICE", self.voice, "warn" if self.voice.startswith("MUTED") else ""))
         if self.exit_note is not None:
             e = self.exit_note
             out.append(("EXIT", f"{clock_text(e.wall_s)} {e.text}", e.style))
-        for e in self.of_kind("prompt", PROMPTS_SHOWN):
+        prompts = self.of_kind("prompt", PROMPTS_SHOWN)
+        for e in prompts:
             out.append(("PROMPT", f"{clock_text(e.wall_s)} {e.text}", e.style))
+        shown = {" ".join(e.text.split()) for e in prompts}
+        # what the text speaker said (it may not write on the live view's terminal), unless
+        # it is a prompt shown just above
+        for e in [e for e in self.of_kind("voice", 4) if e.text not in shown][-2:]:
+            out.append(("SAID", f"{clock_text(e.wall_s)} {e.text}", e.style))
         for e in self.of_kind("typing", 1):
             out.append(("TYPING", f"{clock_text(e.wall_s)} {e.text}", ""))
         for e in self.of_kind("key", KEYS_SHOWN):
@@ -289,4 +314,6 @@ class OperatorView:
         parts += [_input_text(st)[0] for _, st in sorted(self.inputs.items())]
         if self.co_driver:
             parts.append(f"co-driver {self.co_driver}")
+        if self.voice.startswith("MUTED"):
+            parts.append("voice muted")
         return " | ".join(parts)

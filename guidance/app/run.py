@@ -8,7 +8,6 @@ import argparse
 import asyncio
 import atexit
 import contextlib
-import json
 import logging
 import os
 import signal
@@ -16,6 +15,7 @@ import stat
 import sys
 import threading
 import time
+from collections.abc import Callable
 from dataclasses import replace
 from pathlib import Path
 from typing import TYPE_CHECKING, Any, TextIO
@@ -29,6 +29,7 @@ from guidance.app.screen import (
     MutableSpeaker,
     Operator,
     OperatorScreen,
+    ScreenTextStream,
     banner_rows,
 )
 from guidance.errors import UserError
@@ -40,6 +41,18 @@ if TYPE_CHECKING:
 log = logging.getLogger(__name__)
 
 SCREEN_MODES = ("auto", "live", "plain", "off")
+
+DeviceRunner = Callable[..., int]
+"""``runner(config_path, *, as_json)``: ``guidance run`` on devices the product does not
+build itself."""
+DEVICE_RUNNERS: dict[str, DeviceRunner] = {}
+"""Registered by whoever provides them (``register_device_runner``): the simulator registers
+"sim" for a config whose ``[sim]`` table says ``devices = true``, so ``guidance`` itself never
+names the simulator's package (ARCHITECTURE.md: the product does not import the simulator)."""
+
+
+def register_device_runner(name: str, runner: DeviceRunner) -> None:
+    DEVICE_RUNNERS[name] = runner
 
 
 def stdin_problem(stream: TextIO | None) -> str:
@@ -166,6 +179,9 @@ async def run_car(
             app.feed(GoalUpdate(time.monotonic(), x_m, y_m, "remote"))
 
     async with open_outputs(settings, time.monotonic, on_goal=on_goal) as out:
+        redirect = getattr(out.speaker, "redirect", None)  # the text speaker
+        if screen != "off" and opscreen.live and redirect is not None:
+            redirect(ScreenTextStream(opscreen))  # its lines become SAID rows, not overprint
         speaker = MutableSpeaker(out.speaker) if out.speaker is not None else None
         operator.speaker = speaker
         operator.loop = asyncio.get_running_loop()
@@ -214,8 +230,21 @@ async def run_car(
             keeper.cancel()
         app.save_checkpoint(time.monotonic(), finished=True)  # a clean stop: not resumed
         _save_learned(cfg, pipeline, learned)
-        log.warning("stopping: %s", json.dumps(app.lag_summary()))
+        log.info("%s", stop_line(app.lag_summary()))
     return 0
+
+
+def stop_line(lag: dict[str, float | None]) -> str:
+    """The clean stop's one log line (INFO: a stop asked for is not a warning), readable."""
+
+    def ms(key: str) -> str:
+        v = lag.get(key)
+        return "-" if v is None else f"{v:.1f} ms"
+
+    return (
+        f"stopped cleanly; event-loop lag p50 {ms('loop_lag_p50_ms')}, "
+        f"p99 {ms('loop_lag_p99_ms')}, max {ms('loop_lag_max_ms')}"
+    )
 
 
 def _start_learned(cfg: Any, pipeline: Any, *, resumed: bool) -> Any:
@@ -336,14 +365,18 @@ def _cli_run(args: argparse.Namespace) -> int:
         return 0
     if not args.config.is_file():
         raise UserError(f"config file not found: {args.config}")
-    from guidance.app.backends import import_backend
     from guidance.app.config import load_config
 
     global _end_without_finalizing
     _end_without_finalizing = True  # the program's entry ends the process (``end_process``)
     if load_config(args.config, require_goal=False).sim.get("devices", False):  # simulated city
-        run_sim = import_backend("hal_sim.sim_run:run_on_simulated_devices")
-        return int(run_sim(str(args.config), as_json=args.json))
+        runner = DEVICE_RUNNERS.get("sim")
+        if runner is None:
+            raise UserError(
+                f"{args.config}: [sim] devices = true, but no simulator registered a runner for "
+                "simulated devices (the simulator package registers one when `guidance` starts)"
+            )
+        return int(runner(str(args.config), as_json=args.json))
     return asyncio.run(run_car(str(args.config), resume=not args.fresh, screen=args.screen))
 
 

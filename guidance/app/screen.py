@@ -196,6 +196,33 @@ class OperatorScreen:
             self.stream.flush()
 
 
+class ScreenTextStream:
+    """A stream for the text speaker while the live view owns the terminal: each line it
+    writes (``[prompt 1041.73 s SAFETY] ...``) becomes a SAID row, its monotonic time and
+    priority tag dropped (the row has the wall-clock time), instead of being printed over
+    the live view."""
+
+    def __init__(self, screen: OperatorScreen) -> None:
+        self.screen = screen
+
+    def write(self, text: str) -> int:
+        for line in text.splitlines():
+            said = line.split("] ", 1)[1] if line.startswith("[prompt ") and "] " in line else line
+            if said.strip():
+                self._add(_printable(said), "bad" if " SAFETY]" in line else "")
+        return len(text)
+
+    def _add(self, said: str, style: str) -> None:
+        now = self.screen.wall()
+        self.screen.fold(lambda v: v.add(now, "voice", said, style))
+
+    def flush(self) -> None:
+        pass
+
+    def isatty(self) -> bool:
+        return False
+
+
 class _ScreenLogHandler(logging.Handler):
     def __init__(self, screen: OperatorScreen) -> None:
         super().__init__(logging.WARNING)
@@ -233,8 +260,20 @@ class MutableSpeaker:
 
     def __init__(self, inner: Speaker) -> None:
         self.inner = inner
-        self.muted = False
+        self._muted = False
         self.dropped_muted = 0
+        self.dropped_at_mute = 0
+        """``dropped_muted`` when it was last muted (the screen shows those since)."""
+
+    @property
+    def muted(self) -> bool:
+        return self._muted
+
+    @muted.setter
+    def muted(self, value: bool) -> None:
+        if value and not self._muted:
+            self.dropped_at_mute = self.dropped_muted
+        self._muted = value
 
     def say(self, text: str, priority: int = 0, t_s: float | None = None) -> None:
         if self.muted and priority < Priority.SAFETY:
@@ -292,7 +331,16 @@ class Operator:
         style = "bad" if priority >= Priority.SAFETY else ""
         self.screen.fold(lambda v: v.add(now, "prompt", text, style))
 
+    def show_voice(self) -> None:
+        """The VOICE row: on, or muted with the prompts not spoken since."""
+        sp = self.speaker
+        if sp is None:
+            return
+        muted, unsaid = sp.muted, sp.dropped_muted - sp.dropped_at_mute
+        self.screen.fold(lambda v: v.set_voice(muted, unsaid))
+
     def refresh(self) -> None:
+        self.show_voice()
         p = self.pipeline
         t = p.t_s if p.t_s is not None else self.clock()
         inputs = p.statuses(t)
@@ -315,6 +363,7 @@ class Operator:
             if self.speaker is None:
                 return "no voice in this run"
             self.speaker.muted = not self.speaker.muted
+            self.show_voice()
             return "voice muted (warnings still spoken)" if self.speaker.muted else "voice on"
         if command == "repeat":
             with self.screen.lock:

@@ -2,20 +2,34 @@
 
 Each message kind has its own zenoh subscriber, and the subscriber's handler is the drop policy:
 
-* ``state`` and ``health`` (``RING_KINDS``): ``zenoh.handlers.RingChannel(ring_size)``. Only the
-  latest values matter, so when the reader falls behind zenoh drops the *oldest* samples. It
-  does so silently (the channel has no drop counter); a monitor sees them as ``seq`` gaps
-  (``FleetView.gaps``), like a message lost by the car or the network.
+* ``state`` and ``health`` (``RING_KINDS``): one ``zenoh.handlers.RingChannel(fleet_ring_size)``
+  per kind for the whole fleet (16,384: 1.6 s of 1,000 cars at 10 Hz), drained whole at each
+  look, of which each car keeps its newest ``ring_size`` (default 2). So when the reader is
+  behind, each car's oldest states are dropped, never a car: every car's newest state is
+  handed out at the next look, whatever the number of cars. (A ring of 256 shared by the
+  fleet and handed out in order, as before, held a quarter of a second of 100 cars.) The
+  drops are seen as ``seq`` gaps (``FleetView.gaps``), like a message lost by the car or the
+  network, and counted in ``MonitorClient.overwritten`` when it is this client that dropped
+  them for a newer one.
 * decisions, prompts, landmarks, turns, exits (``FIFO_KINDS``), liveliness and late-join
   replies: ``zenoh.handlers.FifoChannel(fifo_size)``. Every one matters and none is dropped
   here: when one is full, zenoh's receiving thread waits for the reader. While it waits, nothing
   else arrives from that link, the rings included. The car publishes with
   ``CongestionControl.DROP``, so it never waits for a slow monitor; it drops on its side
   instead, which the monitor again sees as ``seq`` gaps.
+
+No Python code runs on zenoh's receiving threads for messages: a callback there needs the GIL,
+and while the reader holds it (folding a batch) the thread waits up to the interpreter's
+switch interval (5 ms) per sample; the link's socket then backs up and the router drops
+states (``CongestionControl.DROP``). That capped an earlier client at about 200 samples a
+second while it was busy (issue 24). A waker thread blocks in ``recv`` of a one-sample ring on
+every message key instead (zenoh releases the GIL while it waits) and sets the event an idle
+``get`` waits on; liveliness changes, rare, still wake it from a callback.
 """
 
 from __future__ import annotations
 
+import contextlib
 import json
 import logging
 import threading
@@ -53,14 +67,14 @@ from guidance.telemetry.session import (
 log = logging.getLogger(__name__)
 
 RING_KINDS = ("state", "health")
-"""Kinds whose latest values matter: a ``RingChannel`` that drops the oldest when full."""
+"""Kinds whose latest values matter: each car keeps its newest few at each look."""
 FIFO_KINDS = tuple(k for k in KINDS if k not in RING_KINDS)
 """Kinds where every message matters: a ``FifoChannel`` that makes zenoh wait when full."""
 REPLY_POLL_S = 0.002
 """zenoh's channels cannot be waited on together. Each message or liveliness change also sets
-a wake-up event (a callback subscriber on the same keys, declared after the channels), which
-an idle ``get`` waits on; late-join replies have no such callback, so while a query is open
-``get`` looks at its channel every 2 ms."""
+a wake-up event (the waker's ring and a liveliness callback, declared after the channels),
+which an idle ``get`` waits on; late-join replies have no such wake-up, so while a query is
+open ``get`` looks at its channel every 2 ms."""
 IDLE_CHECK_S = 0.05
 """An idle ``get`` looks at the channels at least this often even without a wake-up."""
 _SETTLE_S = (0.0002, 0.0005, 0.001)
@@ -105,8 +119,9 @@ class MonitorClient:
     """Subscribes to one vehicle or all (``vehicle="all"``): messages and liveliness.
 
     ``get(timeout_s)`` returns the next event. The queues are zenoh's own channels, one per
-    kind (see the module): ``ring_size`` for state and health, ``fifo_size`` for the others,
-    for liveliness and for each late-join query. A ``get`` that finds its batch empty takes
+    kind (see the module): ``fleet_ring_size`` for state and health (of which each car keeps
+    its newest ``ring_size`` at each look), ``fifo_size`` for the others, for liveliness and
+    for each late-join query. A ``get`` that finds its batch empty takes
     everything waiting in the channels at once: first the cars that appeared, then late-join
     replies, then the messages (state, health, then the FIFO kinds), then the cars that went,
     so a car's last messages come before its "gone". Order across kinds is kept only within a
@@ -117,8 +132,9 @@ class MonitorClient:
     is not ``guidance/<vehicle id>[/<kind>]`` with a valid vehicle id: a key comes from the
     network, so a rogue peer's ``guidance/a b`` is one dropped, counted sample here, and every
     event handed out names a valid vehicle id (``validate_vehicle_id`` never fails on it).
-    Nothing counts what the rings overwrote (zenoh does not say), and the FIFOs drop
-    nothing: there is no ``dropped`` counter any more.
+    ``overwritten`` counts the states and health a car dropped at a look for its newer ones;
+    what the fleet's ring itself overwrote nothing counts (zenoh does not say), and the FIFOs
+    drop nothing.
     """
 
     def __init__(
@@ -129,8 +145,9 @@ class MonitorClient:
         mode: str = "peer",
         zenoh_config: str = "",
         tls: TlsConfig | None = None,
-        ring_size: int = 256,
+        ring_size: int = 2,
         fifo_size: int = 1024,
+        fleet_ring_size: int = 16_384,
         clock: Callable[[], float] = time.monotonic,
     ) -> None:
         for ep in connect:
@@ -139,29 +156,37 @@ class MonitorClient:
             raise UserError(f"mode must be one of {_MODES}, not {mode!r}")
         if vehicle != "all":
             validate_vehicle_id(vehicle)
-        if ring_size < 1 or fifo_size < 1:
-            raise UserError(f"ring and FIFO sizes must be at least 1, not {ring_size}, {fifo_size}")
+        if min(ring_size, fifo_size, fleet_ring_size) < 1:
+            raise UserError(
+                f"ring and FIFO sizes must be at least 1, not {ring_size}, {fifo_size}, "
+                f"{fleet_ring_size}"
+            )
         self.connect = tuple(connect)
         self.vehicle = vehicle
         self.ring_size = ring_size
         self.fifo_size = fifo_size
+        self.fleet_ring_size = fleet_ring_size
         self._mode = mode
         self._zenoh_config = zenoh_config
         self._tls = tls
         self._clock = clock
         self._session: zenoh.Session | None = None
         self._entities: list[zenoh.Subscriber[zenoh.Handler[zenoh.Sample]]] = []
-        self._messages: list[tuple[zenoh.Handler[zenoh.Sample], int]] = []
+        self._messages: list[tuple[zenoh.Handler[zenoh.Sample], int, int | None]] = []
+        """(channel, how many to take at a look, newest kept per key or None for all)."""
+        self._waker: threading.Thread | None = None
         self._liveliness: zenoh.Handler[zenoh.Sample] | None = None
         self._replies: list[zenoh.Handler[zenoh.Reply]] = []
         self._replies_lock = threading.Lock()
         self._batch: deque[TelemetryEvent] = deque()
         self._wake = threading.Event()
-        self._wakers: list[zenoh.Subscriber[None]] = []
+        self._wakers: list[zenoh.Subscriber[Any]] = []
         self._callback_threads: list[threading.Thread] = []
         self.received = 0
         self.undecodable = 0
         self.bad_keys = 0
+        self.overwritten = 0
+        """States and health this client dropped for a newer one of the same car (behind)."""
         self._goals_sent = 0
 
     @property
@@ -184,32 +209,48 @@ class MonitorClient:
         self._session = session
         _close_at_exit(self)
         v = self._vehicle_chunk
-        for kind in RING_KINDS:  # the latest values matter: zenoh drops the oldest
-            self._subscribe(
-                session, kind, zenoh.handlers.RingChannel(self.ring_size), self.ring_size
+        for kind in RING_KINDS:  # the latest values matter: each car's newest are kept
+            ring: zenoh.handlers.RingChannel[zenoh.Sample] = zenoh.handlers.RingChannel(
+                self.fleet_ring_size
             )
+            self._subscribe(session, kind, ring, self.fleet_ring_size, self.ring_size)
         for kind in FIFO_KINDS:  # every one matters: zenoh waits for the reader
-            self._subscribe(
-                session, kind, zenoh.handlers.FifoChannel(self.fifo_size), self.fifo_size
+            fifo: zenoh.handlers.FifoChannel[zenoh.Sample] = zenoh.handlers.FifoChannel(
+                self.fifo_size
             )
+            self._subscribe(session, kind, fifo, self.fifo_size, None)
         lively = session.liveliness().declare_subscriber(
             f"{KEY_PREFIX}/{v}", zenoh.handlers.FifoChannel(self.fifo_size), history=True
         )
         self._entities.append(lively)
         self._liveliness = lively.handler
-        # Declared last, so zenoh has pushed a sample into its channel before this callback
-        # runs; the callback does nothing but wake a waiting get (no queue of its own).
-        wake = self._wake_up
+        # Declared last, so zenoh has pushed a sample into its channel before these wake a
+        # waiting get (they hold nothing the reader takes).
+        waker = session.declare_subscriber(f"{KEY_PREFIX}/{v}/*", zenoh.handlers.RingChannel(1))
         before = threading.enumerate()
         self._wakers = [
-            session.declare_subscriber(f"{KEY_PREFIX}/{v}/*", wake),
-            session.liveliness().declare_subscriber(f"{KEY_PREFIX}/{v}", wake),
+            waker,
+            session.liveliness().declare_subscriber(f"{KEY_PREFIX}/{v}", self._wake_up),
         ]
-        self._callback_threads = callback_threads(before)  # joined at close
+        self._callback_threads = callback_threads(before)  # the liveliness callback's: joined
+        self._waker = threading.Thread(
+            target=self._wake_on, args=(waker.handler,), name="monitor-waker", daemon=True
+        )
+        self._waker.start()
         return self
 
     def _wake_up(self, _sample: zenoh.Sample) -> None:
         self._wake.set()
+
+    def _wake_on(self, channel: zenoh.Handler[zenoh.Sample]) -> None:
+        """The waker thread: blocks in zenoh (GIL released) until a message arrives, sets the
+        wake-up event, again; ends when the session closes its channel."""
+        try:
+            while True:
+                channel.recv()
+                self._wake.set()
+        except Exception:  # zenoh.ZError "channel is empty and closed": the client closed
+            return
 
     def _subscribe(
         self,
@@ -218,11 +259,13 @@ class MonitorClient:
         channel: zenoh.handlers.RingChannel[zenoh.Sample]
         | zenoh.handlers.FifoChannel[zenoh.Sample],
         size: int,
+        keep: int | None,
     ) -> None:
-        """One kind's subscriber; its channel (of ``size``) is the kind's drop policy."""
+        """One kind's subscriber; its channel (of ``size``) and ``keep`` (newest per car at
+        each look, None: all) are the kind's drop policy."""
         sub = session.declare_subscriber(f"{KEY_PREFIX}/{self._vehicle_chunk}/{kind}", channel)
         self._entities.append(sub)
-        self._messages.append((sub.handler, size))
+        self._messages.append((sub.handler, size, keep))
 
     def __enter__(self) -> MonitorClient:
         return self.open()
@@ -233,14 +276,20 @@ class MonitorClient:
     def close(self) -> None:
         session, self._session = self._session, None
         self._entities.clear()
-        self._wakers = []
+        wakers, self._wakers = self._wakers, []
         self._messages = []
         self._liveliness = None
         with self._replies_lock:
             self._replies.clear()
+        for entity in wakers:  # closes the waker's channel: its thread ends
+            with contextlib.suppress(Exception):
+                entity.undeclare()
         threads, self._callback_threads = self._callback_threads, []
         if session is not None:
             _quiet_close(session, threads)
+        waker, self._waker = self._waker, None
+        if waker is not None and waker is not threading.current_thread():
+            waker.join(2.0)
 
     def query_latest(self, vehicle_id: str | None = None, timeout_s: float = 2.0) -> None:
         """Ask the cars (or one) for their latest messages; replies arrive later as events.
@@ -288,6 +337,11 @@ class MonitorClient:
                 wait = min(wait, deadline - now)
             woken = self._wake.wait(wait)
 
+    def pending(self) -> int:
+        """Events taken from zenoh and not yet handed out (a caller may flush its output when
+        none are left, instead of after each)."""
+        return len(self._batch)
+
     def send_goal(self, vehicle_id: str, x_m: float, y_m: float) -> None:
         """Ask a car to drive to a new goal (it obeys only if its config and ACL allow)."""
         session = self._session
@@ -329,10 +383,26 @@ class MonitorClient:
             if closed:
                 with self._replies_lock:
                     self._replies.remove(replies)
-        for channel, size in self._messages:
-            for sample in _drain(channel, size)[0]:
+        for channel, size, keep in self._messages:
+            samples = _drain(channel, size)[0]
+            if keep is not None and len(samples) > keep:
+                samples = self._newest(samples, keep)
+            for sample in samples:
                 self._keep(self._message_event(sample, late_join=False))
         self._batch.extend(lively[appeared:])
+
+    def _newest(self, samples: list[zenoh.Sample], keep: int) -> list[zenoh.Sample]:
+        """The newest ``keep`` samples of each key, keys in the order first seen, each key's in
+        arrival order; the others are counted in ``overwritten``."""
+        by_key: dict[str, deque[zenoh.Sample]] = {}
+        for sample in samples:
+            ring = by_key.get(key := str(sample.key_expr))
+            if ring is None:
+                ring = by_key[key] = deque(maxlen=keep)
+            ring.append(sample)
+        kept = [sample for ring in by_key.values() for sample in ring]
+        self.overwritten += len(samples) - len(kept)
+        return kept
 
     def _keep(self, event: TelemetryEvent | None) -> None:
         if event is not None:

@@ -276,6 +276,41 @@ def _no_messages(client: MonitorClient, timeout: float | None) -> int:
     return 1
 
 
+def liveliness_line(view: FleetView, event: TelemetryEvent) -> dict[str, Any]:
+    """The ``guidance.liveliness/1`` line of a car appearing or going: a gone car's line also
+    says when its last message came (``last_message_s_ago``, monitor clock) and where it last
+    was (``last_position``: the last state's t_s, x_m, y_m, lat_deg, lon_deg, or null)."""
+    line: dict[str, Any] = {
+        "schema": LIVELINESS_SCHEMA,
+        "vehicle_id": event.vehicle_id,
+        "alive": event.kind == "alive",
+    }
+    car = view.gone.get(event.vehicle_id)
+    if event.kind == "gone" and car is not None:
+        last = car.last_received_s
+        line["last_message_s_ago"] = None if last is None else round(event.received_s - last, 3)
+        s = car.state or {}
+        line["last_position"] = (
+            {k: s.get(k) for k in ("t_s", "x_m", "y_m", "lat_deg", "lon_deg")} if s else None
+        )
+    return line
+
+
+def _json_line(
+    client: MonitorClient, view: FleetView, event: TelemetryEvent
+) -> Mapping[str, Any] | None:
+    """What ``--json`` prints for one event (None: nothing, e.g. a bad or repeated message)."""
+    if event.kind == "alive" and event.vehicle_id not in view.cars:
+        client.query_latest(event.vehicle_id)
+    if not view.apply(event):
+        return None
+    if event.kind in ("alive", "gone"):
+        return liveliness_line(view, event)
+    if event.kind in KINDS and event.message is not None:
+        return event.message
+    return None
+
+
 def _run_json(client: MonitorClient, args: argparse.Namespace) -> int:
     view = FleetView()
     stop = threading.Event()
@@ -284,24 +319,11 @@ def _run_json(client: MonitorClient, args: argparse.Namespace) -> int:
     out = sys.stdout
     try:
         for event in _events(client, deadline, stop):
-            if event is None:
-                continue
-            if event.kind == "alive" and event.vehicle_id not in view.cars:
-                client.query_latest(event.vehicle_id)
-            if not view.apply(event):
-                continue
-            if event.kind in ("alive", "gone"):
-                line: Mapping[str, Any] = {
-                    "schema": LIVELINESS_SCHEMA,
-                    "vehicle_id": event.vehicle_id,
-                    "alive": event.kind == "alive",
-                }
-            elif event.kind in KINDS and event.message is not None:
-                line = event.message
-            else:
-                continue
-            out.write(json.dumps(line, separators=(",", ":")) + "\n")
-            out.flush()
+            line = None if event is None else _json_line(client, view, event)
+            if line is not None:
+                out.write(json.dumps(line, separators=(",", ":")) + "\n")
+            if not client.pending():  # one flush per batch: 10,000 lines a second at 1,000 cars
+                out.flush()
             if args.count is not None and view.messages >= args.count:
                 break
     except BrokenPipeError:  # e.g. piped into head

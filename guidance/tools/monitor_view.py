@@ -59,6 +59,8 @@ class CarView:
     track: deque[tuple[float, float]] = field(default_factory=lambda: deque(maxlen=TRACK_POINTS))
     ellipses: list[tuple[float, float, float, float, float]] = field(default_factory=list)
     """(x_m, y_m, semi_major_m, semi_minor_m, orientation_rad), one every ELLIPSE_EVERY_S."""
+    gone_s: float | None = None
+    """Monitor clock when its liveliness token dropped (None while alive)."""
     _last_seq: dict[str, int] = field(default_factory=dict)
     _last_ellipse_t_s: float = -math.inf
 
@@ -81,12 +83,13 @@ class FleetView:
             car = self.cars.pop(vid, None)
             if car is not None:
                 car.alive = False
+                car.gone_s = event.received_s
                 self.gone[vid] = car
             return True
         car = self.cars.get(vid)
         if car is None:
             car = self.gone.pop(vid, None) or CarView(vid)
-            car.alive = True
+            car.alive, car.gone_s = True, None
             self.cars[vid] = car
         if event.kind == "alive" or event.message is None:
             return True
@@ -179,7 +182,7 @@ def _fmt(value: object, spec: str = ".1f", unit: str = "") -> str:
     return "-" if num is None else f"{num:{spec}}{unit}"
 
 
-def health_summary(health: Mapping[str, Any] | None) -> str:
+def health_problems(health: Mapping[str, Any] | None) -> str:
     """ "ok", or the inputs that are down or invalid, e.g. "compass down, camera invalid"."""
     if health is None:
         return "-"
@@ -190,10 +193,59 @@ def health_summary(health: Mapping[str, Any] | None) -> str:
             problems.append(f"{plain(name)} down")
         elif not h.get("valid", False):
             problems.append(f"{plain(name)} invalid")
-    tel = _mapping(_mapping(health.get("components")).get("telemetry"))
-    drops = int(_num(_mapping(tel.get("counters")).get("dropped")) or 0)
-    text = ", ".join(problems) if problems else "ok"
+    return ", ".join(problems) if problems else "ok"
+
+
+DROPPED_REASONS = {
+    "superseded": "replaced by a newer one before it was sent",
+    "fifo_full": "pushed out of a full queue",
+    "session_down": "made while the car had no zenoh session",
+    "put_error": "refused by zenoh",
+    "encode_error": "could not be encoded",
+}
+DROPPED_HELP = "dropped: messages the car made but did not send"
+
+
+def dropped(health: Mapping[str, Any] | None) -> tuple[int, dict[str, int]]:
+    """The car's own count of telemetry messages it did not send, and by reason (its health
+    message's ``components.telemetry.counters``: ``dropped`` and ``dropped_<reason>``)."""
+    counters = _mapping(_mapping(_mapping(_mapping(health).get("components")).get("telemetry"))
+                        .get("counters"))  # fmt: skip
+    total = int(_num(counters.get("dropped")) or 0)
+    reasons = {
+        plain(k.removeprefix("dropped_")): int(n)
+        for k, v in counters.items()
+        if isinstance(k, str) and k.startswith("dropped_") and (n := _num(v))
+    }
+    return total, dict(sorted(reasons.items()))
+
+
+def dropped_text(health: Mapping[str, Any] | None) -> str:
+    """ "" or what the dropped messages were, e.g. "31 telemetry messages not sent by the car:
+    30 replaced by a newer one before it was sent, 1 made while the car had no zenoh
+    session"."""
+    total, reasons = dropped(health)
+    if not total:
+        return ""
+    parts = [f"{n} {DROPPED_REASONS.get(r, r)}" for r, n in reasons.items()]
+    text = f"{total} telemetry message{'s' if total > 1 else ''} not sent by the car"
+    return f"{text}: {', '.join(parts)}" if parts else text
+
+
+def health_summary(health: Mapping[str, Any] | None) -> str:
+    """ "ok", or the inputs that are down or invalid, e.g. "compass down, camera invalid";
+    with "(N dropped)" when the car's telemetry dropped messages (``DROPPED_HELP``)."""
+    text = health_problems(health)
+    drops = dropped(health)[0]
     return f"{text} ({drops} dropped)" if drops else text
+
+
+def gone_summary(car: CarView, now_s: float) -> str:
+    """What a gone car's health cell says: when its liveliness token dropped (its process
+    ended or its link went) and that the position shown is its last."""
+    ago = "" if car.gone_s is None else f" {_fmt(max(0.0, now_s - car.gone_s), '.0f')} s ago"
+    where = " (last position)" if car.state else " (no position received)"
+    return f"GONE{ago}: liveliness token dropped{where}"
 
 
 def _heading(state: Mapping[str, Any]) -> float | None:
@@ -213,6 +265,9 @@ def car_row(car: CarView, now_s: float) -> dict[str, str]:
     if None not in (x, y, tx, ty):
         dist = math.hypot(tx - x, ty - y)  # type: ignore[operator]
     age = None if car.last_received_s is None else now_s - car.last_received_s
+    health = ", ".join(t for t in (health_summary(car.health), bad_summary(car)) if t)
+    if not car.alive:
+        health = gone_summary(car, now_s)
     return {
         "car": plain(car.vehicle_id),
         "x_m": _fmt(x),
@@ -227,7 +282,7 @@ def car_row(car: CarView, now_s: float) -> dict[str, str]:
         ),
         "distance_m": _fmt(dist, ".0f"),
         "prompt": plain(car.prompt) or "-",
-        "health": ", ".join(t for t in (health_summary(car.health), bad_summary(car)) if t),
+        "health": health,
         "age_s": _fmt(age, ".1f"),
     }
 
@@ -254,21 +309,27 @@ def _words_width(text: str) -> int:
     return max((cell_len(w) for w in text.split()), default=0)
 
 
-def _table_width(rows: list[dict[str, str]]) -> int:
-    """Width the table needs so that no value is split: every no-wrap column at its widest
-    cell (header words included), wrapping columns at their minimum, plus the borders."""
-    total = 1
+def _column_widths(rows: list[dict[str, str]]) -> dict[str, int]:
+    """Each column's width so that no value is split: a no-wrap column at its widest cell or
+    header (rich does not wrap a no-wrap column's header either), a wrapping column at its
+    minimum (``_MIN_WRAP_WIDTH``, or less when nothing in it is that wide, and never below its
+    longest word). The table is built with these minimums, so the estimate is rich's own."""
+    widths = {}
     for key, header, wraps in _COLUMNS:
         cells = [r[key] for r in rows]
         if wraps:
             natural = max([cell_len(c) for c in cells] + [cell_len(header)])
-            width = max(
+            widths[key] = max(
                 min(natural, _MIN_WRAP_WIDTH[key]), _words_width(header), *map(_words_width, cells)
             )
         else:
-            width = max([cell_len(c) for c in cells] + [_words_width(header)])
-        total += width + 3
-    return total
+            widths[key] = max([cell_len(c) for c in cells] + [cell_len(header)])
+    return widths
+
+
+def _table_width(rows: list[dict[str, str]]) -> int:
+    """Width the table needs (``_column_widths`` plus one space each side and the borders)."""
+    return 1 + sum(w + 3 for w in _column_widths(rows).values())
 
 
 def _pack(fields: list[str], width: int, indent: str) -> list[str]:
@@ -331,9 +392,16 @@ class FleetRender:
     def __rich_console__(self, console: Console, options: ConsoleOptions) -> RenderResult:
         width = options.max_width
         if options.is_terminal and self.rows and _table_width(self.rows) <= width:
-            yield self._table()
-        else:
-            yield from self._lines(width)
+            from rich.segment import Segment
+
+            table = self._table()
+            # rich's own layout decides, rendered uncropped: the console would cut a table
+            # wider than the screen at its right edge (its widths can exceed the estimate)
+            lines = Segment.split_lines(console.render(table, options.update(width=width)))
+            if all(Segment.get_line_length(line) <= width for line in lines):
+                yield table
+                return
+        yield from self._lines(width)
 
     def _table(self) -> Table:
         from rich.table import Table
@@ -344,36 +412,47 @@ class FleetRender:
             caption=Text(self.caption),
             expand=False,
         )
+        widths = _column_widths(self.rows)
         for key, header, wraps in _COLUMNS:
             table.add_column(
                 header,
                 no_wrap=not wraps,
                 overflow="fold",
                 justify="right" if key.endswith(("_m", "_s", "_deg")) else "left",
-                min_width=_MIN_WRAP_WIDTH.get(key) if wraps else None,
+                min_width=widths[key] if wraps else None,
             )
         for row in self.rows:
-            style = "red" if row["major_axis_m"].endswith("LOST") else None
-            table.add_row(*(Text(row[k]) for k, _, _ in _COLUMNS), style=style)
+            table.add_row(*(Text(row[k]) for k, _, _ in _COLUMNS), style=_style(row))
         return table
 
     def _lines(self, width: int) -> Iterator[Text]:
         from rich.text import Text
 
         yield Text(self.title, style="bold")
-        yield Text(f"{HEADING_CONVENTION}   {self.caption}", style="dim")
+        header = textwrap.wrap(f"{HEADING_CONVENTION}   {self.caption}", width=max(20, width),
+                               subsequent_indent="    ", break_long_words=False)  # fmt: skip
+        yield Text("\n".join(header), style="dim")
         if not self.rows:
             yield Text("(no car seen yet)")
         for row in self.rows:
-            lost = row["major_axis_m"].endswith("LOST")
-            yield Text("\n".join(car_lines(row, width)), style="red" if lost else "")
+            yield Text("\n".join(car_lines(row, width)), style=_style(row) or "")
+
+
+def _style(row: dict[str, str]) -> str | None:
+    if row["health"].startswith("GONE"):
+        return "bold yellow"  # readable on dark and light backgrounds, unlike dim grey
+    return "red" if row["major_axis_m"].endswith("LOST") else None
 
 
 def render_table(view: FleetView, now_s: float, title: str, status: str = "") -> FleetRender:
-    """The live view of every car seen, sorted by id."""
+    """The live view of every car seen: the live ones sorted by id, then the gone ones (a car
+    whose liveliness token dropped stays, marked GONE, with its last position)."""
     rows = [car_row(view.cars[vid], now_s) for vid in sorted(view.cars)]
+    rows += [car_row(view.gone[vid], now_s) for vid in sorted(view.gone)]
     if view.bad_messages:
         bad = f"{view.bad_messages} bad message{'s' if view.bad_messages > 1 else ''} left out"
         status = f"{status}   {bad}" if status else bad
+    if any(dropped(c.health)[0] for c in (*view.cars.values(), *view.gone.values())):
+        status = f"{status}   {DROPPED_HELP}" if status else DROPPED_HELP
     caption = f"{status}   ({KEYS_HELP})" if status else KEYS_HELP
     return FleetRender(rows, plain(title), caption)

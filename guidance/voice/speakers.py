@@ -102,6 +102,12 @@ class TextSpeaker:
             stream.flush()
             self._counts["shown"] += 1
 
+    def redirect(self, stream: TextIO) -> None:
+        """Write to ``stream`` from now on (the operator screen's, while its live view owns
+        the terminal: lines written to the terminal would be drawn over it)."""
+        with self._lock:
+            self._stream = stream
+
     def close(self, drain: bool = True, timeout_s: float = 0.0) -> None:
         """Nothing to release; present for the Speaker interface."""
 

@@ -17,6 +17,7 @@ from pathlib import Path
 from typing import Any
 
 import pytest
+from rich.cells import cell_len
 
 from guidance.telemetry.client import TelemetryEvent
 from guidance.telemetry.config import TelemetryConfig
@@ -445,3 +446,104 @@ def test_send_goal_reaches_a_car_that_allows_it(loopback_acl: str) -> None:
     assert goals == [(120.0, -45.5)]
     r = monitor("--connect", f"tcp/127.0.0.1:{port}", "--send-goal", "1", "2")
     assert r.returncode == 2 and "--send-goal needs --vehicle ID" in r.stderr
+
+
+def fleet_with_a_gone_car() -> FleetView:
+    """Three cars with a goal, health and a long prompt; car2 then loses its liveliness token."""
+    view = FleetView()
+    for i, vid in enumerate(("car1", "car2", "car3")):
+        s = state(1, 100.0 * i + 0.5, 20.25, 1.0)
+        s["target"] = {"x_m": 300.0, "y_m": 0.0, "kind": "goal", "id": None}
+        view.apply(event("state", vid, **s))
+        inputs = {"compass": {"alive": True, "valid": True}}
+        components = {"telemetry": {"counters": {"dropped": 31}}}
+        view.apply(event("health", vid, seq=1, t_s=1.0, inputs=inputs, components=components))
+        text = "In 200 metres, at the roundabout, take the second exit"
+        view.apply(event("prompt", vid, seq=1, t_s=1.0, text=text))
+    gone = event("gone", "car2")
+    view.apply(TelemetryEvent("gone", "car2", gone.key, None, 96.0))
+    return view
+
+
+@pytest.mark.parametrize("width", [80, 100, 120, 132, 160])
+def test_a_gone_car_stays_as_a_gone_row_and_the_view_fits_the_terminal(width: int) -> None:
+    text = rendered(fleet_with_a_gone_car(), width, True)
+    lines = text.splitlines()
+    assert all(cell_len(line) <= width for line in lines), f"wider than {width}:\n{text}"
+    flat = " ".join(line.strip(" │") for line in lines)
+    assert "car1" in flat and "car3" in flat and "car2" in flat and "GONE" in flat, text
+    assert "100.5" in text  # car2's last x
+    # when it went (96.0 on the monitor's clock, drawn at 102.5) and that its position is its last
+    view = fleet_with_a_gone_car()
+    row = car_row(view.gone["car2"], 102.5)
+    assert row["health"] == "GONE 6 s ago: liveliness token dropped (last position)"
+    assert row["x_m"] == "100.5" and not row["health"].startswith("ok")
+    assert text.index("car3") < text.index("car2")  # live cars first, then the gone ones
+    words = " ".join(flat.split())  # "(31 dropped)" is explained on the screen that shows it
+    assert "(31 dropped)" in words and "dropped: messages the car made but did not send" in words
+
+
+def fleet_without_prompts() -> FleetView:
+    """Short values everywhere and no prompt: the last column's header is its widest cell."""
+    view = FleetView()
+    for i in range(3):
+        view.apply(event("state", f"car4761{i}", **state(1, 1500.0 * i + 101.0, 0.0, 1.0)))
+    return view
+
+
+@pytest.mark.parametrize("width", range(60, 200, 3))
+def test_the_table_is_never_wider_than_the_terminal(width: int) -> None:
+    """Never cut at the right edge (the console crops what is wider, so a cut table's lines
+    are no longer than the screen but lose their right border): the table's every line ends
+    with a border, or the per-car layout is used."""
+    for view in (fleet_with_a_gone_car(), awkward_fleet(), fleet_without_prompts()):
+        text = rendered(view, width, True)
+        lines = text.splitlines()
+        assert all(cell_len(line) <= width for line in lines), text
+        if "┏" in text:
+            top = next(i for i, line in enumerate(lines) if "┏" in line)
+            bottom = next(i for i, line in enumerate(lines) if "└" in line)
+            assert all(line.rstrip()[-1] in "┓┃┩│┘" for line in lines[top : bottom + 1]), text
+
+
+def test_json_says_when_a_killed_car_went_and_where_it_last_was() -> None:
+    """Two cars; car2 is killed with SIGKILL: --json prints its alive:false line with how long
+    since its last message and its last position (the last state it printed)."""
+    ports = {"car1": free_port(), "car2": free_port()}
+    cars = {
+        vid: subprocess.Popen(
+            [sys.executable, "-c", PUBLISHER, str(port), vid],
+            cwd=REPO,
+            stdout=subprocess.DEVNULL,
+            stderr=subprocess.DEVNULL,
+        )
+        for vid, port in ports.items()
+    }
+    connect = [a for p in ports.values() for a in ("--connect", f"tcp/127.0.0.1:{p}")]
+    mon = subprocess.Popen(
+        [sys.executable, "-m", "guidance.tools.cli", "monitor", *connect, "--json", "--timeout=30"],
+        cwd=REPO, stdout=subprocess.PIPE, stderr=subprocess.DEVNULL, text=True,
+    )  # fmt: skip
+    lines: list[dict[str, Any]] = []
+    try:
+        assert mon.stdout is not None
+        killed = False
+        for text in mon.stdout:
+            line = json.loads(text)
+            lines.append(line)
+            states = [m for m in lines if m["schema"] == "guidance.state/1"]
+            if not killed and {m["vehicle_id"] for m in states} == set(ports) and len(states) > 40:
+                cars["car2"].send_signal(signal.SIGKILL)
+                killed = True
+            if line["schema"] == "guidance.liveliness/1" and not line["alive"]:
+                break
+    finally:
+        for p in (*cars.values(), mon):
+            p.kill()
+            p.wait(10)
+    gone = lines[-1]
+    assert gone["vehicle_id"] == "car2" and gone["alive"] is False, lines[-3:]
+    last = [m for m in lines if m["schema"] == "guidance.state/1" and m["vehicle_id"] == "car2"][-1]
+    assert gone["last_position"] == {k: last[k] for k in ("t_s", "x_m", "y_m", "lat_deg",
+                                                          "lon_deg")}  # fmt: skip
+    assert 0.0 <= gone["last_message_s_ago"] < 5.0

@@ -1,5 +1,5 @@
-"""MonitorClient's queues are zenoh's own channels: a ring for state and health (the newest
-kept), a FIFO for the other kinds (every one, in order). Real zenoh sessions on 127.0.0.1,
+"""MonitorClient's queues: a short ring per car for state and health (the newest kept), zenoh's
+FIFO channels for the other kinds (every one, in order). Real zenoh sessions on 127.0.0.1,
 multicast scouting off; the car is a bare session publishing with ``CongestionControl.BLOCK``
 so every message reaches the monitor and any loss is the client's own."""
 
@@ -7,6 +7,7 @@ from __future__ import annotations
 
 import json
 import socket
+import threading
 import time
 from collections.abc import Iterator
 
@@ -94,14 +95,17 @@ def test_a_reader_that_keeps_up_sees_every_state_and_liveliness_in_order(
     block = zenoh.CongestionControl.BLOCK
     pub = session.declare_publisher("guidance/car1/state", congestion_control=block)
     with MonitorClient([f"tcp/127.0.0.1:{port}"]) as client:
+        events: list[TelemetryEvent] = []
+        reader = threading.Thread(target=lambda: events.extend(drain(client, 3.0)))
+        reader.start()  # reads while the car publishes (each car's ring holds only 4)
         token = session.liveliness().declare_token("guidance/car1")
         wait_for_match([pub])
         for s in range(1, 101):
             pub.put(message("state", s))
-            time.sleep(0.002)
+            time.sleep(0.005)
         time.sleep(0.3)
         token.undeclare()
-        events = drain(client, 1.0)
+        reader.join(10.0)
     kinds = [e.kind for e in events]
     assert kinds[0] == "alive" and kinds[-1] == "gone"  # a car's messages come between
     assert [e.message["seq"] for e in events if e.kind == "state" and e.message] == list(
@@ -137,3 +141,72 @@ def test_an_unopened_client_waits_and_returns_nothing() -> None:
     assert 0.09 < time.monotonic() - t0 < 1.0
     with pytest.raises(UserError):
         MonitorClient(ring_size=0)
+
+
+def test_a_stalled_reader_still_finds_every_cars_newest_state(
+    car: tuple[zenoh.Session, int],
+) -> None:
+    """40 cars flood 300 states each, one car after the other, while nobody reads: each car
+    keeps its own newest (a ring shared by the fleet kept only the last cars')."""
+    session, port = car
+    cars, states = 40, 300
+    block = zenoh.CongestionControl.BLOCK
+    pubs = [
+        session.declare_publisher(f"guidance/car{c}/state", congestion_control=block)
+        for c in range(cars)
+    ]
+    with MonitorClient([f"tcp/127.0.0.1:{port}"]) as client:
+        wait_for_match(pubs)
+        for pub in pubs:
+            for s in range(1, states + 1):
+                pub.put(message("state", s))
+        time.sleep(1.0)
+        events = drain(client)
+    newest: dict[str, list[int]] = {}
+    for e in events:
+        if e.kind == "state" and e.message:
+            newest.setdefault(e.vehicle_id, []).append(e.message["seq"])
+    assert sorted(newest) == sorted(f"car{c}" for c in range(cars))
+    for vid, seqs in newest.items():  # each car's newest ring_size (2), in order
+        assert seqs == [states - 1, states], vid
+    assert client.overwritten == cars * (states - 2)
+
+
+def test_twenty_cars_through_a_router_all_reach_the_latest_view() -> None:
+    """20 cars, each a zenoh client session of one router with a liveliness token, publish
+    state at 10 Hz for 2 s; the monitor's view (FleetView, what the table, --json and the
+    web map show) holds every car, each at its last state. Not timed."""
+    from guidance.tools.monitor_view import FleetView
+
+    port = free_port()
+    router = open_session(session_config(mode="router", listen=[f"tcp/127.0.0.1:{port}"]))
+    sessions: list[zenoh.Session] = []
+    try:
+        with MonitorClient([f"tcp/127.0.0.1:{port}"]) as client:
+            pubs, tokens = [], []
+            for c in range(20):
+                s = open_session(session_config(mode="client", connect=[f"tcp/127.0.0.1:{port}"]))
+                sessions.append(s)
+                pubs.append(s.declare_publisher(f"guidance/car{c:02d}/state"))
+                tokens.append(s.liveliness().declare_token(f"guidance/car{c:02d}"))
+            wait_for_match(pubs)
+            view = FleetView()
+            rounds = 20
+            for r in range(1, rounds + 1):
+                for c, pub in enumerate(pubs):
+                    body = json.loads(message("state", r))
+                    body.update(vehicle_id=f"car{c:02d}", x_m=float(c), y_m=float(r))
+                    pub.put(json.dumps(body).encode())
+                deadline = time.monotonic() + 0.1
+                while (e := client.get(max(0.0, deadline - time.monotonic()))) is not None:
+                    view.apply(e)
+            for e in drain(client, 1.0):
+                view.apply(e)
+    finally:
+        for s in sessions:
+            s.close()
+        router.close()
+    assert sorted(view.cars) == [f"car{c:02d}" for c in range(20)]
+    for c in range(20):
+        state = view.cars[f"car{c:02d}"].state
+        assert state is not None and state["seq"] == rounds and state["x_m"] == float(c)

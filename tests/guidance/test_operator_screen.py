@@ -123,8 +123,14 @@ def test_uncertainty_and_heading_words() -> None:
         "position good to about 30 m (2-sigma major axis 60 m)"
     )
     assert (
-        uncertainty_text(8.0, False, 100.0) == "position good to about 5 m (2-sigma major axis 8 m)"
+        uncertainty_text(8.0, False, 100.0) == "position good to about 4 m (2-sigma major axis 8 m)"
     )
+    assert uncertainty_text(4.0, False, 100.0).startswith("position good to about 2 m")
+    for tenths in range(5, 5000, 7):  # the radius, rounded: never above the axis, never 0
+        axis = tenths / 10.0
+        about = float(uncertainty_text(axis, False, 1e9).split("about ")[1].split(" m")[0])
+        step = 1.0 if axis < 20 else 5.0 if axis < 200 else 10.0
+        assert 1.0 <= about <= max(1.0, axis) and abs(about - axis / 2) <= step / 2 + 0.5, axis
     assert uncertainty_text(130.0, True, 100.0).startswith("LOST: 2-sigma major axis 130 m")
     assert compass_deg(0.0) == 90.0 and compass_deg(math.pi / 2) == 0.0
     assert compass_deg(-math.pi / 2) == 180.0
@@ -269,6 +275,9 @@ def test_no_co_driver_input_is_said_loudly(
     assert re.search(rf"{CLOCK} prompt: {re.escape(NO_INPUT)}", out.getvalue())  # shown too
     spoken = capsys.readouterr().err
     assert spoken.count(NO_INPUT) == 1
+    # a clean stop is no warning, and no raw JSON (issue 24)
+    loud = [r.getMessage() for r in caplog.records if r.levelno >= logging.WARNING]
+    assert not any(m.startswith("stopping") or "{" in m for m in loud), loud
 
 
 def test_check_says_when_the_input_device_is_missing(tmp_path: Path) -> None:
@@ -461,3 +470,57 @@ def test_repeat_and_mute_keys_act_on_the_real_speaker() -> None:
     assert "Warning: odometry is silent" in said and "Continue straight" in said
     shown = [e.text for e in screen.view.of_kind("prompt", 5)]
     assert shown == ["At the next intersection, turn left"] * 2  # the repeat is shown too
+
+
+def test_mute_is_shown_on_the_screen_and_the_text_speaker_speaks_into_it(
+    capsys: pytest.CaptureFixture[str],
+) -> None:
+    """Issue 24: mute was acknowledged once and then invisible; the text speaker's lines
+    ("[prompt 1041.73 s SAFETY] ...") were printed over the live view."""
+    from guidance.app.screen import MutableSpeaker, Operator, ScreenTextStream
+    from guidance.core.messages import Priority
+    from guidance.voice.speakers import TextSpeaker
+
+    text = TextSpeaker()
+    speaker = MutableSpeaker(text)
+    p = Pipeline(
+        PipelineConfig(
+            estimator=EstimatorConfig(compass_two_sigma_deg=20.0),
+            navigator=NavigatorConfig(method=Method.STRAIGHT_TO_GOAL),
+            start_xy_m=(0.0, 0.0), goal_xy_m=(0.0, 1000.0), start_heading_rad=0.0,
+        )
+    )  # fmt: skip
+    screen = OperatorScreen(OperatorView(), stream=io.StringIO(), live=False, wall=lambda: 0.0)
+    text.redirect(ScreenTextStream(screen))
+    op = Operator(screen, p, speaker=speaker, clock=lambda: 9.0)
+
+    def row(label: str) -> list[tuple[str, str]]:
+        return [(t, s) for lab, t, s in screen.view.rows() if lab == label]
+
+    op.refresh()
+    assert row("VOICE") == [("on", "")]
+    assert op.on_command("mute") == "voice muted (warnings still spoken)"
+    assert row("VOICE")[0][0].startswith("MUTED (warnings still spoken)")
+    speaker.say("At the next intersection, bear left", Priority.GUIDANCE, 9.5)
+    speaker.say("Warning: odometry is silent", Priority.SAFETY, 9.6)
+    op.refresh()
+    assert row("VOICE") == [
+        ("MUTED (warnings still spoken; 1 prompt not spoken): / or mute to turn it on", "warn")
+    ]
+    assert "voice muted" in screen.view.status_line()
+    # the warning was said: on the screen (SAID), not on the terminal
+    assert row("SAID") == [("00:00:00 Warning: odometry is silent", "bad")] or row("SAID")[0][
+        0
+    ].endswith("Warning: odometry is silent")
+    assert "[prompt" not in " ".join(t for t, _ in row("SAID"))
+    assert capsys.readouterr().err == ""
+    op.on_command("mute")
+    assert row("VOICE") == [("on", "")]
+
+
+def test_a_clean_stop_is_one_readable_info_line() -> None:
+    from guidance.app.run import stop_line
+
+    line = stop_line({"loop_lag_p50_ms": 0.4, "loop_lag_p99_ms": 2.25, "loop_lag_max_ms": None})
+    assert line == "stopped cleanly; event-loop lag p50 0.4 ms, p99 2.2 ms, max -"
+    assert "{" not in line

@@ -302,3 +302,150 @@ def test_tiles_come_only_from_the_configured_server_and_cover_the_car(tmp_path: 
             web.close()
             tiles.shutdown()
             tiles.server_close()
+
+
+CAR = r"""
+import sys, time, zenoh
+from guidance.core.messages import Ellipse, EstimateState, Health, Target
+from guidance.outputs.messages import encode, health_message, state_message
+from guidance.telemetry.keys import key_for, liveliness_key
+from guidance.telemetry.session import open_session, session_config
+vid, port, x0, drops = sys.argv[1], int(sys.argv[2]), float(sys.argv[3]), int(sys.argv[4])
+s = open_session(session_config(mode="peer", listen=[f"tcp/127.0.0.1:{port}"]))
+pubs = {k: s.declare_publisher(key_for(vid, k)) for k in ("state", "health")}
+token = s.liveliness().declare_token(liveliness_key(vid))
+cov = ((25.0, 0.0, 0.0), (0.0, 9.0, 0.0), (0.0, 0.0, 0.01))
+tel = Health("telemetry", "up", True, True,
+             counters={"dropped": drops, "dropped_superseded": drops - 1 if drops else 0,
+                       "dropped_session_down": 1 if drops else 0})
+print("up", flush=True)
+seq = 0
+while True:
+    seq += 1
+    st = EstimateState(seq * 0.1, x0 + seq, 50.0 * (x0 > 0), 0.3, cov,
+                       Ellipse(10.0, 6.0, 0.4, 20.0), False, True)
+    pubs["state"].put(encode(state_message(st, vehicle_id=vid, seq=seq, goal=(x0 + 400, 600.0),
+                      target=Target(x0 + 400, 600.0, "goal", None),
+                      origin_lat_lon_deg=(48.85, 2.35))))
+    if seq % 5 == 1:
+        inputs = {"compass": Health("compass", "ok", True, True)}
+        pubs["health"].put(encode(health_message(seq * 0.1, inputs, vehicle_id=vid,
+                           seq=seq // 5 + 1, components={"telemetry": tel})))
+    time.sleep(0.1)
+"""
+
+
+def page_cars(driver: Any) -> dict[str, dict[str, Any]]:
+    """Per car: colour, label text and its contrast on the map's white, ellipse sizes, card."""
+    return dict(
+        driver.execute_script(
+            """
+            const lum = (rgb) => {
+              const c = rgb.map((v) => { v /= 255; return v <= 0.03928 ? v / 12.92
+                                                     : Math.pow((v + 0.055) / 1.055, 2.4); });
+              return 0.2126 * c[0] + 0.7152 * c[1] + 0.0722 * c[2];
+            };
+            const out = {};
+            for (const g of document.querySelectorAll('#cars g.car')) {
+              const label = g.querySelector('text.label');
+              const e = g.querySelector('ellipse.ellipse');
+              const dot = g.querySelector('circle.position');
+              const card = document.querySelector(`li.card[data-vehicle="${g.dataset.vehicle}"]`);
+              let alpha = 1;
+              for (let n = label; n && n.id !== 'map'; n = n.parentElement) {
+                alpha *= parseFloat(getComputedStyle(n).opacity);
+              }
+              const fill = getComputedStyle(label).fill.match(/\\d+/g).slice(0, 3).map(Number)
+                .map((v) => v * alpha + 255 * (1 - alpha));  // on the map's white
+              const dropped = card && card.querySelector('.dropped');
+              out[g.dataset.vehicle] = {
+                alive: g.dataset.alive === 'true',
+                colour: dot.getAttribute('fill'),
+                label: label.textContent,
+                contrast: 1.05 / (lum(fill) + 0.05),
+                rx_px: e ? parseFloat(e.getAttribute('rx')) : 0,
+                ry_px: e ? parseFloat(e.getAttribute('ry')) : 0,
+                to_scale: e ? e.dataset.toScale === 'true' : null,
+                true_rx_px: e ? parseFloat(e.dataset.trueRxPx) : null,
+                card_text: card ? card.textContent : '',
+                dropped_text: dropped ? dropped.textContent : '',
+                dropped_title: dropped ? dropped.title : '',
+              };
+            }
+            return out;
+            """
+        )
+    )
+
+
+def test_three_cars_one_killed_stable_colours_readable_gone_card_and_visible_ellipses(
+    tmp_path: Path, processes: Callable[..., subprocess.Popen[str]]
+) -> None:
+    """Issue 24, item 2: three cars 3 km apart (the automatic grid makes their 10 m ellipses
+    sub-pixel), one with 31 dropped messages; bravo killed with SIGKILL."""
+    ports = {"alpha": free_port(), "bravo": free_port(), "charlie": free_port()}
+    cars_p = {}
+    for (vid, port), x0, drops in zip(ports.items(), (0.0, 1500.0, 3000.0), (31, 0, 0),
+                                      strict=True):  # fmt: skip
+        p = subprocess.Popen(
+            [sys.executable, "-c", CAR, vid, str(port), str(x0), str(drops)],
+            cwd=REPO, stdout=subprocess.PIPE, text=True,
+        )  # fmt: skip
+        cars_p[vid] = p
+        assert p.stdout is not None and p.stdout.readline().strip() == "up"
+    try:
+        connect = [a for p in ports.values() for a in ("--connect", f"tcp/127.0.0.1:{p}")]
+        web = processes("monitor", "--web", "127.0.0.1:0", *connect, stdout=subprocess.PIPE)
+        assert web.stdout is not None
+        m = re.search(r"http://127\.0\.0\.1:\d+/", web.stdout.readline())
+        assert m
+        driver = browser(tmp_path)
+        try:
+            driver.get(m.group(0))
+            first = wait_for(
+                lambda: (c := page_cars(driver)) and len(c) == 3 and c, 30.0, "three cars"
+            )
+            legend = driver.find_element("id", "legend").text
+            for word in ("estimate", "track", "goal", "landmark", "2σ ellipse", "gone"):
+                assert word in legend, legend
+            for car in first.values():  # the ellipse: never sub-pixel, true size said
+                assert car["alive"] and car["rx_px"] >= 6 and car["ry_px"] >= 2, car
+                assert car["true_rx_px"] < 6 and car["to_scale"] is False, car
+                assert "2σ 20 m (not to scale)" in car["label"], car
+                assert "health: ok" in car["card_text"], car
+            assert len({c["colour"] for c in first.values()}) == 3
+            alpha = first["alpha"]  # "(31 dropped)" explained where it is shown
+            assert alpha["dropped_text"].startswith("31 telemetry messages not sent by the car")
+            assert "replaced by a newer one" in alpha["dropped_text"]
+            assert "did not send" in alpha["dropped_title"], alpha
+
+            cars_p["bravo"].send_signal(signal.SIGKILL)
+            cars_p["bravo"].wait(10)
+            after = wait_for(
+                lambda: (c := page_cars(driver)) and not c["bravo"]["alive"] and c,
+                15.0, "bravo shown as gone",
+            )  # fmt: skip
+            bravo = after["bravo"]
+            assert bravo["label"].startswith("bravo (gone)"), bravo
+            assert bravo["contrast"] >= 4.5, bravo  # WCAG AA for text, on the map's white
+            assert "GONE" in bravo["card_text"] and "liveliness token dropped" in bravo["card_text"]
+            assert "health: ok" not in bravo["card_text"], bravo
+            for vid in ("alpha", "charlie"):  # the survivors keep their colours
+                assert after[vid]["colour"] == first[vid]["colour"] and after[vid]["alive"]
+            driver.refresh()  # and so does a fresh page: the colour comes from the id
+            again = wait_for(
+                lambda: (c := page_cars(driver)) and len(c) == 3 and c, 20.0, "after reload"
+            )
+            assert {v: c["colour"] for v, c in again.items()} == {
+                v: c["colour"] for v, c in first.items()
+            }
+            time.sleep(1.0)
+            shot = artifact_dir() / "web_monitor_gone.png"
+            assert driver.save_screenshot(str(shot)) and shot.stat().st_size > 10_000
+        finally:
+            driver.quit()
+    finally:
+        for p in cars_p.values():
+            if p.poll() is None:
+                p.kill()
+            p.wait(10)

@@ -109,7 +109,9 @@ def test_fleet_api_shows_a_live_car_with_its_state_prompt_and_health(
     assert car["track"][-1] == [40.0, 0.0] and len(car["track"]) >= 2
     assert car["prompt"].startswith("<img")  # sent as data; the page sets it as text
     assert 0.0 <= car["age_s"] < 5.0
-    assert car["health"] == {"ok": None, "summary": "-"}
+    assert car["health"] == {"ok": None, "summary": "-", "dropped": 0, "dropped_by_reason": {},
+                             "dropped_text": ""}  # fmt: skip
+    assert car["gone"] == "" and car["gone_s_ago"] is None
 
 
 def test_page_and_assets_come_from_the_package_with_a_strict_csp(

@@ -119,3 +119,62 @@ def test_an_unknown_can_interface_stops_the_start_with_one_line(
     ExceptionGroup" from the reader's task group)."""
     rc, err = _check(capsys, _config(tmp_path, interface="nope"))
     assert rc == 2 and "interface 'nope'" in err
+
+
+def test_check_warns_for_a_compass_port_and_a_can_interface_that_do_not_exist(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """Issue 24: --check said OK for both; now each is a warning with the usual fix (the
+    drivers keep retrying, an adapter may be plugged in later), and the check still passes."""
+    path = _config(tmp_path, interface="socketcan")
+    text = (
+        path.read_text()
+        .replace(
+            "[compass]\nenabled = false",
+            '[compass]\nport = "/dev/ttyNOSUCH9"\ndeclination_deg = 0.0',
+        )
+        .replace('channel = "check"', 'channel = "nosuchcan7"')
+    )
+    path.write_text(text.replace("compass_two_sigma_deg = false", "compass_two_sigma_deg = 20.0"))
+    rc, err = _check(capsys, path, "--check")
+    assert rc == 0, err
+    assert "warning: [compass] port /dev/ttyNOSUCH9 does not exist" in err, err
+    assert "warning: [odometry]" in err and "nosuchcan7" in err, err
+    # either no SocketCAN here (a container) or no such interface: each names its fix
+    assert "modprobe can can_raw" in err or "sudo ip link set nosuchcan7 up type can" in err
+
+
+def test_serial_and_socketcan_problems_name_their_fixes(tmp_path: Path) -> None:
+    from guidance.app.checks import serial_problem, socketcan_problem
+
+    port = tmp_path / "ttyFAKE"
+    port.write_text("")
+    port.chmod(0o000)
+    import os
+
+    if os.geteuid() != 0:  # root opens anything
+        assert "usermod -aG dialout" in serial_problem(str(port))
+    port.chmod(0o600)
+    assert serial_problem(str(port)) == ""
+    net = tmp_path / "net"
+    (net / "can0").mkdir(parents=True)
+    (net / "can0" / "operstate").write_text("down\n")
+    (net / "can0" / "flags").write_text("0x80\n")
+    why = socketcan_problem("can0", net)
+    no_socketcan = "modprobe can can_raw" in why  # this machine (a container) has none
+    assert no_socketcan or why.endswith("is down: sudo ip link set can0 up type can bitrate 500000")
+    (net / "can0" / "operstate").write_text("up\n")
+    (net / "can0" / "flags").write_text("0x41\n")
+    assert socketcan_problem("can0", net) == ("" if not no_socketcan else why)
+    assert no_socketcan or "does not exist" in socketcan_problem("can9", net)
+
+
+def test_the_can_driver_names_the_fix_for_errno_97_19_and_100() -> None:
+    from drivers.can_odometry import can_hint
+
+    assert "modprobe can can_raw" in can_hint("socketcan", "can0", OSError(97, "x"))
+    assert "no network interface can0" in can_hint("socketcan", "can0", OSError(19, "x"))
+    assert "can0 is down: sudo ip link set can0 up" in can_hint(
+        "socketcan", "can0", OSError(100, "x")
+    )
+    assert can_hint("virtual", "can0", OSError(97, "x")) == ""

@@ -41,7 +41,15 @@ from urllib.parse import urlsplit
 
 from guidance.errors import UserError
 from guidance.telemetry.client import MonitorClient
-from guidance.tools.monitor_view import CarView, FleetView, bad_summary, health_summary
+from guidance.tools.monitor_view import (
+    CarView,
+    FleetView,
+    bad_summary,
+    dropped,
+    dropped_text,
+    gone_summary,
+    health_problems,
+)
 
 log = logging.getLogger(__name__)
 
@@ -135,16 +143,22 @@ def car_json(car: CarView, now_s: float) -> dict[str, Any]:
         track = [track[int(i * step)] for i in range(TRACK_POINTS_SENT - 1)] + [track[-1]]
     age = None if car.last_received_s is None else max(0.0, now_s - car.last_received_s)
     health = car.health
+    total, reasons = dropped(health)
     return {
         "vehicle_id": car.vehicle_id,
         "alive": car.alive,
+        "gone_s_ago": None if car.gone_s is None else max(0.0, now_s - car.gone_s),
+        "gone": "" if car.alive else gone_summary(car, now_s),
         "age_s": age,
         "state": car.state,
         "track": [[round(x, 2), round(y, 2)] for x, y in track],
         "prompt": car.prompt,
         "health": {
             "ok": None if health is None else bool(health.get("ok")),
-            "summary": health_summary(health),
+            "summary": health_problems(health),
+            "dropped": total,
+            "dropped_by_reason": reasons,
+            "dropped_text": dropped_text(health),
         },
         "messages": car.messages,
         "bad_messages": car.bad_messages,

@@ -7,10 +7,10 @@
 "use strict";
 
 const SVG = "http://www.w3.org/2000/svg";
-const COLOURS = ["#1f77b4", "#d62728", "#2ca02c", "#9467bd", "#ff7f0e", "#17becf",
-                 "#8c564b", "#e377c2", "#bcbd22", "#7f7f7f"];
 const EARTH_M = 6378137.0;
-const state = { config: { tiles: "", poll_ms: 500 }, ref: null, colours: new Map(), failures: 0 };
+const MIN_ELLIPSE_PX = 6;  // an ellipse smaller than this is drawn at this size, dashed
+const state = { config: { tiles: "", poll_ms: 500 }, ref: null, failures: 0, view: null,
+                last: null, colours: null };
 
 function el(name, attrs, parent) {
   const e = document.createElementNS(SVG, name);
@@ -27,9 +27,39 @@ function html(tag, cls, text, parent) {
   return e;
 }
 
+// A car keeps its colour for good: picked once per vehicle id (its FNV-1a hash, moved on to
+// the next colour not yet given to another car) and remembered in localStorage, so it is the
+// same after a reload and never handed to another car when one goes (a colour by order in the
+// list moved when a car went). Beyond 12 cars colours repeat.
+const COLOURS = ["#1f77b4", "#d62728", "#2ca02c", "#9467bd", "#e8700c", "#0f8f9c",
+                 "#8c564b", "#d6479b", "#7f7f00", "#393b79", "#637939", "#843c39"];
+const COLOUR_KEY = "guidance-monitor-colours";
+const MAX_REMEMBERED = 500;
+
+function colours() {
+  if (!state.colours) {
+    try { state.colours = new Map(JSON.parse(localStorage.getItem(COLOUR_KEY) || "[]")); }
+    catch (err) { state.colours = new Map(); }
+  }
+  return state.colours;
+}
+
 function colour(vid) {
-  if (!state.colours.has(vid)) state.colours.set(vid, COLOURS[state.colours.size % COLOURS.length]);
-  return state.colours.get(vid);
+  const known = colours();
+  if (!known.has(vid)) {
+    let h = 0x811c9dc5;
+    for (const ch of String(vid)) {
+      h ^= ch.codePointAt(0);
+      h = Math.imul(h, 0x01000193) >>> 0;
+    }
+    const used = new Set(known.values());
+    let i = h % COLOURS.length;
+    for (let k = 0; k < COLOURS.length && used.has(i); k++) i = (i + 1) % COLOURS.length;
+    known.set(vid, used.has(i) ? h % COLOURS.length : i);
+    while (known.size > MAX_REMEMBERED) known.delete(known.keys().next().value);
+    try { localStorage.setItem(COLOUR_KEY, JSON.stringify([...known])); } catch (err) { /* private mode */ }
+  }
+  return COLOURS[known.get(vid)];
 }
 
 function num(v) { return typeof v === "number" && isFinite(v) ? v : null; }
@@ -101,9 +131,11 @@ function bounds(cars) {
 }
 
 function projector(b, w, h) {
-  const k = Math.min(w / (b[2] - b[0]), h / (b[3] - b[1]));
-  const cx = (b[0] + b[2]) / 2, cy = (b[1] + b[3]) / 2;
-  return { k, x: (x) => w / 2 + (x - cx) * k, y: (y) => h / 2 - (y - cy) * k,
+  // state.view (set by zoom or pan) wins over the automatic fit until a double click
+  const v = state.view || { k: Math.min(w / (b[2] - b[0]), h / (b[3] - b[1])),
+                            cx: (b[0] + b[2]) / 2, cy: (b[1] + b[3]) / 2 };
+  const { k, cx, cy } = v;
+  return { k, cx, cy, x: (x) => w / 2 + (x - cx) * k, y: (y) => h / 2 - (y - cy) * k,
            ix: (px) => cx + (px - w / 2) / k, iy: (py) => cy - (py - h / 2) / k };
 }
 
@@ -122,7 +154,8 @@ function drawGrid(p, w, h) {
     el("text", { x: 2, y: p.y(y) - 2 }, g).textContent = `${Math.round(y)} m`;
   }
   document.getElementById("scale").textContent =
-    `grid ${step} m · x east, y north (m)` + (state.ref ? ` · origin ${state.ref.lat_deg.toFixed(5)}, ${state.ref.lon_deg.toFixed(5)}` : "");
+    `grid ${step} m · x east, y north (m)` + (state.ref ? ` · origin ${state.ref.lat_deg.toFixed(5)}, ${state.ref.lon_deg.toFixed(5)}` : "") +
+    (state.view ? " · zoomed (double-click: fit all)" : " · wheel: zoom, drag: pan");
 }
 
 function drawTiles(p, w, h) {
@@ -168,10 +201,17 @@ function drawCar(c, p, parent) {
   const px = p.x(x + ox), py = p.y(y + oy);
   const e = s.ellipse || {};
   const a = num(e.semi_major_m), b = num(e.semi_minor_m), o = num(e.orientation_rad);
+  let sigma = "";
   if (a !== null && b !== null && o !== null) {
-    el("ellipse", { class: "ellipse", cx: px, cy: py, rx: Math.max(a * p.k, 1), ry: Math.max(b * p.k, 1),
+    // to scale when it is big enough to see; else at MIN_ELLIPSE_PX, dashed, its shape kept
+    const small = a * p.k < MIN_ELLIPSE_PX;
+    const rx = small ? MIN_ELLIPSE_PX : a * p.k;
+    const ry = Math.max(small ? MIN_ELLIPSE_PX * (a > 0 ? b / a : 1) : b * p.k, 2);
+    el("ellipse", { class: small ? "ellipse min-size" : "ellipse", cx: px, cy: py, rx, ry,
                     transform: `rotate(${(-o * 180 / Math.PI).toFixed(2)} ${px} ${py})`,
-                    fill: col, stroke: col, "data-semi-major-m": a, "data-semi-minor-m": b }, g);
+                    fill: col, stroke: col, "data-semi-major-m": a, "data-semi-minor-m": b,
+                    "data-to-scale": !small, "data-true-rx-px": (a * p.k).toFixed(3) }, g);
+    sigma = ` · 2σ ${(2 * a).toFixed(0)} m${small ? " (not to scale)" : ""}`;
   }
   const goal = pair(s.goal, "x_m", "y_m"), target = s.target;
   if (goal) {
@@ -194,7 +234,8 @@ function drawCar(c, p, parent) {
                  stroke: col, "stroke-width": 3 }, g);
   }
   el("circle", { class: "position", cx: px, cy: py, r: 5, fill: col, stroke: "#fff" }, g);
-  el("text", { class: "label", x: px + 8, y: py - 8, fill: col }, g).textContent = c.vehicle_id;
+  const name = c.alive ? c.vehicle_id : `${c.vehicle_id} (gone)`;
+  el("text", { class: "label", x: px + 8, y: py - 8, fill: col }, g).textContent = name + sigma;
 }
 
 function fmt(v, digits, unit) {
@@ -224,12 +265,54 @@ function drawCard(c, ul) {
   }
   if (s.target && s.target.kind === "landmark") html("div", "target-text", `target: landmark ${s.target.id}`, li);
   html("div", "age", `age ${fmt(c.age_s, 1, " s")}`, li);
-  html("div", c.health.ok === false ? "health bad" : "health", `health: ${c.health.summary}`, li);
+  if (!c.alive) {  // its last health is no news: say it went, when, and what that means
+    const gone = html("div", "health gone-text", c.gone || "gone: liveliness token dropped", li);
+    gone.title = "The car's liveliness token dropped: its process ended or its link to this " +
+      "monitor went. The position shown is the last one received.";
+  } else {
+    html("div", c.health.ok === false ? "health bad" : "health", `health: ${c.health.summary}`, li);
+  }
+  if (c.health.dropped) {
+    const d = html("div", "dropped", c.health.dropped_text || `${c.health.dropped} dropped`, li);
+    d.title = "Telemetry messages the car made but did not send (counted by the car itself, " +
+      "in its health message). A state replaced by a newer one before it was sent costs " +
+      "nothing: only the newest position matters. Gaps in what this monitor received are " +
+      "counted separately (seq gaps).";
+  }
   if (c.bad_messages) html("div", "health bad", c.bad, li);  // malformed messages, left out
   if (c.prompt) html("div", "prompt", `“${c.prompt}”`, li);
 }
 
+function zoomPan() {
+  const svg = document.getElementById("map");
+  let drag = null;
+  const current = () => {
+    const w = svg.clientWidth || 800, h = svg.clientHeight || 600;
+    return { w, h, p: projector(bounds(state.last ? state.last.cars : []), w, h) };
+  };
+  svg.addEventListener("wheel", (ev) => {
+    ev.preventDefault();
+    const { w, h, p } = current();
+    const r = svg.getBoundingClientRect();
+    const mx = p.ix(ev.clientX - r.left), my = p.iy(ev.clientY - r.top);
+    const k = p.k * Math.pow(1.2, -Math.sign(ev.deltaY));
+    // keep the point under the cursor where it is
+    state.view = { k, cx: mx - (ev.clientX - r.left - w / 2) / k, cy: my + (ev.clientY - r.top - h / 2) / k };
+    if (state.last) render(state.last);
+  }, { passive: false });
+  svg.addEventListener("mousedown", (ev) => { drag = { x: ev.clientX, y: ev.clientY, p: current().p }; });
+  window.addEventListener("mouseup", () => { drag = null; });
+  window.addEventListener("mousemove", (ev) => {
+    if (!drag) return;
+    const { k, cx, cy } = drag.p;
+    state.view = { k, cx: cx - (ev.clientX - drag.x) / k, cy: cy + (ev.clientY - drag.y) / k };
+    if (state.last) render(state.last);
+  });
+  svg.addEventListener("dblclick", () => { state.view = null; if (state.last) render(state.last); });
+}
+
 function render(fleet) {
+  state.last = fleet;
   const cars = fleet.cars;
   if (!state.ref) {
     const withOrigin = cars.find((c) => c.state && pair(c.state.origin, "lat_deg", "lon_deg"));
@@ -287,6 +370,7 @@ async function start() {
     const r = await fetch("/api/config", { cache: "no-store" });
     if (r.ok) state.config = await r.json();
   } catch (err) { /* defaults */ }
+  zoomPan();
   poll();
 }
 

@@ -1,0 +1,486 @@
+"""How many cars one ``guidance monitor --json`` keeps up with (issue 24).
+
+One local zenoh router (its own process); K fake cars, each a zenoh *client session* of that
+router with a liveliness token under ``guidance/<id>``, publishing a real ``guidance.state``
+message (the output table's encoder) on ``guidance/<id>/state`` at --rate Hz with
+``CongestionControl.DROP`` and express, like the car's publisher. The cars are spread over
+--fleet-procs processes (one publishing thread each, absolute deadlines) so the sessions are
+real but the machine is not spent on 1000 interpreters. The monitor is the product's command,
+``guidance monitor --connect ROUTER --json --timeout S``, run as a child; this script
+reads its stdout and stamps each line's arrival with CLOCK_MONOTONIC, which the cars also use
+for ``t_s``, so age = arrival - t_s is the age of what the monitor shows.
+
+Printed per K: states received (% of those published during the window), each car's largest
+gap between shown states (median over cars), the age of each car's shown state sampled every
+17 ms (p50/p99/max over cars and samples, and the fraction of samples within 1 s), the
+monitor's CPU (user+sys seconds / wall seconds, from wait4), and in brackets what a reference
+subscriber got from the router and the router's and fleet's CPU (losses upstream of the
+monitor). This zenoh's router refuses client sessions beyond about 350: 1000 cars need
+``--cars-per-session 4``. Figures: docs/telemetry.md, "Measured".
+
+    .venv/bin/python benchmarks/monitor_fleet.py --cars 1 10 30 100 --duration 10
+    .venv/bin/python benchmarks/monitor_fleet.py --cars 10 100 300 --before 4bf690d
+    .venv/bin/python benchmarks/monitor_fleet.py --cars 1000 --fleet-procs 4 --cars-per-session 4
+    .venv/bin/python benchmarks/monitor_fleet.py --router-restart 10
+
+``--before REV`` also runs the monitor of git revision REV (its packages extracted
+with ``git archive`` into a temporary directory, first on PYTHONPATH), on the same fleet, and
+prints both rows side by side.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import socket
+import subprocess
+import sys
+import tempfile
+import threading
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+ROOT = Path(__file__).resolve().parents[1]
+
+ROUTER = r"""
+import sys, time, zenoh
+from guidance.telemetry.session import open_session, session_config
+conf = session_config(mode="router", listen=[sys.argv[1]])
+conf.insert_json5("transport/unicast/max_sessions", "10000")
+conf.insert_json5("transport/unicast/accept_pending", "2000")
+s = open_session(conf)
+print("up", flush=True)
+sys.stdin.readline()
+s.close()
+"""
+
+FLEET = r"""
+import json, sys, threading, time, zenoh
+from guidance.core.messages import Ellipse, EstimateState, Target
+from guidance.outputs.messages import encode, state_message
+from guidance.telemetry.keys import key_for, liveliness_key
+from guidance.telemetry.session import open_session, session_config
+from guidance.outputs.kinds import STATE, OutputContext
+from guidance.telemetry.config import TelemetryConfig
+from guidance.telemetry.publisher import Telemetry
+router, rate, first, n = sys.argv[1], float(sys.argv[2]), int(sys.argv[3]), int(sys.argv[4])
+real, per_session = sys.argv[5] == "telemetry", int(sys.argv[6])
+ids = [f"car{i:04d}" for i in range(first, first + n)]
+cars = []
+for vid in ids:
+    if real:  # the car's own publisher: thread, slots, queryable, every kind's publisher
+        tel = Telemetry(TelemetryConfig(vehicle_id=vid, mode="client", connect=(router,)))
+        tel.start()
+        cars.append((vid, tel, None, None))
+        continue
+    for attempt in range(20 if len(cars) % per_session == 0 else 0):
+        try:  # a busy router may refuse while it accepts hundreds
+            s = open_session(session_config(mode="client", connect=[router]))
+            break
+        except Exception:
+            time.sleep(0.2 + 0.1 * attempt)
+    else:
+        if len(cars) % per_session == 0:
+            raise SystemExit(f"{vid}: cannot reach the router")
+    pub = s.declare_publisher(key_for(vid, "state"),
+                              congestion_control=zenoh.CongestionControl.DROP, express=True)
+    tok = s.liveliness().declare_token(liveliness_key(vid))
+    cars.append((vid, s, pub, tok))
+while real and not all(c[1].health().valid for c in cars):
+    time.sleep(0.05)
+print("up", flush=True)
+sys.stdin.readline()  # go
+cov = ((4.0, 0.1, 0.0), (0.1, 2.0, 0.0), (0.0, 0.0, 0.01))
+ell = Ellipse(4.1, 2.8, 0.3, 8.2)
+period = 1.0 / rate
+stop = threading.Event()
+threading.Thread(target=lambda: (sys.stdin.readline(), stop.set()), daemon=True).start()
+seq, late, starts = 0, 0, []
+next_t = time.monotonic()
+while not stop.is_set():
+    next_t += period
+    pause = next_t - time.monotonic()
+    if pause > 0:
+        time.sleep(pause)
+    else:
+        late += 1
+    seq += 1
+    starts.append(time.monotonic())
+    for i, (vid, s, pub, tok) in enumerate(cars):
+        t = time.monotonic()
+        st = EstimateState(t, 10.0 * i + 0.1 * seq, 5.0, 0.5, cov, ell, False, True)
+        if real:
+            s.send(STATE, st, OutputContext(speed_mps=8.0,
+                                            target=Target(300.0, 100.0, "goal", None)))
+            continue
+        pub.put(encode(state_message(st, vehicle_id=vid, seq=seq, speed_mps=8.0,
+                                     target=Target(300.0, 100.0, "goal", None))))
+print(json.dumps({"rounds": seq, "late_rounds": late, "first": first, "n": n,
+                  "starts": starts}), flush=True)
+for session in {id(c[1]): c[1] for c in cars}.values():
+    session.close()
+"""
+
+
+REFERENCE = r"""
+import json, sys, zenoh
+from guidance.telemetry.session import open_session, session_config
+s = open_session(session_config(mode="peer", connect=[sys.argv[1]]))
+sub = s.declare_subscriber("guidance/*/state", zenoh.handlers.FifoChannel(1 << 21))
+print("up", flush=True)
+t0, t1 = map(float, sys.stdin.readline().split())  # the window, when it is over
+n = 0
+while (x := sub.handler.try_recv()) is not None:
+    b = x.payload.to_bytes()
+    m = json.loads(b[: b.index(b',"wall_time_unix_s"')] + b"}")
+    n += t0 <= m["t_s"] <= t1
+print(n, flush=True)
+s.close()
+"""
+"""What the router delivered: a subscriber with a big FIFO and no Python on its receiving path,
+read only once the window is over (the monitor's losses are those beyond this one's)."""
+
+
+def free_port() -> int:
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return int(s.getsockname()[1])
+
+
+def _spawn(code: str, *args: str, env: dict[str, str] | None = None) -> subprocess.Popen[str]:
+    return subprocess.Popen(
+        [sys.executable, "-c", code, *args],
+        cwd=ROOT,
+        stdin=subprocess.PIPE,
+        stdout=subprocess.PIPE,
+        text=True,
+        env=env,
+    )
+
+
+@dataclass
+class Seen:
+    """What one monitor printed: per car, (arrival, t_s, seq) of each state line."""
+
+    chunks: list[tuple[float, bytes]] = field(default_factory=list)
+    states: dict[str, list[tuple[float, float, int]]] = field(default_factory=dict)
+
+    def parse(self) -> None:
+        """Each state line's envelope (the first fields, not the whole line), stamped with
+        the arrival of the chunk that completed it."""
+        rest = b""
+        for now, chunk in self.chunks:
+            lines = (rest + chunk).split(b"\n")
+            rest = lines.pop()
+            for line in lines:
+                if not line.startswith(b'{"schema":"guidance.state/'):
+                    continue
+                msg = json.loads(line[: line.index(b',"wall_time_unix_s"')] + b"}")
+                self.states.setdefault(msg["vehicle_id"], []).append((now, msg["t_s"], msg["seq"]))
+
+
+def _read(proc: subprocess.Popen[bytes], seen: Seen) -> None:
+    """Takes the monitor's output as fast as it comes (big reads, parsed afterwards), so
+    this script is never what the monitor waits for."""
+    assert proc.stdout is not None
+    fd = proc.stdout.fileno()
+    while chunk := os.read(fd, 1 << 20):
+        seen.chunks.append((time.monotonic(), chunk))
+
+
+@dataclass
+class Row:
+    label: str
+    cars: int
+    received_pct: float
+    gap_s: float
+    age_p50_s: float
+    age_p99_s: float
+    age_max_s: float
+    fresh_pct: float
+    cpu_pct: float
+    delivered_pct: float = float("nan")
+    """What the reference subscriber got of the states published in the window."""
+    router_cpu_pct: float = float("nan")
+    fleet_cpu_pct: float = float("nan")
+
+
+def _monitor(router: str, duration: float, pythonpath: str | None) -> subprocess.Popen[bytes]:
+    env = dict(os.environ)
+    if pythonpath:
+        env["PYTHONPATH"] = pythonpath
+    main = ["-c", "import sys; from guidance.tools.cli import main; sys.exit(main())"]
+    if "MONITOR_PROFILE" in env:  # a cProfile of the monitor, for finding where it spends
+        main = ["-m", "cProfile", "-o", env["MONITOR_PROFILE"], str(ROOT / "benchmarks/_cli.py")]
+    return subprocess.Popen(
+        [
+            sys.executable,
+            *main,
+            "monitor",
+            "--connect",
+            router,
+            "--json",
+            "--timeout",
+            f"{duration:g}",
+        ],
+        cwd=pythonpath or ROOT,
+        stdout=subprocess.PIPE,
+        stderr=subprocess.DEVNULL,
+        env=env,
+    )
+
+
+def _stats(
+    label: str, seen: Seen, t0: float, t1: float, starts: dict[str, np.ndarray], cpu: float
+) -> Row:
+    """Figures over the window [t0, t1] (the fleet publishing, the monitor settled); a car's
+    states expected are the rounds its process published in the window (``starts``)."""
+    ids = sorted(starts)
+    expected = sum(int(np.sum((st >= t0) & (st <= t1))) for st in starts.values())
+    got, gaps, ages = 0, [], []
+    grid = np.arange(t0, t1, 0.0173)  # not a divisor of the 0.1 s period
+    for vid in ids:
+        every = seen.states.get(vid, [])
+        rows = [r for r in every if t0 <= r[0] <= t1]
+        got += len({r[2] for r in rows})
+        arrivals = [t0] + [r[0] for r in rows] + [t1]
+        gaps.append(float(np.max(np.diff(arrivals))))
+        if not every:
+            ages.extend([t1 - t0] * len(grid))
+            continue
+        arr = np.array([r[0] for r in every])  # what the monitor showed at each grid time
+        ts = np.array([r[1] for r in every])
+        idx = np.searchsorted(arr, grid, side="right") - 1
+        shown = np.where(idx >= 0, ts[np.clip(idx, 0, None)], t0 - 2.0)  # none: since start
+        ages.extend((grid - shown).tolist())
+    a = np.array(ages)
+    return Row(
+        label, len(ids), 100.0 * min(1.0, got / max(1, expected)), float(np.median(gaps)),
+        float(np.percentile(a, 50)), float(np.percentile(a, 99)), float(a.max()),
+        100.0 * float(np.mean(a <= 1.0)), cpu,
+    )  # fmt: skip
+
+
+def run_k(
+    k: int,
+    duration: float,
+    rate: float,
+    procs: int,
+    car: str,
+    per_session: int,
+    monitors: list[tuple[str, str | None]],
+) -> list[Row]:
+    port = free_port()
+    router_ep = f"tcp/127.0.0.1:{port}"
+    router = _spawn(ROUTER, router_ep)
+    fleet: list[subprocess.Popen[str]] = []
+    rows: list[Row] = []
+    windows: list[tuple[str, Seen, float, float, float, list[float]]] = []
+    """(monitor, what it printed, window, its CPU, [router CPU, fleet CPUs..., delivered])"""
+    try:
+        assert router.stdout is not None and router.stdout.readline().strip() == "up"
+        n_procs = max(1, min(procs, k))
+        share = [k // n_procs + (1 if i < k % n_procs else 0) for i in range(n_procs)]
+        first = 0
+        for n in share:
+            fleet.append(
+                _spawn(FLEET, router_ep, f"{rate:g}", str(first), str(n), car, str(per_session))
+            )
+            first += n
+        for p in fleet:
+            assert p.stdout is not None and p.stdout.readline().strip() == "up"
+        for p in fleet:
+            assert p.stdin is not None
+            p.stdin.write("go\n")
+            p.stdin.flush()
+        time.sleep(1.0)
+        for label, path in monitors:  # one after the other, on the same running fleet
+            seen = Seen()
+            ref = _spawn(REFERENCE, router_ep)
+            assert ref.stdout is not None and ref.stdout.readline().strip() == "up"
+            start = time.monotonic()
+            others0 = [_cpu_s(p.pid) for p in [router, *fleet]]
+            mon = _monitor(router_ep, duration + 2.0, path)
+            reader = threading.Thread(target=_read, args=(mon, seen), daemon=True)
+            reader.start()
+            _pid, _status, usage = os.wait4(mon.pid, 0)
+            mon.returncode = 0
+            wall = time.monotonic() - start
+            if wall < duration:
+                print(f"  ({label}: the monitor ended after {wall:.1f} s)", file=sys.stderr)
+            reader.join(2.0)
+            seen.parse()
+            cpu = 100.0 * (usage.ru_utime + usage.ru_stime) / wall
+            others = [
+                (_cpu_s(p.pid) - c0) / wall for p, c0 in zip([router, *fleet], others0, strict=True)
+            ]
+            t0, t1 = start + 2.0, start + 2.0 + duration
+            assert ref.stdin is not None and ref.stdout is not None
+            ref.stdin.write(f"{t0} {t1}\n")
+            ref.stdin.flush()
+            delivered = int(ref.stdout.readline())
+            ref.wait()
+            windows.append((label, seen, t0, t1, cpu, [*others, delivered]))
+        for p in fleet:
+            assert p.stdin is not None
+            p.stdin.write("stop\n")
+            p.stdin.flush()
+        starts: dict[str, np.ndarray] = {}
+        for p in fleet:
+            assert p.stdout is not None
+            report = json.loads(p.stdout.readline() or "{}")
+            for i in range(report["first"], report["first"] + report["n"]):
+                starts[f"car{i:04d}"] = np.array(report["starts"])
+            if report.get("late_rounds", 0) > report.get("rounds", 1) * 0.05:
+                print(f"  (a fleet process was behind: {report['late_rounds']} of "
+                      f"{report['rounds']} rounds late)", file=sys.stderr)  # fmt: skip
+        for label, seen, t0, t1, cpu, others in windows:
+            row = _stats(label, seen, t0, t1, starts, cpu)
+            row.router_cpu_pct, row.fleet_cpu_pct = 100 * others[0], 100 * sum(others[1:-1])
+            expected = sum(int(np.sum((st >= t0) & (st <= t1))) for st in starts.values())
+            row.delivered_pct = 100.0 * min(1.0, others[-1] / max(1, expected))
+            rows.append(row)
+    finally:
+        for p in [*fleet, router]:
+            if p.poll() is None:
+                p.kill()
+            p.wait()
+    return rows
+
+
+def router_restart(k: int, rate: float, down_s: float = 2.0) -> tuple[float, int]:
+    """K telemetry cars (the car's own publisher) and one monitor through a router that is
+    killed and, ``down_s`` later, started again on the same port: how long after it is back
+    until every car's state is shown again (max over cars), and how many cars came back."""
+    port = free_port()
+    ep = f"tcp/127.0.0.1:{port}"
+    procs = [_spawn(ROUTER, ep)]
+    try:
+        assert procs[0].stdout is not None and procs[0].stdout.readline().strip() == "up"
+        car = _spawn(FLEET, ep, f"{rate:g}", "0", str(k), "telemetry", "1")
+        procs.append(car)
+        assert car.stdin is not None and car.stdout is not None
+        assert car.stdout.readline().strip() == "up"
+        car.stdin.write("go\n")
+        car.stdin.flush()
+        seen = Seen()
+        mon = _monitor(ep, 20.0 + down_s, None)
+        procs.append(mon)  # type: ignore[arg-type]
+        threading.Thread(target=_read, args=(mon, seen), daemon=True).start()
+        time.sleep(4.0)
+        procs[0].kill()
+        procs[0].wait()
+        time.sleep(down_s)
+        procs[0] = _spawn(ROUTER, ep)
+        assert procs[0].stdout is not None and procs[0].stdout.readline().strip() == "up"
+        up = time.monotonic()
+        time.sleep(12.0)
+        seen.parse()
+        back = [
+            min((a for a, _, _ in rows if a > up), default=None) for rows in seen.states.values()
+        ]
+        times = [b - up for b in back if b is not None]
+        return (max(times) if len(times) == k else float("inf")), len(times)
+    finally:
+        for p in procs:
+            if p.poll() is None:
+                p.kill()
+            p.wait()
+
+
+def _cpu_s(pid: int) -> float:
+    """User + system CPU seconds of a running process so far (Linux /proc)."""
+    try:
+        fields = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()
+    except OSError:
+        return float("nan")
+    return (int(fields[11]) + int(fields[12])) / os.sysconf("SC_CLK_TCK")
+
+
+def _before_tree(rev: str, tmp: Path) -> str:
+    packages = ["guidance", "hal_sim", "drivers", "landmark_db"]  # the CLI imports them all
+    tar = subprocess.run(
+        ["git", "archive", rev, *packages], cwd=ROOT, check=True, capture_output=True
+    ).stdout
+    subprocess.run(["tar", "-x", "-C", str(tmp)], input=tar, check=True)
+    return str(tmp)
+
+
+def main() -> int:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap.add_argument("--cars", type=int, nargs="+", default=[1, 10, 30, 100])
+    ap.add_argument("--duration", type=float, default=10.0, help="measured seconds per K")
+    ap.add_argument("--rate", type=float, default=10.0, help="state messages per car per s")
+    ap.add_argument("--fleet-procs", type=int, default=2, help="processes holding the cars")
+    ap.add_argument(
+        "--car",
+        choices=("raw", "telemetry"),
+        default="raw",
+        help="raw: a session, a publisher and a token per car; telemetry: the car's Telemetry",
+    )
+    ap.add_argument(
+        "--cars-per-session",
+        type=int,
+        default=1,
+        metavar="N",
+        help="raw cars sharing one client session (this zenoh's router in Python refuses "
+        "client sessions beyond about 350: 4 gives 1000 cars on 250 sessions)",
+    )
+    ap.add_argument("--before", metavar="REV", help="also run the monitor of this git revision")
+    ap.add_argument(
+        "--router-restart",
+        type=int,
+        metavar="K",
+        help="only: K cars, the router killed and restarted; seconds until all are back",
+    )
+    args = ap.parse_args()
+    if args.router_restart:
+        worst, n = router_restart(args.router_restart, args.rate)
+        print(
+            f"router restart, {args.router_restart} cars (the car's Telemetry, client mode): "
+            f"{n} came back without restarting the monitor, the last {worst:.1f} s after the "
+            "router was up again"
+        )
+        return 0
+    with tempfile.TemporaryDirectory() as tmp:
+        monitors: list[tuple[str, str | None]] = []
+        if args.before:
+            monitors.append((f"before ({args.before})", _before_tree(args.before, Path(tmp))))
+        monitors.append(("this tree", None))
+        print(
+            f"guidance monitor --json, K cars at {args.rate:g} Hz through one local router, "
+            f"{args.duration:g} s measured per K ({os.cpu_count()} CPUs)"
+        )
+        head = (
+            f"{'monitor':<22}{'cars':>5}{'states':>9}{'max gap':>9}{'age p50':>9}"
+            f"{'p99':>7}{'max':>7}{'fresh<1s':>10}{'CPU':>7}"
+            "   (router delivered; router, fleet CPU)"
+        )
+        print(head)
+        for k in args.cars:
+            for r in run_k(
+                k,
+                args.duration,
+                args.rate,
+                args.fleet_procs,
+                args.car,
+                args.cars_per_session,
+                monitors,
+            ):
+                print(
+                    f"{r.label:<22}{r.cars:>5}{r.received_pct:>8.1f}%{r.gap_s:>8.2f}s"
+                    f"{r.age_p50_s:>8.2f}s{r.age_p99_s:>6.2f}s{r.age_max_s:>6.2f}s"
+                    f"{r.fresh_pct:>9.1f}%{r.cpu_pct:>6.0f}%"
+                    f"   ({r.delivered_pct:.1f} %; {r.router_cpu_pct:.0f} %,"
+                    f" {r.fleet_cpu_pct:.0f} %)",
+                    flush=True,
+                )
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
