@@ -20,14 +20,16 @@ def register(sub: Any) -> None:
     )
     study.add_argument(
         "which",
-        choices=("range", "landmarks", "interference"),
-        help="which study (interference: range with magnetic interference zones)",
+        choices=("range", "landmarks", "interference", "field"),
+        help="which study (interference: range with magnetic interference zones; field: the "
+        "paper's field protocol, successive goals until lost or 75 min)",
     )
     study.add_argument(
         "--trials-per-condition",
         type=int,
         default=None,
-        help="trials per condition (default: 1000 for range, 700 for landmarks)",
+        help="trials per condition (default: 1000 range, 700 landmarks, 500 interference, "
+        "200 field)",
     )
     study.add_argument("--out", type=Path, default=None, help="output folder (default out/<study>)")
     study.add_argument("--seed", type=int, default=1, help="study seed (default 1)")
@@ -101,6 +103,10 @@ def _study(args: argparse.Namespace) -> int:
     return 0
 
 
+def _interval(ci: list[float] | None, fmt: str) -> str:
+    return "-" if ci is None else f"{fmt.format(ci[0])}-{fmt.format(ci[1])}"
+
+
 def _print_paper_check(console: Any, summary: dict[str, Any], table_cls: Any) -> None:
     from hal_sim.analysis import paper_check_table
 
@@ -159,6 +165,21 @@ def _print_summary(console: Any, summary: dict[str, Any], out: Path, table_cls: 
                     "-" if either is None else f"{either:.2f}",
                 ]
             t.add_row(*row)
+    elif summary["study"] == "field":
+        for col in ("method", "runs", "goals/run", "lost", "goals ≥ 6.9 km reached", "95 %",
+                    "goal km @80%", "95 %", "run km @80%"):  # fmt: skip
+            t.add_column(col, justify="right")
+        for c in summary["conditions"]:
+            far = c["far_leg_success"]
+            run = c["run_km_at_80pct"]
+            t.add_row(
+                c["method"], str(c["runs"]), f"{c['goals_per_run']:.1f}",
+                f"{c['lost_fraction']:.0%}", "-" if far is None else f"{far:.0%}",
+                _interval(c["far_leg_success_ci95"], "{:.0%}"),
+                f"{c['leg_range_km_at_80pct']:.1f}" + ("+" if c["leg_range_censored"] else ""),
+                _interval(c["leg_range_km_ci95"], "{:.1f}"),
+                "limit" if run is None else f"{run:.1f}",
+            )  # fmt: skip
     else:
         for col in ("method", "density/km²", "detection", "success", "95 %", "range@80% km",
                     "driven km"):  # fmt: skip

@@ -45,6 +45,8 @@ def run_trial(
     The world and the bookkeeping are the engine's (``engine.begin_trial``,
     ``end_step``, ``finish_trial``); only the estimator and the navigator differ.
     """
+    if study == engine.STUDY_FIELD:
+        raise ValueError("the reference runs the range and landmark studies, not the field one")
     xs, ys, adj, net, lm_xy, node_start, node_lms, ts, ns, goal, area, mag = engine.setup_trial(
         trial_seed, study, density, p
     )

@@ -34,7 +34,17 @@ LANDMARK_METHODS = (Method.STRAIGHT_TO_GOAL, Method.LANDMARK_TO_LANDMARK, Method
 INTERFERENCE_COMPASS_DEG = (20.0, 30.0)
 INTERFERENCE_FRAC = 0.1
 """Interference study: a tenth of the blocks (per direction) are magnetically disturbed."""
-DEFAULT_TRIALS = {"range": 1000, "landmarks": 700, "interference": 500}
+DEFAULT_TRIALS = {"range": 1000, "landmarks": 700, "interference": 500, "field": 200}
+FIELD_DENSITY = 0.55
+FIELD_DETECTION = 0.6
+"""The paper's field conditions (SPEC 5): 0.55 landmarks per km2, 60 % detection."""
+STUDY_CODES = {
+    "range": engine.STUDY_RANGE,
+    "interference": engine.STUDY_RANGE,
+    "landmarks": engine.STUDY_LANDMARKS,
+    "field": engine.STUDY_FIELD,
+}
+"""Condition.study to ``engine.STUDY_*``."""
 CHUNK_TRIALS = 25
 SUCCESS_TARGET = 0.8
 LOSS_LINE_M = 100.0
@@ -108,6 +118,16 @@ def interference_conditions() -> list[Condition]:
     return out
 
 
+def field_conditions() -> list[Condition]:
+    """The field protocol at the paper's field conditions, one condition per method."""
+    return [
+        Condition(
+            i, f"field_{m.value}", "field", m, LANDMARK_COMPASS_DEG, FIELD_DENSITY, FIELD_DETECTION
+        )
+        for i, m in enumerate(LANDMARK_METHODS)
+    ]
+
+
 def trial_seeds(base_seed: int, condition: int, first: int, count: int) -> np.ndarray:
     """One 32-bit seed per trial from (study seed, condition, trial index) only."""
     return np.array(
@@ -134,7 +154,7 @@ class ChunkTask:
 
 def run_chunk(task: ChunkTask) -> tuple[np.ndarray, np.ndarray]:
     """Run one chunk in the compiled engine (top-level so processes and Dask can call it)."""
-    study = engine.STUDY_LANDMARKS if task.condition.study == "landmarks" else engine.STUDY_RANGE
+    study = STUDY_CODES[task.condition.study]
     out: tuple[np.ndarray, np.ndarray] = engine.run_batch(
         task.seeds,
         study,
@@ -334,6 +354,8 @@ class StudyRun:
             return range_conditions()
         if self.name == "interference":
             return interference_conditions()
+        if self.name == "field":
+            return field_conditions()
         return landmark_conditions()
 
     def run(self, on_progress: ProgressHook | None = None) -> dict[str, Any]:
@@ -399,6 +421,13 @@ class StudyRun:
                     title="Range with magnetic interference zones, detector on and off",
                     caption=cap,
                 )
+        elif self.name == "field":
+            from hal_sim import field_study
+
+            summary = field_study.summarise_field(data, self.sim, self.seed)
+            summary["paper_check"] = field_study.paper_check_field(summary)
+            field_study.fig_field(data, summary, self.out / "fig_field.png", caption=cap)
+            field_study.write_field_table(summary, self.out / "field_table.csv", header=cap)
         else:
             summary = analysis.summarise_landmarks(data, self.seed)
             summary["paper_check"] = analysis.paper_check_landmarks(data, summary, self.seed)

@@ -489,7 +489,7 @@ def world_step(
     for end in (ns[R_A], ns[R_B]):
         for k in range(node_start[end], node_start[end + 1]):
             lm = node_lms[k]
-            if lm_seen_pass[lm] == ns[R_PASS]:
+            if lm < 0 or lm_seen_pass[lm] == ns[R_PASS]:  # < 0: a field goal's empty slot
                 continue
             dx = lm_xy[lm, 0] - ts[T_X]
             dy = lm_xy[lm, 1] - ts[T_Y]
