@@ -51,6 +51,7 @@ from hal_sim.params import (
     I_SLIP,
     I_TABU,
     I_TRACK,
+    I_TRUE_COMPASS_SIGMA,
 )
 from hal_sim.trial import (
     MAX_EXITS,
@@ -169,7 +170,6 @@ def run_trial(
         n_active = field.place_goal_landmark(
             goal, xs, ys, adj, lm_xy, node_start, node_lms, n_active, p
         )
-    n_legs = 0
     res, trial = begin_trial(study, goal, area, n_base, xs, ys, ts, p, samples)
     leg_m = res[RES_EUCLID_M]
     # Estimator state.
@@ -177,25 +177,15 @@ def run_trial(
     sp = p[I_INIT_POS_SIGMA]
     sh = p[I_INIT_HEAD_SIGMA]
     P = np.diag(np.array([sp * sp, sp * sp, sh * sh]))
-    P_next = np.empty((3, 3))
-    F = np.empty((3, 3))
-    G = np.empty((3, 2))
-    Q = np.empty((3, 3))
     work = np.empty((3, 3))
-    track = p[I_TRACK]
-    lm_var = p[I_LM_SIGMA] ** 2
-    compass_var = p[I_COMPASS_SIGMA] ** 2
-    has_compass = p[I_COMPASS_SIGMA] > 0.0
     det = np.array([1.0, 0.0])
     # Navigator state.
     mem_xy = np.zeros((MAX_MEMORY, 2))
     mem_h = np.zeros((MAX_MEMORY, MAX_EXITS))
     mem_c = np.zeros((MAX_MEMORY, MAX_EXITS), dtype=np.int64)
-    n_mem = 0
     passed = np.zeros(lm_xy.shape[0], dtype=np.bool_)
-    mode = law.MODE_LANDMARK if method == law.METHOD_LANDMARK_TO_LANDMARK else law.MODE_GOAL
     lm_seen = -np.ones(lm_xy.shape[0], dtype=np.int64)
-    events = np.zeros(8)
+    events = np.zeros(world.N_EVENTS)
     dirs = np.empty(4, dtype=np.int64)
     headings = np.empty(4)
     penalties = np.empty(4)
@@ -204,7 +194,41 @@ def run_trial(
         [p[I_REVISIT_GATE], p[I_REVISIT_FLOOR] ** 2, p[I_TABU], p[I_EXIT_TOL], p[I_LM_PASS],
          p[I_LOOKAHEAD]]
     )  # fmt: skip
+    drive(
+        res, trial, study, method, p, samples, legs, ts, ns, xs, ys, adj, net, lm_xy,
+        node_start, node_lms, mag, x, P, work, det, mem_xy, mem_h, mem_c, passed, lm_seen,
+        events, dirs, headings, penalties, costs, decide_params, n_active, n_base, leg_m,
+    )  # fmt: skip
+    return res
+
+
+@njit(cache=True, error_model="numpy")
+def drive(
+    res: np.ndarray, trial: Trial, study: int, method: int, p: np.ndarray,
+    samples: np.ndarray, legs: np.ndarray, ts: np.ndarray, ns: np.ndarray, xs: np.ndarray,
+    ys: np.ndarray, adj: np.ndarray, net: np.ndarray, lm_xy: np.ndarray,
+    node_start: np.ndarray, node_lms: np.ndarray, mag: np.ndarray, x: np.ndarray,
+    P: np.ndarray, work: np.ndarray, det: np.ndarray, mem_xy: np.ndarray, mem_h: np.ndarray,
+    mem_c: np.ndarray, passed: np.ndarray, lm_seen: np.ndarray, events: np.ndarray,
+    dirs: np.ndarray, headings: np.ndarray, penalties: np.ndarray, costs: np.ndarray,
+    decide_params: np.ndarray, n_active: int, n_base: int, leg_m: float,
+) -> None:  # fmt: skip
+    """The trial's step loop, from ``run_trial``'s world and state to its result in ``res``.
+
+    Every array is an argument, none a local: numba counts references to a function's
+    local arrays at each call it passes them to (about twenty atomic operations a step
+    here), and not to its arguments.
+    """
+    is_field = study == STUDY_FIELD
+    track = p[I_TRACK]
+    lm_var = p[I_LM_SIGMA] ** 2
+    compass_var = p[I_COMPASS_SIGMA] ** 2
+    has_compass = p[I_COMPASS_SIGMA] > 0.0
+    n_mem = 0
+    n_legs = 0
+    mode = law.MODE_LANDMARK if method == law.METHOD_LANDMARK_TO_LANDMARK else law.MODE_GOAL
     period = p[I_COMPASS_PERIOD]
+    true_sigma = p[I_TRUE_COMPASS_SIGMA]
     lm_updates = 0
     c_rej = 0
     l_rej = 0
@@ -212,24 +236,19 @@ def run_trial(
     step = 0
     status = STEP_ON
     while True:
-        world.world_step(
-            ts,
-            ns,
-            xs,
-            ys,
-            lm_xy,
-            node_start,
-            node_lms,
-            lm_seen,
-            p,
-            math.floor((step + 1) / period) > math.floor(step / period),
-            p[I_DETECT],
-            events,
-        )
+        # world.world_step, its draws made here: see world.step_core.
+        due = math.floor((step + 1) / period) > math.floor(step / period)
+        u_left, u_right, gauss = world.draw_step(due, true_sigma)
+        world.step_core(
+            ts, ns, xs, ys, lm_xy, node_start, node_lms, lm_seen, p, due, u_left, u_right,
+            gauss, events,
+        )  # fmt: skip
+        if events[world.EV_N_SIGHTED] > 0:
+            world.detect(events, p[I_DETECT])
         step += 1
         dl, dr = events[0], events[1]
         if abs(dl) <= p[I_MAX_WHEEL_STEP] and abs(dr) <= p[I_MAX_WHEEL_STEP]:
-            ekf.predict(x, P, P_next, F, G, Q, dl, dr, track, p[I_QUANTUM], p[I_SLIP])
+            ekf.predict(x, P, dl, dr, track, p[I_QUANTUM], p[I_SLIP])
         if has_compass and not math.isnan(events[2]):
             z = events[2]
             if p[I_MAG_FRAC] > 0.0:
@@ -292,7 +311,6 @@ def run_trial(
             n_legs = field.record_leg(legs, n_legs, leg_m, False)
     finish_trial(res, trial, status, ts, ns, x, step, lm_updates, c_rej, l_rej, i_rej)
     res[RES_GOAL_LANDMARKS] = n_active - n_base
-    return res
 
 
 @njit(cache=True, error_model="numpy")

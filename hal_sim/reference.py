@@ -56,7 +56,7 @@ def run_trial(
     landmarks = [Landmark(k, float(lm_xy[k, 0]), float(lm_xy[k, 1])) for k in range(len(lm_xy))]
     nav = Navigator((trial.goal_x, trial.goal_y), replace(nav_cfg, method=method), landmarks)
     lm_seen = -np.ones(len(lm_xy), dtype=np.int64)
-    events = np.zeros(8)
+    events = np.zeros(world.N_EVENTS)
     dirs = np.empty(4, dtype=np.int64)
     period = float(p[I_COMPASS_PERIOD])
     dt = float(p[I_DT])
