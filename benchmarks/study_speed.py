@@ -7,9 +7,9 @@ Runs, side by side in one process on one core:
    ``PoseEstimator`` (filterpy): the covariances must agree to 1e-9;
 2. the same seeded range-study trials through ``hal_sim.engine`` and
    ``hal_sim.reference`` (same world, same random numbers): mean lost distance
-   within 3 %, and the time per simulation step of each.
+   within 3 %, identical step counts, and the CPU time per simulation step of each.
 
-Ends with ``speedup: <ratio>x`` (target at least 100). Exit status 1 when an
+Ends with ``speedup: <ratio>x`` (target at least 400, issue 26). Exit status 1 when an
 agreement check fails.
 
     .venv/bin/python benchmarks/study_speed.py [--trials 200] [--compass-deg 30]
@@ -67,6 +67,7 @@ def main() -> int:
     ap.add_argument("--compass-deg", type=float, default=30.0)
     ap.add_argument("--seed", type=int, default=3)
     ap.add_argument("--steps", type=int, default=5000, help="fixed-sequence length")
+    ap.add_argument("--repeat", type=int, default=5, help="fast-engine runs (median)")
     args = ap.parse_args()
 
     sim = SimParams()
@@ -81,11 +82,16 @@ def main() -> int:
     print(f"fixed sequence of {args.steps} steps: max |engine - filterpy| = {worst:.2e} (<= 1e-9)")
 
     engine.run_batch(seeds[:1], engine.STUDY_RANGE, method.code, 0.0, p, n_samples)  # compile
-    t0 = time.perf_counter()
-    fast, _ = engine.run_batch(seeds, engine.STUDY_RANGE, method.code, 0.0, p, n_samples)
-    t_fast = time.perf_counter() - t0
+    # CPU time of this process (the machine may be shared: wall time would count the other
+    # jobs' turns on the core); the fast engine as the median of --repeat runs.
+    runs = []
+    for _ in range(args.repeat):
+        t0 = time.process_time()
+        fast, _ = engine.run_batch(seeds, engine.STUDY_RANGE, method.code, 0.0, p, n_samples)
+        runs.append(time.process_time() - t0)
+    t_fast = float(np.median(runs))
 
-    t0 = time.perf_counter()
+    t0 = time.process_time()
     ref = np.array(
         [
             reference.run_trial(
@@ -94,7 +100,7 @@ def main() -> int:
             for s in seeds
         ]
     )
-    t_ref = time.perf_counter() - t0
+    t_ref = time.process_time() - t0
 
     def lost_km(r: np.ndarray) -> float:
         lost = r[:, engine.RES_OUTCOME] == engine.OUTCOME_LOST
@@ -107,12 +113,15 @@ def main() -> int:
     lf, lr = lost_km(fast), lost_km(ref)
     rel = abs(lf - lr) / lr
     same = int((fast[:, engine.RES_STEPS] == ref[:, engine.RES_STEPS]).sum())
-    print(f"{args.trials} range trials, compass 2-sigma {args.compass_deg:g} deg, one core")
+    print(
+        f"{args.trials} range trials, compass 2-sigma {args.compass_deg:g} deg, one core, "
+        f"CPU time (fast engine: median of {args.repeat})"
+    )
     print(f"  fast engine:      {t_fast:8.2f} s  {steps_fast:12.0f} steps  {ns_fast:9.0f} ns/step")
     print(f"  filterpy engine:  {t_ref:8.2f} s  {steps_ref:12.0f} steps  {ns_ref:9.0f} ns/step")
     print(f"  mean lost distance: fast {lf:.3f} km, reference {lr:.3f} km, difference {rel:.2%}")
     print(f"  trials with identical step counts: {same}/{args.trials}")
-    ok = worst <= 1e-9 and rel <= 0.03
+    ok = worst <= 1e-9 and rel <= 0.03 and same == args.trials
     if not ok:
         print("AGREEMENT CHECK FAILED", file=sys.stderr)
     print(f"speedup: {ns_ref / ns_fast:.0f}x")

@@ -10,7 +10,7 @@ from typing import Any
 
 from guidance.errors import UserError
 
-STUDIES = ("range", "landmarks", "interference")
+STUDIES = ("range", "landmarks", "interference", "field")
 """range: without a map; landmarks: with them; interference: range with magnetic zones."""
 
 
@@ -24,13 +24,15 @@ def register(sub: Any) -> None:
     study.add_argument(
         "which",
         choices=STUDIES,
-        help="which study (interference: range with magnetic interference zones)",
+        help="which study (interference: range with magnetic interference zones; field: the "
+        "paper's field protocol, successive goals until lost or 75 min)",
     )
     study.add_argument(
         "--trials-per-condition",
         type=int,
         default=None,
-        help="trials per condition (default: 1000 for range, 700 for landmarks)",
+        help="trials per condition (default: 1000 range, 700 landmarks, 500 interference, "
+        "200 field)",
     )
     study.add_argument("--out", type=Path, default=None, help="output folder (default out/<study>)")
     study.add_argument("--seed", type=int, default=1, help="study seed (default 1)")
@@ -42,6 +44,11 @@ def register(sub: Any) -> None:
     )
     study.add_argument("--no-progress", action="store_true", help="no progress bar")
     study.add_argument("--json", action="store_true", help="print summary.json at the end")
+    study.add_argument(
+        "--check-paper",
+        action="store_true",
+        help="print the comparison with the paper's figures (also in paper_check.csv)",
+    )
     study.set_defaults(func=_study)
 
 
@@ -94,14 +101,48 @@ def _study(args: argparse.Namespace) -> int:
         print(json.dumps(summary))
         return 0
     _print_summary(console, summary, out, Table)
+    if args.check_paper:
+        _print_paper_check(console, summary, Table)
     return 0
+
+
+def _interval(ci: list[float] | None, fmt: str) -> str:
+    return "-" if ci is None else f"{fmt.format(ci[0])}-{fmt.format(ci[1])}"
+
+
+def _print_paper_check(console: Any, summary: dict[str, Any], table_cls: Any) -> None:
+    from hal_sim.analysis import paper_check_table
+
+    rows = paper_check_table(summary.get("paper_check", []))
+    t = table_cls(title="against the paper (inside: the paper's value in our 95 % interval)")
+    for col in ("condition", "quantity", "paper", "ours", "95 % interval", "inside", "within"):
+        t.add_column(col, overflow="fold")
+    for r in rows:
+        ci = f"{r['ci95_low']}-{r['ci95_high']}"
+        t.add_row(r["condition"], r["quantity"], r["paper"], r["ours"], ci,
+                  r["paper_inside_ci"], r["within_tolerance"])  # fmt: skip
+    console.print(t)
+    notes = sorted({r["note"] for r in rows if r["note"]})
+    console.print("; ".join(notes))
+    prov = summary["provenance"]
+    commit = prov["commit"] or "no git"
+    console.print(
+        f"commit {commit}{' (dirty)' if prov['dirty'] else ''}, N = {summary['n_trials']}"
+    )
 
 
 def _print_summary(console: Any, summary: dict[str, Any], out: Path, table_cls: Any) -> None:
     t = table_cls(title=f"{summary['study']} study ({summary['wall_s']:.0f} s)")
     if summary["study"] in ("range", "interference"):
         zones = summary["study"] == "interference"
-        cols = ["compass 2σ", "trials", "mean lost km", "never lost", "fit lost km"]
+        cols = [
+            "compass 2σ",
+            "trials",
+            "mean lost km",
+            "95 % interval",
+            "never lost",
+            "fit lost km",
+        ]
         if zones:
             cols[1:1] = ["zones", "detector", "rejected/trial"]
             cols += ["truth > 50 m", "max error m", "lost by either km"]
@@ -111,7 +152,9 @@ def _print_summary(console: Any, summary: dict[str, Any], out: Path, table_cls: 
             comp = "none" if c["compass_2sigma_deg"] is None else f"±{c['compass_2sigma_deg']:g}°"
             mean = "-" if c["mean_lost_km"] is None else f"{c['mean_lost_km']:.2f}"
             fit = "-" if c["fit_lost_km"] is None else f"{c['fit_lost_km']:.1f}"
-            row = [comp, str(c["trials"]), mean, f"{c['never_lost_fraction']:.0%}", fit]
+            ci = c["mean_lost_km_ci95"]
+            inter = "-" if ci is None else f"{ci[0]:.2f}-{ci[1]:.2f}"
+            row = [comp, str(c["trials"]), mean, inter, f"{c['never_lost_fraction']:.0%}", fit]
             if zones:
                 row[1:1] = [
                     f"{c['interference_frac']:.0%}",
@@ -125,8 +168,24 @@ def _print_summary(console: Any, summary: dict[str, Any], out: Path, table_cls: 
                     "-" if either is None else f"{either:.2f}",
                 ]
             t.add_row(*row)
+    elif summary["study"] == "field":
+        for col in ("method", "runs", "goals/run", "lost", "goals ≥ 6.9 km reached", "95 %",
+                    "goal km @80%", "95 %", "run km @80%"):  # fmt: skip
+            t.add_column(col, justify="right")
+        for c in summary["conditions"]:
+            far = c["far_leg_success"]
+            run = c["run_km_at_80pct"]
+            t.add_row(
+                c["method"], str(c["runs"]), f"{c['goals_per_run']:.1f}",
+                f"{c['lost_fraction']:.0%}", "-" if far is None else f"{far:.0%}",
+                _interval(c["far_leg_success_ci95"], "{:.0%}"),
+                f"{c['leg_range_km_at_80pct']:.1f}" + ("+" if c["leg_range_censored"] else ""),
+                _interval(c["leg_range_km_ci95"], "{:.1f}"),
+                "limit" if run is None else f"{run:.1f}",
+            )  # fmt: skip
     else:
-        for col in ("method", "density/km²", "detection", "success", "range@80% km", "driven km"):
+        for col in ("method", "density/km²", "detection", "success", "95 %", "range@80% km",
+                    "driven km"):  # fmt: skip
             t.add_column(col, justify="right")
         for c in summary["conditions"]:
             rng = f"{c['range_km_at_80pct']:.1f}" + ("+" if c["range_censored"] else "")
@@ -135,6 +194,7 @@ def _print_summary(console: Any, summary: dict[str, Any], out: Path, table_cls: 
                 f"{c['density_per_km2']:g}",
                 f"{c['detection_rate']:.0%}",
                 f"{c['success_rate']:.0%}",
+                "{:.0%}-{:.0%}".format(*c["success_rate_ci95"]),
                 rng,
                 f"{c['mean_driven_km']:.1f}",
             )

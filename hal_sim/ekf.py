@@ -31,29 +31,64 @@ from hal_sim.params import (
 )
 
 
-@njit(cache=True, error_model="numpy")
+@njit(cache=True, error_model="numpy", inline="always")
 def predict(
     x: np.ndarray,
     P: np.ndarray,
-    P_next: np.ndarray,
-    F: np.ndarray,
-    G: np.ndarray,
-    Q: np.ndarray,
     dl: float,
     dr: float,
     track: float,
     quantum: float,
     slip: float,
 ) -> None:
-    """EKF predict from wheel increments (SPEC 2), in place, with the functions filterpy gets."""
+    """EKF predict from wheel increments (SPEC 2), in place: F P F^T + G diag(vl, vr) G^T.
+
+    The functions filterpy gets (``model.motion_jacobians``, ``process_noise``,
+    ``predict_covariance``), unrolled for the 3x3 case: F is the identity but for
+    F[0, 2] = -d sin(mid) and F[1, 2] = d cos(mid), so F P F^T is six scalar lines on the
+    symmetric P, and one sine and cosine serve the Jacobians and the motion. Inlined, so the
+    compiled loop passes no arrays (each array passed costs two reference counts).
+    """
     d, dth = model.odometry_increment(dl, dr, track)
-    model.motion_jacobians(x[2], dl, dr, track, F, G)
-    model.process_noise(
-        G, model.wheel_noise_var(dl, quantum, slip), model.wheel_noise_var(dr, quantum, slip), Q
-    )
-    x[0], x[1], x[2] = model.motion_predict(x[0], x[1], x[2], d, dth)
-    model.predict_covariance(P, F, Q, P_next)
-    P[:, :] = P_next
+    mid = x[2] + 0.5 * dth
+    c = math.cos(mid)
+    s = math.sin(mid)
+    a = -d * s  # F[0, 2]
+    b = d * c  # F[1, 2]
+    h = 0.5 / track
+    g00 = 0.5 * c + d * s * h
+    g01 = 0.5 * c - d * s * h
+    g10 = 0.5 * s - d * c * h
+    g11 = 0.5 * s + d * c * h
+    g20 = -1.0 / track
+    g21 = 1.0 / track
+    vl = model.wheel_noise_var(dl, quantum, slip)
+    vr = model.wheel_noise_var(dr, quantum, slip)
+    p00, p01, p02 = P[0, 0], P[0, 1], P[0, 2]
+    p11, p12, p22 = P[1, 1], P[1, 2], P[2, 2]
+    q00 = g00 * vl * g00 + g01 * vr * g01
+    q01 = g00 * vl * g10 + g01 * vr * g11
+    q02 = g00 * vl * g20 + g01 * vr * g21
+    q11 = g10 * vl * g10 + g11 * vr * g11
+    q12 = g10 * vl * g20 + g11 * vr * g21
+    q22 = g20 * vl * g20 + g21 * vr * g21
+    r02 = p02 + a * p22  # row 0 of F P, column 2
+    r12 = p12 + b * p22
+    n00 = q00 + (p00 + a * p02) + r02 * a
+    n01 = q01 + (p01 + a * p12) + r02 * b
+    n11 = q11 + (p11 + b * p12) + r12 * b
+    P[0, 0] = n00
+    P[0, 1] = n01
+    P[1, 0] = n01
+    P[0, 2] = q02 + r02
+    P[2, 0] = q02 + r02
+    P[1, 1] = n11
+    P[1, 2] = q12 + r12
+    P[2, 1] = q12 + r12
+    P[2, 2] = q22 + p22
+    x[0] = x[0] + d * c
+    x[1] = x[1] + d * s
+    x[2] = model.wrap_angle(x[2] + dth)
 
 
 COMPASS_ACCEPTED = 0
@@ -71,9 +106,15 @@ def compass_update(
     active readings are rejected: the heading is left to odometry and its
     variance grows honestly, instead of being dragged by a biased field.
     Returns COMPASS_ACCEPTED, COMPASS_GATED or COMPASS_INTERFERENCE.
+
+    ``model.heading_innovation`` and ``model.heading_update`` (Joseph form, as filterpy
+    computes it) for the three-state filter, unrolled, with one exit: a function with early
+    returns that passes its arrays on is charged reference counts at every call.
     """
-    y, S = model.heading_innovation(x, P, z, var)
+    y = model.heading_residual(z, x[2])
+    S = P[2, 2] + var
     nis = y * y / S
+    code = COMPASS_ACCEPTED
     if p[I_MAG_DETECT] > 0.0:
         level, active = model.interference_update(
             det[0], det[1] > 0.0, nis, p[I_MAG_ALPHA], p[I_MAG_ON], p[I_MAG_OFF]
@@ -81,11 +122,32 @@ def compass_update(
         det[0] = level
         det[1] = 1.0 if active else 0.0
         if active:
-            return COMPASS_INTERFERENCE
-    if nis > p[I_COMPASS_GATE]:
-        return COMPASS_GATED
-    model.heading_update(x, P, y, S, var)
-    return COMPASS_ACCEPTED
+            code = COMPASS_INTERFERENCE
+    if code == COMPASS_ACCEPTED and nis > p[I_COMPASS_GATE]:
+        code = COMPASS_GATED
+    if code == COMPASS_ACCEPTED:
+        p02, p12, p22 = P[0, 2], P[1, 2], P[2, 2]
+        k0, k1, k2 = p02 / S, p12 / S, p22 / S
+        x[0] += k0 * y
+        x[1] += k1 * y
+        x[2] = model.wrap_angle(x[2] + k2 * y)
+        # P_ij - K_i pc_j - K_j (pc_i - K_i p22) + K_i K_j var, pc = P[:, 2] (heading_update)
+        v00 = P[0, 0] - k0 * p02 - k0 * (p02 - k0 * p22) + k0 * k0 * var
+        v01 = P[0, 1] - k0 * p12 - k1 * (p02 - k0 * p22) + k0 * k1 * var
+        v02 = P[0, 2] - k0 * p22 - k2 * (p02 - k0 * p22) + k0 * k2 * var
+        v11 = P[1, 1] - k1 * p12 - k1 * (p12 - k1 * p22) + k1 * k1 * var
+        v12 = P[1, 2] - k1 * p22 - k2 * (p12 - k1 * p22) + k1 * k2 * var
+        v22 = P[2, 2] - k2 * p22 - k2 * (p22 - k2 * p22) + k2 * k2 * var
+        P[0, 0] = v00
+        P[0, 1] = v01
+        P[1, 0] = v01
+        P[0, 2] = v02
+        P[2, 0] = v02
+        P[1, 1] = v11
+        P[1, 2] = v12
+        P[2, 1] = v12
+        P[2, 2] = v22
+    return code
 
 
 @njit(cache=True, error_model="numpy")
@@ -120,16 +182,12 @@ def filter_sequence(
     Ps = np.empty((n, 3, 3))
     x = x0.copy()
     P = P0.copy()
-    P_next = np.empty((3, 3))
-    F = np.empty((3, 3))
-    G = np.empty((3, 2))
-    Q = np.empty((3, 3))
     work = np.empty((3, 3))
     det = np.array([1.0, 0.0])
     for i in range(n):
         dl, dr = inputs[i, 0], inputs[i, 1]
         if abs(dl) <= p[I_MAX_WHEEL_STEP] and abs(dr) <= p[I_MAX_WHEEL_STEP]:
-            predict(x, P, P_next, F, G, Q, dl, dr, p[I_TRACK], p[I_QUANTUM], p[I_SLIP])
+            predict(x, P, dl, dr, p[I_TRACK], p[I_QUANTUM], p[I_SLIP])
         if p[I_COMPASS_SIGMA] > 0.0 and not math.isnan(inputs[i, 2]):
             compass_update(x, P, inputs[i, 2], p[I_COMPASS_SIGMA] ** 2, p, det)
         if not math.isnan(inputs[i, 3]):

@@ -7,348 +7,143 @@ the same functions the in-car application uses — without Python in the loop.
 ``Navigator`` class; the benchmark ``benchmarks/study_speed.py`` checks that the
 two agree. The trial's bookkeeping (``begin_trial``, ``end_step``,
 ``finish_trial``: the lost check, arrival and the next goal, the samples, the
-true error) is written once, here, and both loops call it.
+true error) is written once, in ``hal_sim.trial`` (re-exported here), and both loops
+call it.
 
 A trial (SPEC section 5):
 
 * range study (``study=STUDY_RANGE``): drive to random goals one after the
   other (field protocol) until lost or ``range_cap_km`` driven;
 * landmark study (``study=STUDY_LANDMARKS``): one goal; success is arriving
-  without ever being lost; timeout at ``cap_factor * Manhattan + extra``.
+  without ever being lost; timeout at ``cap_factor * Manhattan + extra``;
+* field study (``study=STUDY_FIELD``, SPEC 5's field protocol): goals one after the other,
+  each at a random distance like the landmark study's, one landmark placed for each
+  (``hal_sim.field``), until lost or the time limit; the sample row holds the legs.
 """
 
 from __future__ import annotations
 
 import math
-from typing import NamedTuple
 
 import numpy as np
 from numba import njit
 
 from guidance.core import law, model
-from guidance.core.navigator import NavigatorConfig
-from hal_sim import ekf, world
+from hal_sim import ekf, field, world
 from hal_sim.params import (
-    I_AREA_MAX,
-    I_AREA_MIN,
-    I_ARRIVE,
-    I_BLOCK_MAX,
-    I_BLOCK_MIN,
     I_COMPASS_PERIOD,
     I_COMPASS_SIGMA,
-    I_DEAD_FRAC,
     I_DETECT,
-    I_DT,
     I_EXIT_TOL,
     I_HYBRID_SWITCH,
     I_INIT_HEAD_SIGMA,
     I_INIT_POS_SIGMA,
-    I_LM_CAP_EXTRA,
-    I_LM_CAP_FACTOR,
     I_LM_GATE,
     I_LM_PASS,
     I_LM_SIGMA,
     I_LOOKAHEAD,
-    I_LOST,
-    I_MAG_BIAS_MAX,
-    I_MAG_BIAS_MIN,
     I_MAG_FRAC,
     I_MAG_NOISE,
     I_MAX_WHEEL_STEP,
-    I_ONEWAY_FRAC,
     I_QUANTUM,
-    I_RANGE_CAP,
     I_REVISIT_FLOOR,
     I_REVISIT_GATE,
-    I_SAMPLE_FIRST,
     I_SLIP,
     I_TABU,
     I_TRACK,
-    I_TURN_V,
+    I_TRUE_COMPASS_SIGMA,
 )
-
-STUDY_RANGE = 0
-STUDY_LANDMARKS = 1
-
-OUTCOME_ARRIVED = 0
-OUTCOME_LOST = 1
-OUTCOME_TIMEOUT = 2
-OUTCOME_STUCK = 3
-OUTCOME_NAMES = ("arrived", "lost", "timeout", "stuck")
-# A trial that has not covered its distance cap after this many steps at the turn
-# speed is stuck (a controller fault, not a navigation result): it is ended and counted.
-STUCK_FACTOR = 3.0
-
-# Result vector.
-(
-    RES_OUTCOME,
+from hal_sim.trial import (
+    MAX_EXITS,
+    MAX_MEMORY,
+    N_RESULT,
+    OUTCOME_ARRIVED,
+    OUTCOME_LOST,
+    OUTCOME_NAMES,
+    OUTCOME_STUCK,
+    OUTCOME_TIMEOUT,
+    RES_AREA_KM2,
+    RES_COMPASS_REJECTS,
     RES_DRIVEN_M,
     RES_EUCLID_M,
-    RES_MANHATTAN_M,
-    RES_LOST_AT_M,
-    RES_LANDMARK_UPDATES,
-    RES_TURNS,
     RES_FINAL_ERR_M,
+    RES_GOAL_LANDMARKS,
     RES_GOALS,
-    RES_STEPS,
-    RES_AREA_KM2,
-    RES_N_LANDMARKS,
-    RES_COMPASS_REJECTS,
-    RES_LANDMARK_REJECTS,
     RES_INTERFERENCE_REJECTS,
+    RES_LANDMARK_REJECTS,
+    RES_LANDMARK_UPDATES,
+    RES_LOST_AT_M,
+    RES_MANHATTAN_M,
     RES_MAX_ERR_M,
+    RES_N_LANDMARKS,
+    RES_OUTCOME,
+    RES_STEPS,
     RES_TRUE_LOST_AT_M,
-    N_RESULT,
-) = range(18)
-TRUE_LOST_FRACTION = 0.5
-"""The truth is "lost" when the true position error exceeds this fraction of the lost
-major axis (the radius of the ellipse at which the estimate declares itself lost)."""
-RESULT_NAMES = (
-    "outcome",
-    "driven_m",
-    "euclid_m",
-    "manhattan_m",
-    "lost_at_m",
-    "landmark_updates",
-    "turns",
-    "final_error_m",
-    "goals_reached",
-    "steps",
-    "area_km2",
-    "n_landmarks",
-    "compass_rejects",
-    "landmark_rejects",
-    "interference_rejects",
-    "max_true_error_m",
-    "true_lost_at_m",
+    RES_TURNS,
+    RESULT_NAMES,
+    STEP_NEW_GOAL,
+    STEP_ON,
+    STUCK_FACTOR,
+    STUDY_FIELD,
+    STUDY_LANDMARKS,
+    STUDY_RANGE,
+    TRUE_LOST_FRACTION,
+    Trial,
+    begin_trial,
+    end_step,
+    finish_trial,
+    next_goal,
+    sample_distance_m,
+    setup_trial,
+    with_goal,
 )
 
-MAX_MEMORY = NavigatorConfig().max_intersections
-"""The intersections a trial remembers: the car's own default (``law.decide_exit`` forgets the
-oldest half when full, so the engine and the car must agree on the size)."""
-MAX_EXITS = 4
-"""The grid city's intersections have at most four exits."""
-
-
-@njit(cache=True, error_model="numpy")
-def sample_distance_m(i: int, n: int, p: np.ndarray) -> float:
-    """Where sample i of n is taken: log-spaced from the first sample distance to the range cap."""
-    first = p[I_SAMPLE_FIRST]
-    return first * (p[I_RANGE_CAP] / first) ** (i / (n - 1))
-
-
-@njit(cache=True, error_model="numpy")
-def setup_trial(
-    trial_seed: int, study: int, density: float, p: np.ndarray
-) -> tuple[
-    np.ndarray,
-    np.ndarray,
-    np.ndarray,
-    np.ndarray,
-    np.ndarray,
-    np.ndarray,
-    np.ndarray,
-    np.ndarray,
-    np.ndarray,
-    int,
-    float,
-    np.ndarray,
-]:
-    """Seed, build the city and landmarks, place the car; return the world and the first goal.
-
-    Range study: city area log-uniform, goals uniform over the city. Landmark
-    study: city area uniform (more large cities, so long trips occur), and the
-    goal is the node nearest a point at a distance drawn uniformly between
-    0.2 km and 0.9 of the city's diagonal, in a random direction: success can
-    then be read against distance evenly.
-    """
-    world.seed(trial_seed)
-    if study == STUDY_RANGE:
-        area = math.exp(np.random.uniform(math.log(p[I_AREA_MIN]), math.log(p[I_AREA_MAX])))
-    else:
-        area = np.random.uniform(p[I_AREA_MIN], p[I_AREA_MAX])
-    aspect = np.random.uniform(0.7, 1.4)
-    xs, ys, adj, net = world.make_city(
-        area, aspect, p[I_BLOCK_MIN], p[I_BLOCK_MAX], p[I_DEAD_FRAC], p[I_ONEWAY_FRAC]
-    )
-    lm_xy, node_start, node_lms = world.place_landmarks(xs, ys, adj, net, density)
-    start = world.random_node(net)
-    if study == STUDY_RANGE:
-        goal = world.random_node(net)
-        while goal == start:
-            goal = world.random_node(net)
-    else:
-        goal = world.node_at_distance(xs, ys, net, start, 200.0, 0.9)
-    ts, ns = world.init_truth(xs, ys, adj, start, p)
-    mag = world.make_interference(adj, p[I_MAG_FRAC], p[I_MAG_BIAS_MIN], p[I_MAG_BIAS_MAX])
-    return xs, ys, adj, net, lm_xy, node_start, node_lms, ts, ns, goal, area, mag
-
-
-class Trial(NamedTuple):
-    """One trial's bookkeeping between steps, shared by the compiled loop and ``hal_sim.reference``.
-
-    Scalars only, and replaced rather than changed (``end_step`` returns the
-    next one): in the compiled loop they stay in registers, where an array would
-    cost two reference counts a step.
-    """
-
-    goal: int  # the goal's node
-    goal_x: float
-    goal_y: float
-    cap_m: float  # the distance cap: timeout
-    max_steps: int  # beyond this many steps the trial is stuck
-    next_sample: int  # index of the next major-axis sample
-    next_sample_m: float  # where it is taken (inf when all are taken)
-    max_err2: float  # the largest squared true position error so far
-    true_lost_at_m: float  # where the truth got lost (TRUE_LOST_FRACTION); NaN: not yet
-    goals: int  # goals reached
-
-
-STEP_ON = -1
-"""``end_step``: the trial goes on."""
-STEP_NEW_GOAL = -2
-"""``end_step``: a goal was reached and the trial goes on (range study): draw the next goal
-with ``next_goal`` and forget the passed landmarks. Any other status is the outcome."""
-
-
-@njit(cache=True, error_model="numpy")
-def begin_trial(
-    study: int,
-    goal: int,
-    area: float,
-    n_landmarks: int,
-    xs: np.ndarray,
-    ys: np.ndarray,
-    ts: np.ndarray,
-    p: np.ndarray,
-    samples: np.ndarray,
-) -> tuple[np.ndarray, Trial]:
-    """(result vector, bookkeeping) of a trial from ``setup_trial``; ``samples`` set to NaN.
-
-    The result holds what is known at the start (distances to the goal, area,
-    landmarks); ``finish_trial`` fills in the rest.
-    """
-    res = np.full(N_RESULT, math.nan)
-    samples[:] = math.nan
-    nx = xs.shape[0]
-    gx, gy = xs[goal % nx], ys[goal // nx]
-    sx, sy = ts[world.T_X], ts[world.T_Y]
-    res[RES_EUCLID_M] = math.hypot(gx - sx, gy - sy)
-    res[RES_MANHATTAN_M] = abs(gx - sx) + abs(gy - sy)
-    res[RES_AREA_KM2] = area
-    res[RES_N_LANDMARKS] = n_landmarks
-    if study == STUDY_RANGE:
-        cap = p[I_RANGE_CAP]
-    else:
-        cap = p[I_LM_CAP_FACTOR] * res[RES_MANHATTAN_M] + p[I_LM_CAP_EXTRA]
-    max_steps = int(STUCK_FACTOR * cap / (p[I_TURN_V] * p[I_DT])) + 1000
-    n = samples.shape[0]
-    first_m = sample_distance_m(0, n, p) if n > 0 else math.inf
-    none = 0
-    return res, Trial(goal, gx, gy, cap, max_steps, none, first_m, 0.0, math.nan, none)
-
-
-@njit(cache=True, error_model="numpy", inline="always")
-def end_step(
-    trial: Trial,
-    samples: np.ndarray,
-    driven_m: float,
-    true_x: float,
-    true_y: float,
-    est_x: float,
-    est_y: float,
-    major: float,
-    step: int,
-    study: int,
-    p: np.ndarray,
-) -> tuple[int, Trial]:
-    """The trial's bookkeeping after the estimator's updates of one step: (status, next Trial).
-
-    In order: the true error (and where the truth got lost), the major-axis
-    samples due by the distance driven, then the end of the trial: lost (major
-    axis over the limit), arrived (the estimate within the arrival radius of the
-    goal: the landmark study ends, the range study goes on, ``STEP_NEW_GOAL``),
-    timeout (the distance cap), stuck (``Trial.max_steps``). The status is
-    ``STEP_ON``, ``STEP_NEW_GOAL`` or the outcome.
-
-    Inlined into the compiled loop; it takes scalars and the loop's own argument
-    arrays only, as other arrays would be reference-counted at every step.
-    """
-    max_err2 = trial.max_err2
-    true_lost_at_m = trial.true_lost_at_m
-    ex, ey = true_x - est_x, true_y - est_y
-    err2 = ex * ex + ey * ey
-    if err2 > max_err2:
-        max_err2 = err2
-        if err2 > (TRUE_LOST_FRACTION * p[I_LOST]) ** 2 and math.isnan(true_lost_at_m):
-            true_lost_at_m = driven_m
-    next_sample = trial.next_sample
-    next_sample_m = trial.next_sample_m
-    n = samples.shape[0]
-    while driven_m >= next_sample_m:
-        samples[next_sample] = major
-        next_sample += 1
-        next_sample_m = sample_distance_m(next_sample, n, p) if next_sample < n else math.inf
-    goals = trial.goals
-    status = STEP_ON
-    if major > p[I_LOST]:
-        status = OUTCOME_LOST
-    elif (est_x - trial.goal_x) ** 2 + (est_y - trial.goal_y) ** 2 <= p[I_ARRIVE] ** 2:
-        goals += 1
-        status = OUTCOME_ARRIVED if study == STUDY_LANDMARKS else STEP_NEW_GOAL
-    if status < 0:
-        if driven_m >= trial.cap_m:
-            status = OUTCOME_TIMEOUT
-        elif step >= trial.max_steps:
-            status = OUTCOME_STUCK
-    return status, Trial(
-        trial.goal, trial.goal_x, trial.goal_y, trial.cap_m, trial.max_steps,
-        next_sample, next_sample_m, max_err2, true_lost_at_m, goals,
-    )  # fmt: skip
-
-
-@njit(cache=True, error_model="numpy")
-def next_goal(trial: Trial, xs: np.ndarray, ys: np.ndarray, net: np.ndarray) -> Trial:
-    """The range study's next goal: a random node of the network other than the one reached."""
-    goal = world.random_node(net)
-    while goal == trial.goal:
-        goal = world.random_node(net)
-    nx = xs.shape[0]
-    return Trial(
-        goal, xs[goal % nx], ys[goal // nx], trial.cap_m, trial.max_steps, trial.next_sample,
-        trial.next_sample_m, trial.max_err2, trial.true_lost_at_m, trial.goals,
-    )  # fmt: skip
-
-
-@njit(cache=True, error_model="numpy")
-def finish_trial(
-    res: np.ndarray,
-    trial: Trial,
-    outcome: int,
-    ts: np.ndarray,
-    ns: np.ndarray,
-    x: np.ndarray,
-    step: int,
-    lm_updates: int,
-    compass_rejects: int,
-    landmark_rejects: int,
-    interference_rejects: int,
-) -> None:
-    """The rest of the result vector at the end of a trial; the counts are the estimator's."""
-    res[RES_OUTCOME] = outcome
-    res[RES_DRIVEN_M] = ts[world.T_DRIVEN]
-    if outcome == OUTCOME_LOST:
-        res[RES_LOST_AT_M] = ts[world.T_DRIVEN]
-    res[RES_TRUE_LOST_AT_M] = trial.true_lost_at_m
-    res[RES_TURNS] = ns[world.R_TURNS]
-    res[RES_FINAL_ERR_M] = math.hypot(ts[world.T_X] - x[0], ts[world.T_Y] - x[1])
-    res[RES_GOALS] = trial.goals
-    res[RES_STEPS] = step
-    res[RES_MAX_ERR_M] = math.sqrt(trial.max_err2)
-    res[RES_LANDMARK_UPDATES] = lm_updates
-    res[RES_COMPASS_REJECTS] = compass_rejects
-    res[RES_LANDMARK_REJECTS] = landmark_rejects
-    res[RES_INTERFERENCE_REJECTS] = interference_rejects
+__all__ = [  # the trial's names, re-exported: callers use engine.*
+    "MAX_EXITS",
+    "MAX_MEMORY",
+    "N_RESULT",
+    "OUTCOME_ARRIVED",
+    "OUTCOME_LOST",
+    "OUTCOME_NAMES",
+    "OUTCOME_STUCK",
+    "OUTCOME_TIMEOUT",
+    "RESULT_NAMES",
+    "RES_AREA_KM2",
+    "RES_COMPASS_REJECTS",
+    "RES_DRIVEN_M",
+    "RES_EUCLID_M",
+    "RES_FINAL_ERR_M",
+    "RES_GOALS",
+    "RES_GOAL_LANDMARKS",
+    "RES_INTERFERENCE_REJECTS",
+    "RES_LANDMARK_REJECTS",
+    "RES_LANDMARK_UPDATES",
+    "RES_LOST_AT_M",
+    "RES_MANHATTAN_M",
+    "RES_MAX_ERR_M",
+    "RES_N_LANDMARKS",
+    "RES_OUTCOME",
+    "RES_STEPS",
+    "RES_TRUE_LOST_AT_M",
+    "RES_TURNS",
+    "STEP_NEW_GOAL",
+    "STEP_ON",
+    "STUCK_FACTOR",
+    "STUDY_FIELD",
+    "STUDY_LANDMARKS",
+    "STUDY_RANGE",
+    "TRUE_LOST_FRACTION",
+    "Trial",
+    "begin_trial",
+    "end_step",
+    "finish_trial",
+    "next_goal",
+    "run_batch",
+    "run_trial",
+    "sample_distance_m",
+    "setup_trial",
+    "with_goal",
+]
 
 
 @njit(cache=True, error_model="numpy")
@@ -360,35 +155,37 @@ def run_trial(
     p: np.ndarray,
     samples: np.ndarray,
 ) -> np.ndarray:
-    """Run one trial; fill ``samples`` with the major axis at ``sample_distance_m``."""
+    """Run one trial; fill ``samples`` with the major axis at ``sample_distance_m`` (field
+    study: with its legs, ``hal_sim.field``)."""
     xs, ys, adj, net, lm_xy, node_start, node_lms, ts, ns, goal, area, mag = setup_trial(
         trial_seed, study, density, p
     )
-    res, trial = begin_trial(study, goal, area, lm_xy.shape[0], xs, ys, ts, p, samples)
+    is_field = study == STUDY_FIELD
+    n_active = lm_xy.shape[0] - (adj.shape[0] if is_field else 0)
+    n_base = n_active
+    legs = samples
+    if is_field:
+        samples = samples[:0]
+        legs[:] = math.nan
+        n_active = field.place_goal_landmark(
+            goal, xs, ys, adj, lm_xy, node_start, node_lms, n_active, p
+        )
+    res, trial = begin_trial(study, goal, area, n_base, xs, ys, ts, p, samples)
+    leg_m = res[RES_EUCLID_M]
     # Estimator state.
     x = np.array([ts[world.T_X], ts[world.T_Y], ts[world.T_TH]])
     sp = p[I_INIT_POS_SIGMA]
     sh = p[I_INIT_HEAD_SIGMA]
     P = np.diag(np.array([sp * sp, sp * sp, sh * sh]))
-    P_next = np.empty((3, 3))
-    F = np.empty((3, 3))
-    G = np.empty((3, 2))
-    Q = np.empty((3, 3))
     work = np.empty((3, 3))
-    track = p[I_TRACK]
-    lm_var = p[I_LM_SIGMA] ** 2
-    compass_var = p[I_COMPASS_SIGMA] ** 2
-    has_compass = p[I_COMPASS_SIGMA] > 0.0
     det = np.array([1.0, 0.0])
     # Navigator state.
     mem_xy = np.zeros((MAX_MEMORY, 2))
     mem_h = np.zeros((MAX_MEMORY, MAX_EXITS))
     mem_c = np.zeros((MAX_MEMORY, MAX_EXITS), dtype=np.int64)
-    n_mem = 0
     passed = np.zeros(lm_xy.shape[0], dtype=np.bool_)
-    mode = law.MODE_LANDMARK if method == law.METHOD_LANDMARK_TO_LANDMARK else law.MODE_GOAL
     lm_seen = -np.ones(lm_xy.shape[0], dtype=np.int64)
-    events = np.zeros(8)
+    events = np.zeros(world.N_EVENTS)
     dirs = np.empty(4, dtype=np.int64)
     headings = np.empty(4)
     penalties = np.empty(4)
@@ -397,7 +194,41 @@ def run_trial(
         [p[I_REVISIT_GATE], p[I_REVISIT_FLOOR] ** 2, p[I_TABU], p[I_EXIT_TOL], p[I_LM_PASS],
          p[I_LOOKAHEAD]]
     )  # fmt: skip
+    drive(
+        res, trial, study, method, p, samples, legs, ts, ns, xs, ys, adj, net, lm_xy,
+        node_start, node_lms, mag, x, P, work, det, mem_xy, mem_h, mem_c, passed, lm_seen,
+        events, dirs, headings, penalties, costs, decide_params, n_active, n_base, leg_m,
+    )  # fmt: skip
+    return res
+
+
+@njit(cache=True, error_model="numpy")
+def drive(
+    res: np.ndarray, trial: Trial, study: int, method: int, p: np.ndarray,
+    samples: np.ndarray, legs: np.ndarray, ts: np.ndarray, ns: np.ndarray, xs: np.ndarray,
+    ys: np.ndarray, adj: np.ndarray, net: np.ndarray, lm_xy: np.ndarray,
+    node_start: np.ndarray, node_lms: np.ndarray, mag: np.ndarray, x: np.ndarray,
+    P: np.ndarray, work: np.ndarray, det: np.ndarray, mem_xy: np.ndarray, mem_h: np.ndarray,
+    mem_c: np.ndarray, passed: np.ndarray, lm_seen: np.ndarray, events: np.ndarray,
+    dirs: np.ndarray, headings: np.ndarray, penalties: np.ndarray, costs: np.ndarray,
+    decide_params: np.ndarray, n_active: int, n_base: int, leg_m: float,
+) -> None:  # fmt: skip
+    """The trial's step loop, from ``run_trial``'s world and state to its result in ``res``.
+
+    Every array is an argument, none a local: numba counts references to a function's
+    local arrays at each call it passes them to (about twenty atomic operations a step
+    here), and not to its arguments.
+    """
+    is_field = study == STUDY_FIELD
+    track = p[I_TRACK]
+    lm_var = p[I_LM_SIGMA] ** 2
+    compass_var = p[I_COMPASS_SIGMA] ** 2
+    has_compass = p[I_COMPASS_SIGMA] > 0.0
+    n_mem = 0
+    n_legs = 0
+    mode = law.MODE_LANDMARK if method == law.METHOD_LANDMARK_TO_LANDMARK else law.MODE_GOAL
     period = p[I_COMPASS_PERIOD]
+    true_sigma = p[I_TRUE_COMPASS_SIGMA]
     lm_updates = 0
     c_rej = 0
     l_rej = 0
@@ -405,24 +236,19 @@ def run_trial(
     step = 0
     status = STEP_ON
     while True:
-        world.world_step(
-            ts,
-            ns,
-            xs,
-            ys,
-            lm_xy,
-            node_start,
-            node_lms,
-            lm_seen,
-            p,
-            math.floor((step + 1) / period) > math.floor(step / period),
-            p[I_DETECT],
-            events,
-        )
+        # world.world_step, its draws made here: see world.step_core.
+        due = math.floor((step + 1) / period) > math.floor(step / period)
+        u_left, u_right, gauss = world.draw_step(due, true_sigma)
+        world.step_core(
+            ts, ns, xs, ys, lm_xy, node_start, node_lms, lm_seen, p, due, u_left, u_right,
+            gauss, events,
+        )  # fmt: skip
+        if events[world.EV_N_SIGHTED] > 0:
+            world.detect(events, p[I_DETECT])
         step += 1
         dl, dr = events[0], events[1]
         if abs(dl) <= p[I_MAX_WHEEL_STEP] and abs(dr) <= p[I_MAX_WHEEL_STEP]:
-            ekf.predict(x, P, P_next, F, G, Q, dl, dr, track, p[I_QUANTUM], p[I_SLIP])
+            ekf.predict(x, P, dl, dr, track, p[I_QUANTUM], p[I_SLIP])
         if has_compass and not math.isnan(events[2]):
             z = events[2]
             if p[I_MAG_FRAC] > 0.0:
@@ -450,7 +276,17 @@ def run_trial(
         if status >= 0:
             break
         if status == STEP_NEW_GOAL:
-            trial = next_goal(trial, xs, ys, net)
+            if is_field:
+                n_legs = field.record_leg(legs, n_legs, leg_m, True)
+                old_x, old_y = trial.goal_x, trial.goal_y
+                goal = world.node_at_distance(xs, ys, net, trial.goal, 200.0, 0.9)
+                trial = with_goal(trial, goal, xs, ys)
+                leg_m = math.hypot(trial.goal_x - old_x, trial.goal_y - old_y)
+                n_active = field.place_goal_landmark(
+                    goal, xs, ys, adj, lm_xy, node_start, node_lms, n_active, p
+                )
+            else:
+                trial = next_goal(trial, xs, ys, net)
             passed[:] = False
         if events[4] > 0.0:
             # The intersection ahead: project the estimate to it, then decide.
@@ -463,12 +299,18 @@ def run_trial(
                 headings[e] = world.DIR_HEADING[dirs[e]]
             hs = headings[:n_exits]
             best, _k, _revisit, n_mem, _target = law.decide_exit(
-                ix, iy, P[0, 0], P[0, 1], P[1, 1], hs, mem_xy, mem_h, mem_c, n_mem, passed,
-                lm_xy, trial.goal_x, trial.goal_y, mode, decide_params, penalties, costs,
+                ix, iy, P[0, 0], P[0, 1], P[1, 1], hs, mem_xy, mem_h, mem_c, n_mem,
+                passed[:n_active], lm_xy[:n_active], trial.goal_x, trial.goal_y, mode,
+                decide_params, penalties, costs,
             )  # fmt: skip
             ns[world.R_C] = adj[b, dirs[best]]
+    if is_field:
+        if status == OUTCOME_STUCK:  # the time limit, the protocol's normal end
+            status = OUTCOME_TIMEOUT
+        elif status == OUTCOME_LOST:
+            n_legs = field.record_leg(legs, n_legs, leg_m, False)
     finish_trial(res, trial, status, ts, ns, x, step, lm_updates, c_rej, l_rej, i_rej)
-    return res
+    res[RES_GOAL_LANDMARKS] = n_active - n_base
 
 
 @njit(cache=True, error_model="numpy")

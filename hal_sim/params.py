@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, replace
+from typing import Any
 
 import numpy as np
 
@@ -77,8 +78,12 @@ class SimParams:
     """Landmark study: timeout at factor * Manhattan start-goal + extra."""
     decision_distance_m: float = 30.0
     """The navigator is asked this far before an intersection."""
+    field_time_limit_min: float = 75.0
+    """Field protocol (SPEC 5): successive goals until lost or this much driving time."""
+    field_goal_landmark: bool = True
+    """Field protocol: place one landmark for each new goal (none when its node has one)."""
 
-    def with_(self, **changes: float) -> SimParams:
+    def with_(self, **changes: Any) -> SimParams:
         return replace(self, **changes)
 
 
@@ -135,8 +140,10 @@ class SimParams:
     I_MAG_BIAS_MIN,
     I_MAG_BIAS_MAX,
     I_MAG_NOISE,
+    I_FIELD_STEPS,
+    I_FIELD_GOAL_LM,
     N_PARAMS,
-) = range(52)
+) = range(54)
 
 SAMPLE_FIRST_M = 10.0
 N_SAMPLES = 120
@@ -227,4 +234,6 @@ def pack(
     p[I_MAG_BIAS_MIN] = math.radians(sim.interference_bias_deg_min)
     p[I_MAG_BIAS_MAX] = math.radians(sim.interference_bias_deg_max)
     p[I_MAG_NOISE] = math.radians(sim.interference_noise_deg)
+    p[I_FIELD_STEPS] = round(sim.field_time_limit_min * 60.0 / sim.dt_s)
+    p[I_FIELD_GOAL_LM] = 1.0 if sim.field_goal_landmark else 0.0
     return p

@@ -45,6 +45,8 @@ def run_trial(
     The world and the bookkeeping are the engine's (``engine.begin_trial``,
     ``end_step``, ``finish_trial``); only the estimator and the navigator differ.
     """
+    if study == engine.STUDY_FIELD:
+        raise ValueError("the reference runs the range and landmark studies, not the field one")
     xs, ys, adj, net, lm_xy, node_start, node_lms, ts, ns, goal, area, mag = engine.setup_trial(
         trial_seed, study, density, p
     )
@@ -54,7 +56,7 @@ def run_trial(
     landmarks = [Landmark(k, float(lm_xy[k, 0]), float(lm_xy[k, 1])) for k in range(len(lm_xy))]
     nav = Navigator((trial.goal_x, trial.goal_y), replace(nav_cfg, method=method), landmarks)
     lm_seen = -np.ones(len(lm_xy), dtype=np.int64)
-    events = np.zeros(8)
+    events = np.zeros(world.N_EVENTS)
     dirs = np.empty(4, dtype=np.int64)
     period = float(p[I_COMPASS_PERIOD])
     dt = float(p[I_DT])

@@ -82,7 +82,7 @@ class SimWorld:
         self.ts, self.ns = world.init_truth(self.xs, self.ys, self.adj, self.start, self.p)
         self.start_heading_rad = float(self.ts[world.T_TH])
         self.lm_seen = -np.ones(len(self.lm_xy), dtype=np.int64)
-        self._events = np.zeros(8)
+        self._events = np.zeros(world.N_EVENTS)
         self._dirs = np.empty(4, dtype=np.int64)
         self.step_count = 0
         self.dt_s = float(self.p[I_DT])

@@ -10,7 +10,6 @@ workers or on where a chunk ran (local processes or a Dask cluster).
 from __future__ import annotations
 
 import json
-import math
 import os
 import time
 from collections.abc import Callable, Iterable, Sequence
@@ -35,7 +34,17 @@ LANDMARK_METHODS = (Method.STRAIGHT_TO_GOAL, Method.LANDMARK_TO_LANDMARK, Method
 INTERFERENCE_COMPASS_DEG = (20.0, 30.0)
 INTERFERENCE_FRAC = 0.1
 """Interference study: a tenth of the blocks (per direction) are magnetically disturbed."""
-DEFAULT_TRIALS = {"range": 1000, "landmarks": 700, "interference": 500}
+DEFAULT_TRIALS = {"range": 1000, "landmarks": 700, "interference": 500, "field": 200}
+FIELD_DENSITY = 0.55
+FIELD_DETECTION = 0.6
+"""The paper's field conditions (SPEC 5): 0.55 landmarks per km2, 60 % detection."""
+STUDY_CODES = {
+    "range": engine.STUDY_RANGE,
+    "interference": engine.STUDY_RANGE,
+    "landmarks": engine.STUDY_LANDMARKS,
+    "field": engine.STUDY_FIELD,
+}
+"""Condition.study to ``engine.STUDY_*``."""
 CHUNK_TRIALS = 25
 SUCCESS_TARGET = 0.8
 LOSS_LINE_M = 100.0
@@ -109,6 +118,16 @@ def interference_conditions() -> list[Condition]:
     return out
 
 
+def field_conditions() -> list[Condition]:
+    """The field protocol at the paper's field conditions, one condition per method."""
+    return [
+        Condition(
+            i, f"field_{m.value}", "field", m, LANDMARK_COMPASS_DEG, FIELD_DENSITY, FIELD_DETECTION
+        )
+        for i, m in enumerate(LANDMARK_METHODS)
+    ]
+
+
 def trial_seeds(base_seed: int, condition: int, first: int, count: int) -> np.ndarray:
     """One 32-bit seed per trial from (study seed, condition, trial index) only."""
     return np.array(
@@ -135,7 +154,7 @@ class ChunkTask:
 
 def run_chunk(task: ChunkTask) -> tuple[np.ndarray, np.ndarray]:
     """Run one chunk in the compiled engine (top-level so processes and Dask can call it)."""
-    study = engine.STUDY_LANDMARKS if task.condition.study == "landmarks" else engine.STUDY_RANGE
+    study = STUDY_CODES[task.condition.study]
     out: tuple[np.ndarray, np.ndarray] = engine.run_batch(
         task.seeds,
         study,
@@ -316,206 +335,6 @@ def collect(
     )
 
 
-def fit_growth(
-    distance_km: np.ndarray, major_m: np.ndarray
-) -> tuple[float, float, float, float] | None:
-    """Fit major^2 = c0 + c1 d + c2 d^2 + c3 d^3 (m^2, d in km), coefficients >= 0.
-
-    The position variance grows linearly with distance while the compass bounds
-    the heading error, with d^2 from an initial heading error, and with d^3 when
-    the heading error random-walks (no compass); c0 is the starting
-    uncertainty. Relative errors are minimised, so short and long distances
-    count alike. Returns None when there is nothing to fit.
-    """
-    ok = np.isfinite(major_m) & (distance_km > 0) & (major_m > 0)
-    if ok.sum() < 4:
-        return None
-    d = distance_km[ok]
-    y = major_m[ok] ** 2
-    w = 1.0 / y
-    basis = np.column_stack([np.ones_like(d), d, d**2, d**3])
-    best: tuple[float, np.ndarray] | None = None
-    for bits in range(1, 16):
-        cols = [k for k in range(4) if bits >> k & 1]
-        coef, *_ = np.linalg.lstsq(basis[:, cols] * w[:, None], y * w, rcond=None)
-        if np.any(coef < 0):
-            continue
-        full = np.zeros(4)
-        full[cols] = coef
-        err = float(np.sum(((basis @ full - y) * w) ** 2))
-        if best is None or err < best[0]:
-            best = (err, full)
-    if best is None:
-        return None
-    c = best[1]
-    return float(c[0]), float(c[1]), float(c[2]), float(c[3])
-
-
-def growth_curve(coef: tuple[float, float, float, float], distance_km: np.ndarray) -> np.ndarray:
-    c0, c1, c2, c3 = coef
-    return np.sqrt(c0 + c1 * distance_km + c2 * distance_km**2 + c3 * distance_km**3)
-
-
-def fitted_lost_km(coef: tuple[float, float, float, float], limit_m: float = 100.0) -> float | None:
-    """Where the fitted major axis crosses ``limit_m`` (None if it never grows)."""
-    if max(coef[1:]) <= 0:
-        return None
-    lo, hi = 0.0, 1.0
-    while growth_curve(coef, np.array([hi]))[0] < limit_m:
-        hi *= 2.0
-        if hi > 1e6:
-            return None
-    for _ in range(100):
-        mid = 0.5 * (lo + hi)
-        if growth_curve(coef, np.array([mid]))[0] < limit_m:
-            lo = mid
-        else:
-            hi = mid
-    return 0.5 * (lo + hi)
-
-
-def range_at_success(
-    distance_km: np.ndarray, success: np.ndarray, target: float = SUCCESS_TARGET
-) -> tuple[float, bool]:
-    """Distance at which a logistic fit of success against distance falls to ``target``.
-
-    Returns (km, censored): censored is True when the success rate stays above
-    the target over all distances tried (the figure is then the largest one).
-    """
-    d = np.asarray(distance_km, dtype=float)
-    y = np.asarray(success, dtype=float)
-    if len(d) == 0:
-        return 0.0, False
-    if y.mean() >= 0.999:
-        return float(d.max()), True
-    if y.mean() <= 0.001:
-        return 0.0, False
-    # Logistic regression y ~ sigmoid(w0 + w1 d) by Newton's method (2 parameters).
-    X = np.column_stack([np.ones_like(d), d])
-    w = np.array([math.log(max(y.mean(), 1e-3) / max(1 - y.mean(), 1e-3)), 0.0])
-    for _ in range(50):
-        z = np.clip(X @ w, -30, 30)
-        pr = 1.0 / (1.0 + np.exp(-z))
-        grad = X.T @ (y - pr)
-        H = (X * (pr * (1 - pr))[:, None]).T @ X + 1e-9 * np.eye(2)
-        step = np.linalg.solve(H, grad)
-        w = w + step
-        if np.abs(step).max() < 1e-10:
-            break
-    if w[1] >= 0:  # success does not fall with distance
-        return (float(d.max()), True) if y.mean() >= target else (0.0, False)
-    km = (math.log(target / (1 - target)) - w[0]) / w[1]
-    if km > d.max():
-        return float(d.max()), True
-    return max(0.0, float(km)), False
-
-
-def _mean_km(metres: np.ndarray) -> float | None:
-    ok = np.isfinite(metres)
-    return float(metres[ok].mean() / 1000.0) if ok.any() else None
-
-
-def summarise_range(data: StudyData, sim: SimParams) -> dict[str, Any]:
-    conds = []
-    for c in data.conditions:
-        r = data.results[c.key]
-        lost_m = r[:, engine.RES_LOST_AT_M]
-        lost = np.isfinite(lost_m)
-        s = data.samples[c.key]
-        dist = np.broadcast_to(data.sample_km, s.shape)
-        fit = fit_growth(dist.ravel(), s.ravel())
-        fit_lost = None if fit is None else fitted_lost_km(fit, LOSS_LINE_M)
-        conds.append(
-            {
-                "compass_2sigma_deg": c.compass_two_sigma_deg,
-                "trials": len(r),
-                "mean_lost_km": float(lost_m[lost].mean() / 1000.0) if lost.any() else None,
-                "median_lost_km": float(np.median(lost_m[lost]) / 1000.0) if lost.any() else None,
-                "never_lost_fraction": float(1.0 - lost.mean()),
-                "cap_km": sim.range_cap_km,
-                "fit_major_axis_sq": None
-                if fit is None
-                else dict(
-                    zip(
-                        ("c0_m2", "c1_m2_per_km", "c2_m2_per_km2", "c3_m2_per_km3"),
-                        fit,
-                        strict=False,
-                    )
-                ),
-                "fit_lost_km": fit_lost,
-                "mean_turns_per_km": float(
-                    np.mean(r[:, engine.RES_TURNS] / np.maximum(r[:, engine.RES_DRIVEN_M], 1) * 1e3)
-                ),
-                "compass_rejections_per_trial": float(r[:, engine.RES_COMPASS_REJECTS].mean()),
-                # The truth's view: how often the true error passed half the lost axis
-                # (the filter was wrong about itself), and the mean worst error.
-                "true_lost_fraction": float(np.isfinite(r[:, engine.RES_TRUE_LOST_AT_M]).mean()),
-                "mean_max_true_error_m": float(r[:, engine.RES_MAX_ERR_M].mean()),
-                "mean_lost_either_km": _mean_km(
-                    np.fmin(r[:, engine.RES_LOST_AT_M], r[:, engine.RES_TRUE_LOST_AT_M])
-                ),
-            }
-        )
-    return {"study": "range", "conditions": conds}
-
-
-def summarise_landmarks(data: StudyData) -> dict[str, Any]:
-    conds = []
-    for c in data.conditions:
-        r = data.results[c.key]
-        success = r[:, engine.RES_OUTCOME] == engine.OUTCOME_ARRIVED
-        km, censored = range_at_success(r[:, engine.RES_EUCLID_M] / 1000.0, success)
-        conds.append(
-            {
-                "method": c.method.value,
-                "density_per_km2": c.density_per_km2,
-                "detection_rate": c.detection_rate,
-                "trials": len(r),
-                "success_rate": float(success.mean()),
-                "range_km_at_80pct": km,
-                "range_censored": censored,
-                "mean_driven_km": float(r[:, engine.RES_DRIVEN_M].mean() / 1000.0),
-                "lost_fraction": float((r[:, engine.RES_OUTCOME] == engine.OUTCOME_LOST).mean()),
-                "timeout_fraction": float(
-                    (r[:, engine.RES_OUTCOME] == engine.OUTCOME_TIMEOUT).mean()
-                ),
-                "mean_landmark_updates": float(r[:, engine.RES_LANDMARK_UPDATES].mean()),
-            }
-        )
-    per_method = {}
-    for m in LANDMARK_METHODS:
-        rs = [data.results[c.key] for c in data.conditions if c.method is m]
-        if rs:
-            allr = np.vstack(rs)
-            per_method[m.value] = {
-                "mean_driven_km": float(allr[:, engine.RES_DRIVEN_M].mean() / 1000.0),
-                "success_rate": float((allr[:, engine.RES_OUTCOME] == 0).mean()),
-            }
-    return {"study": "landmarks", "conditions": conds, "methods": per_method}
-
-
-def write_trials_csv(data: StudyData, path: Path) -> None:
-    """Per-trial results, one row per trial, with the condition's columns first."""
-    cols = ["condition", "method", "compass_2sigma_deg", "density_per_km2", "detection_rate"]
-    with path.open("w") as f:
-        f.write(",".join([*cols, *engine.RESULT_NAMES]) + "\n")
-        for c in data.conditions:
-            head = [
-                c.key,
-                c.method.value,
-                "" if c.compass_two_sigma_deg is None else f"{c.compass_two_sigma_deg:g}",
-                f"{c.density_per_km2:g}",
-                f"{c.detection_rate:g}",
-            ]
-            for row in data.results[c.key]:
-                vals = [
-                    engine.OUTCOME_NAMES[int(v)] if i == engine.RES_OUTCOME else
-                    ("" if not math.isfinite(v) else f"{v:.6g}")
-                    for i, v in enumerate(row)
-                ]  # fmt: skip
-                f.write(",".join(head + vals) + "\n")
-
-
 def study_manifest(name: str, trials: int, seed: int, sim: SimParams) -> dict[str, Any]:
     return {"study": name, "trials_per_condition": trials, "seed": seed, "sim": asdict(sim)}
 
@@ -535,6 +354,8 @@ class StudyRun:
             return range_conditions()
         if self.name == "interference":
             return interference_conditions()
+        if self.name == "field":
+            return field_conditions()
         return landmark_conditions()
 
     def run(self, on_progress: ProgressHook | None = None) -> dict[str, Any]:
@@ -550,32 +371,75 @@ class StudyRun:
             _warm_up(self.sim)
         execute(tasks, store, self.workers, self.scheduler, on_progress)
         data = collect(tasks, store, conditions)
-        from hal_sim import figures
+        summary = self.outputs(data, time.monotonic() - t0)
+        return summary
 
-        if self.name == "range":
-            summary = summarise_range(data, self.sim)
-            figures.fig3(data, self.out / "fig3.png")
-        elif self.name == "interference":
-            summary = summarise_range(data, self.sim)
-            summary["study"] = "interference"
-            for c, row in zip(conditions, summary["conditions"], strict=True):
-                row["interference_frac"] = c.interference_frac
-                row["interference_detection"] = c.interference_detection
-                r = data.results[c.key]
-                row["interference_rejects_per_trial"] = float(
-                    r[:, engine.RES_INTERFERENCE_REJECTS].mean()
+    def parameters(self) -> dict[str, Any]:
+        """Every parameter a trial's numbers depend on, besides its seed."""
+        conds = self.conditions()
+        est = {
+            c.key: asdict(params.estimator_config(self.sim, c.compass_two_sigma_deg)) for c in conds
+        }
+        return {
+            "trials_per_condition": self.trials,
+            "seed": self.seed,
+            "seeding": "numpy SeedSequence([seed, condition index, trial index])",
+            "chunk_trials": CHUNK_TRIALS,
+            "n_samples": params.N_SAMPLES,
+            "sim": asdict(self.sim),
+            "navigator": asdict(NavigatorConfig()),
+            "estimator": est,
+            "conditions": [
+                {**asdict(c), "method": c.method.value, "label": c.label} for c in conds
+            ],
+        }
+
+    def outputs(self, data: StudyData, wall_s: float) -> dict[str, Any]:
+        """Summary JSON, tables and figures, each carrying the provenance and N."""
+        from hal_sim import analysis, figures, provenance
+
+        prov = provenance.provenance()
+        n = sum(len(r) for r in data.results.values())
+        cap = provenance.caption(prov, self.seed, n, self.trials)
+        if self.name in ("range", "interference"):
+            summary = analysis.summarise_range(data, self.sim, self.seed)
+            if self.name == "range":
+                summary["paper_check"] = analysis.paper_check_range(summary)
+                figures.fig3(data, self.out / "fig3.png", caption=cap)
+            else:
+                summary["study"] = "interference"
+                for c, row in zip(data.conditions, summary["conditions"], strict=True):
+                    row["interference_frac"] = c.interference_frac
+                    row["interference_detection"] = c.interference_detection
+                    r = data.results[c.key]
+                    row["interference_rejects_per_trial"] = float(
+                        r[:, engine.RES_INTERFERENCE_REJECTS].mean()
+                    )
+                figures.fig3(
+                    data,
+                    self.out / "fig_interference.png",
+                    title="Range with magnetic interference zones, detector on and off",
+                    caption=cap,
                 )
-            figures.fig3(
-                data,
-                self.out / "fig_interference.png",
-                title="Range with magnetic interference zones, detector on and off",
-            )
+        elif self.name == "field":
+            from hal_sim import field_study
+
+            summary = field_study.summarise_field(data, self.sim, self.seed)
+            summary["paper_check"] = field_study.paper_check_field(summary)
+            field_study.fig_field(data, summary, self.out / "fig_field.png", caption=cap)
+            field_study.write_field_table(summary, self.out / "field_table.csv", header=cap)
         else:
-            summary = summarise_landmarks(data)
-            figures.fig4(data, self.out / "fig4.png")
-            figures.write_range_table(summary, self.out / "range_at_80pct.csv")
+            summary = analysis.summarise_landmarks(data, self.seed)
+            summary["paper_check"] = analysis.paper_check_landmarks(data, summary, self.seed)
+            figures.fig4(data, self.out / "fig4.png", caption=cap)
+            figures.write_range_table(summary, self.out / "range_at_80pct.csv", header=cap)
         summary["seed"] = self.seed
-        summary["wall_s"] = time.monotonic() - t0
-        write_trials_csv(data, self.out / "trials.csv")
+        summary["n_trials"] = n
+        summary["wall_s"] = wall_s
+        summary["provenance"] = prov
+        summary["parameters"] = self.parameters()
+        analysis.write_trials_csv(data, self.out / "trials.csv", header=cap)
+        if "paper_check" in summary:
+            analysis.write_paper_check(summary["paper_check"], self.out / "paper_check.csv", cap)
         (self.out / "summary.json").write_text(json.dumps(summary, indent=2))
         return summary

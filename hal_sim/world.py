@@ -20,6 +20,7 @@ import numpy as np
 from numba import njit
 
 from guidance.core.model import wrap_angle
+from hal_sim import city
 from hal_sim.params import (
     I_CRUISE,
     I_DECISION_DIST,
@@ -36,8 +37,8 @@ from hal_sim.params import (
     I_WHEELBASE,
 )
 
-DIR_DX = np.array([1, 0, -1, 0])
-DIR_DY = np.array([0, 1, 0, -1])
+DIR_DX = city.DIR_DX
+DIR_DY = city.DIR_DY
 DIR_HEADING = np.array([0.0, math.pi / 2, math.pi, -math.pi / 2])
 
 # Truth state vector ``ts`` (floats).
@@ -60,211 +61,19 @@ SPEED_KP = 0.8
 SWITCH_RADIUS_M = 7.0
 """The controller starts following the next street this far before the corner."""
 SQRT12 = math.sqrt(12.0)
-
-
-@njit(cache=True, error_model="numpy")
-def _street_positions(length_m: float, block_min: float, block_max: float) -> np.ndarray:
-    n_max = int(length_m / block_min) + 2
-    pos = np.empty(n_max)
-    pos[0] = 0.0
-    n = 1
-    while n < n_max:
-        nxt = pos[n - 1] + np.random.uniform(block_min, block_max)
-        if nxt > length_m and n >= 3:
-            break
-        pos[n] = nxt
-        n += 1
-    return pos[:n].copy()
-
-
-@njit(cache=True, error_model="numpy")
-def _reach(adj: np.ndarray, nx: int, seed: int, forward: bool) -> np.ndarray:
-    n_nodes = adj.shape[0]
-    seen = np.zeros(n_nodes, dtype=np.bool_)
-    stack = np.empty(n_nodes, dtype=np.int64)
-    seen[seed] = True
-    stack[0] = seed
-    top = 1
-    while top > 0:
-        top -= 1
-        u = stack[top]
-        for d in range(4):
-            if forward:
-                v = adj[u, d]
-                if v < 0:
-                    continue
-            else:
-                # v -> u exists if the grid neighbour v in direction d drives back to u.
-                i = u % nx + DIR_DX[d]
-                j = u // nx + DIR_DY[d]
-                if i < 0 or i >= nx or j < 0 or j >= n_nodes // nx:
-                    continue
-                v = j * nx + i
-                if adj[v, (d + 2) % 4] != u:
-                    continue
-            if not seen[v]:
-                seen[v] = True
-                stack[top] = v
-                top += 1
-    return seen
-
-
-@njit(cache=True, error_model="numpy")
-def make_city(
-    area_km2: float,
-    aspect: float,
-    block_min: float,
-    block_max: float,
-    dead_frac: float,
-    oneway_frac: float,
-) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-    """A random grid city: (xs, ys, adj, in_network).
-
-    Every node in the network reaches every other.
-    """
-    width = math.sqrt(area_km2 * aspect) * 1000.0
-    height = area_km2 * 1e6 / width
-    xs = _street_positions(width, block_min, block_max)
-    ys = _street_positions(height, block_min, block_max)
-    nx, ny = xs.shape[0], ys.shape[0]
-    n = nx * ny
-    adj = -np.ones((n, 4), dtype=np.int64)
-    for j in range(ny):
-        for i in range(nx):
-            u = j * nx + i
-            for d in range(4):
-                ii, jj = i + DIR_DX[d], j + DIR_DY[d]
-                if 0 <= ii < nx and 0 <= jj < ny:
-                    adj[u, d] = jj * nx + ii
-    # Dead ends: some nodes keep one street and lose the others (both ways).
-    for u in range(n):
-        if np.random.random() >= dead_frac:
-            continue
-        keep = np.random.randint(0, 4)
-        for _ in range(4):
-            if adj[u, keep] >= 0:
-                break
-            keep = (keep + 1) % 4
-        # (A node whose neighbours have all cut it off keeps nothing; SCC pruning drops it.)
-        for d in range(4):
-            v = adj[u, d]
-            if d != keep and v >= 0:
-                adj[u, d] = -1
-                adj[v, (d + 2) % 4] = -1
-    # One-way streets: each remaining segment once (E and N of each node).
-    for u in range(n):
-        for d in range(2):
-            v = adj[u, d]
-            if v < 0 or adj[v, d + 2] != u:
-                continue
-            if np.random.random() < oneway_frac:
-                if np.random.random() < 0.5:
-                    adj[u, d] = -1
-                else:
-                    adj[v, d + 2] = -1
-    # Keep the strongly connected part that holds a random node (retry for a big one).
-    best = np.zeros(n, dtype=np.bool_)
-    best_size = 0
-    for _ in range(8):
-        seed = np.random.randint(0, n)
-        scc = _reach(adj, nx, seed, True) & _reach(adj, nx, seed, False)
-        size = int(scc.sum())
-        if size > best_size:
-            best_size = size
-            best = scc
-        if size * 2 > n:
-            break
-    for u in range(n):
-        for d in range(4):
-            if not best[u] or (adj[u, d] >= 0 and not best[adj[u, d]]):
-                adj[u, d] = -1
-    return xs, ys, adj, best
-
-
-@njit(cache=True, error_model="numpy")
-def node_pos(xs: np.ndarray, ys: np.ndarray, n: int) -> tuple[float, float]:
-    nx = xs.shape[0]
-    return xs[n % nx], ys[n // nx]
-
-
-@njit(cache=True, error_model="numpy")
-def random_node(in_network: np.ndarray) -> int:
-    idx = np.nonzero(in_network)[0]
-    return int(idx[np.random.randint(0, idx.shape[0])])
-
-
-@njit(cache=True, error_model="numpy")
-def node_at_distance(
-    xs: np.ndarray, ys: np.ndarray, in_network: np.ndarray, start: int, min_m: float, frac: float
-) -> int:
-    """A network node near a point at a random distance (uniform in [min_m, frac * diagonal])."""
-    nx = xs.shape[0]
-    sx, sy = xs[start % nx], ys[start // nx]
-    diag = math.hypot(xs[-1] - xs[0], ys[-1] - ys[0])
-    dist = np.random.uniform(min(min_m, frac * diag), frac * diag)
-    best = -1
-    for _ in range(20):
-        phi = np.random.uniform(-math.pi, math.pi)
-        px, py = sx + dist * math.cos(phi), sy + dist * math.sin(phi)
-        if xs[0] <= px <= xs[-1] and ys[0] <= py <= ys[-1]:
-            break
-    px = min(max(px, xs[0]), xs[-1])
-    py = min(max(py, ys[0]), ys[-1])
-    best_d = math.inf
-    for n in range(in_network.shape[0]):
-        if not in_network[n] or n == start:
-            continue
-        d = (xs[n % nx] - px) ** 2 + (ys[n // nx] - py) ** 2
-        if d < best_d:
-            best_d = d
-            best = n
-    return best
-
-
-@njit(cache=True, error_model="numpy")
-def place_landmarks(
-    xs: np.ndarray, ys: np.ndarray, adj: np.ndarray, in_network: np.ndarray, density_per_km2: float
-) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Landmarks along the streets: Poisson count for the area, uniform along random segments.
-
-    Returns (lm_xy, node_start, node_lms): the landmarks near node n are
-    ``node_lms[node_start[n]:node_start[n + 1]]`` (each landmark is listed at
-    both ends of its segment), so sighting checks look at a handful, not all.
-    """
-    nx = xs.shape[0]
-    n = adj.shape[0]
-    area_km2 = (xs[-1] - xs[0]) * (ys[-1] - ys[0]) / 1e6
-    count = np.random.poisson(density_per_km2 * area_km2) if density_per_km2 > 0 else 0
-    lm_xy = np.empty((count, 2))
-    ends = np.empty((count, 2), dtype=np.int64)
-    k = 0
-    while k < count:
-        u = random_node(in_network)
-        d = np.random.randint(0, 4)
-        v = adj[u, d]
-        if v < 0:
-            continue
-        f = np.random.random()
-        ux, uy = xs[u % nx], ys[u // nx]
-        vx, vy = xs[v % nx], ys[v // nx]
-        lm_xy[k, 0] = ux + f * (vx - ux)
-        lm_xy[k, 1] = uy + f * (vy - uy)
-        ends[k, 0] = u
-        ends[k, 1] = v
-        k += 1
-    counts = np.zeros(n + 1, dtype=np.int64)
-    for k in range(count):
-        counts[ends[k, 0] + 1] += 1
-        counts[ends[k, 1] + 1] += 1
-    node_start = np.cumsum(counts)
-    fill = node_start[:-1].copy()
-    node_lms = np.empty(2 * count, dtype=np.int64)
-    for k in range(count):
-        for e in range(2):
-            u = ends[k, e]
-            node_lms[fill[u]] = k
-            fill[u] += 1
-    return lm_xy, node_start, node_lms
+N_EVENTS = 16
+"""``world_step``'s events vector: [0..6] the sensors and the route (see ``world_step``),
+[EV_N_SIGHTED] how many landmarks came into sight this step, from [EV_SIGHTED] their indices."""
+EV_N_SIGHTED = 7
+EV_SIGHTED = 8
+MAX_SIGHTED = N_EVENTS - EV_SIGHTED
+# The city (``hal_sim.city``), under the names the engine and the tests use.
+make_city = city.make_city
+node_pos = city.node_pos
+random_node = city.random_node
+node_at_distance = city.node_at_distance
+place_landmarks = city.place_landmarks
+make_interference = city.make_interference
 
 
 @njit(cache=True, error_model="numpy")
@@ -318,12 +127,12 @@ def steer_pid(
 
 
 @njit(cache=True, error_model="numpy")
-def speed_pid(v: float, v_target: float, p: np.ndarray) -> float:
+def speed_pid(v: float, v_target: float, max_accel: float, dt: float) -> float:
+    """Proportional speed control, clipped to the acceleration limit, never below rest."""
     a = SPEED_KP * (v_target - v)
-    lim = p[I_MAX_ACCEL]
-    a = min(max(a, -lim), lim)
-    if v + a * p[I_DT] < 0.0:
-        a = -v / p[I_DT]
+    a = min(max(a, -max_accel), max_accel)
+    if v + a * dt < 0.0:
+        a = -v / dt
     return a
 
 
@@ -370,26 +179,30 @@ def init_truth(
 
 
 @njit(cache=True, error_model="numpy")
-def _set_segment(ts: np.ndarray, xs: np.ndarray, ys: np.ndarray, a: int, b: int) -> None:
-    nx = xs.shape[0]
-    dx = xs[b % nx] - xs[a % nx]
-    dy = ys[b // nx] - ys[a // nx]
+def segment(dx: float, dy: float) -> tuple[float, float, float]:
+    """Heading and unit vector of a street a -> b from its extent (scalars: see step_core)."""
     seg = math.hypot(dx, dy)
-    ts[T_SEG_H] = math.atan2(dy, dx)
-    ts[T_SEG_UX] = dx / seg
-    ts[T_SEG_UY] = dy / seg
+    return math.atan2(dy, dx), dx / seg, dy / seg
 
 
 @njit(cache=True, error_model="numpy")
-def _encoder(ts: np.ndarray, cum: int, cnt: int, d_true: float, p: np.ndarray) -> float:
+def _set_segment(ts: np.ndarray, xs: np.ndarray, ys: np.ndarray, a: int, b: int) -> None:
+    nx = xs.shape[0]
+    ts[T_SEG_H], ts[T_SEG_UX], ts[T_SEG_UY] = segment(
+        xs[b % nx] - xs[a % nx], ys[b // nx] - ys[a // nx]
+    )
+
+
+@njit(cache=True, error_model="numpy")
+def _encoder(ts: np.ndarray, cum: int, cnt: int, d_true: float, u: float, p: np.ndarray) -> float:
     """One wheel: slip and tyre error on the true distance, then whole counts.
 
-    Slip is drawn uniform with the documented standard deviation (a uniform
-    draw costs a fifth of a normal one; over the hundreds of steps in a block
+    Slip is uniform with the documented standard deviation, from the uniform draw ``u``
+    (a uniform draw costs a fifth of a normal one; over the hundreds of steps in a block
     the sum is Gaussian anyway, and the filter models only the variance).
     """
     q = p[I_TRUE_QUANTUM]
-    slip = (np.random.random() - 0.5) * SQRT12 * p[I_TRUE_SLIP] * abs(d_true)
+    slip = (u - 0.5) * SQRT12 * p[I_TRUE_SLIP] * abs(d_true)
     ts[cum] += d_true * (1.0 + ts[T_TYRE]) + slip
     count = math.floor(ts[cum] / q)
     inc = (count - ts[cnt]) * q
@@ -398,7 +211,15 @@ def _encoder(ts: np.ndarray, cum: int, cnt: int, d_true: float, p: np.ndarray) -
 
 
 @njit(cache=True, error_model="numpy")
-def world_step(
+def _release_here(
+    a: np.ndarray, b: np.ndarray, c: np.ndarray, d: np.ndarray, e: np.ndarray,
+    f: np.ndarray, g: np.ndarray, h: np.ndarray, i: np.ndarray, j: np.ndarray,
+) -> None:  # fmt: skip
+    """Nothing: see the end of ``step_core``."""
+
+
+@njit(cache=True, error_model="numpy")
+def step_core(
     ts: np.ndarray,
     ns: np.ndarray,
     xs: np.ndarray,
@@ -409,15 +230,20 @@ def world_step(
     lm_seen_pass: np.ndarray,
     p: np.ndarray,
     compass_due: bool,
-    detection_rate: float,
+    u_left: float,
+    u_right: float,
+    gauss: float,
     events: np.ndarray,
 ) -> None:
-    """Advance the car one step along its route and produce the sensors' outputs.
+    """``world_step`` without its random draws, which come in as numbers: the uniforms of
+    the two wheels' slip and the compass's standard normal (used when the compass is due).
 
-    ``events`` (float[8]) receives: left and right wheel increments (m),
-    compass heading (rad, NaN when none this step), sighted landmark index
-    (-1 if none), 1.0 when the navigator must decide the exit at node b (its
-    distance in [5]), 1.0 when the car has just passed node b (now a).
+    A function that takes arrays and draws random numbers increfs and decrefs every array
+    argument at every call (numba's reference-count pruning gives up at the generator's
+    calls): 20 atomic operations a step here. Drawn by the caller (``world_step``, or the
+    compiled trial loop directly), the step passes its arrays for free. Newly sighted
+    landmarks are listed in ``events[EV_N_SIGHTED]`` and after it; the caller draws their
+    detection (``detect``).
     """
     nx = xs.shape[0]
     ax, ay = xs[ns[R_A] % nx], ys[ns[R_A] // nx]
@@ -438,7 +264,7 @@ def world_step(
         if abs(wrap_angle(h_bc - h_ab)) > 3.0:
             switch = 0.0  # U-turn at a dead end: drive to the end first
         if to_b <= switch:
-            _set_segment(ts, xs, ys, ns[R_B], c)
+            ts[T_SEG_H], ts[T_SEG_UX], ts[T_SEG_UY] = segment(cx - bx, cy - by)
             ns[R_A] = ns[R_B]
             ns[R_B] = c
             ns[R_C] = -1
@@ -463,7 +289,7 @@ def world_step(
     v_target = p[I_CRUISE]
     if to_b <= max(brake, 0.0) + 5.0 and (c < 0 or turning):
         v_target = p[I_TURN_V]
-    a = speed_pid(v, v_target, p)
+    a = speed_pid(v, v_target, p[I_MAX_ACCEL], p[I_DT])
     delta = steer_pid(ts, ax, ay, h_ab, ux, uy, p)
     x, y, th, v2, dth = bicycle_step(
         ts[T_X], ts[T_Y], ts[T_TH], v, a, delta, p[I_DT], p[I_WHEELBASE]
@@ -476,44 +302,90 @@ def world_step(
     ts[T_DRIVEN] += d
     ts[T_STEP] += 1.0
     half = 0.5 * p[I_TRACK] * dth
-    events[0] = _encoder(ts, T_CUM_L, T_CNT_L, d - half, p)
-    events[1] = _encoder(ts, T_CUM_R, T_CNT_R, d + half, p)
+    events[0] = _encoder(ts, T_CUM_L, T_CNT_L, d - half, u_left, p)
+    events[1] = _encoder(ts, T_CUM_R, T_CNT_R, d + half, u_right, p)
     sigma = p[I_TRUE_COMPASS_SIGMA]
     if compass_due and sigma > 0.0:
-        events[2] = wrap_angle(ts[T_TH] + np.random.normal(0.0, 1.0) * sigma)
+        events[2] = wrap_angle(ts[T_TH] + gauss * sigma)
     else:
         events[2] = math.nan
     # Landmarks near either end of the current street, once per pass of the car.
     events[3] = -1.0
+    n_sighted = 0
     r2 = p[I_SIGHT_RANGE] ** 2
     for end in (ns[R_A], ns[R_B]):
         for k in range(node_start[end], node_start[end + 1]):
             lm = node_lms[k]
-            if lm_seen_pass[lm] == ns[R_PASS]:
+            if lm < 0 or lm_seen_pass[lm] == ns[R_PASS]:  # < 0: a field goal's empty slot
                 continue
             dx = lm_xy[lm, 0] - ts[T_X]
             dy = lm_xy[lm, 1] - ts[T_Y]
             if dx * dx + dy * dy <= r2:
                 lm_seen_pass[lm] = ns[R_PASS]
-                if np.random.random() < detection_rate:
-                    events[3] = float(lm)
+                if n_sighted < MAX_SIGHTED:
+                    events[EV_SIGHTED + n_sighted] = float(lm)
+                    n_sighted += 1
+    events[EV_N_SIGHTED] = n_sighted
+    # Every array used once more here, so numba releases them all in this last block: its
+    # reference-count pruning can then pair each release with the acquire at entry and drop
+    # both (otherwise xs and ys, last used in branches, keep all ten).
+    _release_here(ts, ns, xs, ys, lm_xy, node_start, node_lms, lm_seen_pass, p, events)
 
 
 @njit(cache=True, error_model="numpy")
-def make_interference(adj: np.ndarray, frac: float, bias_min: float, bias_max: float) -> np.ndarray:
-    """Magnetic interference zones: bias (rad) per directed block, NaN where there is none.
+def draw_step(compass_due: bool, compass_sigma: float) -> tuple[float, float, float]:
+    """A step's draws before the sightings, in the generator's order: the left and right
+    wheels' slip uniforms, then the compass's standard normal when one is due (the true
+    compass sigma, ``p[I_TRUE_COMPASS_SIGMA]``, is positive). Scalars only: see
+    ``step_core``."""
+    u_left = np.random.random()
+    u_right = np.random.random()
+    gauss = 0.0
+    if compass_due and compass_sigma > 0.0:
+        gauss = np.random.normal(0.0, 1.0)
+    return u_left, u_right, gauss
 
-    Drawn only when ``frac > 0`` so the calibrated studies keep their random streams.
+
+@njit(cache=True, error_model="numpy")
+def detect(events: np.ndarray, detection_rate: float) -> None:
+    """Each landmark sighted this step is detected with ``detection_rate``: ``events[3]`` is
+    the last one detected (-1: none). Call only when ``events[EV_N_SIGHTED] > 0``."""
+    for j in range(int(events[EV_N_SIGHTED])):
+        if np.random.random() < detection_rate:
+            events[3] = events[EV_SIGHTED + j]
+
+
+@njit(cache=True, error_model="numpy")
+def world_step(
+    ts: np.ndarray,
+    ns: np.ndarray,
+    xs: np.ndarray,
+    ys: np.ndarray,
+    lm_xy: np.ndarray,
+    node_start: np.ndarray,
+    node_lms: np.ndarray,
+    lm_seen_pass: np.ndarray,
+    p: np.ndarray,
+    compass_due: bool,
+    detection_rate: float,
+    events: np.ndarray,
+) -> None:
+    """Advance the car one step along its route and produce the sensors' outputs.
+
+    ``events`` (float[N_EVENTS]) receives: left and right wheel increments (m),
+    compass heading (rad, NaN when none this step), sighted landmark index
+    (-1 if none), 1.0 when the navigator must decide the exit at node b (its
+    distance in [5]), 1.0 when the car has just passed node b (now a); and the
+    landmarks sighted this step (``EV_N_SIGHTED``). The draws are ``draw_step``'s, then
+    ``detect``'s; the compiled trial loop makes the same three calls itself.
     """
-    mag = np.full(adj.shape, np.nan)
-    if frac <= 0.0:
-        return mag
-    for u in range(adj.shape[0]):
-        for d in range(4):
-            if adj[u, d] >= 0 and np.random.random() < frac:
-                b = np.random.uniform(bias_min, bias_max)
-                mag[u, d] = b if np.random.random() < 0.5 else -b
-    return mag
+    u_left, u_right, gauss = draw_step(compass_due, p[I_TRUE_COMPASS_SIGMA])
+    step_core(
+        ts, ns, xs, ys, lm_xy, node_start, node_lms, lm_seen_pass, p, compass_due,
+        u_left, u_right, gauss, events,
+    )  # fmt: skip
+    if events[EV_N_SIGHTED] > 0:
+        detect(events, detection_rate)
 
 
 @njit(cache=True, error_model="numpy")

@@ -132,3 +132,18 @@ def test_trial_bookkeeping_ends_and_continues_trials_in_order() -> None:
     assert step(t1, 0.0, (gx, gy), 5.0, study=engine.STUDY_LANDMARKS)[0] == engine.OUTCOME_ARRIVED
     assert step(t1, trial.cap_m, (gx, gy), 5.0)[0] == engine.OUTCOME_TIMEOUT  # no new goal
     assert step(t1, 0.0, away, 5.0, n=trial.max_steps)[0] == engine.OUTCOME_STUCK
+
+
+@pytest.mark.parametrize(("compass_deg", "paper_km"), [(30.0, 9.3), (None, 0.3)])
+def test_range_trials_stay_within_the_papers_fig3_tolerance(
+    compass_deg: float | None, paper_km: float
+) -> None:
+    """SPEC 5: the mean lost distance within 15 % of the paper's (120 trials; the engine's
+    speed work kept the random stream, so this is the calibrated figure, not a new one)."""
+    sim = SimParams()
+    p = params.pack(sim, params.estimator_config(sim, compass_deg), NavigatorConfig(), 1.0)
+    seeds = studies.trial_seeds(11, 2 if compass_deg else 3, 0, 120)
+    res, _ = engine.run_batch(seeds, engine.STUDY_RANGE, Method.STRAIGHT_TO_GOAL.code, 0.0, p, 120)
+    lost = res[:, engine.RES_LOST_AT_M]
+    assert np.isfinite(lost).mean() > 0.9
+    assert abs(np.nanmean(lost) / 1000.0 - paper_km) / paper_km <= 0.15

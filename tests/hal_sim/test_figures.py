@@ -10,7 +10,7 @@ import matplotlib.figure
 import numpy as np
 import pytest
 
-from hal_sim import engine, figures, studies
+from hal_sim import analysis, engine, figures, studies
 from hal_sim.studies import StudyData
 
 
@@ -73,7 +73,7 @@ def test_success_bins_count_trials_and_skip_thin_bins() -> None:
 
 def test_range_grid_is_the_summary_range() -> None:
     data = synthetic_study()
-    summary = studies.summarise_landmarks(data)
+    summary = analysis.summarise_landmarks(data)
     for method in studies.LANDMARK_METHODS:
         km, censored = figures.range_grid(data, method)
         assert km.shape == (len(studies.LANDMARK_DENSITIES), len(studies.LANDMARK_DETECTION_RATES))
@@ -143,4 +143,39 @@ def test_fig4_with_too_few_trials_says_so(
     figures.fig4(synthetic_study(trials=3), tmp_path / "fig4.png")
     texts = [t.get_text() for ax in saved[0][0].axes for t in ax.texts]
     assert len(texts) == 15 and all("fewer than 5 trials" in t for t in texts)
+    for ax in saved[0][0].axes:  # what there is: each trial a point, on a 0-12 km axis
+        points = [ln for ln in ax.lines if ln.get_marker() == "x"]
+        assert sum(len(ln.get_xdata()) for ln in points) == 3 * len(figures.CURVE_DETECTION_RATES)
+        assert ax.get_xlim()[0] == 0.0 and ax.get_xlim()[1] >= 10.0
     assert (tmp_path / figures.RANGE_HEATMAP_NAME).exists()
+
+
+def test_fig4_small_study_pools_bins_and_keeps_a_sensible_axis(
+    tmp_path: Path, saved: list[tuple[matplotlib.figure.Figure, Path]]
+) -> None:
+    """--trials-per-condition 10: a curve in every panel, not 15 empty panels."""
+    data = synthetic_study(trials=10)
+    figures.fig4(data, tmp_path / "fig4.png")
+    fig = saved[0][0]
+    d_max = max(float(r[:, engine.RES_EUCLID_M].max()) for r in data.results.values()) / 1e3
+    for ax in fig.axes:
+        assert len(ax.lines) == len(figures.CURVE_DETECTION_RATES) + 1
+        assert len(ax.collections) == len(figures.CURVE_DETECTION_RATES)
+        assert ax.get_xlim() == (0.0, float(np.ceil(d_max)))
+        assert [t.get_text() for t in ax.texts] == ["bins pooled to ≥ 5 trials"]
+        for line in ax.lines[:-1]:  # every pooled point stands for at least 5 trials
+            assert len(line.get_xdata()) <= 2
+    assert "pooled to ≥ 5 trials" in fig.get_suptitle() and "10 trials per condition" in (
+        fig.get_suptitle()
+    )
+
+
+def test_pooled_bins_hold_every_trial_and_at_least_the_minimum() -> None:
+    rng = np.random.default_rng(1)
+    d = rng.uniform(0, 12, 23)
+    ok = rng.random(23) < 0.5
+    x, k, n, pooled = figures.pooled_bins(d, ok)
+    assert n.sum() == 23 and k.sum() == ok.sum() and n.min() >= 5 and pooled
+    assert np.all(np.diff(x) > 0)
+    x, k, n, pooled = figures.pooled_bins(d[:4], ok[:4])
+    assert len(x) == 0 and not pooled

@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import csv
 import json
 import subprocess
 import sys
@@ -12,13 +11,12 @@ import numpy as np
 import pytest
 
 from guidance.errors import UserError
-from hal_sim import engine, studies
+from hal_sim import analysis, engine, provenance, studies
 from hal_sim.studies import StudyRun
 
 
 def _rows(path: Path) -> list[dict[str, str]]:
-    with path.open() as f:
-        return list(csv.DictReader(f))
+    return analysis.read_csv_rows(path)
 
 
 def test_range_study_small_n_outputs(tmp_path: Path) -> None:
@@ -54,6 +52,16 @@ def test_landmark_study_small_n_outputs(tmp_path: Path) -> None:
     assert heatmap[:8] == b"\x89PNG\r\n\x1a\n" and len(heatmap) > 20_000
     table = _rows(tmp_path / "range_at_80pct.csv")
     assert len(table) >= 75
+    assert (tmp_path / "range_at_80pct.csv").read_text().startswith("# commit ")
+    for c, row in zip(conds, table, strict=True):
+        lo, hi = c["success_rate_ci95"]
+        assert lo <= c["success_rate"] <= hi
+        assert float(row["success_ci95_low"]) == lo and float(row["success_ci95_high"]) == hi
+    assert set(summary["provenance"]) == PROVENANCE_KEYS and summary["n_trials"] == 150
+    # The paper's field result against the nearest condition, one pair of rows per method.
+    check = summary["paper_check"]
+    assert len(check) == 6 and {r["figure"] for r in check} == {"fig4"}
+    assert all(r["condition"].endswith("0.5/km2, 60%") for r in check)
 
 
 def test_results_do_not_depend_on_worker_count(tmp_path: Path) -> None:
@@ -138,3 +146,80 @@ def test_interference_study_detection_keeps_the_truth_closer(tmp_path: Path) -> 
         assert off["mean_max_true_error_m"] > 1.5 * on["mean_max_true_error_m"]
         assert off["mean_max_true_error_m"] > 3 * clean["mean_max_true_error_m"]
     assert (tmp_path / "fig_interference.png").stat().st_size > 20_000
+
+
+PROVENANCE_KEYS = {"commit", "dirty", "versions", "platform", "machine", "argv"}
+
+
+def test_every_output_carries_provenance_parameters_and_intervals(tmp_path: Path) -> None:
+    summary = StudyRun("range", tmp_path, 6, seed=4, workers=1).run()
+    prov = summary["provenance"]
+    assert set(prov) == PROVENANCE_KEYS
+    assert {"numpy", "numba", "filterpy"} <= set(prov["versions"])
+    assert all(prov["versions"][k] for k in ("numpy", "numba", "filterpy"))
+    assert prov["commit"] is None or len(prov["commit"]) == 40
+    assert summary["n_trials"] == 24 and summary["seed"] == 4
+    par = summary["parameters"]
+    assert par["trials_per_condition"] == 6 and par["sim"]["range_cap_km"] == 40.0
+    assert len(par["conditions"]) == 4 and set(par["estimator"]) == {
+        c.key for c in studies.range_conditions()
+    }
+    for c in summary["conditions"]:
+        if c["lost_trials"] >= 2:
+            lo, hi = c["mean_lost_km_ci95"]
+            assert lo <= c["mean_lost_km"] <= hi
+        lo, hi = c["never_lost_fraction_ci95"]
+        assert lo <= c["never_lost_fraction"] <= hi
+    # The comparison with the paper: one row per compass, the paper's value against the interval.
+    check = summary["paper_check"]
+    assert [r["condition"] for r in check][-1] == "no compass"
+    none = check[-1]
+    assert none["paper"] == 0.3 and none["paper_inside_ci"] == (
+        none["ci95"][0] <= 0.3 <= none["ci95"][1]
+    )
+    cap = provenance.caption(prov, 4, 24, 6)
+    for table in ("trials.csv", "paper_check.csv"):
+        first = (tmp_path / table).read_text().splitlines()[0]
+        assert first == f"# {cap}" and "seed 4" in first and "N = 24" in first
+    assert len(_rows(tmp_path / "paper_check.csv")) == 4
+
+
+def test_figures_carry_the_caption_and_the_lost_interval(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    import matplotlib.figure
+
+    texts: list[str] = []
+    real = matplotlib.figure.Figure.savefig
+
+    def spy(self: matplotlib.figure.Figure, *a: object, **k: object) -> None:
+        texts.extend(t.get_text() for t in self.texts)
+        for ax in self.axes:
+            if ax.get_legend():
+                texts.extend(t.get_text() for t in ax.get_legend().get_texts())
+        real(self, *a, **k)  # type: ignore[arg-type]
+
+    monkeypatch.setattr(matplotlib.figure.Figure, "savefig", spy)
+    StudyRun("range", tmp_path, 4, seed=2, workers=1).run()
+    assert any(t.startswith("commit ") and "N = 16 (4 per condition)" in t for t in texts)
+    no_compass = next(t for t in texts if t.startswith("no compass"))
+    assert "mean lost" in no_compass and "[" in no_compass and "/4 lost" in no_compass
+
+
+def test_provenance_without_git(monkeypatch: pytest.MonkeyPatch) -> None:
+    monkeypatch.setenv("PATH", "/nonexistent")
+    prov = provenance.provenance()
+    assert prov["commit"] is None and prov["dirty"] is None
+    assert prov["versions"]["numpy"]
+    assert provenance.caption(prov, 1, 10, 10).startswith("commit no git;")
+
+
+def test_bootstrap_interval_covers_the_mean_at_its_rate() -> None:
+    rng = np.random.default_rng(0)
+    hits = 0
+    for i in range(200):
+        v = rng.exponential(2.0, 60)
+        lo, hi = provenance.bootstrap_mean(v, seed=i, resamples=400) or (0.0, 0.0)
+        hits += lo <= 2.0 <= hi
+    assert 0.88 <= hits / 200 <= 0.99  # a 95 % interval (percentile bootstrap runs a bit short)
+    assert provenance.bootstrap_mean(np.array([1.0]), seed=0) is None

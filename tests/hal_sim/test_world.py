@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 from guidance.core.navigator import NavigatorConfig
-from hal_sim import engine, params, world
+from hal_sim import city, engine, params, world
 from hal_sim.params import SimParams
 
 
@@ -18,7 +18,7 @@ def _city(seed: int, area: float = 4.0, dead: float = 0.04, oneway: float = 0.12
 
 
 def _reach_all(adj: np.ndarray, nx: int, start: int, forward: bool) -> np.ndarray:
-    return world._reach(adj, nx, start, forward)
+    return city._reach(adj, nx, start, forward)
 
 
 @pytest.mark.parametrize("seed", range(8))
@@ -139,7 +139,7 @@ def test_pid_keeps_the_car_within_a_lane_of_the_route() -> None:
     for seed in range(5):
         xs, ys, adj, _net, lm, ns0, nl, ts, ns, _goal, _, _ = engine.setup_trial(seed, 0, 0.0, p)
         seen = -np.ones(len(lm), dtype=np.int64)
-        ev = np.zeros(8)
+        ev = np.zeros(world.N_EVENTS)
         dirs = np.empty(4, dtype=np.int64)
         nx = len(xs)
 
@@ -176,7 +176,7 @@ def test_wheel_encoders_quantise_and_integrate() -> None:
     p = params.pack(sim, params.estimator_config(sim, 20.0), NavigatorConfig(), 1.0)
     xs, ys, _adj, _net, lm, ns0, nl, ts, ns, _goal, _, _ = engine.setup_trial(3, 0, 0.0, p)
     seen = -np.ones(len(lm), dtype=np.int64)
-    ev = np.zeros(8)
+    ev = np.zeros(world.N_EVENTS)
     total = np.zeros(2)
     for _ in range(300):
         world.world_step(ts, ns, xs, ys, lm, ns0, nl, seen, p, False, 1.0, ev)
