@@ -52,6 +52,7 @@ import numpy as np
 from drivers.can_odometry import CanOdometry, CanOdometryConfig
 from guidance.app.app import GIL_SWITCH_INTERVAL_S, App
 from guidance.app.ports import Recognised
+from guidance.app.settings import LoopSettings
 from guidance.core.estimator import EstimatorConfig
 from guidance.core.messages import CameraFrame, EstimateState, WheelOdometry
 from guidance.core.navigator import Method, NavigatorConfig
@@ -213,8 +214,8 @@ async def _run(
         recorder = Recorder(RecordingConfig(directory=tmp.name))
         recorder.start()
     app = App(pipeline, sources={"odometry": odo}, camera=cam, recogniser=matcher,
-              sinks=[recorder] if recorder is not None else [], recorder=recorder,
-              tick_hz=100.0)  # fmt: skip
+              sinks=[recorder] if recorder is not None else [],
+              loop=LoopSettings(tick_hz=100.0))  # fmt: skip
     latency_s: deque[float] = deque(maxlen=100_000)
 
     def odometry_latency(msg: object, _out: object) -> None:

@@ -344,12 +344,12 @@ class SimDrive:
             recogniser=self.recogniser,
             speaker=out.speaker,
             sinks=out.sinks,
-            recorder=out.recorder,
             checkpointer=self.checkpointer,
-            checkpoint_extra=self._extra_state,
             clock=self.clock,
             external_ticks=True,
         )
+        if self.checkpointer is not None:
+            self.checkpointer.extra = self._extra_state  # the world, for a resumed drive
         self.app.listeners.append(self._on_output)
         self.lockstep = LockstepSink(self.app.sink)  # the world waits for the app
         self.app.source_sink = self.lockstep

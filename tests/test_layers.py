@@ -104,6 +104,31 @@ def test_app_reaches_drivers_only_by_name() -> None:
     assert not bad, "\n".join(bad)
 
 
+def test_the_app_never_names_the_simulator() -> None:
+    """``guidance.app`` (the product) reaches no ``hal_sim`` module, by import or by a string
+    it could import by name (``import_backend("hal_sim...")``, a command table): the
+    simulator registers itself with the product, never the other way (docstrings and
+    comments may mention it)."""
+    bad = []
+    for path in sorted((ROOT / "guidance/app").rglob("*.py")):
+        tree = ast.parse(path.read_text(), filename=str(path))
+        docstrings = {  # a bare string statement: a docstring, of a module, class or attribute
+            id(n.value)
+            for n in ast.walk(tree)
+            if isinstance(n, ast.Expr) and isinstance(n.value, ast.Constant)
+        }
+        for node in ast.walk(tree):
+            if (
+                isinstance(node, ast.Constant)
+                and isinstance(node.value, str)
+                and id(node) not in docstrings
+                and "hal_sim" in node.value
+            ):
+                bad.append(f"{path.relative_to(ROOT)}:{node.lineno} names {node.value!r}")
+    bad += _violations("guidance.app", lambda m: not _under(m, "hal_sim"))
+    assert not bad, "\n".join(bad)
+
+
 def test_voice_never_imports_the_app() -> None:
     """The voice is a device of the app, not a part of it: its port lives in
     ``guidance.voice.speaker`` (``guidance.app.ports`` re-exports it)."""

@@ -37,6 +37,7 @@ from guidance.app import ports
 from guidance.app.checkpoint import Checkpointer
 from guidance.app.logonce import LogOnce
 from guidance.app.ports import InputRecorder, Notifier, NullRecogniser, Recogniser, Speaker
+from guidance.app.settings import LoopSettings
 from guidance.core.codec import to_record
 from guidance.core.health import DeviceStatus
 from guidance.core.messages import (
@@ -72,6 +73,10 @@ recorder, telemetry) hands the GIL back to the loop within 1 ms instead of Pytho
 (benchmarks/loop_latency.py: loop lateness p99 4.8 -> 3.7 ms on a loaded 2-core machine)."""
 
 
+DEFAULT_LOOP = LoopSettings()
+"""``[loop]``'s defaults (``guidance.app.settings.LoopSettings``)."""
+
+
 class App:
     """The asyncio wiring around one ``Pipeline`` (see the module docstring)."""
 
@@ -84,17 +89,16 @@ class App:
         recogniser: Recogniser | None = None,
         speaker: Speaker | None = None,
         sinks: Sequence[OutputSink] = (),
-        recorder: InputRecorder | None = None,
         notifier: Notifier | None = None,
         checkpointer: Checkpointer | None = None,
-        checkpoint_extra: Callable[[], Mapping[str, Any]] | None = None,
         clock: Callable[[], float] = time.monotonic,
-        tick_hz: float = 20.0,
+        loop: LoopSettings = DEFAULT_LOOP,
         external_ticks: bool = False,
-        health_publish_period_s: float = 1.0,
-        max_loop_lag_s: float = 0.5,
-        method: str = "",
     ) -> None:
+        """``sinks``: telemetry and the recorder (the one among them that records inputs, an
+        ``InputRecorder``, gets the inputs too); ``loop``: the ``[loop]`` table (tick rate,
+        health publication period, the lag that counts as late); ``external_ticks``: the
+        simulator's lockstep drives ``tick`` itself."""
 
         self.failures = LogOnce(log)
         """Failures of messages, ticks, stats and the recogniser: logged once, counted."""
@@ -105,17 +109,18 @@ class App:
         self.speaker = speaker
         self.sinks: list[OutputSink] = list(sinks)
         """Where outputs go (telemetry, the recorder), each with its own queue policy."""
-        self.recorder = recorder
-        """Where the inputs are recorded as they arrive (the recorder is a sink as well)."""
+        self.recorder: InputRecorder | None = next(
+            (s for s in self.sinks if isinstance(s, InputRecorder)), None
+        )
+        """Where the inputs are recorded as they arrive (the sink that is a recorder)."""
         self.notifier = notifier
         self.checkpointer = checkpointer
-        self.checkpoint_extra = checkpoint_extra
         self.clock = clock
-        self.tick_hz = tick_hz
+        self.tick_hz = loop.tick_hz
         self.external_ticks = external_ticks
-        self.health_publish_period_s = health_publish_period_s
-        self.max_loop_lag_s = max_loop_lag_s
-        self.method = method or pipeline.config.navigator.method.value
+        self.health_publish_period_s = loop.health_publish_period_s
+        self.max_loop_lag_s = loop.max_lag_s
+        self.method = pipeline.config.navigator.method.value
         self.listeners: list[Callable[[Input | None, Outputs], None]] = []
         self.counts: Counter[str] = Counter()
         self.loop_lag_s: deque[float] = deque(maxlen=LATENCY_SAMPLES)
@@ -199,7 +204,8 @@ class App:
     def save_checkpoint(self, t_s: float, *, finished: bool = False) -> bool:
         if self.checkpointer is None:
             return False
-        extra = dict(self.checkpoint_extra()) if self.checkpoint_extra is not None else {}
+        more = self.checkpointer.extra
+        extra = dict(more()) if more is not None else {}
         state = {"pipeline": self.pipeline.snapshot(), "extra": extra}
         return self.checkpointer.save(t_s, state, finished=finished)
 

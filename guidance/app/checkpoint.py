@@ -27,7 +27,7 @@ import logging
 import math
 import os
 import time
-from collections.abc import Mapping
+from collections.abc import Callable, Mapping
 from pathlib import Path
 from typing import Any
 
@@ -74,6 +74,8 @@ class Checkpointer:
         self.identity = dict(identity) if identity is not None else None
         self.interval_s = interval_s
         self.resumed = False
+        self.extra: Callable[[], Mapping[str, Any]] | None = None
+        """What else a checkpoint carries (the simulator: its world), under ``extra``."""
         """This run continues a trip from the checkpoint (``start_checkpoints``)."""
         self.saved = 0
         self.errors = 0

@@ -99,9 +99,7 @@ class AppConfig:
     telemetry: TelemetryConfig
     recording: RecordingConfig
     checkpoint: CheckpointSettings
-    tick_hz: float = 20.0
-    health_publish_period_s: float = 1.0
-    max_loop_lag_s: float = 0.5
+    loop: LoopSettings = field(default_factory=LoopSettings)
     sim: Mapping[str, Any] = field(default_factory=dict)
     """The ``[sim]`` table, read by ``guidance sim`` only."""
     landmark_db: LandmarkSettings | None = None
@@ -442,9 +440,7 @@ def parse_config(
         telemetry=telemetry,
         recording=recording,
         checkpoint=checkpoint,
-        tick_hz=loop.tick_hz,
-        health_publish_period_s=loop.health_publish_period_s,
-        max_loop_lag_s=loop.max_lag_s,
+        loop=loop,
         sim=types.MappingProxyType(dict(sim)),
         landmark_db=landmark_db,
     )

@@ -198,12 +198,9 @@ async def run_car(
             recogniser=recogniser,
             speaker=speaker,
             sinks=out.sinks,
-            recorder=out.recorder,
-            notifier=SystemdNotifier(max_lag_s=cfg.max_loop_lag_s),
+            notifier=SystemdNotifier(max_lag_s=cfg.loop.max_lag_s),
             checkpointer=checkpointer,
-            tick_hz=cfg.tick_hz,
-            health_publish_period_s=cfg.health_publish_period_s,
-            max_loop_lag_s=cfg.max_loop_lag_s,
+            loop=cfg.loop,
         )
         app.stop_event = stop
         loop = asyncio.get_running_loop()

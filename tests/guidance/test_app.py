@@ -23,6 +23,7 @@ from drivers.can_odometry import CanOdometry, CanOdometryConfig
 from drivers.keyboard import KeyboardScene
 from guidance.app.app import App
 from guidance.app.ports import Recognised
+from guidance.app.settings import LoopSettings
 from guidance.core.messages import (
     CameraFrame,
     EstimateState,
@@ -60,7 +61,12 @@ def test_silent_can_flags_odometry_and_warns_while_the_app_keeps_running(
 
     async def scenario() -> App:
         odo = CanOdometry(CanOdometryConfig(interface="virtual", channel=channel, bitrate=None))
-        app = App(pipeline, sources={"odometry": odo}, speaker=TextSpeaker(speech), tick_hz=50)
+        app = App(
+            pipeline,
+            sources={"odometry": odo},
+            speaker=TextSpeaker(speech),
+            loop=LoopSettings(tick_hz=50),
+        )
         app.listeners.append(listen)
         with SimCanWheels(channel, period_s=0.02) as wheels:
             wheels.set_speeds(5.0, 5.0)
@@ -205,7 +211,7 @@ def test_recogniser_runs_off_the_loop_on_the_latest_frame(
 
     async def scenario() -> App:
         app = App(pipeline, camera=_FrameSource(), recogniser=recogniser,
-                  speaker=TextSpeaker(speech), tick_hz=100)  # fmt: skip
+                  speaker=TextSpeaker(speech), loop=LoopSettings(tick_hz=100))  # fmt: skip
         async with app.running():
             await asyncio.sleep(0.6)
         return app
@@ -228,7 +234,8 @@ def test_app_writes_checkpoints_on_the_message_clock(
 
     pipeline = make_pipeline()
     ck = Checkpointer(tmp_path / "ck.json", interval_s=1.0)
-    app = App(pipeline, checkpointer=ck, checkpoint_extra=lambda: {"note": "x"})
+    ck.extra = lambda: {"note": "x"}
+    app = App(pipeline, checkpointer=ck)
     for k in range(35):
         t = 0.1 * (k + 1)
         app.feed(WheelOdometry(t, 1.0, 1.0))
@@ -363,7 +370,12 @@ def test_a_sensor_silent_from_the_start_is_reported(make_pipeline: Callable[...,
 
     async def scenario() -> App:
         odo = CanOdometry(CanOdometryConfig(interface="virtual", channel=channel, bitrate=None))
-        app = App(pipeline, sources={"odometry": odo}, speaker=TextSpeaker(speech), tick_hz=50)
+        app = App(
+            pipeline,
+            sources={"odometry": odo},
+            speaker=TextSpeaker(speech),
+            loop=LoopSettings(tick_hz=50),
+        )
         async with app.running():
             await asyncio.sleep(1.6)
         return app

@@ -10,6 +10,7 @@ from pathlib import Path
 
 from drivers.compass import SerialCompass, SerialCompassConfig
 from guidance.app.app import App
+from guidance.app.settings import LoopSettings
 from guidance.core.estimator import EstimatorConfig
 from guidance.core.messages import DeviceStatus, Health
 from guidance.core.navigator import NavigatorConfig
@@ -40,7 +41,7 @@ def test_a_compass_whose_port_is_gone_is_said_disconnected_in_its_own_words(
 
     async def scenario() -> None:
         app = App(pipeline, sources={"compass": compass}, speaker=TextSpeaker(speech),
-                  tick_hz=50)  # fmt: skip
+                  loop=LoopSettings(tick_hz=50))  # fmt: skip
         async with app.running():
             await asyncio.sleep(1.5)
 

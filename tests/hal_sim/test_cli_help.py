@@ -7,7 +7,7 @@ import re
 
 from guidance.tools.cli import build_parser
 from hal_sim.cli import STUDIES
-from hal_sim.sim_cli import DriveOptions
+from hal_sim.drive_options import DriveOptions
 
 
 def _help(*words: str) -> str:

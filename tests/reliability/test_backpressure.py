@@ -23,6 +23,7 @@ import pytest
 from drivers._reader import BACKLOG_LIMIT
 from drivers.can_odometry import CanOdometry, CanOdometryConfig
 from guidance.app.app import App
+from guidance.app.settings import LoopSettings
 from guidance.core.estimator import EstimatorConfig
 from guidance.core.messages import WheelOdometry
 from guidance.core.navigator import Method, NavigatorConfig
@@ -91,7 +92,7 @@ def test_a_can_flood_is_coalesced_the_loop_queue_stays_bounded_and_no_distance_i
     blast_end: list[float] = []
 
     async def scenario() -> App:
-        app = App(pipeline, sources={"odometry": odo}, tick_hz=50, max_loop_lag_s=0.5)
+        app = App(pipeline, sources={"odometry": odo}, loop=LoopSettings(tick_hz=50, max_lag_s=0.5))
         app.listeners.append(listen)
         stop = threading.Event()
         async with app.running():
