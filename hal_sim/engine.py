@@ -190,9 +190,9 @@ def run_trial(
     headings = np.empty(4)
     penalties = np.empty(4)
     costs = np.empty(4)
-    decide_params = np.array(
-        [p[I_REVISIT_GATE], p[I_REVISIT_FLOOR] ** 2, p[I_TABU], p[I_EXIT_TOL], p[I_LM_PASS],
-         p[I_LOOKAHEAD]]
+    decide_params = law.decide_params(
+        p[I_REVISIT_GATE], p[I_REVISIT_FLOOR], p[I_TABU], p[I_EXIT_TOL], p[I_LM_PASS],
+        p[I_LOOKAHEAD],
     )  # fmt: skip
     drive(
         res, trial, study, method, p, samples, legs, ts, ns, xs, ys, adj, net, lm_xy,

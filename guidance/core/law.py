@@ -325,6 +325,21 @@ DECIDE_PARAMS = ("revisit_gate_chi2", "revisit_floor_var_m2", "tabu_step_rad",
 
 
 @njit(cache=True, error_model="numpy")
+def decide_params(
+    revisit_gate_chi2: float,
+    revisit_floor_sigma_m: float,
+    tabu_step_rad: float,
+    exit_match_tol_rad: float,
+    landmark_pass_radius_m: float,
+    lookahead_m: float,
+) -> np.ndarray:
+    """``decide_exit``'s ``params`` in the order of ``DECIDE_PARAMS``: built here once, for the
+    navigator (from ``NavigatorConfig``) and the study engine (from its packed parameters)."""
+    return np.array([revisit_gate_chi2, revisit_floor_sigma_m**2, tabu_step_rad,
+                     exit_match_tol_rad, landmark_pass_radius_m, lookahead_m])  # fmt: skip
+
+
+@njit(cache=True, error_model="numpy")
 def landmark_target(
     x: float,
     y: float,

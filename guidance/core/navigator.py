@@ -78,9 +78,9 @@ class Navigator:
         )
         self.decisions = 0
         c = self.config
-        self._params = np.array(
-            [c.revisit_gate_chi2, c.revisit_floor_sigma_m**2, c.tabu_step_rad,
-             c.exit_match_tol_rad, c.landmark_pass_radius_m, c.lookahead_m]
+        self._params = law.decide_params(
+            c.revisit_gate_chi2, c.revisit_floor_sigma_m, c.tabu_step_rad,
+            c.exit_match_tol_rad, c.landmark_pass_radius_m, c.lookahead_m,
         )  # fmt: skip
 
     # -- goal and landmarks ---------------------------------------------------
