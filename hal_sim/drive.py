@@ -90,7 +90,7 @@ class SimDrive:
         self.method = _method(opts.method)
         self.field_protocol = opts.duration_s is not None
         self.end_t = math.inf if opts.duration_s is None else opts.duration_s
-        base = getattr(app_config, "pipeline", None)  # the TOML's car (None: the defaults)
+        base = app_config.pipeline if app_config is not None else None  # the TOML's car
         self.world = world = make_world(opts, base.navigator if base is not None else None)
         # Compile the numba step now, on a copy, before any replay: the copy draws from numba's
         # one random generator, so a fresh drive and a resumed one must draw it at the same point.

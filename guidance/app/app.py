@@ -259,7 +259,9 @@ class App:
             context = OutputContext(speed_mps=p.speed_mps, target=p.target(),
                                     goal=p.navigator.goal, method=self.method,
                                     mode=p.navigator.mode)  # fmt: skip
-        batch = [(kind, list(kind.items(out))) for kind in OUTPUTS if kind.items is not None]
+        batch = [
+            (kind, items) for kind in OUTPUTS if kind.items and (items := tuple(kind.items(out)))
+        ]
         for sink in self.sinks:
             for kind, items in batch:
                 for item in items:

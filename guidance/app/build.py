@@ -177,7 +177,7 @@ def resume_from_checkpoint(
         set_aside(where, f"invalid state: {exc}")
         return "invalid"
     spread = pipeline.speed_mps * age_s
-    pipeline.inflate_position(spread)
+    pipeline.estimator.inflate_position(spread)
     log.warning(
         "resumed from checkpoint %s written %.1f s ago; position widened by %.0f m",
         where,

@@ -38,6 +38,7 @@ from guidance.app.settings import (
 from guidance.app.tables import _check_document, _Table
 from guidance.config_tables import field_default, from_table, key_name
 from guidance.core.estimator import EstimatorConfig, car_model
+from guidance.core.geo import Origin
 from guidance.core.health import HealthConfig
 from guidance.core.navigator import Landmark
 from guidance.core.pipeline import PipelineConfig
@@ -160,20 +161,13 @@ def _point(
         lon = t.req_number("lon_deg", lo=-180.0, hi=180.0)
         if origin is None:
             return (0.0, 0.0), (lat, lon)
-        return enu_m(lat, lon, origin), (lat, lon)
+        return Origin.of(origin).to_local(lat, lon), (lat, lon)
     x = t.number("x_m", 0.0)
     y = t.number("y_m", 0.0)
     assert x is not None and y is not None
     if t.name == "goal" and not has_xy:
         raise UserError("[goal] needs lat_deg/lon_deg or x_m/y_m")
     return (x, y), None
-
-
-def enu_m(lat_deg: float, lon_deg: float, origin: tuple[float, float]) -> tuple[float, float]:
-    """East and north metres of a point from the origin (``guidance.core.geo.Origin``)."""
-    from guidance.core.geo import Origin
-
-    return Origin.of(origin).to_local(lat_deg, lon_deg)
 
 
 CAR_KEYS = (

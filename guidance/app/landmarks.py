@@ -16,6 +16,7 @@ from pathlib import Path
 from typing import Any
 
 from guidance.app.ports import Recogniser
+from guidance.core.geo import Origin
 from guidance.core.navigator import Landmark
 from guidance.errors import UserError
 
@@ -107,9 +108,7 @@ def open_landmarks(
     for lm in db.landmarks():
         x, y = float(lm.x_m), float(lm.y_m)
         if origin_lat_lon is not None:
-            from guidance.app.config import enu_m
-
-            x, y = enu_m(float(lm.lat_deg), float(lm.lon_deg), origin_lat_lon)
+            x, y = Origin.of(origin_lat_lon).to_local(float(lm.lat_deg), float(lm.lon_deg))
         if math.isfinite(x) and math.isfinite(y):
             out.append(Landmark(int(lm.id), x, y, str(lm.name)))
     return recogniser, tuple(out)

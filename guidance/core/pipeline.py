@@ -262,11 +262,6 @@ class Pipeline:
         if out is not None:  # the intersections ahead move on with it (announcements due)
             self.guide.step(t, est, self.st.odometer_m, None, out)
 
-    def inflate_position(self, spread_m: float) -> None:
-        """Widen the position uncertainty by ``spread_m`` (``PoseEstimator.inflate_position``:
-        a restart)."""
-        self.estimator.inflate_position(spread_m)
-
     def _heading(self, fix: HeadingFix, out: Outputs) -> None:
         est = self.estimator
         if not self.st.heading_known and est.config.compass_two_sigma_deg is not None:

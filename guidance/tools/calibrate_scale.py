@@ -103,7 +103,8 @@ def _point(text: str) -> tuple[float, float]:
 def scale_calibration(log: Path, args: argparse.Namespace) -> ScaleResult:
     """The wheel scale of the stretch (module docstring); ``UserError`` with one line when it
     cannot be one."""
-    from guidance.app.config import enu_m, load_config
+    from guidance.app.config import load_config
+    from guidance.core.geo import Origin
     from guidance.tools.replay import can_inputs, raw_setup
 
     cfg = load_config(args.config, require_goal=False)
@@ -121,7 +122,7 @@ def scale_calibration(log: Path, args: argparse.Namespace) -> ScaleResult:
         raise UserError(f"{log}: {exc}") from None
     if args.points is not None:
         a, b = _point(args.points[0]), _point(args.points[1])
-        known = math.hypot(*enu_m(b[0], b[1], a))
+        known = math.hypot(*Origin.of(a).to_local(b[0], b[1]))
         each = DEFAULT_POINT_SIGMA_M if args.distance_sigma_m is None else args.distance_sigma_m
         sigma = math.sqrt(2.0) * each
         if st.turn_deg > MAX_TURN_DEG:

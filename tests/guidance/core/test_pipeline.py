@@ -132,7 +132,7 @@ def test_restore_after_a_reboot_does_not_carry_the_old_clock(
     same.restore(snap)
     assert same.feed(WheelOdometry(5.0, 1.0, 1.0)).reason == "out_of_order"
     before = rebooted.estimator.major_axis_m
-    rebooted.inflate_position(40.0)  # 4 s down at 10 m/s: 40 m more 2-sigma radius
+    rebooted.estimator.inflate_position(40.0)  # 4 s down at 10 m/s: 40 m more 2-sigma radius
     major = rebooted.estimator.major_axis_m  # the full axis: twice the 2-sigma radius
     assert major == pytest.approx(2 * math.hypot(before / 2, 40.0), rel=0.05)
 
