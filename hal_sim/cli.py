@@ -10,7 +10,7 @@ from typing import Any
 
 from guidance.errors import UserError
 
-STUDIES = ("range", "landmarks", "interference", "field")
+STUDIES = ("range", "landmarks", "interference", "field", "chance")
 """range: without a map; landmarks: with them; interference: range with magnetic zones."""
 
 
@@ -168,6 +168,18 @@ def _print_summary(console: Any, summary: dict[str, Any], out: Path, table_cls: 
                     "-" if either is None else f"{either:.2f}",
                 ]
             t.add_row(*row)
+    elif summary["study"] == "chance":
+        cal = summary["calibration"]
+        for col in ("decile", "predicted", "realised", "95 %", "drives"):
+            t.add_column(col, justify="right")
+        for i, row in enumerate(cal["deciles"], 1):
+            t.add_row(str(i), f"{row['predicted']:.0%}", f"{row['realised']:.0%}",
+                      _interval(row["realised_ci95"], "{:.0%}"), str(row["drives"]))  # fmt: skip
+        t.caption = (
+            f"{cal['drives']} held-back drives: largest gap {cal['max_gap'] * 100:.1f} points "
+            f"({'within' if cal['within_10_points'] else 'NOT within'} 10); the table is "
+            f"{summary['table']} (the car's: guidance/core/chance_table.json)"
+        )
     elif summary["study"] == "field":
         for col in ("method", "runs", "goals/run", "lost", "goals ≥ 6.9 km reached", "95 %",
                     "goal km @80%", "95 %", "run km @80%"):  # fmt: skip

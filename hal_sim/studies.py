@@ -34,7 +34,13 @@ LANDMARK_METHODS = (Method.STRAIGHT_TO_GOAL, Method.LANDMARK_TO_LANDMARK, Method
 INTERFERENCE_COMPASS_DEG = (20.0, 30.0)
 INTERFERENCE_FRAC = 0.1
 """Interference study: a tenth of the blocks (per direction) are magnetically disturbed."""
-DEFAULT_TRIALS = {"range": 1000, "landmarks": 700, "interference": 500, "field": 200}
+DEFAULT_TRIALS = {
+    "range": 1000,
+    "landmarks": 700,
+    "interference": 500,
+    "field": 200,
+    "chance": 200,
+}
 FIELD_DENSITY = 0.55
 FIELD_DETECTION = 0.6
 """The paper's field conditions (SPEC 5): 0.55 landmarks per km2, 60 % detection."""
@@ -43,6 +49,7 @@ STUDY_CODES = {
     "interference": engine.STUDY_RANGE,
     "landmarks": engine.STUDY_LANDMARKS,
     "field": engine.STUDY_FIELD,
+    "chance": engine.STUDY_CHANCE,
 }
 """Condition.study to ``engine.STUDY_*``."""
 CHUNK_TRIALS = 25
@@ -177,6 +184,8 @@ def make_tasks(
     tasks = []
     n_samples = params.N_SAMPLES
     for cond in conditions:
+        # the chance study's rows: the major axis, then the estimated distance to go
+        n_samples = params.N_SAMPLES * (2 if cond.study == "chance" else 1)
         sim_c = replace(sim, interference_frac=cond.interference_frac)
         est = replace(
             params.estimator_config(sim, cond.compass_two_sigma_deg),
@@ -356,6 +365,10 @@ class StudyRun:
             return interference_conditions()
         if self.name == "field":
             return field_conditions()
+        if self.name == "chance":
+            from hal_sim import chance
+
+            return chance.conditions()
         return landmark_conditions()
 
     def run(self, on_progress: ProgressHook | None = None) -> dict[str, Any]:
@@ -428,6 +441,10 @@ class StudyRun:
             summary["paper_check"] = field_study.paper_check_field(summary)
             field_study.fig_field(data, summary, self.out / "fig_field.png", caption=cap)
             field_study.write_field_table(summary, self.out / "field_table.csv", header=cap)
+        elif self.name == "chance":
+            from hal_sim import chance
+
+            summary = chance.summarise(data, self.out, self.seed, prov, cap)
         else:
             summary = analysis.summarise_landmarks(data, self.seed)
             summary["paper_check"] = analysis.paper_check_landmarks(data, summary, self.seed)

@@ -36,6 +36,10 @@ from hal_sim.params import (
 STUDY_RANGE = 0
 STUDY_LANDMARKS = 1
 STUDY_FIELD = 2
+STUDY_CHANCE = 3
+"""The landmark study whose sample row holds, after the major axis at each sample distance, the
+estimated distance to the goal at the same moment (``hal_sim.chance``: the chance-of-success
+table's trials). It is the landmark study in every other way: same world, goal, cap and end."""
 
 OUTCOME_ARRIVED = 0
 OUTCOME_LOST = 1
@@ -219,7 +223,7 @@ def begin_trial(
         max_steps = int(p[I_FIELD_STEPS])
     else:
         max_steps = int(STUCK_FACTOR * cap / (p[I_TURN_V] * p[I_DT])) + 1000
-    n = samples.shape[0]
+    n = samples.shape[0] // 2 if study == STUDY_CHANCE else samples.shape[0]
     first_m = sample_distance_m(0, n, p) if n > 0 else math.inf
     none = 0
     return res, Trial(goal, gx, gy, cap, max_steps, none, first_m, 0.0, math.nan, none)
@@ -263,6 +267,9 @@ def end_step(
     next_sample_m = trial.next_sample_m
     n = samples.shape[0]
     while driven_m >= next_sample_m:
+        if study == STUDY_CHANCE:
+            n = samples.shape[0] // 2
+            samples[n + next_sample] = math.hypot(est_x - trial.goal_x, est_y - trial.goal_y)
         samples[next_sample] = major
         next_sample += 1
         next_sample_m = sample_distance_m(next_sample, n, p) if next_sample < n else math.inf
@@ -272,7 +279,8 @@ def end_step(
         status = OUTCOME_LOST
     elif (est_x - trial.goal_x) ** 2 + (est_y - trial.goal_y) ** 2 <= p[I_ARRIVE] ** 2:
         goals += 1
-        status = OUTCOME_ARRIVED if study == STUDY_LANDMARKS else STEP_NEW_GOAL
+        one_goal = study in (STUDY_LANDMARKS, STUDY_CHANCE)
+        status = OUTCOME_ARRIVED if one_goal else STEP_NEW_GOAL
     if status < 0:
         if driven_m >= trial.cap_m:
             status = OUTCOME_TIMEOUT

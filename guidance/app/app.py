@@ -258,7 +258,7 @@ class App:
         if out.state is not None:
             context = OutputContext(speed_mps=p.speed_mps, target=p.target(),
                                     goal=p.navigator.goal, method=self.method,
-                                    mode=p.navigator.mode)  # fmt: skip
+                                    mode=p.navigator.mode, chance=out.chance)  # fmt: skip
         batch = [
             (kind, items) for kind in OUTPUTS if kind.items and (items := tuple(kind.items(out)))
         ]

@@ -37,6 +37,7 @@ from guidance.app.settings import (
 )
 from guidance.app.tables import _check_document, _Table
 from guidance.config_tables import field_default, from_table, key_name
+from guidance.core.chance import ChanceSettings
 from guidance.core.estimator import EstimatorConfig, car_model
 from guidance.core.geo import Origin
 from guidance.core.health import HealthConfig
@@ -60,6 +61,7 @@ TABLES = (
     "scene",
     "voice",
     "health",
+    "chance",
     "loop",
     "checkpoint",
     "telemetry",
@@ -359,6 +361,7 @@ def parse_config(
         raise UserError("[voice] wav_path is required with backend = 'wav'")
     health = from_table(HealthConfig, data.get("health", {}), "health", rules=HEALTH_RULES)
     loop = from_table(LoopSettings, data.get("loop", {}), "loop")
+    chance = from_table(ChanceSettings, data.get("chance", {}), "chance")
     checkpoint = from_table(CheckpointSettings, data.get("checkpoint", {}), "checkpoint", base_dir)
 
     # [telemetry] and [recording]: vehicle_id defaults to [vehicle] id; the origin is [start]'s.
@@ -417,6 +420,7 @@ def parse_config(
         straight_after_m=nav.straight_after_m,
         uncertain_warn_m=nav.uncertain_warn_m,
         stop_at_arrival=nav.stop_at_arrival,
+        chance=chance,
     )
     sim = data.get("sim", {})
     if not isinstance(sim, Mapping):

@@ -17,6 +17,7 @@ from collections.abc import Mapping
 from dataclasses import dataclass
 from typing import Any
 
+from guidance.core.chance import shown
 from guidance.core.messages import (
     Approach,
     EstimateState,
@@ -88,6 +89,11 @@ def uncertainty_text(major_axis_m: float, lost: bool, lost_major_axis_m: float) 
     return f"position good to about {about:.0f} m ({axis})"
 
 
+def chance_text(p: float) -> str:
+    """The CHANCE row: the study table's estimate, said as what it is."""
+    return f"{shown(p)} chance of reaching the goal from here (simulated cars like this one)"
+
+
 def _sentence(text: str) -> str:
     return text[:1].upper() + text[1:]
 
@@ -133,6 +139,9 @@ class OperatorView:
         self.voice = ""
         """The VOICE row: "" (no row), "on", or "MUTED ..." (``set_voice``)."""
         self.arrived = False
+        self.chance: float | None = None
+        """The chance of reaching the goal, with each state (``guidance.core.chance``)."""
+        self.chance_warn_below = 0.5
         self.last_turn_prompt = ""
         self.events: deque[ScreenEvent] = deque(maxlen=EVENTS_KEPT)
         self.exit_note: ScreenEvent | None = None
@@ -166,6 +175,7 @@ class OperatorView:
             self.add(wall_s, "health", text, style)
         if out.state is not None:
             self.state = out.state
+            self.chance = out.chance
         if out.arrived:
             self.arrived = True
             self.instruction = "Arrived"
@@ -274,6 +284,9 @@ class OperatorView:
             out.append(
                 ("POSITION", uncertainty_text(major, st.lost, self.lost_major_axis_m), pos_style)
             )
+            if self.chance is not None and not self.arrived:
+                low = self.chance < self.chance_warn_below
+                out.append(("CHANCE", chance_text(self.chance), "warn" if low else "ok"))
         for name in sorted(self.inputs):
             text, style = _input_text(self.inputs[name])
             out.append(("INPUT", text, style))
@@ -311,6 +324,8 @@ class OperatorView:
                     self.state.ellipse.major_axis_m, self.state.lost, self.lost_major_axis_m
                 )
             )
+        if self.chance is not None and not self.arrived:
+            parts.append(chance_text(self.chance))
         parts += [_input_text(st)[0] for _, st in sorted(self.inputs.items())]
         if self.co_driver:
             parts.append(f"co-driver {self.co_driver}")

@@ -136,6 +136,7 @@ async def run_car(
         landmark_names={lm.id: lm.name for lm in cfg.pipeline.landmarks if lm.name},
         lost_major_axis_m=cfg.pipeline.estimator.lost_major_axis_m,
     )
+    view.chance_warn_below = cfg.pipeline.chance.warn_below
     live = {"auto": None, "live": True, "plain": False, "off": None}[screen]
     opscreen = OperatorScreen(view, stream=out_stream, live=live)
     operator = Operator(opscreen, pipeline)

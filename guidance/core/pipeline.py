@@ -23,6 +23,7 @@ from dataclasses import asdict
 import numpy as np
 
 from guidance.core import prompts
+from guidance.core.chance import ChanceTable, ChanceWatch
 from guidance.core.compass_cal import CompassCalibration, compass_heading_to_theta
 from guidance.core.estimator import PoseEstimator
 from guidance.core.guide import Guide
@@ -108,6 +109,12 @@ class Pipeline:
         if not self.st.heading_known:
             self.estimator.forget_heading()
         self.navigator = Navigator(config.goal_xy_m, config.navigator, config.landmarks)
+        self.chance = ChanceWatch(
+            config.chance,
+            ChanceTable.shipped() if config.chance.enabled else None,
+            config.navigator.method.value,
+        )
+        self.chance.set_trip(self._landmarks_xy(), config.start_xy_m, config.goal_xy_m)
         self.turns = TurnDetector(config.turn_detector)
         self.health = HealthMonitor(config.expected_rates_hz, config.health)
         dev = config.compass_deviation_deg
@@ -329,8 +336,11 @@ class Pipeline:
             out.accepted, out.reason = False, "non_finite_goal"
             return
         self.navigator.set_goal((goal.x_m, goal.y_m))
+        est_xy = (float(self.estimator.x[0]), float(self.estimator.x[1]))
+        self.chance.set_trip(self._landmarks_xy(), est_xy, (goal.x_m, goal.y_m))
         self.st.arrived = False
         self.st.finished = False
+        self.st.chance_said = False
         # a goal from the network is said as such: the driver hears who changed the route
         text = prompts.new_destination(remote=goal.source == "remote")
         self._say(out, goal.t_s, text, Priority.INFO, "info")
@@ -368,6 +378,27 @@ class Pipeline:
         if t >= self._next_state_t:
             self._next_state_t = t + self.config.state_period_s
             out.state = est.state()
+            self._chance(t, out, major)
+
+    def _chance(self, t: float, out: Outputs, major: float) -> None:
+        """The chance of reaching the goal, at each state publication; said once when low."""
+        est = self.estimator
+        goal = self.navigator.goal
+        to_go = math.hypot(goal[0] - float(est.x[0]), goal[1] - float(est.x[1]))
+        sigma = est.config.compass_two_sigma_deg
+        if self.compass_judge.unusable:
+            sigma = None  # the compass is not helping: the table's no-compass slice
+        quiet = self.st.lost_said or self.st.arrived or self.st.finished
+        text, self.st.chance_said = self.chance.update(
+            to_go, major, est.config.lost_major_axis_m, sigma,
+            said=self.st.chance_said, quiet=quiet,
+        )  # fmt: skip
+        out.chance = self.chance.value
+        if text is not None:
+            self._say(out, t, text, Priority.INFO, "chance")
+
+    def _landmarks_xy(self) -> list[tuple[float, float]]:
+        return [(lm.x_m, lm.y_m) for lm in self.navigator.landmarks]
 
     def _device_status(self, msg: DeviceStatus, out: Outputs) -> None:
         """A driver's status flip: its own sentence is what the driver hears ("Wheel speed bus

@@ -8,6 +8,7 @@ from collections.abc import Mapping
 from dataclasses import dataclass, field
 
 from guidance.config_tables import plain
+from guidance.core.chance import ChanceSettings
 from guidance.core.codec import InputMessage
 from guidance.core.estimator import EstimatorConfig
 from guidance.core.health import HealthConfig
@@ -62,6 +63,8 @@ class Outputs:
     health: list[HealthChange] = field(default_factory=list)
     state: EstimateState | None = None
     """The estimate, when a state publication is due (``state_period_s`` of message time)."""
+    chance: float | None = None
+    """With ``state``: the chance of reaching the goal from here (``guidance.core.chance``)."""
     arrived: bool = False
     lost: bool = False
 
@@ -98,6 +101,8 @@ class PipelineConfig:
     """Arrival ends guidance (a simulated trip); otherwise the car waits for a new goal."""
     resume_gap_inflation: bool = True
     """After an odometry silence, inflate the position by the distance possibly driven."""
+    chance: ChanceSettings = field(default_factory=ChanceSettings)
+    """The live chance of reaching the goal (``guidance.core.chance``)."""
 
     def describe(self) -> dict[str, object]:
         """Plain data for the recording's session record and the checkpoint's trip identity:

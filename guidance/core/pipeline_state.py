@@ -35,6 +35,7 @@ class PipelineState:
     finished: bool = False
     lost_said: bool = False
     uncertain_said: bool = False
+    chance_said: bool = False
 
     @classmethod
     def from_snapshot(cls, snap: Mapping[str, object]) -> PipelineState:

@@ -36,6 +36,8 @@ class OutputContext:
     mode: str | None = None
     origin_lat_lon_deg: Origin | None = None
     """The sink's: the local frame's WGS-84 origin (state messages then carry lat/lon)."""
+    chance: float | None = None
+    """The chance of reaching the goal (``guidance.core.chance``)."""
 
 
 @dataclass(frozen=True, slots=True)
@@ -87,7 +89,7 @@ class OutputKind:
 
 def _state(s: EstimateState, c: OutputContext, **env: Any) -> dict[str, Any]:
     return m.state_message(s, speed_mps=c.speed_mps, target=c.target, goal=c.goal,
-                           method=c.method, mode=c.mode,
+                           method=c.method, mode=c.mode, chance=c.chance,
                            origin_lat_lon_deg=c.origin_lat_lon_deg, **env)  # fmt: skip
 
 

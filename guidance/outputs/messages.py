@@ -122,6 +122,7 @@ def state_message(
     method: str | None = None,
     mode: str | None = None,
     origin_lat_lon_deg: Origin | None = None,
+    chance: float | None = None,
 ) -> dict[str, Any]:
     """The ``guidance.state`` message (docs/telemetry.md).
 
@@ -157,6 +158,7 @@ def state_message(
             "goal": _with_geo(goal_d, origin_lat_lon_deg),
             "method": None if method is None else str(method),
             "mode": mode,
+            "chance": None if chance is None else min(1.0, max(0.0, _num(chance) or 0.0)),
             "lost": bool(state.lost),
             "healthy": bool(state.healthy),
         }

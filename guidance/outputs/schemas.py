@@ -124,6 +124,13 @@ SCHEMAS: dict[str, dict[str, Any]] = {
             },
             "method": {"type": ["string", "null"]},
             "mode": {"type": ["string", "null"]},
+            "chance": {
+                "type": ["number", "null"],
+                "minimum": 0,
+                "maximum": 1,
+                "description": "chance of reaching the goal from here (the study engine's "
+                "table, guidance.core.chance); null: not computed",
+            },
             "lost": {"type": "boolean"},
             "healthy": {"type": "boolean"},
         },

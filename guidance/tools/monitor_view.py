@@ -24,6 +24,7 @@ from typing import TYPE_CHECKING, Any
 
 from rich.cells import cell_len
 
+from guidance.core.chance import shown
 from guidance.core.model import heading_to_compass
 from guidance.tools.monitor_check import MAX_NUMBER, message_problem
 
@@ -275,6 +276,7 @@ def car_row(car: CarView, now_s: float) -> dict[str, str]:
         "compass_deg": _fmt(_heading(s), ".0f"),
         "major_axis_m": _fmt((s.get("ellipse") or {}).get("major_axis_m"))
         + (" LOST" if s.get("lost") else ""),
+        "chance": shown(_num(s.get("chance"))),
         "target": (
             f"{plain(target.get('kind', '?'))} ({_fmt(tx, '.0f')}, {_fmt(ty, '.0f')})"
             if target
@@ -295,6 +297,7 @@ _COLUMNS = (
     ("y_m", "y m", False),
     ("compass_deg", "hdg °", False),
     ("major_axis_m", "major axis m", False),
+    ("chance", "chance", False),
     ("target", "target", False),
     ("distance_m", "to target m", False),
     ("age_s", "age s", False),
@@ -365,6 +368,8 @@ def car_lines(row: dict[str, str], width: int) -> list[str]:
         _unit("hdg", row["compass_deg"], "°"),
         _unit("axis", axis, " m") + (" LOST" if lost else ""),
     ]
+    if row["chance"] != "-":
+        fields.append(f"chance {row['chance']}")
     if row["target"] != "-":
         fields.append(f"to {row['target']}: " + _unit("", row["distance_m"], " m").strip())
     fields += [_unit("age", row["age_s"], " s"), f"health: {row['health']}"]

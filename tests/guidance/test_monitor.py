@@ -185,6 +185,7 @@ def awkward_fleet() -> FleetView:
     view = FleetView()
     s1 = state(1, -12345.678, 21.34, 1.0)
     s1["heading_rad"], s1["target"] = 0.3, {"x_m": 300.0, "y_m": 0.0, "kind": "goal", "id": None}
+    s1["chance"] = 0.42
     view.apply(event("state", "car1", **s1))
     view.apply(event("prompt", "car1", seq=1, t_s=1.0, text=HOSTILE_PROMPT))
     view.apply(
@@ -219,6 +220,7 @@ EXPECTED_FIELDS = (
     "y 21.3 m",
     "hdg 73°",  # 0.3 rad CCW from east
     "axis 10.0 m",
+    "chance 40 %",
     "to goal (300, 0): 12646 m",
     "age 2.5 s",
     "health: camera invalid, compass down (3 dropped)",
@@ -252,7 +254,17 @@ def test_wide_terminal_gets_the_table_with_whole_numbers() -> None:
     assert "clockwise from north" in text and "…" not in text
     car1 = next(line for line in text.splitlines() if line.startswith("│ car1"))
     cells = [c.strip() for c in car1.strip("│").split("│")]
-    assert cells[:8] == ["car1", "-12345.7", "21.3", "73", "10.0", "goal (300, 0)", "12646", "2.5"]
+    assert cells[:9] == [
+        "car1",
+        "-12345.7",
+        "21.3",
+        "73",
+        "10.0",
+        "40 %",
+        "goal (300, 0)",
+        "12646",
+        "2.5",
+    ]
     assert "[bold red]left[/]" in text and "\x1b" not in text
     # Narrower than the table needs: the per-car layout, not a squeezed table.
     narrow = rendered(awkward_fleet(), 120, True)

@@ -33,6 +33,7 @@ from drivers.evdev_keys import key_press_records
 from guidance.app.operator_view import OperatorView, compass_deg, uncertainty_text
 from guidance.app.run import co_driver_problem, run_car, stdin_problem
 from guidance.app.screen import OperatorScreen, render_rows
+from guidance.core import chance
 from guidance.core.estimator import EstimatorConfig
 from guidance.core.messages import (
     HeadingFix,
@@ -100,6 +101,13 @@ def test_view_of_a_drive_next_instruction_uncertainty_heading_exit_and_prompts()
     assert re.fullmatch(
         r"position good to about \d+ m \(2-sigma major axis \d+ m\)", rows["POSITION"]
     )
+    # the chance row is the pipeline's own value, as the table gives it for this car
+    assert p.chance.value is not None and p.chance.value > 0.5
+    assert rows["CHANCE"] == (
+        f"{chance.shown(p.chance.value)} chance of reaching the goal from here "
+        "(simulated cars like this one)"
+    )
+    assert chance.shown(p.chance.value) in view.status_line()
     prompt = time.strftime("%H:%M:%S", time.localtime(wall + 4.1))
     assert rows["PROMPT"] == f"{prompt} At the next intersection, turn left"  # wall clock
     turn = TurnCompleted(5.0, -math.pi / 2, source="co-driver")  # the driver went right
@@ -116,6 +124,26 @@ def test_view_of_a_drive_next_instruction_uncertainty_heading_exit_and_prompts()
     assert dict((lab, t) for lab, t, _ in rows_list)["NEXT"].startswith("waiting for the next")
     assert ("INPUT", "co-driver keypad /dev/x: connected", "ok") in rows_list
     assert "next: waiting for the next intersection" in view.status_line()
+
+
+def test_a_low_chance_is_flagged_and_none_after_arrival() -> None:
+    p = Pipeline(
+        PipelineConfig(
+            estimator=EstimatorConfig(compass_two_sigma_deg=45.0),
+            navigator=NavigatorConfig(method=Method.STRAIGHT_TO_GOAL),
+            start_xy_m=(0.0, 0.0),
+            goal_xy_m=(9000.0, 0.0),  # far, no landmarks, a poor compass
+            start_heading_rad=0.0,
+        )
+    )
+    view = OperatorView(vehicle_id="v1")
+    msg = WheelOdometry(0.1, 1.0, 1.0)
+    view.apply(msg, p.feed(msg), 1.0)
+    row = next(r for r in view.rows() if r[0] == "CHANCE")
+    assert row[2] == "warn" and row[1].startswith(chance.shown(p.chance.value))
+    assert p.chance.value is not None and p.chance.value < 0.5
+    view.arrived = True
+    assert not [r for r in view.rows() if r[0] == "CHANCE"]
 
 
 def test_uncertainty_and_heading_words() -> None:

@@ -155,6 +155,7 @@ def test_state_reaches_a_subscriber_with_the_documented_fields(car_port: int) ->
                 goal=(500.0, 200.0),
                 method="hybrid",
                 mode="landmark",
+                chance=0.73,
             ),
         )
         msg = wait_for(mon, lambda e: e.kind == "state").message
@@ -185,6 +186,7 @@ def test_state_reaches_a_subscriber_with_the_documented_fields(car_port: int) ->
         e, n, _u = pymap3d.geodetic2enu(point["lat_deg"], point["lon_deg"], 0.0, *origin, 0.0)
         assert (e, n) == (pytest.approx(x, abs=1e-3), pytest.approx(y, abs=1e-3))
     assert msg["heading_deg_true"] == pytest.approx(350.0)  # 100° CCW from east
+    assert msg["chance"] == 0.73
     assert (msg["method"], msg["mode"], msg["lost"], msg["healthy"]) == (
         "hybrid",
         "landmark",

@@ -326,7 +326,7 @@ while True:
                        Ellipse(10.0, 6.0, 0.4, 20.0), False, True)
     pubs["state"].put(encode(state_message(st, vehicle_id=vid, seq=seq, goal=(x0 + 400, 600.0),
                       target=Target(x0 + 400, 600.0, "goal", None),
-                      origin_lat_lon_deg=(48.85, 2.35))))
+                      origin_lat_lon_deg=(48.85, 2.35), chance=0.42 if x0 == 0 else 0.9)))
     if seq % 5 == 1:
         inputs = {"compass": Health("compass", "ok", True, True)}
         pubs["health"].put(encode(health_message(seq * 0.1, inputs, vehicle_id=vid,
@@ -370,6 +370,7 @@ def page_cars(driver: Any) -> dict[str, dict[str, Any]]:
                 card_text: card ? card.textContent : '',
                 dropped_text: dropped ? dropped.textContent : '',
                 dropped_title: dropped ? dropped.title : '',
+                chance_low: !!(card && card.querySelector('.chance.low')),
               };
             }
             return out;
@@ -414,6 +415,10 @@ def test_three_cars_one_killed_stable_colours_readable_gone_card_and_visible_ell
                 assert "2σ 20 m (not to scale)" in car["label"], car
                 assert "health: ok" in car["card_text"], car
             assert len({c["colour"] for c in first.values()}) == 3
+            # the chance of reaching the goal, as each car published it; a low one flagged
+            assert "chance of reaching the goal 40 %" in first["alpha"]["card_text"]
+            assert first["alpha"]["chance_low"] and not first["charlie"]["chance_low"]
+            assert "chance of reaching the goal 90 %" in first["charlie"]["card_text"]
             alpha = first["alpha"]  # "(31 dropped)" explained where it is shown
             assert alpha["dropped_text"].startswith("31 telemetry messages not sent by the car")
             assert "replaced by a newer one" in alpha["dropped_text"]

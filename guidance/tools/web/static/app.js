@@ -238,6 +238,12 @@ function drawCar(c, p, parent) {
   el("text", { class: "label", x: px + 8, y: py - 8, fill: col }, g).textContent = name + sigma;
 }
 
+function chanceText(p) {  // guidance.core.chance.shown: 5 % steps, never "0 %" or "100 %"
+  if (p < 0.05) return "<5 %";
+  if (p > 0.95) return ">95 %";
+  return `${Math.round(p * 20) * 5} %`;
+}
+
 function fmt(v, digits, unit) {
   const n = num(v);
   return n === null ? "–" : `${n.toFixed(digits)}${unit}`;
@@ -262,6 +268,12 @@ function drawCard(c, ul) {
   if (goal && at) {
     const d = Math.hypot(goal[0] - at[0], goal[1] - at[1]);
     html("div", "goal-text", `to goal (${goal[0].toFixed(0)}, ${goal[1].toFixed(0)}): ${d.toFixed(0)} m`, li);
+  }
+  const ch = num(s.chance);
+  if (ch !== null && ch >= 0 && ch <= 1) {
+    const line = html("div", ch < 0.5 ? "chance low" : "chance", `chance of reaching the goal ${chanceText(ch)}`, li);
+    line.title = "From the study engine's table for this car's method, landmarks, camera and " +
+      "compass, the distance to go and the 2σ axis: the share of simulated cars like it that arrive.";
   }
   if (s.target && s.target.kind === "landmark") html("div", "target-text", `target: landmark ${s.target.id}`, li);
   html("div", "age", `age ${fmt(c.age_s, 1, " s")}`, li);
