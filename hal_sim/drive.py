@@ -34,6 +34,7 @@ from guidance.app.app import App
 from guidance.app.build import OpenOutputs, open_outputs, session_record
 from guidance.app.checkpoint import Checkpointer, load_checkpoint, set_aside
 from guidance.app.magnetic import declination_deg
+from guidance.core.chance import ChanceSettings
 from guidance.core.messages import GoalUpdate
 from guidance.core.model import heading_to_compass
 from guidance.core.navigator import Landmark, Method, NavigatorConfig
@@ -115,10 +116,12 @@ class SimDrive:
         self.prompt_log: list[tuple[float, str]] = []
         self.health_warnings: list[str] = []
         self.goals_reached = 0
+        self.chances: list[float] = []
+        """The car's chance of reaching the goal, with each state it published."""
         self.expect_odo = self.expect_heading = self.expect_lines = 0
         self.last_can_t: float | None = None
         self.next_track_t = self.next_frame_t = world.t_s
-        self.next_ellipse_m = self.pipeline.odometer_m
+        self.next_ellipse_m = self.pipeline.st.odometer_m
         self.next_progress_t = 0.0
         self.pace0 = (time.monotonic(), world.t_s)
 
@@ -159,10 +162,10 @@ class SimDrive:
         ):
             raise UserError("the simulated compass pty did not open")
         p, world = self.pipeline, self.world
-        outcome = self._end_state() if p.finished else "timeout"
+        outcome = self._end_state() if p.st.finished else "timeout"
         self.pace0 = (time.monotonic(), world.t_s)
         first_step = world.step_count
-        while not p.finished:
+        while not p.st.finished:
             if stop_signal.is_set():
                 return "stopped"
             ev = world.step()
@@ -172,7 +175,7 @@ class SimDrive:
             await self._send_compass(ev)
             await self._landmark(ev)
             self._tick(ev.t_s)
-            if p.finished:
+            if p.st.finished:
                 return self._end_state()
             self._progress(ev.t_s)
             if await self._field_protocol(ev.t_s):
@@ -194,7 +197,7 @@ class SimDrive:
         app.feed(GoalUpdate(self.world.t_s, x_m, y_m, "remote"))
 
     def _end_state(self) -> str:
-        return "arrived" if self.pipeline.arrived else "lost"
+        return "arrived" if self.pipeline.st.arrived else "lost"
 
     # -- one step -------------------------------------------------------------------------------
     async def _send_wheels(self, ev: StepEvents) -> None:
@@ -260,9 +263,9 @@ class SimDrive:
         if t >= self.next_track_t:
             self.next_track_t = t + TRACK_EVERY_S
             self._track_point()
-            trace.axis.append((p.odometer_m, p.estimator.major_axis_m))
-        if p.odometer_m >= self.next_ellipse_m:
-            self.next_ellipse_m = p.odometer_m + ELLIPSE_EVERY_M
+            trace.axis.append((p.st.odometer_m, p.estimator.major_axis_m))
+        if p.st.odometer_m >= self.next_ellipse_m:
+            self.next_ellipse_m = p.st.odometer_m + ELLIPSE_EVERY_M
             x, P = p.estimator.x, p.estimator.P
             trace.ellipses.append((float(x[0]), float(x[1]), P[:2, :2].tolist()))
 
@@ -281,7 +284,7 @@ class SimDrive:
         """SPEC 5: on arrival a new random goal; True once the time limit is reached."""
         if not self.field_protocol:
             return False
-        if self.pipeline.arrived:
+        if self.pipeline.st.arrived:
             self.goals_reached += 1
             self.world.new_goal()
             gx, gy = self.world.goal_xy
@@ -328,11 +331,13 @@ class SimDrive:
             st = h.status
             if not (st.alive and st.valid):
                 self.health_warnings.append(f"{h.t_s:.1f} s {st.name}: {st.detail}")
+        if out.chance is not None:
+            self.chances.append(out.chance)
         p = self.pipeline
         for fix in out.landmark_updates:
             x = p.estimator.x
-            self.trace.fixes.append((p.odometer_m, float(x[0]), float(x[1]), fix.landmark_id))
-            self.trace.axis.append((p.odometer_m, p.estimator.major_axis_m))
+            self.trace.fixes.append((p.st.odometer_m, float(x[0]), float(x[1]), fix.landmark_id))
+            self.trace.axis.append((p.st.odometer_m, p.estimator.major_axis_m))
 
     # -- building -------------------------------------------------------------------------------
     def _build_app(self) -> None:
@@ -405,8 +410,8 @@ class SimDrive:
             outcome=outcome,
             driven_km=world.driven_m / 1000.0,
             final_error_m=math.hypot(tx - float(x[0]), ty - float(x[1])),
-            prompts=self.pipeline.prompt_count,
-            landmark_updates=self.pipeline.landmark_updates,
+            prompts=self.pipeline.st.prompt_count,
+            landmark_updates=self.pipeline.st.landmark_updates,
             decisions=self.pipeline.navigator.decisions,
             png=png,
             sim_s=world.t_s,
@@ -421,6 +426,8 @@ class SimDrive:
             loop_lag_p99_ms=lag_ms["loop_lag_p99_ms"],
             loop_lag_ms=lag_ms,
             goals_reached=self.goals_reached,
+            chance_at_start=self.chances[0] if self.chances else None,
+            lowest_chance=min(self.chances) if self.chances else None,
             frames_sent=self.dev.wheels.frames_sent,
             compass_lines=self.dev.pty.sentences_written if self.dev.pty is not None else 0,
         )
@@ -465,6 +472,11 @@ def drive_pipeline_config(
         "compass_deviation_deg": (),
         "expected_rates_hz": rates,
         "stop_at_arrival": opts.duration_s is None,
+        # the car knows its matcher's recall: the world's detection rate
+        "chance": replace(
+            base.chance if base is not None else ChanceSettings(),
+            detection_rate=opts.detection_rate,
+        ),
     }
     if base is None:
         return PipelineConfig(**world_fields)

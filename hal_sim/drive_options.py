@@ -95,6 +95,9 @@ class DriveResult:
     loop_lag_p99_ms: float | None = None
     loop_lag_ms: dict[str, float | None] = field(default_factory=dict)
     goals_reached: int = 0
+    chance_at_start: float | None = None
+    """The car's first published chance of reaching the goal (``guidance.core.chance``)."""
+    lowest_chance: float | None = None
     frames_sent: int = 0
     compass_lines: int = 0
 
@@ -117,7 +120,13 @@ class DriveResult:
             "health_warnings": self.health_warnings,
             "loop_lag_p99_ms": self.loop_lag_p99_ms,
             "goals_reached": self.goals_reached,
+            "chance_at_start": _round(self.chance_at_start),
+            "lowest_chance": _round(self.lowest_chance),
         }
+
+
+def _round(v: float | None) -> float | None:
+    return None if v is None else round(v, 4)
 
 
 def options_from_config(path: str, opts: DriveOptions) -> tuple[DriveOptions, Any]:

@@ -130,8 +130,8 @@ def guided_drive(
         pipeline.tick(t)
         if world.step_count % TRUTH_EVERY == 0:
             _sample(trip, world.truth, t, pipeline)
-        if pipeline.finished:
-            trip.outcome = "arrived" if pipeline.arrived else "lost"
+        if pipeline.st.finished:
+            trip.outcome = "arrived" if pipeline.st.arrived else "lost"
             break
         if world.driven_m >= cap:
             break

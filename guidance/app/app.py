@@ -256,7 +256,7 @@ class App:
         p = self.pipeline
         context = NO_CONTEXT
         if out.state is not None:
-            context = OutputContext(speed_mps=p.speed_mps, target=p.target(),
+            context = OutputContext(speed_mps=p.st.speed_mps, target=p.target(),
                                     goal=p.navigator.goal, method=self.method,
                                     mode=p.navigator.mode, chance=out.chance)  # fmt: skip
         batch = [

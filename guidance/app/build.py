@@ -176,7 +176,7 @@ def resume_from_checkpoint(
     except SnapshotError as exc:
         set_aside(where, f"invalid state: {exc}")
         return "invalid"
-    spread = pipeline.speed_mps * age_s
+    spread = pipeline.st.speed_mps * age_s
     pipeline.estimator.inflate_position(spread)
     log.warning(
         "resumed from checkpoint %s written %.1f s ago; position widened by %.0f m",

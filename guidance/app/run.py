@@ -276,7 +276,7 @@ async def _keep_learned(cfg: Any, pipeline: Any, before: Any, stop: asyncio.Even
         except TimeoutError:
             pass
         params = LearnedParams.from_estimator(
-            pipeline.estimator, cfg.vehicle_id, time.time(), pipeline.odometer_m, before
+            pipeline.estimator, cfg.vehicle_id, time.time(), pipeline.st.odometer_m, before
         )
         if params is None:
             return  # the paper model learns nothing
@@ -294,7 +294,7 @@ def _save_learned(cfg: Any, pipeline: Any, before: Any) -> None:
         return
     try:
         save_after(pipeline.estimator, Path(cfg.checkpoint.learned_path), cfg.vehicle_id,
-                   time.time(), pipeline.odometer_m, before)  # fmt: skip
+                   time.time(), pipeline.st.odometer_m, before)  # fmt: skip
     except OSError as exc:
         log.error("learned parameters not saved to %s: %s", cfg.checkpoint.learned_path, exc)
 

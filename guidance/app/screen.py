@@ -350,8 +350,8 @@ class Operator:
             lambda v: v.set_live(
                 inputs=inputs,
                 target=target,
-                heading_known=p.heading_known,
-                speed_mps=p.speed_mps,
+                heading_known=p.st.heading_known,
+                speed_mps=p.st.speed_mps,
                 co_driver=desc,
                 co_driver_ok=ok,
             )

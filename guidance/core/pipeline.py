@@ -50,7 +50,7 @@ from guidance.core.messages import (
 from guidance.core.navigator import Decision, Navigator
 from guidance.core.odometry_gap import dead_reckon
 from guidance.core.pipeline_config import INPUT_KINDS, Input, Outputs, PipelineConfig
-from guidance.core.pipeline_state import PipelineState, _InState
+from guidance.core.pipeline_state import PipelineState, Transient
 from guidance.core.snapshot_check import check_snapshot, integer
 from guidance.core.turns import TurnDetector
 
@@ -82,14 +82,6 @@ it comes: a stale estimate with a tight ellipse would put the truth outside it."
 class Pipeline:
     """Estimator + navigator + turn detector + health, driven by messages (see module doc)."""
 
-    heading_known = _InState[bool]()
-    odometer_m = _InState[float]()
-    speed_mps = _InState[float]()
-    landmark_updates = _InState[int]()
-    prompt_count = _InState[int]()
-    arrived = _InState[bool]()
-    finished = _InState[bool]()
-
     def __init__(self, config: PipelineConfig) -> None:
         self.config = config
         heading = config.start_heading_rad
@@ -97,15 +89,7 @@ class Pipeline:
             config.estimator, config.start_xy_m[0], config.start_xy_m[1], heading or 0.0
         )
         self.st = PipelineState(heading_known=heading is not None)
-        self._waiting_said = False
-        self._warned: set[str] = set()
-        self._landmark_said: dict[int, float] = {}
-        """Inputs the driver has been warned about (by the pipeline or in the driver's words)."""
-        self._held_odometry: WheelOdometry | None = None
-        self._dr_to_t: float | None = None
-        """Dead reckoning through an odometry gap: the time it has reached (None: no gap)..."""
-        self._dr_m = 0.0
-        """...and the distance it has moved the estimate."""
+        self.tr = Transient()
         if not self.st.heading_known:
             self.estimator.forget_heading()
         self.navigator = Navigator(config.goal_xy_m, config.navigator, config.landmarks)
@@ -124,11 +108,9 @@ class Pipeline:
             calibrated=self._deviation is not None or config.mounting_offset_deg != 0.0,
         )
         self.counts: Counter[str] = Counter()
-        self.guide = Guide(config, self.navigator, self._say, self.counts, lambda: self.speed_mps)
-        self._last_t: float | None = None
-        self._last_odo_t: float | None = None
-        self._next_state_t = -math.inf
-        self._next_health_t = -math.inf
+        self.guide = Guide(
+            config, self.navigator, self._say, self.counts, lambda: self.st.speed_mps
+        )
 
     # -- the one entry point ----------------------------------------------------------------
     def feed(self, msg: Input) -> Outputs:
@@ -142,8 +124,8 @@ class Pipeline:
         kind = INPUT_KINDS.get(type(msg), "other")
         self.counts[type(msg).__name__] += 1
         self.health.observe(kind, t)
-        if self._last_t is None or t > self._last_t:
-            self._last_t = t
+        if self.tr.last_t is None or t > self.tr.last_t:
+            self.tr.last_t = t
         if isinstance(msg, CompassHeading | HeadingFix) and not self.st.finished:
             self._dead_reckon(t, out)
         if isinstance(msg, GoalUpdate):
@@ -190,11 +172,11 @@ class Pipeline:
         return HeadingFix(msg.t_s, theta)
 
     def _odometry(self, msg: WheelOdometry, out: Outputs) -> None:
-        held, self._held_odometry = self._held_odometry, None
-        gap = None if self._last_odo_t is None else msg.t_s - self._last_odo_t
+        held, self.tr.held_odometry = self.tr.held_odometry, None
+        gap = None if self.tr.last_odo_t is None else msg.t_s - self.tr.last_odo_t
         if held is not None:
             if msg.t_s >= held.t_s:  # the new time base holds: the gap was real
-                self._odometry_step(held, held.t_s - (self._last_odo_t or held.t_s), out)
+                self._odometry_step(held, held.t_s - (self.tr.last_odo_t or held.t_s), out)
                 gap = msg.t_s - held.t_s
             else:  # back before it: the frame ahead was a clock glitch, not a gap
                 self.counts["time_glitch_dropped"] += 1
@@ -203,7 +185,7 @@ class Pipeline:
         elif gap is not None and gap > max(GAP_HOLD_S, self.health.timeout_s("odometry")):
             # After a long silence, wait for the next increment to confirm the new time
             # (an adapter glitch stamps a frame an hour ahead): one increment of latency.
-            self._held_odometry = msg
+            self.tr.held_odometry = msg
             out.accepted, out.reason = False, "held_after_gap"
             return
         self._odometry_step(msg, gap, out)
@@ -217,7 +199,7 @@ class Pipeline:
         # (the increment after it covers one frame, not the gap). Within it, the increment
         # covers the gap, so what dead reckoning already moved comes off it.
         long_gap = self.config.resume_gap_inflation and gap is not None and gap > timeout
-        ahead_m = self._dr_m
+        ahead_m = self.tr.dr_m
         if long_gap:
             self._dead_reckon(msg.t_s, None)
         elif ahead_m > 0.0:
@@ -230,14 +212,14 @@ class Pipeline:
         if gap is not None and gap > 0:
             if long_gap:
                 log.warning("odometry resumed after %.1f s: dead-reckoned %.0f m at %.1f m/s",
-                            gap, self._dr_m, self.st.speed_mps)  # fmt: skip
+                            gap, self.tr.dr_m, self.st.speed_mps)  # fmt: skip
                 self.counts["odometry_gaps"] += 1
             else:
                 self.st.speed_mps = abs(d_wheels) / gap
         if not long_gap:
             self.st.odometer_m = max(0.0, self.st.odometer_m - ahead_m)
-        self._dr_to_t, self._dr_m = None, 0.0
-        self._last_odo_t = msg.t_s
+        self.tr.dr_to_t, self.tr.dr_m = None, 0.0
+        self.tr.last_odo_t = msg.t_s
         self.st.odometer_m += abs(d_wheels)
         turn = self.turns.update(msg.t_s, est.heading_rad, self.st.odometer_m)
         if turn is not None:
@@ -250,13 +232,13 @@ class Pipeline:
         estimate moves on at the last speed along its heading, widened along the road by what
         the car could have gained or lost (``guidance.core.odometry_gap``), up to ``t``. Called
         at each compass reading in the silence and when odometry resumes."""
-        last = self._last_odo_t
+        last = self.tr.last_odo_t
         rate = self.health.expected.get("odometry")
         if last is None or not rate or not self.config.resume_gap_inflation:
             return
         if not self.st.heading_known or t - last <= max(DR_AFTER_S, DR_AFTER_PERIODS / rate):
             return
-        start = last if self._dr_to_t is None else self._dr_to_t
+        start = last if self.tr.dr_to_t is None else self.tr.dr_to_t
         if t <= start:
             return
         est = self.estimator
@@ -264,8 +246,8 @@ class Pipeline:
         est.set_state(x, P)
         moved = abs(self.st.speed_mps) * (t - start)
         self.st.odometer_m += moved
-        self._dr_m += moved
-        self._dr_to_t = t
+        self.tr.dr_m += moved
+        self.tr.dr_to_t = t
         if out is not None:  # the intersections ahead move on with it (announcements due)
             self.guide.step(t, est, self.st.odometer_m, None, out)
 
@@ -298,9 +280,9 @@ class Pipeline:
             out.landmark_updates.append(fix)
             self.navigator.on_landmark_fix(fix.landmark_id, self.estimator.major_axis_m)
             name = next((lm.name for lm in self.config.landmarks if lm.id == fix.landmark_id), "")
-            last = self._landmark_said.get(fix.landmark_id, -math.inf)
+            last = self.st.landmark_said.get(str(fix.landmark_id), -math.inf)
             if fix.t_s - last >= LANDMARK_REPEAT_S:  # a second fix from the same pass: silent
-                self._landmark_said[fix.landmark_id] = fix.t_s
+                self.st.landmark_said[str(fix.landmark_id)] = fix.t_s
                 self._say(out, fix.t_s, prompts.landmark_confirmed(name), Priority.INFO, "landmark")
             self._after_step(fix.t_s, out, mode_done=True)
             self.guide.replan(fix.t_s, self.estimator, self.st.odometer_m, out)
@@ -315,8 +297,8 @@ class Pipeline:
         if not self.st.heading_known:  # no advice out of a heading the car does not have
             out.accepted, out.reason = False, "heading_unknown"
             self.counts["advice_withheld"] += 1
-            if not self._waiting_said:
-                self._waiting_said = True
+            if not self.st.waiting_said:
+                self.st.waiting_said = True
                 self._say(out, scene.t_s, prompts.waiting_for_heading(), Priority.SAFETY, "info")
             return
         self.guide.report(scene, self.estimator, self.st.odometer_m, out)
@@ -375,8 +357,8 @@ class Pipeline:
             self._say(out, t, prompts.arrived(), Priority.GUIDANCE, "arrived")
             if self.config.stop_at_arrival:
                 self.st.finished = True
-        if t >= self._next_state_t:
-            self._next_state_t = t + self.config.state_period_s
+        if t >= self.tr.next_state_t:
+            self.tr.next_state_t = t + self.config.state_period_s
             out.state = est.state()
             self._chance(t, out, major)
 
@@ -404,8 +386,8 @@ class Pipeline:
         """A driver's status flip: its own sentence is what the driver hears ("Wheel speed bus
         disconnected. Position is getting less certain."), once per flip to bad."""
         went_bad = self.health.report(msg)
-        if went_bad and msg.health.warning and msg.input not in self._warned:
-            self._warned.add(msg.input)
+        if went_bad and msg.health.warning and msg.input not in self.st.warned:
+            self.st.warned.append(msg.input)
             self._say(out, msg.t_s, msg.health.warning, Priority.SAFETY, "sensor")
         self._health(msg.t_s, out, force=True)
 
@@ -421,21 +403,22 @@ class Pipeline:
         out.prompts.append(Prompt(t, text, priority, kind))
 
     def _health(self, t: float, out: Outputs, force: bool) -> None:
-        if not force and t < self._next_health_t:
+        if not force and t < self.tr.next_health_t:
             return
-        self._next_health_t = t + HEALTH_EVAL_PERIOD_S
+        self.tr.next_health_t = t + HEALTH_EVAL_PERIOD_S
         for change in self.health.evaluate(t):
             out.health.append(change)
             st = change.status
             if st.alive and st.valid:
-                self._warned.discard(st.name)
+                if st.name in self.st.warned:
+                    self.st.warned.remove(st.name)
                 log.warning("%s is back (%.1f Hz)", st.name, st.rate_hz)
                 continue
             problem = "is silent" if not st.alive else "sends garbage"
             log.warning("%s %s: %s", st.name, problem, st.detail)
-            if st.name in self._warned:
+            if st.name in self.st.warned:
                 continue  # one warning per input and episode (its driver may have said it)
-            self._warned.add(st.name)
+            self.st.warned.append(st.name)
             text = prompts.sensor_warning(st.name, problem)
             if st.name == "compass" and st.alive and self.compass_judge.unusable:
                 text = prompts.compass_unusable(self.compass_judge.reason)
@@ -444,7 +427,7 @@ class Pipeline:
     # -- views ----------------------------------------------------------------------------------
     @property
     def t_s(self) -> float | None:
-        return self._last_t
+        return self.tr.last_t
 
     def state(self) -> EstimateState:
         return self.estimator.state()
@@ -516,7 +499,10 @@ class Pipeline:
         self.estimator.restore(  # the estimator's time order survives a same-clock restart
             np.asarray(snap["x"], dtype=float), np.asarray(snap["P"], dtype=float), same_t
         )
+        if not same_clock:
+            st.landmark_said.clear()  # message times of another clock
         self.st = st
+        self.tr = Transient()
         nav = snap["navigator"]
         assert isinstance(nav, dict)
         self.navigator.restore(nav)
@@ -532,5 +518,5 @@ class Pipeline:
         if isinstance(guide, dict):
             self.guide.restore(guide)
         if isinstance(last, int | float):
-            self._last_t = float(last)
-            self._last_odo_t = float(last)
+            self.tr.last_t = float(last)
+            self.tr.last_odo_t = float(last)

@@ -1,13 +1,13 @@
-"""The pipeline's own bookkeeping as a dataclass, so a checkpoint is mechanical (``asdict`` out,
-field by field back in), and the descriptor that keeps ``pipeline.odometer_m`` and friends as
-plain attributes for their readers (ARCHITECTURE.md change 5)."""
+"""The pipeline's own bookkeeping as data (ARCHITECTURE-2.md change 5): ``PipelineState`` is
+everything a checkpoint carries (``asdict`` out, field by field back in, each checked by its
+type), ``Transient`` what a restart rightly forgets. Readers use ``pipeline.st.odometer_m``."""
 
 from __future__ import annotations
 
 from collections.abc import Mapping
-from dataclasses import dataclass, fields
-from typing import TYPE_CHECKING, Generic, TypeVar, overload
+from dataclasses import dataclass, field, fields
 
+from guidance.core.messages import WheelOdometry
 from guidance.core.snapshot_check import (
     MAX_ODOMETER_M,
     MAX_SPEED_MPS,
@@ -16,8 +16,9 @@ from guidance.core.snapshot_check import (
     number,
 )
 
-if TYPE_CHECKING:
-    from guidance.core.pipeline import Pipeline
+MAX_WARNED = 64
+"""Inputs the driver may have been warned about (a checkpoint's list is refused beyond)."""
+MAX_LANDMARKS_SAID = 100_000
 
 
 @dataclass(slots=True)
@@ -36,6 +37,13 @@ class PipelineState:
     lost_said: bool = False
     uncertain_said: bool = False
     chance_said: bool = False
+    waiting_said: bool = False
+    """"Waiting for the first odometry" has been said."""
+    warned: list[str] = field(default_factory=list)
+    """Inputs the driver has been warned about (by the pipeline or in the driver's words)."""
+    landmark_said: dict[str, float] = field(default_factory=dict)
+    """Landmark id (as text: JSON's keys) -> message time its name was last said. Message
+    times: a restore on another clock forgets them (``Pipeline.restore``)."""
 
     @classmethod
     def from_snapshot(cls, snap: Mapping[str, object]) -> PipelineState:
@@ -48,7 +56,11 @@ class PipelineState:
                 continue
             v = snap[f.name]
             default = getattr(out, f.name)
-            if isinstance(default, bool):
+            if isinstance(default, list):
+                v = _names(v, f.name)
+            elif isinstance(default, dict):
+                v = _times(v, f.name)
+            elif isinstance(default, bool):
                 if not isinstance(v, bool):
                     raise SnapshotError(f"{f.name} must be true or false, not {type(v).__name__}")
             elif isinstance(default, int):
@@ -64,24 +76,38 @@ _BOUNDS = {"odometer_m": (0.0, MAX_ODOMETER_M), "speed_mps": (-MAX_SPEED_MPS, MA
 MAX_NUMBER = 1e12
 
 
-V = TypeVar("V")
+def _names(v: object, name: str) -> list[str]:
+    if not isinstance(v, list) or len(v) > MAX_WARNED:
+        raise SnapshotError(f"{name} must be a list of at most {MAX_WARNED} names")
+    if not all(isinstance(x, str) and 0 < len(x) <= 64 for x in v):
+        raise SnapshotError(f"{name} must hold input names (text of 1-64 characters)")
+    return sorted(set(v))
 
 
-class _InState(Generic[V]):
-    """A public Pipeline attribute kept in its ``PipelineState`` (``pipeline.odometer_m``)."""
+def _times(v: object, name: str) -> dict[str, float]:
+    if not isinstance(v, Mapping) or len(v) > MAX_LANDMARKS_SAID:
+        raise SnapshotError(f"{name} must be a table of at most {MAX_LANDMARKS_SAID} entries")
+    out = {}
+    for k, t in v.items():
+        if not isinstance(k, str) or not k.lstrip("-").isdigit() or len(k) > 20:
+            raise SnapshotError(f"{name}: {k!r} is not a landmark id")
+        out[k] = number(t, f"{name}[{k}]", -MAX_NUMBER, MAX_NUMBER)
+    return out
 
-    def __set_name__(self, owner: type, name: str) -> None:
-        self.name = name
 
-    @overload
-    def __get__(self, obj: None, objtype: type | None = None) -> _InState[V]: ...
-    @overload
-    def __get__(self, obj: Pipeline, objtype: type | None = None) -> V: ...
-    def __get__(self, obj: Pipeline | None, objtype: type | None = None) -> V | _InState[V]:
-        if obj is None:
-            return self
-        value: V = getattr(obj.st, self.name)
-        return value
+@dataclass(slots=True)
+class Transient:
+    """What a restart rightly forgets (not in a checkpoint): an odometry message held back for
+    the reorder window, the dead reckoning through a gap, the input times (``restore`` sets
+    them again from the estimator's time on the same clock) and when the next state and
+    health evaluations are due."""
 
-    def __set__(self, obj: Pipeline, value: V) -> None:
-        setattr(obj.st, self.name, value)
+    held_odometry: WheelOdometry | None = None
+    dr_to_t: float | None = None
+    """Dead reckoning through an odometry gap: the time it has reached (None: no gap)..."""
+    dr_m: float = 0.0
+    """...and the distance it has moved the estimate."""
+    last_t: float | None = None
+    last_odo_t: float | None = None
+    next_state_t: float = float("-inf")
+    next_health_t: float = float("-inf")

@@ -185,16 +185,16 @@ def replay(
         if on_output is not None:
             on_output(msg, out)
     st = pipeline.state()
-    res.odometer_m = pipeline.odometer_m
-    res.landmark_updates = pipeline.landmark_updates
+    res.odometer_m = pipeline.st.odometer_m
+    res.landmark_updates = pipeline.st.landmark_updates
     res.final = {
         "t_s": st.t_s,
         "x_m": st.x_m,
         "y_m": st.y_m,
         "heading_rad": st.heading_rad,
         "major_axis_m": st.ellipse.major_axis_m,
-        "odometer_m": pipeline.odometer_m,
-        "arrived": pipeline.arrived,
+        "odometer_m": pipeline.st.odometer_m,
+        "arrived": pipeline.st.arrived,
         "lost": st.lost,
     }
     return res

@@ -89,8 +89,8 @@ def test_view_of_a_drive_next_instruction_uncertainty_heading_exit_and_prompts()
     view.set_live(
         inputs=p.statuses(4.1),
         target=p.target(),
-        heading_known=p.heading_known,
-        speed_mps=p.speed_mps,
+        heading_known=p.st.heading_known,
+        speed_mps=p.st.speed_mps,
         co_driver="keypad /dev/x: connected",
         co_driver_ok=True,
     )

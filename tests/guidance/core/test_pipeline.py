@@ -55,7 +55,7 @@ def test_goal_update_and_arrival(make_pipeline: Callable[..., Pipeline]) -> None
         arrived += [pr.text for pr in out.prompts if pr.kind == "arrived"]
     assert arrived == ["You have arrived at your destination"]
     out = p.feed(GoalUpdate(4.1, 500.0, 0.0))
-    assert out.prompts[0].text == "New destination set" and not p.arrived
+    assert out.prompts[0].text == "New destination set" and not p.st.arrived
     out = p.feed(GoalUpdate(4.2, 600.0, 0.0, "remote"))  # from the network: said as such
     assert out.prompts[0].text == "New destination set remotely"
 
@@ -127,7 +127,7 @@ def test_restore_after_a_reboot_does_not_carry_the_old_clock(
     rebooted = make_pipeline()
     rebooted.restore(snap, same_clock=False)
     assert rebooted.feed(WheelOdometry(5.0, 1.0, 1.0)).accepted
-    assert rebooted.odometer_m == pytest.approx(31.0)
+    assert rebooted.st.odometer_m == pytest.approx(31.0)
     same = make_pipeline()
     same.restore(snap)
     assert same.feed(WheelOdometry(5.0, 1.0, 1.0)).reason == "out_of_order"
@@ -144,6 +144,10 @@ def test_restore_after_a_reboot_does_not_carry_the_old_clock(
         ("prompt_count", -1, "prompt_count is outside"),
         ("odometer_m", 1e300, "odometer_m must be a finite number >= 0 and <= 1e\\+08"),
         ("speed_mps", float("nan"), "speed_mps must be a finite number"),
+        ("warned", "compass", "warned must be a list"),
+        ("warned", ["x" * 65], "warned must hold input names"),
+        ("landmark_said", {"town hall": 1.0}, "is not a landmark id"),
+        ("landmark_said", {"4": float("inf")}, "landmark_said\\[4\\] must be a finite number"),
     ],
 )
 def test_a_checkpoint_with_a_bad_state_field_is_refused_and_nothing_changes(
@@ -157,7 +161,33 @@ def test_a_checkpoint_with_a_bad_state_field_is_refused_and_nothing_changes(
         a.feed(WheelOdometry(0.1 * (k + 1), 1.0, 1.0))
     snap = {**a.snapshot(), key: value}
     b = make_pipeline()
-    before = (b.estimator.x.copy(), b.odometer_m)
+    before = (b.estimator.x.copy(), b.st.odometer_m)
     with pytest.raises(SnapshotError, match=message):
         b.restore(snap)
-    assert np.array_equal(b.estimator.x, before[0]) and b.odometer_m == before[1]
+    assert np.array_equal(b.estimator.x, before[0]) and b.st.odometer_m == before[1]
+
+
+def test_the_whole_state_is_in_the_checkpoint_and_what_a_restart_forgets_is_named(
+    make_pipeline: Callable[..., Pipeline],
+) -> None:
+    """ARCHITECTURE-2 change 5: the warnings said, the landmark names said (with their message
+    times) and the waiting notice are checkpointed; the transient part is a ``Transient``."""
+    from dataclasses import asdict
+
+    from guidance.core.pipeline_state import PipelineState, Transient
+
+    a = make_pipeline()
+    for k in range(10):
+        a.feed(WheelOdometry(0.1 * (k + 1), 1.0, 1.0))
+    a.st.warned.append("compass")
+    a.st.landmark_said["4"] = 0.5
+    snap = a.snapshot()
+    assert {f: snap[f] for f in asdict(a.st)} == asdict(a.st)
+    same = make_pipeline()
+    same.restore(snap)
+    assert same.st == a.st and same.st.warned == ["compass"]
+    rebooted = make_pipeline()
+    rebooted.restore(snap, same_clock=False)
+    assert rebooted.st.landmark_said == {} and rebooted.st.warned == ["compass"]
+    assert isinstance(rebooted.tr, Transient) and rebooted.tr.held_odometry is None
+    assert PipelineState.from_snapshot(snap) == a.st

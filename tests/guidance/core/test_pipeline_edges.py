@@ -50,7 +50,7 @@ def test_a_5_s_dropout_at_11_mps_is_dead_reckoned_along_the_road_not_widened_as_
     assert along == pytest.approx(0.5 * GAP_ACCEL_MPS2 * 5.05**2, rel=0.1)  # 38 m, not 92 m
     assert across < 0.3 * along
     assert p.estimator.major_axis_m < 100.0  # not lost
-    assert math.isclose(p.speed_mps, 11.0, rel_tol=0.01)  # the speed before the gap is kept
+    assert math.isclose(p.st.speed_mps, 11.0, rel_tol=0.01)  # the speed before the gap is kept
 
 
 def test_without_a_compass_a_dropout_widens_across_too_but_the_car_is_not_lost() -> None:
