@@ -100,3 +100,35 @@ def test_a_small_chance_study_writes_a_table_the_car_reads(tmp_path) -> None:  #
     assert cal["drives"] == chance.CALIBRATION_DRIVES and len(cal["deciles"]) == 10
     assert summary["provenance"]["versions"]["numba"]
     assert (tmp_path / "c" / "fig_chance.png").stat().st_size > 10_000
+
+
+def test_the_cars_published_chance_against_what_its_drives_then_did(tmp_path) -> None:  # type: ignore[no-untyped-def]
+    """The number the car publishes, through the full in-car stack (``guidance sim``), against
+    the outcome of the drive: 12 drives over conditions from hopeless (no compass, far goal) to
+    easy (a good compass, landmarks, a near goal). benchmarks/chance_in_car.py runs 200."""
+    from hal_sim.drive import run_drive
+    from hal_sim.drive_options import DriveOptions
+
+    pred, real = [], []
+    for k in range(12):
+        hard = k % 3 == 0
+        opts = DriveOptions(
+            seed=100 + k,
+            method="hybrid",
+            compass_deg=None if hard else (10.0 if k % 3 == 1 else 30.0),
+            density_per_km2=0.3 if hard else 1.5,
+            goal_min_m=2500.0 if hard else 800.0,
+            goal_max_m=3500.0 if hard else 1500.0,
+            voice="none", png=False, record=False, telemetry=False, print_prompts=False,
+            out=str(tmp_path / str(k)),
+        )  # fmt: skip
+        r = run_drive(opts)
+        assert r.chance_at_start is not None and r.lowest_chance is not None
+        assert r.lowest_chance <= r.chance_at_start
+        pred.append(r.chance_at_start)
+        real.append(float(r.outcome == "arrived"))
+    p, y = np.array(pred), np.array(real)
+    assert 0 < y.sum() < len(y), (p.round(2), y)  # both outcomes occur
+    brier = float(np.mean((p - y) ** 2))
+    assert brier < 0.5 * float(np.mean((y.mean() - y) ** 2)), (p.round(2), y)
+    assert abs(p.mean() - y.mean()) < 0.2, (p.round(2), y)
