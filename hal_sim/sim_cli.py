@@ -13,6 +13,7 @@ import sys
 from dataclasses import replace
 from typing import Any
 
+from guidance.core.chance import shown
 from hal_sim.drive_options import (
     METHODS,
     DriveOptions,
@@ -212,6 +213,11 @@ def print_summary(result: DriveResult, opts: DriveOptions) -> None:
         + (f", {result.goals_reached} goals reached" if opts.duration_s is not None else "")
         + "\n"
     )
+    if result.chance_at_start is not None and result.lowest_chance is not None:
+        w(
+            f"  chance of reaching the goal: {shown(result.chance_at_start)} at the start, "
+            f"{shown(result.lowest_chance)} at its lowest\n"
+        )
     if result.resumed_at_s is not None:
         w(f"  resumed from the checkpoint at {result.resumed_at_s:.1f} s\n")
     for warning in result.health_warnings:
