@@ -149,20 +149,20 @@ def test_bad_landmarks_tables_are_rejected(tmp_path: Path, table: str, why: str)
 
 
 def test_guidance_run_on_the_simulated_devices_reaches_its_goal_with_a_landmark_fix(
-    tmp_path: Path,
+    sim_landmarks_home: Path,
 ) -> None:
     """The shipped config: the car process on the simulated devices (virtual CAN, compass pty,
-    simulated camera, a database built with landmark-db import on first use), from another
-    working directory; the --json summary is the last line."""
+    simulated camera, a database built with landmark-db import on first use, shared with the
+    other tests of that config through ``sim_landmarks_home``); the --json summary is the last
+    line."""
     import json
     import subprocess
     import sys
 
-    repo = Path(__file__).resolve().parents[2]
     r = subprocess.run(
         [sys.executable, "-m", "guidance.tools.cli", "run", "--config",
-         str(repo / "config" / "sim-landmarks.toml"), "--json"],
-        cwd=tmp_path, capture_output=True, text=True, timeout=600,
+         "config/sim-landmarks.toml", "--json"],
+        cwd=sim_landmarks_home, capture_output=True, text=True, timeout=600,
     )  # fmt: skip
     assert r.returncode == 0, r.stderr[-2000:]
     summary = json.loads(r.stdout.splitlines()[-1])
