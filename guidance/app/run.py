@@ -316,6 +316,14 @@ def _cli_run(args: argparse.Namespace) -> int:
             )
         elif cfg.scene.input == "none":
             print("warning: [scene] input = 'none': no co-driver input", file=sys.stderr)  # noqa: T201
+        db = cfg.landmark_db
+        if cfg.sim.get("devices", False) and db is not None and not Path(db.database).exists():
+            print(  # noqa: T201  (the simulated devices' runner builds it; not an error)
+                f"note: [landmarks] database {os.path.normpath(db.database)} does not exist "
+                "yet: the simulated devices build it on first use (about a minute)",
+                file=sys.stderr,
+            )
+            return 0
         for line in landmark_warnings(cfg):
             print(f"warning: {line}", file=sys.stderr)  # noqa: T201
         return 0
