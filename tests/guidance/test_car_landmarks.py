@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import csv
 import io
+import re
 from contextlib import redirect_stderr, redirect_stdout
 from pathlib import Path
 
@@ -170,3 +171,10 @@ def test_guidance_run_on_the_simulated_devices_reaches_its_goal_with_a_landmark_
     assert summary["landmark_updates"] >= 1 and summary["prompts"] >= 1
     assert "Passing the " in r.stdout  # the landmark's name, never its id
     assert "Traceback" not in r.stderr
+    # what docs/app.md says of this drive
+    doc = (Path(__file__).resolve().parents[2] / "docs" / "app.md").read_text()
+    said = re.search(r"seed 3: arrived after ([\d.]+) km with (\d+) landmark fixes, in (\d+) "
+                     r"simulated seconds", " ".join(doc.split()))  # fmt: skip
+    assert said, "docs/app.md no longer says how the seed 3 drive goes"
+    assert said.groups() == (f"{summary['driven_km']:.2f}", str(summary["landmark_updates"]),
+                             f"{summary['sim_s']:.0f}"), summary  # fmt: skip

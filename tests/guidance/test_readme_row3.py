@@ -69,3 +69,37 @@ def test_readme_row_3_shows_the_operator_screen_and_answers_keys(
         assert "EXITED 0" in final and "Traceback" not in pane.scrollback(), pane.scrollback()
     finally:
         pane.close()
+
+
+def test_readme_row_3_prints_plain_lines_when_stdout_is_not_a_terminal(
+    sim_landmarks_home: Path,
+) -> None:
+    """stdout a pipe (a log, the journal): the banner and one line per event, no escape codes;
+    SIGINT ends the drive with its summary."""
+    import signal
+    import subprocess
+
+    venv_bin = Path(sys.executable).parent
+    proc = subprocess.Popen([str(venv_bin / "guidance"), *ROW3[1:]], cwd=sim_landmarks_home,
+                            stdin=subprocess.DEVNULL, stdout=subprocess.PIPE,
+                            stderr=subprocess.PIPE, text=True)  # fmt: skip
+    lines: list[str] = []
+    try:
+        assert proc.stdout is not None
+        for line in proc.stdout:  # until the first prompt (the drive is under way)
+            lines.append(line)
+            if re.match(rf"guidance: {CLOCK} prompt: ", line):
+                break
+        proc.send_signal(signal.SIGINT)
+        rest, err = proc.communicate(timeout=120)
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+            proc.communicate()
+    out = "".join(lines) + rest
+    assert proc.returncode == 0, err[-2000:]
+    assert re.search(r"^guidance: vehicle\s+simlm1$", out, re.M), out
+    assert re.search(r"^guidance: co-driver\s+simulated co-driver .*no keys", out, re.M), out
+    assert re.search(rf"^guidance: {CLOCK} prompt: ", out, re.M), out
+    assert re.search(r"^(STOPPED|ARRIVED): drove \d", out, re.M), out
+    assert "\x1b" not in out and "Traceback" not in err, out + err
