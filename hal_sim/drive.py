@@ -48,6 +48,7 @@ from hal_sim.plots import DriveTrace, plot_drive
 from hal_sim.sim_camera import SIM_ORIGIN
 from hal_sim.sim_checks import check_drive_options, stop_on_signals
 from hal_sim.sim_run import SimDevices, open_sim_camera, open_sim_devices
+from hal_sim.sim_screen import SimScreen
 from hal_sim.sim_world import SimWorld, StepEvents, WorldSpec
 
 if TYPE_CHECKING:
@@ -83,6 +84,7 @@ class SimDrive:
         printer: Callable[[str], None] | None = None,
         app_config: Any = None,
         on_progress: Callable[[float], None] | None = None,
+        screen: str = "off",
     ) -> None:
         self.wall0 = time.monotonic()
         check_drive_options(opts)  # one clear line before anything starts (hal_sim/sim_checks.py)
@@ -107,6 +109,9 @@ class SimDrive:
             self.camera, self.recogniser, landmarks = open_sim_camera(world, opts, Path(opts.out))
         self.pipeline_config = drive_pipeline_config(world, opts, landmarks, self.decl, base)
         self.pipeline = Pipeline(self.pipeline_config)
+        self.screen: SimScreen | None = None  # the operator screen (guidance run, not --json)
+        if screen != "off" and app_config is not None:
+            self.screen = SimScreen(app_config, self.pipeline, screen, self.clock)
         self.cap_m = drive_cap_m(world, opts)
         self.trace = DriveTrace()
         self.checkpointer: Checkpointer | None = None
@@ -142,10 +147,17 @@ class SimDrive:
                 async with open_outputs(settings, self.clock, on_goal=self._remote_goal) as outputs:
                     self.outputs = outputs
                     self._build_app()
-                    async with self.app.running():
-                        outcome = await self._drive()
-                        self._track_point()
-                        self.app.save_checkpoint(self.world.t_s)
+                    if self.screen is not None:
+                        voice = type(outputs.speaker).__name__ if outputs.speaker else "none"
+                        self.screen.start(d, self.opts, voice)
+                    try:
+                        async with self.app.running():
+                            outcome = await self._drive()
+                            self._track_point()
+                            self.app.save_checkpoint(self.world.t_s)
+                    finally:
+                        if self.screen is not None:
+                            self.screen.stop()
                     lag_ms = self.app.lag_summary()
         finally:
             if self.recogniser is not None:
@@ -342,12 +354,12 @@ class SimDrive:
     # -- building -------------------------------------------------------------------------------
     def _build_app(self) -> None:
         """The car's ``App`` on the simulated devices, ticked by the drive, in lockstep."""
-        out = self.outputs
+        out, screen = self.outputs, self.screen
         self.app = App(
             self.pipeline,
-            sources=self.dev.sources(),
+            sources=self.dev.sources() | (screen.sources() if screen is not None else {}),
             recogniser=self.recogniser,
-            speaker=out.speaker,
+            speaker=screen.speaker(out.speaker) if screen is not None else out.speaker,
             sinks=out.sinks,
             checkpointer=self.checkpointer,
             clock=self.clock,
@@ -356,6 +368,8 @@ class SimDrive:
         if self.checkpointer is not None:
             self.checkpointer.extra = self._extra_state  # the world, for a resumed drive
         self.app.listeners.append(self._on_output)
+        if screen is not None:
+            screen.listen(self.app)
         self.lockstep = LockstepSink(self.app.sink)  # the world waits for the app
         self.app.source_sink = self.lockstep
 
@@ -497,10 +511,12 @@ async def drive_async(
     printer: Callable[[str], None] | None = None,
     app_config: Any = None,
     on_progress: Callable[[float], None] | None = None,
+    screen: str = "off",
 ) -> DriveResult:
     """Run one simulated drive; ``printer`` receives one line per prompt, ``on_progress`` the
-    simulated time about once per simulated minute."""
-    return await SimDrive(opts, printer, app_config, on_progress).run()
+    simulated time about once per simulated minute; ``screen`` (with ``app_config``): the
+    operator screen of ``guidance run`` (``SCREEN_MODES``), "off" for none."""
+    return await SimDrive(opts, printer, app_config, on_progress, screen).run()
 
 
 def run_drive(
@@ -508,8 +524,9 @@ def run_drive(
     printer: Callable[[str], None] | None = None,
     app_config: Any = None,
     on_progress: Callable[[float], None] | None = None,
+    screen: str = "off",
 ) -> DriveResult:
-    return asyncio.run(drive_async(opts, printer, app_config, on_progress))
+    return asyncio.run(drive_async(opts, printer, app_config, on_progress, screen))
 
 
 def _method(name: str) -> Method:

@@ -39,10 +39,12 @@ def _window(text: str) -> tuple[float, float]:
         raise argparse.ArgumentTypeError(f"expected START:DURATION seconds, not {text!r}") from None
 
 
-def _run_on_simulated_devices(config_path: str, *, as_json: bool = False) -> int:
+def _run_on_simulated_devices(
+    config_path: str, *, as_json: bool = False, screen: str = "off"
+) -> int:
     from hal_sim.sim_run import run_on_simulated_devices
 
-    return run_on_simulated_devices(config_path, as_json=as_json)
+    return run_on_simulated_devices(config_path, as_json=as_json, screen=screen)
 
 
 def register(sub: Any) -> None:

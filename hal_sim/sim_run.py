@@ -139,7 +139,8 @@ def import_sim_landmark_db(
         t0 = time.monotonic()
         err = sys.stderr
         err.write(
-            f"first use: building the landmark database of the simulated city, {path} "
+            f"first use: building the landmark database of the simulated city, "
+            f"{os.path.normpath(path)} "
             f"({len(xy)} landmarks: their photos, then landmark-db init and import; about a "
             "minute, once; later runs reuse it)\n"
         )
@@ -167,7 +168,9 @@ def import_sim_landmark_db(
             )
         if any(c not in (0, None) for c in codes):
             raise UserError(f"landmark-db import of the simulated city failed: {log.getvalue()}")
-        err.write(f"landmark database built in {time.monotonic() - t0:.0f} s: {path}\n")
+        err.write(
+            f"landmark database built in {time.monotonic() - t0:.0f} s: {os.path.normpath(path)}\n"
+        )
         err.flush()
     db = open_db(path, readonly=True)
     try:
@@ -196,12 +199,17 @@ def _holds(path: Path, names: list[str]) -> bool:
         db.close()
 
 
-def run_on_simulated_devices(config_path: str, *, as_json: bool = False) -> int:
+def run_on_simulated_devices(
+    config_path: str, *, as_json: bool = False, screen: str = "off"
+) -> int:
     """``guidance run --config`` with ``[sim] devices = true``: one simulated drive through the
-    car's wiring; prints the prompts, the summary and, with ``as_json``, the result as the last
-    line (``outcome``, ``landmark_updates``, ``prompts``...)."""
+    car's wiring. With ``screen`` (not "off"): the car's operator screen (live on a terminal,
+    plain lines otherwise) while the drive goes in real time (``[sim] speed`` changes that),
+    then the summary; else the prompts, the summary and, with ``as_json``, the result as the
+    last line (``outcome``, ``landmark_updates``, ``prompts``...), as fast as it goes."""
+    from hal_sim.drive import run_drive
     from hal_sim.drive_options import DriveOptions, options_from_config
-    from hal_sim.sim_cli import drive_and_report
+    from hal_sim.sim_cli import drive_and_report, print_summary
 
     opts, cfg = options_from_config(config_path, DriveOptions())
     if cfg.landmark_db is not None:
@@ -211,5 +219,11 @@ def run_on_simulated_devices(config_path: str, *, as_json: bool = False) -> int:
     elif cfg.voice.backend == "wav" and cfg.voice.wav_path:
         opts = replace(opts, voice_to=cfg.voice.wav_path)
 
-    result = drive_and_report(opts, cfg, as_json=as_json)
-    return 0 if result.outcome in ("arrived", "time_limit") else 1
+    if as_json or screen == "off":
+        result = drive_and_report(opts, cfg, as_json=as_json)
+    else:
+        if opts.speed is None:  # the operator sees the drive as the car lives it
+            opts = replace(opts, speed=1.0)
+        result = run_drive(opts, None, cfg, screen=screen)
+        print_summary(result, opts)
+    return 0 if result.outcome in ("arrived", "time_limit", "stopped") else 1  # Ctrl-C: clean

@@ -23,15 +23,8 @@ from typing import TYPE_CHECKING, Any, TextIO
 from guidance.app.app import GIL_SWITCH_INTERVAL_S, App
 from guidance.app.build import OutputSettings, open_outputs, session_record, start_checkpoints
 from guidance.app.landmarks import landmark_warnings, open_landmarks
-from guidance.app.operator_view import OperatorView
-from guidance.app.screen import (
-    NO_INPUT_PROMPT,
-    MutableSpeaker,
-    Operator,
-    OperatorScreen,
-    ScreenTextStream,
-    banner_rows,
-)
+from guidance.app.operator_session import SCREEN_MODES, OperatorSession
+from guidance.app.screen import NO_INPUT_PROMPT, banner_rows
 from guidance.errors import UserError
 
 if TYPE_CHECKING:
@@ -40,11 +33,10 @@ if TYPE_CHECKING:
 
 log = logging.getLogger(__name__)
 
-SCREEN_MODES = ("auto", "live", "plain", "off")
-
 DeviceRunner = Callable[..., int]
-"""``runner(config_path, *, as_json)``: ``guidance run`` on devices the product does not
-build itself."""
+"""``runner(config_path, *, as_json, screen)``: ``guidance run`` on devices the product does
+not build itself; ``screen`` is the ``--screen`` mode (``SCREEN_MODES``), "off" with
+``as_json`` (the prompts and the result as JSON, no operator screen)."""
 DEVICE_RUNNERS: dict[str, DeviceRunner] = {}
 """Registered by whoever provides them (``register_device_runner``): the simulator registers
 "sim" for a config whose ``[sim]`` table says ``devices = true``, so ``guidance`` itself never
@@ -95,7 +87,6 @@ async def run_car(
 
     ``screen``: the operator screen on ``stdout`` ("auto": live on a terminal, plain lines
     otherwise; "live", "plain", "off")."""
-    from guidance.app.backends import SCENE_BACKENDS, SCENE_CONFIGS, import_backend
     from guidance.app.config import load_config
     from guidance.app.watchdog import SystemdNotifier
     from guidance.core.messages import GoalUpdate, Priority
@@ -130,36 +121,10 @@ async def run_car(
     if cfg.compass is not None:
         sources["compass"] = cfg.compass.build()
     camera = cfg.camera.build() if cfg.camera is not None else None
-    out_stream = stdout if stdout is not None else sys.stdout
-    view = OperatorView(
-        vehicle_id=cfg.vehicle_id,
-        landmark_names={lm.id: lm.name for lm in cfg.pipeline.landmarks if lm.name},
-        lost_major_axis_m=cfg.pipeline.estimator.lost_major_axis_m,
-    )
-    view.chance_warn_below = cfg.pipeline.chance.warn_below
-    live = {"auto": None, "live": True, "plain": False, "off": None}[screen]
-    opscreen = OperatorScreen(view, stream=out_stream, live=live)
-    operator = Operator(opscreen, pipeline)
-    feedback = opscreen.ack if screen != "off" else None
-    # Key by key on the screen: always for a keypad; for a terminal keyboard only when the
-    # live view owns the terminal (its echo would otherwise be drawn over).
-    per_key = screen != "off" and (cfg.scene.input == "evdev" or opscreen.live)
-    scene_source = None
-    if cfg.scene.input != "none":
-        cls = import_backend(SCENE_BACKENDS[cfg.scene.input])
-        args: list[Any] = []
-        if cfg.scene.input in SCENE_CONFIGS:
-            conf_cls = import_backend(SCENE_CONFIGS[cfg.scene.input])
-            args.append(conf_cls(device=cfg.scene.device, grab=cfg.scene.grab))
-        scene_source = cls(
-            *args,
-            lambda: pipeline.estimator.heading_rad,
-            feedback=feedback,
-            echo=opscreen.echo if per_key else None,
-            on_command=operator.on_command,
-        )
+    session = OperatorSession(cfg, pipeline, screen=screen, stream=stdout)
+    scene_source = session.co_driver_input(lambda: pipeline.estimator.heading_rad)
+    if scene_source is not None:
         sources["scene"] = scene_source
-    operator.co_driver = scene_source
     no_input = co_driver_problem(cfg.scene, sys.stdin)
 
     settings = OutputSettings(
@@ -180,12 +145,7 @@ async def run_car(
             app.feed(GoalUpdate(time.monotonic(), x_m, y_m, "remote"))
 
     async with open_outputs(settings, time.monotonic, on_goal=on_goal) as out:
-        redirect = getattr(out.speaker, "redirect", None)  # the text speaker
-        if screen != "off" and opscreen.live and redirect is not None:
-            redirect(ScreenTextStream(opscreen))  # its lines become SAID rows, not overprint
-        speaker = MutableSpeaker(out.speaker) if out.speaker is not None else None
-        operator.speaker = speaker
-        operator.loop = asyncio.get_running_loop()
+        speaker = session.attach(out.speaker)
         voice = type(out.speaker).__name__ if out.speaker is not None else "none"
         co_driver = {"evdev": f"keypad {cfg.scene.device}", "keyboard": "keyboard (stdin)"}.get(
             cfg.scene.input, "none"
@@ -207,24 +167,21 @@ async def run_car(
         loop = asyncio.get_running_loop()
         for sig in (signal.SIGINT, signal.SIGTERM):
             loop.add_signal_handler(sig, stop.set)
-        if screen != "off":
-            opscreen.print_banner(
-                banner_rows(cfg, voice=f"{cfg.voice.backend} ({voice})", co_driver=co_driver)
-            )
-            app.listeners.append(operator)
+        if session.on:
+            app.listeners.append(session.operator)
         if no_input:
             log.warning("NO CO-DRIVER INPUT: %s; intersections cannot be reported", no_input)
-            opscreen.fold(lambda v: v.add(time.time(), "info", f"NO CO-DRIVER INPUT: {no_input}",
-                                          "bad"))  # fmt: skip
-            operator.say(NO_INPUT_PROMPT, Priority.SAFETY, time.monotonic())
+            session.screen.fold(lambda v: v.add(time.time(), "info",
+                                f"NO CO-DRIVER INPUT: {no_input}", "bad"))  # fmt: skip
+            session.operator.say(NO_INPUT_PROMPT, Priority.SAFETY, time.monotonic())
         keeper = asyncio.create_task(_keep_learned(cfg, pipeline, learned, stop))
         try:
-            if screen != "off":
-                opscreen.start()
+            session.start(
+                banner_rows(cfg, voice=f"{cfg.voice.backend} ({voice})", co_driver=co_driver)
+            )
             await app.run_until_stopped()
         finally:
-            if screen != "off":
-                opscreen.stop()
+            session.stop()
             keeper.cancel()
         app.save_checkpoint(time.monotonic(), finished=True)  # a clean stop: not resumed
         _save_learned(cfg, pipeline, learned)
@@ -317,7 +274,8 @@ def register(sub: Any) -> None:
     run.add_argument(
         "--json",
         action="store_true",
-        help="simulated devices ([sim] devices = true): the last line is the result as JSON",
+        help="simulated devices ([sim] devices = true): no operator screen, the prompts and a "
+        "summary as fast as the drive goes, the last line the result as JSON",
     )
     run.add_argument(
         "--fresh", action="store_true", help="ignore an existing checkpoint (start afresh)"
@@ -358,6 +316,14 @@ def _cli_run(args: argparse.Namespace) -> int:
             )
         elif cfg.scene.input == "none":
             print("warning: [scene] input = 'none': no co-driver input", file=sys.stderr)  # noqa: T201
+        db = cfg.landmark_db
+        if cfg.sim.get("devices", False) and db is not None and not Path(db.database).exists():
+            print(  # noqa: T201  (the simulated devices' runner builds it; not an error)
+                f"note: [landmarks] database {os.path.normpath(db.database)} does not exist "
+                "yet: the simulated devices build it on first use (about a minute)",
+                file=sys.stderr,
+            )
+            return 0
         for line in landmark_warnings(cfg):
             print(f"warning: {line}", file=sys.stderr)  # noqa: T201
         return 0
@@ -374,7 +340,8 @@ def _cli_run(args: argparse.Namespace) -> int:
                 f"{args.config}: [sim] devices = true, but no simulator registered a runner for "
                 "simulated devices (the simulator package registers one when `guidance` starts)"
             )
-        return int(runner(str(args.config), as_json=args.json))
+        screen = "off" if args.json else args.screen  # --json: the prompts and the result
+        return int(runner(str(args.config), as_json=args.json, screen=screen))
     return asyncio.run(run_car(str(args.config), resume=not args.fresh, screen=args.screen))
 
 

@@ -15,8 +15,11 @@ mute) through ``MutableSpeaker``. ``banner_rows`` is the start-up banner.
 from __future__ import annotations
 
 import asyncio
+import contextlib
 import logging
+import os
 import sys
+import termios
 import threading
 import time
 from collections.abc import Callable, Sequence
@@ -75,6 +78,9 @@ class OperatorScreen:
         self._live: Any = None
         self._log_handler: logging.Handler | None = None
         self._moved_handlers: list[logging.Handler] = []
+        self.keys: TextIO | None = sys.stdin
+        """The terminal the co-driver types on: it does not echo while the live view is on."""
+        self._echo_restore: tuple[int, list[Any]] | None = None
 
     # -- changing the view (any thread) ----------------------------------------------------------
     def fold(self, fn: Callable[[OperatorView], object]) -> None:
@@ -120,6 +126,7 @@ class OperatorScreen:
             )
             self._live.start()
             self._route_logging()
+            self._echo_off()
         self._thread = threading.Thread(target=self._run, name="operator-screen", daemon=True)
         self._thread.start()
 
@@ -134,6 +141,31 @@ class OperatorScreen:
             self._live.stop()
             self._live = None
         self._restore_logging()
+        self._echo_on()
+
+    def _echo_off(self) -> None:
+        """While the live view owns the terminal, typed keys are not echoed: an echoed line
+        (a key typed before the co-driver input reads key by key, or with no input reading
+        the terminal at all) moves the cursor under the view, and each redraw then left a
+        stale copy of the panel's header above it."""
+        try:
+            fd = self.keys.fileno() if self.keys is not None else -1
+            if fd < 0 or not os.isatty(fd):
+                return
+            saved = termios.tcgetattr(fd)
+            quiet = termios.tcgetattr(fd)
+            quiet[3] &= ~(termios.ECHO | termios.ECHONL)
+            termios.tcsetattr(fd, termios.TCSANOW, quiet)
+        except (OSError, ValueError, termios.error):
+            return
+        self._echo_restore = (fd, saved)
+
+    def _echo_on(self) -> None:
+        if self._echo_restore is not None:
+            fd, saved = self._echo_restore
+            self._echo_restore = None
+            with contextlib.suppress(OSError, termios.error):
+                termios.tcsetattr(fd, termios.TCSADRAIN, saved)
 
     def _route_logging(self) -> None:
         """While the live view owns the terminal, log lines that would be written to that

@@ -2,7 +2,9 @@
 
 from __future__ import annotations
 
+import shutil
 from collections.abc import Callable
+from pathlib import Path
 from typing import Any
 
 import pytest
@@ -31,3 +33,23 @@ def make_pipeline() -> Callable[..., Pipeline]:
         return Pipeline(PipelineConfig(**base))
 
     return make
+
+
+ROOT = Path(__file__).resolve().parents[2]
+
+
+@pytest.fixture(scope="session")
+def sim_landmarks_home(request: pytest.FixtureRequest) -> Path:
+    """A folder to run README row 3 from, ``guidance run --config config/sim-landmarks.toml``,
+    without writing into the repository: the shipped config copied to ``config/`` (fresh each
+    session), its outputs (``../out/sim-landmarks``: the landmark database built on first use,
+    about 200 MB and a minute) in ``out/``. The folder is pytest's cache (``.pytest_cache``),
+    so the database is built once for every test and every later run that uses it."""
+    cache = getattr(request.config, "cache", None)
+    if cache is not None:
+        home = Path(cache.mkdir("sim-landmarks"))
+    else:  # -p no:cacheprovider
+        home = request.getfixturevalue("tmp_path_factory").mktemp("sim-landmarks")
+    (home / "config").mkdir(exist_ok=True)
+    shutil.copy(ROOT / "config" / "sim-landmarks.toml", home / "config" / "sim-landmarks.toml")
+    return home

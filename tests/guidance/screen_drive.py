@@ -3,7 +3,8 @@
 ``python tests/guidance/screen_drive.py DIR [--screen auto] [--input evdev|keyboard]`` writes
 ``DIR/car.toml`` (CAN on a python-can virtual bus fed by ``SimCanWheels`` in this process, the
 compass on a pty written by ``SimCompassPty``, the co-driver keypad at ``DIR/keypad``: a FIFO
-of raw input_event records the test writes; or with ``--input keyboard`` the terminal itself)
+of raw input_event records the test writes; with ``--input keyboard`` the terminal itself;
+``--input none``: no co-driver input)
 and runs ``run_car`` with stdout as it is (a tmux pane: the live view) until ``DIR/stop``
 appears. ``drive_config`` is also used in-process by the tests.
 """
@@ -71,11 +72,11 @@ async def _drive(directory: Path, screen: str, co_driver: str) -> int:
             directory,
             channel=channel,
             compass_port=pty.port,
-            scene=(
-                f'input = "evdev"\ndevice = "{directory / "keypad"}"'
-                if co_driver == "evdev"
-                else 'input = "keyboard"'
-            ),
+            scene={
+                "evdev": f'input = "evdev"\ndevice = "{directory / "keypad"}"',
+                "keyboard": 'input = "keyboard"',
+                "none": 'input = "none"',
+            }[co_driver],
         )
         task = asyncio.create_task(run_car(str(cfg), screen=screen))
         await asyncio.sleep(0.3)
@@ -96,7 +97,7 @@ def main() -> int:
     parser = argparse.ArgumentParser()
     parser.add_argument("directory", type=Path)
     parser.add_argument("--screen", default="auto")
-    parser.add_argument("--input", default="evdev", choices=("evdev", "keyboard"))
+    parser.add_argument("--input", default="evdev", choices=("evdev", "keyboard", "none"))
     args = parser.parse_args()
     sys.path.insert(0, str(ROOT))
     return asyncio.run(_drive(args.directory, args.screen, args.input))

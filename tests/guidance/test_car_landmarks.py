@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import csv
 import io
+import re
 from contextlib import redirect_stderr, redirect_stdout
 from pathlib import Path
 
@@ -149,20 +150,20 @@ def test_bad_landmarks_tables_are_rejected(tmp_path: Path, table: str, why: str)
 
 
 def test_guidance_run_on_the_simulated_devices_reaches_its_goal_with_a_landmark_fix(
-    tmp_path: Path,
+    sim_landmarks_home: Path,
 ) -> None:
     """The shipped config: the car process on the simulated devices (virtual CAN, compass pty,
-    simulated camera, a database built with landmark-db import on first use), from another
-    working directory; the --json summary is the last line."""
+    simulated camera, a database built with landmark-db import on first use, shared with the
+    other tests of that config through ``sim_landmarks_home``); the --json summary is the last
+    line."""
     import json
     import subprocess
     import sys
 
-    repo = Path(__file__).resolve().parents[2]
     r = subprocess.run(
         [sys.executable, "-m", "guidance.tools.cli", "run", "--config",
-         str(repo / "config" / "sim-landmarks.toml"), "--json"],
-        cwd=tmp_path, capture_output=True, text=True, timeout=600,
+         "config/sim-landmarks.toml", "--json"],
+        cwd=sim_landmarks_home, capture_output=True, text=True, timeout=600,
     )  # fmt: skip
     assert r.returncode == 0, r.stderr[-2000:]
     summary = json.loads(r.stdout.splitlines()[-1])
@@ -170,3 +171,10 @@ def test_guidance_run_on_the_simulated_devices_reaches_its_goal_with_a_landmark_
     assert summary["landmark_updates"] >= 1 and summary["prompts"] >= 1
     assert "Passing the " in r.stdout  # the landmark's name, never its id
     assert "Traceback" not in r.stderr
+    # what docs/app.md says of this drive
+    doc = (Path(__file__).resolve().parents[2] / "docs" / "app.md").read_text()
+    said = re.search(r"seed 3: arrived after ([\d.]+) km with (\d+) landmark fixes, in (\d+) "
+                     r"simulated seconds", " ".join(doc.split()))  # fmt: skip
+    assert said, "docs/app.md no longer says how the seed 3 drive goes"
+    assert said.groups() == (f"{summary['driven_km']:.2f}", str(summary["landmark_updates"]),
+                             f"{summary['sim_s']:.0f}"), summary  # fmt: skip

@@ -353,6 +353,12 @@ class Pane:
                               capture_output=True, text=True)  # fmt: skip
         return done.stdout
 
+    def scrollback(self) -> str:
+        """The pane with everything scrolled off its top."""
+        done = subprocess.run([*self.tmux, "capture-pane", "-p", "-S", "-", "-t", "drive"],
+                              capture_output=True, text=True)  # fmt: skip
+        return done.stdout
+
     def send_keys(self, *keys: str) -> None:
         for key in keys:  # one at a time, as typed
             subprocess.run([*self.tmux, "send-keys", "-t", "drive", key], check=True)
@@ -430,6 +436,28 @@ def test_terminal_keyboard_under_the_live_screen_acknowledges_each_key(tmp_path:
         pane.send_keys("?")
         helped = pane.wait_for(lambda s: "commands: ? or help" in s)
         assert "turn taken: tl, turned left" in helped, helped
+        final = pane.stop()
+        assert "EXITED 0" in final, final + pane.stderr()
+    finally:
+        pane.close()
+
+
+HEADER = "╭─ guidance  vehicle"
+
+
+@needs_tmux
+def test_keys_typed_where_nothing_reads_them_leave_no_stale_header(tmp_path: Path) -> None:
+    """Issue 24: lines typed while nothing reads the terminal key by key (here no co-driver
+    input at all; in the car, before the keyboard reader starts) were echoed under the live
+    view, and each redraw left a stale copy of the panel's header above it. The live view
+    turns the terminal's echo off while it owns it (and back on at the end)."""
+    pane = Pane(tmp_path, "none")
+    try:
+        pane.send_keys("l s r", "Enter", "?", "Enter")
+        # a window of redraws (4 a second) in which a stale header would appear
+        screen = pane.wait_for(lambda s: pane.scrollback().count(HEADER) > 1, timeout_s=3.0)
+        assert pane.scrollback().count(HEADER) == 1, pane.scrollback()
+        assert "l s r" not in screen, screen
         final = pane.stop()
         assert "EXITED 0" in final, final + pane.stderr()
     finally:
