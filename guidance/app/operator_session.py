@@ -14,13 +14,20 @@ so both show the same screen.
 from __future__ import annotations
 
 import asyncio
+import logging
 import sys
 import time
 from collections.abc import Callable, Sequence
 from typing import TYPE_CHECKING, Any, TextIO
 
 from guidance.app.operator_view import OperatorView
-from guidance.app.screen import MutableSpeaker, Operator, OperatorScreen, ScreenTextStream
+from guidance.app.screen import (
+    NO_INPUT_PROMPT,
+    MutableSpeaker,
+    Operator,
+    OperatorScreen,
+    ScreenTextStream,
+)
 
 if TYPE_CHECKING:
     from guidance.app.app import Source
@@ -30,6 +37,8 @@ if TYPE_CHECKING:
 
 SCREEN_MODES = ("auto", "live", "plain", "off")
 """``--screen``: auto (live on a terminal, plain lines otherwise), live, plain or off."""
+
+log = logging.getLogger(__name__)
 
 
 class OperatorSession:
@@ -117,3 +126,14 @@ class OperatorSession:
         """The last state stays on the screen (a last status line in the journal)."""
         if self.on:
             self.screen.stop()
+
+    def no_co_driver(self, problem: str) -> None:
+        """Say it loudly when the co-driver cannot report intersections: in the log, on the
+        screen and to the driver (``NO_INPUT_PROMPT``)."""
+        from guidance.core.messages import Priority
+
+        log.warning("NO CO-DRIVER INPUT: %s; intersections cannot be reported", problem)
+        self.screen.fold(
+            lambda v: v.add(time.time(), "info", f"NO CO-DRIVER INPUT: {problem}", "bad")
+        )
+        self.operator.say(NO_INPUT_PROMPT, Priority.SAFETY, time.monotonic())

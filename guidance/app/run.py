@@ -24,12 +24,14 @@ from guidance.app.app import GIL_SWITCH_INTERVAL_S, App
 from guidance.app.build import OutputSettings, open_outputs, session_record, start_checkpoints
 from guidance.app.landmarks import landmark_warnings, open_landmarks
 from guidance.app.operator_session import SCREEN_MODES, OperatorSession
-from guidance.app.screen import NO_INPUT_PROMPT, banner_rows
+from guidance.app.screen import banner_rows
 from guidance.errors import UserError
 
 if TYPE_CHECKING:
     from guidance.app.app import Source
-    from guidance.app.config import SceneSettings
+    from guidance.app.config import AppConfig, SceneSettings
+    from guidance.app.ports import CameraSource, Recogniser
+    from guidance.core.pipeline import Pipeline
 
 log = logging.getLogger(__name__)
 
@@ -89,20 +91,11 @@ async def run_car(
     otherwise; "live", "plain", "off")."""
     from guidance.app.config import load_config
     from guidance.app.watchdog import SystemdNotifier
-    from guidance.core.messages import GoalUpdate, Priority
-    from guidance.core.pipeline import Pipeline
+    from guidance.core.messages import GoalUpdate
 
     cfg = load_config(config_path)
     sys.setswitchinterval(GIL_SWITCH_INTERVAL_S)
-    recogniser = None
-    pcfg = cfg.pipeline
-    if cfg.landmark_db is not None:  # the database and the matcher load off the event loop
-        recogniser, landmarks = await asyncio.get_running_loop().run_in_executor(
-            None, open_landmarks, cfg.landmark_db, cfg.origin_lat_lon_deg
-        )
-        pcfg = replace(pcfg, landmarks=landmarks)
-        log.info("landmarks: %d from %s", len(landmarks), cfg.landmark_db.database)
-    pipeline = Pipeline(pcfg)
+    pipeline, recogniser = await build_pipeline(cfg)
     checkpointer = start_checkpoints(
         pipeline,
         cfg.checkpoint.path,
@@ -114,29 +107,10 @@ async def run_car(
     learned = _start_learned(
         cfg, pipeline, resumed=checkpointer is not None and checkpointer.resumed
     )
-    # Devices are built (and their configs checked) before anything starts.
-    sources: dict[str, Source] = {}
-    if cfg.odometry is not None:
-        sources["odometry"] = cfg.odometry.build()
-    if cfg.compass is not None:
-        sources["compass"] = cfg.compass.build()
-    camera = cfg.camera.build() if cfg.camera is not None else None
     session = OperatorSession(cfg, pipeline, screen=screen, stream=stdout)
-    scene_source = session.co_driver_input(lambda: pipeline.estimator.heading_rad)
-    if scene_source is not None:
-        sources["scene"] = scene_source
+    sources, camera = build_devices(cfg, session, lambda: pipeline.estimator.heading_rad)
     no_input = co_driver_problem(cfg.scene, sys.stdin)
-
-    settings = OutputSettings(
-        voice_backend=cfg.voice.backend,
-        wav_path=cfg.voice.wav_path,
-        voice=cfg.voice.voice,
-        rate_wpm=cfg.voice.rate_wpm,
-        volume=cfg.voice.volume,
-        telemetry=cfg.telemetry,
-        recording=cfg.recording,
-        session=session_record(pipeline, cfg.path),
-    )
+    settings = output_settings(cfg, pipeline)
     stop = asyncio.Event()
     app: App | None = None
 
@@ -170,10 +144,7 @@ async def run_car(
         if session.on:
             app.listeners.append(session.operator)
         if no_input:
-            log.warning("NO CO-DRIVER INPUT: %s; intersections cannot be reported", no_input)
-            session.screen.fold(lambda v: v.add(time.time(), "info",
-                                f"NO CO-DRIVER INPUT: {no_input}", "bad"))  # fmt: skip
-            session.operator.say(NO_INPUT_PROMPT, Priority.SAFETY, time.monotonic())
+            session.no_co_driver(no_input)
         keeper = asyncio.create_task(_keep_learned(cfg, pipeline, learned, stop))
         try:
             session.start(
@@ -187,6 +158,54 @@ async def run_car(
         _save_learned(cfg, pipeline, learned)
         log.info("%s", stop_line(app.lag_summary()))
     return 0
+
+
+async def build_pipeline(cfg: AppConfig) -> tuple[Pipeline, Recogniser | None]:
+    """The car's pipeline, with the landmark database's landmarks and its matcher when one is
+    configured (opened off the event loop: it reads the whole database)."""
+    from guidance.core.pipeline import Pipeline
+
+    recogniser = None
+    pcfg = cfg.pipeline
+    if cfg.landmark_db is not None:
+        recogniser, landmarks = await asyncio.get_running_loop().run_in_executor(
+            None, open_landmarks, cfg.landmark_db, cfg.origin_lat_lon_deg
+        )
+        pcfg = replace(pcfg, landmarks=landmarks)
+        log.info("landmarks: %d from %s", len(landmarks), cfg.landmark_db.database)
+    return Pipeline(pcfg), recogniser
+
+
+def build_devices(
+    cfg: AppConfig, session: OperatorSession, heading_fn: Callable[[], float]
+) -> tuple[dict[str, Source], CameraSource | None]:
+    """The device table: every configured input by the name the pipeline judges it under
+    (odometry, compass, and the co-driver's "scene", its keys acknowledged on the operator
+    screen), and the camera. Each is built (its config checked) before anything starts."""
+    sources: dict[str, Source] = {}
+    for name, device in (("odometry", cfg.odometry), ("compass", cfg.compass)):
+        if device is not None:
+            sources[name] = device.build()
+    scene = session.co_driver_input(heading_fn)
+    if scene is not None:
+        sources["scene"] = scene
+    camera = cfg.camera.build() if cfg.camera is not None else None
+    return sources, camera
+
+
+def output_settings(cfg: AppConfig, pipeline: Pipeline) -> OutputSettings:
+    """The voice, telemetry and recording of the car, with the session record of its
+    pipeline (what a replay rebuilds)."""
+    return OutputSettings(
+        voice_backend=cfg.voice.backend,
+        wav_path=cfg.voice.wav_path,
+        voice=cfg.voice.voice,
+        rate_wpm=cfg.voice.rate_wpm,
+        volume=cfg.voice.volume,
+        telemetry=cfg.telemetry,
+        recording=cfg.recording,
+        session=session_record(pipeline, cfg.path),
+    )
 
 
 def stop_line(lag: dict[str, float | None]) -> str:
