@@ -281,3 +281,16 @@ def test_the_numba_cache_key_is_the_same_from_a_checkout_that_is_not_installed(
     installed = _numba_cache.compiled_sources()
     monkeypatch.setattr(_numba_cache, "_DISTRIBUTION", "no-such-distribution")
     assert _numba_cache.compiled_sources() == installed
+
+
+def test_the_tests_mirror_the_packages() -> None:
+    """ARCHITECTURE-2, next in line 4: a test of ``guidance/<pkg>/...`` lives in
+    ``tests/guidance/<pkg>/``; only a test of a top-level module (``guidance/config_tables.py``)
+    sits in ``tests/guidance/`` itself, and every test folder is named after a package."""
+    tests = ROOT / "tests" / "guidance"
+    top_modules = {p.stem for p in (ROOT / "guidance").glob("*.py")}
+    packages = {p.name for p in (ROOT / "guidance").iterdir() if (p / "__init__.py").exists()}
+    flat = {p.stem.removeprefix("test_") for p in tests.glob("test_*.py")}
+    assert flat <= top_modules, f"move into tests/guidance/<package>/: {sorted(flat - top_modules)}"
+    folders = {p.name for p in tests.iterdir() if p.is_dir() and p.name != "__pycache__"}
+    assert folders <= packages, f"not a guidance package: {sorted(folders - packages)}"

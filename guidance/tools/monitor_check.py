@@ -9,7 +9,7 @@ so no ``ellipse`` given as a list, health ``inputs`` as a list or ``x_m`` of 10^
 the monitor, and no NaN, infinity or 400-digit number is ever drawn. The state's schema also
 says what the web page needs to draw a point: coordinates in pairs (``lat_deg`` only with
 ``lon_deg``, a goal's ``x_m`` only with its ``y_m``), an origin with both, in range; a state
-the check passes is one the page can draw (tests/guidance/test_web_page_states.py).
+the check passes is one the page can draw (tests/guidance/tools/test_web_page_states.py).
 
 Each schema is compiled once into a plain predicate (``_compile``); jsonschema runs only on a
 message the predicate refuses, to say why (or to find it valid after all).

@@ -2,7 +2,7 @@
 
 Access control itself (an unauthorised session cannot set a goal, with the example user/password
 and mutual-TLS configs of config/zenoh/ on loopback, certificates made by openssl at test time)
-is tested in tests/guidance/test_telemetry.py:
+is tested in tests/guidance/telemetry/test_telemetry.py:
 test_usrpwd_access_control_only_the_operator_sets_a_goal and
 test_mtls_access_control_only_the_operator_certificate_sets_a_goal.
 """

@@ -31,7 +31,7 @@ from guidance.tools.monitor import (
     write_snapshot,
 )
 
-REPO = Path(__file__).resolve().parents[2]
+REPO = Path(__file__).resolve().parents[3]
 
 PUBLISHER = r"""
 import math, sys, time

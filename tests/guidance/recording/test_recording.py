@@ -51,7 +51,7 @@ from guidance.recording.reader import Reader
 from guidance.recording.topics import INPUT_TOPICS, OUTPUT_TOPICS, TOPICS
 from guidance.recording.writer import Recorder
 
-REPO = Path(__file__).resolve().parents[2]
+REPO = Path(__file__).resolve().parents[3]
 
 
 def make_state(t_s: float, x_m: float = 0.0) -> EstimateState:

@@ -14,7 +14,7 @@ from guidance.core.navigator import Method
 from guidance.errors import UserError
 from guidance.tools.cli import main
 
-REPO = Path(__file__).resolve().parents[2]
+REPO = Path(__file__).resolve().parents[3]
 TAHOE = REPO / "config" / "tahoe.toml"
 SIM = REPO / "config" / "sim.toml"
 

@@ -172,7 +172,7 @@ def test_guidance_run_on_the_simulated_devices_reaches_its_goal_with_a_landmark_
     assert "Passing the " in r.stdout  # the landmark's name, never its id
     assert "Traceback" not in r.stderr
     # what docs/app.md says of this drive
-    doc = (Path(__file__).resolve().parents[2] / "docs" / "app.md").read_text()
+    doc = (Path(__file__).resolve().parents[3] / "docs" / "app.md").read_text()
     said = re.search(r"seed 3: arrived after ([\d.]+) km with (\d+) landmark fixes, in (\d+) "
                      r"simulated seconds", " ".join(doc.split()))  # fmt: skip
     assert said, "docs/app.md no longer says how the seed 3 drive goes"

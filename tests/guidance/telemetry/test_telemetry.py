@@ -43,7 +43,7 @@ from guidance.telemetry.config import TelemetryConfig, TlsConfig
 from guidance.telemetry.publisher import Telemetry
 from guidance.telemetry.session import open_session, parse_goal, session_config
 
-REPO = Path(__file__).resolve().parents[2]
+REPO = Path(__file__).resolve().parents[3]
 ZENOH_EXAMPLES = REPO / "config" / "zenoh"
 
 PUBLISHER = r"""

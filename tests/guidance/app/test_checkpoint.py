@@ -16,7 +16,7 @@ import pytest
 
 from guidance.app.checkpoint import Checkpointer, load_checkpoint, write_atomic
 
-REPO = Path(__file__).resolve().parents[2]
+REPO = Path(__file__).resolve().parents[3]
 
 
 def test_atomic_write_replaces_whole_files(tmp_path: Path) -> None:

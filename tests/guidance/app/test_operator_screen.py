@@ -47,7 +47,7 @@ from guidance.core.pipeline import Pipeline, PipelineConfig
 from hal_sim.sim_can import SimCanWheels
 from hal_sim.sim_compass import SimCompassPty
 
-ROOT = Path(__file__).resolve().parents[2]
+ROOT = Path(__file__).resolve().parents[3]
 KP = {str(d): getattr(ecodes, f"KEY_KP{d}") for d in range(10)}
 CLOCK = r"\d\d:\d\d:\d\d"
 NO_INPUT = "Warning: no co-driver input. Intersections cannot be reported."
@@ -325,13 +325,13 @@ def test_check_says_when_the_input_device_is_missing(tmp_path: Path) -> None:
 
 
 class Pane:
-    """``tests/guidance/screen_drive.py`` in a tmux pane (a real pty, 100x40)."""
+    """``tests/guidance/app/screen_drive.py`` in a tmux pane (a real pty, 100x40)."""
 
     def __init__(self, directory: Path, co_driver: str) -> None:
         self.dir = directory
         self.tmux = ["tmux", "-L", f"guidance-test-{os.getpid()}", "-f", "/dev/null"]
         command = (
-            f"cd {ROOT} && {sys.executable} tests/guidance/screen_drive.py {directory} "
+            f"cd {ROOT} && {sys.executable} tests/guidance/app/screen_drive.py {directory} "
             f"--input {co_driver} 2> {directory / 'stderr.txt'}; echo EXITED $?; sleep 30"
         )
         env = {**os.environ, "TERM": "xterm-256color", "PYTHONPATH": str(ROOT)}

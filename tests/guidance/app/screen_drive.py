@@ -1,6 +1,6 @@
 """A short drive of ``guidance run`` on simulated devices, for the operator-screen tests.
 
-``python tests/guidance/screen_drive.py DIR [--screen auto] [--input evdev|keyboard]`` writes
+``python tests/guidance/app/screen_drive.py DIR [--screen auto] [--input evdev|keyboard]`` writes
 ``DIR/car.toml`` (CAN on a python-can virtual bus fed by ``SimCanWheels`` in this process, the
 compass on a pty written by ``SimCompassPty``, the co-driver keypad at ``DIR/keypad``: a FIFO
 of raw input_event records the test writes; with ``--input keyboard`` the terminal itself;
@@ -18,7 +18,7 @@ import signal
 import sys
 from pathlib import Path
 
-ROOT = Path(__file__).resolve().parents[2]
+ROOT = Path(__file__).resolve().parents[3]
 
 
 def drive_config(directory: Path, *, channel: str, compass_port: str, scene: str) -> Path:

@@ -25,7 +25,7 @@ from guidance.tools.replay import (
 )
 from hal_sim.drive import DriveOptions, run_drive
 
-REPO = Path(__file__).resolve().parents[2]
+REPO = Path(__file__).resolve().parents[3]
 DATA = REPO / "tests" / "data" / "replay"
 RECORDING = DATA / "sim_seed3_landmarks.mcap"
 EXPECTED = DATA / "sim_seed3_landmarks.expected.json"

@@ -1,5 +1,5 @@
 """``guidance monitor --web`` server: the fleet API over real Zenoh on loopback, the packaged
-assets, and the binding and Host rules (the browser test is tests/guidance/test_web_browser.py)."""
+assets, and the binding and Host rules (the browser test is tests/guidance/tools/test_web_browser.py)."""
 
 from __future__ import annotations
 
@@ -25,7 +25,7 @@ from guidance.telemetry.config import TelemetryConfig
 from guidance.telemetry.publisher import Telemetry
 from guidance.tools.web.server import WebMonitor, check_web_args, parse_bind
 
-REPO = Path(__file__).resolve().parents[2]
+REPO = Path(__file__).resolve().parents[3]
 ORIGIN = (42.444, -76.5019)
 
 
