@@ -1,5 +1,6 @@
 """``guidance monitor --web`` server: the fleet API over real Zenoh on loopback, the packaged
-assets, and the binding and Host rules (the browser test is tests/guidance/tools/test_web_browser.py)."""
+assets, and the binding and Host rules (the browser test is
+tests/guidance/tools/test_web_browser.py)."""
 
 from __future__ import annotations
 

@@ -1,8 +1,8 @@
 """Speech without the Debian package: espeak-ng's library from the espeakng-loader wheel.
 
 Each check runs in a child process: the wheel's libespeak-ng and the system's (which pyttsx3
-loads in tests/guidance/voice/test_voice.py) share a soname, and two copies initialised in one process
-crash it. In the car only one is ever loaded: the library is the fallback when the espeak-ng
+loads in tests/guidance/voice/test_voice.py) share a soname, and two copies initialised in one
+process crash it. In the car only one is ever loaded: the library is the fallback when the espeak-ng
 command, and with it the system library, is missing.
 """
 
