@@ -20,6 +20,7 @@ from __future__ import annotations
 import bisect
 import functools
 import json
+import logging
 import math
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
@@ -27,6 +28,8 @@ from importlib import resources
 from typing import Any
 
 from guidance.config_tables import rule
+
+log = logging.getLogger(__name__)
 
 SCHEMA = "guidance.chance_table/1"
 FEATURES = ("1", "to_go_km", "major_axis_per_lost", "major_axis_per_lost^2")
@@ -197,8 +200,26 @@ class ChanceTable:
 
 @functools.cache
 def _shipped() -> ChanceTable:
-    text = resources.files("guidance.core").joinpath("chance_table.json").read_text()
+    text = resources.files("guidance.core").joinpath(TABLE_FILE).read_text()
     return ChanceTable.from_json(json.loads(text))
+
+
+TABLE_FILE = "chance_table.json"
+
+
+def shipped_or_none() -> ChanceTable | None:
+    """The shipped table, or None (logged once) when it cannot be read: a damaged install
+    costs the car its chance of success (published as null), never its guidance."""
+    try:
+        return ChanceTable.shipped()
+    except (OSError, ValueError) as e:  # ChanceTableError and JSONDecodeError are ValueErrors
+        if not _warned:
+            _warned.append(True)
+            log.error("no chance of success: the package's %s cannot be read (%s)", TABLE_FILE, e)
+        return None
+
+
+_warned: list[bool] = []
 
 
 def _bracket_index(grid: Sequence[float], v: float) -> list[tuple[int, float]]:

@@ -23,7 +23,7 @@ from dataclasses import asdict
 import numpy as np
 
 from guidance.core import prompts
-from guidance.core.chance import ChanceTable, ChanceWatch
+from guidance.core.chance import ChanceWatch, shipped_or_none
 from guidance.core.compass_cal import CompassCalibration, compass_heading_to_theta
 from guidance.core.estimator import PoseEstimator
 from guidance.core.guide import Guide
@@ -95,7 +95,7 @@ class Pipeline:
         self.navigator = Navigator(config.goal_xy_m, config.navigator, config.landmarks)
         self.chance = ChanceWatch(
             config.chance,
-            ChanceTable.shipped() if config.chance.enabled else None,
+            shipped_or_none() if config.chance.enabled else None,
             config.navigator.method.value,
         )
         self.chance.set_trip(self._landmarks_xy(), config.start_xy_m, config.goal_xy_m)

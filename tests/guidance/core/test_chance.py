@@ -160,3 +160,24 @@ def test_pipeline_says_a_low_chance_once_and_again_after_a_new_goal() -> None:
 def test_disabled_chance_is_none_and_silent() -> None:
     p = _pipeline((15000.0, 0.0), chance=ChanceSettings(enabled=False))
     assert all(v is None for v in _drive(p, 50))
+
+
+def test_a_damaged_shipped_table_costs_the_chance_not_the_car(
+    monkeypatch: pytest.MonkeyPatch, caplog: pytest.LogCaptureFixture
+) -> None:
+    """A broken install (the package's table truncated): the car guides, its chance is None
+    (null in the state message), and the log says why once."""
+    import json
+
+    def broken() -> ChanceTable:
+        return ChanceTable.from_json(json.loads('{"schema": "guidance.chance_table/1"'))
+
+    chance._shipped.cache_clear()
+    monkeypatch.setattr(chance, "_shipped", broken)
+    monkeypatch.setattr(chance, "_warned", [])
+    with caplog.at_level("ERROR", logger="guidance.core.chance"):
+        p = _pipeline((3000.0, 0.0))
+        values = _drive(p, 30)
+    assert values and all(v is None for v in values)
+    assert p.st.odometer_m > 25.0
+    assert sum("no chance of success" in r.message for r in caplog.records) == 1
