@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import json
 import os
+import threading
 import time
 from collections.abc import Callable, Iterable, Sequence
 from concurrent.futures import FIRST_COMPLETED, Future, ProcessPoolExecutor, wait
@@ -251,6 +252,12 @@ def _warm_up(sim: SimParams) -> None:
     run_chunk(task)
 
 
+def _import_outputs() -> None:
+    """Import what the outputs need (matplotlib: about a second of the parent's) while the
+    workers run the chunks."""
+    from hal_sim import analysis, figures, provenance  # noqa: F401
+
+
 def execute(
     tasks: Sequence[ChunkTask],
     store: ChunkStore,
@@ -381,9 +388,16 @@ class StudyRun:
         tasks = make_tasks(conditions, self.trials, self.seed, self.sim)
         store = ChunkStore(self.out)
         t0 = time.monotonic()
-        if any(not store.has(t) for t in tasks) and not self.scheduler:
-            _warm_up(self.sim)
+        preload: threading.Thread | None = None
+        if any(not store.has(t) for t in tasks):
+            if not self.scheduler:
+                _warm_up(self.sim)
+            if self.scheduler or self.workers > 1:  # the parent waits: import meanwhile
+                preload = threading.Thread(target=_import_outputs, daemon=True)
+                preload.start()
         execute(tasks, store, self.workers, self.scheduler, on_progress)
+        if preload is not None:
+            preload.join()
         data = collect(tasks, store, conditions)
         summary = self.outputs(data, time.monotonic() - t0)
         return summary
