@@ -55,6 +55,14 @@ def fit_growth(
     return float(c[0]), float(c[1]), float(c[2]), float(c[3])
 
 
+def fit_of(row: dict[str, Any]) -> tuple[float, float, float, float] | None:
+    """The growth fit ``summarise_range`` stored in a condition's row, as ``fit_growth``
+    returned it."""
+    fit = row["fit_major_axis_sq"]
+    return None if fit is None else (fit["c0_m2"], fit["c1_m2_per_km"], fit["c2_m2_per_km2"],
+                                     fit["c3_m2_per_km3"])  # fmt: skip
+
+
 def growth_curve(coef: tuple[float, float, float, float], distance_km: np.ndarray) -> np.ndarray:
     c0, c1, c2, c3 = coef
     return np.sqrt(c0 + c1 * distance_km + c2 * distance_km**2 + c3 * distance_km**3)

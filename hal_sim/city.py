@@ -145,8 +145,14 @@ def node_pos(xs: np.ndarray, ys: np.ndarray, n: int) -> tuple[float, float]:
 
 @njit(cache=True, error_model="numpy")
 def random_node(in_network: np.ndarray) -> int:
-    idx = np.nonzero(in_network)[0]
-    return int(idx[np.random.randint(0, idx.shape[0])])
+    return random_of(np.nonzero(in_network)[0])
+
+
+@njit(cache=True, error_model="numpy")
+def random_of(nodes: np.ndarray) -> int:
+    """A random entry of ``nodes`` (the network's nodes, ``np.nonzero(in_network)[0]``): the
+    same draw as ``random_node``, without listing the network again."""
+    return int(nodes[np.random.randint(0, nodes.shape[0])])
 
 
 @njit(cache=True, error_model="numpy")
@@ -193,9 +199,10 @@ def place_landmarks(
     count = np.random.poisson(density_per_km2 * area_km2) if density_per_km2 > 0 else 0
     lm_xy = np.empty((count, 2))
     ends = np.empty((count, 2), dtype=np.int64)
+    nodes = np.nonzero(in_network)[0]
     k = 0
     while k < count:
-        u = random_node(in_network)
+        u = random_of(nodes)
         d = np.random.randint(0, 4)
         v = adj[u, d]
         if v < 0:

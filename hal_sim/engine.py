@@ -237,9 +237,14 @@ def drive(
     i_rej = 0
     step = 0
     status = STEP_ON
+    readings = math.floor(step / period)  # compass readings due so far
     while True:
-        # world.world_step, its draws made here: see world.step_core.
-        due = math.floor((step + 1) / period) > math.floor(step / period)
+        # world.world_step, its draws made here: see world.step_core. A reading is due when
+        # floor((step + 1) / period) > floor(step / period); the right side is the last
+        # step's left side, kept (one division a step, not two).
+        due_by_next = math.floor((step + 1) / period)
+        due = due_by_next > readings
+        readings = due_by_next
         u_left, u_right, gauss = world.draw_step(due, true_sigma)
         world.step_core(
             ts, ns, xs, ys, lm_xy, node_start, node_lms, lm_seen, p, due, u_left, u_right,

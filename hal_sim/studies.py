@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import json
 import os
+import threading
 import time
 from collections.abc import Callable, Iterable, Sequence
 from concurrent.futures import FIRST_COMPLETED, Future, ProcessPoolExecutor, wait
@@ -53,6 +54,11 @@ STUDY_CODES = {
 }
 """Condition.study to ``engine.STUDY_*``."""
 CHUNK_TRIALS = 25
+CHUNK_TRIALS_MAX = 100
+"""A condition's trials run in chunks of ``chunk_trials(trials)``: at least CHUNK_TRIALS, at
+most CHUNK_TRIALS_MAX, about an eighth of the condition. Each chunk costs the parent a
+transfer, a file written and one read back (about 2 ms), so the defaults' 2,260 chunks of
+25 cost some 4 s of a 2-core machine; the results do not depend on the chunk size."""
 SUCCESS_TARGET = 0.8
 LOSS_LINE_M = 100.0
 
@@ -177,6 +183,11 @@ def sample_distances_km(p: np.ndarray, n: int) -> np.ndarray:
     return np.array([engine.sample_distance_m(i, n, p) for i in range(n)]) / 1000.0
 
 
+def chunk_trials(trials: int) -> int:
+    """Trials per chunk for a study of ``trials`` per condition (see CHUNK_TRIALS_MAX)."""
+    return max(CHUNK_TRIALS, min(CHUNK_TRIALS_MAX, trials // 8))
+
+
 def make_tasks(
     conditions: Sequence[Condition], trials: int, seed: int, sim: SimParams
 ) -> list[ChunkTask]:
@@ -192,8 +203,9 @@ def make_tasks(
             interference_detection=cond.interference_detection,
         )
         p = params.pack(sim_c, est, nav, cond.detection_rate)
-        for chunk, first in enumerate(range(0, trials, CHUNK_TRIALS)):
-            count = min(CHUNK_TRIALS, trials - first)
+        size = chunk_trials(trials)
+        for chunk, first in enumerate(range(0, trials, size)):
+            count = min(size, trials - first)
             tasks.append(
                 ChunkTask(cond, chunk, trial_seeds(seed, cond.index, first, count), p, n_samples)
             )
@@ -247,6 +259,12 @@ def _warm_up(sim: SimParams) -> None:
     """Compile (or load from cache) once before workers start, so they only load."""
     task = make_tasks(range_conditions()[-1:], 1, 0, sim)[0]
     run_chunk(task)
+
+
+def _import_outputs() -> None:
+    """Import what the outputs need (matplotlib: about a second of the parent's) while the
+    workers run the chunks."""
+    from hal_sim import analysis, figures, provenance  # noqa: F401
 
 
 def execute(
@@ -330,12 +348,15 @@ def collect(
 ) -> StudyData:
     res: dict[str, list[np.ndarray]] = {c.key: [] for c in conditions}
     smp: dict[str, list[np.ndarray]] = {c.key: [] for c in conditions}
-    sample_km = np.zeros(0)
+    last: ChunkTask | None = None
     for t in tasks:
-        sample_km = sample_distances_km(t.p, t.n_samples)
         r, s = store.load(t)
         res[t.condition.key].append(r)
         smp[t.condition.key].append(s)
+        last = t
+    # Where the samples are taken depends on the range cap and the first distance alone,
+    # the same in every condition.
+    sample_km = np.zeros(0) if last is None else sample_distances_km(last.p, last.n_samples)
     return StudyData(
         conditions,
         {k: np.vstack(v) for k, v in res.items()},
@@ -380,9 +401,16 @@ class StudyRun:
         tasks = make_tasks(conditions, self.trials, self.seed, self.sim)
         store = ChunkStore(self.out)
         t0 = time.monotonic()
-        if any(not store.has(t) for t in tasks) and not self.scheduler:
-            _warm_up(self.sim)
+        preload: threading.Thread | None = None
+        if any(not store.has(t) for t in tasks):
+            if not self.scheduler:
+                _warm_up(self.sim)
+            if self.scheduler or self.workers > 1:  # the parent waits: import meanwhile
+                preload = threading.Thread(target=_import_outputs, daemon=True)
+                preload.start()
         execute(tasks, store, self.workers, self.scheduler, on_progress)
+        if preload is not None:
+            preload.join()
         data = collect(tasks, store, conditions)
         summary = self.outputs(data, time.monotonic() - t0)
         return summary
@@ -397,7 +425,7 @@ class StudyRun:
             "trials_per_condition": self.trials,
             "seed": self.seed,
             "seeding": "numpy SeedSequence([seed, condition index, trial index])",
-            "chunk_trials": CHUNK_TRIALS,
+            "chunk_trials": chunk_trials(self.trials),
             "n_samples": params.N_SAMPLES,
             "sim": asdict(self.sim),
             "navigator": asdict(NavigatorConfig()),
@@ -418,7 +446,8 @@ class StudyRun:
             summary = analysis.summarise_range(data, self.sim, self.seed)
             if self.name == "range":
                 summary["paper_check"] = analysis.paper_check_range(summary)
-                figures.fig3(data, self.out / "fig3.png", caption=cap)
+                fits = [analysis.fit_of(row) for row in summary["conditions"]]
+                figures.fig3(data, self.out / "fig3.png", caption=cap, fits=fits)
             else:
                 summary["study"] = "interference"
                 for c, row in zip(data.conditions, summary["conditions"], strict=True):
@@ -433,6 +462,7 @@ class StudyRun:
                     self.out / "fig_interference.png",
                     title="Range with magnetic interference zones, detector on and off",
                     caption=cap,
+                    fits=[analysis.fit_of(row) for row in summary["conditions"]],
                 )
         elif self.name == "field":
             from hal_sim import field_study

@@ -179,10 +179,22 @@ def init_truth(
 
 
 @njit(cache=True, error_model="numpy")
+def street_heading(dx: float, dy: float) -> float:
+    """``atan2(dy, dx)``, exactly, for a street of extent (dx, dy): the grid city's streets
+    are along the axes, whose headings need no arctangent (``DIR_HEADING``, the doubles
+    atan2 returns there)."""
+    if dy == 0.0 and dx != 0.0:
+        return math.copysign(0.0 if dx > 0.0 else math.pi, dy)  # atan2(-0.0, -1) is -pi
+    if dx == 0.0 and dy != 0.0:
+        return 0.5 * math.pi if dy > 0.0 else -0.5 * math.pi
+    return math.atan2(dy, dx)
+
+
+@njit(cache=True, error_model="numpy")
 def segment(dx: float, dy: float) -> tuple[float, float, float]:
     """Heading and unit vector of a street a -> b from its extent (scalars: see step_core)."""
     seg = math.hypot(dx, dy)
-    return math.atan2(dy, dx), dx / seg, dy / seg
+    return street_heading(dx, dy), dx / seg, dy / seg
 
 
 @njit(cache=True, error_model="numpy")
@@ -258,7 +270,7 @@ def step_core(
     near = to_b <= max(brake, 0.0) + 5.0
     if c >= 0 and (near or to_b <= SWITCH_RADIUS_M):
         cx, cy = xs[c % nx], ys[c // nx]
-        h_bc = math.atan2(cy - by, cx - bx)
+        h_bc = street_heading(cx - bx, cy - by)
         turning = abs(wrap_angle(h_bc - h_ab)) > 0.3
         switch = SWITCH_RADIUS_M if turning else 0.0
         if abs(wrap_angle(h_bc - h_ab)) > 3.0:

@@ -8,14 +8,26 @@ from __future__ import annotations
 
 import math
 
+_TWO_PI = 2.0 * math.pi
+
 
 def wrap_angle(a: float) -> float:
     """Wrap an angle to (-pi, pi]."""
     if -math.pi < a <= math.pi:  # the common case, without a division
         return a
-    w = (a + math.pi) % (2.0 * math.pi)
+    x = a + math.pi
+    # x % 2 pi, without the library's remainder when a is less than a turn out (a heading
+    # just past +-pi: every step of a car driving west) and with the same result: for
+    # 2 pi < x < 4 pi the remainder is x - 2 pi, exactly (Sterbenz); for -2 pi < x < 0 it is
+    # x, which % makes positive by adding 2 pi.
+    if _TWO_PI < x < 2.0 * _TWO_PI:
+        w = x - _TWO_PI
+    elif -_TWO_PI < x < 0.0:
+        w = x + _TWO_PI
+    else:
+        w = x % _TWO_PI
     if w == 0.0:
-        w = 2.0 * math.pi
+        w = _TWO_PI
     return w - math.pi
 
 
