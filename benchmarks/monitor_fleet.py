@@ -15,12 +15,14 @@ gap between shown states (median over cars), the age of each car's shown state s
 17 ms (p50/p99/max over cars and samples, and the fraction of samples within 1 s), the
 monitor's CPU (user+sys seconds / wall seconds, from wait4), and in brackets what a reference
 subscriber got from the router and the router's and fleet's CPU (losses upstream of the
-monitor). This zenoh's router refuses client sessions beyond about 350: 1000 cars need
-``--cars-per-session 4``. Figures: docs/telemetry.md, "Measured".
+monitor). With zenoh's shared memory on (its default) one process could open only 351
+client sessions and the router accept about 600; ``session_config`` turns it off, so 1000
+cars are 1000 sessions over ``--fleet-procs`` processes. Figures: docs/telemetry.md,
+"Measured".
 
     .venv/bin/python benchmarks/monitor_fleet.py --cars 1 10 30 100 --duration 10
     .venv/bin/python benchmarks/monitor_fleet.py --cars 10 100 300 --before 4bf690d
-    .venv/bin/python benchmarks/monitor_fleet.py --cars 1000 --fleet-procs 4 --cars-per-session 4
+    .venv/bin/python benchmarks/monitor_fleet.py --cars 1000 --fleet-procs 4
     .venv/bin/python benchmarks/monitor_fleet.py --router-restart 10
 
 ``--before REV`` also runs the monitor of git revision REV (its packages extracted

@@ -26,6 +26,10 @@ if TYPE_CHECKING:
 log = logging.getLogger(__name__)
 
 
+SHARED_MEMORY = False
+"""zenoh's shared-memory transport, for sessions built without a config file."""
+
+
 def session_config(
     *,
     mode: str,
@@ -35,7 +39,13 @@ def session_config(
     zenoh_config: str = "",
     tls: TlsConfig | None = None,
 ) -> zenoh.Config:
-    """A zenoh config: optional JSON5 file first, then mode, endpoints, scouting and TLS."""
+    """A zenoh config: optional JSON5 file first, then mode, endpoints, scouting and TLS.
+
+    Without a file, zenoh's shared memory is off (``SHARED_MEMORY``): the car's messages are
+    small and cross the network, and with it on every session holds shared-memory file
+    descriptors: one process could open only 351 sessions and a router accept about 600 (a
+    fleet of 1,000 cars through one router needs it off; docs/telemetry.md). A file decides
+    for itself."""
     try:
         if zenoh_config:
             if not Path(zenoh_config).is_file():
@@ -43,6 +53,7 @@ def session_config(
             conf = zenoh.Config.from_file(zenoh_config)
         else:
             conf = zenoh.Config()
+            conf.insert_json5("transport/shared_memory/enabled", json.dumps(SHARED_MEMORY))
         conf.insert_json5("mode", json.dumps(mode))
         conf.insert_json5("listen/endpoints", json.dumps(list(listen) if mode != "client" else []))
         conf.insert_json5("connect/endpoints", json.dumps(list(connect)))

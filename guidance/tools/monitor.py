@@ -15,6 +15,7 @@ from __future__ import annotations
 
 import argparse
 import contextlib
+import gc
 import json
 import math
 import os
@@ -204,6 +205,19 @@ def _positive_float(text: str) -> float:
     return value
 
 
+GC_THRESHOLDS = (50_000, 20, 50)
+"""The monitor's garbage collector: a young collection every 50,000 allocations (Python's 700).
+At 1,000 cars a monitor makes ten thousand short-lived messages a second while it holds every
+car's state and track: with the default, collecting took a fifth of its CPU (py-spy)."""
+
+
+def calm_gc() -> None:
+    """Move what start-up made out of the collector's way and collect less often."""
+    gc.collect()
+    gc.freeze()
+    gc.set_threshold(*GC_THRESHOLDS)
+
+
 def run(args: argparse.Namespace) -> int:
     endpoints: Sequence[str] = args.connect or [DEFAULT_CONNECT]
     for ep in endpoints:
@@ -213,6 +227,7 @@ def run(args: argparse.Namespace) -> int:
         from guidance.tools.web.server import check_web_args
 
         check_web_args(web, allow_remote=args.allow_remote, tiles=args.tiles)
+    calm_gc()
     client = MonitorClient(endpoints, vehicle=args.vehicle, zenoh_config=args.zenoh_config)
     client.open()
     try:

@@ -757,3 +757,27 @@ def test_a_non_finite_angle_loses_its_field_not_the_message() -> None:
     assert _wrap_deg(math.inf) is None and _wrap_deg(math.nan) is None
     assert _wrap_deg(3 * math.pi) == pytest.approx(180.0)
     assert _wrap_deg(-math.pi / 2) == pytest.approx(-90.0)
+
+
+def test_a_router_takes_a_fleet_of_client_sessions_with_shared_memory_off() -> None:
+    """Issue 24: 1,000 cars through one router. With zenoh's shared memory on (its default),
+    every session holds shared-memory file descriptors: one process could open 351 client
+    sessions and a router accept about 600. ``session_config`` turns it off (without a file),
+    so here one process opens 450 client sessions of one router on loopback."""
+    import json as _json
+
+    from guidance.telemetry.session import open_session, session_config
+
+    port = free_port()
+    conf = session_config(mode="router", listen=[tcp(port)])
+    assert _json.loads(conf.get_json("transport/shared_memory/enabled")) is False
+    router = open_session(conf)
+    sessions = []
+    try:
+        for _ in range(450):
+            sessions.append(open_session(session_config(mode="client", connect=[tcp(port)])))
+        assert len(sessions) == 450
+    finally:
+        for s in sessions:
+            s.close()
+        router.close()
