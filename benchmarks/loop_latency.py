@@ -9,8 +9,9 @@ the matcher can take, in a worker thread (OpenCV releases the GIL).
 Two cases, side by side with their ratio: ``idle`` (nothing else running) and ``loaded``: one
 CPU-bound process beside the app (``--busy N`` for more), a program at the default priority
 as on a laptop that runs other things (issue 23, item 9). The benchmark runs at the priority
-the car's systemd unit gives (``Nice=`` of systemd/guidance.service, when this user may
-take it: root, or CAP_SYS_NICE; ``--no-nice`` to measure without), the matcher worker sets
+the car's systemd unit gives (``Nice=`` and the main thread's ``CPUSchedulingPolicy=rr`` with
+reset-on-fork, of systemd/guidance.service, when this user may take them: root, or
+CAP_SYS_NICE; ``--no-nice`` to measure without), the matcher worker sets
 itself up as in the car (``landmark_db.recognise.worker_setup``: 10 nice levels below the
 app, one OpenCV thread), and the busy process runs at nice 0 in the same session.
 
@@ -22,7 +23,7 @@ Printed figures:
   step it caused (target p99 <= 5 ms).
 
 Usage: ``python benchmarks/loop_latency.py [--seconds 10] [--case both|idle|loaded] [--busy 1]
-[--no-nice] [--no-camera] [--record] [--json]``
+[--no-nice] [--no-rt] [--no-camera] [--record] [--json]``
 """
 
 from __future__ import annotations
@@ -169,14 +170,38 @@ def unit_nice(path: Path = UNIT) -> int:
     return int(m.group(1)) if m else 0
 
 
-def take_unit_priority(nice: int) -> str:
-    """Run this process at ``nice``, as systemd starts the car's; before any thread starts,
-    so every thread (and the worker, which lowers itself) inherits it. What was done."""
+def unit_scheduling(path: Path = UNIT) -> tuple[int, int, bool] | None:
+    """(policy, priority, reset on fork) of the unit's ``CPUSchedulingPolicy=rr|fifo``, or
+    None when it sets no real-time policy."""
+    text = path.read_text()
+    m = re.search(r"^CPUSchedulingPolicy=(rr|fifo)\s*$", text, re.M)
+    if m is None:
+        return None
+    prio = re.search(r"^CPUSchedulingPriority=(\d+)\s*$", text, re.M)
+    reset = re.search(r"^CPUSchedulingResetOnFork=(yes|true|1)\s*$", text, re.M)
+    policy = os.SCHED_RR if m.group(1) == "rr" else os.SCHED_FIFO
+    return policy, int(prio.group(1)) if prio else 1, reset is not None
+
+
+def take_unit_priority(nice: int, sched: tuple[int, int, bool] | None = None) -> str:
+    """Run this process as systemd starts the car's: at ``nice``, then the unit's real-time
+    policy (main thread; with reset-on-fork every thread started later, and the worker, are
+    ordinary again); before any thread starts. What was done."""
     try:
         os.setpriority(os.PRIO_PROCESS, 0, nice)
     except PermissionError:
         return f"nice {os.getpriority(os.PRIO_PROCESS, 0)} (not allowed to take the unit's {nice})"
-    return f"nice {nice} (the unit's Nice=)"
+    done = f"nice {nice} (the unit's Nice=)"
+    if sched is not None:
+        policy, prio, reset = sched
+        flags = os.SCHED_RESET_ON_FORK if reset else 0
+        name = "SCHED_RR" if policy == os.SCHED_RR else "SCHED_FIFO"
+        try:
+            os.sched_setscheduler(0, policy | flags, os.sched_param(prio))
+        except PermissionError:
+            return f"{done}; not allowed to take the unit's {name} {prio}"
+        done += f", main thread {name} {prio}" + (" (reset on fork)" if reset else "")
+    return done
 
 
 def _pct(values: list[float], q: float) -> float:
@@ -303,6 +328,9 @@ def main() -> int:
     ap.add_argument("--case", choices=("both", "idle", "loaded"), default="both")
     ap.add_argument("--busy", type=int, default=1, help="CPU-bound processes in the loaded case")
     ap.add_argument("--no-nice", action="store_true", help="do not take the unit's Nice=")
+    ap.add_argument(
+        "--no-rt", action="store_true", help="take the unit's Nice= but not its real-time policy"
+    )
     ap.add_argument("--no-camera", action="store_true")
     ap.add_argument("--record", action="store_true", help="also record to MCAP")
     ap.add_argument(
@@ -320,7 +348,7 @@ def main() -> int:
     priority = (
         f"nice {os.getpriority(os.PRIO_PROCESS, 0)}"
         if args.no_nice
-        else take_unit_priority(unit_nice())
+        else take_unit_priority(unit_nice(), None if args.no_rt else unit_scheduling())
     )
     busy = {"idle": 0, "loaded": max(1, args.busy)}
     names = ["idle", "loaded"] if args.case == "both" else [args.case]

@@ -429,6 +429,8 @@ def lower_priority(levels: int = WORKER_NICE_LEVELS) -> str:
     process on a busy 2-core machine the worker got no CPU at all (0 matches in 3 s, the
     first one minutes late), so a busy laptop meant no landmark fixes. Raising one's own
     nice value needs no privilege."""
+    if os.sched_getscheduler(0) & ~os.SCHED_RESET_ON_FORK in (os.SCHED_RR, os.SCHED_FIFO):
+        os.sched_setscheduler(0, os.SCHED_OTHER, os.sched_param(0))  # never real-time
     nice = min(19, os.getpriority(os.PRIO_PROCESS, 0) + levels)
     os.setpriority(os.PRIO_PROCESS, 0, nice)
     return f"nice {nice}"

@@ -201,3 +201,24 @@ def test_the_worker_process_yields_to_the_loop(
     assert got["policy"] == os.SCHED_OTHER, got
     assert got["nice"] == min(19, mine + WORKER_NICE_LEVELS), got
     assert got["opencv_threads"] == 1, got
+
+
+def test_a_worker_started_by_a_real_time_loop_is_never_real_time(
+    sim_db_path: tuple[Path, list[SimLandmark]],
+) -> None:
+    """Issue 23, item 9: the car's unit makes the loop's thread SCHED_RR; a matcher worker
+    that inherits it (without the unit's reset-on-fork) would hold a core at the loop's own
+    priority (loaded lateness 22-25 ms): it drops the policy in ``worker_setup``."""
+    import os
+
+    path, _ = sim_db_path
+    try:
+        os.sched_setscheduler(0, os.SCHED_RR, os.sched_param(5))
+    except PermissionError:
+        pytest.skip("real-time scheduling needs root or CAP_SYS_NICE")
+    try:
+        with RecogniserWorker(path) as worker:
+            got = worker.scheduling()
+    finally:
+        os.sched_setscheduler(0, os.SCHED_OTHER, os.sched_param(0))
+    assert got["policy"] == os.SCHED_OTHER, got
