@@ -16,7 +16,7 @@ import logging
 import math
 import os
 import re
-import shutil
+import shlex
 import signal
 import subprocess
 import sys
@@ -28,6 +28,7 @@ from pathlib import Path
 import pytest
 from evdev import ecodes
 from screen_drive import drive_config
+from tmux_pane import TmuxPane, needs_tmux
 
 from drivers.evdev_keys import key_press_records
 from guidance.app.operator_view import OperatorView, compass_deg, uncertainty_text
@@ -324,20 +325,18 @@ def test_check_says_when_the_input_device_is_missing(tmp_path: Path) -> None:
 # ----------------------------------------------------------------------------- a real terminal
 
 
-class Pane:
+class Pane(TmuxPane):
     """``tests/guidance/app/screen_drive.py`` in a tmux pane (a real pty, 100x40)."""
 
     def __init__(self, directory: Path, co_driver: str) -> None:
         self.dir = directory
-        self.tmux = ["tmux", "-L", f"guidance-test-{os.getpid()}", "-f", "/dev/null"]
-        command = (
-            f"cd {ROOT} && {sys.executable} tests/guidance/app/screen_drive.py {directory} "
-            f"--input {co_driver} 2> {directory / 'stderr.txt'}; echo EXITED $?; sleep 30"
+        script = (
+            f"{shlex.quote(sys.executable)} tests/guidance/app/screen_drive.py "
+            f"{shlex.quote(str(directory))} --input {shlex.quote(co_driver)} "
+            f"2> {shlex.quote(str(directory / 'stderr.txt'))}"
         )
-        env = {**os.environ, "TERM": "xterm-256color", "PYTHONPATH": str(ROOT)}
-        env.pop("TMUX", None)
-        subprocess.run([*self.tmux, "new-session", "-d", "-x", "100", "-y", "40", "-s", "drive",
-                        command], check=True, env=env)  # fmt: skip
+        super().__init__(["sh", "-c", script], cwd=ROOT, env={"PYTHONPATH": str(ROOT)},
+                         name="screen")  # fmt: skip
         deadline = time.monotonic() + 60.0
         while not (directory / "running").exists() and time.monotonic() < deadline:
             time.sleep(0.1)
@@ -348,42 +347,15 @@ class Pane:
         path = self.dir / "stderr.txt"
         return path.read_text() if path.exists() else ""
 
-    def capture(self) -> str:
-        done = subprocess.run([*self.tmux, "capture-pane", "-p", "-t", "drive"],
-                              capture_output=True, text=True)  # fmt: skip
-        return done.stdout
-
-    def scrollback(self) -> str:
-        """The pane with everything scrolled off its top."""
-        done = subprocess.run([*self.tmux, "capture-pane", "-p", "-S", "-", "-t", "drive"],
-                              capture_output=True, text=True)  # fmt: skip
-        return done.stdout
-
     def send_keys(self, *keys: str) -> None:
         for key in keys:  # one at a time, as typed
-            subprocess.run([*self.tmux, "send-keys", "-t", "drive", key], check=True)
+            super().send_keys(key)
             time.sleep(0.05)
-
-    def wait_for(self, predicate: Callable[[str], bool], timeout_s: float = 20.0) -> str:
-        deadline = time.monotonic() + timeout_s
-        while True:
-            screen = self.capture()
-            if predicate(screen) or time.monotonic() > deadline:
-                return screen
-            time.sleep(0.2)
 
     def stop(self) -> str:
         """Ask the drive to stop; the pane after it exited."""
         (self.dir / "stop").touch()
         return self.wait_for(lambda s: "EXITED" in s)
-
-    def close(self) -> None:
-        subprocess.run([*self.tmux, "kill-server"], capture_output=True)
-
-
-needs_tmux = pytest.mark.skipif(
-    shutil.which("tmux") is None, reason="tmux is not installed (.ci/run installs it)"
-)
 
 
 @needs_tmux

@@ -3,6 +3,7 @@ a user sees: capture the pane (and what scrolled off it), type keys, wait for te
 
 from __future__ import annotations
 
+import itertools
 import os
 import shlex
 import shutil
@@ -16,6 +17,9 @@ import pytest
 needs_tmux = pytest.mark.skipif(
     shutil.which("tmux") is None, reason="tmux is not installed (.ci/run installs it)"
 )
+
+
+_PANES = itertools.count()
 
 
 class TmuxPane:
@@ -32,7 +36,10 @@ class TmuxPane:
         env: dict[str, str] | None = None,
         name: str = "pane",
     ) -> None:
-        self.tmux = ["tmux", "-L", f"guidance-{name}-{os.getpid()}", "-f", "/dev/null"]
+        # a server of its own per pane: one test's server may still be exiting when the next
+        # pane starts ("server exited unexpectedly" when two shared a socket name)
+        socket = f"guidance-{name}-{os.getpid()}-{next(_PANES)}"
+        self.tmux = ["tmux", "-L", socket, "-f", "/dev/null"]
         command = f"cd {shlex.quote(str(cwd))} && {shlex.join(argv)}; echo EXITED $?; sleep 60"
         full_env = {**os.environ, "TERM": "xterm-256color", **(env or {})}
         full_env.pop("TMUX", None)
