@@ -57,7 +57,11 @@ def test_a_can_flood_with_a_lagging_reader_is_no_clock_step_and_keeps_the_distan
     stalls: list[float] = []
     next_stall = [time.monotonic() + 0.2]
 
+    first_seen: list[float] = []
+
     def sink(inc: WheelOdometry) -> None:  # on the reader thread: a stall is reader lag
+        if not first_seen:
+            first_seen.append(time.time())  # the first frame's own lag: what may be lost
         increments.append(inc)
         if time.monotonic() >= next_stall[0]:
             stall = 0.04 + 0.02 * (len(stalls) % 4)
@@ -94,6 +98,7 @@ def test_a_can_flood_with_a_lagging_reader_is_no_clock_step_and_keeps_the_distan
     # is lost, once, while every false step of before added its 50 ms of driving).
     distance = sum((i.d_left_m + i.d_right_m) / 2.0 for i in increments)
     truth = SPEED_MPS * (sent[1] - sent[0])
-    assert distance == pytest.approx(truth, rel=0.02)
+    first_lag_m = SPEED_MPS * max(0.0, first_seen[0] - sent[0])  # a busy machine's start
+    assert truth * 0.98 - first_lag_m <= distance <= truth * 1.02, (distance, truth, first_lag_m)
     span = increments[-1].t_s - increments[0].t_s  # times keep the stamps' spacing
     assert span == pytest.approx(sent[1] - sent[0], abs=0.1)
