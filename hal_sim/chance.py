@@ -90,10 +90,10 @@ def fit_monotone(X: np.ndarray, y: np.ndarray) -> np.ndarray:
 
 
 def feature_matrix(to_go_km: np.ndarray, axis_ratio: np.ndarray) -> np.ndarray:
-    """``core_chance.features`` for arrays (the same four columns)."""
+    """``core_chance.features`` (the car's) for arrays: one row per point."""
     d = np.asarray(to_go_km, dtype=float)
     a = np.asarray(axis_ratio, dtype=float)
-    return np.column_stack([np.ones_like(d), d, a, a * a])
+    return np.column_stack(core_chance.features(d, a))
 
 
 def sample_points(

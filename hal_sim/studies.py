@@ -193,7 +193,6 @@ def make_tasks(
 ) -> list[ChunkTask]:
     nav = NavigatorConfig()
     tasks = []
-    n_samples = params.N_SAMPLES
     for cond in conditions:
         # the chance study's rows: the major axis, then the estimated distance to go
         n_samples = params.N_SAMPLES * (2 if cond.study == "chance" else 1)

@@ -65,8 +65,8 @@ class OperatorSession:
             vehicle_id=cfg.vehicle_id,
             landmark_names={lm.id: lm.name for lm in pcfg.landmarks if lm.name},
             lost_major_axis_m=pcfg.estimator.lost_major_axis_m,
+            chance_warn_below=pcfg.chance.warn_below,
         )
-        view.chance_warn_below = pcfg.chance.warn_below
         live = {"live": True, "plain": False}.get(screen)
         self.screen = OperatorScreen(
             view, stream=stream if stream is not None else sys.stdout, live=live

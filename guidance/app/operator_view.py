@@ -122,6 +122,7 @@ class OperatorView:
         vehicle_id: str = "",
         landmark_names: Mapping[int, str] | None = None,
         lost_major_axis_m: float = 100.0,
+        chance_warn_below: float = 0.5,
     ) -> None:
         self.vehicle_id = vehicle_id
         self.landmark_names = dict(landmark_names or {})
@@ -141,7 +142,8 @@ class OperatorView:
         self.arrived = False
         self.chance: float | None = None
         """The chance of reaching the goal, with each state (``guidance.core.chance``)."""
-        self.chance_warn_below = 0.5
+        self.chance_warn_below = chance_warn_below
+        """``[chance] warn_below``: the CHANCE row is yellow below it."""
         self.last_turn_prompt = ""
         self.events: deque[ScreenEvent] = deque(maxlen=EVENTS_KEPT)
         self.exit_note: ScreenEvent | None = None

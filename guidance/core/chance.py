@@ -25,12 +25,18 @@ import math
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 from importlib import resources
-from typing import Any
+from typing import TYPE_CHECKING, Any, TypeVar
 
 from guidance.config_tables import rule
 
+if TYPE_CHECKING:
+    import numpy as np
+    import numpy.typing as npt
+
 log = logging.getLogger(__name__)
 
+F = TypeVar("F", float, "npt.NDArray[np.float64]")
+"""A number, or an array of them."""
 SCHEMA = "guidance.chance_table/1"
 FEATURES = ("1", "to_go_km", "major_axis_per_lost", "major_axis_per_lost^2")
 """The logistic model's inputs: P = 1 / (1 + exp(-(w . [1, d, a, a^2]))) with d the estimated
@@ -40,8 +46,10 @@ REARM_MARGIN = 0.15
 """The warning re-arms once the chance is back this far above the threshold."""
 
 
-def features(to_go_km: float, axis_ratio: float) -> tuple[float, float, float, float]:
-    return (1.0, to_go_km, axis_ratio, axis_ratio * axis_ratio)
+def features(to_go_km: F, axis_ratio: F) -> tuple[F, F, F, F]:
+    """``FEATURES`` of one point, or of arrays of points (the study's fit uses the same
+    function: ``hal_sim.chance.feature_matrix``)."""
+    return (to_go_km * 0 + 1, to_go_km, axis_ratio, axis_ratio * axis_ratio)
 
 
 def sigmoid(z: float) -> float:
@@ -92,9 +100,9 @@ class ChanceTable:
         raw_c = data.get("compass_two_sigma_deg")
         if not isinstance(raw_c, list) or not raw_c:
             raise ChanceTableError("compass_two_sigma_deg must be a non-empty list")
-        numeric = _axis([c for c in raw_c if c is not None] or [1.0], "compass", 0.0, 180.0)
+        numbers = [c for c in raw_c if c is not None]
         comp: tuple[float | None, ...] = ((None,) if None in raw_c else ()) + (
-            numeric if any(c is not None for c in raw_c) else ()
+            _axis(numbers, "compass_two_sigma_deg", 0.0, 180.0) if numbers else ()
         )
         lost = data.get("lost_major_axis_m")
         if isinstance(lost, bool) or not isinstance(lost, int | float) or not lost > 0:
@@ -207,19 +215,16 @@ def _shipped() -> ChanceTable:
 TABLE_FILE = "chance_table.json"
 
 
+@functools.cache
 def shipped_or_none() -> ChanceTable | None:
-    """The shipped table, or None (logged once) when it cannot be read: a damaged install
-    costs the car its chance of success (published as null), never its guidance."""
+    """The shipped table, or None (logged once: the answer is kept) when it cannot be read: a
+    damaged install costs the car its chance of success (published as null), never its
+    guidance."""
     try:
         return ChanceTable.shipped()
     except (OSError, ValueError) as e:  # ChanceTableError and JSONDecodeError are ValueErrors
-        if not _warned:
-            _warned.append(True)
-            log.error("no chance of success: the package's %s cannot be read (%s)", TABLE_FILE, e)
+        log.error("no chance of success: the package's %s cannot be read (%s)", TABLE_FILE, e)
         return None
-
-
-_warned: list[bool] = []
 
 
 def _bracket_index(grid: Sequence[float], v: float) -> list[tuple[int, float]]:

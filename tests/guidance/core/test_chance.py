@@ -172,12 +172,15 @@ def test_a_damaged_shipped_table_costs_the_chance_not_the_car(
     def broken() -> ChanceTable:
         return ChanceTable.from_json(json.loads('{"schema": "guidance.chance_table/1"'))
 
-    chance._shipped.cache_clear()
     monkeypatch.setattr(chance, "_shipped", broken)
-    monkeypatch.setattr(chance, "_warned", [])
-    with caplog.at_level("ERROR", logger="guidance.core.chance"):
-        p = _pipeline((3000.0, 0.0))
-        values = _drive(p, 30)
+    chance.shipped_or_none.cache_clear()
+    try:
+        with caplog.at_level("ERROR", logger="guidance.core.chance"):
+            p = _pipeline((3000.0, 0.0))
+            values = _drive(p, 30)
+            _pipeline((3000.0, 0.0))  # a second pipeline: no second log line
+    finally:
+        chance.shipped_or_none.cache_clear()
     assert values and all(v is None for v in values)
     assert p.st.odometer_m > 25.0
     assert sum("no chance of success" in r.message for r in caplog.records) == 1
