@@ -170,6 +170,8 @@ class Seen:
 
     chunks: list[tuple[float, bytes]] = field(default_factory=list)
     states: dict[str, list[tuple[float, float, int]]] = field(default_factory=dict)
+    responses: int = 0
+    """Web feed: the /api/fleet responses read."""
 
     def parse(self) -> None:
         """Each state line's envelope (the first fields, not the whole line), stamped with
@@ -211,7 +213,34 @@ class Row:
     fleet_cpu_pct: float = float("nan")
 
 
-def _monitor(router: str, duration: float, pythonpath: str | None) -> subprocess.Popen[bytes]:
+def _poll_web(port: int, seen: Seen, stop: threading.Event, period_s: float = 0.5) -> None:
+    """What the web page does: ``GET /api/fleet`` every ``period_s`` (its ``poll_ms``, 500),
+    each car's state recorded with the arrival of the whole response."""
+    import urllib.request
+
+    url = f"http://127.0.0.1:{port}/api/fleet"
+    next_t = time.monotonic()
+    while not stop.is_set():
+        try:
+            with urllib.request.urlopen(url, timeout=5.0) as r:
+                body = r.read()
+            now = time.monotonic()
+            seen.responses += 1
+            for car in json.loads(body)["cars"]:
+                st = car.get("state") or {}
+                if isinstance(st.get("t_s"), float):
+                    seen.states.setdefault(car["vehicle_id"], []).append(
+                        (now, st["t_s"], st["seq"])
+                    )
+        except OSError:  # not serving yet, or gone at the end
+            pass
+        next_t += period_s
+        stop.wait(max(0.0, next_t - time.monotonic()))
+
+
+def _monitor(
+    router: str, duration: float, pythonpath: str | None, web_port: int | None = None
+) -> subprocess.Popen[bytes]:
     env = dict(os.environ)
     if pythonpath:
         env["PYTHONPATH"] = pythonpath
@@ -225,7 +254,7 @@ def _monitor(router: str, duration: float, pythonpath: str | None) -> subprocess
             "monitor",
             "--connect",
             router,
-            "--json",
+            *(["--json"] if web_port is None else ["--web", f"127.0.0.1:{web_port}"]),
             "--timeout",
             f"{duration:g}",
         ],
@@ -274,7 +303,7 @@ def run_k(
     procs: int,
     car: str,
     per_session: int,
-    monitors: list[tuple[str, str | None]],
+    monitors: list[tuple[str, str | None, str]],
 ) -> list[Row]:
     port = free_port()
     router_ep = f"tcp/127.0.0.1:{port}"
@@ -300,16 +329,24 @@ def run_k(
             p.stdin.write("go\n")
             p.stdin.flush()
         time.sleep(1.0)
-        for label, path in monitors:  # one after the other, on the same running fleet
+        for label, path, feed in monitors:  # one after the other, on the same running fleet
             seen = Seen()
             ref = _spawn(REFERENCE, router_ep)
             assert ref.stdout is not None and ref.stdout.readline().strip() == "up"
             start = time.monotonic()
             others0 = [_cpu_s(p.pid) for p in [router, *fleet]]
-            mon = _monitor(router_ep, duration + 2.0, path)
-            reader = threading.Thread(target=_read, args=(mon, seen), daemon=True)
+            web_port = free_port() if feed == "web" else None
+            mon = _monitor(router_ep, duration + 2.0, path, web_port)
+            stop_polling = threading.Event()
+            if web_port is None:
+                reader = threading.Thread(target=_read, args=(mon, seen), daemon=True)
+            else:
+                reader = threading.Thread(
+                    target=_poll_web, args=(web_port, seen, stop_polling), daemon=True
+                )
             reader.start()
             _pid, _status, usage = os.wait4(mon.pid, 0)
+            stop_polling.set()
             mon.returncode = 0
             wall = time.monotonic() - start
             if wall < duration:
@@ -434,6 +471,12 @@ def main() -> int:
     )
     ap.add_argument("--before", metavar="REV", help="also run the monitor of this git revision")
     ap.add_argument(
+        "--feed",
+        choices=("json", "web", "both"),
+        default="both",
+        help="what is measured: --json's lines, the web map's /api/fleet, or both in turn",
+    )
+    ap.add_argument(
         "--router-restart",
         type=int,
         metavar="K",
@@ -449,12 +492,16 @@ def main() -> int:
         )
         return 0
     with tempfile.TemporaryDirectory() as tmp:
-        monitors: list[tuple[str, str | None]] = []
-        if args.before:
-            monitors.append((f"before ({args.before})", _before_tree(args.before, Path(tmp))))
-        monitors.append(("this tree", None))
+        monitors: list[tuple[str, str | None, str]] = []
+        feeds = ("json", "web") if args.feed == "both" else (args.feed,)
+        for feed in feeds:
+            if args.before:
+                tree = _before_tree(args.before, Path(tmp))
+                monitors.append((f"before ({args.before}) {feed}", tree, feed))
+            monitors.append((f"this tree {feed}", None, feed))
         print(
-            f"guidance monitor --json, K cars at {args.rate:g} Hz through one local router, "
+            f"guidance monitor --json (what it prints) and --web (GET /api/fleet every 0.5 s, "
+            f"as the page does), K cars at {args.rate:g} Hz through one local router, "
             f"{args.duration:g} s measured per K ({os.cpu_count()} CPUs)"
         )
         head = (

@@ -4,7 +4,8 @@ Each message kind has its own zenoh subscriber, and the subscriber's handler is 
 
 * ``state`` and ``health`` (``RING_KINDS``): one ``zenoh.handlers.RingChannel(fleet_ring_size)``
   per kind for the whole fleet (16,384: 1.6 s of 1,000 cars at 10 Hz), drained whole at each
-  look, of which each car keeps its newest ``ring_size`` (default 2). So when the reader is
+  look, of which each car keeps its newest ``ring_size`` (default 2; its newest one when
+  that would be more than ``LOOK_STATES`` in all). So when the reader is
   behind, each car's oldest states are dropped, never a car: every car's newest state is
   handed out at the next look, whatever the number of cars. (A ring of 256 shared by the
   fleet and handed out in order, as before, held a quarter of a second of 100 cars.) The
@@ -77,11 +78,37 @@ which an idle ``get`` waits on; late-join replies have no such wake-up, so while
 open ``get`` looks at its channel every 2 ms."""
 IDLE_CHECK_S = 0.05
 """An idle ``get`` looks at the channels at least this often even without a wake-up."""
+BUSY_FRACTION = 0.5
+"""Under load the reader spends at most about this share of its time on what one look took:
+after a look whose events took C seconds to hand out (and the caller to fold), the next look
+waits until C / BUSY_FRACTION after it (but at most ``MAX_PAUSE_S`` more). With few cars a
+look takes microseconds and so does the pause; at 1,000 cars a look of 0.15 s is followed by
+0.15 s in which each car's newer states replace its older in the fleet's ring, and the next
+look takes each car's newest: one core is never spent folding states nobody will see."""
+LOOK_STATES = 1024
+"""A look keeps each car's newest ``ring_size`` states (and health) while that is at most this
+many in all, else each car's newest one: 1,024 states take the reader about 0.15 s to decode,
+check and fold (``benchmarks/monitor_fleet.py``), so with the pause below every car's state is
+shown well within a second at 1,000 cars. With a few cars a look keeps two per car, so a
+reader a period late still sees every state."""
+PACED_LOOK = 100
+"""Only a look of at least this many events is followed by a pause: with a few cars the
+reader is never busy because of them, and a look a loaded machine slowed down is not a
+reason to hold back the next (and conflate their states)."""
+MAX_PAUSE_S = 0.25
+"""The longest pause between looks, so what is shown is never held back much more than this
+(a look that itself took longer is followed by the next at once)."""
 _SETTLE_S = (0.0002, 0.0005, 0.001)
 """After a wake-up that found nothing yet (the callback ran before the sample reached its
 channel), the channels are looked at again after these pauses."""
 
 _T = TypeVar("_T")
+
+
+def pause_after(look_s: float) -> float:
+    """How long the reader waits before its next look, after one whose events took
+    ``look_s`` seconds to hand out (``BUSY_FRACTION``, ``MAX_PAUSE_S``)."""
+    return min(MAX_PAUSE_S, max(0.0, look_s) * (1.0 / BUSY_FRACTION - 1.0))
 
 
 # -- the monitor side ------------------------------------------------------------------------
@@ -148,6 +175,7 @@ class MonitorClient:
         ring_size: int = 2,
         fifo_size: int = 1024,
         fleet_ring_size: int = 16_384,
+        look_states: int = LOOK_STATES,
         clock: Callable[[], float] = time.monotonic,
     ) -> None:
         for ep in connect:
@@ -156,16 +184,17 @@ class MonitorClient:
             raise UserError(f"mode must be one of {_MODES}, not {mode!r}")
         if vehicle != "all":
             validate_vehicle_id(vehicle)
-        if min(ring_size, fifo_size, fleet_ring_size) < 1:
+        if min(ring_size, fifo_size, fleet_ring_size, look_states) < 1:
             raise UserError(
-                f"ring and FIFO sizes must be at least 1, not {ring_size}, {fifo_size}, "
-                f"{fleet_ring_size}"
+                f"ring, FIFO and look sizes must be at least 1, not {ring_size}, {fifo_size}, "
+                f"{fleet_ring_size}, {look_states}"
             )
         self.connect = tuple(connect)
         self.vehicle = vehicle
         self.ring_size = ring_size
         self.fifo_size = fifo_size
         self.fleet_ring_size = fleet_ring_size
+        self.look_states = look_states
         self._mode = mode
         self._zenoh_config = zenoh_config
         self._tls = tls
@@ -191,6 +220,10 @@ class MonitorClient:
         self.overwritten = 0
         """States and health this client dropped for a newer one of the same car (behind)."""
         self._goals_sent = 0
+        self._look_s: float | None = None
+        """When the batch being handed out was taken (monotonic), if it is to be followed by a
+        pause (``PACED_LOOK``); None otherwise."""
+        self._next_look_s = 0.0
 
     @property
     def _vehicle_chunk(self) -> str:
@@ -324,14 +357,27 @@ class MonitorClient:
         deadline = None if timeout_s is None else time.monotonic() + timeout_s
         woken = False
         while True:
+            if not self._batch and self._look_s is not None:  # the last look is handed out
+                now = time.monotonic()
+                cost = now - self._look_s
+                self._next_look_s = now + pause_after(cost)
+                self._look_s = None
             if not self._batch:
+                rest = self._next_look_s - time.monotonic()
+                if deadline is not None:
+                    rest = min(rest, deadline - time.monotonic())
+                if rest > 0:
+                    time.sleep(rest)
                 self._wake.clear()
+                taken = time.monotonic()
                 self._take_waiting()
                 for pause in _SETTLE_S if woken else ():
                     if self._batch:
                         break
                     time.sleep(pause)
                     self._take_waiting()
+                if len(self._batch) >= PACED_LOOK:
+                    self._look_s = taken
             if self._batch:
                 return self._batch.popleft()
             now = time.monotonic()
@@ -400,15 +446,19 @@ class MonitorClient:
         self._batch.extend(lively[appeared:])
 
     def _newest(self, samples: list[zenoh.Sample], keep: int) -> list[zenoh.Sample]:
-        """The newest ``keep`` samples of each key, keys in the order first seen, each key's in
-        arrival order; the others are counted in ``overwritten``."""
-        by_key: dict[str, deque[zenoh.Sample]] = {}
+        """The newest ``keep`` samples of each key (the newest one when that is more than
+        ``LOOK_STATES`` in all), keys in the order first seen, each key's in arrival order;
+        the others are counted in ``overwritten``."""
+        by_key: dict[str, list[zenoh.Sample]] = {}
         for sample in samples:
             ring = by_key.get(key := str(sample.key_expr))
             if ring is None:
-                ring = by_key[key] = deque(maxlen=keep)
-            ring.append(sample)
-        kept = [sample for ring in by_key.values() for sample in ring]
+                by_key[key] = [sample]
+            else:
+                ring.append(sample)
+        if len(by_key) * keep > self.look_states:
+            keep = 1
+        kept = [sample for ring in by_key.values() for sample in ring[-keep:]]
         self.overwritten += len(samples) - len(kept)
         return kept
 

@@ -34,6 +34,11 @@ if TYPE_CHECKING:  # rich's renderables load when the live view first draws
     from rich.text import Text
 
 TRACK_POINTS = 20_000
+"""Points kept per car (40 km of driving at ``TRACK_STEP_M``)."""
+TRACK_STEP_M = 2.0
+"""A car's track keeps a point when it is this far from the last one kept (the newest position
+is always its last point, replaced until it is): a track drawn at city scale shows nothing
+finer, and 1,000 cars at 10 Hz would otherwise keep 10,000 points a second."""
 ELLIPSE_EVERY_S = 10.0
 """Keep one past ellipse per car this often (car time) for the snapshot."""
 
@@ -58,12 +63,29 @@ class CarView:
     gaps: int = 0
     """Messages missing from the sequence numbers (dropped by the car or the network)."""
     track: deque[tuple[float, float]] = field(default_factory=lambda: deque(maxlen=TRACK_POINTS))
+    track_stamps: deque[int] = field(default_factory=lambda: deque(maxlen=TRACK_POINTS))
+    """The fleet's ``generation`` at which each track point was last written (non-decreasing):
+    what changed since a reader's last look is the tail stamped after it."""
+    track_total: int = 0
+    """Points ever appended: the track's last point is point ``track_total - 1`` of the car."""
     ellipses: list[tuple[float, float, float, float, float]] = field(default_factory=list)
     """(x_m, y_m, semi_major_m, semi_minor_m, orientation_rad), one every ELLIPSE_EVERY_S."""
     gone_s: float | None = None
     """Monitor clock when its liveliness token dropped (None while alive)."""
     _last_seq: dict[str, int] = field(default_factory=dict)
     _last_ellipse_t_s: float = -math.inf
+    _track_open: bool = False
+    """Whether the track's last point is the newest position, not yet ``TRACK_STEP_M`` from
+    the one before it (replaced by the next)."""
+
+    def track_since(self, generation: int) -> tuple[int, list[tuple[float, float]]]:
+        """The track points written after ``generation`` and the car's index of the first of
+        them (``track_total`` when none)."""
+        stamps, n = self.track_stamps, 0
+        while n < len(stamps) and stamps[-1 - n] > generation:
+            n += 1
+        track = self.track
+        return self.track_total - n, [track[i] for i in range(len(track) - n, len(track))]
 
 
 class FleetView:
@@ -74,6 +96,8 @@ class FleetView:
         self.gone: dict[str, CarView] = {}
         self.messages = 0
         self.bad_messages = 0
+        self.generation = 0
+        """Counts the track points written (``CarView.track_stamps``)."""
 
     def apply(self, event: Any) -> bool:
         """Fold one ``TelemetryEvent`` in; False when it told nothing new (a repeated
@@ -121,13 +145,12 @@ class FleetView:
             car.health = msg
         return True
 
-    @staticmethod
-    def _apply_state(car: CarView, msg: Mapping[str, Any]) -> None:
+    def _apply_state(self, car: CarView, msg: Mapping[str, Any]) -> None:
         car.state = msg
         x, y = msg.get("x_m"), msg.get("y_m")
         if not (isinstance(x, int | float) and isinstance(y, int | float)):
             return
-        car.track.append((float(x), float(y)))
+        self._track_point(car, float(x), float(y))
         t_s = msg.get("t_s")
         ell = msg.get("ellipse") or {}
         if isinstance(t_s, int | float) and t_s - car._last_ellipse_t_s >= ELLIPSE_EVERY_S:
@@ -136,6 +159,23 @@ class FleetView:
             if len(nums) == 3:
                 car.ellipses.append((float(x), float(y), nums[0], nums[1], nums[2]))
                 car._last_ellipse_t_s = float(t_s)
+
+    def _track_point(self, car: CarView, x: float, y: float) -> None:
+        self.generation += 1
+        track, stamps = car.track, car.track_stamps
+        anchor = len(track) - 1 - car._track_open  # the last point kept for good
+        if anchor >= 0:
+            ax, ay = track[anchor]
+            far = math.hypot(x - ax, y - ay) >= TRACK_STEP_M
+            if car._track_open:
+                track[-1], stamps[-1] = (x, y), self.generation
+                car._track_open = not far
+                return
+            if not far:
+                car._track_open = True
+        track.append((x, y))
+        stamps.append(self.generation)
+        car.track_total += 1
 
 
 # -- row values ------------------------------------------------------------------------------

@@ -172,6 +172,45 @@ def test_a_stalled_reader_still_finds_every_cars_newest_state(
     assert client.overwritten == cars * (states - 2)
 
 
+def test_a_look_over_its_budget_keeps_each_cars_newest_one(
+    car: tuple[zenoh.Session, int],
+) -> None:
+    """30 cars of 5 states each while nobody reads, with a look budget of 40: two per car
+    would be 60, so each car's newest one is handed out, and the rest counted."""
+    session, port = car
+    cars, states = 30, 5
+    block = zenoh.CongestionControl.BLOCK
+    pubs = [
+        session.declare_publisher(f"guidance/car{c}/state", congestion_control=block)
+        for c in range(cars)
+    ]
+    with MonitorClient([f"tcp/127.0.0.1:{port}"], look_states=40) as client:
+        wait_for_match(pubs)
+        for pub in pubs:
+            for s in range(1, states + 1):
+                pub.put(message("state", s))
+        time.sleep(1.0)
+        events = drain(client)
+    newest: dict[str, list[int]] = {}
+    for e in events:
+        if e.kind == "state" and e.message:
+            newest.setdefault(e.vehicle_id, []).append(e.message["seq"])
+    assert newest == {f"car{c}": [states] for c in range(cars)}
+    assert client.overwritten == cars * (states - 1)
+
+
+def test_the_pause_between_looks_grows_with_the_look_and_is_capped() -> None:
+    """Half the reader's time at most on folding (a look of 0.1 s: 0.1 s of pause), a look of
+    microseconds barely waits, and nothing waits longer than MAX_PAUSE_S."""
+    from guidance.telemetry.client import BUSY_FRACTION, MAX_PAUSE_S, pause_after
+
+    assert BUSY_FRACTION == 0.5
+    assert pause_after(0.1) == pytest.approx(0.1)
+    assert pause_after(20e-6) == pytest.approx(20e-6)
+    assert pause_after(3.0) == MAX_PAUSE_S
+    assert pause_after(-1.0) == 0.0
+
+
 def test_twenty_cars_through_a_router_all_reach_the_latest_view() -> None:
     """20 cars, each a zenoh client session of one router with a liveliness token, publish
     state at 10 Hz for 2 s; the monitor's view (FleetView, what the table, --json and the

@@ -162,6 +162,29 @@ def test_fleet_view_rows_gaps_late_join_and_vanishing_cars() -> None:
     assert view.cars["car1"].track  # a car that comes back keeps its track
 
 
+def test_a_track_keeps_a_point_every_two_metres_and_ends_at_the_newest_position() -> None:
+    """States 0.5 m apart: the track keeps one point each TRACK_STEP_M (2 m), its last point
+    is always the newest position, and ``track_since`` gives what was written after a
+    generation (the replaced newest point included), with the car's index of the first."""
+    from guidance.tools.monitor_view import TRACK_STEP_M
+
+    assert TRACK_STEP_M == 2.0
+    view = FleetView()
+    for i in range(11):  # x = 0, 0.5, ... 5.0
+        view.apply(event("state", at=100.0 + i, **state(i + 1, 0.5 * i, 0.0, float(i))))
+    car = view.cars["car1"]
+    assert list(car.track) == [(0.0, 0.0), (2.0, 0.0), (4.0, 0.0), (5.0, 0.0)]
+    assert car.track_total == 4 and view.generation == 11
+    start, points = car.track_since(10)  # only the newest position was written after 10
+    assert (start, points) == (3, [(5.0, 0.0)])
+    generation = view.generation
+    view.apply(event("state", at=112.0, **state(12, 5.5, 0.0, 11.0)))  # replaces (5, 0)
+    view.apply(event("state", at=113.0, **state(13, 6.5, 0.0, 12.0)))  # 2.5 m on: kept
+    assert car.track_since(generation) == (3, [(6.5, 0.0)])
+    assert car.track_since(view.generation) == (4, [])
+    assert car.track_since(0) == (0, list(car.track))
+
+
 def test_health_summary_without_health() -> None:
     assert health_summary(None) == "-"
     assert health_summary({"inputs": {"cam": {"alive": True, "valid": False}}}) == "cam invalid"

@@ -115,6 +115,44 @@ def test_fleet_api_shows_a_live_car_with_its_state_prompt_and_health(
     assert car["gone"] == "" and car["gone_s_ago"] is None
 
 
+def test_after_the_first_poll_only_new_track_points_are_sent() -> None:
+    """1,000 cars: a poll with the last answer's generation and epoch carries each car's new
+    points only (from ``track_start``), and is small; a stale epoch or a generation from the
+    future gets the whole tracks again."""
+    from guidance.telemetry.client import TelemetryEvent
+    from guidance.tools.web.server import fleet_query
+
+    web = WebMonitor(MonitorClient(["tcp/127.0.0.1:9"]), "127.0.0.1", 0)
+    try:
+
+        def drive(step: int) -> None:
+            for i in range(1000):
+                msg = {"schema": "guidance.state/1", "vehicle_id": f"car{i:04d}", "seq": step,
+                       "t_s": float(step), "x_m": 3.0 * step, "y_m": float(i)}  # fmt: skip
+                web.view.apply(TelemetryEvent("state", f"car{i:04d}", "k", msg, float(step)))
+
+        for step in range(1, 101):
+            drive(step)
+        whole = web.fleet()
+        assert all(len(c["track"]) == 100 and c["track_start"] is None for c in whole["cars"])
+        drive(101)
+        new = web.fleet(whole["generation"], whole["epoch"])
+        assert all(c["track_start"] == 100 and c["track"] == [[303.0, c["state"]["y_m"]]]
+                   for c in new["cars"])  # fmt: skip
+        big = len(json.dumps(whole, separators=(",", ":")))
+        small = len(json.dumps(new, separators=(",", ":")))
+        assert small < big / 3, (small, big)
+        for since, epoch in ((whole["generation"], "other"), (10**9, whole["epoch"])):
+            again = web.fleet(since, epoch)
+            assert all(c["track_start"] is None and len(c["track"]) == 101 for c in again["cars"])
+    finally:
+        web.httpd.server_close()
+    assert fleet_query("/api/fleet?since=12&epoch=ab") == (12, "ab")
+    for bad in ("/api/fleet?since=-1", "/api/fleet?since=1e3", "/api/fleet?since=" + "9" * 400,
+                "/api/fleet?" + "&".join(f"a{i}=1" for i in range(20)), "/api/fleet"):  # fmt: skip
+        assert fleet_query(bad)[0] is None, bad
+
+
 def test_page_and_assets_come_from_the_package_with_a_strict_csp(
     car_and_web: tuple[Telemetry, WebMonitor],
 ) -> None:

@@ -165,7 +165,7 @@ def test_the_page_draws_each_car_on_its_own(driver: Any) -> None:
                 "prompt": "", "health": {"ok": True, "summary": "ok"}, "messages": 1,
                 "bad_messages": 0, "bad": "", "gaps": 0}  # fmt: skip
 
-    def fleet() -> dict[str, Any]:
+    def fleet(*_query: Any) -> dict[str, Any]:
         polls["n"] += 1
         n = polls["n"]
         bad = [

@@ -10,7 +10,38 @@ const SVG = "http://www.w3.org/2000/svg";
 const EARTH_M = 6378137.0;
 const MIN_ELLIPSE_PX = 6;  // an ellipse smaller than this is drawn at this size, dashed
 const state = { config: { tiles: "", poll_ms: 500 }, ref: null, failures: 0, view: null,
-                last: null, colours: null };
+                last: null, colours: null, epoch: "", generation: null, tracks: new Map() };
+const TRACK_POINTS_KEPT = 20000;  // per car, as the monitor keeps
+
+// After the first answer the page asks only for the track points written since its last one
+// (server.py): each car's answer then holds track_start (the car's index of its first point;
+// the point before may be the newest position, replaced) and the points from there. The page
+// keeps each car's track and splices the new points in; a whole track (track_start null)
+// replaces it.
+function mergeTracks(fleet) {
+  const seen = new Set();
+  for (const c of fleet.cars) {
+    if (!c || !Array.isArray(c.track)) continue;  // drawCar reports this car as not drawn
+    const vid = String(c.vehicle_id);
+    seen.add(vid);
+    const sent = c.track;
+    let kept = state.tracks.get(vid);
+    if (typeof c.track_start !== "number" || !kept) {
+      kept = { points: sent.slice(), end: typeof c.track_total === "number" ? c.track_total : sent.length };
+    } else {
+      const drop = Math.min(kept.points.length, Math.max(0, kept.end - c.track_start));
+      kept.points.length -= drop;
+      for (const pt of sent) kept.points.push(pt);
+      kept.end = c.track_start + sent.length;
+      if (kept.points.length > TRACK_POINTS_KEPT) kept.points.splice(0, kept.points.length - TRACK_POINTS_KEPT);
+    }
+    state.tracks.set(vid, kept);
+    c.track = kept.points;
+  }
+  for (const vid of [...state.tracks.keys()]) if (!seen.has(vid)) state.tracks.delete(vid);
+  state.epoch = typeof fleet.epoch === "string" ? fleet.epoch : "";
+  state.generation = typeof fleet.generation === "number" ? fleet.generation : null;
+}
 
 function el(name, attrs, parent) {
   const e = document.createElementNS(SVG, name);
@@ -364,9 +395,13 @@ function render(fleet) {
 
 async function poll() {
   try {
-    const r = await fetch("/api/fleet", { cache: "no-store" });
+    const since = state.generation === null ? ""
+      : `?since=${state.generation}&epoch=${encodeURIComponent(state.epoch)}`;
+    const r = await fetch(`/api/fleet${since}`, { cache: "no-store" });
     if (!r.ok) throw new Error(`HTTP ${r.status}`);
-    render(await r.json());
+    const fleet = await r.json();
+    mergeTracks(fleet);
+    render(fleet);
     state.failures = 0;
   } catch (err) {
     state.failures += 1;
