@@ -199,6 +199,23 @@ def test_a_look_over_its_budget_keeps_each_cars_newest_one(
     assert client.overwritten == cars * (states - 1)
 
 
+def test_many_new_cars_are_asked_for_with_one_query_a_few_one_each() -> None:
+    """A fleet appearing at once (a monitor opening on it, a router restart) costs one query of
+    the fleet at the next get, not one per car; three cars are asked one by one."""
+    from guidance.telemetry.client import MANY_NEW_CARS
+
+    with MonitorClient(["tcp/127.0.0.1:9"]) as client:  # nobody there: the queries go unanswered
+        for i in range(MANY_NEW_CARS + 4):
+            client.query_latest(f"car{i}")
+        assert client.queries == 0  # asked at the next get
+        client.get(0)
+        assert client.queries == 1
+        for i in range(3):
+            client.query_latest(f"late{i}")
+        client.get(0)
+        assert client.queries == 4
+
+
 def test_the_pause_between_looks_grows_with_the_look_and_is_capped() -> None:
     """Half the reader's time at most on folding (a look of 0.1 s: 0.1 s of pause), a look of
     microseconds barely waits, and nothing waits longer than MAX_PAUSE_S."""
