@@ -433,12 +433,26 @@ class FleetRender:
     rows: list[dict[str, str]]
     title: str
     caption: str
+    cars: int = -1
+    """Cars known (-1: as many as rows); those beyond what fits are counted, not shown."""
+
+    def _more(self, shown: int) -> str:
+        n = max(self.cars, len(self.rows)) - shown
+        return f"{n} more car{'s' if n > 1 else ''} not shown (a taller terminal, --json or --web)"
 
     def __rich_console__(self, console: Console, options: ConsoleOptions) -> RenderResult:
         width = options.max_width
+        height = options.height or options.max_height
         if options.is_terminal and self.rows and _table_width(self.rows) <= width:
             from rich.segment import Segment
 
+            fit = max(1, height - 8)  # title 2, header 3, borders 2, caption 1
+            if len(self.rows) > fit or self.cars > len(self.rows):
+                fit = max(1, fit - 1)
+                shown = FleetRender(self.rows[:fit], self.title,
+                                    f"{self._more(fit)}   {self.caption}")  # fmt: skip
+                yield from shown.__rich_console__(console, options)
+                return
             table = self._table()
             # rich's own layout decides, rendered uncropped: the console would cut a table
             # wider than the screen at its right edge (its widths can exceed the estimate)
@@ -446,7 +460,7 @@ class FleetRender:
             if all(Segment.get_line_length(line) <= width for line in lines):
                 yield table
                 return
-        yield from self._lines(width)
+        yield from self._lines(width, height if options.is_terminal else None)
 
     def _table(self) -> Table:
         from rich.table import Table
@@ -470,7 +484,8 @@ class FleetRender:
             table.add_row(*(Text(row[k]) for k, _, _ in _COLUMNS), style=_style(row))
         return table
 
-    def _lines(self, width: int) -> Iterator[Text]:
+    def _lines(self, width: int, height: int | None) -> Iterator[Text]:
+        """One block per car; with ``height`` (a terminal's), as many as fit and a count."""
         from rich.text import Text
 
         yield Text(self.title, style="bold")
@@ -479,8 +494,17 @@ class FleetRender:
         yield Text("\n".join(header), style="dim")
         if not self.rows:
             yield Text("(no car seen yet)")
-        for row in self.rows:
-            yield Text("\n".join(car_lines(row, width)), style=_style(row) or "")
+        room = None if height is None else height - 1 - len(header)
+        for i, row in enumerate(self.rows):
+            block = car_lines(row, width)
+            if room is not None and len(block) > room - 1:  # a line kept for the count
+                yield Text(self._more(i), style="dim")
+                return
+            if room is not None:
+                room -= len(block)
+            yield Text("\n".join(block), style=_style(row) or "")
+        if self.cars > len(self.rows):
+            yield Text(self._more(len(self.rows)), style="dim")
 
 
 def _style(row: dict[str, str]) -> str | None:
@@ -489,15 +513,32 @@ def _style(row: dict[str, str]) -> str | None:
     return "red" if row["major_axis_m"].endswith("LOST") else None
 
 
+SHOWN_AT_MOST = 200
+"""Cars laid out per draw at most (no terminal is taller): a table of 1,000 took 2 s to draw,
+and the live view folds no message while it draws."""
+
+
+def _needs_a_look(car: CarView) -> bool:
+    s, health = car.state or {}, car.health or {}
+    return bool(s.get("lost")) or health.get("ok") is False or car.bad_messages > 0
+
+
 def render_table(view: FleetView, now_s: float, title: str, status: str = "") -> FleetRender:
     """The live view of every car seen: the live ones sorted by id, then the gone ones (a car
-    whose liveliness token dropped stays, marked GONE, with its last position)."""
-    rows = [car_row(view.cars[vid], now_s) for vid in sorted(view.cars)]
-    rows += [car_row(view.gone[vid], now_s) for vid in sorted(view.gone)]
+    whose liveliness token dropped stays, marked GONE, with its last position). When more cars
+    than fit are known, those that need a look come first (gone, lost, health not ok, bad
+    messages), and the view says how many are not shown."""
+    live = [view.cars[vid] for vid in sorted(view.cars)]
+    gone = [view.gone[vid] for vid in sorted(view.gone, key=lambda v: -(view.gone[v].gone_s or 0))]
+    cars = live + gone
+    if len(cars) > SHOWN_AT_MOST:
+        first = [c for c in live if _needs_a_look(c)]
+        cars = (gone + first + [c for c in live if not _needs_a_look(c)])[:SHOWN_AT_MOST]
+    rows = [car_row(car, now_s) for car in cars]
     if view.bad_messages:
         bad = f"{view.bad_messages} bad message{'s' if view.bad_messages > 1 else ''} left out"
         status = f"{status}   {bad}" if status else bad
     if any(dropped(c.health)[0] for c in (*view.cars.values(), *view.gone.values())):
         status = f"{status}   {DROPPED_HELP}" if status else DROPPED_HELP
     caption = f"{status}   ({KEYS_HELP})" if status else KEYS_HELP
-    return FleetRender(rows, plain(title), caption)
+    return FleetRender(rows, plain(title), caption, len(view.cars) + len(view.gone))

@@ -518,6 +518,30 @@ def test_a_gone_car_stays_as_a_gone_row_and_the_view_fits_the_terminal(width: in
     assert "(31 dropped)" in words and "dropped: messages the car made but did not send" in words
 
 
+@pytest.mark.parametrize("width", [80, 160])
+def test_a_thousand_cars_fill_the_terminal_those_needing_a_look_first(width: int) -> None:
+    """1,000 cars on a terminal of 30 lines: no more lines than that, the count of the cars not
+    shown, and first the ones needing a look (gone, then lost), not car0000-car0020."""
+    from rich.console import Console
+
+    view = FleetView()
+    for i in range(1000):
+        s = state(1, float(i), 0.0, 1.0)
+        if i == 700:
+            s["lost"] = True
+        view.apply(event("state", f"car{i:04d}", **s))
+    view.apply(TelemetryEvent("gone", "car0500", "guidance/car0500", None, 96.0))
+    out = io.StringIO()
+    console = Console(file=out, width=width, height=30, force_terminal=True, color_system=None)
+    console.print(render_table(view, 102.5, "guidance monitor"))
+    text = out.getvalue()
+    assert len(text.splitlines()) <= 30, text
+    assert "car0500" in text and "GONE" in text and "car0700" in text, text
+    assert text.index("car0500") < text.index("car0700") < text.index("car0000"), text
+    shown = len(set(re.findall(r"car\d{4}", text)))
+    assert f"{1000 - shown} more cars not shown" in " ".join(text.split()), text
+
+
 def fleet_without_prompts() -> FleetView:
     """Short values everywhere and no prompt: the last column's header is its widest cell."""
     view = FleetView()
