@@ -42,7 +42,7 @@ from guidance.core.pipeline import Input, Pipeline, PipelineConfig
 from guidance.core.pipeline import Outputs as PipelineOutputs
 from guidance.errors import UserError
 from hal_sim.drive_options import DriveOptions, DriveResult, output_settings, wav_has_speech
-from hal_sim.lockstep import LockstepSink
+from hal_sim.lockstep import LockstepClock, LockstepSink
 from hal_sim.params import SimParams, estimator_config
 from hal_sim.plots import DriveTrace, plot_drive
 from hal_sim.sim_camera import SIM_ORIGIN
@@ -95,6 +95,8 @@ class SimDrive:
         self.end_t = math.inf if opts.duration_s is None else opts.duration_s
         base = app_config.pipeline if app_config is not None else None  # the TOML's car
         self.world = world = make_world(opts, base.navigator if base is not None else None)
+        self.clock = LockstepClock(lambda: world.t_s)
+        """The simulated clock: the message clock of the drive, stepped with the world."""
         # Compile the numba step now, on a copy, before any replay: the copy draws from numba's
         # one random generator, so a fresh drive and a resumed one must draw it at the same point.
         copy.deepcopy(world).step()
@@ -129,10 +131,6 @@ class SimDrive:
         self.next_ellipse_m = self.pipeline.st.odometer_m
         self.next_progress_t = 0.0
         self.pace0 = (time.monotonic(), world.t_s)
-
-    def clock(self) -> float:
-        """The simulated clock: the message clock of the drive."""
-        return self.world.t_s
 
     # -- the drive ------------------------------------------------------------------------------
     async def run(self) -> DriveResult:
@@ -265,7 +263,7 @@ class SimDrive:
 
     def _tick(self, t: float) -> None:
         """The app's time-driven work, the true pose recorded, the trace for the picture."""
-        self.app.tick(t)
+        self.clock.tick()
         if self.outputs.recorder is not None:  # the true pose, on its own topics (rate-limited)
             self.outputs.recorder.record_truth(t, *self.world.truth)
         self._track(t)
@@ -353,7 +351,8 @@ class SimDrive:
 
     # -- building -------------------------------------------------------------------------------
     def _build_app(self) -> None:
-        """The car's ``App`` on the simulated devices, ticked by the drive, in lockstep."""
+        """The car's ``App`` on the simulated devices, ticked by the drive (its clock is the
+        drive's ``LockstepClock``), in lockstep."""
         out, screen = self.outputs, self.screen
         self.app = App(
             self.pipeline,
@@ -363,7 +362,6 @@ class SimDrive:
             sinks=out.sinks,
             checkpointer=self.checkpointer,
             clock=self.clock,
-            external_ticks=True,
         )
         if self.checkpointer is not None:
             self.checkpointer.extra = self._extra_state  # the world, for a resumed drive
