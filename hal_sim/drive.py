@@ -26,13 +26,14 @@ import math
 import time
 from collections.abc import Callable
 from dataclasses import replace
+from functools import partial
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 from drivers.can_odometry import MAX_GAP_S
 from guidance.app.app import App
 from guidance.app.build import OpenOutputs, open_outputs, session_record
-from guidance.app.checkpoint import Checkpointer, load_checkpoint, set_aside
+from guidance.app.checkpoint import INVALID, Checkpointer, resume_from_checkpoint
 from guidance.app.magnetic import declination_deg
 from guidance.core.chance import ChanceSettings
 from guidance.core.messages import GoalUpdate
@@ -373,31 +374,41 @@ class SimDrive:
 
     # -- checkpoints ----------------------------------------------------------------------------
     def _resume(self, path: str) -> None:
-        """The drive's own checkpoint (same seed and method only): the world replayed to its
-        step, the pipeline restored (every value checked first); a bad file moved aside."""
+        """The drive's own checkpoint on the car's resume mechanics
+        (``checkpoint.resume_from_checkpoint``), with the simulator's policy: same seed and
+        method only (else the run is refused), the pipeline restored (every value checked
+        first), the world replayed to its step; a bad file moved aside, and the run refused in
+        one line."""
         self.checkpointer = Checkpointer(path, self.opts.checkpoint_interval_s)
-        doc = load_checkpoint(path)
-        if doc is None:
-            return
-        extra = doc.get("extra", {})
+        done = resume_from_checkpoint(path, self._restore, policy=partial(self._same_drive, path))
+        if done.outcome == INVALID:
+            raise UserError(
+                f"checkpoint {path} cannot be resumed ({done.why}); it was moved "
+                "aside: run again to start afresh"
+            )
+        if done.resumed:
+            self.resumed_at = self.world.t_s
+            log.warning("resumed from checkpoint %s at t=%.1f s", path, self.resumed_at)
+
+    def _same_drive(self, path: str, doc: dict[str, Any]) -> str:
+        """The policy: a checkpoint of this drive's seed and method is resumed (""); another
+        drive's refuses the run."""
+        extra = doc.get("extra")
+        extra = extra if isinstance(extra, dict) else {}
         if extra.get("seed") != self.opts.seed or extra.get("method") != self.method.value:
             raise UserError(
                 f"checkpoint {path} is for seed {extra.get('seed')} "
                 f"method {extra.get('method')}; delete it or use the same options"
             )
-        try:  # a damaged or hostile checkpoint: one line, and it is moved aside
-            self.pipeline.restore(doc["pipeline"])  # checked first: a bad value changes nothing
-            self.world.replay_to(int(extra["step"]), extra["route"])
-            self.trace.truth = [(float(a), float(b)) for a, b in extra.get("track_truth", [])]
-            self.trace.est = [(float(a), float(b)) for a, b in extra.get("track_est", [])]
-        except (ValueError, KeyError, TypeError, IndexError, AttributeError) as exc:
-            set_aside(path, f"cannot be resumed: {exc}")
-            raise UserError(
-                f"checkpoint {path} cannot be resumed ({exc}); it was moved "
-                "aside: run again to start afresh"
-            ) from None
-        self.resumed_at = self.world.t_s
-        log.warning("resumed from checkpoint %s at t=%.1f s", path, self.resumed_at)
+        return ""
+
+    def _restore(self, doc: dict[str, Any]) -> None:
+        """The pipeline, then the world replayed to the checkpoint's step and the trace."""
+        extra = doc["extra"]
+        self.pipeline.restore(doc["pipeline"])  # checked first: a bad value changes nothing
+        self.world.replay_to(int(extra["step"]), extra["route"])
+        self.trace.truth = [(float(a), float(b)) for a, b in extra.get("track_truth", [])]
+        self.trace.est = [(float(a), float(b)) for a, b in extra.get("track_est", [])]
 
     def _extra_state(self) -> dict[str, Any]:
         w = self.world
