@@ -20,7 +20,7 @@ import threading
 from collections import deque
 from collections.abc import Callable, Mapping
 
-from guidance.core.health import BAD_STATUSES, MAX_REJECTED_FRACTION, VALIDITY_WINDOW
+from guidance.core.health import BAD_STATUSES, MAX_REJECTED_FRACTION, VALIDITY_WINDOW, garbled
 from guidance.core.messages import Health
 
 log = logging.getLogger(__name__)
@@ -114,9 +114,8 @@ class HealthTracker:
         with self._lock:
             alive = self._fresh(self._last_data_t, now)
             rejected = sum(1 for ok in self._outcomes if not ok)
-            mostly_good = bool(self._outcomes) and rejected <= self._max_rejected * len(
-                self._outcomes
-            )
+            judged = len(self._outcomes)  # the last VALIDITY_WINDOW units: the fast verdict
+            mostly_good = judged > 0 and not garbled(judged, rejected, self._max_rejected)
             valid = self._fresh(self._last_good_t, now) and mostly_good
             if not self._running:
                 status = "stopped"

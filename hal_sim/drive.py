@@ -26,13 +26,14 @@ import math
 import time
 from collections.abc import Callable
 from dataclasses import replace
+from functools import partial
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 from drivers.can_odometry import MAX_GAP_S
 from guidance.app.app import App
 from guidance.app.build import OpenOutputs, open_outputs, session_record
-from guidance.app.checkpoint import Checkpointer, load_checkpoint, set_aside
+from guidance.app.checkpoint import INVALID, Checkpointer, resume_from_checkpoint
 from guidance.app.magnetic import declination_deg
 from guidance.core.chance import ChanceSettings
 from guidance.core.messages import GoalUpdate
@@ -42,7 +43,7 @@ from guidance.core.pipeline import Input, Pipeline, PipelineConfig
 from guidance.core.pipeline import Outputs as PipelineOutputs
 from guidance.errors import UserError
 from hal_sim.drive_options import DriveOptions, DriveResult, output_settings, wav_has_speech
-from hal_sim.lockstep import LockstepSink
+from hal_sim.lockstep import LockstepClock, LockstepSink
 from hal_sim.params import SimParams, estimator_config
 from hal_sim.plots import DriveTrace, plot_drive
 from hal_sim.sim_camera import SIM_ORIGIN
@@ -95,6 +96,8 @@ class SimDrive:
         self.end_t = math.inf if opts.duration_s is None else opts.duration_s
         base = app_config.pipeline if app_config is not None else None  # the TOML's car
         self.world = world = make_world(opts, base.navigator if base is not None else None)
+        self.clock = LockstepClock(lambda: world.t_s)
+        """The simulated clock: the message clock of the drive, stepped with the world."""
         # Compile the numba step now, on a copy, before any replay: the copy draws from numba's
         # one random generator, so a fresh drive and a resumed one must draw it at the same point.
         copy.deepcopy(world).step()
@@ -129,10 +132,6 @@ class SimDrive:
         self.next_ellipse_m = self.pipeline.st.odometer_m
         self.next_progress_t = 0.0
         self.pace0 = (time.monotonic(), world.t_s)
-
-    def clock(self) -> float:
-        """The simulated clock: the message clock of the drive."""
-        return self.world.t_s
 
     # -- the drive ------------------------------------------------------------------------------
     async def run(self) -> DriveResult:
@@ -265,7 +264,7 @@ class SimDrive:
 
     def _tick(self, t: float) -> None:
         """The app's time-driven work, the true pose recorded, the trace for the picture."""
-        self.app.tick(t)
+        self.clock.tick()
         if self.outputs.recorder is not None:  # the true pose, on its own topics (rate-limited)
             self.outputs.recorder.record_truth(t, *self.world.truth)
         self._track(t)
@@ -353,7 +352,8 @@ class SimDrive:
 
     # -- building -------------------------------------------------------------------------------
     def _build_app(self) -> None:
-        """The car's ``App`` on the simulated devices, ticked by the drive, in lockstep."""
+        """The car's ``App`` on the simulated devices, ticked by the drive (its clock is the
+        drive's ``LockstepClock``), in lockstep."""
         out, screen = self.outputs, self.screen
         self.app = App(
             self.pipeline,
@@ -363,7 +363,6 @@ class SimDrive:
             sinks=out.sinks,
             checkpointer=self.checkpointer,
             clock=self.clock,
-            external_ticks=True,
         )
         if self.checkpointer is not None:
             self.checkpointer.extra = self._extra_state  # the world, for a resumed drive
@@ -375,31 +374,41 @@ class SimDrive:
 
     # -- checkpoints ----------------------------------------------------------------------------
     def _resume(self, path: str) -> None:
-        """The drive's own checkpoint (same seed and method only): the world replayed to its
-        step, the pipeline restored (every value checked first); a bad file moved aside."""
+        """The drive's own checkpoint on the car's resume mechanics
+        (``checkpoint.resume_from_checkpoint``), with the simulator's policy: same seed and
+        method only (else the run is refused), the pipeline restored (every value checked
+        first), the world replayed to its step; a bad file moved aside, and the run refused in
+        one line."""
         self.checkpointer = Checkpointer(path, self.opts.checkpoint_interval_s)
-        doc = load_checkpoint(path)
-        if doc is None:
-            return
-        extra = doc.get("extra", {})
+        done = resume_from_checkpoint(path, self._restore, policy=partial(self._same_drive, path))
+        if done.outcome == INVALID:
+            raise UserError(
+                f"checkpoint {path} cannot be resumed ({done.why}); it was moved "
+                "aside: run again to start afresh"
+            )
+        if done.resumed:
+            self.resumed_at = self.world.t_s
+            log.warning("resumed from checkpoint %s at t=%.1f s", path, self.resumed_at)
+
+    def _same_drive(self, path: str, doc: dict[str, Any]) -> str:
+        """The policy: a checkpoint of this drive's seed and method is resumed (""); another
+        drive's refuses the run."""
+        extra = doc.get("extra")
+        extra = extra if isinstance(extra, dict) else {}
         if extra.get("seed") != self.opts.seed or extra.get("method") != self.method.value:
             raise UserError(
                 f"checkpoint {path} is for seed {extra.get('seed')} "
                 f"method {extra.get('method')}; delete it or use the same options"
             )
-        try:  # a damaged or hostile checkpoint: one line, and it is moved aside
-            self.pipeline.restore(doc["pipeline"])  # checked first: a bad value changes nothing
-            self.world.replay_to(int(extra["step"]), extra["route"])
-            self.trace.truth = [(float(a), float(b)) for a, b in extra.get("track_truth", [])]
-            self.trace.est = [(float(a), float(b)) for a, b in extra.get("track_est", [])]
-        except (ValueError, KeyError, TypeError, IndexError, AttributeError) as exc:
-            set_aside(path, f"cannot be resumed: {exc}")
-            raise UserError(
-                f"checkpoint {path} cannot be resumed ({exc}); it was moved "
-                "aside: run again to start afresh"
-            ) from None
-        self.resumed_at = self.world.t_s
-        log.warning("resumed from checkpoint %s at t=%.1f s", path, self.resumed_at)
+        return ""
+
+    def _restore(self, doc: dict[str, Any]) -> None:
+        """The pipeline, then the world replayed to the checkpoint's step and the trace."""
+        extra = doc["extra"]
+        self.pipeline.restore(doc["pipeline"])  # checked first: a bad value changes nothing
+        self.world.replay_to(int(extra["step"]), extra["route"])
+        self.trace.truth = [(float(a), float(b)) for a, b in extra.get("track_truth", [])]
+        self.trace.est = [(float(a), float(b)) for a, b in extra.get("track_est", [])]
 
     def _extra_state(self) -> dict[str, Any]:
         w = self.world

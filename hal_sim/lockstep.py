@@ -1,12 +1,16 @@
-"""The simulator's lockstep: the world waits until the app has processed what it was sent.
+"""The simulator's lockstep: the world waits until the app has processed what it was sent, and
+the app's time-driven work runs at the world's steps.
 
 ``LockstepSink`` wraps ``App.sink``; the simulated drive starts the sources with it
 (``app.source_sink = LockstepSink(app.sink)``). It counts what it hands over and, behind each
 message on the loop, what has been processed, and wakes its waiters then: ``wait_until``
 re-checks its predicate right after the app's state changed, and ``drained`` returns once
-everything handed over so far is processed. A drive is then reproducible for a seed however
-fast the machine is. ``App`` itself knows nothing of this (it keeps only its backlog figure,
-the drivers' back-pressure).
+everything handed over so far is processed. ``LockstepClock`` is the world's clock as the
+app's message clock, a ``guidance.app.ports.SteppedClock``: the app hands it ``App.tick``, and
+the drive runs that after each world step (``tick``), not the wall-clock ticker. A drive is then
+reproducible for a seed however fast the machine is. ``App`` itself knows nothing of the
+simulation (it keeps only its backlog figure, the drivers' back-pressure, and asks a clock
+whether it is stepped).
 """
 
 from __future__ import annotations
@@ -22,6 +26,29 @@ if TYPE_CHECKING:
 
 POLL_S = 0.05
 """A predicate on something other than the app's messages (a pty opened) is polled this often."""
+
+
+class LockstepClock:
+    """The simulated world's time (``now``) as the app's message clock, stepped by the drive: a
+    ``SteppedClock``, so the app's ticker leaves the time-driven work to ``tick``."""
+
+    def __init__(self, now: Callable[[], float]) -> None:
+        self._now = now
+        self._tick: Callable[[float], object] | None = None
+
+    def __call__(self) -> float:
+        return self._now()
+
+    def set_tick(self, tick: Callable[[float], object] | None) -> None:
+        self._tick = tick
+
+    def tick(self) -> bool:
+        """The app's time-driven work at the world's time now (after a step); False when no app
+        is running on this clock."""
+        if self._tick is None:
+            return False
+        self._tick(self._now())
+        return True
 
 
 class LockstepSink:

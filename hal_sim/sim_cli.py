@@ -1,8 +1,10 @@
 """The ``guidance sim`` command: its flags (over a sim TOML's ``[sim]``, read by
-``hal_sim.drive_options``) and the summary printed from a drive's result.
+``hal_sim.drive_options``), the summary printed from a drive's result, and ``guidance run``'s
+runner for a car TOML with ``[sim] devices = true`` (``run_on_simulated_devices``).
 
-The drive itself is ``hal_sim.drive`` (``SimDrive``), imported when the command runs, so
-registering the command costs nothing.
+The drive itself is ``hal_sim.drive`` (``SimDrive``), imported when a command runs, so
+registering the commands costs nothing. Nothing in ``hal_sim`` imports this module back: the
+simulator's modules form no import cycle (``tests/test_layers.py``).
 """
 
 from __future__ import annotations
@@ -39,19 +41,11 @@ def _window(text: str) -> tuple[float, float]:
         raise argparse.ArgumentTypeError(f"expected START:DURATION seconds, not {text!r}") from None
 
 
-def _run_on_simulated_devices(
-    config_path: str, *, as_json: bool = False, screen: str = "off"
-) -> int:
-    from hal_sim.sim_run import run_on_simulated_devices
-
-    return run_on_simulated_devices(config_path, as_json=as_json, screen=screen)
-
-
 def register(sub: Any) -> None:
     from guidance.app.run import register_device_runner
 
     # `guidance run` on a config with [sim] devices = true drives the simulated city
-    register_device_runner("sim", _run_on_simulated_devices)
+    register_device_runner("sim", run_on_simulated_devices)
     p = sub.add_parser(
         "sim",
         help="a simulated drive through the full in-car stack (make demo)",
@@ -184,6 +178,34 @@ def _cli_sim(args: argparse.Namespace) -> int:
 
     drive_and_report(opts, app_config, as_json=args.json)
     return 0
+
+
+def run_on_simulated_devices(
+    config_path: str, *, as_json: bool = False, screen: str = "off"
+) -> int:
+    """``guidance run --config`` with ``[sim] devices = true``: one simulated drive through the
+    car's wiring. With ``screen`` (not "off"): the car's operator screen (live on a terminal,
+    plain lines otherwise) while the drive goes in real time (``[sim] speed`` changes that),
+    then the summary; else the prompts, the summary and, with ``as_json``, the result as the
+    last line (``outcome``, ``landmark_updates``, ``prompts``...), as fast as it goes."""
+    from hal_sim.drive import run_drive
+
+    opts, cfg = options_from_config(config_path, DriveOptions())
+    if cfg.landmark_db is not None:
+        opts = replace(opts, landmark_db=cfg.landmark_db.database)
+    if cfg.voice.backend == "none":
+        opts = replace(opts, voice="none")
+    elif cfg.voice.backend == "wav" and cfg.voice.wav_path:
+        opts = replace(opts, voice_to=cfg.voice.wav_path)
+
+    if as_json or screen == "off":
+        result = drive_and_report(opts, cfg, as_json=as_json)
+    else:
+        if opts.speed is None:  # the operator sees the drive as the car lives it
+            opts = replace(opts, speed=1.0)
+        result = run_drive(opts, None, cfg, screen=screen)
+        print_summary(result, opts)
+    return 0 if result.outcome in ("arrived", "time_limit", "stopped") else 1  # Ctrl-C: clean
 
 
 def drive_and_report(opts: DriveOptions, app_config: Any, *, as_json: bool) -> DriveResult:

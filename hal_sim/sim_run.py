@@ -1,5 +1,4 @@
-"""The simulated devices, ``guidance run`` on them, and a landmark database made as a user
-makes one.
+"""The simulated devices and camera, and a landmark database made as a user makes one.
 
 ``open_sim_devices`` puts the car's devices on simulated buses, read by the real drivers:
 wheel speeds as CAN frames on a python-can virtual bus into ``CanOdometry``, headings as NMEA
@@ -7,7 +6,8 @@ on a pseudo-terminal into ``SerialCompass``, the roadway scene and the world's l
 sightings; ``open_sim_camera`` adds the simulated camera and the real recogniser. A car TOML
 whose ``[sim]`` table says ``devices = true`` (config/sim-landmarks.toml) makes ``guidance run``
 drive the simulated city on them instead of opening hardware, through the car's own wiring
-(``guidance.app.build``, ``App``, the real recogniser). Its landmark database is the
+(``guidance.app.build``, ``App``, the real recogniser; the runner is ``hal_sim.sim_cli``'s,
+the drive ``hal_sim.drive``'s: this module imports neither). Its landmark database is the
 ``[landmarks] database``, built on first use the way a user builds one: the city's landmark
 photos written to a folder with a ``landmarks.csv``, then ``landmark-db init`` and
 ``landmark-db import``.
@@ -24,7 +24,7 @@ import sys
 import time
 from collections.abc import Callable, Iterator
 from contextlib import redirect_stdout
-from dataclasses import dataclass, replace
+from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING
 
@@ -197,33 +197,3 @@ def _holds(path: Path, names: list[str]) -> bool:
         return sorted(lm.name for lm in db.landmarks()) == sorted(names)
     finally:
         db.close()
-
-
-def run_on_simulated_devices(
-    config_path: str, *, as_json: bool = False, screen: str = "off"
-) -> int:
-    """``guidance run --config`` with ``[sim] devices = true``: one simulated drive through the
-    car's wiring. With ``screen`` (not "off"): the car's operator screen (live on a terminal,
-    plain lines otherwise) while the drive goes in real time (``[sim] speed`` changes that),
-    then the summary; else the prompts, the summary and, with ``as_json``, the result as the
-    last line (``outcome``, ``landmark_updates``, ``prompts``...), as fast as it goes."""
-    from hal_sim.drive import run_drive
-    from hal_sim.drive_options import DriveOptions, options_from_config
-    from hal_sim.sim_cli import drive_and_report, print_summary
-
-    opts, cfg = options_from_config(config_path, DriveOptions())
-    if cfg.landmark_db is not None:
-        opts = replace(opts, landmark_db=cfg.landmark_db.database)
-    if cfg.voice.backend == "none":
-        opts = replace(opts, voice="none")
-    elif cfg.voice.backend == "wav" and cfg.voice.wav_path:
-        opts = replace(opts, voice_to=cfg.voice.wav_path)
-
-    if as_json or screen == "off":
-        result = drive_and_report(opts, cfg, as_json=as_json)
-    else:
-        if opts.speed is None:  # the operator sees the drive as the car lives it
-            opts = replace(opts, speed=1.0)
-        result = run_drive(opts, None, cfg, screen=screen)
-        print_summary(result, opts)
-    return 0 if result.outcome in ("arrived", "time_limit", "stopped") else 1  # Ctrl-C: clean

@@ -129,6 +129,43 @@ def test_the_app_never_names_the_simulator() -> None:
     assert not bad, "\n".join(bad)
 
 
+def _cycle(package: str) -> list[str]:
+    """One import cycle among the modules of ``package`` (lazy and type-checking imports
+    included), or [] when there is none."""
+    folder = ROOT / package.replace(".", "/")
+    modules = {f"{package}.{p.stem}": p for p in folder.glob("*.py")}
+    edges = {
+        m: sorted({i for _, i in _imports(p) if i in modules and i != m})
+        for m, p in modules.items()
+    }
+    done: set[str] = set()
+
+    def walk(m: str, path: list[str]) -> list[str]:
+        if m in path:
+            return [*path[path.index(m) :], m]
+        if m in done:
+            return []
+        for n in edges[m]:
+            found = walk(n, [*path, m])
+            if found:
+                return found
+        done.add(m)
+        return []
+
+    for m in sorted(modules):
+        found = walk(m, [])
+        if found:
+            return found
+    return []
+
+
+def test_the_simulator_imports_no_cycle() -> None:
+    """ARCHITECTURE-2, next in line 2: ``hal_sim.drive``, ``sim_cli`` and ``sim_run`` once
+    imported each other in a cycle (lazily); now the command imports the drive, the drive the
+    devices, and nothing imports back."""
+    assert _cycle("hal_sim") == []
+
+
 def test_voice_never_imports_the_app() -> None:
     """The voice is a device of the app, not a part of it: its port lives in
     ``guidance.voice.speaker`` (``guidance.app.ports`` re-exports it)."""

@@ -10,13 +10,15 @@
   ``process(frame, state)`` -> a fix or a reason) matches the latest one in a worker thread,
   off the loop, and its fixes come back as pipeline inputs;
 * a ticker task at absolute monotonic deadlines measures loop lag, pings the systemd watchdog,
-  evaluates health (silent or garbled inputs), publishes health and writes checkpoints;
+  evaluates health (silent or garbled inputs), publishes health and writes checkpoints (the
+  time-driven work, ``App.tick``; on a ``ports.SteppedClock`` its owner runs that instead,
+  after each step of the clock);
 * everything starts under one ``asyncio.TaskGroup`` and every device is released in a
   ``finally``.
 
 The simulation (``hal_sim.drive``) builds the same ``App`` around simulated devices and
-steps it in lockstep with the simulated world (``hal_sim.lockstep`` wraps ``source_sink``);
-replay feeds the pipeline directly.
+steps it in lockstep with the simulated world (``hal_sim.lockstep``: its clock is a stepped
+clock, and it wraps ``source_sink``); replay feeds the pipeline directly.
 """
 
 from __future__ import annotations
@@ -93,12 +95,11 @@ class App:
         checkpointer: Checkpointer | None = None,
         clock: Callable[[], float] = time.monotonic,
         loop: LoopSettings = DEFAULT_LOOP,
-        external_ticks: bool = False,
     ) -> None:
         """``sinks``: telemetry and the recorder (the one among them that records inputs, an
-        ``InputRecorder``, gets the inputs too); ``loop``: the ``[loop]`` table (tick rate,
-        health publication period, the lag that counts as late); ``external_ticks``: the
-        simulator's lockstep drives ``tick`` itself."""
+        ``InputRecorder``, gets the inputs too); ``clock``: the message clock (a
+        ``ports.SteppedClock`` runs ``tick`` itself, as it steps); ``loop``: the ``[loop]`` table
+        (tick rate, health publication period, the lag that counts as late)."""
 
         self.failures = LogOnce(log)
         """Failures of messages, ticks, stats and the recogniser: logged once, counted."""
@@ -117,7 +118,6 @@ class App:
         self.checkpointer = checkpointer
         self.clock = clock
         self.tick_hz = loop.tick_hz
-        self.external_ticks = external_ticks
         self.health_publish_period_s = loop.health_publish_period_s
         self.max_loop_lag_s = loop.max_lag_s
         self.method = pipeline.config.navigator.method.value
@@ -307,9 +307,13 @@ class App:
 
         warm_up()  # numba compiles now, not on the first message (no lag, no false "silent")
         self._loop = asyncio.get_running_loop()
+        stepped = self.clock if isinstance(self.clock, ports.SteppedClock) else None
+        if stepped is not None:  # its owner runs the time-driven work as it steps the clock
+            stepped.set_tick(self.tick)
         try:
             async with asyncio.TaskGroup() as tg:
-                tasks = [tg.create_task(self._ticker(), name="ticker")]
+                ticker = self._ticker(tick=stepped is None)
+                tasks = [tg.create_task(ticker, name="ticker")]
                 if self.camera is not None:
                     tasks.append(tg.create_task(self._recognise(), name="recogniser"))
                 try:
@@ -334,6 +338,8 @@ class App:
                     for task in tasks:
                         task.cancel()
         finally:
+            if stepped is not None:
+                stepped.set_tick(None)
             if self.notifier is not None:
                 self.notifier.stopping()
             self._stop_sources()
@@ -351,8 +357,9 @@ class App:
         async with self.running():
             await self.stop_event.wait()
 
-    async def _ticker(self) -> None:
-        """Fixed-rate housekeeping on absolute monotonic deadlines; reports lag (Ratekeeper)."""
+    async def _ticker(self, *, tick: bool) -> None:
+        """Fixed-rate housekeeping on absolute monotonic deadlines; reports lag (Ratekeeper);
+        ``tick``: run the time-driven work each period (not on a stepped clock)."""
         period = 1.0 / self.tick_hz
         deadline = time.monotonic() + period
         while True:
@@ -368,7 +375,7 @@ class App:
                     log.warning("event loop on time again")
             if self.notifier is not None:
                 self.notifier.tick(lag)
-            if not self.external_ticks:
+            if tick:
                 try:
                     self.tick(self.clock())
                     self.failures.ok("tick")

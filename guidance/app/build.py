@@ -3,8 +3,9 @@ simulated drive (``hal_sim.drive``), so the simulator exercises the car's own wi
 
 ``open_outputs`` opens the speaker, telemetry and recorder a run asks for, writes the
 recording's ``/session`` record, and closes all three on the way out (on an error too);
-``resume_from_checkpoint`` applies the car's checkpoint policy and ``start_checkpoints`` the
-whole of it for ``guidance run`` (identity, load, check, resume).
+``resume_car`` is the car's checkpoint policy on the resume mechanics the simulator shares
+(``guidance.app.checkpoint.resume_from_checkpoint``), and ``start_checkpoints`` the whole of it
+for ``guidance run`` (identity, resume, the writer).
 """
 
 from __future__ import annotations
@@ -14,19 +15,18 @@ import contextlib
 import logging
 import math
 import time
-from collections.abc import AsyncIterator, Callable
+from collections.abc import AsyncIterator, Callable, Mapping
 from dataclasses import dataclass
 from typing import TYPE_CHECKING, Any
 
 from guidance.app.checkpoint import (
     Checkpointer,
+    Resumption,
     checkpoint_age_s,
-    load_checkpoint,
-    set_aside,
+    resume_from_checkpoint,
     trip_identity,
 )
 from guidance.app.ports import Speaker
-from guidance.core.snapshot_check import SnapshotError
 from guidance.errors import UserError
 
 if TYPE_CHECKING:
@@ -155,36 +155,46 @@ async def open_outputs(
             out.telemetry.close()
 
 
-def resume_from_checkpoint(
-    pipeline: Pipeline, doc: dict[str, Any] | None, age_s: float, max_age_s: float, where: str
-) -> str:
-    """Apply the car's resume policy to a loaded checkpoint; returns what was done.
+def resume_car(
+    pipeline: Pipeline,
+    path: str,
+    identity: Mapping[str, Any],
+    max_age_s: float,
+    *,
+    now_unix_s: float | None = None,
+) -> Resumption:
+    """The car's resume policy on the shared mechanics (``checkpoint.resume_from_checkpoint``):
+    this vehicle's trip only (``identity``). Too old (or from the future): start afresh.
+    Otherwise restore, on a fresh message clock (the laptop's monotonic clock may have
+    restarted), and widen the position by what the last speed covers in the downtime: the car
+    kept moving while the process was down."""
+    now = time.time() if now_unix_s is None else now_unix_s
+    age_s = math.inf
 
-    Too old (or from the future): start afresh. Otherwise restore, on a fresh message clock
-    (the laptop's monotonic clock may have restarted), and widen the position by what the
-    last speed covers in the downtime: the car kept moving while the process was down.
-    """
-    if doc is None:
-        return "no checkpoint"
-    if not (math.isfinite(age_s) and 0.0 <= age_s <= max_age_s):
+    def too_old(doc: dict[str, Any]) -> str:
+        nonlocal age_s
+        age_s = checkpoint_age_s(doc, now)
+        if math.isfinite(age_s) and 0.0 <= age_s <= max_age_s:
+            return ""
         log.warning(
-            "checkpoint %s is %.0f s old (limit %.0f s): starting afresh", where, age_s, max_age_s
+            "checkpoint %s is %.0f s old (limit %.0f s): starting afresh", path, age_s, max_age_s
         )
         return "too old"
-    try:
+
+    def restore(doc: dict[str, Any]) -> None:
         pipeline.restore(doc["pipeline"], same_clock=False)
-    except SnapshotError as exc:
-        set_aside(where, f"invalid state: {exc}")
-        return "invalid"
-    spread = pipeline.st.speed_mps * age_s
-    pipeline.estimator.inflate_position(spread)
-    log.warning(
-        "resumed from checkpoint %s written %.1f s ago; position widened by %.0f m",
-        where,
-        age_s,
-        spread,
-    )
-    return "resumed"
+
+    done = resume_from_checkpoint(path, restore, expected=identity, policy=too_old)
+    if done.resumed:
+        spread = pipeline.st.speed_mps * age_s
+        pipeline.estimator.inflate_position(spread)
+        log.warning(
+            "resumed from checkpoint %s written %.1f s ago; position widened by %.0f m",
+            path,
+            age_s,
+            spread,
+        )
+    return done
 
 
 def start_checkpoints(
@@ -201,11 +211,6 @@ def start_checkpoints(
     if not path:
         return None
     identity = trip_identity(vehicle_id, pipeline.config.describe())
-    done = "not resumed"
-    if resume:
-        doc = load_checkpoint(path, identity)
-        age_s = checkpoint_age_s(doc, time.time()) if doc is not None else math.inf
-        done = resume_from_checkpoint(pipeline, doc, age_s, max_age_s, path)
     ck = Checkpointer(path, interval_s, identity)
-    ck.resumed = done == "resumed"
+    ck.resumed = resume and resume_car(pipeline, path, identity, max_age_s).resumed
     return ck

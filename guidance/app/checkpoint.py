@@ -16,6 +16,10 @@ start and a digest of the pipeline's configuration) and the software version (``
 a clean stop marks it ``finished``. ``load_checkpoint`` moves a damaged, invalid or foreign
 file aside (renamed ``<name>.rejected-<time>``), logs why and returns None, so one bad file
 never stops a start; ``Pipeline.restore`` checks every value of the state itself.
+
+``resume_from_checkpoint`` is how a run resumes, for the car and the simulated drive alike:
+load, the caller's policy (the car's age limit, the simulator's seed and method), the caller's
+restore, and a state it refuses moved aside.
 """
 
 from __future__ import annotations
@@ -28,6 +32,7 @@ import math
 import os
 import time
 from collections.abc import Callable, Mapping
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
@@ -74,9 +79,9 @@ class Checkpointer:
         self.identity = dict(identity) if identity is not None else None
         self.interval_s = interval_s
         self.resumed = False
+        """This run continues a trip from the checkpoint (``start_checkpoints``)."""
         self.extra: Callable[[], Mapping[str, Any]] | None = None
         """What else a checkpoint carries (the simulator: its world), under ``extra``."""
-        """This run continues a trip from the checkpoint (``start_checkpoints``)."""
         self.saved = 0
         self.errors = 0
         self._next_t = -math.inf
@@ -294,3 +299,61 @@ def checkpoint_age_s(doc: Mapping[str, Any], now_unix_s: float) -> float:
     except OverflowError:
         return math.inf
     return age if math.isfinite(age) else math.inf
+
+
+RESUMED = "resumed"
+NO_CHECKPOINT = "no checkpoint"
+INVALID = "invalid"
+RESTORE_ERRORS: tuple[type[Exception], ...] = (
+    ValueError,
+    KeyError,
+    TypeError,
+    IndexError,
+    AttributeError,
+)
+"""What restoring a damaged or hostile state raises: ``Pipeline.restore``'s ``SnapshotError``
+(a ``ValueError``, raised before anything changes) and what the caller's own state raises (a
+world replayed to a step that is not a number)."""
+
+
+@dataclass(frozen=True, slots=True)
+class Resumption:
+    """What ``resume_from_checkpoint`` did: ``outcome`` is ``RESUMED``, ``NO_CHECKPOINT``, the
+    caller's policy's reason not to ("too old"), or ``INVALID`` (``why``: what the restore
+    refused; the file was moved aside and the run starts afresh)."""
+
+    outcome: str
+    why: str = ""
+
+    @property
+    def resumed(self) -> bool:
+        return self.outcome == RESUMED
+
+
+def resume_from_checkpoint(
+    path: str | Path,
+    restore: Callable[[dict[str, Any]], object],
+    *,
+    expected: Mapping[str, Any] | None = None,
+    policy: Callable[[dict[str, Any]], str] | None = None,
+) -> Resumption:
+    """Resume from the checkpoint at ``path``: the mechanics the car and the simulated drive
+    share, each with its own policy and state.
+
+    The file is loaded (``load_checkpoint``: none, a clean stop, or a damaged file, or with
+    ``expected`` a foreign one, is nothing to resume; a bad file is moved aside); ``policy(doc)``
+    says why this run must not resume it ("" to go on; it may raise to refuse the run
+    instead); ``restore(doc)`` applies the state, checking every value before it changes
+    anything. A state it refuses (``RESTORE_ERRORS``) is moved aside."""
+    doc = load_checkpoint(path, expected)
+    if doc is None:
+        return Resumption(NO_CHECKPOINT)
+    why = policy(doc) if policy is not None else ""
+    if why:
+        return Resumption(why)
+    try:
+        restore(doc)
+    except RESTORE_ERRORS as exc:
+        set_aside(path, f"invalid state: {exc}")
+        return Resumption(INVALID, str(exc))
+    return Resumption(RESUMED)

@@ -170,6 +170,22 @@ class InputRecorder(Protocol):
 
 
 @runtime_checkable
+class SteppedClock(Protocol):
+    """A message clock that its owner steps instead of one read off the wall (a simulated
+    world's clock). ``App`` hands it ``App.tick`` when it starts (``set_tick``, as a source is
+    handed its sink) and takes it back when it stops; the owner runs the time-driven work after
+    each step of its clock, at reproducible times, and the app's ticker keeps only the loop's
+    heartbeat (its lag, the watchdog). Any other clock (``time.monotonic``) is read by the
+    ticker, which runs ``App.tick`` once per period."""
+
+    def __call__(self) -> float:
+        """Now, on the message clock."""
+
+    def set_tick(self, tick: Callable[[float], object] | None) -> None:
+        """What to run at each step (``App.tick``), or None once the app stops."""
+
+
+@runtime_checkable
 class Notifier(Protocol):
     """Tells the service manager how the app is doing (``guidance.app.watchdog``)."""
 

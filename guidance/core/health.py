@@ -18,6 +18,25 @@ from guidance.core.messages import DeviceStatus, Health, HealthChange
 RATE_WINDOW_S = 2.0
 """Input rates are measured over this much message time."""
 
+VALIDITY_WINDOW = 20
+"""A driver judges its last 20 units of data (``drivers.health.HealthTracker``): a fast verdict,
+so a 0.8 s storm of bad CAN frames is flagged within a fifth of a second. The pipeline judges
+what each source read since it last looked (``App`` reads ``stats()`` once a second)."""
+MAX_REJECTED_FRACTION = 0.5
+"""More rejected than this makes an input invalid: the drivers' limit and the default of
+``[health] max_reject_fraction``, the pipeline's."""
+
+
+def garbled(read: int, rejected: int, max_fraction: float = MAX_REJECTED_FRACTION) -> str:
+    """The one validity judge for garbled input: why ``read`` units of data, ``rejected`` of
+    them by the parser, are not usable ("garbled: 60% rejected") when more than
+    ``max_fraction`` of them were rejected, else "". Both places that look at an input's
+    rejections ask it: the driver over its last ``VALIDITY_WINDOW`` units, the pipeline over the
+    counts since it last looked (``HealthMonitor.update_counts``, ``[health]``'s limit); each
+    decides how many units are enough to judge."""
+    frac = rejected / read if read > 0 else 0.0
+    return f"garbled: {frac:.0%} rejected" if frac > max_fraction else ""
+
 
 @dataclass(frozen=True, slots=True)
 class HealthConfig:
@@ -25,8 +44,9 @@ class HealthConfig:
     """An input is dead after this many expected periods without a message..."""
     min_timeout_s: float = 1.0
     """...but never sooner than this."""
-    max_reject_fraction: float = 0.5
-    """Invalid when more than this fraction of what a source read was rejected recently."""
+    max_reject_fraction: float = MAX_REJECTED_FRACTION
+    """Invalid when more than this fraction of what a source read was rejected recently
+    (``garbled``)."""
     min_reads_for_validity: int = 5
 
 
@@ -59,7 +79,8 @@ class HealthMonitor:
             q.popleft()
 
     def update_counts(self, name: str, read: int, rejected: int) -> None:
-        """Cumulative counts from the source (``stats()``): validity from the recent fraction."""
+        """Cumulative counts from the source (``stats()``): validity from what was read since
+        the last counts (``garbled``, when at least ``min_reads_for_validity`` were)."""
         if name not in self.expected:
             return
         prev_read, prev_rej = self._counts.get(name, (0, 0))
@@ -67,9 +88,8 @@ class HealthMonitor:
         d_read, d_rej = read - prev_read, rejected - prev_rej
         if d_read < self.config.min_reads_for_validity:
             return
-        frac = d_rej / d_read if d_read else 0.0
-        ok = frac <= self.config.max_reject_fraction
-        self._valid[name] = (ok, "" if ok else f"garbled: {frac:.0%} rejected")
+        why = garbled(d_read, d_rej, self.config.max_reject_fraction)
+        self._valid[name] = (not why, why)
 
     def report(self, status: DeviceStatus) -> bool:
         """A driver's status flip; returns True when the input just went bad by the driver's
@@ -177,12 +197,6 @@ STATUSES = ("starting", "ok", "silent", "disconnected", "invalid", "ended", "sto
 'disconnected': the device cannot be opened or was lost; 'invalid': data arrives but too much of
 it is rejected; 'ended': a recorded source (file) reached its end; 'stopped': not running."""
 BAD_STATUSES = frozenset({"silent", "disconnected", "invalid"})
-
-VALIDITY_WINDOW = 20
-"""Recent units of data over which the rejection fraction is measured."""
-MAX_REJECTED_FRACTION = 0.5
-"""More rejected than this (of the window) makes the input invalid."""
-
 
 UNUSABLE = "unusable"
 """Marks a status detail that says the consumer cannot use the input's data."""

@@ -247,6 +247,55 @@ def test_app_writes_checkpoints_on_the_message_clock(
     assert not list(tmp_path.glob(".*.tmp"))
 
 
+def test_a_stepped_clock_runs_the_time_driven_work_and_the_ticker_only_keeps_the_heartbeat(
+    make_pipeline: Callable[..., Pipeline], tmp_path: Path
+) -> None:
+    """The simulator's way of ticking, without an App knob: a ``SteppedClock`` is handed
+    ``App.tick`` while the app runs; the ticker still measures the loop's lag but never ticks,
+    so checkpoints (time-driven work) are written only at the clock's steps, at its time. A
+    plain clock is ticked by the ticker itself."""
+    from guidance.app.checkpoint import Checkpointer, load_checkpoint
+    from guidance.app.ports import SteppedClock
+    from hal_sim.lockstep import LockstepClock
+
+    now = [7.0]
+    clock = LockstepClock(lambda: now[0])
+    assert isinstance(clock, SteppedClock) and not isinstance(time.monotonic, SteppedClock)
+    stepped = Checkpointer(tmp_path / "stepped.json", interval_s=1.0)
+    plain = Checkpointer(tmp_path / "plain.json", interval_s=1.0)
+
+    async def scenario() -> tuple[App, App]:
+        app = App(make_pipeline(), checkpointer=stepped, clock=clock,
+                  loop=LoopSettings(tick_hz=100))  # fmt: skip
+        async with app.running():
+            await asyncio.sleep(0.3)
+            assert stepped.saved == 0  # 30 periods of the ticker, no tick
+            now[0] = 8.5
+            assert clock.tick()
+        assert not clock.tick()  # the app stopped: nothing runs on the clock any more
+        other = App(make_pipeline(), checkpointer=plain, clock=lambda: now[0],
+                    loop=LoopSettings(tick_hz=100))  # fmt: skip
+        async with other.running():
+            await asyncio.sleep(0.3)
+        return app, other
+
+    app, other = asyncio.run(scenario())
+    assert len(app.loop_lag_s) > 10  # the heartbeat ran on the stepped clock too
+    assert stepped.saved == 1
+    doc = load_checkpoint(tmp_path / "stepped.json")
+    assert doc is not None and doc["t_s"] == 8.5
+    assert plain.saved == 1 and len(other.loop_lag_s) > 10  # ticked by its ticker
+
+
+def test_app_takes_at_most_ten_settings_and_no_simulator_knob() -> None:
+    """Issue 25: a small composition root; how the simulator ticks is its clock's business."""
+    import inspect
+
+    params = list(inspect.signature(App).parameters)
+    assert len(params) <= 10, params
+    assert not any("tick" in p or "sim" in p or "external" in p for p in params), params
+
+
 # ----------------------------------------------------------------------------- guidance run
 
 

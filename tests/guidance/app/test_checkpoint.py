@@ -11,6 +11,7 @@ import subprocess
 import sys
 import time
 from pathlib import Path
+from typing import Any
 
 import pytest
 
@@ -63,6 +64,49 @@ def test_a_failing_disk_is_reported_not_raised(tmp_path: Path) -> None:
         assert ck.errors == 1
     finally:
         target.chmod(0o700)
+
+
+def test_resume_loads_asks_the_policy_restores_and_sets_a_refused_state_aside(
+    tmp_path: Path,
+) -> None:
+    """The mechanics the car and the simulated drive share (``resume_from_checkpoint``)."""
+    from guidance.app.checkpoint import INVALID, NO_CHECKPOINT, resume_from_checkpoint
+
+    path = tmp_path / "ck.json"
+    restored: list[dict[str, Any]] = []
+    assert resume_from_checkpoint(path, restored.append).outcome == NO_CHECKPOINT
+    Checkpointer(path).save(1.0, {"pipeline": {"x": [1.0]}})
+    later = resume_from_checkpoint(path, restored.append, policy=lambda doc: "too old")
+    assert later.outcome == "too old" and not later.resumed
+    assert not restored and path.exists()  # the policy's refusal keeps the file
+    assert resume_from_checkpoint(path, restored.append).resumed
+    assert restored[0]["pipeline"] == {"x": [1.0]}
+
+    def refuse(doc: dict[str, Any]) -> None:
+        raise ValueError("x[0] is not finite")
+
+    done = resume_from_checkpoint(path, refuse)
+    assert (done.outcome, done.why, done.resumed) == (INVALID, "x[0] is not finite", False)
+    assert not path.exists() and len(list(tmp_path.glob("ck.json.rejected-*"))) == 1
+
+
+def test_the_car_and_the_simulator_resume_through_the_shared_mechanics() -> None:
+    """ARCHITECTURE-2: loading a checkpoint and moving a bad one aside are written once, in
+    ``guidance/app/checkpoint.py``; the car (``build.resume_car``) and the simulated drive
+    (``SimDrive._resume``) give only their policy and their state to ``resume_from_checkpoint``."""
+    import ast
+
+    own = REPO / "guidance" / "app" / "checkpoint.py"
+    bad = []
+    for folder in ("guidance", "hal_sim"):
+        for path in sorted((REPO / folder).rglob("*.py")):
+            if path == own:
+                continue
+            for node in ast.walk(ast.parse(path.read_text(), filename=str(path))):
+                name = getattr(node, "id", None) or getattr(node, "attr", None)
+                if name in ("load_checkpoint", "set_aside"):
+                    bad.append(f"{path.relative_to(REPO)}:{getattr(node, 'lineno', 0)} {name}")
+    assert not bad, "resume with checkpoint.resume_from_checkpoint:\n" + "\n".join(bad)
 
 
 def _sim_cmd(ck: Path, out: Path) -> list[str]:
