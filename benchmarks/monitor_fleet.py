@@ -47,6 +47,9 @@ from pathlib import Path
 import numpy as np
 
 ROOT = Path(__file__).resolve().parents[1]
+SETTLE_S = 3.0
+"""How long after the monitor first showed a state the window opens: at 1,000 cars its first
+looks take the fleet's replies to its query and the states queued meanwhile (1-2 s old)."""
 STARTUP_S = 20.0
 """The longest a monitor may take to show its first state before the window opens anyway."""
 
@@ -360,13 +363,13 @@ def run_k(
                     target=_poll_web, args=(web_port, seen, stop_polling), daemon=True
                 )
             reader.start()
-            # the window opens 1 s after the monitor first showed a state (its start-up, 1-3 s
-            # of imports and the first query of the fleet, is not what is measured)
+            # the window opens SETTLE_S after the monitor first showed a state (its start-up:
+            # imports, the query of the fleet and the replies, is not what is measured)
             up_by = time.monotonic() + STARTUP_S
             while not seen.showed_a_state() and time.monotonic() < up_by and mon.poll() is None:
                 time.sleep(0.05)
-            t0 = time.monotonic() + 1.0
-            time.sleep(1.0)
+            t0 = time.monotonic() + SETTLE_S
+            time.sleep(SETTLE_S)
             cpu0 = _cpu_s(mon.pid)
             others0 = [_cpu_s(p.pid) for p in [router, *fleet]]
             time.sleep(duration)
