@@ -338,15 +338,23 @@ def _run_json(client: MonitorClient, args: argparse.Namespace) -> int:
     deadline = None if args.timeout is None else time.monotonic() + args.timeout
     client.query_latest()
     out = sys.stdout
+    lines: list[str] = []
+    """One write and flush per batch, whatever stdout's buffering (PYTHONUNBUFFERED made
+    each line a system call: a third of the monitor's time at 1,000 cars)."""
     try:
         for event in _events(client, deadline, stop):
             line = None if event is None else _json_line(client, view, event)
             if line is not None:
-                out.write(json.dumps(line, separators=(",", ":")) + "\n")
-            if not client.pending():  # one flush per batch: 10,000 lines a second at 1,000 cars
+                lines.append(json.dumps(line, separators=(",", ":")))
+            if lines and not client.pending():
+                out.write("\n".join(lines) + "\n")
                 out.flush()
+                lines.clear()
             if args.count is not None and view.messages >= args.count:
                 break
+        if lines:
+            out.write("\n".join(lines) + "\n")
+            out.flush()
     except BrokenPipeError:  # e.g. piped into head
         with contextlib.suppress(OSError):
             sys.stdout = open(os.devnull, "w")  # noqa: SIM115 - silence the exit-time flush

@@ -112,3 +112,40 @@ JSON = st.recursive(
 @given(body=st.dictionaries(st.sampled_from(NAMES), JSON, max_size=12))
 def test_random_objects_of_the_schemas_names(kind: str, body: dict[str, Any]) -> None:
     agree(kind, body)
+
+
+# -- the limits' fast walk says "within" exactly when the full walk finds nothing --------------
+BEYOND = st.one_of(
+    LEAVES,
+    st.sampled_from([float("nan"), float("inf"), -float("inf"), 2e9, -2e9, 2e15, 10**16,
+                     -(10**400), 10**400, 1e9, 1e15, "y" * 4097, "y" * 4096]),
+)  # fmt: skip
+KEYS = st.one_of(st.sampled_from(NAMES), st.sampled_from(["a_m", "b", "k" * 4097, "x_m"]))
+HOSTILE = st.recursive(
+    BEYOND,
+    lambda inner: st.one_of(st.lists(inner, max_size=4), st.dictionaries(KEYS, inner, max_size=6)),
+    max_leaves=40,
+)
+
+
+@settings(max_examples=1500, deadline=None, suppress_health_check=[HealthCheck.too_slow])
+@given(body=st.dictionaries(KEYS, HOSTILE, max_size=10))
+def test_the_fast_walk_of_the_limits_agrees_with_the_full_one(body: dict[str, Any]) -> None:
+    from guidance.tools.monitor_check import MAX_VALUES, _values_problem, _within
+
+    assert _within(body, "", 0, [MAX_VALUES - 1]) == (_values_problem(body) is None), body
+
+
+def test_the_fast_walk_at_the_depth_and_count_limits() -> None:
+    from guidance.tools.monitor_check import MAX_DEPTH, MAX_VALUES, _values_problem, _within
+
+    for depth in (MAX_DEPTH - 1, MAX_DEPTH, MAX_DEPTH + 1):
+        body: Any = 1.0
+        for _ in range(depth):
+            body = [body]
+        body = {"a": body}
+        assert _within(body, "", 0, [MAX_VALUES - 1]) == (_values_problem(body) is None), depth
+    for n in (MAX_VALUES - 2, MAX_VALUES - 1, MAX_VALUES):
+        body = {"a": [0] * n}
+        assert _within(body, "", 0, [MAX_VALUES - 1]) == (_values_problem(body) is None), n
+    assert not _within({"a": float("nan")}, "", 0, [MAX_VALUES - 1])
