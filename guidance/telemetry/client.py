@@ -233,6 +233,11 @@ class MonitorClient:
         """When the batch being handed out was taken (monotonic), if it is to be followed by a
         pause (``PACED_LOOK``); None otherwise."""
         self._next_look_s = 0.0
+        self._tokens: list[zenoh.Sample] = []
+        """Cars alive when the client opened (``_tokens_now``), not yet handed out."""
+        self._lively_seen: set[str] = set()
+        """Cars whose token this client saw come or go live (newer than ``_tokens``)."""
+        self._history_thread: threading.Thread | None = None
         self._wanted: set[str] = set()
         """Cars whose latest values are to be asked for at the next ``get``."""
 
@@ -266,11 +271,20 @@ class MonitorClient:
                 self.fifo_size
             )
             self._subscribe(session, kind, fifo, self.fifo_size, None)
+        # No history here: the cars already alive are asked by another, short-lived session
+        # (``_tokens_now``). A liveliness query (history=True, or a liveliness get) on this
+        # session left every state after it about a second late at 1,000 cars (zenoh 1.x;
+        # a data query does not; measured in docs/telemetry.md); a token's removal still
+        # reaches this subscriber whether or not it saw the token appear.
         lively = session.liveliness().declare_subscriber(
-            f"{KEY_PREFIX}/{v}", zenoh.handlers.FifoChannel(self.fifo_size), history=True
+            f"{KEY_PREFIX}/{v}", zenoh.handlers.FifoChannel(self.fifo_size)
         )
         self._entities.append(lively)
         self._liveliness = lively.handler
+        self._history_thread = threading.Thread(
+            target=self._tokens_now, name="monitor-tokens", daemon=True
+        )
+        self._history_thread.start()
         # Declared last, so zenoh has pushed a sample into its channel before these wake a
         # waiting get (they hold nothing the reader takes).
         waker = session.declare_subscriber(f"{KEY_PREFIX}/{v}/*", zenoh.handlers.RingChannel(1))
@@ -285,6 +299,42 @@ class MonitorClient:
         )
         self._waker.start()
         return self
+
+    def _tokens_now(self) -> None:
+        """The liveliness tokens alive now, asked by a session of its own that is closed once
+        they are in (see ``open``); handed out as "alive" at the next look, except for a car
+        whose token this client has already seen come or go. If that session cannot open (a
+        config that fixes the zenoh id, say) the main one asks instead."""
+        key = f"{KEY_PREFIX}/{self._vehicle_chunk}"
+        own: zenoh.Session | None = None
+        asker: zenoh.Session | None
+        try:
+            own = open_session(
+                session_config(
+                    mode=self._mode,
+                    connect=self.connect,
+                    zenoh_config=self._zenoh_config,
+                    tls=self._tls,
+                )
+            )
+            asker = own
+        except Exception as exc:
+            log.info("monitor: asking for the cars alive on the main session (%s)", exc)
+            asker = self._session
+        try:
+            if asker is None:
+                return
+            replies = asker.liveliness().get(key, zenoh.handlers.FifoChannel(65_536), timeout=2.0)
+            for reply in replies:
+                if reply.ok is not None:
+                    with self._replies_lock:
+                        self._tokens.append(reply.ok)
+                    self._wake.set()
+        except Exception as exc:  # the client closed meanwhile, or zenoh refused the query
+            log.debug("monitor: liveliness query ended: %s", _zenoh_error_text(exc))
+        finally:
+            if own is not None:
+                _quiet_close(own, [])
 
     def _wake_up(self, _sample: zenoh.Sample) -> None:
         self._wake.set()
@@ -340,6 +390,9 @@ class MonitorClient:
         waker, self._waker = self._waker, None
         if waker is not None and waker is not threading.current_thread():
             waker.join(2.0)
+        history, self._history_thread = self._history_thread, None
+        if history is not None and history is not threading.current_thread():
+            history.join(3.0)
 
     def query_latest(self, vehicle_id: str | None = None, timeout_s: float = 2.0) -> None:
         """Ask the cars (or one) for their latest messages; replies arrive later as events.
@@ -456,9 +509,16 @@ class MonitorClient:
         """Move everything waiting in the channels into the batch, in the order the class
         describes; at most one channel's capacity from each."""
         lively: list[TelemetryEvent] = []
+        with self._replies_lock:
+            tokens, self._tokens = self._tokens, []
+        for e in map(self._liveliness_event, tokens):
+            if e is not None and e.vehicle_id not in self._lively_seen:
+                lively.append(e)
         if self._liveliness is not None:
             samples, _closed = _drain(self._liveliness, self.fifo_size)
-            lively = [e for e in map(self._liveliness_event, samples) if e is not None]
+            live = [e for e in map(self._liveliness_event, samples) if e is not None]
+            self._lively_seen.update(e.vehicle_id for e in live)
+            lively += live
         appeared = next((i for i, e in enumerate(lively) if e.kind != "alive"), len(lively))
         self._batch.extend(lively[:appeared])
         with self._replies_lock:
