@@ -184,6 +184,8 @@ class Seen:
     states: dict[str, list[tuple[float, float, int]]] = field(default_factory=dict)
     responses: int = 0
     """Web feed: the /api/fleet responses read."""
+    feed_ages: list[tuple[float, float]] = field(default_factory=list)
+    """Web feed: (arrival, age of a car's state in that response), every car of every one."""
 
     def showed_a_state(self) -> bool:
         return bool(self.states) or any(b'"schema":"guidance.state/' in c for _, c in self.chunks)
@@ -226,6 +228,9 @@ class Row:
     """What the reference subscriber got of the states published in the window."""
     router_cpu_pct: float = float("nan")
     fleet_cpu_pct: float = float("nan")
+    feed: tuple[float, float, float, float] | None = None
+    """Web: the age of each car's state in each /api/fleet response as it arrived (p50, p99,
+    max, % within 1 s); the row's ages are what the page shows between polls."""
 
 
 def _poll_web(port: int, seen: Seen, stop: threading.Event, period_s: float = 0.5) -> None:
@@ -251,6 +256,7 @@ def _poll_web(port: int, seen: Seen, stop: threading.Event, period_s: float = 0.
                     seen.states.setdefault(car["vehicle_id"], []).append(
                         (now, st["t_s"], st["seq"])
                     )
+                    seen.feed_ages.append((now, now - st["t_s"]))
         except OSError:  # not serving yet, or gone at the end
             pass
         next_t += period_s
@@ -409,6 +415,10 @@ def run_k(
                       f"{report['rounds']} rounds late)", file=sys.stderr)  # fmt: skip
         for label, seen, t0, t1, cpu, others in windows:
             row = _stats(label, seen, t0, t1, starts, cpu)
+            in_feed = np.array([a for t, a in seen.feed_ages if t0 <= t <= t1])
+            if in_feed.size:
+                p50, p99 = (float(np.percentile(in_feed, q)) for q in (50, 99))
+                row.feed = (p50, p99, float(in_feed.max()), 100.0 * float(np.mean(in_feed <= 1)))
             row.router_cpu_pct, row.fleet_cpu_pct = 100 * others[0], 100 * sum(others[1:-1])
             expected = sum(int(np.sum((st >= t0) & (st <= t1))) for st in starts.values())
             if others[-1] >= 0:
@@ -565,6 +575,12 @@ def main() -> int:
                     f" {r.fleet_cpu_pct:.0f} %)",
                     flush=True,
                 )
+                if r.feed is not None:
+                    print(
+                        f"{'  (in each response)':<22}{'':>5}{'':>9}{'':>9}{r.feed[0]:>8.2f}s"
+                        f"{r.feed[1]:>6.2f}s{r.feed[2]:>6.2f}s{r.feed[3]:>9.1f}%",
+                        flush=True,
+                    )
     return 0
 
 
