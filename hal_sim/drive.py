@@ -43,7 +43,7 @@ from guidance.core.pipeline import Input, Pipeline, PipelineConfig
 from guidance.core.pipeline import Outputs as PipelineOutputs
 from guidance.errors import UserError
 from hal_sim.drive_options import DriveOptions, DriveResult, output_settings, wav_has_speech
-from hal_sim.lockstep import LockstepClock, LockstepSink
+from hal_sim.lockstep import LockstepClock, LockstepSink, recognise_now
 from hal_sim.params import SimParams, estimator_config
 from hal_sim.plots import DriveTrace, plot_drive
 from hal_sim.sim_camera import SIM_ORIGIN
@@ -260,7 +260,7 @@ class SimDrive:
             return
         self.next_frame_t = t + 1.0 / (self.opts.camera_hz or 1.0)
         x, y, _ = self.world.truth
-        await self.app.recognise_now(self.camera.frame_at(t, x, y))
+        await recognise_now(self.app, self.camera.frame_at(t, x, y))
 
     def _tick(self, t: float) -> None:
         """The app's time-driven work, the true pose recorded, the trace for the picture."""

@@ -22,10 +22,19 @@ from collections.abc import Callable
 from typing import TYPE_CHECKING
 
 if TYPE_CHECKING:
-    from guidance.app.app import Message
+    from guidance.app.app import App, Message
+    from guidance.core.messages import CameraFrame
 
 POLL_S = 0.05
 """A predicate on something other than the app's messages (a pty opened) is polled this often."""
+
+
+async def recognise_now(app: App, frame: CameraFrame) -> None:
+    """A frame of the simulated camera, seen now and matched at once (in lockstep), not through
+    the app's frame ring: the camera noted alive as the ring's reader notes it, then
+    ``App.recognise``; the frame is not recorded."""
+    app.pipeline.health.observe("camera", frame.t_s)
+    await app.recognise(frame)
 
 
 class LockstepClock:

@@ -415,12 +415,6 @@ class App:
                 self.counts["recogniser_errors"] += 1
                 self.failures.failed("applying a landmark fix")
 
-    async def recognise_now(self, frame: CameraFrame) -> None:
-        """A frame seen now and matched at once, not through the ring (the simulator's camera,
-        in lockstep): the camera noted alive, then ``recognise``; the frame is not recorded."""
-        self.pipeline.health.observe("camera", frame.t_s)
-        await self.recognise(frame)
-
     def match_frame(self, frame: CameraFrame, state: EstimateState) -> LandmarkFix | None:
         """Run the recogniser (worker thread): its fix, its rejection reason counted."""
         result = self.recogniser.process(frame, state)
