@@ -10,6 +10,7 @@ import socket
 import threading
 import time
 from collections.abc import Iterator
+from typing import Any
 
 import pytest
 import zenoh
@@ -143,19 +144,18 @@ def test_an_unopened_client_waits_and_returns_nothing() -> None:
         MonitorClient(ring_size=0)
 
 
-def test_a_stalled_reader_still_finds_every_cars_newest_state(
-    car: tuple[zenoh.Session, int],
-) -> None:
-    """40 cars flood 300 states each, one car after the other, while nobody reads: each car
-    keeps its own newest (a ring shared by the fleet kept only the last cars')."""
+def flood_unread(
+    car: tuple[zenoh.Session, int], cars: int, states: int, **client_args: Any
+) -> tuple[MonitorClient, dict[str, list[int]]]:
+    """``cars`` cars publish ``states`` states each, one car after the other, while the client
+    reads nothing; then it is drained: the client, and each car's seqs handed out."""
     session, port = car
-    cars, states = 40, 300
     block = zenoh.CongestionControl.BLOCK
     pubs = [
         session.declare_publisher(f"guidance/car{c}/state", congestion_control=block)
         for c in range(cars)
     ]
-    with MonitorClient([f"tcp/127.0.0.1:{port}"]) as client:
+    with MonitorClient([f"tcp/127.0.0.1:{port}"], **client_args) as client:
         wait_for_match(pubs)
         for pub in pubs:
             for s in range(1, states + 1):
@@ -166,6 +166,16 @@ def test_a_stalled_reader_still_finds_every_cars_newest_state(
     for e in events:
         if e.kind == "state" and e.message:
             newest.setdefault(e.vehicle_id, []).append(e.message["seq"])
+    return client, newest
+
+
+def test_a_stalled_reader_still_finds_every_cars_newest_state(
+    car: tuple[zenoh.Session, int],
+) -> None:
+    """40 cars flood 300 states each, one car after the other, while nobody reads: each car
+    keeps its own newest (a ring shared by the fleet kept only the last cars')."""
+    cars, states = 40, 300
+    client, newest = flood_unread(car, cars, states)
     assert sorted(newest) == sorted(f"car{c}" for c in range(cars))
     for vid, seqs in newest.items():  # each car's newest ring_size (2), in order
         assert seqs == [states - 1, states], vid
@@ -177,24 +187,8 @@ def test_a_look_over_its_budget_keeps_each_cars_newest_one(
 ) -> None:
     """30 cars of 5 states each while nobody reads, with a look budget of 40: two per car
     would be 60, so each car's newest one is handed out, and the rest counted."""
-    session, port = car
     cars, states = 30, 5
-    block = zenoh.CongestionControl.BLOCK
-    pubs = [
-        session.declare_publisher(f"guidance/car{c}/state", congestion_control=block)
-        for c in range(cars)
-    ]
-    with MonitorClient([f"tcp/127.0.0.1:{port}"], look_states=40) as client:
-        wait_for_match(pubs)
-        for pub in pubs:
-            for s in range(1, states + 1):
-                pub.put(message("state", s))
-        time.sleep(1.0)
-        events = drain(client)
-    newest: dict[str, list[int]] = {}
-    for e in events:
-        if e.kind == "state" and e.message:
-            newest.setdefault(e.vehicle_id, []).append(e.message["seq"])
+    client, newest = flood_unread(car, cars, states, look_states=40)
     assert newest == {f"car{c}": [states] for c in range(cars)}
     assert client.overwritten == cars * (states - 1)
 
