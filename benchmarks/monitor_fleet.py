@@ -233,13 +233,20 @@ class Row:
     max, % within 1 s); the row's ages are what the page shows between polls."""
 
 
-def _poll_web(port: int, seen: Seen, stop: threading.Event, period_s: float = 0.5) -> None:
-    """What the web page does: ``GET /api/fleet`` every ``period_s`` (its ``poll_ms``, 500),
+def _poll_web(port: int, seen: Seen, stop: threading.Event, period_s: float = 0.25) -> None:
+    """What the web page does: ``GET /api/fleet`` every ``poll_ms`` of ``/api/config``,
     then with the last answer's ``since`` and ``epoch``; each car's state recorded with the
     arrival of the whole response."""
     import urllib.request
 
     url = f"http://127.0.0.1:{port}/api/fleet"
+    while not stop.is_set():  # the page's own period, as it reads it
+        try:
+            with urllib.request.urlopen(f"http://127.0.0.1:{port}/api/config", timeout=5.0) as r:
+                period_s = json.loads(r.read())["poll_ms"] / 1000.0
+            break
+        except OSError:
+            stop.wait(0.1)
     since = ""  # after the first answer, only the track points written since (as the page)
     next_t = time.monotonic()
     while not stop.is_set():
@@ -546,7 +553,7 @@ def main() -> int:
                 monitors.append((f"before ({args.before}) {feed}", tree, feed))
             monitors.append((f"this tree {feed}", None, feed))
         print(
-            f"guidance monitor --json (what it prints) and --web (GET /api/fleet every 0.5 s, "
+            f"guidance monitor --json (what it prints) and --web (GET /api/fleet as often "
             f"as the page does), K cars at {args.rate:g} Hz through one local router, "
             f"{args.duration:g} s measured per K ({os.cpu_count()} CPUs)"
         )

@@ -2,7 +2,7 @@
 
 A thread folds the Zenoh telemetry events into a ``FleetView`` (the terminal monitor's);
 a standard-library HTTP server serves the page and its assets (package data: no build step,
-no CDN) and ``/api/fleet``, a JSON snapshot of every car the page polls twice a second.
+no CDN) and ``/api/fleet``, a JSON snapshot of every car the page polls four times a second.
 
 The snapshot carries each car's whole track (thinned to ``TRACK_POINTS_SENT``) only when
 asked without ``since``; the page then asks ``/api/fleet?since=G&epoch=E`` with the
@@ -66,6 +66,10 @@ log = logging.getLogger(__name__)
 DEFAULT_BIND = "127.0.0.1:8765"
 TRACK_POINTS_SENT = 1500
 """At most this many points of each car's track go to the page (evenly thinned)."""
+POLL_MS = 250
+"""How often the page asks for the fleet: a car's state on the page is then at most this much
+older than in the monitor (with 500 ms, 1,000 cars' p99 was 1.4 s old in the answers and 1.75
+s on the page; an answer of 1,000 cars costs the server about 40 ms: 16 % of a core at 4 Hz)."""
 REQUEST_TIMEOUT_S = 5.0
 """A connection on which nothing arrives (or nothing can be sent) for this long is closed."""
 REQUEST_DEADLINE_S = 10.0
@@ -320,7 +324,7 @@ class WebMonitor:
     def page_config(self) -> dict[str, Any]:
         from guidance.version import version
 
-        return {"tiles": self.tiles, "version": version(), "poll_ms": 500}
+        return {"tiles": self.tiles, "version": version(), "poll_ms": POLL_MS}
 
     def host_allowed(self, host_header: str | None) -> bool:
         """Whether a request with this ``Host`` is answered; ``ValueError`` when it does not

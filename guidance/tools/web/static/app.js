@@ -9,7 +9,7 @@
 const SVG = "http://www.w3.org/2000/svg";
 const EARTH_M = 6378137.0;
 const MIN_ELLIPSE_PX = 6;  // an ellipse smaller than this is drawn at this size, dashed
-const state = { config: { tiles: "", poll_ms: 500 }, ref: null, failures: 0, view: null,
+const state = { config: { tiles: "", poll_ms: 250 }, ref: null, failures: 0, view: null,
                 last: null, colours: null, epoch: "", generation: null, tracks: new Map() };
 const TRACK_POINTS_KEPT = 20000;  // per car, as the monitor keeps
 
