@@ -24,6 +24,7 @@ cars are 1000 sessions over ``--fleet-procs`` processes. Figures: docs/telemetry
     .venv/bin/python benchmarks/monitor_fleet.py --cars 10 100 300 --before 4bf690d
     .venv/bin/python benchmarks/monitor_fleet.py --cars 1000 --fleet-procs 4
     .venv/bin/python benchmarks/monitor_fleet.py --router-restart 10
+    .venv/bin/python benchmarks/monitor_fleet.py --router-restart 1000 --car raw --fleet-procs 4
 
 ``--before REV`` also runs the monitor of git revision REV (its packages extracted
 with ``git archive`` into a temporary directory, first on PYTHONPATH), on the same fleet, and
@@ -439,21 +440,31 @@ def run_k(
     return rows
 
 
-def router_restart(k: int, rate: float, down_s: float = 2.0) -> tuple[float, int]:
-    """K telemetry cars (the car's own publisher) and one monitor through a router that is
-    killed and, ``down_s`` later, started again on the same port: how long after it is back
-    until every car's state is shown again (max over cars), and how many cars came back."""
+def router_restart(
+    k: int, rate: float, car_kind: str = "telemetry", procs_n: int = 1, down_s: float = 2.0
+) -> tuple[float, int]:
+    """K cars (``telemetry``: the car's own publisher; ``raw``: a session, publisher and token
+    each, over ``procs_n`` processes) and one monitor through a router that is killed and,
+    ``down_s`` later, started again on the same port: how long after it is back until every
+    car's state is shown again (max over cars), and how many cars came back."""
     port = free_port()
     ep = f"tcp/127.0.0.1:{port}"
     procs = [_spawn(ROUTER, ep)]
     try:
         assert procs[0].stdout is not None and procs[0].stdout.readline().strip() == "up"
-        car = _spawn(FLEET, ep, f"{rate:g}", "0", str(k), "telemetry", "1")
-        procs.append(car)
-        assert car.stdin is not None and car.stdout is not None
-        assert car.stdout.readline().strip() == "up"
-        car.stdin.write("go\n")
-        car.stdin.flush()
+        share = [k // procs_n + (1 if i < k % procs_n else 0) for i in range(procs_n)]
+        cars = [
+            _spawn(FLEET, ep, f"{rate:g}", str(sum(share[:i])), str(n), car_kind, "1")
+            for i, n in enumerate(share)
+        ]
+        procs.extend(cars)
+        for car in cars:
+            assert car.stdin is not None and car.stdout is not None
+            assert car.stdout.readline().strip() == "up"
+        for car in cars:
+            assert car.stdin is not None
+            car.stdin.write("go\n")
+            car.stdin.flush()
         seen = Seen()
         mon = _monitor(ep, 20.0 + down_s, None)
         procs.append(mon)  # type: ignore[arg-type]
@@ -537,9 +548,10 @@ def main() -> int:
     )
     args = ap.parse_args()
     if args.router_restart:
-        worst, n = router_restart(args.router_restart, args.rate)
+        worst, n = router_restart(args.router_restart, args.rate, args.car, args.fleet_procs)
+        what = "the car's Telemetry" if args.car == "telemetry" else "raw sessions"
         print(
-            f"router restart, {args.router_restart} cars (the car's Telemetry, client mode): "
+            f"router restart, {args.router_restart} cars ({what}, client mode): "
             f"{n} came back without restarting the monitor, the last {worst:.1f} s after the "
             "router was up again"
         )
