@@ -29,7 +29,7 @@ import numpy as np
 from numba import njit
 
 from guidance.core import law, model
-from hal_sim import ekf, field, world
+from hal_sim import ekf, field, rng, world
 from hal_sim.params import (
     I_COMPASS_PERIOD,
     I_COMPASS_SIGMA,
@@ -238,6 +238,7 @@ def drive(
     step = 0
     status = STEP_ON
     readings = math.floor(step / period)  # compass readings due so far
+    s0, s1 = rng.from_word(ns[world.R_RNG0]), rng.from_word(ns[world.R_RNG1])  # in registers
     while True:
         # world.world_step, its draws made here: see world.step_core. A reading is due when
         # floor((step + 1) / period) > floor(step / period); the right side is the last
@@ -245,7 +246,7 @@ def drive(
         due_by_next = math.floor((step + 1) / period)
         due = due_by_next > readings
         readings = due_by_next
-        u_left, u_right, gauss = world.draw_step(due, true_sigma)
+        u_left, u_right, gauss, s0, s1 = world.draw_step(due, true_sigma, s0, s1)
         world.step_core(
             ts, ns, xs, ys, lm_xy, node_start, node_lms, lm_seen, p, due, u_left, u_right,
             gauss, events,
@@ -311,6 +312,7 @@ def drive(
                 decide_params, penalties, costs,
             )  # fmt: skip
             ns[world.R_C] = adj[b, dirs[best]]
+    ns[world.R_RNG0], ns[world.R_RNG1] = rng.to_word(s0), rng.to_word(s1)
     if is_field:
         if status == OUTCOME_STUCK:  # the time limit, the protocol's normal end
             status = OUTCOME_TIMEOUT
