@@ -175,7 +175,7 @@ def run_trial(
     res, trial = begin_trial(study, goal, area, n_base, xs, ys, ts, p, samples)
     leg_m = res[RES_EUCLID_M]
     # Estimator state.
-    x = np.array([ts[world.T_X], ts[world.T_Y], ts[world.T_TH]])
+    x = ekf.state(ts[world.T_X], ts[world.T_Y], ts[world.T_TH])
     sp = p[I_INIT_POS_SIGMA]
     sh = p[I_INIT_HEAD_SIGMA]
     P = np.diag(np.array([sp * sp, sp * sp, sh * sh]))
@@ -301,8 +301,9 @@ def drive(
             b = ns[world.R_B]
             n_exits = world.exits_at(adj, b, ns[world.R_A], dirs)
             to_b = events[5]
-            ix = x[0] + to_b * math.cos(x[2])
-            iy = x[1] + to_b * math.sin(x[2])
+            ekf.sync_heading(x)  # the kept cos and sin afresh at each decision
+            ix = x[0] + to_b * x[3]
+            iy = x[1] + to_b * x[4]
             for e in range(n_exits):
                 headings[e] = world.DIR_HEADING[dirs[e]]
             hs = headings[:n_exits]
