@@ -42,6 +42,7 @@ from hal_sim.params import (
     I_LM_PASS,
     I_LM_SIGMA,
     I_LOOKAHEAD,
+    I_LOST,
     I_MAG_FRAC,
     I_MAG_NOISE,
     I_MAX_WHEEL_STEP,
@@ -238,6 +239,12 @@ def drive(
     step = 0
     status = STEP_ON
     readings = math.floor(step / period)  # compass readings due so far
+    # The larger position eigenvalue below which the major axis is under every threshold it
+    # is held against (lost; the hybrid's switch), with a margin over the rounding.
+    threshold = p[I_LOST]
+    if method == law.METHOD_HYBRID:
+        threshold = min(threshold, p[I_HYBRID_SWITCH])
+    bound_max = threshold * threshold / (4.0 * model.CHI2_2D_2SIGMA) * (1.0 - 1e-12)
     s0, s1 = rng.from_word(ns[world.R_RNG0]), rng.from_word(ns[world.R_RNG1])  # in registers
     while True:
         # world.world_step, its draws made here: see world.step_core. A reading is due when
@@ -275,7 +282,14 @@ def drive(
                 landmark_update = True
             else:
                 l_rej += 1
-        major = model.major_axis_m(P)
+        # The 2-sigma major axis only when a sample is due or it can be over a threshold:
+        # its square is at most 4 chi2 (max(pxx, pyy) + |pxy|) (the larger eigenvalue's
+        # bound); below every threshold any value under them decides the same (-1).
+        bound = max(P[0, 0], P[1, 1]) + abs(P[0, 1])
+        if ts[world.T_DRIVEN] >= trial.next_sample_m or bound > bound_max:
+            major = model.major_axis_m(P)
+        else:
+            major = -1.0
         mode = law.next_mode(method, mode, major, p[I_HYBRID_SWITCH], landmark_update)
         status, trial = end_step(
             trial, samples, ts[world.T_DRIVEN], ts[world.T_X], ts[world.T_Y], x[0], x[1], major,
