@@ -90,11 +90,13 @@ def _study(args: argparse.Namespace) -> int:
             TextColumn("ETA"),
             TimeRemainingColumn(),
             console=console,
+            auto_refresh=False,  # no refresh thread: the study forks its workers (studies.py)
         ) as progress:
             bar = progress.add_task(args.which, total=None)
 
             def hook(done: int, total: int) -> None:
                 progress.update(bar, completed=done, total=total)
+                progress.refresh()
 
             summary = run.run(hook)
     if args.json:

@@ -265,14 +265,26 @@ def _import_outputs() -> None:
     from hal_sim import analysis, figures, provenance  # noqa: F401
 
 
+def _can_fork() -> bool:
+    """Whether a child may be forked: on a platform with fork, and no other thread running (a
+    fork copies none, and a lock one of them holds would stay held in the child)."""
+    return hasattr(os, "fork") and threading.active_count() == 1
+
+
 def execute(
     tasks: Sequence[ChunkTask],
     store: ChunkStore,
     workers: int,
     scheduler: str | None,
     on_progress: ProgressHook | None = None,
+    on_started: Callable[[], None] | None = None,
 ) -> None:
-    """Run the chunks not yet on disk, saving each as it completes."""
+    """Run the chunks not yet on disk, saving each as it completes; ``on_started`` is called
+    once the workers run (a local pool: after they are forked).
+
+    The local pool's workers are forked when nothing else runs (``_can_fork``): they start
+    with the engine the parent's warm-up loaded, where spawned ones import the package and
+    load the compiled engine again (about a second before their first chunk)."""
     todo = [t for t in tasks if not store.has(t)]
     done = len(tasks) - len(todo)
     if on_progress:
@@ -280,6 +292,8 @@ def execute(
     if not todo:
         return
     if scheduler:
+        if on_started:
+            on_started()
         _execute_dask(todo, store, scheduler, done, len(tasks), on_progress)
         return
     if workers <= 1:
@@ -289,7 +303,7 @@ def execute(
             if on_progress:
                 on_progress(done, len(tasks))
         return
-    ctx = get_context("spawn")
+    ctx = get_context("fork" if _can_fork() else "spawn")
     with ProcessPoolExecutor(max_workers=workers, mp_context=ctx) as pool:
         pending: dict[Future[tuple[np.ndarray, np.ndarray]], ChunkTask] = {}
         queue = list(reversed(todo))
@@ -297,6 +311,9 @@ def execute(
             while queue and len(pending) < 2 * workers:
                 t = queue.pop()
                 pending[pool.submit(run_chunk, t)] = t
+            if on_started:  # the first submission started the workers (forked: all of them)
+                on_started()
+                on_started = None
             finished, _ = wait(pending, return_when=FIRST_COMPLETED)
             for f in finished:
                 t = pending.pop(f)
@@ -399,15 +416,15 @@ class StudyRun:
         tasks = make_tasks(conditions, self.trials, self.seed, self.sim)
         store = ChunkStore(self.out)
         t0 = time.monotonic()
-        preload: threading.Thread | None = None
+        preload = threading.Thread(target=_import_outputs, daemon=True)
+        started: Callable[[], None] | None = None
         if any(not store.has(t) for t in tasks):
             if not self.scheduler:
                 _warm_up(self.sim)
             if self.scheduler or self.workers > 1:  # the parent waits: import meanwhile
-                preload = threading.Thread(target=_import_outputs, daemon=True)
-                preload.start()
-        execute(tasks, store, self.workers, self.scheduler, on_progress)
-        if preload is not None:
+                started = preload.start
+        execute(tasks, store, self.workers, self.scheduler, on_progress, started)
+        if preload.is_alive():
             preload.join()
         data = collect(tasks, store, conditions)
         summary = self.outputs(data, time.monotonic() - t0)
@@ -499,7 +516,7 @@ def _draw_aside(draw: Callable[[], None]) -> Callable[[], None]:
     two landmark figures take about 3 s of matplotlib, fig3 about 1 s); returns what waits
     for it. Drawn here instead when fork is not available or other threads run (a fork
     copies no thread, and a lock one of them holds would stay held in the child)."""
-    if not hasattr(os, "fork") or threading.active_count() > 1:
+    if not _can_fork():
         draw()
         return lambda: None
     child = get_context("fork").Process(target=draw, name="study-figures")
