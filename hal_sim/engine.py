@@ -205,7 +205,7 @@ def run_trial(
     return res
 
 
-@njit(cache=True, error_model="numpy")
+@njit(cache=True, error_model="numpy", fastmath={"contract", "arcp"})
 def drive(
     res: np.ndarray, trial: Trial, study: int, method: int, p: np.ndarray,
     samples: np.ndarray, legs: np.ndarray, ts: np.ndarray, ns: np.ndarray, xs: np.ndarray,

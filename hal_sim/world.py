@@ -93,7 +93,7 @@ _C0, _C1, _C2, _C3 = 0.5, -1.0 / 24.0, 1.0 / 720.0, -1.0 / 40320.0
 _C4, _C5, _C6 = 1.0 / 3628800.0, -1.0 / 479001600.0, 1.0 / 87178291200.0
 
 
-@njit(cache=True, error_model="numpy", inline="always")
+@njit(cache=True, error_model="numpy", inline="always", fastmath={"contract", "arcp"})
 def arc_factors(t: float) -> tuple[float, float]:
     """(sin(t) / t, (1 - cos(t)) / t): by their series for |t| <= ARC_SERIES_MAX (the first
     term left out below 5e-17 of the sum), else by the library (t != 0)."""
@@ -105,7 +105,7 @@ def arc_factors(t: float) -> tuple[float, float]:
     return sinc, cosc
 
 
-@njit(cache=True, error_model="numpy", inline="always")
+@njit(cache=True, error_model="numpy", inline="always", fastmath={"contract", "arcp"})
 def bicycle_arc(
     x: float, y: float, c: float, s: float, d: float, delta: float, wheelbase: float
 ) -> tuple[float, float, float, float, float]:
@@ -142,13 +142,13 @@ def bicycle_step(
     return x2, y2, theta + dth, v + a * dt, dth
 
 
-@njit(cache=True, error_model="numpy")
+@njit(cache=True, error_model="numpy", fastmath={"contract", "arcp"})
 def cross_track(x: float, y: float, ax: float, ay: float, ux: float, uy: float) -> float:
     """Signed distance of (x, y) from the line through a along unit vector u, positive left."""
     return -(x - ax) * uy + (y - ay) * ux
 
 
-@njit(cache=True, error_model="numpy")
+@njit(cache=True, error_model="numpy", fastmath={"contract", "arcp"})
 def steer_pid(
     ts: np.ndarray, ax: float, ay: float, h: float, ux: float, uy: float, p: np.ndarray
 ) -> float:
@@ -167,7 +167,7 @@ def steer_pid(
     return min(max(delta, -lim), lim)
 
 
-@njit(cache=True, error_model="numpy")
+@njit(cache=True, error_model="numpy", fastmath={"contract", "arcp"})
 def speed_pid(v: float, v_target: float, max_accel: float, dt: float) -> float:
     """Proportional speed control, clipped to the acceleration limit, never below rest."""
     a = SPEED_KP * (v_target - v)
@@ -252,7 +252,7 @@ def _set_segment(ts: np.ndarray, xs: np.ndarray, ys: np.ndarray, a: int, b: int)
     )
 
 
-@njit(cache=True, error_model="numpy")
+@njit(cache=True, error_model="numpy", fastmath={"contract", "arcp"})
 def _encoder(ts: np.ndarray, cum: int, cnt: int, d_true: float, u: float, p: np.ndarray) -> float:
     """One wheel: slip and tyre error on the true distance, then whole counts.
 
@@ -277,7 +277,7 @@ def _release_here(
     """Nothing: see the end of ``step_core``."""
 
 
-@njit(cache=True, error_model="numpy")
+@njit(cache=True, error_model="numpy", fastmath={"contract", "arcp"})
 def step_core(
     ts: np.ndarray,
     ns: np.ndarray,
