@@ -277,7 +277,7 @@ def _release_here(
     """Nothing: see the end of ``step_core``."""
 
 
-@njit(cache=True, error_model="numpy", fastmath={"contract", "arcp"})
+@njit(cache=True, error_model="numpy", inline="always", fastmath={"contract", "arcp"})
 def step_core(
     ts: np.ndarray,
     ns: np.ndarray,
