@@ -494,7 +494,13 @@ class StudyRun:
 
             summary = chance.summarise(data, self.out, self.seed, prov, cap)
         else:
-            drawn = _draw_aside(lambda: figures.fig4(data, self.out / "fig4.png", caption=cap))
+            fig4 = self.out / "fig4.png"
+            drawn = _draw_aside(
+                lambda: figures.fig4(data, fig4, caption=cap, heatmap=False),
+                lambda: figures.range_heatmap(
+                    data, fig4.with_name(figures.RANGE_HEATMAP_NAME), caption=cap
+                ),
+            )
             summary = analysis.summarise_landmarks(data, self.seed)
             summary["paper_check"] = analysis.paper_check_landmarks(data, summary, self.seed)
             figures.write_range_table(summary, self.out / "range_at_80pct.csv", header=cap)
@@ -511,20 +517,24 @@ class StudyRun:
         return summary
 
 
-def _draw_aside(draw: Callable[[], None]) -> Callable[[], None]:
-    """Draw a figure in a forked child while the parent computes and writes the tables (the
-    two landmark figures take about 3 s of matplotlib, fig3 about 1 s); returns what waits
-    for it. Drawn here instead when fork is not available or other threads run (a fork
-    copies no thread, and a lock one of them holds would stay held in the child)."""
+def _draw_aside(*draws: Callable[[], None]) -> Callable[[], None]:
+    """Draw figures in forked children, one each, while the parent computes and writes the
+    tables (the landmark study's two figures take about 2 s and 1 s of matplotlib, fig3
+    about 1 s); returns what waits for them. Drawn here instead when a fork is not safe
+    (``_can_fork``)."""
     if not _can_fork():
-        draw()
+        for draw in draws:
+            draw()
         return lambda: None
-    child = get_context("fork").Process(target=draw, name="study-figures")
-    child.start()
+    children = [get_context("fork").Process(target=d, name="study-figure") for d in draws]
+    for child in children:
+        child.start()
 
     def join() -> None:
-        child.join()
-        if child.exitcode != 0:
-            raise RuntimeError(f"drawing a study figure failed (exit code {child.exitcode})")
+        for child in children:
+            child.join()
+        failed = [c.exitcode for c in children if c.exitcode != 0]
+        if failed:
+            raise RuntimeError(f"drawing a study figure failed (exit codes {failed})")
 
     return join
