@@ -31,6 +31,9 @@ from guidance.core.navigator import Method, NavigatorConfig
 from hal_sim import ekf, engine, params, rng, studies, world
 from hal_sim.params import I_COMPASS_PERIOD, I_DETECT, I_QUANTUM, I_SLIP, I_TRACK, SimParams
 
+ENGINE_FLAGS = {"error_model": "numpy", "fastmath": {"contract", "arcp"}}
+"""``engine.drive``'s compile flags, for the loops below that inline the engine's steps."""
+
 
 @njit(cache=True)
 def draws(n: int) -> float:
@@ -90,7 +93,7 @@ def sincos(n: int) -> float:
     return acc
 
 
-@njit(cache=True)
+@njit(cache=True, **ENGINE_FLAGS)
 def arcs(n: int) -> float:
     """The world's bicycle arc (series, the heading's cos and sin turned)."""
     x, y, c, s = 0.0, 0.0, 1.0, 0.0
@@ -122,7 +125,7 @@ def predicts(n: int, p: np.ndarray) -> float:
     return _predicts(n, p, ekf.state(0.0, 0.0, 0.0), np.eye(3))
 
 
-@njit(cache=True)
+@njit(cache=True, **ENGINE_FLAGS)
 def _predicts(n: int, p: np.ndarray, x: np.ndarray, P: np.ndarray) -> float:
     for i in range(n):
         dl = 1.1 + 0.02 * (i % 3)
@@ -170,7 +173,7 @@ def world_only(seed: int, p: np.ndarray, n: int) -> tuple[int, int]:
                        p, n)  # fmt: skip
 
 
-@njit(cache=True)
+@njit(cache=True, **ENGINE_FLAGS)
 def _world_loop(
     xs: np.ndarray, ys: np.ndarray, adj: np.ndarray, lm_xy: np.ndarray,
     node_start: np.ndarray, node_lms: np.ndarray, ts: np.ndarray, ns: np.ndarray,

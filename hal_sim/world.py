@@ -303,6 +303,10 @@ def step_core(
     compiled trial loop directly), the step passes its arrays for free. Newly sighted
     landmarks are listed in ``events[EV_N_SIGHTED]`` and after it; the caller draws their
     detection (``detect``).
+
+    Inlined (numba) into its callers, ``engine.drive`` and ``world_step``: a call passed its
+    ten arrays as some seventy machine words at every step. The inlined body is compiled
+    with the caller's flags: both callers take ``fastmath={"contract", "arcp"}``.
     """
     nx = xs.shape[0]
     ax, ay = xs[ns[R_A] % nx], ys[ns[R_A] // nx]
@@ -421,7 +425,7 @@ def detect(events: np.ndarray, detection_rate: float) -> None:
             events[3] = events[EV_SIGHTED + j]
 
 
-@njit(cache=True, error_model="numpy")
+@njit(cache=True, error_model="numpy", fastmath={"contract", "arcp"})
 def world_step(
     ts: np.ndarray,
     ns: np.ndarray,
@@ -443,7 +447,8 @@ def world_step(
     (-1 if none), 1.0 when the navigator must decide the exit at node b (its
     distance in [5]), 1.0 when the car has just passed node b (now a); and the
     landmarks sighted this step (``EV_N_SIGHTED``). The draws are ``draw_step``'s, then
-    ``detect``'s; the compiled trial loop makes the same three calls itself.
+    ``detect``'s; the compiled trial loop makes the same three calls itself. ``step_core`` is
+    inlined into both, so both are compiled with the same flags (``engine.drive``'s).
     """
     u_left, u_right, gauss, s0, s1 = draw_step(
         compass_due, p[I_TRUE_COMPASS_SIGMA], rng.from_word(ns[R_RNG0]), rng.from_word(ns[R_RNG1])
