@@ -368,7 +368,8 @@ def landmark_target(
 
     Distances compared as ``math.hypot`` gives them; squared first, the hypotenuse computed
     only when the squares are within 1e-12 of a tie (the same answer, without two
-    hypotenuses per landmark at every decision).
+    hypotenuses per landmark at every decision). NaN compares as there: a NaN goal skips no
+    landmark (the nearest one is the target), a NaN landmark is never the target.
     """
     d_goal = math.hypot(goal_x - x, goal_y - y)
     g2 = d_goal * d_goal
@@ -383,7 +384,7 @@ def landmark_target(
             continue
         ux, uy = goal_x - lm_xy[k, 0], goal_y - lm_xy[k, 1]
         u2 = ux * ux + uy * uy
-        if not u2 < g2_hi or (u2 > g2_lo and math.hypot(ux, uy) >= d_goal):
+        if u2 >= g2_hi or (u2 > g2_lo and math.hypot(ux, uy) >= d_goal):
             continue
         vx, vy = lm_xy[k, 0] - x, lm_xy[k, 1] - y
         v2 = vx * vx + vy * vy
