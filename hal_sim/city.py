@@ -1,7 +1,8 @@
 """The simulated city (SPEC section 4): a random street grid with dead ends and one-way
 streets, its strongly connected part, landmarks along the streets and magnetic interference
-zones. Compiled with numba; drawn from numba's generator (see ``hal_sim.world``, which
-re-exports these names).
+zones. Compiled with numba; drawn from numba's generator, but for the streets' dead ends and
+one-way draws (``hal_sim.rng``, seeded from numba's; see ``hal_sim.world``, which re-exports
+these names).
 
 Node ``n = j * nx + i`` sits at ``(xs[i], ys[j])``; ``adj[n, d]`` is the node reached by
 driving from n in direction d (0 east, 1 north, 2 west, 3 south) or -1.
@@ -13,6 +14,8 @@ import math
 
 import numpy as np
 from numba import njit
+
+from hal_sim import rng
 
 DIR_DX = np.array([1, 0, -1, 0])
 DIR_DY = np.array([0, 1, 0, -1])
@@ -34,7 +37,23 @@ def _street_positions(length_m: float, block_min: float, block_max: float) -> np
 
 
 @njit(cache=True, error_model="numpy")
-def _reach(adj: np.ndarray, nx: int, seed: int, forward: bool) -> np.ndarray:
+def grid_adjacency(nx: int, ny: int) -> np.ndarray:
+    """The full nx-by-ny grid's adjacency (every street both ways), -1 off the grid."""
+    adj = np.full((nx * ny, 4), -1, dtype=np.int64)
+    for j in range(ny):
+        for i in range(nx):
+            u = j * nx + i
+            for d in range(4):
+                ii, jj = i + DIR_DX[d], j + DIR_DY[d]
+                if 0 <= ii < nx and 0 <= jj < ny:
+                    adj[u, d] = jj * nx + ii
+    return adj
+
+
+@njit(cache=True, error_model="numpy")
+def _reach(adj: np.ndarray, grid: np.ndarray, seed: int, forward: bool) -> np.ndarray:
+    """The nodes ``seed`` reaches (``forward``) or that reach it: v -> u exists when the grid
+    neighbour v of u in direction d (``grid``, the full grid's adjacency) drives back to u."""
     n_nodes = adj.shape[0]
     seen = np.zeros(n_nodes, dtype=np.bool_)
     stack = np.empty(n_nodes, dtype=np.int64)
@@ -50,13 +69,8 @@ def _reach(adj: np.ndarray, nx: int, seed: int, forward: bool) -> np.ndarray:
                 if v < 0:
                     continue
             else:
-                # v -> u exists if the grid neighbour v in direction d drives back to u.
-                i = u % nx + DIR_DX[d]
-                j = u // nx + DIR_DY[d]
-                if i < 0 or i >= nx or j < 0 or j >= n_nodes // nx:
-                    continue
-                v = j * nx + i
-                if adj[v, (d + 2) % 4] != u:
+                v = grid[u, d]
+                if v < 0 or adj[v, (d + 2) & 3] != u:
                     continue
             if not seen[v]:
                 seen[v] = True
@@ -84,19 +98,18 @@ def make_city(
     ys = _street_positions(height, block_min, block_max)
     nx, ny = xs.shape[0], ys.shape[0]
     n = nx * ny
-    adj = -np.ones((n, 4), dtype=np.int64)
-    for j in range(ny):
-        for i in range(nx):
-            u = j * nx + i
-            for d in range(4):
-                ii, jj = i + DIR_DX[d], j + DIR_DY[d]
-                if 0 <= ii < nx and 0 <= jj < ny:
-                    adj[u, d] = jj * nx + ii
+    grid = grid_adjacency(nx, ny)
+    adj = grid.copy()
+    # The per-street draws from the step's cheaper generator (hal_sim.rng; a few per node,
+    # a fifth of the Mersenne Twister's cost), seeded from numba's.
+    s0, s1 = rng.seed_state(np.random.randint(0, 1 << 62))
     # Dead ends: some nodes keep one street and lose the others (both ways).
     for u in range(n):
-        if np.random.random() >= dead_frac:
+        r, s0, s1 = rng.uniform(s0, s1)
+        if r >= dead_frac:
             continue
-        keep = np.random.randint(0, 4)
+        r, s0, s1 = rng.uniform(s0, s1)
+        keep = int(r * 4.0)
         for _ in range(4):
             if adj[u, keep] >= 0:
                 break
@@ -113,8 +126,10 @@ def make_city(
             v = adj[u, d]
             if v < 0 or adj[v, d + 2] != u:
                 continue
-            if np.random.random() < oneway_frac:
-                if np.random.random() < 0.5:
+            r, s0, s1 = rng.uniform(s0, s1)
+            if r < oneway_frac:
+                r, s0, s1 = rng.uniform(s0, s1)
+                if r < 0.5:
                     adj[u, d] = -1
                 else:
                     adj[v, d + 2] = -1
@@ -123,7 +138,7 @@ def make_city(
     best_size = 0
     for _ in range(8):
         seed = np.random.randint(0, n)
-        scc = _reach(adj, nx, seed, True) & _reach(adj, nx, seed, False)
+        scc = _reach(adj, grid, seed, True) & _reach(adj, grid, seed, False)
         size = int(scc.sum())
         if size > best_size:
             best_size = size

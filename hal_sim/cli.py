@@ -5,6 +5,7 @@ from __future__ import annotations
 import argparse
 import json
 import os
+import time
 from pathlib import Path
 from typing import Any
 
@@ -90,11 +91,17 @@ def _study(args: argparse.Namespace) -> int:
             TextColumn("ETA"),
             TimeRemainingColumn(),
             console=console,
+            auto_refresh=False,  # no refresh thread: the study forks its workers (studies.py)
         ) as progress:
             bar = progress.add_task(args.which, total=None)
+            shown = [0.0]
 
             def hook(done: int, total: int) -> None:
                 progress.update(bar, completed=done, total=total)
+                now = time.monotonic()  # drawn at most 10 times a second, and at the end
+                if done == total or now - shown[0] >= 0.1:
+                    shown[0] = now
+                    progress.refresh()
 
             summary = run.run(hook)
     if args.json:

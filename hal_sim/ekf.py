@@ -15,6 +15,7 @@ import numpy as np
 from numba import njit
 
 from guidance.core import model
+from hal_sim import world
 from hal_sim.params import (
     I_COMPASS_GATE,
     I_COMPASS_SIGMA,
@@ -30,8 +31,40 @@ from hal_sim.params import (
     I_TRACK,
 )
 
+N_STATE = 5
+"""The engine's estimate vector: the filter's (x, y, theta), then cos theta and sin theta,
+kept by ``predict`` and ``compass_update`` and set afresh by ``sync_heading`` (after a
+landmark update, and at each decision in ``hal_sim.engine``)."""
+
+
+@njit(cache=True, error_model="numpy")
+def state(x: float, y: float, theta: float) -> np.ndarray:
+    """The estimate vector (``N_STATE``) at (x, y, theta)."""
+    return np.array([x, y, theta, math.cos(theta), math.sin(theta)])
+
 
 @njit(cache=True, error_model="numpy", inline="always")
+def sync_heading(x: np.ndarray) -> None:
+    """cos and sin of the heading afresh (after an update the turns do not follow)."""
+    x[3] = math.cos(x[2])
+    x[4] = math.sin(x[2])
+
+
+@njit(cache=True, error_model="numpy", inline="always")
+def turn(t: float) -> tuple[float, float]:
+    """(cos t, sin t) of a small turn from ``world.arc_factors``' series (the library's
+    beyond 0.5 rad): the kept cos and sin of the heading are turned by it."""
+    sinc, cosc = world.arc_factors(t)
+    return 1.0 - t * cosc, t * sinc
+
+
+@njit(cache=True, error_model="numpy", inline="always")
+def half_turn(dth: float) -> tuple[float, float]:
+    """``turn(dth / 2)``: twice over, the heading's whole turn of a predict."""
+    return turn(0.5 * dth)
+
+
+@njit(cache=True, error_model="numpy", inline="always", fastmath={"contract", "arcp"})
 def predict(
     x: np.ndarray,
     P: np.ndarray,
@@ -48,11 +81,14 @@ def predict(
     F[0, 2] = -d sin(mid) and F[1, 2] = d cos(mid), so F P F^T is six scalar lines on the
     symmetric P, and one sine and cosine serve the Jacobians and the motion. Inlined, so the
     compiled loop passes no arrays (each array passed costs two reference counts).
+
+    ``x`` is (x, y, theta, cos theta, sin theta) (``state``): the mid-point heading's cosine
+    and sine are the kept ones turned by dtheta / 2 (``turn``), no library call.
     """
     d, dth = model.odometry_increment(dl, dr, track)
-    mid = x[2] + 0.5 * dth
-    c = math.cos(mid)
-    s = math.sin(mid)
+    ch, sh = half_turn(dth)
+    c = x[3] * ch - x[4] * sh  # cos(theta + dth / 2)
+    s = x[4] * ch + x[3] * sh
     a = -d * s  # F[0, 2]
     b = d * c  # F[1, 2]
     h = 0.5 / track
@@ -89,6 +125,8 @@ def predict(
     x[0] = x[0] + d * c
     x[1] = x[1] + d * s
     x[2] = model.wrap_angle(x[2] + dth)
+    x[3] = c * ch - s * sh  # cos(theta + dth)
+    x[4] = s * ch + c * sh
 
 
 COMPASS_ACCEPTED = 0
@@ -101,7 +139,7 @@ def _release_here(x: np.ndarray, P: np.ndarray, p: np.ndarray, det: np.ndarray) 
     """Nothing: see the end of ``compass_update``."""
 
 
-@njit(cache=True, error_model="numpy")
+@njit(cache=True, error_model="numpy", fastmath={"contract", "arcp"})
 def compass_update(
     x: np.ndarray, P: np.ndarray, z: float, var: float, p: np.ndarray, det: np.ndarray
 ) -> int:
@@ -136,6 +174,10 @@ def compass_update(
         x[0] += k0 * y
         x[1] += k1 * y
         x[2] = model.wrap_angle(x[2] + k2 * y)
+        ct, st = turn(k2 * y)
+        c, s = x[3], x[4]
+        x[3] = c * ct - s * st
+        x[4] = s * ct + c * st
         # P_ij - K_i pc_j - K_j (pc_i - K_i p22) + K_i K_j var, pc = P[:, 2] (heading_update)
         v00 = P[0, 0] - k0 * p02 - k0 * (p02 - k0 * p22) + k0 * k0 * var
         v01 = P[0, 1] - k0 * p12 - k1 * (p02 - k0 * p22) + k0 * k1 * var
@@ -174,6 +216,7 @@ def landmark_update_xy(
     if model.mahalanobis_sq_2d(y0, y1, s00, s01, s11) > gate:
         return False
     model.position_update(x, P, y0, y1, s00, s01, s11, var, work)
+    sync_heading(x)
     return True
 
 
@@ -189,7 +232,7 @@ def filter_sequence(
     n = inputs.shape[0]
     xs = np.empty((n, 3))
     Ps = np.empty((n, 3, 3))
-    x = x0.copy()
+    x = state(x0[0], x0[1], x0[2])
     P = P0.copy()
     work = np.empty((3, 3))
     det = np.array([1.0, 0.0])
@@ -203,6 +246,6 @@ def filter_sequence(
             landmark_update_xy(
                 x, P, inputs[i, 3], inputs[i, 4], p[I_LM_SIGMA] ** 2, p[I_LM_GATE], work
             )
-        xs[i] = x
+        xs[i] = x[:3]
         Ps[i] = P
     return xs, Ps

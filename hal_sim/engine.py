@@ -29,7 +29,7 @@ import numpy as np
 from numba import njit
 
 from guidance.core import law, model
-from hal_sim import ekf, field, world
+from hal_sim import ekf, field, rng, world
 from hal_sim.params import (
     I_COMPASS_PERIOD,
     I_COMPASS_SIGMA,
@@ -42,6 +42,7 @@ from hal_sim.params import (
     I_LM_PASS,
     I_LM_SIGMA,
     I_LOOKAHEAD,
+    I_LOST,
     I_MAG_FRAC,
     I_MAG_NOISE,
     I_MAX_WHEEL_STEP,
@@ -175,7 +176,7 @@ def run_trial(
     res, trial = begin_trial(study, goal, area, n_base, xs, ys, ts, p, samples)
     leg_m = res[RES_EUCLID_M]
     # Estimator state.
-    x = np.array([ts[world.T_X], ts[world.T_Y], ts[world.T_TH]])
+    x = ekf.state(ts[world.T_X], ts[world.T_Y], ts[world.T_TH])
     sp = p[I_INIT_POS_SIGMA]
     sh = p[I_INIT_HEAD_SIGMA]
     P = np.diag(np.array([sp * sp, sp * sp, sh * sh]))
@@ -204,7 +205,7 @@ def run_trial(
     return res
 
 
-@njit(cache=True, error_model="numpy")
+@njit(cache=True, error_model="numpy", fastmath={"contract", "arcp"})
 def drive(
     res: np.ndarray, trial: Trial, study: int, method: int, p: np.ndarray,
     samples: np.ndarray, legs: np.ndarray, ts: np.ndarray, ns: np.ndarray, xs: np.ndarray,
@@ -238,6 +239,13 @@ def drive(
     step = 0
     status = STEP_ON
     readings = math.floor(step / period)  # compass readings due so far
+    # The larger position eigenvalue below which the major axis is under every threshold it
+    # is held against (lost; the hybrid's switch), with a margin over the rounding.
+    threshold = p[I_LOST]
+    if method == law.METHOD_HYBRID:
+        threshold = min(threshold, p[I_HYBRID_SWITCH])
+    bound_max = threshold * threshold / (4.0 * model.CHI2_2D_2SIGMA) * (1.0 - 1e-12)
+    s0, s1 = rng.from_word(ns[world.R_RNG0]), rng.from_word(ns[world.R_RNG1])  # in registers
     while True:
         # world.world_step, its draws made here: see world.step_core. A reading is due when
         # floor((step + 1) / period) > floor(step / period); the right side is the last
@@ -245,7 +253,7 @@ def drive(
         due_by_next = math.floor((step + 1) / period)
         due = due_by_next > readings
         readings = due_by_next
-        u_left, u_right, gauss = world.draw_step(due, true_sigma)
+        u_left, u_right, gauss, s0, s1 = world.draw_step(due, true_sigma, s0, s1)
         world.step_core(
             ts, ns, xs, ys, lm_xy, node_start, node_lms, lm_seen, p, due, u_left, u_right,
             gauss, events,
@@ -274,7 +282,14 @@ def drive(
                 landmark_update = True
             else:
                 l_rej += 1
-        major = model.major_axis_m(P)
+        # The 2-sigma major axis only when a sample is due or it can be over a threshold:
+        # its square is at most 4 chi2 (max(pxx, pyy) + |pxy|) (the larger eigenvalue's
+        # bound); below every threshold any value under them decides the same (-1).
+        bound = max(P[0, 0], P[1, 1]) + abs(P[0, 1])
+        if ts[world.T_DRIVEN] >= trial.next_sample_m or bound > bound_max:
+            major = model.major_axis_m(P)
+        else:
+            major = -1.0
         mode = law.next_mode(method, mode, major, p[I_HYBRID_SWITCH], landmark_update)
         status, trial = end_step(
             trial, samples, ts[world.T_DRIVEN], ts[world.T_X], ts[world.T_Y], x[0], x[1], major,
@@ -300,8 +315,9 @@ def drive(
             b = ns[world.R_B]
             n_exits = world.exits_at(adj, b, ns[world.R_A], dirs)
             to_b = events[5]
-            ix = x[0] + to_b * math.cos(x[2])
-            iy = x[1] + to_b * math.sin(x[2])
+            ekf.sync_heading(x)  # the kept cos and sin afresh at each decision
+            ix = x[0] + to_b * x[3]
+            iy = x[1] + to_b * x[4]
             for e in range(n_exits):
                 headings[e] = world.DIR_HEADING[dirs[e]]
             hs = headings[:n_exits]
@@ -311,6 +327,7 @@ def drive(
                 decide_params, penalties, costs,
             )  # fmt: skip
             ns[world.R_C] = adj[b, dirs[best]]
+    ns[world.R_RNG0], ns[world.R_RNG1] = rng.to_word(s0), rng.to_word(s1)
     if is_field:
         if status == OUTCOME_STUCK:  # the time limit, the protocol's normal end
             status = OUTCOME_TIMEOUT

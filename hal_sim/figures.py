@@ -196,10 +196,12 @@ def fig4(
     path: Path,
     rates: tuple[float, ...] = CURVE_DETECTION_RATES,
     caption: str = "",
+    heatmap: bool = True,
 ) -> None:
     """Success against start-goal distance with 95 % Wilson bands, one panel per method and
     landmark density, a curve per detection rate in ``rates``; and, beside it
-    (``RANGE_HEATMAP_NAME``), the per-method heatmap of the range at 80 % success.
+    (``RANGE_HEATMAP_NAME``, unless ``heatmap`` is false: ``range_heatmap`` draws it alone),
+    the per-method heatmap of the range at 80 % success.
 
     Small studies draw what there is: bins are pooled to ``MIN_BIN_TRIALS`` trials (the
     panel says so), and a condition with fewer trials than that is drawn trial by trial."""
@@ -275,7 +277,8 @@ def fig4(
     _caption(fig, caption)
     fig.savefig(path)
     plt.close(fig)
-    range_heatmap(data, path.with_name(RANGE_HEATMAP_NAME), caption)
+    if heatmap:
+        range_heatmap(data, path.with_name(RANGE_HEATMAP_NAME), caption)
 
 
 def _method_name(method: Any) -> str:

@@ -26,6 +26,7 @@ from guidance.core.navigator import Method, NavigatorConfig
 from guidance.errors import UserError
 from hal_sim import engine, params
 from hal_sim.params import SimParams
+from hal_sim.seeds import trial_seeds as trial_seeds
 
 RANGE_COMPASS_DEG: tuple[float | None, ...] = (10.0, 20.0, 30.0, None)
 LANDMARK_COMPASS_DEG = 30.0
@@ -141,17 +142,6 @@ def field_conditions() -> list[Condition]:
     ]
 
 
-def trial_seeds(base_seed: int, condition: int, first: int, count: int) -> np.ndarray:
-    """One 32-bit seed per trial from (study seed, condition, trial index) only."""
-    return np.array(
-        [
-            np.random.SeedSequence([base_seed, condition, t]).generate_state(1)[0]
-            for t in range(first, first + count)
-        ],
-        dtype=np.int64,
-    )
-
-
 @dataclass(frozen=True, slots=True)
 class ChunkTask:
     condition: Condition
@@ -213,11 +203,15 @@ def make_tasks(
 
 # ----------------------------------------------------------------------------- storage
 class ChunkStore:
-    """Completed chunks on disk: one .npz per chunk, written atomically."""
+    """Completed chunks on disk: one .npz per chunk, written atomically. The chunks this
+    process saved are also kept in memory, as they read back (samples as float32), so that
+    collecting them does not read the files again (675 files, half a second, at the landmark
+    study's defaults)."""
 
     def __init__(self, out: Path) -> None:
         self.dir = out / "chunks"
         self.dir.mkdir(parents=True, exist_ok=True)
+        self._saved: dict[Path, tuple[np.ndarray, np.ndarray]] = {}
 
     def path(self, task: ChunkTask) -> Path:
         return self.dir / f"{task.condition.key}__{task.chunk:05d}.npz"
@@ -228,10 +222,15 @@ class ChunkStore:
     def save(self, task: ChunkTask, results: np.ndarray, samples: np.ndarray) -> None:
         final = self.path(task)
         tmp = final.with_suffix(".tmp.npz")
-        np.savez(tmp, results=results, samples=samples.astype(np.float32), seeds=task.seeds)
+        stored = samples.astype(np.float32)
+        np.savez(tmp, results=results, samples=stored, seeds=task.seeds)
         os.replace(tmp, final)
+        self._saved[final] = (results, stored.astype(float))
 
     def load(self, task: ChunkTask) -> tuple[np.ndarray, np.ndarray]:
+        saved = self._saved.get(self.path(task))
+        if saved is not None:
+            return saved
         with np.load(self.path(task)) as z:
             if not np.array_equal(z["seeds"], task.seeds):
                 raise UserError(f"{self.path(task)} was made with other seeds; use a fresh --out")
@@ -266,14 +265,26 @@ def _import_outputs() -> None:
     from hal_sim import analysis, figures, provenance  # noqa: F401
 
 
+def _can_fork() -> bool:
+    """Whether a child may be forked: on a platform with fork, and no other thread running (a
+    fork copies none, and a lock one of them holds would stay held in the child)."""
+    return hasattr(os, "fork") and threading.active_count() == 1
+
+
 def execute(
     tasks: Sequence[ChunkTask],
     store: ChunkStore,
     workers: int,
     scheduler: str | None,
     on_progress: ProgressHook | None = None,
+    on_started: Callable[[], None] | None = None,
 ) -> None:
-    """Run the chunks not yet on disk, saving each as it completes."""
+    """Run the chunks not yet on disk, saving each as it completes; ``on_started`` is called
+    once the workers run (a local pool: after they are forked).
+
+    The local pool's workers are forked when nothing else runs (``_can_fork``): they start
+    with the engine the parent's warm-up loaded, where spawned ones import the package and
+    load the compiled engine again (about a second before their first chunk)."""
     todo = [t for t in tasks if not store.has(t)]
     done = len(tasks) - len(todo)
     if on_progress:
@@ -281,6 +292,8 @@ def execute(
     if not todo:
         return
     if scheduler:
+        if on_started:
+            on_started()
         _execute_dask(todo, store, scheduler, done, len(tasks), on_progress)
         return
     if workers <= 1:
@@ -290,7 +303,7 @@ def execute(
             if on_progress:
                 on_progress(done, len(tasks))
         return
-    ctx = get_context("spawn")
+    ctx = get_context("fork" if _can_fork() else "spawn")
     with ProcessPoolExecutor(max_workers=workers, mp_context=ctx) as pool:
         pending: dict[Future[tuple[np.ndarray, np.ndarray]], ChunkTask] = {}
         queue = list(reversed(todo))
@@ -298,6 +311,9 @@ def execute(
             while queue and len(pending) < 2 * workers:
                 t = queue.pop()
                 pending[pool.submit(run_chunk, t)] = t
+            if on_started:  # the first submission started the workers (forked: all of them)
+                on_started()
+                on_started = None
             finished, _ = wait(pending, return_when=FIRST_COMPLETED)
             for f in finished:
                 t = pending.pop(f)
@@ -400,15 +416,15 @@ class StudyRun:
         tasks = make_tasks(conditions, self.trials, self.seed, self.sim)
         store = ChunkStore(self.out)
         t0 = time.monotonic()
-        preload: threading.Thread | None = None
+        preload = threading.Thread(target=_import_outputs, daemon=True)
+        started: Callable[[], None] | None = None
         if any(not store.has(t) for t in tasks):
             if not self.scheduler:
                 _warm_up(self.sim)
             if self.scheduler or self.workers > 1:  # the parent waits: import meanwhile
-                preload = threading.Thread(target=_import_outputs, daemon=True)
-                preload.start()
-        execute(tasks, store, self.workers, self.scheduler, on_progress)
-        if preload is not None:
+                started = preload.start
+        execute(tasks, store, self.workers, self.scheduler, on_progress, started)
+        if preload.is_alive():
             preload.join()
         data = collect(tasks, store, conditions)
         summary = self.outputs(data, time.monotonic() - t0)
@@ -438,6 +454,7 @@ class StudyRun:
         """Summary JSON, tables and figures, each carrying the provenance and N."""
         from hal_sim import analysis, figures, provenance
 
+        drawn: Callable[[], None] = lambda: None  # noqa: E731  (joins a figure drawn aside)
         prov = provenance.provenance()
         n = sum(len(r) for r in data.results.values())
         cap = provenance.caption(prov, self.seed, n, self.trials)
@@ -446,7 +463,9 @@ class StudyRun:
             if self.name == "range":
                 summary["paper_check"] = analysis.paper_check_range(summary)
                 fits = [analysis.fit_of(row) for row in summary["conditions"]]
-                figures.fig3(data, self.out / "fig3.png", caption=cap, fits=fits)
+                drawn = _draw_aside(
+                    lambda: figures.fig3(data, self.out / "fig3.png", caption=cap, fits=fits)
+                )
             else:
                 summary["study"] = "interference"
                 for c, row in zip(data.conditions, summary["conditions"], strict=True):
@@ -475,9 +494,15 @@ class StudyRun:
 
             summary = chance.summarise(data, self.out, self.seed, prov, cap)
         else:
+            fig4 = self.out / "fig4.png"
+            drawn = _draw_aside(
+                lambda: figures.fig4(data, fig4, caption=cap, heatmap=False),
+                lambda: figures.range_heatmap(
+                    data, fig4.with_name(figures.RANGE_HEATMAP_NAME), caption=cap
+                ),
+            )
             summary = analysis.summarise_landmarks(data, self.seed)
             summary["paper_check"] = analysis.paper_check_landmarks(data, summary, self.seed)
-            figures.fig4(data, self.out / "fig4.png", caption=cap)
             figures.write_range_table(summary, self.out / "range_at_80pct.csv", header=cap)
         summary["seed"] = self.seed
         summary["n_trials"] = n
@@ -487,5 +512,29 @@ class StudyRun:
         analysis.write_trials_csv(data, self.out / "trials.csv", header=cap)
         if "paper_check" in summary:
             analysis.write_paper_check(summary["paper_check"], self.out / "paper_check.csv", cap)
+        drawn()
         (self.out / "summary.json").write_text(json.dumps(summary, indent=2))
         return summary
+
+
+def _draw_aside(*draws: Callable[[], None]) -> Callable[[], None]:
+    """Draw figures in forked children, one each, while the parent computes and writes the
+    tables (the landmark study's two figures take about 2 s and 1 s of matplotlib, fig3
+    about 1 s); returns what waits for them. Drawn here instead when a fork is not safe
+    (``_can_fork``)."""
+    if not _can_fork():
+        for draw in draws:
+            draw()
+        return lambda: None
+    children = [get_context("fork").Process(target=d, name="study-figure") for d in draws]
+    for child in children:
+        child.start()
+
+    def join() -> None:
+        for child in children:
+            child.join()
+        failed = [c.exitcode for c in children if c.exitcode != 0]
+        if failed:
+            raise RuntimeError(f"drawing a study figure failed (exit codes {failed})")
+
+    return join

@@ -20,7 +20,7 @@ import numpy as np
 from numba import njit
 
 from guidance.core.model import wrap_angle
-from hal_sim import city
+from hal_sim import city, rng
 from hal_sim.params import (
     I_CRUISE,
     I_DECISION_DIST,
@@ -47,10 +47,15 @@ T_CUM_L, T_CUM_R, T_CNT_L, T_CNT_R = 4, 5, 6, 7
 T_PID_INT, T_PID_PREV, T_TYRE, T_DRIVEN, T_STEP = 8, 9, 10, 11, 12
 T_SEG_H, T_SEG_UX, T_SEG_UY = 13, 14, 15
 """Heading and unit vector of the street being followed (a -> b), cached at each switch."""
-N_TRUTH = 16
-# Route state vector ``ns`` (ints): following a -> b, then c (-1 until decided).
-R_A, R_B, R_C, R_PASS, R_TURNS = 0, 1, 2, 3, 4
-N_ROUTE = 5
+T_COS, T_SIN = 16, 17
+"""cos and sin of the heading ``T_TH``: turned by each step's arc (``bicycle_arc``), set from
+the heading afresh at each street switch (the rounding they gather in between, a few 1e-15,
+goes no further)."""
+N_TRUTH = 18
+# Route state vector ``ns`` (ints): following a -> b, then c (-1 until decided); and the
+# step's random generator, its two words' bits (``hal_sim.rng``, drawn by ``draw_step``).
+R_A, R_B, R_C, R_PASS, R_TURNS, R_RNG0, R_RNG1 = 0, 1, 2, 3, 4, 5, 6
+N_ROUTE = 7
 
 STEER_KP = 1.0
 STEER_KI = 0.02
@@ -76,6 +81,51 @@ place_landmarks = city.place_landmarks
 make_interference = city.make_interference
 
 
+ARC_SERIES_MAX = 0.5
+"""``arc_factors`` sums series below this turn of a step (rad); the car's largest is about
+0.22 (1.2 m at full lock)."""
+
+
+# The series of sin(t) / t (1, _S1 t^2, ...) and (1 - cos(t)) / t (_C0 t, _C1 t^3, ...).
+_S1, _S2, _S3 = -1.0 / 6.0, 1.0 / 120.0, -1.0 / 5040.0
+_S4, _S5, _S6 = 1.0 / 362880.0, -1.0 / 39916800.0, 1.0 / 6227020800.0
+_C0, _C1, _C2, _C3 = 0.5, -1.0 / 24.0, 1.0 / 720.0, -1.0 / 40320.0
+_C4, _C5, _C6 = 1.0 / 3628800.0, -1.0 / 479001600.0, 1.0 / 87178291200.0
+
+
+@njit(cache=True, error_model="numpy", inline="always", fastmath={"contract", "arcp"})
+def arc_factors(t: float) -> tuple[float, float]:
+    """(sin(t) / t, (1 - cos(t)) / t): by their series for |t| <= ARC_SERIES_MAX (the first
+    term left out below 5e-17 of the sum), else by the library (t != 0)."""
+    if abs(t) > ARC_SERIES_MAX:
+        return math.sin(t) / t, (1.0 - math.cos(t)) / t
+    t2 = t * t
+    sinc = 1.0 + t2 * (_S1 + t2 * (_S2 + t2 * (_S3 + t2 * (_S4 + t2 * (_S5 + t2 * _S6)))))
+    cosc = t * (_C0 + t2 * (_C1 + t2 * (_C2 + t2 * (_C3 + t2 * (_C4 + t2 * (_C5 + t2 * _C6))))))
+    return sinc, cosc
+
+
+@njit(cache=True, error_model="numpy", inline="always", fastmath={"contract", "arcp"})
+def bicycle_arc(
+    x: float, y: float, c: float, s: float, d: float, delta: float, wheelbase: float
+) -> tuple[float, float, float, float, float]:
+    """The kinematic bicycle's move by ``d`` at steering ``delta`` from (x, y) heading
+    (cos, sin) = (c, s): (x, y, dtheta, cos, sin) after it (see ``bicycle_step``).
+
+    ``dtheta = d delta / l``; the arc's chord in the car's frame is ``d (sin(dtheta) /
+    dtheta, (1 - cos(dtheta)) / dtheta)`` (``arc_factors``: no trigonometry), and the new
+    heading's cos and sin are the old ones turned by dtheta."""
+    if abs(delta) < 1e-9:
+        return x + d * c, y + d * s, 0.0, c, s
+    dth = d * delta / wheelbase
+    sinc, cosc = arc_factors(dth)
+    dx = d * sinc
+    dy = d * cosc
+    sd = dth * sinc  # sin(dth)
+    cd = 1.0 - dth * cosc  # cos(dth)
+    return x + dx * c - dy * s, y + dx * s + dy * c, dth, c * cd - s * sd, s * cd + c * sd
+
+
 @njit(cache=True, error_model="numpy")
 def bicycle_step(
     x: float, y: float, theta: float, v: float, a: float, delta: float, dt: float, wheelbase: float
@@ -84,30 +134,21 @@ def bicycle_step(
 
     ``d = v dt + a dt^2 / 2``, ``rho = l / delta``, ``dtheta = d / rho``,
     ``dx = rho sin(dtheta)``, ``dy = rho (1 - cos(dtheta))`` (straight line as
-    delta -> 0), rotated into the world by theta.
+    delta -> 0), rotated into the world by theta (``bicycle_arc``, which the world step
+    uses with the heading's cos and sin kept).
     """
     d = v * dt + 0.5 * a * dt * dt
-    if abs(delta) < 1e-9:
-        dth = 0.0
-        dx = d
-        dy = 0.0
-    else:
-        rho = wheelbase / delta
-        dth = d / rho
-        dx = rho * math.sin(dth)
-        dy = rho * (1.0 - math.cos(dth))
-    c = math.cos(theta)
-    s = math.sin(theta)
-    return x + dx * c - dy * s, y + dx * s + dy * c, theta + dth, v + a * dt, dth
+    x2, y2, dth, _c, _s = bicycle_arc(x, y, math.cos(theta), math.sin(theta), d, delta, wheelbase)
+    return x2, y2, theta + dth, v + a * dt, dth
 
 
-@njit(cache=True, error_model="numpy")
+@njit(cache=True, error_model="numpy", fastmath={"contract", "arcp"})
 def cross_track(x: float, y: float, ax: float, ay: float, ux: float, uy: float) -> float:
     """Signed distance of (x, y) from the line through a along unit vector u, positive left."""
     return -(x - ax) * uy + (y - ay) * ux
 
 
-@njit(cache=True, error_model="numpy")
+@njit(cache=True, error_model="numpy", fastmath={"contract", "arcp"})
 def steer_pid(
     ts: np.ndarray, ax: float, ay: float, h: float, ux: float, uy: float, p: np.ndarray
 ) -> float:
@@ -126,7 +167,7 @@ def steer_pid(
     return min(max(delta, -lim), lim)
 
 
-@njit(cache=True, error_model="numpy")
+@njit(cache=True, error_model="numpy", fastmath={"contract", "arcp"})
 def speed_pid(v: float, v_target: float, max_accel: float, dt: float) -> float:
     """Proportional speed control, clipped to the acceleration limit, never below rest."""
     a = SPEED_KP * (v_target - v)
@@ -160,7 +201,8 @@ def exits_at(adj: np.ndarray, b: int, a: int, out_dirs: np.ndarray) -> int:
 def init_truth(
     xs: np.ndarray, ys: np.ndarray, adj: np.ndarray, start: int, p: np.ndarray
 ) -> tuple[np.ndarray, np.ndarray]:
-    """Car at node ``start`` facing a random allowed exit, at rest."""
+    """Car at node ``start`` facing a random allowed exit, at rest; the step's generator seeded
+    from numba's (``hal_sim.rng``)."""
     dirs = np.empty(4, dtype=np.int64)
     n = exits_at(adj, start, -1, dirs)
     d = dirs[np.random.randint(0, n)]
@@ -169,11 +211,16 @@ def init_truth(
     ts[T_X] = sx
     ts[T_Y] = sy
     ts[T_TH] = DIR_HEADING[d]
+    ts[T_COS] = math.cos(ts[T_TH])
+    ts[T_SIN] = math.sin(ts[T_TH])
     ts[T_TYRE] = np.random.normal(0.0, 1.0) * p[I_TYRE_ERR]
     ns = np.zeros(N_ROUTE, dtype=np.int64)
     ns[R_A] = start
     ns[R_B] = adj[start, d]
     ns[R_C] = -1
+    s0, s1 = rng.seed_state(np.random.randint(0, 1 << 62))
+    ns[R_RNG0] = rng.to_word(s0)
+    ns[R_RNG1] = rng.to_word(s1)
     _set_segment(ts, xs, ys, start, ns[R_B])
     return ts, ns
 
@@ -205,7 +252,7 @@ def _set_segment(ts: np.ndarray, xs: np.ndarray, ys: np.ndarray, a: int, b: int)
     )
 
 
-@njit(cache=True, error_model="numpy")
+@njit(cache=True, error_model="numpy", fastmath={"contract", "arcp"})
 def _encoder(ts: np.ndarray, cum: int, cnt: int, d_true: float, u: float, p: np.ndarray) -> float:
     """One wheel: slip and tyre error on the true distance, then whole counts.
 
@@ -230,7 +277,7 @@ def _release_here(
     """Nothing: see the end of ``step_core``."""
 
 
-@njit(cache=True, error_model="numpy")
+@njit(cache=True, error_model="numpy", inline="always", fastmath={"contract", "arcp"})
 def step_core(
     ts: np.ndarray,
     ns: np.ndarray,
@@ -256,6 +303,10 @@ def step_core(
     compiled trial loop directly), the step passes its arrays for free. Newly sighted
     landmarks are listed in ``events[EV_N_SIGHTED]`` and after it; the caller draws their
     detection (``detect``).
+
+    Inlined (numba) into its callers, ``engine.drive`` and ``world_step``: a call passed its
+    ten arrays as some seventy machine words at every step. The inlined body is compiled
+    with the caller's flags: both callers take ``fastmath={"contract", "arcp"}``.
     """
     nx = xs.shape[0]
     ax, ay = xs[ns[R_A] % nx], ys[ns[R_A] // nx]
@@ -277,6 +328,8 @@ def step_core(
             switch = 0.0  # U-turn at a dead end: drive to the end first
         if to_b <= switch:
             ts[T_SEG_H], ts[T_SEG_UX], ts[T_SEG_UY] = segment(cx - bx, cy - by)
+            ts[T_COS] = math.cos(ts[T_TH])
+            ts[T_SIN] = math.sin(ts[T_TH])
             ns[R_A] = ns[R_B]
             ns[R_B] = c
             ns[R_C] = -1
@@ -303,14 +356,15 @@ def step_core(
         v_target = p[I_TURN_V]
     a = speed_pid(v, v_target, p[I_MAX_ACCEL], p[I_DT])
     delta = steer_pid(ts, ax, ay, h_ab, ux, uy, p)
-    x, y, th, v2, dth = bicycle_step(
-        ts[T_X], ts[T_Y], ts[T_TH], v, a, delta, p[I_DT], p[I_WHEELBASE]
+    dt = p[I_DT]
+    d = v * dt + 0.5 * a * dt * dt
+    x, y, dth, ts[T_COS], ts[T_SIN] = bicycle_arc(
+        ts[T_X], ts[T_Y], ts[T_COS], ts[T_SIN], d, delta, p[I_WHEELBASE]
     )
-    d = v * p[I_DT] + 0.5 * a * p[I_DT] ** 2
     ts[T_X] = x
     ts[T_Y] = y
-    ts[T_TH] = wrap_angle(th)
-    ts[T_V] = max(v2, 0.0)
+    ts[T_TH] = wrap_angle(ts[T_TH] + dth)
+    ts[T_V] = max(v + a * dt, 0.0)
     ts[T_DRIVEN] += d
     ts[T_STEP] += 1.0
     half = 0.5 * p[I_TRACK] * dth
@@ -344,18 +398,22 @@ def step_core(
     _release_here(ts, ns, xs, ys, lm_xy, node_start, node_lms, lm_seen_pass, p, events)
 
 
-@njit(cache=True, error_model="numpy")
-def draw_step(compass_due: bool, compass_sigma: float) -> tuple[float, float, float]:
-    """A step's draws before the sightings, in the generator's order: the left and right
-    wheels' slip uniforms, then the compass's standard normal when one is due (the true
-    compass sigma, ``p[I_TRUE_COMPASS_SIGMA]``, is positive). Scalars only: see
-    ``step_core``."""
-    u_left = np.random.random()
-    u_right = np.random.random()
+@njit(cache=True, error_model="numpy", inline="always")
+def draw_step(
+    compass_due: bool, compass_sigma: float, s0: np.uint64, s1: np.uint64
+) -> tuple[float, float, float, np.uint64, np.uint64]:
+    """A step's draws before the sightings, from the generator's words (s0, s1)
+    (``hal_sim.rng``), in order: the left and right wheels' slip uniforms, then the
+    compass's standard normal when one is due (the true compass sigma,
+    ``p[I_TRUE_COMPASS_SIGMA]``, is positive). Returns them and the new words. Scalars only:
+    see ``step_core``; the compiled trial loop keeps the words in registers, ``world_step``
+    in ``ns[R_RNG0]`` and ``ns[R_RNG1]``."""
+    u_left, s0, s1 = rng.uniform(s0, s1)
+    u_right, s0, s1 = rng.uniform(s0, s1)
     gauss = 0.0
     if compass_due and compass_sigma > 0.0:
-        gauss = np.random.normal(0.0, 1.0)
-    return u_left, u_right, gauss
+        gauss, s0, s1 = rng.normal(s0, s1)
+    return u_left, u_right, gauss, s0, s1
 
 
 @njit(cache=True, error_model="numpy")
@@ -367,7 +425,7 @@ def detect(events: np.ndarray, detection_rate: float) -> None:
             events[3] = events[EV_SIGHTED + j]
 
 
-@njit(cache=True, error_model="numpy")
+@njit(cache=True, error_model="numpy", fastmath={"contract", "arcp"})
 def world_step(
     ts: np.ndarray,
     ns: np.ndarray,
@@ -389,9 +447,14 @@ def world_step(
     (-1 if none), 1.0 when the navigator must decide the exit at node b (its
     distance in [5]), 1.0 when the car has just passed node b (now a); and the
     landmarks sighted this step (``EV_N_SIGHTED``). The draws are ``draw_step``'s, then
-    ``detect``'s; the compiled trial loop makes the same three calls itself.
+    ``detect``'s; the compiled trial loop makes the same three calls itself. ``step_core`` is
+    inlined into both, so both are compiled with the same flags (``engine.drive``'s).
     """
-    u_left, u_right, gauss = draw_step(compass_due, p[I_TRUE_COMPASS_SIGMA])
+    u_left, u_right, gauss, s0, s1 = draw_step(
+        compass_due, p[I_TRUE_COMPASS_SIGMA], rng.from_word(ns[R_RNG0]), rng.from_word(ns[R_RNG1])
+    )
+    ns[R_RNG0] = rng.to_word(s0)
+    ns[R_RNG1] = rng.to_word(s1)
     step_core(
         ts, ns, xs, ys, lm_xy, node_start, node_lms, lm_seen_pass, p, compass_due,
         u_left, u_right, gauss, events,

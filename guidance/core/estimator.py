@@ -9,13 +9,13 @@ this module adds bookkeeping: time ordering, gates, counters, health, resets.
 
 from __future__ import annotations
 
+import functools
 import math
 from collections import Counter
 from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
-from filterpy.kalman import ExtendedKalmanFilter
 
 from guidance.core import model, state_limits
 from guidance.core.messages import Ellipse, EstimateState, HeadingFix, LandmarkFix, WheelOdometry
@@ -158,16 +158,23 @@ class StepResult:
     mahalanobis_sq: float | None = None
 
 
-class _Ekf(ExtendedKalmanFilter):
-    """filterpy's EKF with the odometry motion model as its state transition."""
+@functools.cache
+def _ekf_class() -> Any:
+    """filterpy's EKF with the odometry motion model as its state transition. filterpy (and
+    the scipy.stats it imports, about a second) is imported when the first estimator is made:
+    what only needs the configuration (a study's workers, ``hal_sim.params``) never waits."""
+    from filterpy.kalman import ExtendedKalmanFilter
 
-    x: np.ndarray
+    class _Ekf(ExtendedKalmanFilter):
+        x: np.ndarray
 
-    def predict_x(self, u: np.ndarray) -> None:
-        x, y, th = model.motion_predict(self.x[0], self.x[1], self.x[2], u[0], u[1])
-        nxt = np.array(self.x, dtype=float)
-        nxt[0], nxt[1], nxt[2] = x, y, th
-        self.x = nxt
+        def predict_x(self, u: np.ndarray) -> None:
+            x, y, th = model.motion_predict(self.x[0], self.x[1], self.x[2], u[0], u[1])
+            nxt = np.array(self.x, dtype=float)
+            nxt[0], nxt[1], nxt[2] = x, y, th
+            self.x = nxt
+
+    return _Ekf
 
 
 def _h_heading(x: np.ndarray) -> np.ndarray:
@@ -214,7 +221,7 @@ class PoseEstimator:
     ) -> None:
         self.config = config or EstimatorConfig()
         self.n = self.config.n_state
-        self._kf = _Ekf(dim_x=self.n, dim_z=1)
+        self._kf = _ekf_class()(dim_x=self.n, dim_z=1)
         self._kf.x = np.zeros(self.n)
         self.rejections: Counter[str] = Counter()
         self.accepted: Counter[str] = Counter()

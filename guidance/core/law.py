@@ -77,6 +77,12 @@ def match_intersection(
     the current estimate, under the current position covariance (plus a floor
     for the size of an intersection), is within ``gate_chi2``; the nearest such
     one wins. So recognition gets less selective as the ellipse grows.
+
+    The squared distance is at least dx^2 / a and dy^2 / c (a, c the diagonal of the
+    covariance plus the floor), so an intersection further than the gate along either axis
+    is passed over without computing it: a long drive remembers thousands. The bounds carry
+    a margin of 1e-9 over the rounding, so the same intersection wins as with every distance
+    computed.
     """
     a = pxx + floor_var_m2
     b = pxy
@@ -86,11 +92,21 @@ def match_intersection(
         return -1
     best = -1
     best_d2 = gate_chi2
+    ax = best_d2 * a * (1.0 + 1e-9)
+    cy = best_d2 * c * (1.0 + 1e-9)
     for k in range(n_mem):
-        d2 = mahalanobis_sq_2d(mem_xy[k, 0] - x, mem_xy[k, 1] - y, a, b, c)
+        dx = mem_xy[k, 0] - x
+        if dx * dx > ax:
+            continue
+        dy = mem_xy[k, 1] - y
+        if dy * dy > cy:
+            continue
+        d2 = mahalanobis_sq_2d(dx, dy, a, b, c)
         if d2 <= best_d2:
             best_d2 = d2
             best = k
+            ax = best_d2 * a * (1.0 + 1e-9)
+            cy = best_d2 * c * (1.0 + 1e-9)
     return best
 
 
@@ -348,19 +364,37 @@ def landmark_target(
     lm_xy: np.ndarray,
     passed: np.ndarray,
 ) -> int:
-    """Nearest not-yet-passed landmark that is closer to the goal than the car, or -1 (the goal)."""
+    """Nearest not-yet-passed landmark that is closer to the goal than the car, or -1 (the goal).
+
+    Distances compared as ``math.hypot`` gives them; squared first, the hypotenuse computed
+    only when the squares are within 1e-12 of a tie (the same answer, without two
+    hypotenuses per landmark at every decision). NaN compares as there: a NaN goal skips no
+    landmark (the nearest one is the target), a NaN landmark is never the target.
+    """
     d_goal = math.hypot(goal_x - x, goal_y - y)
+    g2 = d_goal * d_goal
+    g2_hi = g2 * (1.0 + 1e-12)
+    g2_lo = g2 * (1.0 - 1e-12)
     best = -1
     best_d = math.inf
+    b2_hi = math.inf
+    b2_lo = math.inf
     for k in range(lm_xy.shape[0]):
         if passed[k]:
             continue
-        if math.hypot(goal_x - lm_xy[k, 0], goal_y - lm_xy[k, 1]) >= d_goal:
+        ux, uy = goal_x - lm_xy[k, 0], goal_y - lm_xy[k, 1]
+        u2 = ux * ux + uy * uy
+        if u2 >= g2_hi or (u2 > g2_lo and math.hypot(ux, uy) >= d_goal):
             continue
-        d = math.hypot(lm_xy[k, 0] - x, lm_xy[k, 1] - y)
-        if d < best_d:
-            best_d = d
-            best = k
+        vx, vy = lm_xy[k, 0] - x, lm_xy[k, 1] - y
+        v2 = vx * vx + vy * vy
+        if not v2 < b2_hi or (v2 > b2_lo and math.hypot(vx, vy) >= best_d):
+            continue
+        best_d = math.hypot(vx, vy)
+        best = k
+        b2 = best_d * best_d
+        b2_hi = b2 * (1.0 + 1e-12)
+        b2_lo = b2 * (1.0 - 1e-12)
     return best
 
 

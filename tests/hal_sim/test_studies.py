@@ -106,6 +106,22 @@ def test_dask_local_cluster_gives_the_same_results(tmp_path: Path) -> None:
     assert a == (tmp_path / "dask" / "trials.csv").read_text()
 
 
+@pytest.mark.parametrize(
+    ("base", "cond", "first", "count"),
+    [(0, 0, 0, 300), (1, 74, 0, 700), (3, 2, 2**32 - 200, 200), (2**32 - 1, 9, 5, 50)],
+)
+def test_trial_seeds_are_numpy_seed_sequences(base: int, cond: int, first: int, count: int) -> None:
+    """The vectorised hash gives SeedSequence's own words (and beyond 32 bits, its slow path)."""
+    want = [
+        np.random.SeedSequence([base, cond, t]).generate_state(1)[0]
+        for t in range(first, first + count)
+    ]
+    assert studies.trial_seeds(base, cond, first, count).tolist() == want
+    assert studies.trial_seeds(2**32, cond, 0, 3).tolist() == [
+        np.random.SeedSequence([2**32, cond, t]).generate_state(1)[0] for t in range(3)
+    ]
+
+
 def test_trial_seeds_are_independent_of_chunking() -> None:
     whole = studies.trial_seeds(3, 1, 0, 100)
     parts = np.concatenate([studies.trial_seeds(3, 1, 0, 40), studies.trial_seeds(3, 1, 40, 60)])

@@ -18,7 +18,7 @@ def _city(seed: int, area: float = 4.0, dead: float = 0.04, oneway: float = 0.12
 
 
 def _reach_all(adj: np.ndarray, nx: int, start: int, forward: bool) -> np.ndarray:
-    return city._reach(adj, nx, start, forward)
+    return city._reach(adj, city.grid_adjacency(nx, adj.shape[0] // nx), start, forward)
 
 
 @pytest.mark.parametrize("seed", range(8))

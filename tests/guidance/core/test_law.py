@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 
 from guidance.core import law
-from guidance.core.model import CHI2_2D_2SIGMA
+from guidance.core.model import CHI2_2D_2SIGMA, mahalanobis_sq_2d
 
 TOL = math.radians(20.0)
 STEP = math.radians(45.0)
@@ -165,3 +165,53 @@ def test_next_mode_hybrid_switches_on_the_major_axis(
     method: int, mode: int, axis: float, update: bool, want: int
 ) -> None:
     assert law.next_mode(method, mode, axis, 50.0, update) == want
+
+
+def _landmark_target_by_hypot(x, y, gx, gy, lm_xy, passed):  # type: ignore[no-untyped-def]
+    """landmark_target as first written: two hypotenuses per landmark."""
+    d_goal = math.hypot(gx - x, gy - y)
+    best, best_d = -1, math.inf
+    for k in range(lm_xy.shape[0]):
+        if passed[k] or math.hypot(gx - lm_xy[k, 0], gy - lm_xy[k, 1]) >= d_goal:
+            continue
+        d = math.hypot(lm_xy[k, 0] - x, lm_xy[k, 1] - y)
+        if d < best_d:
+            best_d, best = d, k
+    return best
+
+
+def _match_by_distance(x, y, pxx, pxy, pyy, mem_xy, n_mem, gate, floor):  # type: ignore[no-untyped-def]
+    """match_intersection as first written: every remembered intersection's distance."""
+    a, b, c = pxx + floor, pxy, pyy + floor
+    if a * c - b * b <= 0.0:
+        return -1
+    best, best_d2 = -1, gate
+    for k in range(n_mem):
+        d2 = mahalanobis_sq_2d(mem_xy[k, 0] - x, mem_xy[k, 1] - y, a, b, c)
+        if d2 <= best_d2:
+            best_d2, best = d2, k
+    return best
+
+
+def test_the_shortcut_scans_give_the_answers_of_the_full_ones() -> None:
+    """landmark_target's squared distances and match_intersection's axis bounds change no
+    answer (ties on a grid, NaN goals and landmarks included)."""
+    rng = np.random.default_rng(26)
+    for trial in range(400):
+        n = int(rng.integers(0, 40))
+        lm = rng.integers(-5, 6, (n, 2)).astype(float) * 50.0  # a grid: exact ties
+        if n and trial % 7 == 0:
+            lm[0] = np.nan
+        passed = rng.random(n) < 0.2
+        x, y = (float(v) for v in rng.integers(-5, 6, 2) * 50.0)
+        gx, gy = (
+            (math.nan, math.nan) if trial % 11 == 0 else (float(v) for v in rng.normal(0, 300, 2))
+        )
+        assert law.landmark_target(x, y, gx, gy, lm, passed) == _landmark_target_by_hypot(
+            x, y, gx, gy, lm, passed
+        )
+        mem = rng.normal(0.0, 200.0, (max(n, 1), 2))
+        pxx, pyy = (float(v) for v in rng.uniform(1.0, 5000.0, 2))
+        pxy = float(rng.uniform(-0.9, 0.9)) * math.sqrt(pxx * pyy)
+        args = (x, y, pxx, pxy, pyy, mem, mem.shape[0], 9.21, 64.0)
+        assert law.match_intersection(*args) == _match_by_distance(*args)
