@@ -16,6 +16,7 @@ sums its increments and keeps the last time) folds the held one and the new one 
 
 from __future__ import annotations
 
+import contextlib
 import functools
 import logging
 import threading
@@ -101,14 +102,26 @@ class ThreadedSource(Generic[T]):
         self._backlog_limit = BACKLOG_LIMIT
         self._held: T | None = None
         self._raw_sink: RawSink | None = None
+        self._order: threading.Lock | None = None
 
     # raw input ---------------------------------------------------------------------------------
 
-    def set_raw_sink(self, raw_sink: RawSink | None) -> None:
+    def set_raw_sink(self, raw_sink: RawSink | None, order: threading.Lock | None = None) -> None:
         """Offer every raw unit read (a ``RawCanFrame``, a ``RawNmeaLine``) to ``raw_sink``
         before decoding it: the app records raw inputs through this supported hook
-        (``/can``, ``/nmea``). A failing raw sink is logged once and never stops the reader."""
+        (``/can``, ``/nmea``). A failing raw sink is logged once and never stops the reader.
+
+        ``order``, one lock for every source recorded alike, is held from a unit's raw record
+        to the hand-over of what it decoded: two readers' units are then recorded in the order
+        their messages reach the consumer, so the raw records replay in the order the
+        pipeline took them (without it, a CAN frame recorded before an NMEA line could reach
+        the loop after it, and a replay of the raw records made another drive)."""
         self._raw_sink = raw_sink
+        self._order = order
+
+    def _in_order(self) -> contextlib.AbstractContextManager[object]:
+        """The recording's order lock (``set_raw_sink``), or nothing when not recording."""
+        return self._order if self._order is not None else contextlib.nullcontext()
 
     def set_status_sink(self, status_sink: Callable[[Health], None] | None) -> None:
         """Hand every change of this driver's status (``starting``, ``ok``, ``silent``,

@@ -236,27 +236,28 @@ class CanOdometry(ThreadedSource[WheelOdometry]):
             if msg.is_error_frame:
                 self._count("error_frames")
                 self._health.error(f"CAN error frame (id 0x{msg.arbitration_id:X})")
-            if self._raw_sink is not None:  # recording raw frames: built only then
-                self._offer_raw(
-                    RawCanFrame(
-                        float(msg.timestamp),
-                        msg.arbitration_id,
-                        bytes(msg.data),
-                        bool(msg.is_extended_id),
-                        bool(msg.is_error_frame),
-                        str(self.config.channel),
+            with self._in_order():  # recorded in the order the consumer gets it
+                if self._raw_sink is not None:  # recording raw frames: built only then
+                    self._offer_raw(
+                        RawCanFrame(
+                            float(msg.timestamp),
+                            msg.arbitration_id,
+                            bytes(msg.data),
+                            bool(msg.is_extended_id),
+                            bool(msg.is_error_frame),
+                            str(self.config.channel),
+                        )
                     )
-                )
-            with self._lock:
-                out = self.decoder.feed(msg)
-                outcome = self.decoder.last_outcome
-            if outcome != "ignored":
-                self._health.data(outcome in ("ok", "gap"))
-            if self._connected is False:  # the first frame since the loss: the bus is back
-                self._set_connected(True)
-                delay = self.config.reconnect_initial_s
-            if out is not None:
-                self._deliver_bounded(sink, out)  # coalesced while the consumer is behind
+                with self._lock:
+                    out = self.decoder.feed(msg)
+                    outcome = self.decoder.last_outcome
+                if outcome != "ignored":
+                    self._health.data(outcome in ("ok", "gap"))
+                if self._connected is False:  # the first frame since the loss: the bus is back
+                    self._set_connected(True)
+                    delay = self.config.reconnect_initial_s
+                if out is not None:
+                    self._deliver_bounded(sink, out)  # coalesced while the consumer is behind
 
 
 # -- replaying logs ----------------------------------------------------------------------------

@@ -513,13 +513,14 @@ class SerialCompass(ThreadedSource[CompassHeading]):
             self._got_data = True
             self._count("bytes", len(chunk))
             for line in assembler.feed(chunk):
-                if self._raw_sink is not None:  # recording raw lines
-                    self._offer_raw(RawNmeaLine(t_s, line, str(self.config.port)))
-                with self._lock:
-                    out = self.parser.feed_line(line, t_s)
-                    outcome = self.parser.last_outcome
-                if outcome != "ok":
-                    self._health.error(f"rejected line ({outcome}): {line[:40]!r}")
-                self._health.data(None if outcome in NEUTRAL_REASONS else outcome == "ok", t_s)
-                if out is not None:
-                    self._deliver(sink, out)
+                with self._in_order():  # recorded in the order the consumer gets it
+                    if self._raw_sink is not None:  # recording raw lines
+                        self._offer_raw(RawNmeaLine(t_s, line, str(self.config.port)))
+                    with self._lock:
+                        out = self.parser.feed_line(line, t_s)
+                        outcome = self.parser.last_outcome
+                    if outcome != "ok":
+                        self._health.error(f"rejected line ({outcome}): {line[:40]!r}")
+                    self._health.data(None if outcome in NEUTRAL_REASONS else outcome == "ok", t_s)
+                    if out is not None:
+                        self._deliver(sink, out)

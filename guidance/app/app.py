@@ -319,7 +319,7 @@ class App:
                 try:
                     if self.recorder is not None:
                         for src in self.sources.values():
-                            record_raw_inputs(src, self.recorder)
+                            record_raw_inputs(src, self.recorder, self._loop)
                     for name, src in self.sources.items():
                         if isinstance(src, ports.ReportsStatus):  # status flips, as inputs
                             src.set_status_sink(partial(self._device_status, name))
@@ -435,20 +435,41 @@ class App:
         }
 
 
-def record_raw_inputs(source: Source, recorder: InputRecorder) -> bool:
-    """Record the raw units a driver reads (``/can`` frames, ``/nmea`` lines) as it reads them,
-    through the readers' supported hook (``ThreadedSource.set_raw_sink``). True when set."""
+RAW_ORDER = threading.Lock()
+"""Held by every recorded reader from a unit's raw record to the hand-over of its message
+(``ThreadedSource.set_raw_sink``)."""
+
+
+def record_raw_inputs(
+    source: Source, recorder: InputRecorder, loop: asyncio.AbstractEventLoop | None = None
+) -> bool:
+    """Record the raw units a driver reads (``/can`` frames, ``/nmea`` lines) through the
+    readers' supported hook (``ThreadedSource.set_raw_sink``). True when set.
+
+    With ``loop`` (the app's), each unit is written on the loop, posted just before the
+    message it decoded to (``RAW_ORDER`` keeps the two together across readers): the file
+    then holds the raw units in the order the loop took their messages, among the inputs the
+    loop records as it processes them (the co-driver's), and a replay of the raw units is
+    the drive that was recorded. Written on the reader's thread, a CAN frame read while the
+    loop was still on an earlier co-driver message came before it in the file: a replay of a
+    simulated drive from its raw frames then made other decisions one run in three."""
     if not isinstance(source, ports.RecordsRaw):
         return False
 
-    def raw_sink(r: RawRecord) -> None:
+    def write(r: RawRecord) -> None:
         if isinstance(r, RawCanFrame):
             recorder.record_can(r.t_s, r.arbitration_id, r.data, is_extended_id=r.is_extended_id,
                                 is_error_frame=r.is_error_frame, channel=r.channel)  # fmt: skip
         elif isinstance(r, RawNmeaLine):
             recorder.record_nmea(r.t_s, r.line, port=r.port)
 
-    source.set_raw_sink(raw_sink)
+    def raw_sink(r: RawRecord) -> None:
+        if loop is None:
+            write(r)
+        else:
+            loop.call_soon_threadsafe(write, r)
+
+    source.set_raw_sink(raw_sink, RAW_ORDER)
     return True
 
 

@@ -14,6 +14,7 @@ telemetry and the recorder: ``publish`` and ``send`` of any row of the output ta
 
 from __future__ import annotations
 
+import threading
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass
 from typing import TYPE_CHECKING, Protocol, TypeAlias, TypeVar, runtime_checkable
@@ -80,7 +81,9 @@ class BackPressured(Protocol):
 class RecordsRaw(Protocol):
     """A source that offers every raw unit it reads (CAN frame, NMEA line) before decoding."""
 
-    def set_raw_sink(self, raw_sink: RawSink | None) -> None: ...
+    def set_raw_sink(
+        self, raw_sink: RawSink | None, order: threading.Lock | None = None
+    ) -> None: ...
 
 
 @runtime_checkable
