@@ -8,7 +8,13 @@ message (the output table's encoder) on ``guidance/<id>/state`` at --rate Hz wit
 real but the machine is not spent on 1000 interpreters. The monitor is the product's command,
 ``guidance monitor --connect ROUTER --json --timeout S``, run as a child; this script
 reads its stdout and stamps each line's arrival with CLOCK_MONOTONIC, which the cars also use
-for ``t_s``, so age = arrival - t_s is the age of what the monitor shows.
+for ``t_s``, so age = arrival - t_s is the age of what the monitor shows. With ``--feed web``
+(or ``both``, the default) the child is ``guidance monitor --web`` instead, read as the page
+reads it (``/api/fleet``, then ``?since=..&epoch=..``, every ``poll_ms`` of ``/api/config``):
+the ages are what the page shows between answers, and, on the line below, a car's age in
+each answer. The window opens ``SETTLE_S`` after the monitor first showed a state, and the
+monitor's CPU is read over the window. ``--no-reference`` leaves out the reference
+subscriber (it doubles what the router sends).
 
 Printed per K: states received (% of those published during the window), each car's largest
 gap between shown states (median over cars), the age of each car's shown state sampled every
