@@ -192,22 +192,28 @@ def test_two_simulated_cars_on_the_web_map_and_one_killed(
             assert car["alive"] and not car["card_gone"] and "live" in car["card_text"]
             assert car["rx"] > 0 and car["track"] and car["goal"], car
             assert "hdg" in car["card_text"] and "health:" in car["card_text"]
+
         # the page's track, built from the new points of each poll, is the server's whole one
         # (its last point, the newest position, may since have been replaced)
-        tracks = driver.execute_async_script(
-            """const done = arguments[arguments.length - 1];
-            fetch('/api/fleet', {cache: 'no-store'}).then((r) => r.json()).then((f) => {
-              const out = {};
-              for (const c of f.cars) {
-                const kept = state.tracks.get(c.vehicle_id);
-                out[c.vehicle_id] = [kept ? kept.points.slice(0, -1) : null, c.track];
-              }
-              done(out);
-            });"""
-        )
+        def merged_tracks() -> dict[str, Any] | None:
+            tracks: dict[str, Any] = driver.execute_async_script(
+                """const done = arguments[arguments.length - 1];
+                fetch('/api/fleet', {cache: 'no-store'}).then((r) => r.json()).then((f) => {
+                  const out = {};
+                  for (const c of f.cars) {
+                    const kept = state.tracks.get(c.vehicle_id);
+                    out[c.vehicle_id] = [kept ? kept.points.slice(0, -1) : [], c.track];
+                  }
+                  done(out);
+                });"""
+            )
+            grown = all(len(tracks[v][0]) >= 5 for v in ports)  # several polls' points
+            return tracks if grown else None
+
+        tracks = wait_for(merged_tracks, 60.0, "the page's tracks to grow over several polls")
         for vid in ports:
             mine, whole = tracks[vid]
-            assert mine and len(mine) > 3 and mine == whole[: len(mine)], (vid, mine, whole)
+            assert mine == whole[: len(mine)], (vid, mine, whole)
         print(f"both cars moving on the page {time.monotonic() - t0:.1f} s after both appeared")
         driver.save_screenshot(str(tmp_path / "live.png"))
 
