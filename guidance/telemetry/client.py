@@ -91,6 +91,8 @@ many in all, else each car's newest one: 1,024 states take the reader about 0.15
 check and fold (``benchmarks/monitor_fleet.py``), so with the pause below every car's state is
 shown well within a second at 1,000 cars. With a few cars a look keeps two per car, so a
 reader a period late still sees every state."""
+TOKENS_WAIT_S = 0.5
+"""``open`` waits up to this long for the cars alive now (``_tokens_now``)."""
 MIN_LOOK_S = 0.01
 """Looks that found something are at least this far apart: at thousands of messages a second
 a reader that keeps up would otherwise look (and be woken) for each one, a thread hand-over
@@ -285,6 +287,9 @@ class MonitorClient:
             target=self._tokens_now, name="monitor-tokens", daemon=True
         )
         self._history_thread.start()
+        # the cars alive now are normally in before the first look: their "alive" comes before
+        # their messages, as it did from a history; an unreachable peer costs at most this
+        self._history_thread.join(TOKENS_WAIT_S)
         # Declared last, so zenoh has pushed a sample into its channel before these wake a
         # waiting get (they hold nothing the reader takes).
         waker = session.declare_subscriber(f"{KEY_PREFIX}/{v}/*", zenoh.handlers.RingChannel(1))
