@@ -92,7 +92,8 @@ check and fold (``benchmarks/monitor_fleet.py``), so with the pause below every 
 shown well within a second at 1,000 cars. With a few cars a look keeps two per car, so a
 reader a period late still sees every state."""
 TOKENS_WAIT_S = 0.5
-"""``open`` waits up to this long for the cars alive now (``_tokens_now``)."""
+"""``open`` waits up to this long for the cars alive now (``_tokens_now``): normally in before
+the first look, so a car's "alive" comes before its messages; an unreachable peer costs this."""
 MIN_LOOK_S = 0.01
 """Looks that found something are at least this far apart: at thousands of messages a second
 a reader that keeps up would otherwise look (and be woken) for each one, a thread hand-over
@@ -235,8 +236,7 @@ class MonitorClient:
         """When the batch being handed out was taken (monotonic), if it is to be followed by a
         pause (``PACED_LOOK``); None otherwise."""
         self._next_look_s = 0.0
-        self._tokens: list[zenoh.Sample] = []
-        """Cars alive when the client opened (``_tokens_now``), not yet handed out."""
+        self._tokens: list[zenoh.Sample] = []  # cars alive at open (_tokens_now), not handed out
         self._lively_seen: set[str] = set()
         """Cars whose token this client saw come or go live (newer than ``_tokens``)."""
         self._history_thread: threading.Thread | None = None
@@ -287,9 +287,7 @@ class MonitorClient:
             target=self._tokens_now, name="monitor-tokens", daemon=True
         )
         self._history_thread.start()
-        # the cars alive now are normally in before the first look: their "alive" comes before
-        # their messages, as it did from a history; an unreachable peer costs at most this
-        self._history_thread.join(TOKENS_WAIT_S)
+        self._history_thread.join(TOKENS_WAIT_S)  # their "alive" before their messages
         # Declared last, so zenoh has pushed a sample into its channel before these wake a
         # waiting get (they hold nothing the reader takes).
         waker = session.declare_subscriber(f"{KEY_PREFIX}/{v}/*", zenoh.handlers.RingChannel(1))
