@@ -532,8 +532,10 @@ def render_table(view: FleetView, now_s: float, title: str, status: str = "") ->
     gone = [view.gone[vid] for vid in sorted(view.gone, key=lambda v: -(view.gone[v].gone_s or 0))]
     cars = live + gone
     if len(cars) > SHOWN_AT_MOST:
-        first = [c for c in live if _needs_a_look(c)]
-        cars = (gone + first + [c for c in live if not _needs_a_look(c)])[:SHOWN_AT_MOST]
+        look = [_needs_a_look(c) for c in live]
+        first = [c for c, needs in zip(live, look, strict=True) if needs]
+        rest = [c for c, needs in zip(live, look, strict=True) if not needs]
+        cars = (gone + first + rest)[:SHOWN_AT_MOST]
     rows = [car_row(car, now_s) for car in cars]
     if view.bad_messages:
         bad = f"{view.bad_messages} bad message{'s' if view.bad_messages > 1 else ''} left out"
