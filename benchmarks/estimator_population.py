@@ -6,6 +6,7 @@ random route through the car's real pipeline with the uncalibrated car model. Pr
 figures over the population and the worst cars.
 
     .venv/bin/python benchmarks/estimator_population.py [--cars 500] [--compass] [--seed 1]
+        [--diff-walk 1e-10]
     .venv/bin/python benchmarks/estimator_population.py --learned [--cars 200]
 
 ``--learned``: each car first drives 3 km with landmark fixes (40 per km^2, 60 % seen) and
@@ -19,6 +20,7 @@ import argparse
 import logging
 import sys
 import time
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -35,6 +37,9 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--seed", type=int, default=1, help="draws the cars (default 1)")
     ap.add_argument("--worst", type=int, default=5, help="worst cars to list")
     ap.add_argument("--learned", action="store_true", help="a second drive from what it learned")
+    ap.add_argument("--diff-walk", type=float, default=0.0, metavar="VAR_PER_M",
+                    help="each car's left/right difference walks along the road at this variance "
+                         "per metre (the filter's own: 1e-10; default 0, constant)")  # fmt: skip
     args = ap.parse_args(argv)
     logging.basicConfig(level=logging.ERROR)
     rng = np.random.default_rng(args.seed)
@@ -43,12 +48,15 @@ def main(argv: list[str] | None = None) -> int:
         return _learned(args, rng, t0)
     results = []
     for i in range(args.cars):
-        results.append(drive_car(10_000 + i, draw_car(rng), compass=args.compass))
+        car = replace(draw_car(rng), diff_walk_var_per_m=args.diff_walk)
+        results.append(drive_car(10_000 + i, car, compass=args.compass))
         if (i + 1) % 25 == 0 or i + 1 == args.cars:
             print(f"\r{i + 1}/{args.cars} cars, {time.monotonic() - t0:.0f} s", end="",
                   file=sys.stderr, flush=True)  # fmt: skip
     print(file=sys.stderr)
     mode = "wheel odometry + uncalibrated compass" if args.compass else "wheel odometry only"
+    if args.diff_walk:
+        mode += f", left/right walking {args.diff_walk:g} per m"
     print(f"{args.cars} simulated cars, {mode}, draw seed {args.seed}, "
           f"{time.monotonic() - t0:.1f} s wall")  # fmt: skip
     print(population(results).summary())

@@ -28,6 +28,7 @@ import math
 from dataclasses import dataclass, field, replace
 
 import numpy as np
+from scipy.stats import chi2
 
 from guidance.core.estimator import EstimatorConfig, car_model
 from guidance.core.learned import LearnedParams
@@ -37,6 +38,7 @@ from guidance.core.navigator import NavigatorConfig
 from guidance.core.pipeline import Pipeline, PipelineConfig
 from hal_sim import world as world_mod
 from hal_sim.params import SimParams, estimator_config
+from hal_sim.provenance import wilson_pair
 from hal_sim.sim_world import SimWorld, WorldSpec
 
 TRACK_M = 1.72
@@ -61,6 +63,9 @@ class CarErrors:
     start_heading_deg: float
     start_dx_m: float
     start_dy_m: float
+    diff_walk_var_per_m: float = 0.0
+    """The left/right difference's random walk along the road (road camber from street to
+    street, tyre temperature): 0 keeps it constant."""
 
     def deviation_rad(self, heading_rad: float) -> float:
         """The compass error at a true heading: the offset plus the hard-iron curve."""
@@ -177,6 +182,7 @@ def drive_car(
     res = CarResult(errors, compass)
     left = right = 0.0
     drift = 0.0
+    diff = errors.diff
     prev = world.truth
     while world.driven_m < distance_m:
         ev = world.step()
@@ -187,9 +193,11 @@ def drive_car(
         d = math.hypot(x - prev[0], y - prev[1])
         dth = wrap_angle(th - prev[2])
         prev = (x, y, th)
+        if errors.diff_walk_var_per_m > 0.0:
+            diff += float(rng.normal()) * math.sqrt(errors.diff_walk_var_per_m * d)
         for side, sign in ((0, -1.0), (1, 1.0)):
             true = d + sign * 0.5 * TRACK_M * dth
-            err = true * (errors.scale + sign * 0.5 * errors.diff)
+            err = true * (errors.scale + sign * 0.5 * diff)
             err += float(rng.normal()) * math.sqrt(errors.walk_m2_per_m * abs(true))
             if side == 0:
                 left += true + err
@@ -260,6 +268,22 @@ class PopulationFigures:
     per_car_inside: list[float]
     lost_errors_m: list[float]
 
+    @property
+    def below_half_interval(self) -> list[float] | None:
+        """Wilson 95 % interval of the fraction of cars below 50 % inside (one draw per car)."""
+        return wilson_pair(round(self.cars_below_half * self.cars), self.cars)
+
+    @property
+    def nees_band(self) -> tuple[float, float]:
+        """The 95 % chi-square band of the mean NEES of an honest filter over these cars.
+
+        A car's samples are one draw of its persistent errors, not independent: the band counts
+        the cars (2 degrees of freedom each), not the samples, as a Monte Carlo NEES test does
+        (Bar-Shalom, Li and Kirubarajan, 2001, section 5.4)."""
+        dof = 2 * self.cars
+        lo, hi = chi2.ppf([0.025, 0.975], dof) / self.cars
+        return float(lo), float(hi)
+
     def summary(self) -> str:
         q = np.percentile(self.per_car_inside, [5, 25, 50, 75, 95])
         lost = sorted(self.lost_errors_m)
@@ -267,13 +291,19 @@ class PopulationFigures:
                     f"min {lost[0]:.0f} m" if lost else "none declared lost")  # fmt: skip
         return "\n".join([
             f"{self.cars} cars: truth inside 2-sigma {100 * self.inside:.1f} % of all samples "
-            f"(honest: 86.5 %); cars below 50 %: {100 * self.cars_below_half:.1f} %",
+            f"(honest: 86.5 %); cars below 50 %: {100 * self.cars_below_half:.1f} %"
+            f" (95 % interval {_pct(self.below_half_interval)})",
             f"per car inside: p5 {100 * q[0]:.0f} %, p25 {100 * q[1]:.0f} %, median "
             f"{100 * q[2]:.0f} %, p75 {100 * q[3]:.0f} %, p95 {100 * q[4]:.0f} %",
-            f"mean NEES {self.mean_nees:.2f} (honest: 2); (error/sigma)^2 along "
+            f"mean NEES {self.mean_nees:.2f} (honest: 2, band for {self.cars} cars "
+            f"{self.nees_band[0]:.2f}-{self.nees_band[1]:.2f}); (error/sigma)^2 along "
             f"{self.along_nees:.2f}, across {self.across_nees:.2f} (honest: 1 each)",
             f"median semi-major / error {self.median_axis_ratio:.2f}; {lost_txt}",
         ])  # fmt: skip
+
+
+def _pct(interval: list[float] | None) -> str:
+    return "n/a" if interval is None else f"{100 * interval[0]:.1f}-{100 * interval[1]:.1f} %"
 
 
 def population(results: list[CarResult]) -> PopulationFigures:

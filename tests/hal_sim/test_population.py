@@ -73,3 +73,48 @@ def test_a_second_drive_from_learned_parameters_has_a_smaller_ellipse_and_is_sti
     axis_learned = np.median([r.from_learned.final_major_axis_m for r in runs])
     axis_priors = np.median([r.from_priors.final_major_axis_m for r in runs])
     assert axis_learned < axis_priors
+
+
+def _persistent_cars(rng: np.random.Generator, n: int, var_scale: float) -> list:
+    """Cars whose error is one 2-D Gaussian draw held for the whole drive, against a filter
+    whose covariance is ``1 / var_scale`` times the true one."""
+    from hal_sim.population import CarResult
+
+    cars = []
+    for _ in range(n):
+        r = CarResult(draw_car(rng), compass=False)
+        r.nees = [float(rng.normal() ** 2 + rng.normal() ** 2) * var_scale] * 50
+        r.along2 = r.across2 = r.axis_ratio = [1.0]
+        cars.append(r)
+    return cars
+
+
+def test_the_nees_band_counts_cars_and_catches_a_conservative_filter() -> None:
+    """The mean NEES band is the chi-square band of N cars' persistent draws (2 dof each), not
+    of their correlated samples: an honest filter's mean lies inside it in about 95 % of
+    populations, a filter whose ellipse is a quarter too wide in variance lies below it."""
+    rng = np.random.default_rng(5)
+    honest = [population(_persistent_cars(rng, 400, 1.0)) for _ in range(40)]
+    lo, hi = honest[0].nees_band
+    assert 1.75 < lo < 1.85 and 2.15 < hi < 2.25  # chi2(800) / 400
+    assert sum(lo <= f.mean_nees <= hi for f in honest) >= 34  # 95 % of 40, with some slack
+    wide = population(_persistent_cars(rng, 400, 0.75))
+    assert wide.mean_nees < wide.nees_band[0]
+    # The cars below 50 % of a persistent honest population: those outside the 2-sigma
+    # ellipse, 13.5 % (chi-square, 2 dof, beyond 4), within its Wilson interval.
+    f = honest[0]
+    ci = f.below_half_interval
+    assert ci is not None and ci[0] <= f.cars_below_half <= ci[1]
+    assert ci[0] <= 0.135 <= ci[1], (f.cars_below_half, ci)
+
+
+def test_a_left_right_difference_that_walks_changes_the_cars_heading_error() -> None:
+    """``CarErrors.diff_walk_var_per_m`` (benchmarks/estimator_population.py --diff-walk): the
+    car's left/right difference wanders along the road; 0 keeps it constant (the default)."""
+    from dataclasses import replace
+
+    car = replace(draw_car(np.random.default_rng(2)), diff=0.0, scale=0.0)
+    still = drive_car(11, car, compass=False)
+    walking = drive_car(11, replace(car, diff_walk_var_per_m=1e-8), compass=False)
+    assert walking.final_error_m > 2.0 * still.final_error_m, (still.final_error_m,
+                                                                walking.final_error_m)  # fmt: skip
