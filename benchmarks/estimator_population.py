@@ -6,7 +6,7 @@ random route through the car's real pipeline with the uncalibrated car model. Pr
 figures over the population and the worst cars.
 
     .venv/bin/python benchmarks/estimator_population.py [--cars 500] [--compass] [--seed 1]
-        [--diff-walk 1e-10]
+        [--matched] [--diff-walk 1e-10]
     .venv/bin/python benchmarks/estimator_population.py --learned [--cars 200]
 
 ``--learned``: each car first drives 3 km with landmark fixes (40 per km^2, 60 % seen) and
@@ -27,7 +27,7 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from hal_sim.population import draw_car, drive_car, learn_then_drive, population
+from hal_sim.population import draw_car, draw_matched_car, drive_car, learn_then_drive, population
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -37,6 +37,11 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--seed", type=int, default=1, help="draws the cars (default 1)")
     ap.add_argument("--worst", type=int, default=5, help="worst cars to list")
     ap.add_argument("--learned", action="store_true", help="a second drive from what it learned")
+    ap.add_argument(
+        "--matched",
+        action="store_true",
+        help="cars drawn from the filter's own Gaussian priors (the yardstick)",
+    )
     ap.add_argument("--diff-walk", type=float, default=0.0, metavar="VAR_PER_M",
                     help="each car's left/right difference walks along the road at this variance "
                          "per metre (the filter's own: 1e-10; default 0, constant)")  # fmt: skip
@@ -48,13 +53,16 @@ def main(argv: list[str] | None = None) -> int:
         return _learned(args, rng, t0)
     results = []
     for i in range(args.cars):
-        car = replace(draw_car(rng), diff_walk_var_per_m=args.diff_walk)
+        draw = draw_matched_car if args.matched else draw_car
+        car = replace(draw(rng), diff_walk_var_per_m=args.diff_walk)
         results.append(drive_car(10_000 + i, car, compass=args.compass))
         if (i + 1) % 25 == 0 or i + 1 == args.cars:
             print(f"\r{i + 1}/{args.cars} cars, {time.monotonic() - t0:.0f} s", end="",
                   file=sys.stderr, flush=True)  # fmt: skip
     print(file=sys.stderr)
     mode = "wheel odometry + uncalibrated compass" if args.compass else "wheel odometry only"
+    if args.matched:
+        mode += ", cars drawn from the filter's own priors"
     if args.diff_walk:
         mode += f", left/right walking {args.diff_walk:g} per m"
     print(f"{args.cars} simulated cars, {mode}, draw seed {args.seed}, "
