@@ -2,10 +2,10 @@
 
 Prints ns per step for: the random numbers a step draws (two uniforms for wheel slip, a
 normal for the compass 60 % of steps; ``hal_sim.rng``, and numba's generator for comparison),
-a library sine and cosine, the bicycle arc, the steering's arctangent; the world step (car,
-controllers, encoders, compass, landmark sightings; exits chosen at random, no estimator); the
-EKF predict; the compass update; the major axis; the navigator's decision (per decision); a
-trial's set-up; and the whole trial step, for comparison. Loops are written as
+a library sine and cosine, the bicycle arc, the steering's arctangent (and the library's); the
+world step (car, controllers, encoders, compass, landmark sightings; exits chosen at random, no
+estimator); the EKF predict; the compass update; the major axis; the navigator's decision (per
+decision); a trial's set-up; and the whole trial step, for comparison. Loops are written as
 ``engine.drive`` is (arrays as arguments, draws in the loop), so that each part is charged
 what it costs in a trial. Each figure is the median of ``--repeat`` runs of CPU time. The
 machine may be shared: compare figures from one run.
@@ -102,9 +102,19 @@ def arcs(n: int) -> float:
     return x + y + c + s
 
 
-@njit(cache=True)
+@njit(cache=True, **ENGINE_FLAGS)
 def atans(n: int) -> float:
-    """The steering's arctangent (cross-track term)."""
+    """The steering's arctangent (cross-track term: ``world.atan``, inline)."""
+    acc = 0.0
+    for i in range(n):
+        acc += world.atan(0.8 * (0.01 * (i % 101) - 0.5) / 12.0 + acc * 1e-30)
+    return acc
+
+
+@njit(cache=True)
+def lib_atans(n: int) -> float:
+    """The library's arctangent, the same arguments (the steering's before issue 26's fourth
+    round)."""
     acc = 0.0
     for i in range(n):
         acc += math.atan(0.8 * (0.01 * (i % 101) - 0.5) / 12.0 + acc * 1e-30)
@@ -244,7 +254,7 @@ def main() -> None:
     seeds = studies.trial_seeds(3, 0, 0, args.trials)
     # compile
     draws(10), uniforms(10), normals(10), predicts(10, p), compass_updates(10, p), majors(10)
-    mt_uniforms(10), mt_normals(10), sincos(10), arcs(10), atans(10)
+    mt_uniforms(10), mt_normals(10), sincos(10), arcs(10), atans(10), lib_atans(10)
     world_only(1, p, 10), decisions(10, p), setups(seeds[:1], engine.STUDY_LANDMARKS, 1.0, p)
     code = Method.STRAIGHT_TO_GOAL.code
     engine.run_batch(seeds[:1], engine.STUDY_RANGE, code, 0.0, p, params.N_SAMPLES)
@@ -257,7 +267,8 @@ def main() -> None:
         ("a step's draws (2 uniform + 0.6 normal)", _median_ns(lambda: draws(n), n, rep)),
         ("library sin + cos of one angle", _median_ns(lambda: sincos(n), n, rep)),
         ("bicycle arc (series, turned cos/sin)", _median_ns(lambda: arcs(n), n, rep)),
-        ("steering atan", _median_ns(lambda: atans(n), n, rep)),
+        ("steering atan (world.atan, inline)", _median_ns(lambda: atans(n), n, rep)),
+        ("library atan", _median_ns(lambda: lib_atans(n), n, rep)),
         ("world step (no estimator)", _median_ns(lambda: world_only(1, p, n), n, rep)),
         ("EKF predict", _median_ns(lambda: predicts(n, p), n, rep)),
         ("compass update (per update)", _median_ns(lambda: compass_updates(n, p), n, rep)),

@@ -67,18 +67,25 @@ def uniform(s0: np.uint64, s1: np.uint64) -> tuple[float, np.uint64, np.uint64]:
 
 
 @njit(cache=True, error_model="numpy")
-def inverse_normal(p: float) -> float:
-    """The standard normal quantile at p in (0, 1) (Acklam; relative error < 1.2e-9)."""
+def _normal_tail(p: float) -> float:
+    """``inverse_normal`` in the tails (p < P_LOW or p > 1 - P_LOW): a call, as it is rare."""
     if p < P_LOW:
         q = math.sqrt(-2.0 * math.log(p))
         return (((((_C1 * q + _C2) * q + _C3) * q + _C4) * q + _C5) * q + _C6) / (
             (((_D1 * q + _D2) * q + _D3) * q + _D4) * q + 1.0
         )
-    if p > 1.0 - P_LOW:
-        q = math.sqrt(-2.0 * math.log(1.0 - p))
-        return -(((((_C1 * q + _C2) * q + _C3) * q + _C4) * q + _C5) * q + _C6) / (
-            (((_D1 * q + _D2) * q + _D3) * q + _D4) * q + 1.0
-        )
+    q = math.sqrt(-2.0 * math.log(1.0 - p))
+    return -(((((_C1 * q + _C2) * q + _C3) * q + _C4) * q + _C5) * q + _C6) / (
+        (((_D1 * q + _D2) * q + _D3) * q + _D4) * q + 1.0
+    )
+
+
+@njit(cache=True, error_model="numpy", inline="always")
+def inverse_normal(p: float) -> float:
+    """The standard normal quantile at p in (0, 1) (Acklam; relative error < 1.2e-9). The
+    central region inline (in the trial loop: no call), the tails by ``_normal_tail``."""
+    if p < P_LOW or p > 1.0 - P_LOW:
+        return _normal_tail(p)
     q = p - 0.5
     r = q * q
     return (

@@ -51,7 +51,10 @@ T_COS, T_SIN = 16, 17
 """cos and sin of the heading ``T_TH``: turned by each step's arc (``bicycle_arc``), set from
 the heading afresh at each street switch (the rounding they gather in between, a few 1e-15,
 goes no further)."""
-N_TRUTH = 18
+T_AX, T_AY, T_BX, T_BY = 18, 19, 20, 21
+"""The positions of the street's ends a and b (``R_A``, ``R_B``), set with ``T_SEG_H`` at each
+switch: a step needs them, not the node numbers' integer division by the grid's width."""
+N_TRUTH = 22
 # Route state vector ``ns`` (ints): following a -> b, then c (-1 until decided); and the
 # step's random generator, its two words' bits (``hal_sim.rng``, drawn by ``draw_step``).
 R_A, R_B, R_C, R_PASS, R_TURNS, R_RNG0, R_RNG1 = 0, 1, 2, 3, 4, 5, 6
@@ -99,10 +102,60 @@ def arc_factors(t: float) -> tuple[float, float]:
     term left out below 5e-17 of the sum), else by the library (t != 0)."""
     if abs(t) > ARC_SERIES_MAX:
         return math.sin(t) / t, (1.0 - math.cos(t)) / t
-    t2 = t * t
-    sinc = 1.0 + t2 * (_S1 + t2 * (_S2 + t2 * (_S3 + t2 * (_S4 + t2 * (_S5 + t2 * _S6)))))
-    cosc = t * (_C0 + t2 * (_C1 + t2 * (_C2 + t2 * (_C3 + t2 * (_C4 + t2 * (_C5 + t2 * _C6))))))
+    # Estrin's scheme (u, u^2, u^4 in parallel): a shorter chain of dependent operations
+    # than Horner's, as the world step's heading and position wait on it.
+    u = t * t
+    u2 = u * u
+    u4 = u2 * u2
+    sinc = (1.0 + _S1 * u) + u2 * (_S2 + _S3 * u) + u4 * ((_S4 + _S5 * u) + u2 * _S6)
+    cosc = t * ((_C0 + _C1 * u) + u2 * (_C2 + _C3 * u) + u4 * ((_C4 + _C5 * u) + u2 * _C6))
     return sinc, cosc
+
+
+# fdlibm's arctangent (s_atan.c): its reduction of |x| to [0, 7/16] and its polynomial.
+_AT = (
+    3.33333333333329318027e-01, -1.99999999998764832476e-01, 1.42857142725034663711e-01,
+    -1.11111104054623557880e-01, 9.09088713343650656196e-02, -7.69187620504482999495e-02,
+    6.66107313738753120669e-02, -5.83357013379057348645e-02, 4.97687799461593236017e-02,
+    -3.65315727442169155270e-02, 1.62858201153657823623e-02,
+)  # fmt: skip
+_AT_HI = (4.63647609000806093515e-01, 7.85398163397448278999e-01, 9.82793723247329054082e-01)
+_AT_LO = (2.26987774529616870924e-17, 3.06161699786838301793e-17, 1.39033110312309984516e-17)
+_PI_2_HI, _PI_2_LO = 1.57079632679489655800e00, 6.12323399573676603587e-17
+
+
+@njit(cache=True, error_model="numpy", inline="always", fastmath={"contract", "arcp"})
+def atan(x: float) -> float:
+    """The arctangent, inline: fdlibm's reduction and polynomial (under an ulp; the library's
+    call and its chain of dependent operations were a sixth of the world step), the
+    polynomial by Estrin's scheme. No reduction (no division) for |x| < 7/16, the steering's
+    usual argument."""
+    ax = abs(x)
+    if ax < 0.4375:
+        r = x
+        hi = lo = 0.0
+        reduced = False
+    else:  # (NaN too: NaN out)
+        reduced = True
+        if ax < 0.6875:
+            r, hi, lo = (2.0 * ax - 1.0) / (2.0 + ax), _AT_HI[0], _AT_LO[0]
+        elif ax < 1.1875:
+            r, hi, lo = (ax - 1.0) / (ax + 1.0), _AT_HI[1], _AT_LO[1]
+        elif ax < 2.4375:
+            r, hi, lo = (ax - 1.5) / (1.0 + 1.5 * ax), _AT_HI[2], _AT_LO[2]
+        else:
+            r, hi, lo = -1.0 / ax, _PI_2_HI, _PI_2_LO
+    z = r * r
+    w = z * z
+    w2 = w * w
+    w4 = w2 * w2
+    a = _AT
+    s1 = z * ((a[0] + a[2] * w) + w2 * (a[4] + a[6] * w) + w4 * (a[8] + a[10] * w))
+    s2 = w * ((a[1] + a[3] * w) + w2 * (a[5] + a[7] * w) + w4 * a[9])
+    if not reduced:
+        return r - r * (s1 + s2)
+    t = hi - ((r * (s1 + s2) - lo) - r)
+    return t if x >= 0.0 else -t
 
 
 @njit(cache=True, error_model="numpy", inline="always", fastmath={"contract", "arcp"})
@@ -117,7 +170,7 @@ def bicycle_arc(
     heading's cos and sin are the old ones turned by dtheta."""
     if abs(delta) < 1e-9:
         return x + d * c, y + d * s, 0.0, c, s
-    dth = d * delta / wheelbase
+    dth = delta * (d / wheelbase)  # d / l first: the steering waits on the step before
     sinc, cosc = arc_factors(dth)
     dx = d * sinc
     dy = d * cosc
@@ -142,32 +195,36 @@ def bicycle_step(
     return x2, y2, theta + dth, v + a * dt, dth
 
 
-@njit(cache=True, error_model="numpy", fastmath={"contract", "arcp"})
+@njit(cache=True, error_model="numpy", inline="always", fastmath={"contract", "arcp"})
 def cross_track(x: float, y: float, ax: float, ay: float, ux: float, uy: float) -> float:
     """Signed distance of (x, y) from the line through a along unit vector u, positive left."""
     return -(x - ax) * uy + (y - ay) * ux
 
 
-@njit(cache=True, error_model="numpy", fastmath={"contract", "arcp"})
+@njit(cache=True, error_model="numpy", inline="always", fastmath={"contract", "arcp"})
 def steer_pid(
-    ts: np.ndarray, ax: float, ay: float, h: float, ux: float, uy: float, p: np.ndarray
-) -> float:
-    """PID steering on heading error plus a Stanley cross-track term, clipped to the steering limit.
+    x: float, y: float, theta: float, v: float, integral: float, prev: float,
+    ax: float, ay: float, h: float, ux: float, uy: float, dt: float, lim: float,
+) -> tuple[float, float, float]:  # fmt: skip
+    """PID steering on heading error plus a Stanley cross-track term, clipped to the steering
+    limit ``lim``: (steering, the error's integral, the error) from the car at (x, y) heading
+    ``theta`` at speed v, and the integral and the error of the step before.
 
     Follows the line through ``(ax, ay)`` with heading ``h`` (unit vector ``(ux, uy)``).
+    Scalars only, inlined: the world step's state stays in registers.
     """
-    e = cross_track(ts[T_X], ts[T_Y], ax, ay, ux, uy)
-    err = wrap_angle(h - ts[T_TH]) - math.atan(CROSS_TRACK_GAIN * e / (ts[T_V] + 1.0))
-    dt = p[I_DT]
-    ts[T_PID_INT] = min(max(ts[T_PID_INT] + err * dt, -1.0), 1.0)
-    deriv = (err - ts[T_PID_PREV]) / dt
-    ts[T_PID_PREV] = err
-    delta = STEER_KP * err + STEER_KI * ts[T_PID_INT] + STEER_KD * deriv
-    lim = p[I_MAX_STEER]
-    return min(max(delta, -lim), lim)
+    # The divisions by the speed and the step take no state of this step: the step's chain
+    # (position, cross-track error, arctangent, steering, arc, position) waits on none.
+    gain = CROSS_TRACK_GAIN / (v + 1.0)
+    kd = STEER_KD / dt
+    e = cross_track(x, y, ax, ay, ux, uy)
+    err = wrap_angle(h - theta) - atan(gain * e)
+    integral = min(max(integral + err * dt, -1.0), 1.0)
+    delta = STEER_KP * err + STEER_KI * integral + kd * (err - prev)  # kd (err - prev): KD deriv
+    return min(max(delta, -lim), lim), integral, err
 
 
-@njit(cache=True, error_model="numpy", fastmath={"contract", "arcp"})
+@njit(cache=True, error_model="numpy", inline="always", fastmath={"contract", "arcp"})
 def speed_pid(v: float, v_target: float, max_accel: float, dt: float) -> float:
     """Proportional speed control, clipped to the acceleration limit, never below rest."""
     a = SPEED_KP * (v_target - v)
@@ -247,14 +304,18 @@ def segment(dx: float, dy: float) -> tuple[float, float, float]:
 @njit(cache=True, error_model="numpy")
 def _set_segment(ts: np.ndarray, xs: np.ndarray, ys: np.ndarray, a: int, b: int) -> None:
     nx = xs.shape[0]
-    ts[T_SEG_H], ts[T_SEG_UX], ts[T_SEG_UY] = segment(
-        xs[b % nx] - xs[a % nx], ys[b // nx] - ys[a // nx]
-    )
+    ts[T_AX], ts[T_AY] = xs[a % nx], ys[a // nx]
+    ts[T_BX], ts[T_BY] = xs[b % nx], ys[b // nx]
+    ts[T_SEG_H], ts[T_SEG_UX], ts[T_SEG_UY] = segment(ts[T_BX] - ts[T_AX], ts[T_BY] - ts[T_AY])
 
 
 @njit(cache=True, error_model="numpy", fastmath={"contract", "arcp"})
-def _encoder(ts: np.ndarray, cum: int, cnt: int, d_true: float, u: float, p: np.ndarray) -> float:
-    """One wheel: slip and tyre error on the true distance, then whole counts.
+def _encoder(
+    ts: np.ndarray, cum: int, cnt: int, d_true: float, u: float, inv_q: float, p: np.ndarray
+) -> float:
+    """One wheel: slip and tyre error on the true distance, then whole counts (``inv_q`` is
+    1 / ``p[I_TRUE_QUANTUM]``: a product, where a division would hold up the step's chain:
+    the arc's turn, the wheel's distance, its counts, the predict).
 
     Slip is uniform with the documented standard deviation, from the uniform draw ``u``
     (a uniform draw costs a fifth of a normal one; over the hundreds of steps in a block
@@ -263,7 +324,7 @@ def _encoder(ts: np.ndarray, cum: int, cnt: int, d_true: float, u: float, p: np.
     q = p[I_TRUE_QUANTUM]
     slip = (u - 0.5) * SQRT12 * p[I_TRUE_SLIP] * abs(d_true)
     ts[cum] += d_true * (1.0 + ts[T_TYRE]) + slip
-    count = math.floor(ts[cum] / q)
+    count = np.floor(ts[cum] * inv_q)  # a float: no round trip through an integer
     inc = (count - ts[cnt]) * q
     ts[cnt] = count
     return inc
@@ -309,8 +370,7 @@ def step_core(
     with the caller's flags: both callers take ``fastmath={"contract", "arcp"}``.
     """
     nx = xs.shape[0]
-    ax, ay = xs[ns[R_A] % nx], ys[ns[R_A] // nx]
-    bx, by = xs[ns[R_B] % nx], ys[ns[R_B] // nx]
+    ax, ay, bx, by = ts[T_AX], ts[T_AY], ts[T_BX], ts[T_BY]
     # Along-track distance left to node b.
     h_ab, ux, uy = ts[T_SEG_H], ts[T_SEG_UX], ts[T_SEG_UY]
     to_b = (bx - ts[T_X]) * ux + (by - ts[T_Y]) * uy
@@ -328,6 +388,7 @@ def step_core(
             switch = 0.0  # U-turn at a dead end: drive to the end first
         if to_b <= switch:
             ts[T_SEG_H], ts[T_SEG_UX], ts[T_SEG_UY] = segment(cx - bx, cy - by)
+            ts[T_AX], ts[T_AY], ts[T_BX], ts[T_BY] = bx, by, cx, cy
             ts[T_COS] = math.cos(ts[T_TH])
             ts[T_SIN] = math.sin(ts[T_TH])
             ns[R_A] = ns[R_B]
@@ -355,8 +416,11 @@ def step_core(
     if to_b <= max(brake, 0.0) + 5.0 and (c < 0 or turning):
         v_target = p[I_TURN_V]
     a = speed_pid(v, v_target, p[I_MAX_ACCEL], p[I_DT])
-    delta = steer_pid(ts, ax, ay, h_ab, ux, uy, p)
     dt = p[I_DT]
+    delta, ts[T_PID_INT], ts[T_PID_PREV] = steer_pid(
+        ts[T_X], ts[T_Y], ts[T_TH], v, ts[T_PID_INT], ts[T_PID_PREV], ax, ay, h_ab, ux, uy, dt,
+        p[I_MAX_STEER],
+    )  # fmt: skip
     d = v * dt + 0.5 * a * dt * dt
     x, y, dth, ts[T_COS], ts[T_SIN] = bicycle_arc(
         ts[T_X], ts[T_Y], ts[T_COS], ts[T_SIN], d, delta, p[I_WHEELBASE]
@@ -368,8 +432,9 @@ def step_core(
     ts[T_DRIVEN] += d
     ts[T_STEP] += 1.0
     half = 0.5 * p[I_TRACK] * dth
-    events[0] = _encoder(ts, T_CUM_L, T_CNT_L, d - half, u_left, p)
-    events[1] = _encoder(ts, T_CUM_R, T_CNT_R, d + half, u_right, p)
+    inv_q = 1.0 / p[I_TRUE_QUANTUM]
+    events[0] = _encoder(ts, T_CUM_L, T_CNT_L, d - half, u_left, inv_q, p)
+    events[1] = _encoder(ts, T_CUM_R, T_CNT_R, d + half, u_right, inv_q, p)
     sigma = p[I_TRUE_COMPASS_SIGMA]
     if compass_due and sigma > 0.0:
         events[2] = wrap_angle(ts[T_TH] + gauss * sigma)

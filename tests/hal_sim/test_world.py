@@ -124,6 +124,24 @@ def test_bicycle_constant_steering_is_a_circle(delta: float) -> None:
     assert th == pytest.approx(400 * 5.0 * 0.05 / rho)
 
 
+def test_atan_within_an_ulp_of_the_library() -> None:
+    """The steering's inline arctangent (fdlibm's reduction, Estrin's scheme) against numpy's,
+    across its reduction's intervals and their ends, tiny and huge arguments."""
+    gen = np.random.default_rng(1)
+    xs = np.concatenate(
+        [
+            gen.uniform(-3.0, 3.0, 20_000),
+            gen.normal(0.0, 1e-3, 2_000),
+            10.0 ** gen.uniform(-300.0, 300.0, 2_000) * gen.choice([-1.0, 1.0], 2_000),
+            np.array([0.0, 0.4375, 0.6875, 1.1875, 2.4375, -0.4375, -2.4375, 1e300, -1e300]),
+        ]
+    )
+    got = np.array([world.atan(float(x)) for x in xs])
+    want = np.arctan(xs)
+    assert np.all(np.abs(got - want) <= np.spacing(np.abs(want)))
+    assert world.atan(math.inf) == pytest.approx(math.pi / 2) and math.isnan(world.atan(math.nan))
+
+
 def _distance_to_segment(x: float, y: float, ax: float, ay: float, bx: float, by: float) -> float:
     sx, sy = bx - ax, by - ay
     t = min(max(((x - ax) * sx + (y - ay) * sy) / (sx * sx + sy * sy), 0.0), 1.0)
