@@ -101,9 +101,9 @@ def test_a_reader_that_keeps_up_sees_every_state_and_liveliness_in_order(
         reader.start()  # reads while the car publishes (each car's ring holds only 4)
         token = session.liveliness().declare_token("guidance/car1")
         wait_for_match([pub])
-        for s in range(1, 101):
-            pub.put(message("state", s))
-            time.sleep(0.005)
+        for s in range(1, 101):  # 50 Hz: a look every 10 ms at most, so the ring of 4 has
+            pub.put(message("state", s))  # 80 ms of slack for a reader delayed by the load
+            time.sleep(0.02)
         time.sleep(0.3)
         token.undeclare()
         reader.join(10.0)
