@@ -52,8 +52,8 @@ def main(argv: list[str] | None = None) -> int:
     if args.learned:
         return _learned(args, rng, t0)
     results = []
+    draw = draw_matched_car if args.matched else draw_car
     for i in range(args.cars):
-        draw = draw_matched_car if args.matched else draw_car
         car = replace(draw(rng), diff_walk_var_per_m=args.diff_walk)
         results.append(drive_car(10_000 + i, car, compass=args.compass))
         if (i + 1) % 25 == 0 or i + 1 == args.cars:

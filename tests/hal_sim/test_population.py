@@ -7,7 +7,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from hal_sim.population import draw_car, drive_car, population
+from hal_sim.population import CarResult, draw_car, drive_car, population
 
 
 @pytest.mark.parametrize(("compass", "cars"), [(False, 200), (True, 100)])
@@ -75,11 +75,9 @@ def test_a_second_drive_from_learned_parameters_has_a_smaller_ellipse_and_is_sti
     assert axis_learned < axis_priors
 
 
-def _persistent_cars(rng: np.random.Generator, n: int, var_scale: float) -> list:
+def _persistent_cars(rng: np.random.Generator, n: int, var_scale: float) -> list[CarResult]:
     """Cars whose error is one 2-D Gaussian draw held for the whole drive, against a filter
     whose covariance is ``1 / var_scale`` times the true one."""
-    from hal_sim.population import CarResult
-
     cars = []
     for _ in range(n):
         r = CarResult(draw_car(rng), compass=False)
