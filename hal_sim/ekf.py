@@ -139,7 +139,7 @@ def _release_here(x: np.ndarray, P: np.ndarray, p: np.ndarray, det: np.ndarray) 
     """Nothing: see the end of ``compass_update``."""
 
 
-@njit(cache=True, error_model="numpy", inline="always", fastmath={"contract", "arcp"})
+@njit(cache=True, error_model="numpy", fastmath={"contract", "arcp"})
 def compass_update(
     x: np.ndarray, P: np.ndarray, z: float, var: float, p: np.ndarray, det: np.ndarray
 ) -> int:
