@@ -6,12 +6,14 @@ random route through the car's real pipeline with the uncalibrated car model. Pr
 figures over the population and the worst cars.
 
     .venv/bin/python benchmarks/estimator_population.py [--cars 500] [--compass] [--seed 1]
-        [--matched] [--diff-walk 1e-10]
+        [--matched] [--diff-walk 1e-10] [--landmarks 1.0]
     .venv/bin/python benchmarks/estimator_population.py --learned [--cars 200]
+    .venv/bin/python benchmarks/estimator_population.py --limit
 
 ``--learned``: each car first drives 3 km with landmark fixes (40 per km^2, 60 % seen) and
 learns; its next drive (another route, no landmarks, a day later) from what it learned and
-from the priors, both printed (issue 21, item 3).
+from the priors, both printed (issue 21, item 3). ``--limit``: the purely persistent limit
+(``population.persistent_limit``), no cars driven.
 """
 
 from __future__ import annotations
@@ -27,7 +29,14 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from hal_sim.population import draw_car, draw_matched_car, drive_car, learn_then_drive, population
+from hal_sim.population import (
+    draw_car,
+    draw_matched_car,
+    drive_car,
+    learn_then_drive,
+    persistent_limit,
+    population,
+)
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -45,17 +54,27 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--diff-walk", type=float, default=0.0, metavar="VAR_PER_M",
                     help="each car's left/right difference walks along the road at this variance "
                          "per metre (the filter's own: 1e-10; default 0, constant)")  # fmt: skip
+    ap.add_argument("--landmarks", type=float, default=0.0, metavar="PER_KM2",
+                    help="landmark fixes where the city has landmarks at this density, 60 %% "
+                         "seen (the product's operating mode; default 0: none)")  # fmt: skip
+    ap.add_argument("--limit", action="store_true",
+                    help="print the purely persistent limit (no cars driven): what a Gaussian "
+                         "filter can promise when each car's error is one draw")  # fmt: skip
     args = ap.parse_args(argv)
     logging.basicConfig(level=logging.ERROR)
     rng = np.random.default_rng(args.seed)
     t0 = time.monotonic()
+    if args.limit:
+        return _limit(rng)
     if args.learned:
         return _learned(args, rng, t0)
     results = []
     draw = draw_matched_car if args.matched else draw_car
     for i in range(args.cars):
         car = replace(draw(rng), diff_walk_var_per_m=args.diff_walk)
-        results.append(drive_car(10_000 + i, car, compass=args.compass))
+        results.append(
+            drive_car(10_000 + i, car, compass=args.compass, landmarks_per_km2=args.landmarks)
+        )
         if (i + 1) % 25 == 0 or i + 1 == args.cars:
             print(f"\r{i + 1}/{args.cars} cars, {time.monotonic() - t0:.0f} s", end="",
                   file=sys.stderr, flush=True)  # fmt: skip
@@ -65,6 +84,8 @@ def main(argv: list[str] | None = None) -> int:
         mode += ", cars drawn from the filter's own priors"
     if args.diff_walk:
         mode += f", left/right walking {args.diff_walk:g} per m"
+    if args.landmarks:
+        mode += f", landmark fixes at {args.landmarks:g} per km^2 (60 % seen)"
     print(f"{args.cars} simulated cars, {mode}, draw seed {args.seed}, "
           f"{time.monotonic() - t0:.1f} s wall")  # fmt: skip
     print(population(results).summary())
@@ -73,6 +94,16 @@ def main(argv: list[str] | None = None) -> int:
         print(f"  worst: inside {100 * r.inside:.0f} %, scale {100 * e.scale:+.2f} %, left/right "
               f"{100 * e.diff:+.3f} %, start heading {e.start_heading_deg:+.1f} deg, "
               f"final error {r.final_error_m:.0f} m")  # fmt: skip
+    return 0
+
+
+def _limit(rng: np.random.Generator) -> int:
+    print("each car's error one persistent 2-D draw, unit variance per axis, 2,000,000 cars:")
+    for name, df in (("Gaussian", None), ("Student t4", 4.0)):
+        lim = persistent_limit(rng, 2_000_000, df=df)
+        print(f"  {name}: {100 * lim.outside_matched:.1f} % of cars outside a matched 2-sigma "
+              f"ellipse; 5 % outside needs {lim.inflation_for:.2f}x the variance, mean NEES "
+              f"then {lim.nees_then:.2f} (honest: 2)")  # fmt: skip
     return 0
 
 

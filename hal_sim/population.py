@@ -322,6 +322,41 @@ def population(results: list[CarResult]) -> PopulationFigures:
     )
 
 
+@dataclass(frozen=True, slots=True)
+class PersistentLimit:
+    """What a Gaussian filter can promise when a car's whole error is one persistent 2-D draw
+    (its error stays at the same number of sigmas for the whole drive)."""
+
+    outside_matched: float
+    """Cars outside the 2-sigma ellipse (so below 50 % inside) when the filter's covariance is
+    the draws' own."""
+    inflation_for: float
+    """Variance factor on the filter's covariance that leaves ``max_below`` of the cars
+    outside."""
+    nees_then: float
+    """The mean NEES of that inflated filter: 2 / ``inflation_for``."""
+
+
+def persistent_limit(
+    rng: np.random.Generator,
+    cars: int = 1_000_000,
+    *,
+    df: float | None = None,
+    max_below: float = 0.05,
+) -> PersistentLimit:
+    """Monte Carlo of the purely persistent limit: each car one draw of two independent unit-
+    variance components, Gaussian (``df`` None; closed form: e^-2 outside, inflation
+    chi2_2(0.95) / 4 = 1.50 for 5 %, NEES then 1.34) or Student t with ``df`` degrees of
+    freedom scaled to unit variance (heavier tails at the same variance)."""
+    if df is None:
+        x = rng.standard_normal((cars, 2))
+    else:
+        x = rng.standard_t(df, (cars, 2)) * math.sqrt((df - 2.0) / df)
+    r2 = np.sum(x * x, axis=1)
+    k = float(np.quantile(r2, 1.0 - max_below)) / CHI2_2D_2SIGMA
+    return PersistentLimit(float(np.mean(r2 > CHI2_2D_2SIGMA)), k, float(np.mean(r2)) / k)
+
+
 @dataclass(slots=True)
 class TwoDrives:
     """One car's first drive (with landmark fixes: it learns), and its next drive (another

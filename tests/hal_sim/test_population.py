@@ -4,10 +4,14 @@ car's real pipeline with the car model as an uncalibrated car is configured."""
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 import pytest
+from scipy.stats import chi2
 
-from hal_sim.population import CarResult, draw_car, drive_car, population
+from guidance.core.model import CHI2_2D_2SIGMA
+from hal_sim.population import CarResult, draw_car, drive_car, persistent_limit, population
 
 
 @pytest.mark.parametrize(("compass", "cars"), [(False, 200), (True, 100)])
@@ -116,3 +120,17 @@ def test_a_left_right_difference_that_walks_changes_the_cars_heading_error() -> 
     walking = drive_car(11, replace(car, diff_walk_var_per_m=1e-8), compass=False)
     assert walking.final_error_m > 2.0 * still.final_error_m, (still.final_error_m,
                                                                 walking.final_error_m)  # fmt: skip
+
+
+def test_the_persistent_limit_matches_its_closed_form_and_a_heavier_tail_is_no_easier() -> None:
+    """Gaussian persistent draws: e^-2 of the cars outside a matched 2-sigma ellipse; 5 % only
+    with chi2_2(0.95) / 4 of the variance, and a mean NEES of 2 over that (below any band for
+    more than a few cars). A t4 tail at the same variance: still more than 10 % outside."""
+    g = persistent_limit(np.random.default_rng(3), 400_000)
+    assert g.outside_matched == pytest.approx(math.exp(-2.0), abs=0.003)
+    k = chi2.ppf(0.95, 2) / CHI2_2D_2SIGMA
+    assert g.inflation_for == pytest.approx(k, rel=0.02)
+    assert g.nees_then == pytest.approx(2.0 / k, rel=0.02)
+    t4 = persistent_limit(np.random.default_rng(4), 400_000, df=4.0)
+    assert 0.10 < t4.outside_matched < 0.125
+    assert t4.nees_then < g.nees_then
