@@ -36,6 +36,7 @@ from hal_sim.population import (
     learn_then_drive,
     persistent_limit,
     population,
+    t4_draw,
 )
 
 
@@ -57,6 +58,9 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--landmarks", type=float, default=0.0, metavar="PER_KM2",
                     help="landmark fixes where the city has landmarks at this density, 60 %% "
                          "seen (the product's operating mode; default 0: none)")  # fmt: skip
+    ap.add_argument("--turn-scale", type=float, default=None, metavar="SCALE",
+                    help="each car's turn scale error t4 x SCALE instead of the population's "
+                         "(within +-8 %%, drawn apart from the other errors; 0: none)")  # fmt: skip
     ap.add_argument("--limit", action="store_true",
                     help="print the purely persistent limit (no cars driven): what a Gaussian "
                          "filter can promise when each car's error is one draw")  # fmt: skip
@@ -70,8 +74,12 @@ def main(argv: list[str] | None = None) -> int:
         return _learned(args, rng, t0)
     results = []
     draw = draw_matched_car if args.matched else draw_car
+    turn_rng = np.random.default_rng([args.seed, 7])
     for i in range(args.cars):
         car = replace(draw(rng), diff_walk_var_per_m=args.diff_walk)
+        if args.turn_scale is not None:
+            kt = t4_draw(turn_rng, args.turn_scale, 0.08) if args.turn_scale else 0.0
+            car = replace(car, turn_scale=kt)
         results.append(
             drive_car(10_000 + i, car, compass=args.compass, landmarks_per_km2=args.landmarks)
         )
@@ -84,6 +92,8 @@ def main(argv: list[str] | None = None) -> int:
         mode += ", cars drawn from the filter's own priors"
     if args.diff_walk:
         mode += f", left/right walking {args.diff_walk:g} per m"
+    if args.turn_scale is not None:
+        mode += f", turn scale errors t4 x {100 * args.turn_scale:g} %"
     if args.landmarks:
         mode += f", landmark fixes at {args.landmarks:g} per km^2 (60 % seen)"
     print(f"{args.cars} simulated cars, {mode}, draw seed {args.seed}, "

@@ -15,6 +15,8 @@ The car errors, with heavier tails than the filter's priors (Student t, 4 degree
   +-8 % (beyond that a wrong DBC scale, not a tyre);
 * right-minus-left scale difference: t4 x 0.02 % (sd 0.028 %; the prior is 0.03 %), within
   +-0.3 % (a flat tyre);
+* turn scale (the effective track over the configured one, or a gyro's sensitivity): t4 x
+  1.2 % (sd 1.7 %; the prior is 2 %), within +-8 %;
 * each wheel's random walk: the filter's own 2.2 mm per root metre;
 * compass: a mounting offset N(0, 40 deg), a hard-iron field of r x the earth's horizontal
   field (r uniform 0-0.4, direction uniform) giving the heading-dependent deviation
@@ -66,6 +68,11 @@ class CarErrors:
     diff_walk_var_per_m: float = 0.0
     """The left/right difference's random walk along the road (road camber from street to
     street, tyre temperature): 0 keeps it constant."""
+    turn_scale: float = 0.0
+    """The car's effective track over the track the filter is configured with, minus 1 (tyre
+    scrub and load transfer in turns, a profile's track for another model): every turn's
+    left/right distance difference, so its heading change, is this much larger than the
+    filter's. 0: none. The filter has no state for it (docs/estimation.md)."""
 
     def deviation_rad(self, heading_rad: float) -> float:
         """The compass error at a true heading: the offset plus the hard-iron curve."""
@@ -77,8 +84,8 @@ class CarErrors:
 def draw_car(rng: np.random.Generator) -> CarErrors:
     """One car's persistent errors (module doc)."""
     return CarErrors(
-        scale=_t4(rng, 0.012, 0.08),
-        diff=_t4(rng, 0.0002, 0.003),
+        scale=t4_draw(rng, 0.012, 0.08),
+        diff=t4_draw(rng, 0.0002, 0.003),
         walk_m2_per_m=5e-6,
         compass_offset_deg=float(rng.normal(0.0, 40.0)),
         hard_iron_ratio=float(rng.uniform(0.0, 0.4)),
@@ -88,18 +95,24 @@ def draw_car(rng: np.random.Generator) -> CarErrors:
         start_heading_deg=float(rng.normal(0.0, 1.0)),
         start_dx_m=float(rng.normal(0.0, 3.0)),
         start_dy_m=float(rng.normal(0.0, 3.0)),
+        turn_scale=t4_draw(rng, 0.012, 0.08),
     )
 
 
 def draw_matched_car(rng: np.random.Generator) -> CarErrors:
     """A car whose wheel errors are drawn from the filter's own Gaussian priors (scale 2 %,
-    left/right 0.03 %; the start and the wheel walk are the filter's already): the yardstick of
-    a perfectly matched filter for the per-car figures (docs/estimation.md)."""
+    left/right 0.03 %, turn scale 2 %; the start and the wheel walk are the filter's already):
+    the yardstick of a perfectly matched filter for the per-car figures (docs/estimation.md)."""
     car = draw_car(rng)
-    return replace(car, scale=float(rng.normal(0.0, 0.02)), diff=float(rng.normal(0.0, 3e-4)))
+    return replace(
+        car,
+        scale=float(rng.normal(0.0, 0.02)),
+        diff=float(rng.normal(0.0, 3e-4)),
+        turn_scale=float(rng.normal(0.0, 0.02)),
+    )
 
 
-def _t4(rng: np.random.Generator, scale: float, limit: float) -> float:
+def t4_draw(rng: np.random.Generator, scale: float, limit: float) -> float:
     """A Student-t (4 dof) draw times ``scale``, redrawn beyond ``limit`` (a wheel scale 25 %
     off is a wrong DBC, not a tyre)."""
     while True:
@@ -196,7 +209,7 @@ def drive_car(
         if errors.diff_walk_var_per_m > 0.0:
             diff += float(rng.normal()) * math.sqrt(errors.diff_walk_var_per_m * d)
         for side, sign in ((0, -1.0), (1, 1.0)):
-            true = d + sign * 0.5 * TRACK_M * dth
+            true = d + sign * 0.5 * TRACK_M * (1.0 + errors.turn_scale) * dth
             err = true * (errors.scale + sign * 0.5 * diff)
             err += float(rng.normal()) * math.sqrt(errors.walk_m2_per_m * abs(true))
             if side == 0:

@@ -73,11 +73,16 @@ def start_from_learned(
         if used.compass_bias_deg is None or used.compass_bias_sigma_deg is None
         else f", compass bias {used.compass_bias_deg:+.1f} +- {used.compass_bias_sigma_deg:.1f} deg"
     )
+    turn = (
+        ""
+        if used.turn_scale is None or used.turn_scale_sigma is None
+        else f", turn scale {100 * used.turn_scale:+.2f} +- {100 * used.turn_scale_sigma:.2f} %"
+    )
     return used, (
         f"{path}: starting from learned parameters ({params.distance_m / 1000:.1f} km, "
         f"{days:.1f} days old): wheel scale {100 * used.scale:+.2f} +- "
         f"{100 * used.scale_sigma:.2f} %, left/right {100 * used.diff:+.3f} +- "
-        f"{100 * used.diff_sigma:.3f} %{bias}"
+        f"{100 * used.diff_sigma:.3f} %{bias}{turn}"
     )
 
 

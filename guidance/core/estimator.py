@@ -69,6 +69,9 @@ class EstimatorConfig:
     """Prior 1-sigma of the right-minus-left wheel scale difference, a fraction."""
     diff_walk_var_per_m: float = 0.0
     """Random-walk variance of that difference per metre (tyre temperature, load, camber)."""
+    turn_scale_sigma: float = 0.0
+    """Prior 1-sigma of the turn scale error, a fraction: the true heading change is the
+    wheels' (or the gyro's) x (1 + kt) (effective track; a gyro's sensitivity)."""
     compass_bias_sigma_deg: float = 0.0
     """Prior 1-sigma of the compass bias (uncalibrated: large; calibrated: the fit residual)."""
     compass_bias_walk_deg2_per_s: float = 0.0
@@ -86,8 +89,13 @@ class EstimatorConfig:
 
     @property
     def car_model(self) -> bool:
-        """True when the persistent errors are states (6-state filter)."""
-        return self.scale_sigma > 0.0 or self.diff_sigma > 0.0 or self.compass_bias_sigma_deg > 0.0
+        """True when the persistent errors are states (7-state filter)."""
+        return (
+            self.scale_sigma > 0.0
+            or self.diff_sigma > 0.0
+            or self.compass_bias_sigma_deg > 0.0
+            or self.turn_scale_sigma > 0.0
+        )
 
     @property
     def n_state(self) -> int:
@@ -101,6 +109,7 @@ CAR_MODEL: dict[str, float] = {
     "scale_sigma": 0.02,
     "diff_sigma": 3e-4,
     "diff_walk_var_per_m": 1e-10,
+    "turn_scale_sigma": 0.02,
     "compass_bias_walk_deg2_per_s": 0.15,
     "initial_position_sigma_m": 3.0,
     "heading_second_order": 0.75,
@@ -205,8 +214,9 @@ def _heading_residual(a: np.ndarray, b: np.ndarray) -> np.ndarray:
 
 _H_HEADING = np.array([[0.0, 0.0, 1.0]])
 _H_POSITION = np.array([[1.0, 0.0, 0.0], [0.0, 1.0, 0.0]])
-_H_HEADING_CAR = np.array([[0.0, 0.0, 1.0, 0.0, 0.0, 1.0]])
-_H_POSITION_CAR = np.hstack([_H_POSITION, np.zeros((2, 3))])
+_H_HEADING_CAR = np.zeros((1, model.N_STATE_CAR))
+_H_HEADING_CAR[0, model.STATE_THETA] = _H_HEADING_CAR[0, model.STATE_BIAS] = 1.0
+_H_POSITION_CAR = np.hstack([_H_POSITION, np.zeros((2, model.N_STATE_CAR - model.N_STATE))])
 
 
 class PoseEstimator:
@@ -269,7 +279,7 @@ class PoseEstimator:
         diag = [sp * sp, sp * sp, sh * sh]
         if self.n > model.N_STATE:
             sb = math.radians(cfg.compass_bias_sigma_deg)
-            diag += [cfg.scale_sigma**2, cfg.diff_sigma**2, sb * sb]
+            diag += [cfg.scale_sigma**2, cfg.diff_sigma**2, sb * sb, cfg.turn_scale_sigma**2]
         return np.diag(diag)
 
     def set_state(self, x: np.ndarray, P: np.ndarray) -> None:
@@ -445,12 +455,14 @@ class PoseEstimator:
         car = self.n > model.N_STATE
         x = self._kf.x
         raw_l, raw_r = dl, dr
+        track = cfg.track_m
         if car:
             dl, dr = model.corrected_wheels(dl, dr, float(x[model.STATE_SCALE]),
                                             float(x[model.STATE_DIFF]))  # fmt: skip
-        d, dth = model.odometry_increment(dl, dr, cfg.track_m)
+            track = model.effective_track(track, float(x[model.STATE_TURN]))
+        d, dth = model.odometry_increment(dl, dr, track)
         F, G, Q = np.empty((3, 3)), np.empty((3, 2)), np.empty((3, 3))
-        model.motion_jacobians(float(x[2]), dl, dr, cfg.track_m, F, G)
+        model.motion_jacobians(float(x[2]), dl, dr, track, F, G)
         var_l = model.wheel_noise_var(dl, cfg.wheel_quantum_m, cfg.wheel_slip_frac)
         var_r = model.wheel_noise_var(dr, cfg.wheel_quantum_m, cfg.wheel_slip_frac)
         if cfg.wheel_walk_var_m2_per_m > 0.0:
@@ -461,6 +473,7 @@ class PoseEstimator:
             Fc, Qc = np.eye(self.n), np.zeros((self.n, self.n))
             Fc[:3, :3] = F
             model.scale_jacobian(G, raw_l, raw_r, Fc)
+            model.turn_jacobian(float(x[2]), dl, dr, cfg.track_m, float(x[model.STATE_TURN]), Fc)
             Qc[:3, :3] = Q
             Qc[model.STATE_DIFF, model.STATE_DIFF] = cfg.diff_walk_var_per_m * abs(d)
             dt = 0.0 if self._last_t is None else max(0.0, msg.t_s - self._last_t)

@@ -1,16 +1,17 @@
 """Parameters each car learns and keeps (pure): the car model's persistent states across drives.
 
-The car model estimates the wheel-speed scale ``k``, the left/right difference ``kd`` and the
-compass bias ``b`` as it drives (landmark fixes teach ``k`` along the road; the compass and the
-turns teach ``b`` and ``kd``). ``LearnedParams.from_estimator`` takes them with their variances
-at the end of a drive; the next drive starts from them (``apply``), their uncertainty widened
-with the time since (``widened``): tyre pressure and wear move the scale and the difference
-between drives, and whatever moved in the car moves the compass bias at the filter's own drift
-rate. Nothing is ever more certain than it was measured, and nothing wider than the
-uncalibrated prior. A value outside physical bounds (``guidance.core.state_limits``, the
-ranges a checkpoint's states are held to as well) is refused (``from_dict`` raises
-``ValueError`` naming it), as openpilot refuses a learned-parameter file that fails its sanity
-checks. The file itself (atomic, versioned) is ``guidance.app.learned_file``.
+The car model estimates the wheel-speed scale ``k``, the left/right difference ``kd``, the
+compass bias ``b`` and the turn scale ``kt`` as it drives (landmark fixes teach ``k`` along the
+road; the compass and the turns teach ``b``, ``kd`` and ``kt``).
+``LearnedParams.from_estimator`` takes them with their variances at the end of a drive; the
+next drive starts from them (``apply``), their uncertainty widened with the time since
+(``widened``): tyre pressure and wear move the scale and the difference between drives, and
+whatever moved in the car moves the compass bias at the filter's own drift rate. Nothing is
+ever more certain than it was measured, and nothing wider than the uncalibrated prior. A value
+outside physical bounds (``guidance.core.state_limits``, the ranges a checkpoint's states are
+held to as well) is refused (``from_dict`` raises ``ValueError`` naming it), as openpilot
+refuses a learned-parameter file that fails its sanity checks. The file itself (atomic,
+versioned) is ``guidance.app.learned_file``.
 """
 
 from __future__ import annotations
@@ -25,17 +26,25 @@ from guidance.core.state_limits import (
     MAX_ABS_BIAS_DEG,
     MAX_ABS_DIFF,
     MAX_ABS_SCALE,
+    MAX_ABS_TURN,
     MAX_BIAS_SIGMA_DEG,
     MAX_DIFF_SIGMA,
     MAX_SCALE_SIGMA,
+    MAX_TURN_SIGMA,
 )
 
-SCHEMA = "guidance.learned/1"
+SCHEMA = "guidance.learned/2"
+"""Version 2 adds the turn scale (``turn_scale``, ``turn_scale_sigma``, optional); version 1
+files (without it) are read as they were, the turn scale then starting from its prior."""
+READ_SCHEMAS = ("guidance.learned/1", SCHEMA)
 SCALE_VAR_PER_DAY = (0.001**2) / 30.0
 """Between drives the scale's variance grows by (0.1 %)^2 a month: tyres lose about 0.1 bar of
 pressure a month and wear about 0.05 % of their rolling radius (2.2 % over a tyre's life)."""
 DIFF_VAR_PER_DAY = (0.0001**2) / 30.0
 """The left/right difference's by (0.01 %)^2 a month (a pressure difference of ~0.05 bar)."""
+TURN_VAR_PER_DAY = (0.001**2) / 30.0
+"""The turn scale's by (0.1 %)^2 a month (tyre wear changes the contact patches; a gyro's
+sensitivity ages)."""
 
 
 @dataclass(frozen=True, slots=True)
@@ -53,6 +62,9 @@ class LearnedParams:
     diff_sigma: float
     compass_bias_deg: float | None = None
     compass_bias_sigma_deg: float | None = None
+    turn_scale: float | None = None
+    turn_scale_sigma: float | None = None
+    """None in a version-1 file (learned before the turn scale was a state)."""
 
     @classmethod
     def from_estimator(
@@ -83,6 +95,8 @@ class LearnedParams:
             diff_sigma=sd(model.STATE_DIFF),
             compass_bias_deg=math.degrees(float(x[model.STATE_BIAS])) if bias else None,
             compass_bias_sigma_deg=math.degrees(sd(model.STATE_BIAS)) if bias else None,
+            turn_scale=float(x[model.STATE_TURN]),
+            turn_scale_sigma=sd(model.STATE_TURN),
         )
 
     def widened(self, now_unix_s: float, config: EstimatorConfig) -> LearnedParams:
@@ -95,11 +109,16 @@ class LearnedParams:
         if bias is not None:
             walk = config.compass_bias_walk_deg2_per_s * days * 86400.0
             bias = min(math.sqrt(bias**2 + walk), config.compass_bias_sigma_deg or math.inf)
+        turn = self.turn_scale_sigma
+        if turn is not None:
+            turn = min(math.sqrt(turn**2 + TURN_VAR_PER_DAY * days),
+                       config.turn_scale_sigma or math.inf)  # fmt: skip
         return replace(
             self,
             scale_sigma=min(scale, config.scale_sigma or math.inf),
             diff_sigma=min(diff, config.diff_sigma or math.inf),
             compass_bias_sigma_deg=bias,
+            turn_scale_sigma=turn,
         )
 
     def apply(self, est: PoseEstimator) -> None:
@@ -117,6 +136,8 @@ class LearnedParams:
         ):
             states.append((model.STATE_BIAS, math.radians(self.compass_bias_deg),
                            math.radians(self.compass_bias_sigma_deg)))  # fmt: skip
+        if self.turn_scale is not None and self.turn_scale_sigma is not None:
+            states.append((model.STATE_TURN, self.turn_scale, self.turn_scale_sigma))
         for i, value, sigma in states:
             x[i] = value
             P[i, :] = 0.0
@@ -130,8 +151,8 @@ class LearnedParams:
     @classmethod
     def from_dict(cls, data: Mapping[str, object]) -> LearnedParams:
         """Read back with every value checked (``ValueError`` naming the first bad one)."""
-        if data.get("schema") != SCHEMA:
-            raise ValueError(f"schema is {data.get('schema')!r}, not {SCHEMA!r}")
+        if data.get("schema") not in READ_SCHEMAS:
+            raise ValueError(f"schema is {data.get('schema')!r}, not one of {READ_SCHEMAS}")
         unknown = set(data) - {"schema", *(f.name for f in fields(cls))}
         if unknown:
             raise ValueError(f"unknown fields: {', '.join(sorted(unknown))}")
@@ -154,6 +175,10 @@ class LearnedParams:
         ):
             bias = num("compass_bias_deg", -MAX_ABS_BIAS_DEG, MAX_ABS_BIAS_DEG)
             bias_sigma = num("compass_bias_sigma_deg", 1e-6, MAX_BIAS_SIGMA_DEG)
+        turn = turn_sigma = None
+        if data.get("turn_scale") is not None or data.get("turn_scale_sigma") is not None:
+            turn = num("turn_scale", -MAX_ABS_TURN, MAX_ABS_TURN)
+            turn_sigma = num("turn_scale_sigma", 1e-6, MAX_TURN_SIGMA)
         return cls(
             vehicle_id=vid,
             saved_unix_s=num("saved_unix_s", 0.0, 1e11),
@@ -164,4 +189,6 @@ class LearnedParams:
             diff_sigma=num("diff_sigma", 1e-8, MAX_DIFF_SIGMA),
             compass_bias_deg=bias,
             compass_bias_sigma_deg=bias_sigma,
+            turn_scale=turn,
+            turn_scale_sigma=turn_sigma,
         )

@@ -59,7 +59,10 @@ STATE_DIFF = 4
 """Right-minus-left wheel scale difference, a fraction (a tyre radius difference)."""
 STATE_BIAS = 5
 """Compass bias in the filter frame, rad: the compass measures theta + bias."""
-N_STATE_CAR = 6
+STATE_TURN = 6
+"""Turn scale error, a fraction: the true heading change is the wheels' x (1 + kt) (the
+effective track differs from the configured one; a gyro's sensitivity error)."""
+N_STATE_CAR = 7
 """The car model's state: the paper's plus the persistent errors as states (docs/estimation.md)."""
 
 
@@ -140,6 +143,27 @@ def corrected_wheels(
 ) -> tuple[float, float]:
     """Wheel increments corrected by the scale states: x (1 + k -/+ diff/2) left/right."""
     return d_left_m * (1.0 + scale - 0.5 * diff), d_right_m * (1.0 + scale + 0.5 * diff)
+
+
+@njit(cache=True, error_model="numpy")
+def effective_track(track_m: float, turn: float) -> float:
+    """The track that turns the heading by (1 + kt) of the wheels' difference over ``track_m``."""
+    return track_m / (1.0 + turn)
+
+
+@njit(cache=True, error_model="numpy")
+def turn_jacobian(
+    theta: float, d_left_m: float, d_right_m: float, track_m: float, turn: float, F: np.ndarray
+) -> None:
+    """Fill F[0:3, STATE_TURN] for corrected wheel increments: with q = (dr - dl) / track the
+    uncorrected heading change, the turn is (1 + kt) q, so d(turn)/d(kt) = q, and the chord's
+    mid-point heading moves by q / 2."""
+    q = (d_right_m - d_left_m) / track_m
+    d = 0.5 * (d_left_m + d_right_m)
+    mid = theta + 0.5 * (1.0 + turn) * q
+    F[0, STATE_TURN] = -d * math.sin(mid) * 0.5 * q
+    F[1, STATE_TURN] = d * math.cos(mid) * 0.5 * q
+    F[2, STATE_TURN] = q
 
 
 @njit(cache=True, error_model="numpy")

@@ -29,16 +29,20 @@ MAX_ABS_DIFF = 0.005
 """Right-minus-left wheel scale difference: 0.5 % is a flat tyre."""
 MAX_ABS_BIAS_DEG = 180.0
 """Compass bias: any angle, but an angle (the filter does not wrap it)."""
+MAX_ABS_TURN = 0.25
+"""Turn scale error: a track a quarter off is the wrong vehicle profile, not a tyre."""
 MAX_SCALE_SIGMA = 1.0
 MAX_DIFF_SIGMA = 0.1
 MAX_BIAS_SIGMA_DEG = 180.0
-"""1-sigma bounds of the three (wider than any prior: a sigma beyond them is no knowledge)."""
+MAX_TURN_SIGMA = 1.0
+"""1-sigma bounds of the four (wider than any prior: a sigma beyond them is no knowledge)."""
 
 LEARNED_STATES: tuple[tuple[int, str, float, float], ...] = (
     (model.STATE_SCALE, "wheel scale", MAX_ABS_SCALE, MAX_SCALE_SIGMA),
     (model.STATE_DIFF, "left/right difference", MAX_ABS_DIFF, MAX_DIFF_SIGMA),
     (model.STATE_BIAS, "compass bias (rad)", math.radians(MAX_ABS_BIAS_DEG),
      math.radians(MAX_BIAS_SIGMA_DEG)),
+    (model.STATE_TURN, "turn scale", MAX_ABS_TURN, MAX_TURN_SIGMA),
 )  # fmt: skip
 """(state index, name, largest magnitude, largest 1-sigma) of the car model's learned states,
 in the filter's units."""

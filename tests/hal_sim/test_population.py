@@ -71,7 +71,10 @@ def test_a_second_drive_from_learned_parameters_has_a_smaller_ellipse_and_is_sti
     for r in runs:
         assert r.first.learned is not None
         taught += r.first.learned.scale_sigma < 0.5 * cfg.scale_sigma  # the scale was learned
-    assert taught >= 30  # most routes pass landmarks
+    # most routes pass landmarks; with the turn scale a state, the fixes' information is
+    # shared with it (a heading error before a corner is an along-road error after it): 27 of
+    # these 40 cars halve their scale's sigma, 31 without the state
+    assert taught >= 24
     with_learned = population([r.from_learned for r in runs])
     assert with_learned.inside >= 0.80, with_learned.summary()
     axis_learned = np.median([r.from_learned.final_major_axis_m for r in runs])

@@ -3,7 +3,7 @@ Pipeline, Checkpointer and ``start_checkpoints`` / ``start_from_learned`` the ca
 
 * the car model's learned states (wheel scale, left/right difference, compass bias) are held
   to their physical range when read, by one definition (``guidance.core.state_limits``);
-* the checker and the estimator agree on what a valid state is: a 6-state car without a
+* the checker and the estimator agree on what a valid state is: a car-model car without a
   compass (bias variance 0 by design) is resumed, not refused as "not positive-definite";
 * a temporary file a SIGKILL left mid-write is removed at the next start.
 """
@@ -29,7 +29,7 @@ from reliability_helpers import REPO
 from guidance.app.build import start_checkpoints
 from guidance.app.checkpoint import Checkpointer, trip_identity
 from guidance.app.learned_file import load_learned, start_from_learned
-from guidance.core import state_limits
+from guidance.core import model, state_limits
 from guidance.core.estimator import EstimatorConfig, car_model
 from guidance.core.learned import LearnedParams
 from guidance.core.messages import HeadingFix, WheelOdometry
@@ -173,7 +173,7 @@ def test_a_car_without_a_compass_that_crashes_before_its_first_odometry_is_resum
 ) -> None:
     ck = tmp_path / "ck.json"
     before = _pipeline(compass=False)
-    assert before.estimator.n == 6 and before.estimator.P[5, 5] == 0.0  # by design
+    assert before.estimator.n == model.N_STATE_CAR and before.estimator.P[5, 5] == 0.0  # by design
     assert before.estimator.state_problem() is None
     _write(ck, before)
     with caplog.at_level(logging.WARNING):

@@ -54,3 +54,35 @@ def test_model_updates_match_filterpy() -> None:
     assert est.process(LandmarkFix(11.0, 1, 95.0, 25.0, 5.0)).accepted
     np.testing.assert_allclose(est.P, P, rtol=0, atol=1e-12)
     np.testing.assert_allclose(est.x, x, rtol=0, atol=1e-12)
+
+
+def _car_pose_after(x: np.ndarray, dl: float, dr: float, track: float) -> np.ndarray:
+    """The car model's predicted pose from raw wheel increments (as ``PoseEstimator``)."""
+    cl, cr = model.corrected_wheels(dl, dr, x[model.STATE_SCALE], x[model.STATE_DIFF])
+    d, dth = model.odometry_increment(cl, cr, model.effective_track(track, x[model.STATE_TURN]))
+    return np.array(model.motion_predict(x[0], x[1], x[2], d, dth))
+
+
+@pytest.mark.parametrize(("dl", "dr"), [(1.0, 1.0), (0.9, 1.2), (2.0, 1.1), (-0.4, 0.4)])
+def test_the_car_models_jacobian_is_the_derivative_of_its_prediction(dl: float, dr: float) -> None:
+    """Every column of the car model's state Jacobian (pose, wheel scale, left/right, turn
+    scale) against a central difference of the prediction itself."""
+    track = 1.6
+    x = np.zeros(model.N_STATE_CAR)
+    x[:3] = 10.0, -5.0, 0.7
+    x[model.STATE_SCALE], x[model.STATE_DIFF], x[model.STATE_TURN] = 0.015, 4e-4, -0.03
+    cl, cr = model.corrected_wheels(dl, dr, x[model.STATE_SCALE], x[model.STATE_DIFF])
+    tr = model.effective_track(track, x[model.STATE_TURN])
+    F3, G = np.empty((3, 3)), np.empty((3, 2))
+    model.motion_jacobians(x[2], cl, cr, tr, F3, G)
+    F = np.eye(model.N_STATE_CAR)
+    F[:3, :3] = F3
+    model.scale_jacobian(G, dl, dr, F)
+    model.turn_jacobian(x[2], cl, cr, track, x[model.STATE_TURN], F)
+    for j in range(model.N_STATE_CAR):
+        h = 1e-6 if j < 3 else 1e-7
+        xp, xm = x.copy(), x.copy()
+        xp[j] += h
+        xm[j] -= h
+        num = (_car_pose_after(xp, dl, dr, track) - _car_pose_after(xm, dl, dr, track)) / (2 * h)
+        assert F[:3, j] == pytest.approx(num, rel=1e-5, abs=1e-7), j
