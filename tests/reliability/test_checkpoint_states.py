@@ -90,6 +90,8 @@ HOSTILE_STATES = {
     "left/right -1e3": (4, -1e3),
     "compass bias 1e6 rad": (5, 1e6),
     "compass bias 4 rad": (5, 4.0),
+    "turn scale 0.5": (6, 0.5),
+    "turn scale -1 (every turn undone)": (6, -1.0),
 }
 
 
