@@ -301,12 +301,19 @@ def segment(dx: float, dy: float) -> tuple[float, float, float]:
     return street_heading(dx, dy), dx / seg, dy / seg
 
 
+@njit(cache=True, error_model="numpy", inline="always")
+def set_street(ts: np.ndarray, ax: float, ay: float, bx: float, by: float) -> None:
+    """The street a -> b the car is on, in the truth vector: its ends (``T_AX`` .. ``T_BY``)
+    and its heading and unit vector (``T_SEG_*``). The one place they are set: at a trial's
+    start and at each switch of ``step_core``."""
+    ts[T_SEG_H], ts[T_SEG_UX], ts[T_SEG_UY] = segment(bx - ax, by - ay)
+    ts[T_AX], ts[T_AY], ts[T_BX], ts[T_BY] = ax, ay, bx, by
+
+
 @njit(cache=True, error_model="numpy")
 def _set_segment(ts: np.ndarray, xs: np.ndarray, ys: np.ndarray, a: int, b: int) -> None:
     nx = xs.shape[0]
-    ts[T_AX], ts[T_AY] = xs[a % nx], ys[a // nx]
-    ts[T_BX], ts[T_BY] = xs[b % nx], ys[b // nx]
-    ts[T_SEG_H], ts[T_SEG_UX], ts[T_SEG_UY] = segment(ts[T_BX] - ts[T_AX], ts[T_BY] - ts[T_AY])
+    set_street(ts, xs[a % nx], ys[a // nx], xs[b % nx], ys[b // nx])
 
 
 @njit(cache=True, error_model="numpy", fastmath={"contract", "arcp"})
@@ -387,8 +394,7 @@ def step_core(
         if abs(wrap_angle(h_bc - h_ab)) > 3.0:
             switch = 0.0  # U-turn at a dead end: drive to the end first
         if to_b <= switch:
-            ts[T_SEG_H], ts[T_SEG_UX], ts[T_SEG_UY] = segment(cx - bx, cy - by)
-            ts[T_AX], ts[T_AY], ts[T_BX], ts[T_BY] = bx, by, cx, cy
+            set_street(ts, bx, by, cx, cy)
             ts[T_COS] = math.cos(ts[T_TH])
             ts[T_SIN] = math.sin(ts[T_TH])
             ns[R_A] = ns[R_B]
