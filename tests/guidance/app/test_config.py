@@ -239,3 +239,15 @@ def test_paths_are_relative_to_the_config_files_folder(tmp_path: Path) -> None:
     assert cfg.telemetry.tls is not None
     assert cfg.telemetry.tls.root_ca_certificate == str(folder / "ca.pem")
     assert cfg.telemetry.vehicle_id == cfg.recording.vehicle_id == "car1"  # [vehicle] id
+
+
+def test_the_car_models_turn_scale_prior_is_a_setting_and_is_checked() -> None:
+    """``[estimator] turn_scale_sigma``: the car model's default 2 %, a car's own value, and a
+    negative one refused naming its key."""
+    doc = _tahoe()
+    assert parse_config(doc, base_dir=REPO / "config").pipeline.estimator.turn_scale_sigma == 0.02
+    doc.setdefault("estimator", {})["turn_scale_sigma"] = 0.005
+    assert parse_config(doc, base_dir=REPO / "config").pipeline.estimator.turn_scale_sigma == 0.005
+    doc["estimator"]["turn_scale_sigma"] = -0.01
+    with pytest.raises(UserError, match=r"\[estimator\] turn_scale_sigma"):
+        parse_config(doc, base_dir=REPO / "config")
