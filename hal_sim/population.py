@@ -72,7 +72,7 @@ class CarErrors:
     """The car's effective track over the track the filter is configured with, minus 1 (tyre
     scrub and load transfer in turns, a profile's track for another model): every turn's
     left/right distance difference, so its heading change, is this much larger than the
-    filter's. 0: none. The filter has no state for it (docs/estimation.md)."""
+    filter's. 0: none. The car model's state ``kt`` (docs/estimation.md)."""
 
     def deviation_rad(self, heading_rad: float) -> float:
         """The compass error at a true heading: the offset plus the hard-iron curve."""
@@ -359,7 +359,7 @@ def persistent_limit(
 ) -> PersistentLimit:
     """Monte Carlo of the purely persistent limit: each car one draw of two independent unit-
     variance components, Gaussian (``df`` None; closed form: e^-2 outside, inflation
-    chi2_2(0.95) / 4 = 1.50 for 5 %, NEES then 1.34) or Student t with ``df`` degrees of
+    chi2_2(0.95) / 4 = 1.50 for 5 %, NEES then 1.33) or Student t with ``df`` degrees of
     freedom scaled to unit variance (heavier tails at the same variance)."""
     if df is None:
         x = rng.standard_normal((cars, 2))

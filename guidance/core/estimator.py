@@ -473,7 +473,7 @@ class PoseEstimator:
             Fc, Qc = np.eye(self.n), np.zeros((self.n, self.n))
             Fc[:3, :3] = F
             model.scale_jacobian(G, raw_l, raw_r, Fc)
-            model.turn_jacobian(float(x[2]), dl, dr, cfg.track_m, float(x[model.STATE_TURN]), Fc)
+            model.turn_jacobian(dl, dr, cfg.track_m, Fc)
             Qc[:3, :3] = Q
             Qc[model.STATE_DIFF, model.STATE_DIFF] = cfg.diff_walk_var_per_m * abs(d)
             dt = 0.0 if self._last_t is None else max(0.0, msg.t_s - self._last_t)

@@ -152,17 +152,14 @@ def effective_track(track_m: float, turn: float) -> float:
 
 
 @njit(cache=True, error_model="numpy")
-def turn_jacobian(
-    theta: float, d_left_m: float, d_right_m: float, track_m: float, turn: float, F: np.ndarray
-) -> None:
-    """Fill F[0:3, STATE_TURN] for corrected wheel increments: with q = (dr - dl) / track the
-    uncorrected heading change, the turn is (1 + kt) q, so d(turn)/d(kt) = q, and the chord's
-    mid-point heading moves by q / 2."""
+def turn_jacobian(d_left_m: float, d_right_m: float, track_m: float, F: np.ndarray) -> None:
+    """Fill F[0:3, STATE_TURN] for corrected wheel increments, from the pose Jacobian already
+    in F[0:3, 0:3] (``motion_jacobians``): with q = (dr - dl) / track the uncorrected heading
+    change, the turn is (1 + kt) q, so d(turn)/d(kt) = q, and the chord's mid-point heading,
+    which the position follows as it follows the heading (F[i, 2]), moves by q / 2."""
     q = (d_right_m - d_left_m) / track_m
-    d = 0.5 * (d_left_m + d_right_m)
-    mid = theta + 0.5 * (1.0 + turn) * q
-    F[0, STATE_TURN] = -d * math.sin(mid) * 0.5 * q
-    F[1, STATE_TURN] = d * math.cos(mid) * 0.5 * q
+    F[0, STATE_TURN] = F[0, STATE_THETA] * 0.5 * q
+    F[1, STATE_TURN] = F[1, STATE_THETA] * 0.5 * q
     F[2, STATE_TURN] = q
 
 

@@ -78,7 +78,7 @@ def test_the_car_models_jacobian_is_the_derivative_of_its_prediction(dl: float, 
     F = np.eye(model.N_STATE_CAR)
     F[:3, :3] = F3
     model.scale_jacobian(G, dl, dr, F)
-    model.turn_jacobian(x[2], cl, cr, track, x[model.STATE_TURN], F)
+    model.turn_jacobian(cl, cr, track, F)
     for j in range(model.N_STATE_CAR):
         h = 1e-6 if j < 3 else 1e-7
         xp, xm = x.copy(), x.copy()
