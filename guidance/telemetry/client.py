@@ -43,15 +43,13 @@ from typing import Any, TypeVar
 import zenoh
 
 from guidance.errors import UserError
-from guidance.outputs.messages import encode
 from guidance.telemetry.config import TlsConfig, check_endpoint
+from guidance.telemetry.goals import send_goal
 from guidance.telemetry.keys import (
     _MODES,
     DEFAULT_CONNECT,
-    GOAL_SCHEMA,
     KEY_PREFIX,
     KINDS,
-    goal_key,
     is_vehicle_id,
     parse_key,
     validate_vehicle_id,
@@ -486,20 +484,15 @@ class MonitorClient:
         none are left, instead of after each)."""
         return len(self._batch)
 
-    def send_goal(self, vehicle_id: str, x_m: float, y_m: float) -> None:
-        """Ask a car to drive to a new goal (it obeys only if its config and ACL allow)."""
+    def send_goal(self, vehicle_id: str, x_m: float, y_m: float, wait_s: float = 3.0) -> bool:
+        """Ask a car for a new goal once its goal subscription is known (``goals.send_goal``);
+        False if no car listening for goals appeared within ``wait_s``. The car obeys only if
+        its config, range check and ACL allow."""
         session = self._session
         if session is None:
             raise UserError("monitor session is not open")
-        validate_vehicle_id(vehicle_id)
-        body = {"schema": GOAL_SCHEMA, "x_m": float(x_m), "y_m": float(y_m)}
         self._goals_sent += 1
-        session.put(
-            goal_key(vehicle_id),
-            encode(body),
-            encoding=zenoh.Encoding.APPLICATION_JSON,
-            source_info=zenoh.SourceInfo(session.id, self._goals_sent),  # the car logs who
-        )
+        return send_goal(session, vehicle_id, x_m, y_m, self._goals_sent, wait_s)
 
     def peers(self) -> int:
         session = self._session

@@ -265,13 +265,19 @@ def _send_goal(client: MonitorClient, args: argparse.Namespace) -> int:
             file=sys.stderr,
         )
         return 1
-    time.sleep(0.2)  # let the car's subscription reach us
     x_m, y_m = args.send_goal
-    client.send_goal(args.vehicle, x_m, y_m)
-    time.sleep(0.2)
+    rest = max(0.5, deadline - time.monotonic())
+    if not client.send_goal(args.vehicle, x_m, y_m, wait_s=rest):
+        print(
+            f"guidance monitor: goal not sent: no car {args.vehicle!r} listening for remote goals "
+            f"within {rest:.1f} s (is it running, with allow_remote_goal = true in its "
+            "[telemetry] config?)",
+            file=sys.stderr,
+        )
+        return 1
     print(
-        f"goal ({x_m:.1f}, {y_m:.1f}) m sent to {args.vehicle}; "
-        "the car applies it only if its config and access control allow remote goals"
+        f"goal ({x_m:.1f}, {y_m:.1f}) m delivered to {args.vehicle}; "
+        "the car applies it only if its range check and access control allow"
     )
     return 0
 

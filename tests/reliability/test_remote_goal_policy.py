@@ -150,8 +150,8 @@ def test_every_accepted_goal_is_logged_with_its_sender_and_wildcard_goals_are_re
             raw = open_session(conf)
             try:
                 wait_until(lambda: mon.peers() > 0 and bool(raw.info.peers_zid()))
-                time.sleep(0.3)  # the car's goal subscription reaches both
-                mon.send_goal("rg2", 120.0, -40.0)
+                assert mon.send_goal("rg2", 120.0, -40.0)  # once the car's subscription is known
+                time.sleep(0.3)  # the car's goal subscription reaches the raw session too
                 body = json.dumps({"x_m": 10.0, "y_m": 20.0})
                 raw.put("guidance/rg2/cmd/goal", body)  # no source info
                 raw.put("guidance/**", json.dumps({"x_m": 1.0, "y_m": 2.0}))  # every car
@@ -193,9 +193,7 @@ def test_the_simulator_applies_the_remote_goal_it_accepts(loopback_acl: str) -> 
                 e = mon.get(0.1)
                 if e is not None and e.kind == "state" and not e.late_join:
                     break
-            time.sleep(0.3)
-            mon.send_goal("simgoal", 350.0, -120.0)
-            seen["sent"] = True
+            seen["sent"] = mon.send_goal("simgoal", 350.0, -120.0)
             while time.monotonic() < deadline + 10.0:
                 e = mon.get(0.1)
                 if e is not None and e.kind == "state" and e.message:

@@ -384,9 +384,8 @@ def test_remote_goal_is_refused_by_default(car_port: int) -> None:
         MonitorClient([tcp(car_port)]) as mon,
     ):
         wait_for(mon, lambda e: e.kind == "alive")
-        for _ in range(3):
-            mon.send_goal("car4", 100.0, 200.0)
-            time.sleep(0.2)
+        # the car declares no goal subscription: nothing matches, nothing is put
+        assert mon.send_goal("car4", 100.0, 200.0, wait_s=1.0) is False
         assert goals == []
         assert tel.health().counters["goals_accepted"] == 0
 
@@ -419,11 +418,13 @@ def test_remote_goal_accepted_when_enabled_and_handed_to_the_event_loop(
         try:
             await asyncio.to_thread(mon.open)
             await asyncio.to_thread(wait_for, mon, lambda e: e.kind == "alive")
-            await asyncio.sleep(0.2)
-            mon.send_goal("car5", 1e9, 0.0)  # out of range: refused
-            await asyncio.sleep(0.1)
-            mon.send_goal("car5", 350.0, -120.0)
-            goal = await asyncio.wait_for(fut, 5.0)
+            # each is put once the car's goal subscription has reached the monitor, reliably
+            # (it was a put 0.2 s after "alive", lost on a loaded machine before the car's
+            # subscription arrived: CI timed out waiting for it)
+            sent = await asyncio.to_thread(mon.send_goal, "car5", 1e9, 0.0)  # out of range
+            sent &= await asyncio.to_thread(mon.send_goal, "car5", 350.0, -120.0)
+            assert sent
+            goal = await asyncio.wait_for(fut, 10.0)
         finally:
             mon.close()
             tel.close()
@@ -613,7 +614,8 @@ def goal_scenario(
                         mon.query_latest()
                         time.sleep(0.1)
                     tel.send(STATE, make_state(t_s=3.0))
-                mon.send_goal("car1", 10.0 * (i + 1), 5.0)
+                # a monitor refused at the link waits for no subscription it cannot see
+                mon.send_goal("car1", 10.0 * (i + 1), 5.0, wait_s=3.0 if mon.peers() else 0.0)
                 time.sleep(0.4)
                 seen[name] = {
                     "connected": mon.peers() > 0,

@@ -483,6 +483,21 @@ def test_send_goal_reaches_a_car_that_allows_it(loopback_acl: str) -> None:
     assert r.returncode == 2 and "--send-goal needs --vehicle ID" in r.stderr
 
 
+def test_send_goal_to_a_car_that_does_not_listen_says_so() -> None:
+    """A car without remote goals declares no goal subscription: the goal is not put and the
+    operator is told why, instead of "sent"."""
+    port = free_port()
+    cfg = TelemetryConfig(vehicle_id="car6", listen=(f"tcp/127.0.0.1:{port}",))
+    with Telemetry(cfg):
+        r = monitor(
+            "--connect", f"tcp/127.0.0.1:{port}", "--vehicle", "car6", "--timeout", "2",
+            "--send-goal", "120", "-45.5",
+        )  # fmt: skip
+    assert r.returncode == 1, r.stdout
+    assert "goal not sent: no car 'car6' listening for remote goals" in r.stderr
+    assert "allow_remote_goal = true" in r.stderr and "Traceback" not in r.stderr
+
+
 def fleet_with_a_gone_car() -> FleetView:
     """Three cars with a goal, health and a long prompt; car2 then loses its liveliness token."""
     view = FleetView()
