@@ -9,11 +9,16 @@ figures over the population and the worst cars.
         [--matched] [--diff-walk 1e-10] [--landmarks 1.0]
     .venv/bin/python benchmarks/estimator_population.py --learned [--cars 200]
     .venv/bin/python benchmarks/estimator_population.py --limit
+    .venv/bin/python benchmarks/estimator_population.py --compass --vs-odometry
+        [--distance 3000] [--hard-iron 0.6,0.9]
 
 ``--learned``: each car first drives 3 km with landmark fixes (40 per km^2, 60 % seen) and
 learns; its next drive (another route, no landmarks, a day later) from what it learned and
 from the priors, both printed (issue 21, item 3). ``--limit``: the purely persistent limit
-(``population.persistent_limit``), no cars driven.
+(``population.persistent_limit``), no cars driven. ``--vs-odometry`` (with ``--compass``):
+each car drives its route twice, with its compass and without, and the two final errors are
+compared car by car (does the compass bring the estimate nearer the truth?); ``--hard-iron``
+draws the cars' hard-iron ratio from another range (default 0,0.4).
 """
 
 from __future__ import annotations
@@ -23,6 +28,7 @@ import logging
 import sys
 import time
 from dataclasses import replace
+from functools import partial
 from pathlib import Path
 
 import numpy as np
@@ -30,6 +36,8 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from hal_sim.population import (
+    HARD_IRON,
+    CarResult,
     draw_car,
     draw_matched_car,
     drive_car,
@@ -61,10 +69,20 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--turn-scale", type=float, default=None, metavar="SCALE",
                     help="each car's turn scale error t4 x SCALE instead of the population's "
                          "(within +-8 %%, drawn apart from the other errors; 0: none)")  # fmt: skip
+    ap.add_argument("--distance", type=float, default=1500.0, metavar="M",
+                    help="each car's drive (default 1500 m)")  # fmt: skip
+    ap.add_argument("--hard-iron", type=_range, default=HARD_IRON, metavar="LO,HI",
+                    help="the cars' hard-iron ratio, uniform in LO-HI of the earth's horizontal "
+                         "field (default 0,0.4)")  # fmt: skip
+    ap.add_argument("--vs-odometry", action="store_true",
+                    help="with --compass: each car also without its compass, the final errors "
+                         "compared car by car")  # fmt: skip
     ap.add_argument("--limit", action="store_true",
                     help="print the purely persistent limit (no cars driven): what a Gaussian "
                          "filter can promise when each car's error is one draw")  # fmt: skip
     args = ap.parse_args(argv)
+    if args.vs_odometry and not args.compass:
+        ap.error("--vs-odometry compares the compass with odometry only: add --compass")
     logging.basicConfig(level=logging.ERROR)
     rng = np.random.default_rng(args.seed)
     t0 = time.monotonic()
@@ -72,17 +90,19 @@ def main(argv: list[str] | None = None) -> int:
         return _limit(rng)
     if args.learned:
         return _learned(args, rng, t0)
-    results = []
-    draw = draw_matched_car if args.matched else draw_car
+    results, plain = [], []
+    draw = draw_matched_car if args.matched else partial(draw_car, hard_iron=args.hard_iron)
     turn_rng = np.random.default_rng([args.seed, 7])
     for i in range(args.cars):
         car = replace(draw(rng), diff_walk_var_per_m=args.diff_walk)
         if args.turn_scale is not None:
             kt = t4_draw(turn_rng, args.turn_scale, 0.08) if args.turn_scale else 0.0
             car = replace(car, turn_scale=kt)
-        results.append(
-            drive_car(10_000 + i, car, compass=args.compass, landmarks_per_km2=args.landmarks)
-        )
+        drive = partial(drive_car, 10_000 + i, car, landmarks_per_km2=args.landmarks,
+                        distance_m=args.distance)  # fmt: skip
+        results.append(drive(compass=args.compass))
+        if args.vs_odometry:
+            plain.append(drive(compass=False))
         if (i + 1) % 25 == 0 or i + 1 == args.cars:
             print(f"\r{i + 1}/{args.cars} cars, {time.monotonic() - t0:.0f} s", end="",
                   file=sys.stderr, flush=True)  # fmt: skip
@@ -96,15 +116,40 @@ def main(argv: list[str] | None = None) -> int:
         mode += f", turn scale errors t4 x {100 * args.turn_scale:g} %"
     if args.landmarks:
         mode += f", landmark fixes at {args.landmarks:g} per km^2 (60 % seen)"
-    print(f"{args.cars} simulated cars, {mode}, draw seed {args.seed}, "
-          f"{time.monotonic() - t0:.1f} s wall")  # fmt: skip
+    if args.hard_iron != HARD_IRON:
+        mode += f", hard iron {args.hard_iron[0]:g}-{args.hard_iron[1]:g} of the earth's field"
+    print(f"{args.cars} simulated cars, {mode}, {args.distance:.0f} m each, draw seed "
+          f"{args.seed}, {time.monotonic() - t0:.1f} s wall")  # fmt: skip
     print(population(results).summary())
+    if plain:
+        _vs_odometry(results, plain)
     for r in sorted(results, key=lambda r: r.inside)[: args.worst]:
         e = r.errors
         print(f"  worst: inside {100 * r.inside:.0f} %, scale {100 * e.scale:+.2f} %, left/right "
               f"{100 * e.diff:+.3f} %, start heading {e.start_heading_deg:+.1f} deg, "
               f"final error {r.final_error_m:.0f} m")  # fmt: skip
     return 0
+
+
+def _vs_odometry(with_compass: list[CarResult], without: list[CarResult]) -> None:
+    a = np.array([r.final_error_m for r in with_compass])
+    b = np.array([r.final_error_m for r in without])
+    print("the same cars without their compass:\n  "
+          + population(without).summary().replace("\n", "\n  "))  # fmt: skip
+    print(f"final error, car by car: median {np.median(b):.0f} m odometry only, "
+          f"{np.median(a):.0f} m with the compass (mean {b.mean():.0f} / {a.mean():.0f} m); "
+          f"the compass nearer the truth for {100 * np.mean(a < b):.0f} % of the cars, "
+          f"median ratio {np.median(a / np.maximum(b, 1e-9)):.2f}")  # fmt: skip
+
+
+def _range(text: str) -> tuple[float, float]:
+    try:
+        lo, hi = (float(v) for v in text.split(","))
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"{text!r}: expected LO,HI, e.g. 0.6,0.9") from None
+    if not 0.0 <= lo <= hi < 1.0:
+        raise argparse.ArgumentTypeError(f"{text!r}: need 0 <= LO <= HI < 1")
+    return lo, hi
 
 
 def _limit(rng: np.random.Generator) -> int:
