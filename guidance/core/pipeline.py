@@ -415,12 +415,18 @@ class Pipeline:
                 log.warning("%s is back (%.1f Hz)", st.name, st.rate_hz)
                 continue
             problem = "is silent" if not st.alive else "sends garbage"
-            log.warning("%s %s: %s", st.name, problem, st.detail)
+            judged = st.name == "compass" and st.alive and self.compass_judge.unusable
+            if judged:  # its readings arrive and parse; the filter rejects most of them
+                log.warning("compass is unusable (%s): the filter rejected most of its "
+                            "readings over the last %.0f s; steering without it",
+                            self.compass_judge.reason, self.compass_judge.window_s)  # fmt: skip
+            else:
+                log.warning("%s %s: %s", st.name, problem, st.detail)
             if st.name in self.st.warned:
                 continue  # one warning per input and episode (its driver may have said it)
             self.st.warned.append(st.name)
             text = prompts.sensor_warning(st.name, problem)
-            if st.name == "compass" and st.alive and self.compass_judge.unusable:
+            if judged:
                 text = prompts.compass_unusable(self.compass_judge.reason)
             self._say(out, t, text, Priority.SAFETY, "sensor")
 

@@ -77,7 +77,9 @@ def _pipeline(model: str) -> tuple[Pipeline, list[WheelOdometry | CompassHeading
     return Pipeline(pcfg), msgs
 
 
-def test_a_compass_the_filter_keeps_rejecting_is_reported_unusable_within_30_s() -> None:
+def test_a_compass_the_filter_keeps_rejecting_is_reported_unusable_within_30_s(
+    caplog: pytest.LogCaptureFixture,
+) -> None:
     pipeline, msgs = _pipeline("paper")
     t0 = msgs[0].t_s
     said: list[tuple[float, str]] = []
@@ -93,6 +95,10 @@ def test_a_compass_the_filter_keeps_rejecting_is_reported_unusable_within_30_s()
     unusable = [t for t, text in said if text.startswith("Compass unusable")]
     assert len(unusable) == 1 and unusable[0] <= 30.0  # spoken once
     assert pipeline.statuses(msgs[-1].t_s)["compass"].valid is False
+    # the log says what the operator can act on, not that a device "sends garbage"
+    logged = [r.getMessage() for r in caplog.records if r.getMessage().startswith("compass")]
+    assert any(m.startswith("compass is unusable (uncalibrated)") for m in logged), logged
+    assert not any("garbage" in m for m in logged), logged
 
 
 def test_the_car_model_keeps_the_same_compass_usable() -> None:
