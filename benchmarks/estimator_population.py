@@ -45,6 +45,7 @@ from hal_sim.population import (
     persistent_limit,
     population,
     t4_draw,
+    with_camber,
 )
 
 
@@ -63,6 +64,10 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--diff-walk", type=float, default=0.0, metavar="VAR_PER_M",
                     help="each car's left/right difference walks along the road at this variance "
                          "per metre (the filter's own: 1e-10; default 0, constant)")  # fmt: skip
+    ap.add_argument("--camber", action="store_true",
+                    help="each car's left/right difference also changes from street to street "
+                         "(population.with_camber: a Gauss-Markov process, 0.005-0.03 %%, "
+                         "150-400 m)")  # fmt: skip
     ap.add_argument("--landmarks", type=float, default=0.0, metavar="PER_KM2",
                     help="landmark fixes where the city has landmarks at this density, 60 %% "
                          "seen (the product's operating mode; default 0: none)")  # fmt: skip
@@ -93,8 +98,11 @@ def main(argv: list[str] | None = None) -> int:
     results, plain = [], []
     draw = draw_matched_car if args.matched else partial(draw_car, hard_iron=args.hard_iron)
     turn_rng = np.random.default_rng([args.seed, 7])
+    camber_rng = np.random.default_rng([args.seed, 8])
     for i in range(args.cars):
         car = replace(draw(rng), diff_walk_var_per_m=args.diff_walk)
+        if args.camber:
+            car = with_camber(car, camber_rng)
         if args.turn_scale is not None:
             kt = t4_draw(turn_rng, args.turn_scale, 0.08) if args.turn_scale else 0.0
             car = replace(car, turn_scale=kt)
@@ -110,6 +118,8 @@ def main(argv: list[str] | None = None) -> int:
     mode = "wheel odometry + uncalibrated compass" if args.compass else "wheel odometry only"
     if args.matched:
         mode += ", cars drawn from the filter's own priors"
+    if args.camber:
+        mode += ", left/right changing from street to street"
     if args.diff_walk:
         mode += f", left/right walking {args.diff_walk:g} per m"
     if args.turn_scale is not None:

@@ -73,6 +73,11 @@ class CarErrors:
     scrub and load transfer in turns, a profile's track for another model): every turn's
     left/right distance difference, so its heading change, is this much larger than the
     filter's. 0: none. The car model's state ``kt`` (docs/estimation.md)."""
+    camber_sigma: float = 0.0
+    """1-sigma of the part of the left/right difference that changes from street to street
+    (road camber, each side's tyre temperature): a Gauss-Markov process of correlation length
+    ``camber_length_m`` added to ``diff`` (``with_camber``). 0: none."""
+    camber_length_m: float = 250.0
 
     def deviation_rad(self, heading_rad: float) -> float:
         """The compass error at a true heading: the offset plus the hard-iron curve."""
@@ -105,6 +110,21 @@ def draw_car(rng: np.random.Generator, *, hard_iron: tuple[float, float] = HARD_
         start_dy_m=float(rng.normal(0.0, 3.0)),
         turn_scale=t4_draw(rng, 0.012, 0.08),
     )
+
+
+CAMBER_SIGMA = (5e-5, 3e-4)
+"""The street-to-street part of the left/right difference: its 1-sigma log-uniform between
+0.005 % and 0.03 % (road cross slope from street to street and each side's tyre temperature,
+docs/estimation.md; rms 0.016 %, the filter's own), its correlation length uniform 150-400 m
+(a street between junctions)."""
+
+
+def with_camber(car: CarErrors, rng: np.random.Generator) -> CarErrors:
+    """``car`` with its own street-to-street left/right process (``CAMBER_SIGMA``), drawn from
+    ``rng`` (a stream of its own, so the cars' other draws stay those of ``draw_car``)."""
+    lo, hi = CAMBER_SIGMA
+    sigma = float(math.exp(rng.uniform(math.log(lo), math.log(hi))))
+    return replace(car, camber_sigma=sigma, camber_length_m=float(rng.uniform(150.0, 400.0)))
 
 
 def draw_matched_car(rng: np.random.Generator) -> CarErrors:
@@ -204,6 +224,9 @@ def drive_car(
     left = right = 0.0
     drift = 0.0
     diff = errors.diff
+    camber, camber_rng = 0.0, np.random.default_rng([seed, 98])
+    if errors.camber_sigma > 0.0:
+        camber = errors.camber_sigma * float(camber_rng.normal())
     prev = world.truth
     while world.driven_m < distance_m:
         ev = world.step()
@@ -216,9 +239,14 @@ def drive_car(
         prev = (x, y, th)
         if errors.diff_walk_var_per_m > 0.0:
             diff += float(rng.normal()) * math.sqrt(errors.diff_walk_var_per_m * d)
+        if errors.camber_sigma > 0.0:  # exact Gauss-Markov step over d
+            a = math.exp(-d / errors.camber_length_m)
+            camber = a * camber + errors.camber_sigma * math.sqrt(1.0 - a * a) * float(
+                camber_rng.normal()
+            )
         for side, sign in ((0, -1.0), (1, 1.0)):
             true = d + sign * 0.5 * TRACK_M * (1.0 + errors.turn_scale) * dth
-            err = true * (errors.scale + sign * 0.5 * diff)
+            err = true * (errors.scale + sign * 0.5 * (diff + camber))
             err += float(rng.normal()) * math.sqrt(errors.walk_m2_per_m * abs(true))
             if side == 0:
                 left += true + err

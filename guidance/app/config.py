@@ -177,6 +177,8 @@ CAR_KEYS = (
     "scale_sigma",
     "diff_sigma",
     "diff_walk_var_per_m",
+    "camber_diff_sigma",
+    "camber_length_m",
     "turn_scale_sigma",
     "compass_bias_sigma_deg",
     "compass_bias_walk_deg2_per_s",

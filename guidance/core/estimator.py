@@ -68,7 +68,16 @@ class EstimatorConfig:
     diff_sigma: float = 0.0
     """Prior 1-sigma of the right-minus-left wheel scale difference, a fraction."""
     diff_walk_var_per_m: float = 0.0
-    """Random-walk variance of that difference per metre (tyre temperature, load, camber)."""
+    """Random-walk variance of that difference per metre: 0 in the car model, whose difference
+    changes from street to street but stays bounded (``camber_diff_sigma``)."""
+    camber_diff_sigma: float = 0.0
+    """1-sigma of the part of the left/right difference that changes from street to street
+    (road camber, tyre temperature), a fraction: a Gauss-Markov process of correlation length
+    ``camber_length_m``, whose heading is a walk in distance (``model.camber_heading_var``):
+    0.016 % in the car model, the same change per street as a walk of 1e-10 per metre over
+    250 m, but bounded (docs/estimation.md)."""
+    camber_length_m: float = 250.0
+    """That process's correlation length: a street between junctions, a few hundred metres."""
     turn_scale_sigma: float = 0.0
     """Prior 1-sigma of the turn scale error, a fraction: the true heading change is the
     wheels' (or the gyro's) x (1 + kt) (effective track; a gyro's sensitivity)."""
@@ -108,7 +117,8 @@ CAR_MODEL: dict[str, float] = {
     "wheel_walk_var_m2_per_m": 5e-6,
     "scale_sigma": 0.02,
     "diff_sigma": 3e-4,
-    "diff_walk_var_per_m": 1e-10,
+    "camber_diff_sigma": 1.6e-4,
+    "camber_length_m": 250.0,
     "turn_scale_sigma": 0.02,
     "compass_bias_walk_deg2_per_s": 0.15,
     "initial_position_sigma_m": 3.0,
@@ -121,7 +131,9 @@ a walk in distance (2.2 mm per sqrt(m) per wheel); a common scale error of 2 % f
 calibrated (tyre wear takes up to 2.2 % off the rolling radius over a tyre's life, tyres of one
 size differ by up to 1.5 %, pressure, load and speed 0.5 %, and the speed signal carries
 whatever scaling its maker chose: issue 21) and a left/right difference of 0.03 % (0.1 mm of
-rolling radius) are states; the compass bias drifts 3 degrees a minute (real RAV4: about 3
+rolling radius) are states, the difference also changing from street to street by 0.016 %
+(road camber, tyre temperature: a bounded Gauss-Markov process over 250 m, not a walk); the
+compass bias drifts 3 degrees a minute (real RAV4: about 3
 degrees after the first 20 s); the operator's start is a point picked on a map, 3 m (1 sigma)."""
 CAR_COMPASS_UNCALIBRATED = {"compass_bias_sigma_deg": 60.0, "compass_bias_turn_deg2_per_rad": 250.0}
 """No deviation card: real in-car magnetometers read 40-90 degrees off, and the uncorrected
@@ -476,6 +488,9 @@ class PoseEstimator:
             model.turn_jacobian(dl, dr, cfg.track_m, Fc)
             Qc[:3, :3] = Q
             Qc[model.STATE_DIFF, model.STATE_DIFF] = cfg.diff_walk_var_per_m * abs(d)
+            Qc[model.STATE_THETA, model.STATE_THETA] += model.camber_heading_var(
+                d, cfg.camber_diff_sigma, cfg.camber_length_m, cfg.track_m
+            )
             dt = 0.0 if self._last_t is None else max(0.0, msg.t_s - self._last_t)
             walk = cfg.compass_bias_walk_deg2_per_s * dt
             self._turn_rad += dth

@@ -183,6 +183,17 @@ def wheel_walk_var(d_wheel_m: float, var_per_m: float) -> float:
     return var_per_m * abs(d_wheel_m)
 
 
+def camber_heading_var(d_m: float, sigma: float, length_m: float, track_m: float) -> float:
+    """Heading variance over ``d_m`` from the part of the left/right difference that changes
+    from street to street (road camber, each side's tyre temperature): a Gauss-Markov process
+    of stationary 1-sigma ``sigma`` and correlation length ``length_m``. Its integral over the
+    distance, the heading it turns, is a random walk of ``2 sigma^2 L / track^2`` per metre:
+    exact for drives much longer than ``L``, wider than the process for shorter ones. Unlike a
+    random walk of the difference itself, it does not let the difference grow without bound
+    (docs/estimation.md)."""
+    return 2.0 * sigma * sigma * length_m * abs(d_m) / (track_m * track_m)
+
+
 @njit(cache=True, error_model="numpy")
 def process_noise(G: np.ndarray, var_left: float, var_right: float, Q: np.ndarray) -> None:
     """Fill Q = G diag(var_l, var_r) G^T: wheel noise propagated through the input Jacobian."""

@@ -165,3 +165,28 @@ def test_a_compass_brings_the_estimate_nearer_the_truth_and_a_strong_hard_iron_s
     assert all(r.errors.hard_iron_ratio >= 0.6 for r in strong)
     fig = population(strong)
     assert fig.inside >= 0.80, fig.summary()
+
+
+def test_a_left_right_difference_that_changes_from_street_to_street_is_drawn_and_driven() -> None:
+    """``population.with_camber`` (benchmarks/estimator_population.py --camber): each car's own
+    Gauss-Markov process, its sigma within ``CAMBER_SIGMA`` (rms near the 0.016 % of the
+    physical range's middle) and its length 150-400 m, from a stream of its own (the car's other
+    draws unchanged); driven, it turns the heading of a car whose constant difference is 0."""
+    from dataclasses import replace
+
+    from hal_sim.population import CAMBER_SIGMA, with_camber
+
+    rng = np.random.default_rng(4)
+    cars = [with_camber(draw_car(np.random.default_rng(2)), rng) for _ in range(2000)]
+    sig = np.array([c.camber_sigma for c in cars])
+    assert CAMBER_SIGMA[0] <= sig.min() and sig.max() <= CAMBER_SIGMA[1]
+    assert math.sqrt(float(np.mean(sig**2))) == pytest.approx(1.56e-4, rel=0.05)
+    assert all(150.0 <= c.camber_length_m <= 400.0 for c in cars)
+    assert replace(cars[0], camber_sigma=0.0, camber_length_m=250.0) == draw_car(
+        np.random.default_rng(2)
+    )
+    car = replace(draw_car(np.random.default_rng(2)), diff=0.0, scale=0.0)
+    still = drive_car(11, car, compass=False)
+    changing = drive_car(11, replace(car, camber_sigma=3e-3, camber_length_m=300.0), compass=False)
+    assert changing.final_error_m > 2.0 * still.final_error_m, (still.final_error_m,
+                                                                changing.final_error_m)  # fmt: skip

@@ -251,3 +251,22 @@ def test_the_car_models_turn_scale_prior_is_a_setting_and_is_checked() -> None:
     doc["estimator"]["turn_scale_sigma"] = -0.01
     with pytest.raises(UserError, match=r"\[estimator\] turn_scale_sigma"):
         parse_config(doc, base_dir=REPO / "config")
+
+
+def test_the_camber_process_is_a_setting_and_is_checked() -> None:
+    """``[estimator] camber_diff_sigma`` / ``camber_length_m``: the car model's 0.016 % over
+    250 m in place of a walk of the difference, a car's own values (the walk back, say) taken,
+    a negative one refused naming its key."""
+    doc = _tahoe()
+    est = parse_config(doc, base_dir=REPO / "config").pipeline.estimator
+    assert (est.camber_diff_sigma, est.camber_length_m, est.diff_walk_var_per_m) == (
+        1.6e-4,
+        250.0,
+        0.0,
+    )
+    doc.setdefault("estimator", {}).update(camber_diff_sigma=0.0, diff_walk_var_per_m=1e-10)
+    est = parse_config(doc, base_dir=REPO / "config").pipeline.estimator
+    assert (est.camber_diff_sigma, est.diff_walk_var_per_m) == (0.0, 1e-10)
+    doc["estimator"]["camber_length_m"] = -1.0
+    with pytest.raises(UserError, match=r"\[estimator\] camber_length_m"):
+        parse_config(doc, base_dir=REPO / "config")

@@ -322,3 +322,27 @@ def test_the_car_model_adds_the_second_order_heading_term_along_the_lever() -> N
     miss = 1000.0 * (np.cos(delta) - 1.0)  # about the estimate, which is not corrected
     along = float(np.mean(miss**2))
     assert added[1, 1] == pytest.approx(along, rel=0.15)
+
+
+def test_the_camber_process_adds_its_heading_walk_and_nothing_when_off() -> None:
+    """``camber_diff_sigma`` (a bounded alternative to the difference's walk): after a drive of
+    D metres its heading variance is ``model.camber_heading_var(D)`` more than without it (the
+    heading is the only state it feeds), and 0 leaves every state as it was."""
+    from dataclasses import replace
+
+    from guidance.core.estimator import car_model
+
+    base = car_model(
+        EstimatorConfig(track_m=1.6, compass_two_sigma_deg=None), calibrated=False,
+        camber_diff_sigma=0.0,
+    )  # fmt: skip
+    on = replace(base, camber_diff_sigma=2e-4, camber_length_m=300.0)
+    cfgs = (base, on, replace(on, camber_diff_sigma=0.0))
+    ests = [PoseEstimator(c, 0.0, 0.0, 0.3) for c in cfgs]
+    for i in range(1, 801):  # 800 m, a gentle curve
+        for e in ests:
+            e.process(WheelOdometry(0.1 * i, 1.0, 1.002))
+    p0, p1, p2 = (e.P for e in ests)
+    extra = model.camber_heading_var(800.0 * 1.001, 2e-4, 300.0, 1.6)
+    assert p1[2, 2] - p0[2, 2] == pytest.approx(extra, rel=1e-6)
+    assert np.array_equal(p0, p2)
