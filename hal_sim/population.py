@@ -188,12 +188,14 @@ def drive_car(
     learned: LearnedParams | None = None,
     stop_when_lost: bool = False,
     calibrated: bool = False,
+    filter_overrides: dict[str, float] | None = None,
 ) -> CarResult:
     """One car, ``distance_m`` of random route in the city of ``seed`` (module doc); with
     ``landmarks_per_km2``, fixes where the world has sightings (60 % detected); with
     ``learned``, the drive starts from what an earlier drive learned; ``stop_when_lost``
     ends it when "lost" is declared; ``calibrated``: the compass has its deviation card (the
-    filter's calibrated compass prior; ``errors`` are then the card's residuals)."""
+    filter's calibrated compass prior; ``errors`` are then the card's residuals);
+    ``filter_overrides``: car-model settings other than the shipped ones (a sensitivity)."""
     rng = np.random.default_rng([seed, 99])
     sim = SimParams()
     est0 = estimator_config(sim, 20.0 if compass else None)
@@ -202,6 +204,7 @@ def drive_car(
     est = car_model(
         EstimatorConfig(track_m=TRACK_M, compass_two_sigma_deg=None if not compass else 30.0),
         calibrated=calibrated,
+        **(filter_overrides or {}),
     )
     sx, sy, th0 = world.start_pose
     dt = world.dt_s

@@ -20,8 +20,9 @@ def test_an_uncalibrated_population_is_honest(compass: bool, cars: int) -> None:
     results = [drive_car(5000 + i, draw_car(rng), compass=compass) for i in range(cars)]
     fig = population(results)
     assert 0.80 <= fig.inside <= 0.95, fig.summary()  # honest: 86.5 %
-    # The issue's bar is 5 %; measured 4.5 % (odometry only, 94.0 % inside) and 6.0 % (compass,
-    # 100 cars) on these draws with the turn scale a state (7.0 % and 5.0 % before it; 8-10.5 %
+    # The issue's bar is 5 %; measured 4.5 % (odometry only, 94.4 % inside) and 3.0 % (compass,
+    # 100 cars) on these draws with the street-to-street change bounded (4.5 % and 6.0 % with the
+    # left/right walk; 7.0 % and 5.0 % before the turn scale state; 8-10.5 %
     # and 4-5 % before the second-order heading term): the cars left are in
     # the tail of the left/right difference (2-4 sigma of its prior), overconfident across the
     # road. With the priors before issue 21 (1 % scale, a 1 m start): 71 % inside and 24.5 %
@@ -35,8 +36,8 @@ def test_an_uncalibrated_population_is_honest(compass: bool, cars: int) -> None:
 def test_a_perfectly_matched_filter_has_few_cars_below_half_inside() -> None:
     """The yardstick for "cars below 50 % inside": cars whose wheel errors are drawn from the
     filter's own Gaussian priors. Their errors are persistent, so a car whose draw lies beyond
-    about 2 sigma is outside for most of its drive: 5.5 % of them are below 50 % (89.8 %
-    inside). Without the second-order heading term (``heading_second_order = 0``) the same
+    about 2 sigma is outside for most of its drive: 5.5 % of them are below 50 % (91.1 %
+    inside, mean NEES 1.61; 89.8 % with the left/right walk). Without the second-order heading term (``heading_second_order = 0``) the same
     cars were 11.5 % below 50 % with a mean NEES of 2.10: the linearised ellipse, thin along the
     road, missed the along-road part of a heading error."""
     from hal_sim.population import draw_matched_car
@@ -80,7 +81,9 @@ def test_a_second_drive_from_learned_parameters_has_a_smaller_ellipse_and_is_sti
     assert with_learned.inside >= 0.80, with_learned.summary()
     axis_learned = np.median([r.from_learned.final_major_axis_m for r in runs])
     axis_priors = np.median([r.from_priors.final_major_axis_m for r in runs])
-    assert axis_learned < axis_priors
+    # the left/right difference learned is kept (no walk, docs/estimation.md): 214 m against
+    # 406 m on these cars (0.53; with the walk the gain was about a tenth)
+    assert axis_learned < 0.75 * axis_priors, (axis_learned, axis_priors)
 
 
 def _persistent_cars(rng: np.random.Generator, n: int, var_scale: float) -> list[CarResult]:
