@@ -37,9 +37,10 @@ def test_a_perfectly_matched_filter_has_few_cars_below_half_inside() -> None:
     """The yardstick for "cars below 50 % inside": cars whose wheel errors are drawn from the
     filter's own Gaussian priors. Their errors are persistent, so a car whose draw lies beyond
     about 2 sigma is outside for most of its drive: 5.5 % of them are below 50 % (91.1 %
-    inside, mean NEES 1.61; 89.8 % with the left/right walk). Without the second-order heading term (``heading_second_order = 0``) the same
-    cars were 11.5 % below 50 % with a mean NEES of 2.10: the linearised ellipse, thin along the
-    road, missed the along-road part of a heading error."""
+    inside, mean NEES 1.61; 89.8 % with the left/right walk). Without the second-order heading
+    term (``heading_second_order = 0``) the same cars were 11.5 % below 50 % with a mean NEES of
+    2.10: the linearised ellipse, thin along the road, missed the along-road part of a heading
+    error."""
     from hal_sim.population import draw_matched_car
 
     rng = np.random.default_rng(20261203)
