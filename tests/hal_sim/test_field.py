@@ -94,6 +94,10 @@ def test_field_study_outputs_and_paper_check(tmp_path: Path) -> None:
     assert summary["parameters"]["sim"]["field_time_limit_min"] == 15.0
     assert len(summary["paper_check"]) == 9
     assert {r["figure"] for r in summary["paper_check"]} == {"field"}
+    for r in summary["paper_check"]:  # a reader's sentence, never a Python None
+        assert r["note"].startswith("within: "), r
+        if r["quantity"].startswith("distance 80 %") and r["ours"] is None:
+            assert "never lost" in r["note"], r
     on_disk = json.loads((tmp_path / "summary.json").read_text())
     assert on_disk["provenance"]["versions"]["numba"]
     table = analysis.read_csv_rows(tmp_path / "field_table.csv")
