@@ -34,16 +34,17 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from hal_sim.population import draw_car, drive_car, t4_draw
 
+WALK = {"camber_diff_sigma": 0.0, "diff_walk_var_per_m": 1e-10}
+"""The left/right difference walking, as before the bounded street-to-street process."""
 VARIANTS: dict[str, dict[str, float]] = {
     "issue12": {
+        **WALK,
         "scale_sigma": 0.01,
         "initial_position_sigma_m": 1.0,
         "turn_scale_sigma": 0.0,
         "heading_second_order": 0.0,
-        "camber_diff_sigma": 0.0,
-        "diff_walk_var_per_m": 1e-10,
     },
-    "walk": {"camber_diff_sigma": 0.0, "diff_walk_var_per_m": 1e-10},
+    "walk": WALK,
     "shipped": {},
 }
 
