@@ -47,6 +47,10 @@ class LandmarkFix:
     x_m: float
     y_m: float
     sigma_m: float
+    relocalised: bool = False
+    """The place was found by a search of the whole database, not inside the estimate's
+    gate (the car was lost, or started with no position): the pipeline resets the position
+    around it instead of updating (an update would be refused by the gate)."""
 
 
 @dataclass(frozen=True, slots=True)
