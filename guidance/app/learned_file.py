@@ -5,11 +5,21 @@ old file or the new one, never a mix). Read with every value checked; a file tha
 JSON, larger than ``MAX_BYTES``, another schema, a value out of the physical bounds of
 ``guidance.core.state_limits``, another vehicle's) is refused with one line and
 the car starts from its priors, so a damaged or tampered file never makes it confident.
+
+The running car and the tools share the file through a lock (``LearnedLock``, an advisory
+``flock`` on ``<file>.lock`` beside it, which holds the holder's pid): the car holds it from
+start to stop, and a tool that writes the file (``guidance calibrate --write``) takes it for
+its read-modify-write or refuses, naming the car's pid. Without it the car's periodic save
+would silently overwrite a calibration written while it drives with its own older value.
 """
 
 from __future__ import annotations
 
+import contextlib
+import fcntl
 import json
+import os
+import stat
 from pathlib import Path
 
 from guidance.app.checkpoint import remove_stale_temps, write_atomic
@@ -31,7 +41,7 @@ def load_learned(path: Path, vehicle_id: str) -> tuple[LearnedParams | None, str
         if len(raw) > MAX_BYTES:
             raise ValueError(f"larger than {MAX_BYTES >> 10} KiB")
         data = json.loads(raw)
-    except (OSError, ValueError, RecursionError) as exc:
+    except (OSError, ValueError, RecursionError, OverflowError) as exc:
         why = exc.strerror if isinstance(exc, OSError) and exc.strerror else str(exc)[:120]
         return None, f"{path}: learned parameters unreadable ({why}): starting from the priors"
     if not isinstance(data, dict):
@@ -49,6 +59,71 @@ def load_learned(path: Path, vehicle_id: str) -> tuple[LearnedParams | None, str
             f"{vehicle_id!r}: starting from the priors"
         )
     return params, None
+
+
+class LearnedLock:
+    """An exclusive claim on one learned-parameters file (``<file>.lock``, ``flock``).
+
+    ``LearnedLock.take(path)`` returns the lock, or raises ``LearnedBusy`` naming the holder's
+    pid when another process (the running car, or a tool mid-write) has it. Released by
+    ``release()`` or when the process ends, however it ends (the kernel drops a ``flock`` with
+    its last descriptor), so a SIGKILLed car never leaves the file locked."""
+
+    def __init__(self, path: Path, fd: int) -> None:
+        self.path = path
+        self._fd: int | None = fd
+
+    @staticmethod
+    def lock_path(path: Path) -> Path:
+        return path.with_name(path.name + ".lock")
+
+    @classmethod
+    def take(cls, path: Path) -> LearnedLock:
+        lock = cls.lock_path(path)
+        try:
+            lock.parent.mkdir(parents=True, exist_ok=True)
+            fd = os.open(lock, os.O_RDWR | os.O_CREAT | os.O_NOFOLLOW | os.O_NONBLOCK, 0o644)
+        except OSError as exc:
+            raise LearnedBusy(f"{lock}: cannot open the lock ({exc.strerror})") from None
+        try:
+            if not stat.S_ISREG(os.fstat(fd).st_mode):
+                raise LearnedBusy(f"{lock}: not a regular file")
+            try:
+                fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+            except BlockingIOError:
+                raise LearnedBusy(
+                    f"{path} is in use by a running car (pid {_holder(fd)})"
+                ) from None
+            os.ftruncate(fd, 0)
+            os.pwrite(fd, f"{os.getpid()}\n".encode(), 0)
+        except BaseException:
+            os.close(fd)
+            raise
+        return cls(path, fd)
+
+    def release(self) -> None:
+        if self._fd is not None:
+            with contextlib.suppress(OSError):
+                os.close(self._fd)
+            self._fd = None
+
+    def __enter__(self) -> LearnedLock:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.release()
+
+
+class LearnedBusy(Exception):
+    """The learned file is held by another process (its message names the pid)."""
+
+
+def _holder(fd: int) -> str:
+    with contextlib.suppress(OSError, ValueError):
+        text = os.pread(fd, 32, 0).decode("ascii", "replace").strip()
+        if text.isdigit():
+            return text
+    return "unknown"
 
 
 def save_learned(path: Path, params: LearnedParams) -> None:

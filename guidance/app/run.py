@@ -104,6 +104,7 @@ async def run_car(
         vehicle_id=cfg.vehicle_id,
         resume=resume,
     )
+    learned_lock = _lock_learned(cfg)
     learned = _start_learned(
         cfg, pipeline, resumed=checkpointer is not None and checkpointer.resumed
     )
@@ -145,7 +146,9 @@ async def run_car(
             app.listeners.append(session.operator)
         if no_input:
             session.no_co_driver(no_input)
-        keeper = asyncio.create_task(_keep_learned(cfg, pipeline, learned, stop))
+        keeper = asyncio.create_task(
+            _keep_learned(cfg, pipeline, learned, stop, held=learned_lock is not None)
+        )
         try:
             session.start(
                 banner_rows(cfg, voice=f"{cfg.voice.backend} ({voice})", co_driver=co_driver)
@@ -155,7 +158,9 @@ async def run_car(
             session.stop()
             keeper.cancel()
         app.save_checkpoint(time.monotonic(), finished=True)  # a clean stop: not resumed
-        _save_learned(cfg, pipeline, learned)
+        if learned_lock is not None:
+            _save_learned(cfg, pipeline, learned)
+            learned_lock.release()
         log.info("%s", stop_line(app.lag_summary()))
     return 0
 
@@ -221,6 +226,22 @@ def stop_line(lag: dict[str, float | None]) -> str:
     )
 
 
+def _lock_learned(cfg: Any) -> Any:
+    """The car's claim on its learned file for the whole drive (``LearnedLock``): a tool
+    that would write it meanwhile (``calibrate --write``) refuses instead of being silently
+    overwritten by the car's next save. None when there is no file, or when another process
+    holds it (then this drive saves nothing, and says so once)."""
+    from guidance.app.learned_file import LearnedBusy, LearnedLock
+
+    if not cfg.checkpoint.learned_path:
+        return None
+    try:
+        return LearnedLock.take(Path(cfg.checkpoint.learned_path))
+    except LearnedBusy as exc:
+        log.error("%s: this drive will not save what it learns", exc)
+        return None
+
+
 def _start_learned(cfg: Any, pipeline: Any, *, resumed: bool) -> Any:
     """``[checkpoint] learned_path``: a fresh start begins from the car's learned parameters
     (a resumed trip already carries them in its state). One log line either way."""
@@ -235,13 +256,15 @@ def _start_learned(cfg: Any, pipeline: Any, *, resumed: bool) -> Any:
     return used
 
 
-async def _keep_learned(cfg: Any, pipeline: Any, before: Any, stop: asyncio.Event) -> None:
-    """Every ``[checkpoint] learned_interval_s`` while the car drives: what it has learned so
-    far (taken on the loop, written off it: the write fsyncs)."""
+async def _keep_learned(
+    cfg: Any, pipeline: Any, before: Any, stop: asyncio.Event, *, held: bool
+) -> None:
+    """Every ``[checkpoint] learned_interval_s`` while the car drives (and holds the file's
+    lock): what it has learned so far (taken on the loop, written off it: the write fsyncs)."""
     from guidance.app.learned_file import save_learned
     from guidance.core.learned import LearnedParams
 
-    if not cfg.checkpoint.learned_path:
+    if not cfg.checkpoint.learned_path or not held:
         return
     path = Path(cfg.checkpoint.learned_path)
     loop = asyncio.get_running_loop()

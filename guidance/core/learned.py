@@ -162,11 +162,17 @@ class LearnedParams:
 
         def num(key: str, lo: float, hi: float) -> float:
             v = data.get(key)
-            if isinstance(v, bool) or not isinstance(v, int | float) or not math.isfinite(v):
+            if isinstance(v, bool) or not isinstance(v, int | float):
+                raise ValueError(f"{key} must be a finite number, not {str(v)[:40]!r}")
+            try:
+                f = float(v)  # an integer of 400 digits does not fit: OverflowError
+            except OverflowError:
+                raise ValueError(f"{key} is a number too large for a float") from None
+            if not math.isfinite(f):
                 raise ValueError(f"{key} must be a finite number, not {v!r}")
-            if not lo <= float(v) <= hi:
+            if not lo <= f <= hi:
                 raise ValueError(f"{key} = {v} is outside [{lo:g}, {hi:g}]")
-            return float(v)
+            return f
 
         bias = bias_sigma = None
         if (

@@ -148,13 +148,30 @@ def scale_calibration(log: Path, args: argparse.Namespace) -> ScaleResult:
 
 def write_scale(res: ScaleResult, args: argparse.Namespace) -> str:
     """Into the learned-parameters file, combined with what it holds: the line saying so."""
-    from guidance.app.learned_file import load_learned, save_learned
-    from guidance.core.learned import LearnedParams
+    from guidance.app.learned_file import LearnedBusy, LearnedLock
 
     if res.learned_path is None:
         raise UserError(
             f"{args.config}: no [checkpoint] learned_path: give --learned FILE.json to write"
         )
+    try:
+        lock = LearnedLock.take(res.learned_path)
+    except LearnedBusy as exc:
+        raise UserError(
+            f"{exc}: not written (the car would overwrite it with its own value at its next "
+            "save); stop the car (systemctl stop guidance), then run this again"
+        ) from None
+    with lock:
+        return _write_scale_locked(res)
+
+
+def _write_scale_locked(res: ScaleResult) -> str:
+    """The read-modify-write, under the file's lock; what is written passes the car's own
+    loader first, or nothing is written."""
+    from guidance.app.learned_file import load_learned, save_learned
+    from guidance.core.learned import LearnedParams
+
+    assert res.learned_path is not None
     est = res.estimator
     old, refused = load_learned(res.learned_path, res.vehicle_id)
     if refused is not None:
@@ -175,6 +192,12 @@ def write_scale(res: ScaleResult, args: argparse.Namespace) -> str:
             f"replacing the file's {100 * before.scale:+.2f} +- {100 * before.scale_sigma:.2f} %"
             " (more than 3 sigma apart)"
         )  # fmt: skip
+    try:
+        LearnedParams.from_dict(new.to_dict())
+    except ValueError as exc:
+        raise UserError(
+            f"{res.learned_path}: not written: the car would refuse it ({exc})"
+        ) from None
     save_learned(res.learned_path, new)
     return (
         f"written to {res.learned_path} ({how}): wheel scale {100 * new.scale:+.2f} +- "

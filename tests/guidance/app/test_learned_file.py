@@ -79,3 +79,56 @@ def test_a_sigkill_while_saving_leaves_the_old_file_or_the_new_one(tmp_path: Pat
         proc.wait()
         params, why = load_learned(path, "car1")
         assert why is None and params is not None  # a whole file, never half of one
+
+
+@pytest.mark.parametrize(
+    "key",
+    ["saved_unix_s", "distance_m", "scale", "scale_sigma", "diff", "diff_sigma",
+     "compass_bias_deg", "compass_bias_sigma_deg", "turn_scale", "turn_scale_sigma"],
+)  # fmt: skip
+@pytest.mark.parametrize("huge", [10**400, -(10**400)])
+def test_a_number_too_large_for_a_float_is_refused_with_one_line(
+    tmp_path: Path, key: str, huge: int
+) -> None:
+    """Issue 40 (high): a 400-digit integer in any numeric field made ``guidance run`` exit
+    "internal error: OverflowError" at every start (a systemd restart loop)."""
+    path = tmp_path / "learned.json"
+    doc = {**GOOD.to_dict(), "turn_scale": 0.001, "turn_scale_sigma": 0.01}
+    path.write_text(json.dumps({**doc, key: huge}))
+    params, why = load_learned(path, "car1")
+    assert params is None and why is not None and "\n" not in why and key in why
+    est = PoseEstimator(car_model(EstimatorConfig(), calibrated=False), 0.0, 0.0, 0.0)
+    used, note = start_from_learned(est, path, "car1", 0.0)
+    assert used is None and "starting from the priors" in note
+
+
+def test_the_lock_is_exclusive_across_processes_and_dies_with_its_holder(tmp_path: Path) -> None:
+    """Issue 40 (high): the car holds ``<file>.lock`` while it drives; a second taker is refused
+    with the holder's pid; a SIGKILLed holder leaves nothing locked."""
+    from guidance.app.learned_file import LearnedBusy, LearnedLock
+
+    path = tmp_path / "learned.json"
+    code = (
+        "import sys, time\n"
+        "from pathlib import Path\n"
+        "from guidance.app.learned_file import LearnedLock\n"
+        "lock = LearnedLock.take(Path(sys.argv[1]))\n"
+        "print('held', flush=True)\n"
+        "time.sleep(60)\n"
+    )
+    env = {**os.environ, "PYTHONPATH": str(REPO)}
+    proc = subprocess.Popen(
+        [sys.executable, "-c", code, str(path)], env=env, stdout=subprocess.PIPE, text=True
+    )
+    try:
+        assert proc.stdout is not None and proc.stdout.readline().strip() == "held"
+        with pytest.raises(LearnedBusy, match=rf"in use by a running car \(pid {proc.pid}\)"):
+            LearnedLock.take(path)
+    finally:
+        proc.send_signal(signal.SIGKILL)
+        proc.wait()
+    with LearnedLock.take(path) as lock:  # free again: the kernel dropped the dead one's lock
+        with pytest.raises(LearnedBusy):
+            LearnedLock.take(path)  # exclusive within one process too
+        assert lock.path == path
+    LearnedLock.take(path).release()
