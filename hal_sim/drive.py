@@ -250,7 +250,8 @@ class SimDrive:
         if self.camera is not None:
             await self._camera_frame(ev.t_s)
         elif ev.landmark is not None:
-            self.dev.sightings.sighted(ev.t_s, ev.landmark)
+            searching = self.pipeline.config.relocalise and self.pipeline.st.lost_said
+            self.dev.sightings.sighted(ev.t_s, ev.landmark, relocalised=searching)
             await self.lockstep.drained()
 
     async def _camera_frame(self, t: float) -> None:
@@ -435,6 +436,8 @@ class SimDrive:
             final_error_m=math.hypot(tx - float(x[0]), ty - float(x[1])),
             prompts=self.pipeline.st.prompt_count,
             landmark_updates=self.pipeline.st.landmark_updates,
+            relocalisations=self.pipeline.counts["relocalisations"],
+            lost_episodes=self.pipeline.counts["lost_episodes"],
             decisions=self.pipeline.navigator.decisions,
             png=png,
             sim_s=world.t_s,
@@ -495,6 +498,7 @@ def drive_pipeline_config(
         "compass_deviation_deg": (),
         "expected_rates_hz": rates,
         "stop_at_arrival": opts.duration_s is None,
+        "relocalise": opts.relocalise and opts.density_per_km2 > 0.0,
         # the car knows its matcher's recall: the world's detection rate
         "chance": replace(
             base.chance if base is not None else ChanceSettings(),

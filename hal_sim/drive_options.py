@@ -72,6 +72,11 @@ class DriveOptions:
     duration_s: float | None = None
     """Field protocol (SPEC 5): on arrival a new random goal is set and driving goes on until
     this much simulated time has passed; being lost does not stop it (soak runs)."""
+    relocalise: bool = True
+    """A car with landmarks finds itself again while lost (the world's sightings stand for the
+    whole-database search; with ``camera_hz`` the real recogniser searches): being lost does not
+    end the drive, it goes on until the car arrives or the cap. False (``--no-relocalise``):
+    the paper's definition, a lost car's trip ends there."""
 
 
 @dataclass
@@ -100,6 +105,10 @@ class DriveResult:
     lowest_chance: float | None = None
     frames_sent: int = 0
     compass_lines: int = 0
+    relocalisations: int = 0
+    """Places found by a whole-database search while lost (the position reset there)."""
+    lost_episodes: int = 0
+    """Times the car was declared lost."""
 
     def to_json(self) -> dict[str, Any]:
         return {
@@ -108,6 +117,8 @@ class DriveResult:
             "final_error_m": round(self.final_error_m, 3),
             "prompts": self.prompts,
             "landmark_updates": self.landmark_updates,
+            "relocalisations": self.relocalisations,
+            "lost_episodes": self.lost_episodes,
             "decisions": self.decisions,
             "png": self.png,
             "wav": self.wav,

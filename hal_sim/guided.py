@@ -23,7 +23,15 @@ from dataclasses import dataclass, field, replace
 
 from drivers.can_odometry import MAX_GAP_S
 from drivers.keyboard import CoDriverLines
-from guidance.core.messages import Approach, HeadingFix, LandmarkFix, Prompt, WheelOdometry
+from guidance.core.estimator import RELOCALISED
+from guidance.core.messages import (
+    Approach,
+    HeadingFix,
+    LandmarkFix,
+    Prompt,
+    WheelOdometry,
+    reset_sigma_m,
+)
 from guidance.core.model import CHI2_2D_2SIGMA, mahalanobis_sq_2d, wrap_angle
 from guidance.core.pipeline import Input, Pipeline
 from hal_sim import world as world_mod
@@ -50,6 +58,10 @@ class GuidedTrip:
     inside: list[tuple[float, bool]] = field(default_factory=list)
     """(t, truth inside the 2-sigma ellipse) per truth sample."""
     exits_not_followed: int = 0
+    relocalisations: list[tuple[float, bool]] = field(default_factory=list)
+    """(t, truth inside the reset 2-sigma ellipse) per relocalisation: False is a false one."""
+    lost_at: list[float] = field(default_factory=list)
+    """When the car was declared lost (each episode)."""
 
     def check(self) -> CheckResult:
         return check(self.truth, self.reports, self.prompts)
@@ -83,8 +95,17 @@ def guided_drive(
     def feed(msg: Input) -> None:
         if isinstance(msg, Approach):  # the co-driver's distances place it for the oracle too
             trip.reports.append(Report(msg.t_s, msg.distance_m))
+        was_lost = pipeline.st.lost_said
         out = pipeline.feed(msg)
+        found = out.reason == RELOCALISED or was_lost
+        if isinstance(msg, LandmarkFix) and out.accepted and found:
+            tx, ty, _ = world.truth
+            x, P = pipeline.estimator.x, pipeline.estimator.P
+            d2 = mahalanobis_sq_2d(tx - x[0], ty - x[1], P[0, 0], P[0, 1], P[1, 1])
+            trip.relocalisations.append((msg.t_s, d2 <= CHI2_2D_2SIGMA))
         for pr in out.prompts:
+            if pr.kind == "lost":
+                trip.lost_at.append(pr.t_s)
             trip.prompts.append(SpokenPrompt(pr.t_s, pr.text, pr.kind))
             if on_prompt is not None:
                 on_prompt(pr)
@@ -126,7 +147,9 @@ def guided_drive(
             feed(HeadingFix(t, ev.heading_rad))
         if ev.landmark is not None:
             x, y = world.lm_xy[ev.landmark]
-            feed(LandmarkFix(t, ev.landmark, float(x), float(y), sigma))
+            searching = pipeline.config.relocalise and pipeline.st.lost_said
+            s = reset_sigma_m(world.sim.sighting_range_m, 0.0) if searching else sigma
+            feed(LandmarkFix(t, ev.landmark, float(x), float(y), s, searching))
         pipeline.tick(t)
         if world.step_count % TRUTH_EVERY == 0:
             _sample(trip, world.truth, t, pipeline)

@@ -31,7 +31,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 from guidance.core.model import wrap_angle
-from guidance.core.prompts import METRES_PER_FOOT, METRES_PER_MILE, manoeuvre
+from guidance.core.prompts import BEARINGS, METRES_PER_FOOT, METRES_PER_MILE, manoeuvre
 
 TURN_WINDOW_M = 25.0
 """The true turn at an intersection: the mean heading over 15 m from this far after it minus
@@ -143,6 +143,9 @@ class CheckResult:
     repeats: list[Finding] = field(default_factory=list)
     unchecked: int = 0
     """Turn prompts about an intersection the truth does not reach (the drive ended first)."""
+    coarse: int = 0
+    """Manoeuvres said truly but coarser than their name (a side, or a direction), the
+    heading being too uncertain for the name."""
 
     @property
     def distance_ok_frac(self) -> float:
@@ -160,7 +163,7 @@ class CheckResult:
         self.drives += other.drives
         self.km += other.km
         for name in ("turn_prompts", "manoeuvres_checked", "distances_checked", "distances_ok",
-                     "turns", "unchecked"):  # fmt: skip
+                     "turns", "unchecked", "coarse"):  # fmt: skip
             setattr(self, name, getattr(self, name) + getattr(other, name))
         for name in ("wrong", "bad_distances", "unannounced", "margins_s", "late", "repeats"):
             getattr(self, name).extend(getattr(other, name))
@@ -183,7 +186,8 @@ class CheckResult:
             f"{self.drives} drive(s), {self.km:.1f} km, {self.turn_prompts} turn prompts "
             f"({self.prompts_per_km:.1f} per km), {self.turns} turns",
             f"wrong manoeuvre: {len(self.wrong)} of {self.manoeuvres_checked} "
-            f"({100 * self.wrong_rate:.1f} %)",
+            f"({100 * self.wrong_rate:.1f} %); said coarser than the name (heading uncertain): "
+            f"{self.coarse}",
             f"spoken distances within max({DIST_ABS_M:.0f} m, {100 * DIST_REL:.0f} %): "
             f"{self.distances_ok} of {self.distances_checked} "
             f"({100 * self.distance_ok_frac:.1f} %)",
@@ -258,19 +262,22 @@ def check(
         merged.append(place)
         given[place] = next((pl[2] for pl in c if pl[2] is not None), None)
     true_turn: dict[float, float] = {}
+    true_after: dict[float, float] = {}
     for i, s in enumerate(merged):
-        exact = given[s]
-        if exact is not None:
-            true_turn[s] = exact
-            continue
         # On the track: the settled heading before it, and near the next one (a dead end's
         # U-turn takes tens of metres to settle on the road back).
         end = min(merged[i + 1] if i + 1 < len(merged) else math.inf, s + 80.0)
         after0 = max(s + TURN_WINDOW_M, end - 20.0)
-        if after0 + 12.0 > path.length_m:
+        if after0 + 12.0 <= path.length_m:
+            true_after[s] = path.mean_heading(after0, after0 + 12.0)
+        exact = given[s]
+        if exact is not None:
+            true_turn[s] = exact
+            continue
+        if s not in true_after:
             continue
         before = path.mean_heading(s - TURN_WINDOW_M - 15.0, s - TURN_WINDOW_M)
-        true_turn[s] = wrap_angle(path.mean_heading(after0, after0 + 12.0) - before)
+        true_turn[s] = wrap_angle(true_after[s] - before)
     last_prompt: dict[float, float] = {}
     last_text: dict[str, float] = {}
     turn_prompts = [p for p in prompts if p.kind == "turn"]
@@ -294,8 +301,10 @@ def check(
             s_int = merged[k + part]
             truth_action = manoeuvre(true_turn[s_int])
             res.manoeuvres_checked += 1
-            if action.lower() != truth_action.lower():
+            if not _words_true(action.lower(), truth_action.lower(), true_after.get(s_int)):
                 res.wrong.append(Finding(p.t_s, p.text, f"the car then made: {truth_action}"))
+            elif action.lower() != truth_action.lower():
+                res.coarse += 1
             if part == 0:
                 last_prompt[s_int] = p.t_s
             if dist is not None:
@@ -319,6 +328,29 @@ def check(
         if margin < MIN_MARGIN_S:
             res.late.append(Finding(said, "", f"last prompt {margin:.1f} s before the turn"))
     return res
+
+
+def _words_true(action: str, truth_action: str, after_rad: float | None) -> bool:
+    """The spoken manoeuvre against the turn the car made: its exact name; "go left" / "go
+    right" for any left / right turn short of a U-turn; "take the road towards the X" when
+    the road the car then took heads within ``BEARING_TOL_DEG`` of X."""
+    if action == truth_action:
+        return True
+    if action in ("go left", "go right"):
+        return truth_action != "make a u-turn" and truth_action.endswith(action[3:])
+    if action.startswith(_TOWARDS) and after_rad is not None:
+        name = action[len(_TOWARDS) :]
+        if name not in BEARINGS:
+            return False
+        named = math.radians(90.0 - 45.0 * BEARINGS.index(name))
+        return abs(math.degrees(wrap_angle(after_rad - named))) <= BEARING_TOL_DEG
+    return False
+
+
+_TOWARDS = "take the road towards the "
+BEARING_TOL_DEG = 30.0
+"""A named direction is right when the road taken heads within this of it: half the 45
+degrees between two names, and 7.5 degrees for the true track's wobble over 12 m."""
 
 
 def from_recording(path: str | Path) -> CheckResult:

@@ -113,6 +113,12 @@ def register(sub: Any) -> None:
     p.add_argument("--no-record", action="store_true", help="no MCAP recording")
     p.add_argument("--no-png", action="store_true", help="no PNG")
     p.add_argument(
+        "--no-relocalise",
+        action="store_true",
+        help="a lost car stops there (the paper's definition); by default a car with landmarks "
+        "looks for itself again and drives on",
+    )
+    p.add_argument(
         "--can-silent",
         type=_window,
         default=None,
@@ -174,6 +180,8 @@ def _cli_sim(args: argparse.Namespace) -> int:
         changes["record"] = False
     if args.no_png:
         changes["png"] = False
+    if args.no_relocalise:
+        changes["relocalise"] = False
     opts = replace(opts, **changes)
 
     drive_and_report(opts, app_config, as_json=args.json)

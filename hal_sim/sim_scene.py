@@ -19,7 +19,7 @@ from collections.abc import Callable
 from typing import Any
 
 from guidance.core.co_driver import EXIT_TOKENS
-from guidance.core.messages import Approach, IntersectionScene, LandmarkFix
+from guidance.core.messages import Approach, IntersectionScene, LandmarkFix, reset_sigma_m
 from guidance.core.model import wrap_angle
 from hal_sim import world
 from hal_sim.sim_world import SimWorld, StepEvents
@@ -171,9 +171,13 @@ class SimSightings:
     def stats(self) -> dict[str, int]:
         return dict(self._counts)
 
-    def sighted(self, t_s: float, k: int) -> LandmarkFix:
+    def sighted(self, t_s: float, k: int, *, relocalised: bool = False) -> LandmarkFix:
+        """Landmark ``k`` sighted; ``relocalised``: the car is lost, and the sighting stands
+        for a whole-database search's find (the sighting range and the landmark's sigma are
+        the fix's sigma either way: ``landmark_sigma_m``)."""
         x, y = self.world.lm_xy[k]
-        fix = LandmarkFix(t_s, k, float(x), float(y), self.sigma_m)
+        sigma = reset_sigma_m(self.world.sim.sighting_range_m, 0.0) if relocalised else self.sigma_m
+        fix = LandmarkFix(t_s, k, float(x), float(y), sigma, relocalised)
         self._counts["sightings"] += 1
         if self._sink is not None:
             self._sink(fix)

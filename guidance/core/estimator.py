@@ -169,6 +169,14 @@ BIAS_TURN_STEP_RAD = math.radians(10.0)
 straight drive (which cancel) do not add up as if they were turns."""
 
 
+LOST_HYSTERESIS = 0.8
+"""Lost once the 2-sigma major axis passes ``lost_major_axis_m``; found again only once it is
+back below this fraction of it (the pipeline says each once; a relocalisation resets while the
+axis is above it)."""
+RELOCALISED = "relocalised"
+"""``StepResult.reason`` of an accepted landmark fix that reset the position (``_relocalise``)."""
+
+
 @dataclass(frozen=True, slots=True)
 class StepResult:
     """What one input did to the estimate."""
@@ -570,11 +578,34 @@ class PoseEstimator:
             self._kf.x, self._kf.P, msg.x_m, msg.y_m, var
         )
         d2 = model.mahalanobis_sq_2d(y0, y1, s00, s01, s11)
+        if msg.relocalised and self.major_axis_m > LOST_HYSTERESIS * cfg.lost_major_axis_m:
+            self._relocalise(msg.x_m, msg.y_m, var)
+            return StepResult(kind, True, RELOCALISED, d2)
         if d2 > cfg.landmark_gate_chi2:
             return self._reject(kind, "landmark_gate", d2)
         self._kf.update(z, _H_position, _h_position, R=R)
         self._kf.x[2] = model.wrap_angle(float(self._kf.x[2]))
         return StepResult(kind, True, None, d2)
+
+    def _relocalise(self, x_m: float, y_m: float, var: float) -> None:
+        """A place found by a whole-database search while lost (outside the estimate's gate an
+        update would be refused; inside it, the lost mean and its correlations would still pull
+        the result: the estimate's mean is what failed). The fix's sigma for a reset is the
+        sighting range plus the place's own sigma (``LandmarkFix.relocalised``), so the
+        2-sigma ellipse holds every point the place can be seen from.
+        The position restarts at the place with the fix's variance on each axis, uncorrelated
+        with every other state (what the odometry said of the position is what is discarded);
+        the heading and the car's error states keep their means and variances (the filter's
+        own account of them: a heading that drifted without a compass is as wide as it was)."""
+        x = np.array(self._kf.x, dtype=float)
+        P = np.array(self._kf.P, dtype=float)
+        x[0], x[1] = x_m, y_m
+        P[:2, :] = 0.0
+        P[:, :2] = 0.0
+        P[0, 0] = P[1, 1] = var
+        self._kf.x = x
+        self._kf.P = P
+        self.accepted["relocalisations"] += 1
 
     def _check_finite(self, x_before: np.ndarray, P_before: np.ndarray) -> bool:
         """After a non-finite result, go back to the last finite pose with a "lost" covariance."""

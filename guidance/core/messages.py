@@ -50,7 +50,16 @@ class LandmarkFix:
     relocalised: bool = False
     """The place was found by a search of the whole database, not inside the estimate's
     gate (the car was lost, or started with no position): the pipeline resets the position
-    around it instead of updating (an update would be refused by the gate)."""
+    around it instead of updating (an update would be refused by the gate). Its ``sigma_m``
+    is then the sighting range plus the place's own sigma (``reset_sigma_m``): the car is
+    anywhere the place can be seen from, its first sight often at the edge of that range."""
+
+
+def reset_sigma_m(sighting_range_m: float, position_sigma_m: float) -> float:
+    """1-sigma of a relocalisation's reset: the whole sighting range plus the place's survey
+    error, so the 2-sigma ellipse holds every point within the range (a first sight is at its
+    edge; ``r / 2``, an ordinary fix's share of the range, would put it on the ellipse)."""
+    return sighting_range_m + position_sigma_m
 
 
 @dataclass(frozen=True, slots=True)

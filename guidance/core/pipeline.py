@@ -25,7 +25,7 @@ import numpy as np
 from guidance.core import prompts
 from guidance.core.chance import ChanceWatch, shipped_or_none
 from guidance.core.compass_cal import CompassCalibration, compass_heading_to_theta
-from guidance.core.estimator import PoseEstimator
+from guidance.core.estimator import LOST_HYSTERESIS, RELOCALISED, PoseEstimator
 from guidance.core.guide import Guide
 from guidance.core.health import (
     CompassJudge,
@@ -57,7 +57,7 @@ from guidance.core.turns import TurnDetector
 log = logging.getLogger(__name__)
 
 
-UNCERTAIN_HYSTERESIS = 0.8
+UNCERTAIN_HYSTERESIS = LOST_HYSTERESIS
 """The uncertainty warning re-arms once the major axis is back below this fraction of it."""
 HEALTH_EVAL_PERIOD_S = 0.25
 """Health is re-evaluated at most this often on the message clock."""
@@ -224,6 +224,7 @@ class Pipeline:
         turn = self.turns.update(msg.t_s, est.heading_rad, self.st.odometer_m)
         if turn is not None:
             out.turns.append(turn)
+        self.guide.reckoning = False
         self.guide.step(msg.t_s, est, self.st.odometer_m, turn, out)
         self._after_step(msg.t_s, out)
 
@@ -248,7 +249,8 @@ class Pipeline:
         self.st.odometer_m += moved
         self.tr.dr_m += moved
         self.tr.dr_to_t = t
-        if out is not None:  # the intersections ahead move on with it (announcements due)
+        self.guide.reckoning = True
+        if out is not None:  # the intersections ahead move on with it (turns detected)
             self.guide.step(t, est, self.st.odometer_m, None, out)
 
     def _heading(self, fix: HeadingFix, out: Outputs) -> None:
@@ -273,6 +275,7 @@ class Pipeline:
         self._after_step(fix.t_s, out)
 
     def _landmark(self, fix: LandmarkFix, out: Outputs) -> None:
+        was_lost = self.st.lost_said
         r = self.estimator.process(fix)
         out.accepted, out.reason = r.accepted, r.reason
         if r.accepted:
@@ -281,7 +284,15 @@ class Pipeline:
             self.navigator.on_landmark_fix(fix.landmark_id, self.estimator.major_axis_m)
             name = next((lm.name for lm in self.config.landmarks if lm.id == fix.landmark_id), "")
             last = self.st.landmark_said.get(str(fix.landmark_id), -math.inf)
-            if fix.t_s - last >= LANDMARK_REPEAT_S:  # a second fix from the same pass: silent
+            if r.reason == RELOCALISED or was_lost:  # found again: said by the place's name
+                self.counts["relocalisations"] += 1
+                self.st.landmark_said[str(fix.landmark_id)] = fix.t_s
+                self.turns.reset()  # the heading history before the jump says nothing now
+                how = "reset there" if r.reason == RELOCALISED else "inside the lost ellipse"
+                log.warning("position found again near landmark %d %r (%s)",
+                            fix.landmark_id, name, how)  # fmt: skip
+                self._say(out, fix.t_s, prompts.position_found(name), Priority.SAFETY, "found")
+            elif fix.t_s - last >= LANDMARK_REPEAT_S:  # a second fix from the same pass: silent
                 self.st.landmark_said[str(fix.landmark_id)] = fix.t_s
                 self._say(out, fix.t_s, prompts.landmark_confirmed(name), Priority.INFO, "landmark")
             self._after_step(fix.t_s, out, mode_done=True)
@@ -346,10 +357,12 @@ class Pipeline:
             out.lost = True
             if not self.st.lost_said:
                 self.st.lost_said = True
-                self._say(out, t, prompts.lost(), Priority.SAFETY, "lost")
-                if self.config.stop_at_arrival:
+                self.counts["lost_episodes"] += 1
+                searching = self.config.relocalise
+                self._say(out, t, prompts.lost(searching), Priority.SAFETY, "lost")
+                if self.config.stop_at_arrival and not searching:
                     self.st.finished = True
-        elif self.st.lost_said and major < UNCERTAIN_HYSTERESIS * est.config.lost_major_axis_m:
+        elif self.st.lost_said and major < LOST_HYSTERESIS * est.config.lost_major_axis_m:
             self.st.lost_said = False
         if not lost and not self.st.arrived and self.navigator.arrived(est.x):
             self.st.arrived = True

@@ -98,7 +98,12 @@ class PipelineConfig:
     uncertain_warn_m: float = 50.0
     """Say "position uncertain" when the major axis grows past this."""
     stop_at_arrival: bool = False
-    """Arrival ends guidance (a simulated trip); otherwise the car waits for a new goal."""
+    """Arrival ends guidance (a simulated trip); otherwise the car waits for a new goal. Being
+    lost ends it too, unless the car can find itself again (``relocalise``)."""
+    relocalise: bool = False
+    """The car has a camera and a landmark database, whose whole-database search runs while
+    it is lost: being lost does not end a simulated trip; a place found resets the position
+    (``LandmarkFix.relocalised``) and guidance replans from there."""
     resume_gap_inflation: bool = True
     """After an odometry silence, inflate the position by the distance possibly driven."""
     chance: ChanceSettings = field(default_factory=ChanceSettings)

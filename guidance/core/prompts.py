@@ -78,19 +78,55 @@ def manoeuvre(turn_rad: float) -> str:
     return "make a U-turn"
 
 
+BEARINGS = ("north", "north-east", "east", "south-east", "south", "south-west", "west",
+            "north-west")  # fmt: skip
+"""The eight directions a road is named by when not even its side is known (45 degrees each)."""
+
+
+def bearing_word(heading_rad: float) -> str:
+    """A heading (CCW from east) as the nearest of ``BEARINGS`` (clockwise from north)."""
+    bearing = (90.0 - math.degrees(heading_rad)) % 360.0
+    return BEARINGS[int((bearing + 22.5) // 45.0) % 8]
+
+
+def manoeuvre_within(turn_rad: float, band_rad: float, exit_heading_rad: float) -> str:
+    """What can be said truly of a turn known to within +-``band_rad`` (the approach heading's
+    uncertainty): its name (``manoeuvre``) when every turn in the band has that name; else
+    its side ("go left", "go right") when every turn in the band is a left (or a right) turn
+    short of a U-turn; else the direction of the road to take ("take the road towards the
+    north-east", from ``exit_heading_rad``, which the scene gives without the car's heading
+    error)."""
+    name = manoeuvre(turn_rad)
+    if not band_rad > 0.0:
+        return name
+    steps = max(2, int(math.degrees(min(band_rad, math.pi)) // 1.0) + 1)
+    names = {
+        manoeuvre(turn_rad + band_rad * (2.0 * k / steps - 1.0)) for k in range(steps + 1)
+    }
+    if names == {name}:
+        return name
+    for side in ("left", "right"):
+        if all(n.endswith(side) for n in names):
+            return f"go {side}"
+    return f"take the road towards the {bearing_word(exit_heading_rad)}"
+
+
 def turn_prompt(
     turn_rad: float,
     distance_m: float | None = None,
     units: Units = Units.METRIC,
     then_turn_rad: float | None = None,
     then_gap_m: float | None = None,
+    *,
+    action: str | None = None,
 ) -> str:
     """'At the next intersection, turn left', 'In 200 metres, turn right', 'Continue straight'.
 
     A second turn closer than ``THEN_MAX_GAP_M`` after the first is appended
-    ('..., then turn right').
+    ('..., then turn right'). ``action``: the words for the turn when they are not its plain
+    name (``manoeuvre_within``).
     """
-    action = manoeuvre(turn_rad)
+    action = manoeuvre(turn_rad) if action is None else action
     if action == "continue straight" and distance_m is None:
         text = "Continue straight"
     elif distance_m is None:
@@ -155,8 +191,19 @@ def arrived() -> str:
     return "You have arrived at your destination"
 
 
-def lost() -> str:
+def lost(searching: bool = False) -> str:
+    """Said once when the position is lost; a car that looks for itself again says so."""
+    if searching:
+        return "Position lost. Guidance is unreliable; looking for a known place"
     return "Position lost. Guidance is unreliable; stop when safe"
+
+
+def position_found(name: str = "") -> str:
+    """A relocalisation: the place the whole-database search found, by its name."""
+    spoken = name.strip()
+    if not spoken or _looks_like_an_id(spoken):
+        return "Position found again at a known landmark"
+    return f"Position found again near {spoken}"
 
 
 def sensor_warning(sensor: str, problem: str) -> str:

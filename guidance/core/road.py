@@ -36,6 +36,9 @@ class Ahead:
     """Where it is along the road (the pipeline's odometer); None: unknown (the co-driver)."""
     approach_heading_rad: float | None = None
     """The heading of the road it is approached on, once known (estimate frame)."""
+    approach_estimated: bool = False
+    """The approach heading is the car's own estimated heading (its uncertainty is the
+    estimate's), not an exit heading the scene gave (exact in the scene's frame)."""
     decision: Decision | None = None
     announced: set[str] = field(default_factory=set)
     """Announcements made for it: "now" (distance unknown), "early", "before", "then"."""
@@ -98,6 +101,7 @@ class Ahead:
             relative=bool(data.get("relative")),
             at_odometer_m=opt("at_odometer_m"),
             approach_heading_rad=opt("approach_heading_rad"),
+            approach_estimated=bool(data.get("approach_estimated", False)),
             decision=decision,
             announced={str(a) for a in announced} if isinstance(announced, list) else set(),
             said=str(data.get("said", ""))[:40],

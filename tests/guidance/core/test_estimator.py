@@ -9,7 +9,7 @@ import pytest
 from scipy.stats import chi2
 
 from guidance.core import model
-from guidance.core.estimator import REANCHOR_AFTER, EstimatorConfig, PoseEstimator
+from guidance.core.estimator import REANCHOR_AFTER, EstimatorConfig, PoseEstimator, car_model
 from guidance.core.messages import HeadingFix, LandmarkFix, WheelOdometry
 
 TRACK = 1.72
@@ -346,3 +346,32 @@ def test_the_camber_process_adds_its_heading_walk_and_nothing_when_off() -> None
     extra = model.camber_heading_var(800.0 * 1.001, 2e-4, 300.0, 1.6)
     assert p1[2, 2] - p0[2, 2] == pytest.approx(extra, rel=1e-6)
     assert np.array_equal(p0, p2)
+
+
+def test_a_relocalised_fix_while_lost_resets_the_position_and_keeps_the_heading() -> None:
+    """Issue 36: a whole-database find while lost, far outside the estimate's gate, restarts
+    the position at the place with the fix's sigma (uncorrelated with every other state); the
+    heading and its variance are kept. The same fix on a car that is not lost is gated as any
+    other, so a wrong find cannot move a good estimate."""
+    from guidance.core.estimator import RELOCALISED
+    from guidance.core.messages import LandmarkFix as Fix
+
+    est = PoseEstimator(car_model(EstimatorConfig(), calibrated=False), 0.0, 0.0, 0.3)
+    P = est.P
+    P[0, 0] = P[1, 1] = 400.0**2  # lost: a 1.6 km ellipse
+    P[0, 2] = P[2, 0] = 50.0
+    est.set_state(est.x, P)
+    assert est.lost
+    heading, heading_var = est.heading_rad, est.P[2, 2]
+    r = est.process(Fix(1.0, 4, 3000.0, -2000.0, 20.0, relocalised=True))
+    assert r.accepted and r.reason == RELOCALISED
+    x, P = est.x, est.P
+    assert (x[0], x[1]) == (3000.0, -2000.0) and not est.lost
+    assert P[0, 0] == P[1, 1] == 400.0 and P[0, 1] == 0.0
+    assert np.all(P[:2, 2:] == 0.0) and np.all(P[2:, :2] == 0.0)
+    assert est.heading_rad == heading and P[2, 2] == heading_var
+    # not lost now: the same far find is refused by the gate, an ordinary fix
+    far = est.process(Fix(2.0, 5, 9000.0, 9000.0, 20.0, relocalised=True))
+    assert not far.accepted and far.reason == "landmark_gate"
+    near = est.process(Fix(3.0, 4, 3005.0, -2003.0, 20.0, relocalised=True))
+    assert near.accepted and near.reason is None  # inside the gate: an update

@@ -90,3 +90,23 @@ def test_event_phrases() -> None:
 def test_bad_distance_is_an_error(bad: float) -> None:
     with pytest.raises(ValueError):
         prompts.format_distance(bad)
+
+
+def test_a_manoeuvre_is_named_only_when_the_heading_band_keeps_its_name() -> None:
+    """Issue 36: with the approach heading known to +-band, the name when every turn in the
+    band has it; else the side; else the road's direction (which the scene gives exactly)."""
+    from guidance.core.prompts import bearing_word, manoeuvre_within
+
+    east, north = 0.0, math.pi / 2
+    assert manoeuvre_within(math.radians(90), 0.0, north) == "turn left"
+    assert manoeuvre_within(math.radians(90), math.radians(20), north) == "turn left"
+    assert manoeuvre_within(math.radians(90), math.radians(40), north) == "go left"
+    assert manoeuvre_within(math.radians(-90), math.radians(60), east) == "go right"
+    assert manoeuvre_within(0.0, math.radians(10), east) == "continue straight"
+    assert manoeuvre_within(0.0, math.radians(30), east) == "take the road towards the east"
+    assert manoeuvre_within(math.radians(90), math.radians(80), north) == (
+        "take the road towards the north"
+    )
+    assert [bearing_word(math.radians(a)) for a in (0, 45, 90, 180, 270, -44)] == [
+        "east", "north-east", "north", "west", "south", "south-east"]  # fmt: skip
+    assert prompts.turn_prompt(0.5, 200.0, action="go left") == "In 200 metres, go left"
