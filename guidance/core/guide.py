@@ -268,6 +268,9 @@ class Guide:
             self.counts["resolved_undecided"] += 1
             return
         best = min(d.options, key=lambda o: abs(wrap_angle(o.heading_rad - heading))).index
+        if best != d.exit_index and source != "co-driver" and self._heading_cannot_tell(d):
+            best = d.exit_index  # the heading cannot tell the exits apart: as advised
+            self.counts["exit_assumed_followed"] += 1
         followed = best == d.exit_index
         if not followed:
             self.counts["advice_not_followed"] += 1
@@ -515,6 +518,16 @@ class Guide:
             return False  # the road ahead never comes within the radius
         enter = along - math.sqrt(r * r - off2)  # where the road enters the circle
         return enter <= ahead - ARRIVE_MARGIN_M
+
+    def _heading_cannot_tell(self, d: Decision) -> bool:
+        """The estimate's heading is too uncertain to say which exit the car took: within
+        ``WORD_SIGMAS`` of it lies the advised exit's boundary with a neighbour (half the
+        angle between them). The driver is then taken to have done as told (a co-driver's
+        report says otherwise): a lost car's drifted heading must not drop the intersections
+        reported behind the advised one, as if the car had left the road they are on."""
+        h = d.options[d.exit_index].heading_rad
+        gaps = [abs(wrap_angle(o.heading_rad - h)) for o in d.options if o.index != d.exit_index]
+        return bool(gaps) and WORD_SIGMAS * self.heading_sd_rad > 0.5 * min(gaps)
 
     def _announce_target(self, odometer_m: float) -> tuple[int, Ahead | None]:
         """The next intersection still ahead: the first one the car has not reached, once it
