@@ -250,6 +250,12 @@ def print_summary(result: DriveResult, opts: DriveOptions) -> None:
             f"  chance of reaching the goal: {shown(result.chance_at_start)} at the start, "
             f"{shown(result.lowest_chance)} at its lowest\n"
         )
+    if result.lost_episodes:
+        w(
+            f"  lost {result.lost_episodes} time(s); found again {result.relocalisations} time(s)"
+            + ("" if opts.relocalise else " (--no-relocalise: the trip ended at lost)")
+            + "\n"
+        )
     if result.resumed_at_s is not None:
         w(f"  resumed from the checkpoint at {result.resumed_at_s:.1f} s\n")
     for warning in result.health_warnings:

@@ -89,3 +89,28 @@ def test_the_compass_flag_is_given_or_not_no_argv_peeking() -> None:
     assert "compass_deg" not in vars(_parse())
     assert _parse("--compass-deg", "none").compass_deg is None
     assert _parse("--compass-deg", "30").compass_deg == 30.0
+
+
+def test_a_lost_car_finds_itself_again_and_arrives_unless_told_not_to(tmp_path: Path) -> None:
+    """Issue 36, the full ``guidance sim`` stack (CAN frames, the pty compass): a 90 s CAN gap
+    loses the car; with landmarks it drives on, is found again at one and arrives; the JSON
+    summary counts it. ``--no-relocalise`` keeps the paper's definition: the trip ends lost."""
+    import json
+    import subprocess
+    import sys
+
+    def sim(*extra: str) -> dict[str, object]:
+        out = subprocess.run(
+            [sys.executable, "-m", "guidance.tools.cli", "sim", "--seed", "508", "--compass-deg",
+             "20", "--density", "3", "--can-silent", "30:90", "--json", "--no-voice", "--no-png",
+             "--no-record", "--no-telemetry", "--out", str(tmp_path), *extra],
+            capture_output=True, text=True, timeout=600, check=False,
+        )  # fmt: skip
+        doc: dict[str, object] = json.loads(out.stdout.strip().splitlines()[-1])
+        return doc
+
+    found = sim()
+    assert found["outcome"] == "arrived" and found["lost_episodes"] == 1
+    assert isinstance(found["relocalisations"], int) and found["relocalisations"] >= 1
+    stopped = sim("--no-relocalise")
+    assert stopped["outcome"] == "lost" and stopped["relocalisations"] == 0
