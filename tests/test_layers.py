@@ -331,3 +331,23 @@ def test_the_tests_mirror_the_packages() -> None:
     assert flat <= top_modules, f"move into tests/guidance/<package>/: {sorted(flat - top_modules)}"
     folders = {p.name for p in tests.iterdir() if p.is_dir() and p.name != "__pycache__"}
     assert folders <= packages, f"not a guidance package: {sorted(folders - packages)}"
+
+
+def test_only_the_estimator_moves_its_state() -> None:
+    """ARCHITECTURE-3 (issue 37): the estimator is the only code that moves x and P. Dead
+    reckoning through a gap is its ``coast()``, the learned start its ``adopt()``, a
+    relocalisation its own update; nothing outside it calls ``set_state`` or ``set_pose``."""
+    owner = ROOT / "guidance" / "core" / "estimator.py"
+    calls = []
+    for pkg in ("guidance", "drivers", "landmark_db", "hal_sim"):
+        for p in sorted((ROOT / pkg).rglob("*.py")):
+            if p == owner:
+                continue
+            for node in ast.walk(ast.parse(p.read_text())):
+                if (
+                    isinstance(node, ast.Call)
+                    and isinstance(node.func, ast.Attribute)
+                    and node.func.attr in ("set_state", "set_pose")
+                ):
+                    calls.append(f"{p.relative_to(ROOT)}:{node.lineno} {node.func.attr}")
+    assert not calls, "go through the estimator's own methods:\n" + "\n".join(calls)

@@ -9,16 +9,25 @@ this module adds bookkeeping: time ordering, gates, counters, health, resets.
 
 from __future__ import annotations
 
-import functools
 import math
 from collections import Counter
+from collections.abc import Sequence
 from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
 
 from guidance.core import model, state_limits
+from guidance.core.measurements import (
+    H_heading,
+    H_position,
+    ekf_class,
+    h_heading,
+    h_position,
+    heading_residual,
+)
 from guidance.core.messages import Ellipse, EstimateState, HeadingFix, LandmarkFix, WheelOdometry
+from guidance.core.odometry_gap import dead_reckon
 
 EstimatorInput = WheelOdometry | HeadingFix | LandmarkFix
 
@@ -187,58 +196,6 @@ class StepResult:
     mahalanobis_sq: float | None = None
 
 
-@functools.cache
-def _ekf_class() -> Any:
-    """filterpy's EKF with the odometry motion model as its state transition. filterpy (and
-    the scipy.stats it imports, about a second) is imported when the first estimator is made:
-    what only needs the configuration (a study's workers, ``hal_sim.params``) never waits."""
-    from filterpy.kalman import ExtendedKalmanFilter
-
-    class _Ekf(ExtendedKalmanFilter):
-        x: np.ndarray
-
-        def predict_x(self, u: np.ndarray) -> None:
-            x, y, th = model.motion_predict(self.x[0], self.x[1], self.x[2], u[0], u[1])
-            nxt = np.array(self.x, dtype=float)
-            nxt[0], nxt[1], nxt[2] = x, y, th
-            self.x = nxt
-
-    return _Ekf
-
-
-def _h_heading(x: np.ndarray) -> np.ndarray:
-    if x.shape[0] > model.STATE_BIAS:
-        return np.array([x[2] + x[model.STATE_BIAS]])
-    return np.array([x[2]])
-
-
-def _H_heading(x: np.ndarray) -> np.ndarray:
-    if x.shape[0] > model.STATE_BIAS:
-        return _H_HEADING_CAR
-    return _H_HEADING
-
-
-def _h_position(x: np.ndarray) -> np.ndarray:
-    return np.array([x[0], x[1]])
-
-
-def _H_position(x: np.ndarray) -> np.ndarray:
-    if x.shape[0] > model.N_STATE:
-        return _H_POSITION_CAR
-    return _H_POSITION
-
-
-def _heading_residual(a: np.ndarray, b: np.ndarray) -> np.ndarray:
-    return np.array([model.heading_residual(float(a[0]), float(b[0]))])
-
-
-_H_HEADING = np.array([[0.0, 0.0, 1.0]])
-_H_POSITION = np.array([[1.0, 0.0, 0.0], [0.0, 1.0, 0.0]])
-_H_HEADING_CAR = np.zeros((1, model.N_STATE_CAR))
-_H_HEADING_CAR[0, model.STATE_THETA] = _H_HEADING_CAR[0, model.STATE_BIAS] = 1.0
-_H_POSITION_CAR = np.hstack([_H_POSITION, np.zeros((2, model.N_STATE_CAR - model.N_STATE))])
-
-
 class PoseEstimator:
     """EKF over (x, y, theta) of the rear-axle centre."""
 
@@ -251,7 +208,7 @@ class PoseEstimator:
     ) -> None:
         self.config = config or EstimatorConfig()
         self.n = self.config.n_state
-        self._kf = _ekf_class()(dim_x=self.n, dim_z=1)
+        self._kf = ekf_class()(dim_x=self.n, dim_z=1)
         self._kf.x = np.zeros(self.n)
         self.rejections: Counter[str] = Counter()
         self.accepted: Counter[str] = Counter()
@@ -346,6 +303,26 @@ class PoseEstimator:
         P[1, 1] += var
         x = self.x
         self.set_pose(float(x[0]), float(x[1]), float(x[2]), P)
+
+    def coast(self, speed_mps: float, gap_from_s: float, gap_to_s: float) -> None:
+        """Odometry overdue: move on at ``speed_mps`` along the heading from ``gap_from_s`` to
+        ``gap_to_s`` seconds into the gap, widened along the road and in heading
+        (``guidance.core.odometry_gap.dead_reckon``, the one definition of that step)."""
+        x, P = dead_reckon(self._kf.x, self._kf.P, speed_mps, gap_from_s, gap_to_s)
+        self._kf.x = x
+        self._kf.x[2] = model.wrap_angle(float(x[2]))
+        self._kf.P = P
+
+    def adopt(self, states: Sequence[tuple[int, float, float]]) -> None:
+        """Start error states from known values (a car's learned parameters): each (index,
+        mean, sigma) set, its correlations with the other states cleared."""
+        x, P = self.x, self.P
+        for i, value, sigma in states:
+            x[i] = value
+            P[i, :] = 0.0
+            P[:, i] = 0.0
+            P[i, i] = sigma * sigma
+        self.set_state(x, P)
 
     def state_problem(self) -> str | None:
         """Why this state is not valid (``state_limits``, as a checkpoint is judged), or None."""
@@ -551,7 +528,7 @@ class PoseEstimator:
         if d2 > cfg.compass_gate_chi2:
             return self._reject(kind, "compass_gate", d2)
         self._kf.update(
-            np.array([msg.theta_rad]), _H_heading, _h_heading, R=R, residual=_heading_residual
+            np.array([msg.theta_rad]), H_heading, h_heading, R=R, residual=heading_residual
         )
         self._kf.x[2] = model.wrap_angle(float(self._kf.x[2]))
         return StepResult(kind, True, None, d2)
@@ -583,7 +560,7 @@ class PoseEstimator:
             return StepResult(kind, True, RELOCALISED, d2)
         if d2 > cfg.landmark_gate_chi2:
             return self._reject(kind, "landmark_gate", d2)
-        self._kf.update(z, _H_position, _h_position, R=R)
+        self._kf.update(z, H_position, h_position, R=R)
         self._kf.x[2] = model.wrap_angle(float(self._kf.x[2]))
         return StepResult(kind, True, None, d2)
 

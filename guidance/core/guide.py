@@ -39,7 +39,12 @@ from dataclasses import replace
 import numpy as np
 
 from guidance.core import prompts
-from guidance.core.announce import due_announcements
+from guidance.core.announce import (
+    WORD_SIGMAS,
+    arrives_before,
+    due_announcements,
+    heading_cannot_tell,
+)
 from guidance.core.estimator import PoseEstimator
 from guidance.core.messages import (
     Approach,
@@ -49,7 +54,7 @@ from guidance.core.messages import (
     TurnCompleted,
 )
 from guidance.core.model import wrap_angle
-from guidance.core.navigator import Decision, ExitOption, Navigator
+from guidance.core.navigator import Decision, Navigator
 from guidance.core.pipeline_config import Outputs, PipelineConfig
 from guidance.core.road import Ahead, RoadHistory
 from guidance.core.snapshot_check import integer
@@ -80,15 +85,6 @@ PASS_MARGIN_M = 5.0
 """The next intersection is announced once the car is this far past the one before it."""
 MAX_AHEAD = 4
 """Intersections kept ahead at once (a co-driver who reports far ahead)."""
-ARRIVE_MARGIN_M = 15.0
-"""The goal's own intersection is not announced when the car will be told it has arrived at
-least this far before it (a spoken distance's tolerance: the oracle's 15 m)."""
-WORD_SIGMAS = 3.0
-"""A manoeuvre is named only when every turn within this many heading sigmas of the estimate
-gets the same name (``prompts.manoeuvre_within``): for a Gaussian heading error the name is
-then wrong about once in 370 announcements, where 2 sigmas would be once in 22. Exits typed
-relative to the car (the co-driver's) and approach roads taken from the scene's exits are
-exact and never coarsened."""
 
 Say = Callable[[Outputs, float, str, Priority, str], None]
 
@@ -219,7 +215,8 @@ class Guide:
         if first is not None:
             self._check_resolution(first, t_s, est, odometer_m, turn, out)
         elif turn is not None:
-            log_turn_without_intersection(turn)
+            log.info("turn of %.0f deg with no intersection announced",
+                     math.degrees(turn.heading_change_rad))  # fmt: skip
         self._update(t_s, est, odometer_m, out, force=False)
 
     # -- resolution -----------------------------------------------------------------------------
@@ -239,7 +236,9 @@ class Guide:
         heading = est.heading_rad
         if a.at_odometer_m is not None:
             if a.reached is None and odometer_m >= a.at_odometer_m:
-                a.reached = _reached(est)
+                x, P = est.x, est.P
+                a.reached = (float(x[0]), float(x[1]), float(P[0, 0]), float(P[0, 1]),
+                             float(P[1, 1]))  # fmt: skip
             near = odometer_m >= a.at_odometer_m - cfg.turn_detector.window_m
             if turn is not None and near:
                 self._resolve(a, t_s, heading, "detected", est, out)
@@ -268,7 +267,8 @@ class Guide:
             self.counts["resolved_undecided"] += 1
             return
         best = min(d.options, key=lambda o: abs(wrap_angle(o.heading_rad - heading))).index
-        if best != d.exit_index and source != "co-driver" and self._heading_cannot_tell(d):
+        blind = heading_cannot_tell(d, self.heading_sd_rad)
+        if best != d.exit_index and source != "co-driver" and blind:
             best = d.exit_index  # the heading cannot tell the exits apart: as advised
             self.counts["exit_assumed_followed"] += 1
         followed = best == d.exit_index
@@ -432,7 +432,7 @@ class Guide:
             if keep:  # the same exit, turned relative to today's approach heading
                 self.counts["change_kept"] += 1
                 o = new.options[old.exit_index]
-                a.decision = _with_exit(new, o)
+                a.decision = new.with_exit(o)
                 return
             self.counts["decision_changed"] += 1
         a.decision = new
@@ -449,6 +449,7 @@ class Guide:
             return
         if est is not None and self._arrives_before(a, est, odometer_m):
             self.counts["goal_intersection_not_said"] += 1  # "You have arrived" comes first
+            a.said_exit = a.decision.exit_index  # held as if said: no silent swapping
             return
         if self.reckoning and a.at_odometer_m is not None:
             self.counts["words_withheld_gap"] += 1  # said once the wheels speak again
@@ -456,8 +457,6 @@ class Guide:
         d = a.decision
         band = WORD_SIGMAS * self.heading_sd_rad if a.approach_estimated else 0.0
         action = prompts.manoeuvre_within(d.turn_rad, band, d.exit_heading_rad)
-        if action != prompts.manoeuvre(d.turn_rad):
-            self.counts["words_coarsened"] += 1
         changed = a.said_exit >= 0 and a.said_exit != d.exit_index
         straight = action == "continue straight"
         if a.at_odometer_m is None:
@@ -491,13 +490,11 @@ class Guide:
         self._speak(a, out, t_s, text, action, changed)
 
     def _arrives_before(self, a: Ahead, est: PoseEstimator, odometer_m: float) -> bool:
-        """The car will be told it has arrived at least ``ARRIVE_MARGIN_M`` before it gets to
-        ``a``: its road to ``a`` (the estimate along the approach heading) enters the arrival
-        circle round the goal that far before ``a`` (a turn the car makes before it arrives
-        is announced as any other)."""
+        """The car will be told it has arrived ``ARRIVE_MARGIN_M`` before it gets to ``a``:
+        its road to ``a`` (from the car, or from the intersection before it) enters the arrival
+        circle that far before ``a`` (a turn made before arriving is announced as any other)."""
         if a.at_odometer_m is None or a.approach_heading_rad is None:
             return False
-        gx, gy = self.navigator.goal
         x = est.x
         start, start_odo = (float(x[0]), float(x[1])), odometer_m
         i = self.ahead.index(a) if a in self.ahead else 0
@@ -508,26 +505,9 @@ class Guide:
                     return True
                 start = self._predicted_xy(prev, est, odometer_m)
                 start_odo = prev.at_odometer_m
-        dx, dy = gx - start[0], gy - start[1]
-        ahead = max(0.0, a.at_odometer_m - start_odo)
-        ux, uy = math.cos(a.approach_heading_rad), math.sin(a.approach_heading_rad)
-        along = dx * ux + dy * uy
-        off2 = max(0.0, dx * dx + dy * dy - along * along)
-        r = self.navigator.config.arrival_radius_m
-        if off2 > r * r:
-            return False  # the road ahead never comes within the radius
-        enter = along - math.sqrt(r * r - off2)  # where the road enters the circle
-        return enter <= ahead - ARRIVE_MARGIN_M
-
-    def _heading_cannot_tell(self, d: Decision) -> bool:
-        """The estimate's heading is too uncertain to say which exit the car took: within
-        ``WORD_SIGMAS`` of it lies the advised exit's boundary with a neighbour (half the
-        angle between them). The driver is then taken to have done as told (a co-driver's
-        report says otherwise): a lost car's drifted heading must not drop the intersections
-        reported behind the advised one, as if the car had left the road they are on."""
-        h = d.options[d.exit_index].heading_rad
-        gaps = [abs(wrap_angle(o.heading_rad - h)) for o in d.options if o.index != d.exit_index]
-        return bool(gaps) and WORD_SIGMAS * self.heading_sd_rad > 0.5 * min(gaps)
+        radius = self.navigator.config.arrival_radius_m
+        ahead = a.at_odometer_m - start_odo
+        return arrives_before(self.navigator.goal, radius, start, a.approach_heading_rad, ahead)
 
     def _announce_target(self, odometer_m: float) -> tuple[int, Ahead | None]:
         """The next intersection still ahead: the first one the car has not reached, once it
@@ -552,7 +532,8 @@ class Guide:
         if b.decision is None or a.at_odometer_m is None or b.at_odometer_m is None:
             return None, None
         if est is not None and self._arrives_before(b, est, odometer_m):
-            return None, None  # the car arrives before it: no "then" for it
+            b.said_exit = b.decision.exit_index  # held as if said, but the car arrives first
+            return None, None
         return b.decision.turn_rad, b.at_odometer_m - a.at_odometer_m
 
     def _speak(
@@ -617,19 +598,3 @@ class Guide:
         self.last_said = str(snap.get("last_said", ""))[:40]
         decided = [a.decision for a in self.ahead if a.decision is not None]
         self.last_decision = decided[-1] if decided else None
-
-
-def _reached(est: PoseEstimator) -> tuple[float, float, float, float, float]:
-    x, P = est.x, est.P
-    return float(x[0]), float(x[1]), float(P[0, 0]), float(P[0, 1]), float(P[1, 1])
-
-
-def _with_exit(d: Decision, o: ExitOption) -> Decision:
-    """``d`` with the exit ``o`` chosen (a change the margin did not allow)."""
-    return replace(d, exit_index=o.index, exit_heading_rad=o.heading_rad, turn_rad=o.turn_rad)
-
-
-def log_turn_without_intersection(turn: TurnCompleted) -> None:
-    log.info(
-        "turn of %.0f deg with no intersection announced", math.degrees(turn.heading_change_rad)
-    )

@@ -126,7 +126,6 @@ class LearnedParams:
         variance, its correlations with the others cleared."""
         if est.n <= model.N_STATE:
             return
-        x, P = est.x, est.P
         states = [(model.STATE_SCALE, self.scale, self.scale_sigma),
                   (model.STATE_DIFF, self.diff, self.diff_sigma)]  # fmt: skip
         if (
@@ -138,12 +137,7 @@ class LearnedParams:
                            math.radians(self.compass_bias_sigma_deg)))  # fmt: skip
         if self.turn_scale is not None and self.turn_scale_sigma is not None:
             states.append((model.STATE_TURN, self.turn_scale, self.turn_scale_sigma))
-        for i, value, sigma in states:
-            x[i] = value
-            P[i, :] = 0.0
-            P[:, i] = 0.0
-            P[i, i] = sigma * sigma
-        est.set_state(x, P)
+        est.adopt(states)
 
     def to_dict(self) -> dict[str, object]:
         return {"schema": SCHEMA, **asdict(self)}

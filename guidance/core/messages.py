@@ -11,7 +11,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Callable, Mapping
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from enum import IntEnum, StrEnum
 from typing import Any
 
@@ -325,6 +325,11 @@ class Decision:
     revisit: bool
     mode: str
     reason: str
+
+    def with_exit(self, o: ExitOption) -> Decision:
+        """This decision with the exit ``o`` chosen (a change the margin did not allow)."""
+        return replace(self, exit_index=o.index, exit_heading_rad=o.heading_rad,
+                       turn_rad=o.turn_rad)  # fmt: skip
 
 
 # -- raw device units (the drivers' raw-input hook; the recorder's /can and /nmea) -------------

@@ -48,7 +48,6 @@ from guidance.core.messages import (
     WheelOdometry,
 )
 from guidance.core.navigator import Decision, Navigator
-from guidance.core.odometry_gap import dead_reckon
 from guidance.core.pipeline_config import INPUT_KINDS, Input, Outputs, PipelineConfig
 from guidance.core.pipeline_state import PipelineState, Transient
 from guidance.core.snapshot_check import check_snapshot, integer
@@ -243,8 +242,7 @@ class Pipeline:
         if t <= start:
             return
         est = self.estimator
-        x, P = dead_reckon(est.x, est.P, self.st.speed_mps, start - last, t - last)
-        est.set_state(x, P)
+        est.coast(self.st.speed_mps, start - last, t - last)
         moved = abs(self.st.speed_mps) * (t - start)
         self.st.odometer_m += moved
         self.tr.dr_m += moved
