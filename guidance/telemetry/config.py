@@ -69,6 +69,10 @@ class TelemetryConfig:
     retry_period_s: float = 2.0
     fifo_size: int = 32
     """Decisions and prompts waiting to be sent, per kind; the oldest is dropped beyond."""
+    join_if_taken: bool = field(default=False, metadata=rule(read=False))
+    """Peer mode: when another process holds the listen endpoint, join it as a peer from a
+    free port instead of staying down (``publisher.join_taken``). Not a ``[telemetry]`` key:
+    the simulator sets it, so drives side by side are all seen; a car keeps its endpoint."""
     origin_lat_lon_deg: tuple[float, float] | None = field(default=None, metadata=rule(read=False))
     """WGS-84 origin of the local frame, for the state's ``lat_deg``/``lon_deg``. Not a
     ``[telemetry]`` key: the app's config sets it from ``[start]`` (the simulator from its

@@ -56,6 +56,7 @@ __all__ = [
 ]
 
 LIVELINESS_SCHEMA = "guidance.liveliness/1"
+ALARM_SCHEMA = "guidance.alarm/1"
 
 
 def write_snapshot(view: FleetView, path: Path) -> Path:
@@ -324,6 +325,20 @@ def liveliness_line(view: FleetView, event: TelemetryEvent) -> dict[str, Any]:
     return line
 
 
+def alarm_line(view: FleetView, vehicle_id: str) -> dict[str, Any]:
+    """The ``guidance.alarm/1`` line of a car whose alarm came (``active``) or went: two
+    publishers behind its vehicle id (``guidance.tools.monitor_ids``), with why."""
+    car = view.cars.get(vehicle_id) or view.gone.get(vehicle_id)
+    text = "" if car is None else car.alarm
+    return {
+        "schema": ALARM_SCHEMA,
+        "vehicle_id": vehicle_id,
+        "alarm": "two_publishers",
+        "active": bool(text),
+        "detail": text,
+    }
+
+
 def _json_line(
     client: MonitorClient, view: FleetView, event: TelemetryEvent
 ) -> Mapping[str, Any] | None:
@@ -356,6 +371,8 @@ def _run_json(client: MonitorClient, args: argparse.Namespace) -> int:
             line = None if event is None else _json_line(client, view, event)
             if line is not None:
                 lines.append(json.dumps(line, separators=(",", ":")))
+            for vid in view.take_alarm_changes():
+                lines.append(json.dumps(alarm_line(view, vid), separators=(",", ":")))
             if lines and not client.pending():
                 writer.put("\n".join(lines) + "\n")
                 lines.clear()
