@@ -61,9 +61,8 @@ class _Tracks:
         """Place one message; True when it is evidence of two publishers."""
         if len(self.tracks) == 1:  # the usual case, one publisher: no list built
             only = self.tracks[0]
-            if now_s - only.seen_s <= TRACK_IDLE_S and (
-                (self.by_seq and int(only.last) < int(value)) or only.last == value
-            ):
+            fits = int(only.last) < int(value) if self.by_seq else only.last == value
+            if fits and now_s - only.seen_s <= TRACK_IDLE_S:
                 only.last, only.seen_s = value, now_s
                 return False
         self.tracks = [t for t in self.tracks if now_s - t.seen_s <= TRACK_IDLE_S]
