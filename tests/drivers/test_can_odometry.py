@@ -321,7 +321,7 @@ def test_gm_fallback_needs_fresh_front_frames() -> None:
 
 
 def test_unknown_profile_is_a_user_error() -> None:
-    with pytest.raises(UserError, match="known profiles: acura_ilx_2016_can, .*, vw_pq"):
+    with pytest.raises(UserError, match=r"known profiles: acura_ilx_2016_can, .*, vw_pq"):
         WheelSpeedDecoder("tesla")
 
 
