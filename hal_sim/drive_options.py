@@ -198,6 +198,7 @@ def output_settings(
         wav_path=opts.voice_to or "",
         telemetry=tcfg,
         recording=rcfg,
+        ros2=None if cfg is None else cfg.ros2,
         session=session,
         drain_speech=opts.voice_to is not None,
         speaker_factory=_live_voice if not opts.voice_to and opts.voice != "none" else None,
