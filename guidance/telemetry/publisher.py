@@ -32,6 +32,7 @@ from guidance.telemetry.session import (
     _quiet_close,
     callback_threads,
     goal_sender,
+    no_router_took,
     open_session,
     parse_goal,
     remote_goal_problem,
@@ -356,6 +357,8 @@ class Telemetry(MessageSink):
             return open_session(conf(cfg.listen, cfg.connect)), cfg.listen, cfg.connect
         except UserError as exc:
             joined = join_taken(cfg, str(exc))
+            if joined is None and cfg.mode == "client" and cfg.connect:
+                raise UserError(no_router_took(cfg.connect, str(exc))) from None
             if joined is None:
                 raise
             listen, connect = joined
