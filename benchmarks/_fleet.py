@@ -25,7 +25,8 @@ ROOT = Path(__file__).resolve().parents[1]
 ROUTER = r"""
 import sys, time, zenoh
 from guidance.telemetry.session import open_session, session_config
-conf = session_config(mode="router", listen=[sys.argv[1]])
+mesh = sys.argv[2].split(",") if len(sys.argv) > 2 and sys.argv[2] else []  # linked routers
+conf = session_config(mode="router", listen=[sys.argv[1]], connect=mesh)
 conf.insert_json5("transport/unicast/max_sessions", "10000")
 conf.insert_json5("transport/unicast/accept_pending", "2000")
 s = open_session(conf)
@@ -50,7 +51,8 @@ ids = [f"car{i:04d}" for i in range(first, first + n)]
 cars = []
 for vid in ids:
     if real:  # the car's own publisher: thread, slots, queryable, every kind's publisher
-        tel = Telemetry(TelemetryConfig(vehicle_id=vid, mode="client", connect=(router,)))
+        tel = Telemetry(TelemetryConfig(vehicle_id=vid, mode="client",
+                                        connect=tuple(router.split(","))))
         tel.start()
         cars.append((vid, tel, None, None))
         continue
@@ -65,7 +67,7 @@ for vid in ids:
         continue
     for attempt in range(20 if len(cars) % per_session == 0 else 0):
         try:  # a busy router may refuse while it accepts hundreds
-            s = open_session(session_config(mode="client", connect=[router]))
+            s = open_session(session_config(mode="client", connect=router.split(",")))
             break
         except Exception:
             time.sleep(0.2 + 0.1 * attempt)
