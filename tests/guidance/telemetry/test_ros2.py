@@ -78,12 +78,16 @@ def test_a_subscriber_from_the_document_receives_the_estimate_at_10_hz() -> None
         odo_sub = sub_session.declare_subscriber(
             "0/guidance/odometry/nav_msgs::msg::dds_::Odometry_/*", zenoh.handlers.FifoChannel(256)
         )
+        pose_sub = sub_session.declare_subscriber(
+            "0/guidance/pose/geometry_msgs::msg::dds_::PoseWithCovarianceStamped_/*",
+            zenoh.handlers.FifoChannel(256),
+        )
         fix_sub = sub_session.declare_subscriber(
             "0/guidance/fix/sensor_msgs::msg::dds_::NavSatFix_/*", zenoh.handlers.FifoChannel(256)
         )
         deadline = time.monotonic() + 10.0
         while not all(
-            sink._topics[t].publisher.matching_status.matching for t in ("odometry", "fix")
+            sink._topics[t].publisher.matching_status.matching for t in ("odometry", "pose", "fix")
         ):
             assert time.monotonic() < deadline
             time.sleep(0.05)
@@ -101,6 +105,7 @@ def test_a_subscriber_from_the_document_receives_the_estimate_at_10_hz() -> None
         time.sleep(0.5)
         odos = [odo_sub.handler.recv() for _ in range(20)]
         fixes = [fix_sub.handler.recv() for _ in range(20)]
+        poses = [pose_sub.handler.recv() for _ in range(20)]
     finally:
         sink.close()
         sub_session.close()
@@ -134,6 +139,13 @@ def test_a_subscriber_from_the_document_receives_the_estimate_at_10_hz() -> None
     assert seqs == list(range(1, 21))
     period = np.diff(stamps) / 1e9
     assert np.median(period) == pytest.approx(0.1, abs=0.02)
+    for sample, state in zip(poses, sent, strict=True):
+        pose = ts.deserialize_cdr(
+            sample.payload.to_bytes(), "geometry_msgs/msg/PoseWithCovarianceStamped"
+        )
+        cov = np.array(pose.pose.covariance).reshape(6, 6)
+        assert cov[np.ix_([0, 1, 5], [0, 1, 5])] == pytest.approx(np.array(state["covariance"]))
+        assert len(sample.attachment.to_bytes()) == 33
     for sample, state in zip(fixes, sent, strict=True):
         fix = ts.deserialize_cdr(sample.payload.to_bytes(), "sensor_msgs/msg/NavSatFix")
         assert (fix.latitude, fix.longitude) == pytest.approx((state["lat_deg"], state["lon_deg"]))
@@ -185,3 +197,46 @@ def test_the_ros2_table_is_off_by_default_and_read_from_the_config(tmp_path: Pat
     cfg.write_text(base + '\n[ros2]\nnamespace = "car 7"\n')
     with pytest.raises(UserError, match="ROS namespace"):
         load_config(str(cfg), require_goal=False)
+
+
+def test_the_simulator_with_ros2_enabled_publishes_the_estimate(tmp_path: Path) -> None:
+    """``[ros2] enabled = true`` in the simulator's config: its Odometry reaches a subscriber
+    through a router (the sink wired into the output table, not a second path)."""
+    repo = Path(__file__).resolve().parents[3]
+    endpoint = f"tcp/127.0.0.1:{_free_port()}"
+    cfg = tmp_path / "sim.toml"
+    cfg.write_text(
+        (repo / "config" / "sim.toml")
+        .read_text()
+        .replace("tcp/127.0.0.1:7447", f"tcp/127.0.0.1:{_free_port()}")
+        + f'\n[ros2]\nenabled = true\nmode = "client"\nconnect = ["{endpoint}"]\n'
+    )
+    router = zenoh.open(_conf("router", "listen/endpoints", endpoint))
+    sub_session = zenoh.open(_conf("client", "connect/endpoints", endpoint))
+    sim = None
+    try:
+        sub = sub_session.declare_subscriber(
+            "0/guidance/odometry/nav_msgs::msg::dds_::Odometry_/*", zenoh.handlers.FifoChannel(64)
+        )
+        sim = subprocess.Popen(
+            [sys.executable, "-m", "guidance.tools.cli", "sim", "--config", str(cfg), "--speed",
+             "2", "--no-voice", "--no-record", "--no-png", "--out", str(tmp_path / "out")],
+            cwd=repo, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True,
+        )  # fmt: skip
+        got = []
+        deadline = time.monotonic() + 40.0
+        while len(got) < 5 and time.monotonic() < deadline and sim.poll() is None:
+            sample = sub.handler.try_recv()
+            if sample is None:
+                time.sleep(0.05)
+                continue
+            got.append(typestore().deserialize_cdr(sample.payload.to_bytes(),
+                                                   "nav_msgs/msg/Odometry"))  # fmt: skip
+    finally:
+        if sim is not None:
+            sim.terminate()
+            err = sim.communicate(timeout=30)[1]
+        sub_session.close()
+        router.close()
+    assert len(got) == 5, err[-800:]
+    assert all(np.array(m.pose.covariance)[0] > 0 for m in got)
