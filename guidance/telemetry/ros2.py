@@ -33,6 +33,7 @@ from typing import Any
 
 import zenoh
 
+from guidance.errors import UserError
 from guidance.outputs.sink import Build, MessageSink
 from guidance.telemetry.config import Ros2Config
 from guidance.telemetry.ros2_messages import (
@@ -51,6 +52,8 @@ QOS = "::,10:,:,:,,"
 """rmw_zenoh's compact QoS of the liveliness token: system defaults, keep last 10."""
 ADMIN = "@ros2_lv"
 GID_BYTES = 16
+RETRY_S = 2.0
+"""A session that did not open (client mode, no router yet) is tried again this often."""
 
 
 def topic_name(config: Ros2Config, topic: str) -> str:
@@ -105,12 +108,37 @@ class Ros2Sink(MessageSink):
         self._lock = threading.Lock()
         self.published = 0
         self.errors = 0
+        self._stop = threading.Event()
+        self._retry: threading.Thread | None = None
 
     def start(self) -> Ros2Sink:
+        """Open the session and declare; a router not there yet (client mode) is not the
+        car's failure: logged, and retried every ``RETRY_S`` on a thread of its own."""
+        try:
+            self._open()
+        except UserError as exc:
+            log.warning("ROS 2 down (retrying every %.0f s): %s", RETRY_S, exc)
+            self._retry = threading.Thread(target=self._keep_trying, name="ros2-open", daemon=True)
+            self._retry.start()
+        return self
+
+    def _keep_trying(self) -> None:
+        while not self._stop.wait(RETRY_S):
+            try:
+                self._open()
+            except UserError:
+                continue
+            log.warning("ROS 2 up")
+            return
+
+    def _open(self) -> None:
         cfg = self.config
         session = open_session(
             session_config(mode=cfg.mode, listen=cfg.listen, connect=cfg.connect)
         )
+        if self._stop.is_set():
+            _quiet_close(session)
+            return
         self._session = session
         zid = str(session.zid())
         ns = mangle(cfg.namespace)
@@ -130,9 +158,12 @@ class Ros2Sink(MessageSink):
             ))  # fmt: skip
         names = ", ".join(topic_name(cfg, t) for t in TYPES)
         log.info("ROS 2: %s on domain %d, node %s, zenoh %s", names, cfg.domain_id, cfg.node, zid)
-        return self
 
     def close(self) -> None:
+        self._stop.set()
+        retry, self._retry = self._retry, None
+        if retry is not None:
+            retry.join(RETRY_S + 5.0)
         session, self._session = self._session, None
         self._topics.clear()
         self._tokens.clear()

@@ -240,3 +240,21 @@ def test_the_simulator_with_ros2_enabled_publishes_the_estimate(tmp_path: Path) 
         router.close()
     assert len(got) == 5, err[-800:]
     assert all(np.array(m.pose.covariance)[0] > 0 for m in got)
+
+
+def test_no_router_yet_is_not_the_cars_failure() -> None:
+    """Client mode with the router not up: the sink logs and retries; the car runs on."""
+    endpoint = f"tcp/127.0.0.1:{_free_port()}"
+    sink = Ros2Sink(Ros2Config(enabled=True, mode="client", connect=(endpoint,))).start()
+    router = None
+    try:
+        assert sink.publish("state", 0.0, lambda **_kw: {}) is False
+        router = zenoh.open(_conf("router", "listen/endpoints", endpoint))
+        deadline = time.monotonic() + 10.0
+        while sink._session is None and time.monotonic() < deadline:
+            time.sleep(0.1)
+        assert sink._session is not None, "the sink opened once the router was there"
+    finally:
+        sink.close()
+        if router is not None:
+            router.close()
