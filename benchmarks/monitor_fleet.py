@@ -29,8 +29,15 @@ cars are 1000 sessions over ``--fleet-procs`` processes. Figures: docs/telemetry
     .venv/bin/python benchmarks/monitor_fleet.py --cars 1 10 30 100 --duration 10
     .venv/bin/python benchmarks/monitor_fleet.py --cars 10 100 300 --before 4bf690d
     .venv/bin/python benchmarks/monitor_fleet.py --cars 1000 --fleet-procs 4
+    .venv/bin/python benchmarks/monitor_fleet.py --cars 5 30 --car plain --feed json-late
     .venv/bin/python benchmarks/monitor_fleet.py --router-restart 10
+    .venv/bin/python benchmarks/monitor_fleet.py --cars 5 30 --car plain --feed json-late
     .venv/bin/python benchmarks/monitor_fleet.py --router-restart 1000 --car raw --fleet-procs 4
+
+``--car plain`` publishes as another program would (the stall of issue 41: zenoh's defaults,
+a dict dumped at each put); ``--feed json-late`` reads ``--json``'s output only once the
+window is over, as a script using ``subprocess.communicate`` does: states are counted by
+their ``t_s`` in the window, a gap is between ``t_s``, and ages are not measured.
 
 ``--before REV`` also runs the monitor of git revision REV (its packages extracted
 with ``git archive`` into a temporary directory, first on PYTHONPATH), on the same fleet, and
@@ -42,182 +49,36 @@ from __future__ import annotations
 import argparse
 import json
 import os
-import socket
 import subprocess
 import sys
 import tempfile
 import threading
 import time
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
+from _fleet import (
+    FLEET,
+    REFERENCE,
+    ROOT,
+    ROUTER,
+    Seen,
+    cpu_s,
+    free_port,
+    monitor_proc,
+    read_output,
+    spawn,
+)
 
-ROOT = Path(__file__).resolve().parents[1]
 SETTLE_S = 3.0
 """How long after the monitor first showed a state the window opens: at 1,000 cars its first
 looks take the fleet's replies to its query and the states queued meanwhile (1-2 s old)."""
 STARTUP_S = 20.0
 """The longest a monitor may take to show its first state before the window opens anyway."""
-
-ROUTER = r"""
-import sys, time, zenoh
-from guidance.telemetry.session import open_session, session_config
-conf = session_config(mode="router", listen=[sys.argv[1]])
-conf.insert_json5("transport/unicast/max_sessions", "10000")
-conf.insert_json5("transport/unicast/accept_pending", "2000")
-s = open_session(conf)
-print("up", flush=True)
-sys.stdin.readline()
-s.close()
-"""
-
-FLEET = r"""
-import json, sys, threading, time, zenoh
-from guidance.core.messages import Ellipse, EstimateState, Target
-from guidance.outputs.messages import encode, state_message
-from guidance.telemetry.keys import key_for, liveliness_key
-from guidance.telemetry.session import open_session, session_config
-from guidance.outputs.kinds import STATE, OutputContext
-from guidance.telemetry.config import TelemetryConfig
-from guidance.telemetry.publisher import Telemetry
-router, rate, first, n = sys.argv[1], float(sys.argv[2]), int(sys.argv[3]), int(sys.argv[4])
-real, per_session = sys.argv[5] == "telemetry", int(sys.argv[6])
-EXPRESS = (sys.argv[7] if len(sys.argv) > 7 else "express") == "express"
-ids = [f"car{i:04d}" for i in range(first, first + n)]
-cars = []
-for vid in ids:
-    if real:  # the car's own publisher: thread, slots, queryable, every kind's publisher
-        tel = Telemetry(TelemetryConfig(vehicle_id=vid, mode="client", connect=(router,)))
-        tel.start()
-        cars.append((vid, tel, None, None))
-        continue
-    for attempt in range(20 if len(cars) % per_session == 0 else 0):
-        try:  # a busy router may refuse while it accepts hundreds
-            s = open_session(session_config(mode="client", connect=[router]))
-            break
-        except Exception:
-            time.sleep(0.2 + 0.1 * attempt)
-    else:
-        if len(cars) % per_session == 0:
-            raise SystemExit(f"{vid}: cannot reach the router")
-    pub = s.declare_publisher(key_for(vid, "state"),
-                              congestion_control=zenoh.CongestionControl.DROP, express=EXPRESS)
-    tok = s.liveliness().declare_token(liveliness_key(vid))
-    cars.append((vid, s, pub, tok))
-while real and not all(c[1].health().valid for c in cars):
-    time.sleep(0.05)
-print("up", flush=True)
-sys.stdin.readline()  # go
-cov = ((4.0, 0.1, 0.0), (0.1, 2.0, 0.0), (0.0, 0.0, 0.01))
-ell = Ellipse(4.1, 2.8, 0.3, 8.2)
-period = 1.0 / rate
-stop = threading.Event()
-threading.Thread(target=lambda: (sys.stdin.readline(), stop.set()), daemon=True).start()
-seq, late, starts, templates = 0, 0, [], []
-next_t = time.monotonic()
-while not stop.is_set():
-    next_t += period
-    pause = next_t - time.monotonic()
-    if pause > 0:
-        time.sleep(pause)
-    else:
-        late += 1
-    seq += 1
-    starts.append(time.monotonic())
-    for i, (vid, s, pub, tok) in enumerate(cars):
-        t = time.monotonic()
-        st = EstimateState(t, 10.0 * i + 0.1 * seq, 5.0, 0.5, cov, ell, False, True)
-        if real:
-            s.send(STATE, st, OutputContext(speed_mps=8.0,
-                                            target=Target(300.0, 100.0, "goal", None)))
-            continue
-        if i >= len(templates):  # the real message once, then only t_s, seq and x_m change
-            msg = encode(state_message(EstimateState(-7.5e9, -8.5e9, 5.0, 0.5, cov, ell, False,
-                                                     True), vehicle_id=vid, seq=999999937,
-                                       speed_mps=8.0, target=Target(300.0, 100.0, "goal", None)))
-            templates.append(msg.replace(b"%", b"%%").replace(b'"seq":999999937', b'"seq":%d')
-                             .replace(b'"t_s":-7500000000.0', b'"t_s":%r')
-                             .replace(b'"x_m":-8500000000.0', b'"x_m":%r'))
-        pub.put(templates[i] % (seq, t, 10.0 * i + 0.1 * seq))
-print(json.dumps({"rounds": seq, "late_rounds": late, "first": first, "n": n,
-                  "starts": starts}), flush=True)
-for session in {id(c[1]): c[1] for c in cars}.values():
-    session.close()
-"""
-
-
-REFERENCE = r"""
-import json, sys, zenoh
-from guidance.telemetry.session import open_session, session_config
-s = open_session(session_config(mode="peer", connect=[sys.argv[1]]))
-sub = s.declare_subscriber("guidance/*/state", zenoh.handlers.FifoChannel(1 << 21))
-print("up", flush=True)
-t0, t1 = map(float, sys.stdin.readline().split())  # the window, when it is over
-n = 0
-while (x := sub.handler.try_recv()) is not None:
-    b = x.payload.to_bytes()
-    m = json.loads(b[: b.index(b',"wall_time_unix_s"')] + b"}")
-    n += t0 <= m["t_s"] <= t1
-print(n, flush=True)
-s.close()
-"""
-"""What the router delivered: a subscriber with a big FIFO and no Python on its receiving path,
-read only once the window is over (the monitor's losses are those beyond this one's)."""
-
-
-def free_port() -> int:
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return int(s.getsockname()[1])
-
-
-def _spawn(code: str, *args: str, env: dict[str, str] | None = None) -> subprocess.Popen[str]:
-    return subprocess.Popen(
-        [sys.executable, "-c", code, *args],
-        cwd=ROOT,
-        stdin=subprocess.PIPE,
-        stdout=subprocess.PIPE,
-        text=True,
-        env=env,
-    )
-
-
-@dataclass
-class Seen:
-    """What one monitor printed: per car, (arrival, t_s, seq) of each state line."""
-
-    chunks: list[tuple[float, bytes]] = field(default_factory=list)
-    states: dict[str, list[tuple[float, float, int]]] = field(default_factory=dict)
-    responses: int = 0
-    """Web feed: the /api/fleet responses read."""
-    feed_ages: list[tuple[float, float]] = field(default_factory=list)
-    """Web feed: (arrival, age of a car's state in that response), every car of every one."""
-
-    def showed_a_state(self) -> bool:
-        return bool(self.states) or any(b'"schema":"guidance.state/' in c for _, c in self.chunks)
-
-    def parse(self) -> None:
-        """Each state line's envelope (the first fields, not the whole line), stamped with
-        the arrival of the chunk that completed it."""
-        rest = b""
-        for now, chunk in self.chunks:
-            lines = (rest + chunk).split(b"\n")
-            rest = lines.pop()
-            for line in lines:
-                if not line.startswith(b'{"schema":"guidance.state/'):
-                    continue
-                msg = json.loads(line[: line.index(b',"wall_time_unix_s"')] + b"}")
-                self.states.setdefault(msg["vehicle_id"], []).append((now, msg["t_s"], msg["seq"]))
-
-
-def _read(proc: subprocess.Popen[bytes], seen: Seen) -> None:
-    """Takes the monitor's output as fast as it comes (big reads, parsed afterwards), so
-    this script is never what the monitor waits for."""
-    assert proc.stdout is not None
-    fd = proc.stdout.fileno()
-    while chunk := os.read(fd, 1 << 20):
-        seen.chunks.append((time.monotonic(), chunk))
+LATE_STARTUP_S = 6.0
+"""``--feed json-late``: the monitor's output is not read until the window is over, so the
+window opens this long after the monitor started (its start-up here is 2-3 s)."""
 
 
 @dataclass
@@ -277,48 +138,32 @@ def _poll_web(port: int, seen: Seen, stop: threading.Event, period_s: float = 0.
         stop.wait(max(0.0, next_t - time.monotonic()))
 
 
-def _monitor(
-    router: str, duration: float, pythonpath: str | None, web_port: int | None = None
-) -> subprocess.Popen[bytes]:
-    env = dict(os.environ)
-    if pythonpath:
-        env["PYTHONPATH"] = pythonpath
-    main = ["-c", "import sys; from guidance.tools.cli import main; sys.exit(main())"]
-    if "MONITOR_PROFILE" in env:  # a cProfile of the monitor, for finding where it spends
-        main = ["-m", "cProfile", "-o", env["MONITOR_PROFILE"], str(ROOT / "benchmarks/_cli.py")]
-    return subprocess.Popen(
-        [
-            sys.executable,
-            *main,
-            "monitor",
-            "--connect",
-            router,
-            *(["--json"] if web_port is None else ["--web", f"127.0.0.1:{web_port}"]),
-            "--timeout",
-            f"{duration:g}",
-        ],
-        cwd=pythonpath or ROOT,
-        stdout=subprocess.PIPE,
-        stderr=subprocess.DEVNULL,
-        env=env,
-    )
-
-
 def _stats(
-    label: str, seen: Seen, t0: float, t1: float, starts: dict[str, np.ndarray], cpu: float
+    label: str,
+    seen: Seen,
+    t0: float,
+    t1: float,
+    starts: dict[str, np.ndarray],
+    cpu: float,
+    late: bool = False,
 ) -> Row:
     """Figures over the window [t0, t1] (the fleet publishing, the monitor settled); a car's
-    states expected are the rounds its process published in the window (``starts``)."""
+    states expected are the rounds its process published in the window (``starts``). With
+    ``late`` (the output read only after the window) the states are those stamped in the
+    window, a gap is one between their ``t_s``, and no age is measured (nan)."""
     ids = sorted(starts)
     expected = sum(int(np.sum((st >= t0) & (st <= t1))) for st in starts.values())
     got, gaps, ages = 0, [], []
     grid = np.arange(t0, t1, 0.0173)  # not a divisor of the 0.1 s period
+    at = 1 if late else 0  # the time a state counts at: its t_s, or its arrival
     for vid in ids:
         every = seen.states.get(vid, [])
-        rows = [r for r in every if t0 <= r[0] <= t1]
+        rows = [r for r in every if t0 <= r[at] <= t1]
         got += len({r[2] for r in rows})
-        arrivals = [t0] + [r[0] for r in rows] + [t1]
+        arrivals = [t0] + [r[at] for r in rows] + [t1]
         gaps.append(float(np.max(np.diff(arrivals))))
+        if late:
+            continue
         if not every:
             ages.extend([t1 - t0] * len(grid))
             continue
@@ -327,11 +172,11 @@ def _stats(
         idx = np.searchsorted(arr, grid, side="right") - 1
         shown = np.where(idx >= 0, ts[np.clip(idx, 0, None)], t0 - 2.0)  # none: since start
         ages.extend((grid - shown).tolist())
-    a = np.array(ages)
+    a = np.array(ages or [float("nan")])
     return Row(
         label, len(ids), 100.0 * min(1.0, got / max(1, expected)), float(np.median(gaps)),
         float(np.percentile(a, 50)), float(np.percentile(a, 99)), float(a.max()),
-        100.0 * float(np.mean(a <= 1.0)), cpu,
+        100.0 * float(np.mean(a <= 1.0)) if not late else float("nan"), cpu,
     )  # fmt: skip
 
 
@@ -347,10 +192,11 @@ def run_k(
 ) -> list[Row]:
     port = free_port()
     router_ep = f"tcp/127.0.0.1:{port}"
-    router = _spawn(ROUTER, router_ep)
+    router = spawn(ROUTER, router_ep)
     fleet: list[subprocess.Popen[str]] = []
     rows: list[Row] = []
     windows: list[tuple[str, Seen, float, float, float, list[float]]] = []
+    lates: list[bool] = []
     """(monitor, what it printed, window, its CPU, [router CPU, fleet CPUs..., delivered])"""
     try:
         assert router.stdout is not None and router.stdout.readline().strip() == "up"
@@ -359,7 +205,7 @@ def run_k(
         first = 0
         for n in share:
             fleet.append(
-                _spawn(FLEET, router_ep, f"{rate:g}", str(first), str(n), car, str(per_session))
+                spawn(FLEET, router_ep, f"{rate:g}", str(first), str(n), car, str(per_session))
             )
             first += n
         for p in fleet:
@@ -371,36 +217,49 @@ def run_k(
         time.sleep(1.0)
         for label, path, feed in monitors:  # one after the other, on the same running fleet
             seen = Seen()
-            ref = _spawn(REFERENCE, router_ep) if reference else None
+            ref = spawn(REFERENCE, router_ep) if reference else None
             assert ref is None or (ref.stdout and ref.stdout.readline().strip() == "up")
             web_port = free_port() if feed == "web" else None
-            mon = _monitor(router_ep, duration + STARTUP_S + 5.0, path, web_port)
+            mon = monitor_proc(router_ep, duration + STARTUP_S + 5.0, path, web_port)
             stop_polling = threading.Event()
-            if web_port is None:
-                reader = threading.Thread(target=_read, args=(mon, seen), daemon=True)
+            late = feed == "json-late"
+            reader = threading.Thread(target=read_output, args=(mon, seen), daemon=True)
+            if late:  # read after the window, as subprocess.communicate does
+                time.sleep(LATE_STARTUP_S - SETTLE_S)
+            elif web_port is None:
+                reader = threading.Thread(target=read_output, args=(mon, seen), daemon=True)
             else:
                 reader = threading.Thread(
                     target=_poll_web, args=(web_port, seen, stop_polling), daemon=True
                 )
-            reader.start()
+            if not late:
+                reader.start()
             # the window opens SETTLE_S after the monitor first showed a state (its start-up:
             # imports, the query of the fleet and the replies, is not what is measured)
             up_by = time.monotonic() + STARTUP_S
-            while not seen.showed_a_state() and time.monotonic() < up_by and mon.poll() is None:
+            while (
+                not late
+                and not seen.showed_a_state()
+                and time.monotonic() < up_by
+                and mon.poll() is None
+            ):
                 time.sleep(0.05)
             t0 = time.monotonic() + SETTLE_S
             time.sleep(SETTLE_S)
-            cpu0 = _cpu_s(mon.pid)
-            others0 = [_cpu_s(p.pid) for p in [router, *fleet]]
+            cpu0 = cpu_s(mon.pid)
+            others0 = [cpu_s(p.pid) for p in [router, *fleet]]
             time.sleep(duration)
             t1 = time.monotonic()
             wall = t1 - t0
-            cpu = 100.0 * (_cpu_s(mon.pid) - cpu0) / wall
+            cpu = 100.0 * (cpu_s(mon.pid) - cpu0) / wall
             others = [
-                (_cpu_s(p.pid) - c0) / wall for p, c0 in zip([router, *fleet], others0, strict=True)
+                (cpu_s(p.pid) - c0) / wall for p, c0 in zip([router, *fleet], others0, strict=True)
             ]
             if mon.poll() is not None:
                 print(f"  ({label}: the monitor ended early)", file=sys.stderr)
+            if late:
+                reader.start()
+                time.sleep(2.0)  # what it held comes out
             mon.terminate()
             mon.wait()
             stop_polling.set()
@@ -414,6 +273,7 @@ def run_k(
                 delivered = int(ref.stdout.readline())
                 ref.wait()
             windows.append((label, seen, t0, t1, cpu, [*others, delivered]))
+            lates.append(late)
         for p in fleet:
             assert p.stdin is not None
             p.stdin.write("stop\n")
@@ -427,8 +287,8 @@ def run_k(
             if report.get("late_rounds", 0) > report.get("rounds", 1) * 0.05:
                 print(f"  (a fleet process was behind: {report['late_rounds']} of "
                       f"{report['rounds']} rounds late)", file=sys.stderr)  # fmt: skip
-        for label, seen, t0, t1, cpu, others in windows:
-            row = _stats(label, seen, t0, t1, starts, cpu)
+        for (label, seen, t0, t1, cpu, others), late in zip(windows, lates, strict=True):
+            row = _stats(label, seen, t0, t1, starts, cpu, late)
             in_feed = np.array([a for t, a in seen.feed_ages if t0 <= t <= t1])
             if in_feed.size:
                 p50, p99 = (float(np.percentile(in_feed, q)) for q in (50, 99))
@@ -455,12 +315,12 @@ def router_restart(
     car's state is shown again (max over cars), and how many cars came back."""
     port = free_port()
     ep = f"tcp/127.0.0.1:{port}"
-    procs = [_spawn(ROUTER, ep)]
+    procs = [spawn(ROUTER, ep)]
     try:
         assert procs[0].stdout is not None and procs[0].stdout.readline().strip() == "up"
         share = [k // procs_n + (1 if i < k % procs_n else 0) for i in range(procs_n)]
         cars = [
-            _spawn(FLEET, ep, f"{rate:g}", str(sum(share[:i])), str(n), car_kind, "1")
+            spawn(FLEET, ep, f"{rate:g}", str(sum(share[:i])), str(n), car_kind, "1")
             for i, n in enumerate(share)
         ]
         procs.extend(cars)
@@ -472,14 +332,14 @@ def router_restart(
             car.stdin.write("go\n")
             car.stdin.flush()
         seen = Seen()
-        mon = _monitor(ep, 20.0 + down_s, None)
+        mon = monitor_proc(ep, 20.0 + down_s, None)
         procs.append(mon)  # type: ignore[arg-type]
-        threading.Thread(target=_read, args=(mon, seen), daemon=True).start()
+        threading.Thread(target=read_output, args=(mon, seen), daemon=True).start()
         time.sleep(4.0)
         procs[0].kill()
         procs[0].wait()
         time.sleep(down_s)
-        procs[0] = _spawn(ROUTER, ep)
+        procs[0] = spawn(ROUTER, ep)
         assert procs[0].stdout is not None and procs[0].stdout.readline().strip() == "up"
         up = time.monotonic()
         time.sleep(12.0)
@@ -494,15 +354,6 @@ def router_restart(
             if p.poll() is None:
                 p.kill()
             p.wait()
-
-
-def _cpu_s(pid: int) -> float:
-    """User + system CPU seconds of a running process so far (Linux /proc)."""
-    try:
-        fields = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()
-    except OSError:
-        return float("nan")
-    return (int(fields[11]) + int(fields[12])) / os.sysconf("SC_CLK_TCK")
 
 
 def _before_tree(rev: str, tmp: Path) -> str:
@@ -522,9 +373,10 @@ def main() -> int:
     ap.add_argument("--fleet-procs", type=int, default=2, help="processes holding the cars")
     ap.add_argument(
         "--car",
-        choices=("raw", "telemetry"),
+        choices=("raw", "telemetry", "plain"),
         default="raw",
-        help="raw: a session, a publisher and a token per car; telemetry: the car's Telemetry",
+        help="raw: a session, a publisher and a token per car; telemetry: the car's Telemetry; "
+        "plain: another program's car, zenoh's defaults and json.dumps (the stall's repro)",
     )
     ap.add_argument(
         "--cars-per-session",
@@ -542,9 +394,10 @@ def main() -> int:
     )
     ap.add_argument(
         "--feed",
-        choices=("json", "web", "both"),
+        choices=("json", "web", "both", "json-late", "all"),
         default="both",
-        help="what is measured: --json's lines, the web map's /api/fleet, or both in turn",
+        help="what is measured: --json's lines, the web map's /api/fleet, both in turn; "
+        "json-late: --json read only after the window (subprocess.communicate), all: the three",
     )
     ap.add_argument(
         "--router-restart",
@@ -564,7 +417,9 @@ def main() -> int:
         return 0
     with tempfile.TemporaryDirectory() as tmp:
         monitors: list[tuple[str, str | None, str]] = []
-        feeds = ("json", "web") if args.feed == "both" else (args.feed,)
+        feeds = {"both": ("json", "web"), "all": ("json", "web", "json-late")}.get(
+            args.feed, (args.feed,)
+        )
         for feed in feeds:
             if args.before:
                 tree = _before_tree(args.before, Path(tmp))

@@ -14,7 +14,7 @@ from __future__ import annotations
 import logging
 import time
 from collections.abc import Callable, Iterator, Mapping
-from dataclasses import asdict, dataclass, field
+from dataclasses import asdict, dataclass, field, replace
 from pathlib import Path
 from typing import Any
 
@@ -76,7 +76,8 @@ class CanOdometryConfig:
 
     def __post_init__(self) -> None:
         """Reject bad values at start, naming the field (the app prefixes its config section)."""
-        get_profile(self.profile)
+        if self.profile != AUTO:
+            get_profile(self.profile)
         if self.interface not in can.VALID_INTERFACES:  # at --check, not an ExceptionGroup later
             raise UserError(
                 f"interface {self.interface!r} is not a python-can interface; known: "
@@ -106,6 +107,42 @@ WARNINGS = {
 """Spoken when ``health()`` turns bad (docs/reliability.md)."""
 
 
+AUTO = "auto"
+AUTO_LISTEN_S = 3.0
+"""``profile = "auto"``: how long the bus is listened to before the rule is applied (every
+message of a car's powertrain bus repeats within a second; the slowest, 1 Hz, three times)."""
+
+
+def identify_on_bus(config: CanOdometryConfig, listen_s: float = AUTO_LISTEN_S) -> str:
+    """The profile of the car on the bus (``drivers.can_identify``), from ``listen_s`` of its
+    frames, said in one log line; an unknown or ambiguous car, or no bus, is a ``UserError``."""
+    from drivers.can_identify import identify_or_refuse
+
+    kwargs: dict[str, Any] = dict(config.bus_options)
+    if config.bitrate is not None:
+        kwargs.setdefault("bitrate", config.bitrate)
+    try:
+        bus = can.Bus(interface=config.interface, channel=config.channel, **kwargs)
+    except (can.CanError, OSError, ValueError, ImportError) as exc:
+        raise UserError(
+            f"profile auto: the bus {config.interface}/{config.channel} must be up at start "
+            f"to recognise the car ({type(exc).__name__}: {exc}); or name the profile"
+        ) from None
+    frames: list[can.Message] = []
+    try:
+        deadline = time.monotonic() + listen_s
+        while (rest := deadline - time.monotonic()) > 0:
+            msg = bus.recv(timeout=min(rest, 0.1))
+            if msg is not None:
+                msg.channel = config.channel
+                frames.append(msg)
+    finally:
+        bus.shutdown()
+    found = identify_or_refuse(frames)
+    log.warning("CAN profile auto: %s", found.reason)
+    return str(found.profile)
+
+
 class CanOdometry(ThreadedSource[WheelOdometry]):
     """``OdometrySource`` on a python-can bus: reader thread, decoder, reconnect with backoff.
 
@@ -124,6 +161,8 @@ class CanOdometry(ThreadedSource[WheelOdometry]):
         clock: Callable[[], float] = time.monotonic,
     ) -> None:
         self.config = config or CanOdometryConfig()
+        if self.config.profile == AUTO:  # the car from the ids on its bus (can_identify)
+            self.config = replace(self.config, profile=identify_on_bus(self.config))
         super().__init__(name, self.config, clock=clock, warnings=WARNINGS)
         self._clock_map = ClockMapper()
         self.decoder = WheelSpeedDecoder(self.config.profile, max_gap_s=self.config.max_gap_s)
@@ -335,6 +374,8 @@ class ReplaySummary:
     max_speed_mps: float
     front_fallback: int
     read_error: str | None = None
+    profile_reason: str = ""
+    """With ``--profile auto``: which profile the rule chose and why (``can_identify``)."""
 
     def to_json(self) -> dict[str, Any]:
         return asdict(self)
@@ -345,7 +386,7 @@ def replay_log(
 ) -> ReplaySummary:
     """Run a recorded CAN log through ``WheelSpeedDecoder``; not a CAN log -> ``UserError``."""
     path = Path(path)
-    prof = get_profile(profile) if isinstance(profile, str) else profile
+    prof = get_profile(profile) if isinstance(profile, str) and profile != "auto" else profile
     if not path.exists():
         raise UserError(f"{path}: no such file")
     if not path.is_file():
@@ -356,6 +397,16 @@ def replay_log(
             f"{path}: unknown CAN log format {suffix or '(no suffix)'!r}; python-can reads "
             f"{', '.join(CANDUMP_SUFFIXES + OTHER_SUFFIXES)} (candump -L is .log), optionally .gz"
         )
+    reason = ""
+    if prof == "auto":  # the car from the ids it sent (drivers.can_identify), then replay
+        from drivers.can_identify import identify_or_refuse
+
+        try:
+            found = identify_or_refuse(read_can_log(path, LogReadResult()))
+        except OSError as exc:
+            raise UserError(f"{path}: {exc.strerror or exc}") from exc
+        prof, reason = get_profile(str(found.profile)), found.reason
+    assert isinstance(prof, VehicleProfile)
     decoder = WheelSpeedDecoder(prof, max_gap_s=max_gap_s)
     result = LogReadResult()
     try:
@@ -388,4 +439,5 @@ def replay_log(
         max_speed_mps=decoder.max_speed_seen_mps,
         front_fallback=decoder.front_fallback,
         read_error=result.error,
+        profile_reason=reason,
     )

@@ -26,7 +26,8 @@ def register(sub: Any) -> None:
     odo.add_argument(
         "--profile",
         required=True,
-        help="vehicle profile: gm_global_a (2007 Tahoe reference), toyota, honda_civic",
+        help="vehicle profile (guidance profiles lists them), or auto: the car from the CAN "
+        "ids in the log, or no answer (exit 2) when it is unknown or ambiguous",
     )
     odo.add_argument(
         "--max-gap",
@@ -37,6 +38,18 @@ def register(sub: Any) -> None:
     )
     odo.add_argument("--json", action="store_true", help="print one JSON object")
     odo.set_defaults(func=_odometry)
+
+    prof = sub.add_parser(
+        "profiles",
+        help="list the vehicle profiles (cars whose wheel speeds the CAN driver reads)",
+        description=(
+            "The vehicle profiles: one per opendbc DBC an opendbc car platform uses for its "
+            "powertrain bus, with the make, the wheel-speed and yaw-rate messages and the "
+            "platforms. docs/drivers.md: Adding your car."
+        ),
+    )
+    prof.add_argument("--json", action="store_true", help="one JSON array, one object per profile")
+    prof.set_defaults(func=_profiles)
 
     comp = sub.add_parser(
         "compass",
@@ -86,6 +99,8 @@ def _odometry(args: argparse.Namespace) -> int:
     s = summary
     print(f"log:         {s.log}")
     print(f"profile:     {s.profile}")
+    if s.profile_reason:
+        print(f"chosen:      {s.profile_reason}")
     print(f"frames:      {s.frames} read, {s.ignored} not wheel speeds")
     if s.unreadable:
         print(f"unreadable:  {s.unreadable} records{'; ' + s.read_error if s.read_error else ''}")
@@ -101,6 +116,50 @@ def _odometry(args: argparse.Namespace) -> int:
         f"distance:    {s.distance_m:.2f} m (left {s.left_m:.2f} m, right {s.right_m:.2f} m; "
         f"top speed {s.max_speed_mps * 3.6:.1f} km/h)"
     )
+    return 0
+
+
+def profile_entries() -> list[dict[str, Any]]:
+    """``guidance profiles --json``: one object per profile."""
+    from drivers.opendbc_dbc import opendbc_platforms
+    from drivers.profiles import PROFILES
+
+    platforms = opendbc_platforms()
+    out = []
+    for name, p in sorted(PROFILES.items()):
+        yaw = p.yaw_rate
+        out.append({
+            "name": name,
+            "brand": p.brand,
+            "vehicle": p.vehicle,
+            "dbc": p.dbc_file,
+            "rear": {"frame_id": p.rear.frame_id, "left": p.rear.left, "right": p.rear.right},
+            "front": {"frame_id": p.front.frame_id, "left": p.front.left, "right": p.front.right},
+            "speed_resolution_kph": p.speed_resolution_kph,
+            "track_width_m": p.track_width_m,
+            "yaw_rate": None if yaw is None else {
+                "frame_id": yaw.frame_id, "message": yaw.message, "signal": yaw.signal,
+                "unit": yaw.unit,
+            },
+            "platforms": [name for _brand, name in platforms.get(p.dbc_file, ())],
+        })  # fmt: skip
+    return out
+
+
+def _profiles(args: argparse.Namespace) -> int:
+    entries = profile_entries()
+    if args.json:
+        print(json.dumps(entries))
+        return 0
+    for e in entries:
+        yaw = e["yaw_rate"]
+        yaw_text = f"; yaw rate {yaw['message']}.{yaw['signal']}" if yaw else ""
+        print(
+            f"{e['name']:<34} {e['brand']:<11} wheels 0x{e['rear']['frame_id']:X}"
+            f"{yaw_text}; {len(e['platforms'])} opendbc platforms ({e['vehicle']})"
+        )
+    brands = sorted({e["brand"] for e in entries})
+    print(f"{len(entries)} profiles, {len(brands)} makes: {', '.join(brands)}")
     return 0
 
 

@@ -7,6 +7,8 @@ imports another in a cycle.
 from __future__ import annotations
 
 import io
+import os
+import tomllib
 from collections.abc import Callable
 from dataclasses import dataclass, field, replace
 from pathlib import Path
@@ -64,8 +66,8 @@ class DriveOptions:
     cap_factor: float = 3.0
     cap_extra_m: float = 2000.0
     config: str | None = field(default=None, metadata=rule(read=False))
-    vehicle_id: str = field(default="sim1", metadata=rule(read=False))
-    """From ``[vehicle] id``."""
+    vehicle_id: str = field(default="", metadata=rule(read=False))
+    """From ``[vehicle] id``; "" (none given): ``sim_vehicle_id``, one per drive."""
     profile: str = field(default="gm_global_a", metadata=rule(read=False))
     """From ``[odometry] profile``."""
     print_prompts: bool = True
@@ -159,10 +161,18 @@ def options_from_config(path: str, opts: DriveOptions) -> tuple[DriveOptions, An
         opts = from_table(DriveOptions, cfg.sim, "sim", Path(path).resolve().parent, base=base)
     except UserError as e:
         raise UserError(f"{path}: {e}") from None
-    opts = replace(opts, vehicle_id=cfg.vehicle_id)
+    with open(path, "rb") as f:  # an id given in the file, not [vehicle]'s default
+        given = "id" in tomllib.load(f).get("vehicle", {})
+    opts = replace(opts, vehicle_id=cfg.vehicle_id if given else "")
     if cfg.odometry is not None:
         opts = replace(opts, profile=cfg.odometry.config.profile)
     return opts, cfg
+
+
+def sim_vehicle_id(opts: DriveOptions) -> str:
+    """The drive's vehicle id: the config's, else ``sim<seed>-<pid>``, so two drives side by
+    side are two cars on a monitor (issue 41), and one drive keeps its id all along."""
+    return opts.vehicle_id or f"sim{opts.seed}-{os.getpid()}"
 
 
 def output_settings(
@@ -178,22 +188,28 @@ def output_settings(
     if opts.telemetry:
         from guidance.telemetry.config import TelemetryConfig
 
-        tcfg = cfg.telemetry if cfg is not None else TelemetryConfig(vehicle_id=opts.vehicle_id)
-        tcfg = replace(tcfg, origin_lat_lon_deg=origin)  # the city's place: lat/lon
+        vid = sim_vehicle_id(opts)
+        tcfg = cfg.telemetry if cfg is not None else TelemetryConfig(vehicle_id=vid)
+        if cfg is None or tcfg.vehicle_id == cfg.vehicle_id:  # [telemetry] did not name one
+            tcfg = replace(tcfg, vehicle_id=vid)
+        # the city's place; a drive beside another on one endpoint joins it (issue 41)
+        tcfg = replace(tcfg, origin_lat_lon_deg=origin, join_if_taken=True)
     if opts.record:
         from guidance.recording.config import RecordingConfig
 
         rcfg = RecordingConfig(directory=str(Path(opts.out) / "recordings"),
-                               prefix=f"sim-seed{opts.seed}", vehicle_id=opts.vehicle_id,
+                               prefix=f"sim-seed{opts.seed}", vehicle_id=sim_vehicle_id(opts),
                                queue_size=1 << 17)  # fmt: skip
         if cfg is not None:  # the config's folder, rotation and caps
-            rcfg = replace(cfg.recording, prefix=rcfg.prefix, queue_size=1 << 17)
+            rcfg = replace(cfg.recording, prefix=rcfg.prefix, queue_size=1 << 17,
+                           vehicle_id=rcfg.vehicle_id)
         rcfg = replace(rcfg, origin_lat_lon_deg=origin)
     return OutputSettings(
         voice_backend="wav" if opts.voice_to else "none",
         wav_path=opts.voice_to or "",
         telemetry=tcfg,
         recording=rcfg,
+        ros2=None if cfg is None else cfg.ros2,
         session=session,
         drain_speech=opts.voice_to is not None,
         speaker_factory=_live_voice if not opts.voice_to and opts.voice != "none" else None,

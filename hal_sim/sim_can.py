@@ -16,6 +16,7 @@ from typing import Any
 
 import can
 
+from drivers.can_decode import MAX_SPEED_MPS
 from drivers.profiles import (
     VehicleProfile,
     WheelSignals,
@@ -150,7 +151,8 @@ class SimCanWheels:
         for name, speed in ((sig.left, left), (sig.right, right)):
             raw = speed * to_unit if p.signed_speeds else abs(speed) * to_unit
             lo, hi = _physical_range(spec.get_signal_by_name(name))
-            values[name] = min(max(raw, lo), hi)
+            top = 0.99 * MAX_SPEED_MPS * to_unit  # never what the decoder calls implausible
+            values[name] = min(max(raw, lo, -top), hi, top)
         for dir_name, speed in ((sig.left_direction, left), (sig.right_direction, right)):
             if dir_name is not None:
                 values[dir_name] = (
@@ -171,18 +173,13 @@ class SimCanWheels:
 
 
 def _physical_range(signal: Any) -> tuple[float, float]:
-    """What the signal's bits can carry, narrowed by the DBC's [min|max] when it gives one."""
+    """What the signal's bits can carry. opendbc's declared [min|max] are not used: they are
+    not reliable for wheel speeds (Mazda's says 0-15 km/h; Toyota's 0-250 though its offset
+    carries reverse speeds)."""
     if signal.is_signed:
         raw_lo, raw_hi = -(2 ** (signal.length - 1)), 2 ** (signal.length - 1) - 1
     else:
         raw_lo, raw_hi = 0, 2**signal.length - 1
     a = raw_lo * signal.scale + signal.offset
     b = raw_hi * signal.scale + signal.offset
-    lo, hi = min(a, b), max(a, b)
-    if (
-        signal.minimum is not None
-        and signal.maximum is not None
-        and signal.maximum > signal.minimum
-    ):
-        lo, hi = max(lo, signal.minimum), min(hi, signal.maximum)
-    return lo, hi
+    return min(a, b), max(a, b)

@@ -34,8 +34,9 @@ if TYPE_CHECKING:
     from guidance.core.pipeline import Pipeline
     from guidance.recording.config import RecordingConfig
     from guidance.recording.writer import Recorder
-    from guidance.telemetry.config import TelemetryConfig
+    from guidance.telemetry.config import Ros2Config, TelemetryConfig
     from guidance.telemetry.publisher import Telemetry
+    from guidance.telemetry.ros2 import Ros2Sink
 
 log = logging.getLogger(__name__)
 
@@ -52,6 +53,8 @@ class OutputSettings:
     volume: float = 1.0
     telemetry: TelemetryConfig | None = None
     recording: RecordingConfig | None = None
+    ros2: Ros2Config | None = None
+    """``[ros2] enabled``: one more sink, the estimate as ROS 2 messages (telemetry/ros2.py)."""
     session: dict[str, Any] | None = None
     """The recording's /session record (``session_record``)."""
     drain_speech: bool = False
@@ -65,11 +68,12 @@ class OpenOutputs:
     speaker: Speaker | None = None
     telemetry: Telemetry | None = None
     recorder: Recorder | None = None
+    ros2: Ros2Sink | None = None
 
     @property
     def sinks(self) -> list[OutputSink]:
-        """Where the outputs go (``App(sinks=...)``): telemetry, then the recorder."""
-        return [s for s in (self.telemetry, self.recorder) if s is not None]
+        """Where the outputs go (``App(sinks=...)``): telemetry, the recorder, ROS 2."""
+        return [s for s in (self.telemetry, self.recorder, self.ros2) if s is not None]
 
 
 def build_speaker(
@@ -137,6 +141,13 @@ async def open_outputs(
             loop = asyncio.get_running_loop()
             out.telemetry = Telemetry(settings.telemetry, on_goal=on_goal, loop=loop)
             out.telemetry.start()
+        if settings.ros2 is not None and settings.ros2.enabled:
+            from guidance.telemetry.ros2 import Ros2Sink
+
+            out.ros2 = Ros2Sink(settings.ros2)
+            if settings.telemetry is not None:  # the same local frame as /state
+                out.ros2.origin_lat_lon_deg = settings.telemetry.origin_lat_lon_deg
+            out.ros2.start()
         if settings.recording is not None:
             from guidance.recording.writer import Recorder
 
@@ -153,6 +164,8 @@ async def open_outputs(
             out.recorder.close()
         if out.telemetry is not None:
             out.telemetry.close()
+        if out.ros2 is not None:
+            out.ros2.close()
 
 
 def resume_car(

@@ -45,7 +45,7 @@ from guidance.core.navigator import Landmark
 from guidance.core.pipeline import PipelineConfig
 from guidance.errors import UserError
 from guidance.recording.config import RecordingConfig
-from guidance.telemetry.config import TelemetryConfig
+from guidance.telemetry.config import Ros2Config, TelemetryConfig
 from guidance.telemetry.keys import validate_vehicle_id
 
 DEFAULT_RATES_HZ = {"odometry": 20.0, "compass": 5.0, "camera": 10.0}
@@ -65,6 +65,7 @@ TABLES = (
     "loop",
     "checkpoint",
     "telemetry",
+    "ros2",
     "recording",
     "landmarks",
     "sim",
@@ -107,6 +108,8 @@ class AppConfig:
     """The ``[sim]`` table, read by ``guidance sim`` only."""
     landmark_db: LandmarkSettings | None = None
     """``[landmarks] database``: landmark updates from the camera (guidance/app/landmarks.py)."""
+    ros2: Ros2Config = field(default_factory=Ros2Config)
+    """``[ros2]``: the estimate as ROS 2 messages over Zenoh (off by default)."""
 
 
 def _device(
@@ -206,6 +209,11 @@ def _deviation(value: object) -> tuple[float, ...]:
 
 def profile_track_m(profile: str) -> float:
     """The rear track width of a CAN vehicle profile (named, imported on first use)."""
+    if profile == "auto":  # known only once the car's frames arrive (drivers.can_identify)
+        raise UserError(
+            '[odometry] profile = "auto": set [vehicle] track_m (the rear track, metres): '
+            "the profile, and its track, are known only once the bus is heard"
+        )
     get_profile = import_backend("drivers.profiles:get_profile")
     return float(get_profile(profile).track_width_m)
 
@@ -444,6 +452,7 @@ def parse_config(
         loop=loop,
         sim=types.MappingProxyType(dict(sim)),
         landmark_db=landmark_db,
+        ros2=from_table(Ros2Config, data.get("ros2", {}), "ros2"),
     )
 
 

@@ -209,6 +209,7 @@ def output_settings(cfg: AppConfig, pipeline: Pipeline) -> OutputSettings:
         volume=cfg.voice.volume,
         telemetry=cfg.telemetry,
         recording=cfg.recording,
+        ros2=cfg.ros2,
         session=session_record(pipeline, cfg.path),
     )
 

@@ -133,6 +133,9 @@ class TelemetryEvent:
     while a reader waits in ``get``, later when the reader is behind."""
     late_join: bool = False
     """True when it came from the query of the latest values, not a live publication."""
+    source: str = ""
+    """The publishing zenoh session's id when the sample says (zenoh's source info: the
+    project's cars set it), else "" (``guidance.tools.monitor_ids``)."""
 
 
 def _drain(channel: zenoh.Handler[_T], limit: int) -> tuple[list[_T], bool]:
@@ -571,7 +574,9 @@ class MonitorClient:
             self.undecodable += 1
             return None
         self.received += 1
-        return TelemetryEvent(kind, vehicle_id, key, message, self._clock(), late_join)
+        info = sample.source_info
+        source = str(info.source_id.zid) if info is not None else ""
+        return TelemetryEvent(kind, vehicle_id, key, message, self._clock(), late_join, source)
 
     def _liveliness_event(self, sample: zenoh.Sample) -> TelemetryEvent | None:
         key = str(sample.key_expr)

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import re
 from collections.abc import Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -10,7 +11,13 @@ from typing import Any
 from guidance.config_tables import from_table, rule
 from guidance.errors import UserError
 from guidance.outputs.messages import check_origin
-from guidance.telemetry.keys import _ENDPOINT_RE, _MODES, DEFAULT_LISTEN, validate_vehicle_id
+from guidance.telemetry.keys import (
+    _ENDPOINT_RE,
+    _MODES,
+    DEFAULT_CONNECT,
+    DEFAULT_LISTEN,
+    validate_vehicle_id,
+)
 
 
 # -- configuration --------------------------------------------------------------------------------
@@ -69,6 +76,10 @@ class TelemetryConfig:
     retry_period_s: float = 2.0
     fifo_size: int = 32
     """Decisions and prompts waiting to be sent, per kind; the oldest is dropped beyond."""
+    join_if_taken: bool = field(default=False, metadata=rule(read=False))
+    """Peer mode: when another process holds the listen endpoint, join it as a peer from a
+    free port instead of staying down (``publisher.join_taken``). Not a ``[telemetry]`` key:
+    the simulator sets it, so drives side by side are all seen; a car keeps its endpoint."""
     origin_lat_lon_deg: tuple[float, float] | None = field(default=None, metadata=rule(read=False))
     """WGS-84 origin of the local frame, for the state's ``lat_deg``/``lon_deg``. Not a
     ``[telemetry]`` key: the app's config sets it from ``[start]`` (the simulator from its
@@ -104,3 +115,32 @@ def check_endpoint(endpoint: str) -> str:
             "e.g. tcp/127.0.0.1:7447 or tls/localhost:7447"
         )
     return endpoint
+
+
+_ROS_NAME = re.compile(r"^[A-Za-z_][A-Za-z0-9_]*$")
+
+
+@dataclass(frozen=True, slots=True)
+class Ros2Config:
+    """The ``[ros2]`` table (off by default): where and under which names the car speaks
+    ROS 2. ``connect`` is rmw_zenoh's default router; ``mode`` peer or client."""
+
+    enabled: bool = False
+    domain_id: int = 0
+    namespace: str = "/guidance"
+    node: str = "guidance"
+    mode: str = field(default="peer", metadata=rule(choices=_MODES))
+    connect: tuple[str, ...] = (DEFAULT_CONNECT,)
+    listen: tuple[str, ...] = ()
+
+    def __post_init__(self) -> None:
+        if not 0 <= self.domain_id <= 232:
+            raise UserError(f"domain_id must be 0-232 (ROS_DOMAIN_ID), not {self.domain_id}")
+        parts = [p for p in self.namespace.split("/") if p]
+        if not self.namespace.startswith("/") or not all(_ROS_NAME.match(p) for p in parts):
+            raise UserError(f"namespace {self.namespace!r} is not a ROS namespace (/a/b)")
+        if not _ROS_NAME.match(self.node):
+            raise UserError(f"node {self.node!r} is not a ROS node name")
+        for ep in (*self.connect, *self.listen):
+            if not _ENDPOINT_RE.match(ep):
+                raise UserError(f"bad zenoh endpoint {ep!r}")

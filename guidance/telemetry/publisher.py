@@ -32,6 +32,7 @@ from guidance.telemetry.session import (
     _quiet_close,
     callback_threads,
     goal_sender,
+    no_router_took,
     open_session,
     parse_goal,
     remote_goal_problem,
@@ -66,6 +67,40 @@ class _Link:
 
 
 GoalCallback = Callable[[float, float], None]
+
+ADDRESS_IN_USE = "Address already in use"
+JOIN_WAIT_S = 2.0
+"""How long a car joining a taken endpoint waits to reach the zenoh peer there."""
+
+
+def _reaches_a_peer(session: zenoh.Session, wait_s: float) -> bool:
+    deadline = time.monotonic() + wait_s
+    while not session.info.peers_zid():
+        if time.monotonic() > deadline:
+            return False
+        time.sleep(0.05)
+    return True
+
+
+def join_taken(
+    config: TelemetryConfig, error: str
+) -> tuple[tuple[str, ...], tuple[str, ...]] | None:
+    """A peer whose ``tcp/HOST:PORT`` listen endpoint another process holds (two simulated
+    drives side by side, both on the default endpoint): listen on ``tcp/HOST:0`` instead and
+    connect to the taken endpoint, so a monitor connected to it learns this car through
+    zenoh's gossip and sees both (issue 41). None when that does not apply (another error,
+    client mode, a zenoh config file, an endpoint that is not plain TCP)."""
+    if not config.join_if_taken or ADDRESS_IN_USE not in error or config.mode != "peer":
+        return None
+    if config.zenoh_config:
+        return None
+    listen: list[str] = []
+    for ep in config.listen:
+        host, sep, port = ep.removeprefix("tcp/").rpartition(":")
+        if not ep.startswith("tcp/") or not sep or not port.isdigit():
+            return None
+        listen.append(f"tcp/{host}:0")
+    return tuple(listen), (*config.connect, *config.listen)
 
 
 class Telemetry(MessageSink):
@@ -258,15 +293,7 @@ class Telemetry(MessageSink):
     def _try_open(self) -> bool:
         cfg = self.config
         try:
-            conf = session_config(
-                mode=cfg.mode,
-                listen=cfg.listen,
-                connect=cfg.connect,
-                multicast_scouting=cfg.multicast_scouting,
-                zenoh_config=cfg.zenoh_config,
-                tls=cfg.tls,
-            )
-            session = open_session(conf)
+            session, listen, connect = self._open_session()
         except UserError as exc:
             self._set_down(str(exc))
             return False
@@ -301,7 +328,7 @@ class Telemetry(MessageSink):
         self._link = link
         self._status = "up"
         self._last_error = ""
-        where = ", ".join(cfg.listen if cfg.mode == "peer" else cfg.connect)
+        where = ", ".join(listen if cfg.mode == "peer" else connect)
         log.info(
             "telemetry up: vehicle %s, %s mode on %s%s",
             self.vehicle_id,
@@ -310,6 +337,48 @@ class Telemetry(MessageSink):
             ", remote goal ENABLED" if cfg.allow_remote_goal else "",
         )
         return True
+
+    def _open_session(self) -> tuple[zenoh.Session, tuple[str, ...], tuple[str, ...]]:
+        """The session as configured, or (``join_if_taken``, the listen endpoint held by
+        another process) one that joins that process as a peer; with the endpoints used."""
+        cfg = self.config
+
+        def conf(listen: tuple[str, ...], connect: tuple[str, ...]) -> zenoh.Config:
+            return session_config(
+                mode=cfg.mode,
+                listen=listen,
+                connect=connect,
+                multicast_scouting=cfg.multicast_scouting,
+                zenoh_config=cfg.zenoh_config,
+                tls=cfg.tls,
+            )
+
+        try:
+            return open_session(conf(cfg.listen, cfg.connect)), cfg.listen, cfg.connect
+        except UserError as exc:
+            joined = join_taken(cfg, str(exc))
+            if joined is None and cfg.mode == "client" and cfg.connect:
+                raise UserError(no_router_took(cfg.connect, str(exc))) from None
+            if joined is None:
+                raise
+            listen, connect = joined
+            c = conf(listen, connect)
+            # zenoh's peer waits for ever for its connect endpoints by default
+            c.insert_json5("connect/timeout_ms", str(int(JOIN_WAIT_S * 1000)))
+            c.insert_json5("connect/exit_on_failure", "true")
+            try:
+                session = open_session(c)
+            except UserError as joining:  # what holds the endpoint is not a zenoh peer
+                raise UserError(f"{exc}; joining it as a peer failed: {joining}") from None
+            if not _reaches_a_peer(session, JOIN_WAIT_S):
+                _quiet_close(session)
+                raise UserError(f"{exc}; no zenoh peer there to join") from None
+        log.warning(
+            "telemetry: %s is taken (another car on this machine?): vehicle %s joins it as a "
+            "peer and listens on %s; monitors connected there see both",
+            ", ".join(cfg.listen), self.vehicle_id, ", ".join(listen),
+        )  # fmt: skip
+        return session, listen, connect
 
     def _set_down(self, error: str) -> None:
         error = redact_text(error)
@@ -361,7 +430,10 @@ class Telemetry(MessageSink):
                 self._count_drop("session_down")
                 continue
             try:
-                link.publishers[item.kind].put(payload)
+                publisher = link.publishers[item.kind]
+                # zenoh's source info names this session: a monitor tells two cars configured
+                # with one vehicle id apart (guidance.tools.monitor_ids)
+                publisher.put(payload, source_info=zenoh.SourceInfo(publisher.id, self._published))
             except Exception as exc:
                 self._count_drop("put_error")
                 self._last_error = redact_text(f"put failed: {exc}")

@@ -73,6 +73,39 @@ def open_session(conf: zenoh.Config) -> zenoh.Session:
         raise UserError(f"cannot open zenoh session: {_zenoh_error_text(exc)}") from None
 
 
+def tcp_reachable(endpoint: str, timeout_s: float = 0.5) -> bool:
+    """Whether something accepts TCP connections at a ``tcp/HOST:PORT`` endpoint (False for
+    any other kind of endpoint): tells a router that refused a zenoh session (full, or its
+    access control) from no router at all."""
+    import socket
+
+    if not endpoint.startswith("tcp/"):
+        return False
+    host, _, port = endpoint[4:].rpartition(":")
+    try:
+        with socket.create_connection((host.strip("[]"), int(port)), timeout=timeout_s):
+            return True
+    except (OSError, ValueError):
+        return False
+
+
+def no_router_took(connect: Sequence[str], error: str) -> str:
+    """A client whose session did not open, said plainly: which listed routers answer TCP but
+    refused the session (a router at its ``max_sessions``, or refusing by access control) and
+    which did not answer at all."""
+    refused = [ep for ep in connect if tcp_reachable(ep)]
+    silent = [ep for ep in connect if ep not in refused]
+    parts = []
+    if refused:
+        parts.append(
+            f"{', '.join(refused)} answered but refused the session (full at its max_sessions, "
+            "or its access control)"
+        )
+    if silent:
+        parts.append(f"{', '.join(silent)} did not answer")
+    return f"no router took this car: {'; '.join(parts)} ({error})"
+
+
 REMOTE_GOAL_NEEDS = (
     "[telemetry] allow_remote_goal = true needs zenoh access control: a zenoh_config with "
     'access_control enabled and default_permission "deny" (config/zenoh/car-usrpwd-acl.json5 '

@@ -33,6 +33,7 @@ from guidance.errors import UserError
 from guidance.telemetry.client import MonitorClient, TelemetryEvent
 from guidance.telemetry.config import check_endpoint
 from guidance.telemetry.keys import DEFAULT_CONNECT, KINDS
+from guidance.tools.monitor_output import LineWriter
 from guidance.tools.monitor_view import (
     CarView,
     FleetView,
@@ -55,6 +56,7 @@ __all__ = [
 ]
 
 LIVELINESS_SCHEMA = "guidance.liveliness/1"
+ALARM_SCHEMA = "guidance.alarm/1"
 
 
 def write_snapshot(view: FleetView, path: Path) -> Path:
@@ -323,6 +325,20 @@ def liveliness_line(view: FleetView, event: TelemetryEvent) -> dict[str, Any]:
     return line
 
 
+def alarm_line(view: FleetView, vehicle_id: str) -> dict[str, Any]:
+    """The ``guidance.alarm/1`` line of a car whose alarm came (``active``) or went: two
+    publishers behind its vehicle id (``guidance.tools.monitor_ids``), with why."""
+    car = view.cars.get(vehicle_id) or view.gone.get(vehicle_id)
+    text = "" if car is None else car.alarm
+    return {
+        "schema": ALARM_SCHEMA,
+        "vehicle_id": vehicle_id,
+        "alarm": "two_publishers",
+        "active": bool(text),
+        "detail": text,
+    }
+
+
 def _json_line(
     client: MonitorClient, view: FleetView, event: TelemetryEvent
 ) -> Mapping[str, Any] | None:
@@ -343,30 +359,32 @@ def _run_json(client: MonitorClient, args: argparse.Namespace) -> int:
     stop = threading.Event()
     deadline = None if args.timeout is None else time.monotonic() + args.timeout
     client.query_latest()
-    out = sys.stdout
+    writer = LineWriter(sys.stdout)
+    """Writes on its own thread: a reader of stdout that is behind never holds this loop
+    away from zenoh (``monitor_output``, the stall of issue 41)."""
     lines: list[str] = []
-    """One write and flush per batch, whatever stdout's buffering (PYTHONUNBUFFERED made
-    each line a system call: a third of the monitor's time at 1,000 cars)."""
-
-    def write_out() -> None:
-        out.write("\n".join(lines) + "\n")
-        out.flush()
-        lines.clear()
-
+    """Handed over once per batch (one write and flush per batch whatever stdout's buffering:
+    PYTHONUNBUFFERED made each line a system call, a third of the monitor's time at 1,000
+    cars)."""
     try:
         for event in _events(client, deadline, stop):
             line = None if event is None else _json_line(client, view, event)
             if line is not None:
                 lines.append(json.dumps(line, separators=(",", ":")))
+            for vid in view.take_alarm_changes():
+                lines.append(json.dumps(alarm_line(view, vid), separators=(",", ":")))
             if lines and not client.pending():
-                write_out()
-            if args.count is not None and view.messages >= args.count:
+                writer.put("\n".join(lines) + "\n")
+                lines.clear()
+            if writer.broken or (args.count is not None and view.messages >= args.count):
                 break
         if lines:
-            write_out()
-    except BrokenPipeError:  # e.g. piped into head
+            writer.put("\n".join(lines) + "\n")
+    finally:
+        writer.close()
+    if writer.broken:  # e.g. piped into head: silence the exit-time flush
         with contextlib.suppress(OSError):
-            sys.stdout = open(os.devnull, "w")  # noqa: SIM115 - silence the exit-time flush
+            sys.stdout = open(os.devnull, "w")  # noqa: SIM115
     if args.snapshot is not None:
         write_snapshot(view, args.snapshot)
     return 0 if view.messages else _no_messages(client, args.timeout)

@@ -27,6 +27,7 @@ from rich.cells import cell_len
 from guidance.core.chance import shown
 from guidance.core.model import heading_to_compass
 from guidance.tools.monitor_check import MAX_NUMBER, message_problem
+from guidance.tools.monitor_ids import Publishers
 
 if TYPE_CHECKING:  # rich's renderables load when the live view first draws
     from rich.console import Console, ConsoleOptions, RenderResult
@@ -72,6 +73,9 @@ class CarView:
     """(x_m, y_m, semi_major_m, semi_minor_m, orientation_rad), one every ELLIPSE_EVERY_S."""
     gone_s: float | None = None
     """Monitor clock when its liveliness token dropped (None while alive)."""
+    alarm: str = ""
+    """Two publishers behind this id (``monitor_ids``), or ""."""
+    publishers: Publishers = field(default_factory=Publishers)
     _last_seq: dict[str, int] = field(default_factory=dict)
     _last_ellipse_t_s: float = -math.inf
     _track_open: bool = False
@@ -98,6 +102,12 @@ class FleetView:
         self.bad_messages = 0
         self.generation = 0
         """Counts the track points written (``CarView.track_stamps``)."""
+        self.alarm_changes: list[str] = []
+        """Cars whose alarm came or went since the last ``take_alarm_changes``."""
+
+    def take_alarm_changes(self) -> list[str]:
+        changes, self.alarm_changes = self.alarm_changes, []
+        return changes
 
     def apply(self, event: Any) -> bool:
         """Fold one ``TelemetryEvent`` in; False when it told nothing new (a repeated
@@ -125,6 +135,8 @@ class FleetView:
             car.bad_messages += 1
             car.last_bad = f"{plain(event.kind)}: {plain(why)}"
             return False
+        if not event.late_join:
+            self._publishers(car, event)
         seq = msg.get("seq")
         if isinstance(seq, int):
             last = car._last_seq.get(event.kind)
@@ -144,6 +156,15 @@ class FleetView:
         elif event.kind == "health":
             car.health = msg
         return True
+
+    def _publishers(self, car: CarView, event: Any) -> None:
+        """Two publishers behind one id (``monitor_ids``): the alarm shown on the car; its
+        coming and going recorded in ``alarm_changes``."""
+        source = getattr(event, "source", "")
+        alarm = car.publishers.see(event.kind, event.message, source, event.received_s)
+        if bool(alarm) != bool(car.alarm):
+            self.alarm_changes.append(car.vehicle_id)
+        car.alarm = alarm
 
     def _apply_state(self, car: CarView, msg: Mapping[str, Any]) -> None:
         car.state = msg
@@ -309,6 +330,8 @@ def car_row(car: CarView, now_s: float) -> dict[str, str]:
     health = ", ".join(t for t in (health_summary(car.health), bad_summary(car)) if t)
     if not car.alive:
         health = gone_summary(car, now_s)
+    if car.alarm:
+        health = f"{car.alarm}; {health}"
     return {
         "car": plain(car.vehicle_id),
         "x_m": _fmt(x),

@@ -45,7 +45,8 @@ def frame(
     def values(sig: Any, left: float, right: float) -> dict[str, float]:
         out: dict[str, float] = {}
         for name, v in ((sig.left, left), (sig.right, right)):
-            out[name] = v * KPH if p.signed_speeds else abs(v) * KPH
+            unit = v / p.unit_to_mps  # in the DBC's unit (km/h, rad/s, rpm)
+            out[name] = unit if p.signed_speeds else abs(unit)
         for name, v in ((sig.left_direction, left), (sig.right_direction, right)):
             if name:
                 out[name] = 1 if v > 0 else 2 if v < 0 else 0
@@ -124,8 +125,10 @@ def test_trapezoid_on_a_ramp_is_exact(profile: str) -> None:
     res = get_profile(profile).speed_resolution_kph / KPH
     speeds = [(round(i * 0.05 / res) * res,) * 2 for i in range(steps + 1)]  # exact counts
     out = drive(WheelSpeedDecoder(profile), profile, speeds)
-    v_end = speeds[-1][0]
-    assert sum(o.d_left_m for o in out) == pytest.approx(0.5 * v_end * steps * period, rel=1e-3)
+    v = [s[0] for s in speeds]  # the trapezoid of the counts the bus carries
+    expected = sum(0.5 * (a + b) * period for a, b in itertools.pairwise(v))
+    assert sum(o.d_left_m for o in out) == pytest.approx(expected, rel=1e-6)
+    assert expected == pytest.approx(0.5 * v[-1] * steps * period, rel=5e-3)
 
 
 @pytest.mark.parametrize("profile", ["gm_global_a", "toyota"])
@@ -271,10 +274,13 @@ def test_a_persistent_level_change_is_believed_after_a_few_spikes() -> None:
 
 
 def test_fault_bits_reject_the_frame() -> None:
+    # Toyota: opendbc 0.3.1 reads the bit the older DBC called WHEEL_SPEED_RL_FAULT as the
+    # speed's top bit (+327.68 km/h): a set "fault" bit is an implausible speed, rejected.
     dec = WheelSpeedDecoder("toyota")
-    for m in frame("toyota", 1.0, 5.0, 5.0, WHEEL_SPEED_RL_FAULT=1):
+    for m in frame("toyota", 1.0, 5.0, 5.0):
+        m.data[6] |= 0x80  # bit 55, the top bit of WHEEL_SPEED_RL
         assert dec.feed(m) is None
-    assert dec.rejected_by_reason["fault"] == 1
+    assert dec.rejected_by_reason["implausible"] == 1
     gm = WheelSpeedDecoder("gm_global_a")
     for m in frame("gm_global_a", 1.0, 5.0, 5.0, RLWheelDir=4):
         gm.feed(m)
@@ -315,7 +321,7 @@ def test_gm_fallback_needs_fresh_front_frames() -> None:
 
 
 def test_unknown_profile_is_a_user_error() -> None:
-    with pytest.raises(UserError, match="known profiles: gm_global_a, honda_civic, toyota"):
+    with pytest.raises(UserError, match=r"known profiles: acura_ilx_2016_can, .*, vw_pq"):
         WheelSpeedDecoder("tesla")
 
 

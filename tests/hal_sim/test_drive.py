@@ -180,7 +180,7 @@ def test_a_monitor_in_another_process_follows_the_simulated_car(tmp_path: Path) 
         .read_text()
         .replace("tcp/127.0.0.1:7447", f"tcp/127.0.0.1:{port}")
         .replace('vehicle_id = "sim1"', 'vehicle_id = "simmon"')
-        .replace('id = "sim1"', 'id = "simmon"')
+        .replace("[vehicle]\n", '[vehicle]\nid = "simmon"\n')
     )
     proc = subprocess.Popen(
         [

@@ -262,11 +262,12 @@ def encoded_frames(name: str, blob: bytes) -> list[can.Message]:
                 data = bytearray(spec.encode(raw, scaling=False, strict=False))
             else:
                 phys = {sig.name: 0 for sig in spec.signals}
+                wheels = {p.rear.left, p.rear.right, p.front.left, p.front.right}
                 for j, sig in enumerate(spec.signals):
                     if "Dir" in sig.name:
                         phys[sig.name] = 1
-                    elif "SPEED" in sig.name.upper() and "FAULT" not in sig.name.upper():
-                        phys[sig.name] = speed_kph[j % 4]
+                    elif sig.name in wheels:  # in the DBC's unit (km/h, rpm, rad/s)
+                        phys[sig.name] = speed_kph[j % 4] / 3.6 / p.unit_to_mps
                 data = bytearray(spec.encode(phys, strict=False))
             if p.checksum == "honda" and control % 16:
                 data[-1] = (data[-1] & 0xF0) | honda_checksum(spec.frame_id, bytes(data))

@@ -198,6 +198,7 @@ def car_json(car: CarView, now_s: float, since: int | None = None) -> dict[str, 
         "bad_messages": car.bad_messages,
         "bad": bad_summary(car),
         "gaps": car.gaps,
+        "alarm": car.alarm,
     }
 
 

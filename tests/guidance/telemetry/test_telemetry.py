@@ -515,6 +515,19 @@ def test_port_in_use_reports_down_without_raising(car_port: int) -> None:
             assert "Address already in use" in tel.health().detail
 
 
+def test_joining_a_taken_port_needs_a_zenoh_peer_there(car_port: int) -> None:
+    """``join_if_taken`` (the simulator's): a port held by something that is not a zenoh peer
+    is still a car that is down, with zenoh's reason."""
+    with socket.socket() as blocker:
+        blocker.bind(("127.0.0.1", car_port))
+        blocker.listen()
+        cfg = TelemetryConfig(listen=(tcp(car_port),), retry_period_s=0.2, join_if_taken=True)
+        with Telemetry(cfg) as tel:
+            tel.send(STATE, make_state())
+            assert wait_until(lambda: tel.health().status == "down")
+            assert "Address already in use" in tel.health().detail
+
+
 def test_disabled_telemetry_opens_nothing() -> None:
     with Telemetry(TelemetryConfig(enabled=False)) as tel:
         tel.send(STATE, make_state())

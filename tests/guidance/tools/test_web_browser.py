@@ -46,7 +46,7 @@ def free_port() -> int:
 def sim_config(tmp: Path, vehicle: str, port: int, seed: int) -> Path:
     """config/sim.toml with this car's id, seed and its own loopback endpoint."""
     text = (REPO / "config" / "sim.toml").read_text()
-    text = re.sub(r'(?m)^id = "sim1"', f'id = "{vehicle}"', text)
+    text = text.replace("[vehicle]\n", f'[vehicle]\nid = "{vehicle}"\n')
     text = re.sub(r"(?m)^seed = \d+", f"seed = {seed}", text)
     text = text.replace('listen = ["tcp/127.0.0.1:7447"]', f'listen = ["tcp/127.0.0.1:{port}"]')
     assert f"127.0.0.1:{port}" in text and f'"{vehicle}"' in text

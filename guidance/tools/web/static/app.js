@@ -219,8 +219,9 @@ function drawCar(c, p, parent) {
   const s = c.state || {};
   const col = colour(c.vehicle_id);
   const [ox, oy] = offset(s.origin);
-  const g = el("g", { class: c.alive ? "car" : "car gone", "data-vehicle": c.vehicle_id,
-                      "data-alive": c.alive }, parent);
+  const g = el("g", { class: (c.alive ? "car" : "car gone") + (c.alarm ? " alarm" : ""),
+                      "data-vehicle": c.vehicle_id, "data-alive": c.alive,
+                      "data-alarm": c.alarm || "" }, parent);
   if (c.track.length > 1) {
     el("polyline", { class: "track", stroke: col,
                      points: c.track.map(([x, y]) => `${p.x(x + ox).toFixed(1)},${p.y(y + oy).toFixed(1)}`).join(" ") }, g);
@@ -265,7 +266,7 @@ function drawCar(c, p, parent) {
                  stroke: col, "stroke-width": 3 }, g);
   }
   el("circle", { class: "position", cx: px, cy: py, r: 5, fill: col, stroke: "#fff" }, g);
-  const name = c.alive ? c.vehicle_id : `${c.vehicle_id} (gone)`;
+  const name = (c.alarm ? "⚠ TWO PUBLISHERS: " : "") + (c.alive ? c.vehicle_id : `${c.vehicle_id} (gone)`);
   el("text", { class: "label", x: px + 8, y: py - 8, fill: col }, g).textContent = name + sigma;
 }
 
@@ -288,6 +289,12 @@ function drawCard(c, ul) {
   li.style.setProperty("--car", colour(c.vehicle_id));
   html("span", "name", c.vehicle_id, li);
   html("span", "state-word", c.alive ? "live" : "gone", li);
+  if (c.alarm) {  // two publishers behind this id (guidance/tools/monitor_ids.py)
+    const a = html("div", "alarm", `⚠ ${c.alarm}`, li);
+    a.title = "Two programs publish as this vehicle id (two zenoh sessions, or sequence " +
+      "numbers that go back and both go on): the position shown jumps between them. Give " +
+      "each car its own [vehicle] id.";
+  }
   const pos = html("div", "position", undefined, li);
   const h = num(s.heading_rad);
   pos.textContent = `x ${fmt(s.x_m, 1, " m")}  y ${fmt(s.y_m, 1, " m")}  hdg ${h === null ? "–" : compass(h).toFixed(0) + "°"}`;
