@@ -28,6 +28,7 @@ from landmark_db.features import (
     extract,
 )
 from landmark_db.gate import GATE_PROBABILITY_2SIGMA
+from landmark_db.inputs import read_photo
 from landmark_db.matcher import MatchConfig, photo_agreement
 from landmark_db.query import query_radius
 from landmark_db.recognise import RecogniserConfig
@@ -126,7 +127,7 @@ def cmd_add(args: argparse.Namespace) -> None:
             lm = db.find(args.to)
             if lm is None:
                 raise UserError(f"no landmark {args.to!r}")
-            data = path.read_bytes()
+            data = read_photo(path)
             _check_agreement(db, lm.id, lm.name, path, data)
             pid = db.add_photo(
                 lm.id, data, facing_deg=args.facing, conditions=args.conditions,
@@ -144,7 +145,7 @@ def cmd_add(args: argparse.Namespace) -> None:
                 f"with --to {same.id}, give the new one another --name, or --same-name to keep "
                 "both"
             )
-        data = path.read_bytes()
+        data = read_photo(path)
         kwargs = add_kwargs(lat, lon, x, y)
         _check_distinct(db, path, data, kwargs)
         lid = db.add(

@@ -36,12 +36,13 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
+from guidance import files
 from guidance.errors import UserError
 
 log = logging.getLogger(__name__)
 
 SCHEMA = "guidance.checkpoint/2"
-MAX_BYTES = 16 << 20
+MAX_BYTES = files.KINDS["checkpoint"].max_bytes
 """A checkpoint is a few kB to a few hundred kB; anything larger is not read."""
 
 
@@ -257,19 +258,16 @@ def load_checkpoint(
     """
     p = Path(path)
     try:
-        with p.open("rb") as f:
-            raw = f.read(MAX_BYTES + 1)
-    except FileNotFoundError:
-        return None
-    except OSError as exc:
-        log.warning("checkpoint %s cannot be read (%s): starting afresh", p, exc.strerror or exc)
-        return None
-    if len(raw) > MAX_BYTES:
-        set_aside(p, f"it is larger than {MAX_BYTES >> 20} MiB")
+        raw = files.read_bytes(p, "checkpoint")
+    except files.FileRefused as exc:
+        if exc.code == "too_large":
+            set_aside(p, f"it is {exc.why}")
+        elif exc.code != "missing":  # a FIFO, a folder, a device: not ours to move
+            log.warning("%s: starting afresh", exc)
         return None
     try:
-        doc = json.loads(raw)
-    except (ValueError, RecursionError) as exc:
+        doc = files.parse_json(raw)
+    except ValueError as exc:
         set_aside(p, f"it is damaged ({str(exc)[:80]})")
         return None
     if not isinstance(doc, dict) or doc.get("schema") != SCHEMA:

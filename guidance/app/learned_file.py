@@ -22,28 +22,24 @@ import os
 import stat
 from pathlib import Path
 
+from guidance import files
 from guidance.app.checkpoint import remove_stale_temps, write_atomic
 from guidance.core.estimator import PoseEstimator
 from guidance.core.learned import LearnedParams
 
-MAX_BYTES = 64 << 10
+MAX_BYTES = files.KINDS["learned"].max_bytes
 """The file is a few hundred bytes; a larger one (or ``/dev/zero``) is not read."""
 
 
 def load_learned(path: Path, vehicle_id: str) -> tuple[LearnedParams | None, str | None]:
     """(the parameters, None), or (None, the one line why they were refused); (None, None)
     when there is no file yet."""
-    if not path.exists():
+    if not os.path.lexists(path):
         return None, None
     try:
-        with path.open("rb") as f:
-            raw = f.read(MAX_BYTES + 1)
-        if len(raw) > MAX_BYTES:
-            raise ValueError(f"larger than {MAX_BYTES >> 10} KiB")
-        data = json.loads(raw)
-    except (OSError, ValueError, RecursionError, OverflowError) as exc:
-        why = exc.strerror if isinstance(exc, OSError) and exc.strerror else str(exc)[:120]
-        return None, f"{path}: learned parameters unreadable ({why}): starting from the priors"
+        data = files.read_json(path, "learned")
+    except files.FileRefused as exc:
+        return None, f"{exc}: starting from the priors"
     if not isinstance(data, dict):
         return (
             None,
