@@ -15,7 +15,7 @@ from collections.abc import Sequence
 from pathlib import Path
 
 from guidance.core.geo import Origin
-from guidance.errors import UserError
+from guidance.errors import UserError, number, number_in
 from landmark_db.cli_args import HEADER, area, area_args, print_landmark_row, safe
 from landmark_db.cli_fix import add_fix_parsers
 from landmark_db.cli_io import add_io_parsers, add_kwargs
@@ -269,7 +269,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument(
         "--origin",
         nargs=2,
-        type=float,
+        type=number,
         required=True,
         metavar=("LAT", "LON"),
         help="origin of the local east-north frame",
@@ -289,13 +289,18 @@ def build_parser() -> argparse.ArgumentParser:
         action="store_true",
         help="add a new landmark even when one has this name already (refused otherwise)",
     )
-    p.add_argument("--latlon", nargs=2, type=float, metavar=("LAT", "LON"))
-    p.add_argument("--xy", nargs=2, type=float, metavar=("X", "Y"), help="local metres")
-    p.add_argument("--facing", type=float, help="heading the photo faces (deg clockwise from N)")
+    where = p.add_mutually_exclusive_group()  # one position, never two
+    where.add_argument("--latlon", nargs=2, type=number, metavar=("LAT", "LON"))
+    where.add_argument("--xy", nargs=2, type=number, metavar=("X", "Y"), help="local metres")
+    p.add_argument(
+        "--facing",
+        type=number_in(-360.0, 360.0),
+        help="heading the photo faces (deg clockwise from N)",
+    )
     p.add_argument("--conditions", default="", help="free text: night, rain, 30 m west...")
     p.add_argument(
         "--sigma",
-        type=float,
+        type=number,
         default=DEFAULT_POSITION_SIGMA_M,
         help="1-sigma of the position (m, default %(default)s)",
     )

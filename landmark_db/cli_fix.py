@@ -23,7 +23,7 @@ import stat
 from collections.abc import Callable
 from pathlib import Path
 
-from guidance.errors import UserError
+from guidance.errors import UserError, number, number_in
 from landmark_db.cli_args import err, out, safe
 from landmark_db.cli_io import cell
 from landmark_db.features import PHOTO_MAX_SIDE_PX, ExtractorConfig, decode_image
@@ -329,9 +329,14 @@ def add_fix_parsers(
     p = sub.add_parser("edit", help="change one landmark's position, sigma, facing or name")
     p.add_argument("db")
     p.add_argument("landmark", metavar="ID|NAME")
-    p.add_argument("--latlon", nargs=2, type=float, metavar=("LAT", "LON"))
-    p.add_argument("--xy", nargs=2, type=float, metavar=("X", "Y"), help="local metres")
-    p.add_argument("--sigma", type=float, help="1-sigma of the position (m)")
-    p.add_argument("--facing", type=float, help="heading the photo faces (deg clockwise from N)")
+    where = p.add_mutually_exclusive_group()  # one position, never two
+    where.add_argument("--latlon", nargs=2, type=number, metavar=("LAT", "LON"))
+    where.add_argument("--xy", nargs=2, type=number, metavar=("X", "Y"), help="local metres")
+    p.add_argument("--sigma", type=number, help="1-sigma of the position (m)")
+    p.add_argument(
+        "--facing",
+        type=number_in(-360.0, 360.0),
+        help="heading the photo faces (deg clockwise from N)",
+    )
     p.add_argument("--name", help="a new name")
     p.set_defaults(func=cmd_edit)
