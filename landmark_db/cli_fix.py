@@ -248,16 +248,22 @@ def cmd_migrate(args: argparse.Namespace) -> None:
 
 
 def _landmark(db: LandmarkDb, key: str) -> int:
-    """The id of the landmark ``key`` names (id or name), read even when its values are bad."""
-    if key.isdigit():
-        row = db._conn.execute("SELECT id FROM landmarks WHERE id = ?", (int(key),)).fetchone()
+    """The id of the landmark ``key`` names (ASCII digits: an id; else a name), read even when
+    its values are bad. An id beyond SQLite's integers (30 digits) is no landmark, never a
+    traceback; a name two landmarks share is refused (which one would go?)."""
+    if key.isascii() and key.isdigit():
+        if len(key) > 18:  # SQLite's integers end at 2^63 - 1
+            raise UserError(f"no landmark {safe(key[:24])!r}")
+        rows = db._conn.execute("SELECT id FROM landmarks WHERE id = ?", (int(key),)).fetchall()
     else:
-        row = db._conn.execute(
-            "SELECT id FROM landmarks WHERE name = ? ORDER BY id LIMIT 1", (key,)
-        ).fetchone()
-    if row is None:
-        raise UserError(f"no landmark {key!r}")
-    return int(row[0])
+        rows = db._conn.execute(
+            "SELECT id FROM landmarks WHERE name = ? ORDER BY id LIMIT 2", (key,)
+        ).fetchall()
+    if not rows:
+        raise UserError(f"no landmark {safe(key[:80])!r}")
+    if len(rows) > 1:
+        raise UserError(f"more than one landmark is named {safe(key[:80])!r}: give its id")
+    return int(rows[0][0])
 
 
 def cmd_remove(args: argparse.Namespace) -> None:
@@ -291,6 +297,11 @@ def cmd_edit(args: argparse.Namespace) -> None:
                     **pos,
                 )
                 if args.name is not None:
+                    same = db.by_name(args.name)
+                    if same is not None and same.id != lid:  # names are spoken and used by --to
+                        raise LandmarkDbError(
+                            f"a landmark named {safe(args.name)!r} exists (id {same.id})"
+                        )
                     db.rename(lid, args.name)
         except (LandmarkDbError, TypeError, ValueError) as exc:
             raise UserError(f"landmark {lid} not changed: {exc}") from None
