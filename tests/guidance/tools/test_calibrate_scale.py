@@ -9,6 +9,7 @@ import io
 import itertools
 import json
 import math
+import os
 import re
 import time
 from contextlib import redirect_stdout
@@ -227,6 +228,12 @@ def test_calibrate_refuses_bad_inputs_with_one_line_and_no_internal_error(
         assert said in err and "internal error" not in err and "Traceback" not in err, (argv, err)
         assert err.strip().splitlines()[-1].startswith("guidance calibrate: error:"), err
     assert not (tmp_path / "learned.json").exists()
+    fifo = tmp_path / "fifo.json"  # defect 4: `calibrate --write` hung on a FIFO learned file
+    os.mkfifo(fifo)
+    assert main(["calibrate", str(log), "--config", str(car), "--distance-m", "600",
+                 "--learned", str(fifo), "--write"]) == 2  # fmt: skip
+    err = capsys.readouterr().err
+    assert f"learned parameters {fifo}: not a regular file (a FIFO); not written" in err, err
 
 
 def test_what_calibrate_writes_passes_the_car_s_loader(tmp_path: Path) -> None:
