@@ -25,11 +25,13 @@ restore, and a state it refuses moved aside.
 from __future__ import annotations
 
 import contextlib
+import errno
 import hashlib
 import json
 import logging
 import math
 import os
+import stat
 import time
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass
@@ -130,8 +132,14 @@ def write_atomic(path: Path, data: bytes, mode: int = 0o644) -> None:
     """Write ``data`` to ``path`` so that readers see the old or the new content, never a mix;
     the new file gets ``mode`` (less the umask).
 
-    The temporary file is removed on every error path (a full disk, a size limit, a signal)."""
+    The temporary file is removed on every error path (a full disk, a size limit, a signal).
+    Only a regular file (or a link) is replaced: a FIFO, a device or a folder at ``path`` is not
+    the product's to delete (issue 40): ``OSError``, which the callers log once."""
     path.parent.mkdir(parents=True, exist_ok=True)
+    with contextlib.suppress(FileNotFoundError):
+        kind = os.lstat(path).st_mode
+        if not (stat.S_ISREG(kind) or stat.S_ISLNK(kind)):
+            raise OSError(errno.EEXIST, "not a regular file: not replaced", str(path))
     tmp = path.with_name(f".{path.name}.{os.getpid()}.tmp")
     fd = os.open(tmp, os.O_WRONLY | os.O_CREAT | os.O_TRUNC, mode)
     try:
