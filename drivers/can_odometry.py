@@ -25,6 +25,7 @@ from drivers.can_decode import MAX_GAP_S, REJECT_REASONS, WheelSpeedDecoder
 from drivers.candump import read_candump
 from drivers.clock import ClockMapper
 from drivers.profiles import VehicleProfile, get_profile
+from guidance import files
 from guidance.core.messages import RawCanFrame, WheelOdometry
 from guidance.errors import UserError
 
@@ -330,6 +331,7 @@ def read_can_log(path: Path, result: LogReadResult) -> Iterator[can.Message]:
     before the damage; other formats are read with ``can.LogReader`` and stop at the first bad
     record (``result.error`` says where).
     """
+    files.check(path, "can_log")  # a regular file of a bounded size, or FileRefused
     suffix, gz = _log_suffix(path)
     if suffix in CANDUMP_SUFFIXES:  # checked line by line, bounded (drivers/candump.py)
         yield from read_candump(path, gz, result)

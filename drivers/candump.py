@@ -20,6 +20,8 @@ from typing import Protocol
 
 import can
 
+from guidance import files
+
 MAX_LINE_BYTES = 4096
 """A candump line is under 300 bytes (CAN FD, 64 data bytes); longer is not a candump line."""
 _READ = 1 << 16
@@ -63,7 +65,7 @@ def read_candump(path: Path, gz: bool, result: ReadResult) -> Iterator[can.Messa
     """Frames of a candump log; bad lines counted in ``result.unreadable``, a damaged stream
     stops with ``result.error`` (the frames before it are kept)."""
     lines = 0
-    with gzip.open(path, "rb") if gz else path.open("rb") as raw:
+    with files.opened(path, "can_log") as f, gzip.open(f, "rb") if gz else f as raw:
         try:
             for line in bounded_lines(raw, result):
                 lines += 1

@@ -39,6 +39,7 @@ import pynmea2
 import serial
 
 from drivers._reader import ThreadedSource, rejection_counters
+from guidance import files
 from guidance.core.messages import CompassHeading, RawNmeaLine
 from guidance.errors import UserError
 
@@ -303,10 +304,6 @@ def parse_capture(
     Lines starting with '#' are comments (gpsd's test-log convention) and are counted apart.
     """
     path = Path(path)
-    if not path.exists():
-        raise UserError(f"{path}: no such file")
-    if not path.is_file():
-        raise UserError(f"{path}: not a file")
     parser = NmeaCompassParser(allow_missing_checksum=allow_missing_checksum)
     assembler = LineAssembler(on_too_long=lambda: parser.reject("too_long"))
     values: list[float] = []
@@ -323,7 +320,7 @@ def parse_capture(
                 values.append(out.heading_deg)
 
     try:
-        with path.open("rb") as f:
+        with files.opened(path, "nmea_log") as f:
             while chunk := f.read(chunk_bytes):
                 take(assembler.feed(chunk))
     except OSError as exc:

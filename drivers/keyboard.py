@@ -25,7 +25,13 @@ from dataclasses import dataclass
 from typing import TextIO
 
 from drivers._reader import ThreadedSource
-from guidance.core.co_driver import ExitsTyped, SceneParseError, parse_line, to_scene
+from guidance.core.co_driver import (
+    MAX_LINE_CHARS,
+    ExitsTyped,
+    SceneParseError,
+    parse_line,
+    to_scene,
+)
 from guidance.core.messages import IntersectionScene, TurnCompleted
 
 log = logging.getLogger(__name__)
@@ -248,7 +254,7 @@ class KeyboardScene(ThreadedSource[SceneMessage]):
             return
         while not self._stop.is_set():
             try:
-                line = stream.readline()
+                line = _bounded_line(stream)
             except (OSError, ValueError) as exc:  # closed stream
                 log.warning("%s: input closed (%s)", self.name, exc)
                 self._health.ended()
@@ -292,6 +298,9 @@ class KeyboardScene(ThreadedSource[SceneMessage]):
         elif ch == "\x15":  # Ctrl-U: clear the line
             buffer = ""
         elif ch.isprintable():
+            if len(buffer) >= MAX_LINE_CHARS:  # the parser refuses it anyway: stop growing
+                self.lines.echo(f"key {ch!r}: the line is full ({MAX_LINE_CHARS} characters)")
+                return buffer
             buffer += ch
         else:
             self.lines.echo(f"key {ch.encode('unicode_escape').decode()}: not used (? for help)")
@@ -301,6 +310,16 @@ class KeyboardScene(ThreadedSource[SceneMessage]):
             self.handle_line(buffer, sink)
             return ""
         return buffer
+
+
+def _bounded_line(stream: TextIO) -> str:
+    """One line of at most ``MAX_LINE_CHARS + 1`` characters (the parser refuses it then); the
+    rest of a longer line is read and dropped a piece at a time, never held whole."""
+    line = stream.readline(MAX_LINE_CHARS + 1)
+    if len(line) > MAX_LINE_CHARS and not line.endswith("\n"):
+        while (rest := stream.readline(4096)) and not rest.endswith("\n"):
+            pass
+    return line
 
 
 def _is_tty(stream: TextIO) -> bool:

@@ -3,11 +3,41 @@
 from __future__ import annotations
 
 import math
+import re
 from collections.abc import Callable
 
 
 class UserError(Exception):
     """A problem the user can fix (bad file, bad value, missing device): printed as one line."""
+
+
+_DECIMAL = re.compile(r"[-+]?(?:[0-9]+\.?[0-9]*|\.[0-9]+)(?:[eE][-+]?[0-9]+)?")
+
+
+def number(text: str) -> float:
+    """A command-line number (``argparse`` ``type=number``): plain ASCII decimal, finite.
+    ``float`` alone takes "nan", "inf", "1e999", "6_00" and Arabic-Indic digits; each of those
+    is refused here (argparse says "invalid number value: 'nan'")."""
+    t = text.strip()
+    if not _DECIMAL.fullmatch(t):
+        raise ValueError(text)
+    value = float(t)
+    if not math.isfinite(value):
+        raise ValueError(text)
+    return value
+
+
+def number_in(lo: float, hi: float) -> Callable[[str], float]:
+    """``number`` within ``[lo, hi]`` (``--facing`` in degrees: 1e308 is no heading)."""
+
+    def check(text: str) -> float:
+        value = number(text)
+        if not lo <= value <= hi:
+            raise ValueError(text)
+        return value
+
+    check.__name__ = f"number in [{lo:g}, {hi:g}]"  # what argparse names in its message
+    return check
 
 
 def _shown(value: object) -> str:

@@ -255,6 +255,7 @@ def _cli_check(args: argparse.Namespace) -> int:
             "late": len(res.late),
             "repeats": len(res.repeats),
             "min_margin_s": min(res.margins_s) if res.margins_s else None,
+            "damage": res.damage,
             "ok": res.ok(),
         }))  # fmt: skip
     else:

@@ -29,6 +29,7 @@ import re
 from collections.abc import Iterable, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import Any
 
 from guidance.core.model import wrap_angle
 from guidance.core.prompts import BEARINGS, METRES_PER_FOOT, METRES_PER_MILE, manoeuvre
@@ -146,6 +147,9 @@ class CheckResult:
     coarse: int = 0
     """Manoeuvres said truly but coarser than their name (a side, or a direction), the
     heading being too uncertain for the name."""
+    damage: list[str] = field(default_factory=list)
+    """What of the recording could not be read (chunks, records, a file cut short): a check
+    of part of a drive is no pass (issue 40, defect 6)."""
 
     @property
     def distance_ok_frac(self) -> float:
@@ -165,14 +169,16 @@ class CheckResult:
         for name in ("turn_prompts", "manoeuvres_checked", "distances_checked", "distances_ok",
                      "turns", "unchecked", "coarse"):  # fmt: skip
             setattr(self, name, getattr(self, name) + getattr(other, name))
-        for name in ("wrong", "bad_distances", "unannounced", "margins_s", "late", "repeats"):
+        for name in ("wrong", "bad_distances", "unannounced", "margins_s", "late", "repeats",
+                     "damage"):  # fmt: skip
             getattr(self, name).extend(getattr(other, name))
 
     def ok(self, min_distance_frac: float = 0.95) -> bool:
         """The issue's bar: no wrong manoeuvre, no unannounced or late turn, no repeat, and at
         least ``min_distance_frac`` of the spoken distances right."""
         return (
-            not self.wrong
+            not self.damage
+            and not self.wrong
             and not self.unannounced
             and not self.late
             and not self.repeats
@@ -200,6 +206,7 @@ class CheckResult:
                 f"median {p(0.5):.1f} s"
             )
         lines.append(f"same sentence twice within {REPEAT_S:.0f} s: {len(self.repeats)}")
+        lines += [f"damaged recording: {d}: only what was read is checked" for d in self.damage]
         for name in ("wrong", "unannounced", "late", "repeats", "bad_distances"):
             for f in getattr(self, name)[:10]:
                 lines.append(f"  {name}: {f.line()}")
@@ -364,7 +371,8 @@ def from_recording(path: str | Path) -> CheckResult:
     truth: list[TruthSample] = []
     reports: list[Report] = []
     prompts: list[SpokenPrompt] = []
-    for m in Reader(path, topics=("/truth", "/scene", "/approach", "/prompt")):
+    reader = Reader(path, topics=("/truth", "/scene", "/approach", "/prompt"))
+    for m in reader:
         d = m.data
         try:
             if m.topic == "/truth":
@@ -377,12 +385,33 @@ def from_recording(path: str | Path) -> CheckResult:
                 reports.append(Report(float(d["t_s"]), float(d["distance_m"])))
             elif m.topic == "/prompt":
                 prompts.append(SpokenPrompt(float(d["t_s"]), str(d["text"]), str(d["kind"])))
-        except (KeyError, TypeError, ValueError) as exc:
+        except (KeyError, TypeError, ValueError, OverflowError) as exc:
             raise UserError(f"{path}: a {m.topic} record cannot be read ({exc})") from None
+    damage = _damage(reader)
     if not truth:
-        raise UserError(f"{path}: no /truth topic: only a simulated drive can be checked")
+        raise UserError(
+            f"{path}: no /truth topic: only a simulated drive can be checked"
+            + (f" (damaged recording: {'; '.join(damage)})" if damage else "")
+        )
+    if not all(math.isfinite(v) for s in truth for v in (s.t_s, s.x_m, s.y_m, s.heading_rad)):
+        raise UserError(f"{path}: a /truth record holds a number that is not finite")
     if not reports:
         raise UserError(
             f"{path}: no intersection reports with a distance: nothing to place the prompts at"
         )
-    return check(truth, reports, prompts)
+    res = check(truth, reports, prompts)
+    res.damage = damage
+    return res
+
+
+def _damage(reader: Any) -> list[str]:
+    """What ``reader`` could not read, in words (the words ``guidance replay`` uses)."""
+    from guidance.recording.repair import damage_text
+
+    out = [damage_text(reader.damage)] if reader.damage.any else []
+    if reader.recovered:
+        names = ", ".join(p.name for p in reader.recovered)
+        out.append(f"cut short ({names}): read up to the damage")
+    if reader.skipped:
+        out.append(f"{reader.skipped} record(s) left out ({reader.skipped_why[0]})")
+    return out

@@ -113,8 +113,7 @@ def open_sim_camera(
     else:
         out_dir.mkdir(parents=True, exist_ok=True)
         path = out_dir / f"landmarks-seed{opts.seed}.sqlite"
-        for old in out_dir.glob(f"landmarks-seed{opts.seed}.sqlite*"):
-            old.unlink()
+        _remove_sqlite_files(path)  # this run's own file of an earlier run, and its sidecars
         db, lms = build_sim_landmark_db(path, world.lm_xy, opts.seed)
     recogniser = Recogniser(db, RecogniserConfig(sighting_range_m=world.sim.sighting_range_m))
     camera = SimCamera(lms, opts.seed)
@@ -136,6 +135,14 @@ def import_sim_landmark_db(
     if not _holds(path, names):
         from landmark_db.cli_io import progress
 
+        why = _not_the_simulators(path)
+        if why:  # never delete what the simulator did not make (issue 40, defect 11)
+            raise UserError(
+                f"{path}: {why}: the simulated city's landmark database is built only where "
+                "no file is, or over one the simulator built; move it away or name another "
+                "[landmarks] database"
+            )
+
         t0 = time.monotonic()
         err = sys.stderr
         err.write(
@@ -145,8 +152,6 @@ def import_sim_landmark_db(
             "minute, once; later runs reuse it)\n"
         )
         err.flush()
-        for old in path.parent.glob(path.name + "*"):
-            old.unlink()
         photos = path.parent / f"{path.stem}-photos"
         photos.mkdir(parents=True, exist_ok=True)
         import cv2
@@ -159,15 +164,25 @@ def import_sim_landmark_db(
                 cv2.imwrite(str(photos / image), facade(photo_seed(seed, i)))
                 w.writerow([image, names[i], f"{x:.3f}", f"{y:.3f}", "0.5"])
                 progress("writing photos", i + 1, len(xy), err)
+        # built beside, then renamed over: a stop mid-build leaves the configured path as it was
+        tmp = path.with_name(f".{path.name}.building-{os.getpid()}")
+        _remove_sqlite_files(tmp)
         log = io.StringIO()
-        with redirect_stdout(log):
-            origin = [str(SIM_ORIGIN.lat_deg), str(SIM_ORIGIN.lon_deg)]
-            codes = (
-                landmark_db(["init", str(path), "--origin", *origin]),
-                landmark_db(["import", str(path), str(photos), "--progress"]),
-            )
-        if any(c not in (0, None) for c in codes):
-            raise UserError(f"landmark-db import of the simulated city failed: {log.getvalue()}")
+        try:
+            with redirect_stdout(log):
+                origin = [str(SIM_ORIGIN.lat_deg), str(SIM_ORIGIN.lon_deg)]
+                codes = (
+                    landmark_db(["init", str(tmp), "--origin", *origin]),
+                    landmark_db(["import", str(tmp), str(photos), "--progress"]),
+                )
+            if any(c not in (0, None) for c in codes):
+                raise UserError(
+                    f"landmark-db import of the simulated city failed: {log.getvalue()}"
+                )
+            _remove_sqlite_files(path, keep_db=True)  # the old file's journal must not apply
+            os.replace(tmp, path)
+        finally:
+            _remove_sqlite_files(tmp)
         err.write(
             f"landmark database built in {time.monotonic() - t0:.0f} s: {os.path.normpath(path)}\n"
         )
@@ -181,6 +196,37 @@ def import_sim_landmark_db(
         SimLandmark(by_name[n].id, float(xy[i, 0]), float(xy[i, 1]), photo_seed(seed, i))
         for i, n in enumerate(names)
     ]
+
+
+def _remove_sqlite_files(path: Path, *, keep_db: bool = False) -> None:
+    """``path`` (unless ``keep_db``) and SQLite's own files beside it (``-wal``, ``-shm``,
+    ``-journal``), by their exact names: only for a file the simulator made."""
+    names = [path.name + s for s in ("-wal", "-shm", "-journal")]
+    for name in names if keep_db else [path.name, *names]:
+        with contextlib.suppress(FileNotFoundError):
+            (path.parent / name).unlink()
+
+
+def _not_the_simulators(path: Path) -> str:
+    """Why the simulator may not build over ``path`` (it did not make it), or "" (no file
+    there, or a database of simulated landmarks only, of another city)."""
+    if not os.path.lexists(path):
+        return ""
+    if not path.is_file() or path.is_symlink():
+        return "not a regular file"
+    from landmark_db.store import open_db
+
+    try:
+        db = open_db(path, readonly=True)
+    except Exception as exc:  # damaged or foreign: not ours to replace
+        return f"it cannot be read as a landmark database ({str(exc)[:80]})"
+    try:
+        found = sorted(lm.name for lm in db.landmarks())
+    finally:
+        db.close()
+    if found != sorted(landmark_name(i) for i in range(len(found))):
+        return f"it holds {len(found)} landmarks the simulator did not make"
+    return ""
 
 
 def _holds(path: Path, names: list[str]) -> bool:

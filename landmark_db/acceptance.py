@@ -26,7 +26,6 @@ from a null model (docs/landmarks.md, "The decision rule").
 
 from __future__ import annotations
 
-import csv
 import hashlib
 import math
 import tempfile
@@ -39,6 +38,7 @@ import numpy as np
 
 from guidance.core.geo import Origin
 from landmark_db.features import ExtractorConfig, decode_image
+from landmark_db.inputs import read_csv_rows, read_photo
 from landmark_db.matcher import MatchConfig
 from landmark_db.recognise import Recogniser, RecogniserConfig
 from landmark_db.store import LandmarkDb, LandmarkDbError, create_db
@@ -179,11 +179,7 @@ class AcceptanceReport:
 def read_truth(path: Path, images_root: Path | None = None) -> list[TruthRow]:
     """The ground-truth CSV (module docstring); raises LandmarkDbError naming the row."""
     root = images_root or path.parent
-    try:
-        with path.open(newline="") as fh:
-            rows = list(csv.DictReader(fh))
-    except OSError as exc:
-        raise LandmarkDbError(f"{path}: {exc.strerror}") from exc
+    rows = read_csv_rows(path)
     out = []
     for i, row in enumerate(rows, start=2):
         q = (row.get("query") or row.get("image") or "").strip()
@@ -217,7 +213,7 @@ def evaluate_db(
     outcomes = []
     for row in truth:
         try:
-            image = decode_image(row.query.read_bytes())
+            image = decode_image(read_photo(row.query))
         except (OSError, ValueError) as exc:
             raise LandmarkDbError(f"{row.query}: {exc}") from exc
         shown: list[str] = []
@@ -270,7 +266,7 @@ def _images(folder: Path) -> Iterator[Path]:
 
 
 def _pixels(path: Path) -> str:
-    pixels = np.ascontiguousarray(decode_image(path.read_bytes()))
+    pixels = np.ascontiguousarray(decode_image(read_photo(path)))
     return hashlib.sha256(pixels.tobytes()).hexdigest()
 
 
@@ -331,10 +327,14 @@ def evaluate(
             ids: dict[str, int] = {}
             for path, name in photos:
                 if name in ids:
-                    db.add_photo(ids[name], path.read_bytes(), source=path.name)
+                    db.add_photo(ids[name], read_photo(path), source=path.name)
                 else:
                     ids[name] = db.add(
-                        name, path.read_bytes(), x_m=1000.0 * len(ids), y_m=0.0, source=path.name
+                        name,
+                        read_photo(path),
+                        x_m=1000.0 * len(ids),
+                        y_m=0.0,
+                        source=path.name,
                     )
             return evaluate_db(db, truth, config)
         finally:

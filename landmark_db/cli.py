@@ -15,7 +15,7 @@ from collections.abc import Sequence
 from pathlib import Path
 
 from guidance.core.geo import Origin
-from guidance.errors import UserError
+from guidance.errors import UserError, number, number_in
 from landmark_db.cli_args import HEADER, area, area_args, print_landmark_row, safe
 from landmark_db.cli_fix import add_fix_parsers
 from landmark_db.cli_io import add_io_parsers, add_kwargs
@@ -28,6 +28,7 @@ from landmark_db.features import (
     extract,
 )
 from landmark_db.gate import GATE_PROBABILITY_2SIGMA
+from landmark_db.inputs import read_photo
 from landmark_db.matcher import MatchConfig, photo_agreement
 from landmark_db.query import query_radius
 from landmark_db.recognise import RecogniserConfig
@@ -126,7 +127,7 @@ def cmd_add(args: argparse.Namespace) -> None:
             lm = db.find(args.to)
             if lm is None:
                 raise UserError(f"no landmark {args.to!r}")
-            data = path.read_bytes()
+            data = read_photo(path)
             _check_agreement(db, lm.id, lm.name, path, data)
             pid = db.add_photo(
                 lm.id, data, facing_deg=args.facing, conditions=args.conditions,
@@ -144,7 +145,7 @@ def cmd_add(args: argparse.Namespace) -> None:
                 f"with --to {same.id}, give the new one another --name, or --same-name to keep "
                 "both"
             )
-        data = path.read_bytes()
+        data = read_photo(path)
         kwargs = add_kwargs(lat, lon, x, y)
         _check_distinct(db, path, data, kwargs)
         lid = db.add(
@@ -268,7 +269,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument(
         "--origin",
         nargs=2,
-        type=float,
+        type=number,
         required=True,
         metavar=("LAT", "LON"),
         help="origin of the local east-north frame",
@@ -288,13 +289,18 @@ def build_parser() -> argparse.ArgumentParser:
         action="store_true",
         help="add a new landmark even when one has this name already (refused otherwise)",
     )
-    p.add_argument("--latlon", nargs=2, type=float, metavar=("LAT", "LON"))
-    p.add_argument("--xy", nargs=2, type=float, metavar=("X", "Y"), help="local metres")
-    p.add_argument("--facing", type=float, help="heading the photo faces (deg clockwise from N)")
+    where = p.add_mutually_exclusive_group()  # one position, never two
+    where.add_argument("--latlon", nargs=2, type=number, metavar=("LAT", "LON"))
+    where.add_argument("--xy", nargs=2, type=number, metavar=("X", "Y"), help="local metres")
+    p.add_argument(
+        "--facing",
+        type=number_in(-360.0, 360.0),
+        help="heading the photo faces (deg clockwise from N)",
+    )
     p.add_argument("--conditions", default="", help="free text: night, rain, 30 m west...")
     p.add_argument(
         "--sigma",
-        type=float,
+        type=number,
         default=DEFAULT_POSITION_SIGMA_M,
         help="1-sigma of the position (m, default %(default)s)",
     )

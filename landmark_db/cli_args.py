@@ -9,7 +9,7 @@ import unicodedata
 
 import numpy as np
 
-from guidance.errors import UserError
+from guidance.errors import UserError, number
 from landmark_db.recognise import RecogniserConfig
 from landmark_db.store import LandmarkDb
 
@@ -92,32 +92,32 @@ def area(
 
 
 def area_args(p: argparse.ArgumentParser, radius_default: float | None = None) -> None:
-    p.add_argument("--at", nargs=2, type=float, metavar=("X", "Y"), help="local metres")
-    p.add_argument("--latlon", nargs=2, type=float, metavar=("LAT", "LON"))
+    p.add_argument("--at", nargs=2, type=number, metavar=("X", "Y"), help="local metres")
+    p.add_argument("--latlon", nargs=2, type=number, metavar=("LAT", "LON"))
     g = p.add_mutually_exclusive_group()
     g.add_argument(
         "--radius",
-        type=float,
+        type=number,
         default=_REC.sighting_range_m if radius_default is None else radius_default,
         help="metres (a circle)",
     )
     g.add_argument(
         "--cov",
         nargs=3,
-        type=float,
+        type=number,
         metavar=("PXX", "PXY", "PYY"),
         help="x-y covariance (m^2); gate = its 2-sigma ellipse plus --range",
     )
     g.add_argument(
         "--ellipse",
         nargs=3,
-        type=float,
+        type=number,
         metavar=("A", "B", "ANGLE_DEG"),
         help="2-sigma ellipse semi-axes (m) and major-axis angle from east (deg)",
     )
     p.add_argument(
         "--range",
-        type=float,
+        type=number,
         default=_REC.sighting_range_m,
         help="camera sighting range added to the ellipse (m, default %(default)s)",
     )

@@ -23,7 +23,7 @@ import stat
 from collections.abc import Callable
 from pathlib import Path
 
-from guidance.errors import UserError
+from guidance.errors import UserError, number, number_in
 from landmark_db.cli_args import err, out, safe
 from landmark_db.cli_io import cell
 from landmark_db.features import PHOTO_MAX_SIDE_PX, ExtractorConfig, decode_image
@@ -248,16 +248,22 @@ def cmd_migrate(args: argparse.Namespace) -> None:
 
 
 def _landmark(db: LandmarkDb, key: str) -> int:
-    """The id of the landmark ``key`` names (id or name), read even when its values are bad."""
-    if key.isdigit():
-        row = db._conn.execute("SELECT id FROM landmarks WHERE id = ?", (int(key),)).fetchone()
+    """The id of the landmark ``key`` names (ASCII digits: an id; else a name), read even when
+    its values are bad. An id beyond SQLite's integers (30 digits) is no landmark, never a
+    traceback; a name two landmarks share is refused (which one would go?)."""
+    if key.isascii() and key.isdigit():
+        if len(key) > 18:  # SQLite's integers end at 2^63 - 1
+            raise UserError(f"no landmark {safe(key[:24])!r}")
+        rows = db._conn.execute("SELECT id FROM landmarks WHERE id = ?", (int(key),)).fetchall()
     else:
-        row = db._conn.execute(
-            "SELECT id FROM landmarks WHERE name = ? ORDER BY id LIMIT 1", (key,)
-        ).fetchone()
-    if row is None:
-        raise UserError(f"no landmark {key!r}")
-    return int(row[0])
+        rows = db._conn.execute(
+            "SELECT id FROM landmarks WHERE name = ? ORDER BY id LIMIT 2", (key,)
+        ).fetchall()
+    if not rows:
+        raise UserError(f"no landmark {safe(key[:80])!r}")
+    if len(rows) > 1:
+        raise UserError(f"more than one landmark is named {safe(key[:80])!r}: give its id")
+    return int(rows[0][0])
 
 
 def cmd_remove(args: argparse.Namespace) -> None:
@@ -291,6 +297,11 @@ def cmd_edit(args: argparse.Namespace) -> None:
                     **pos,
                 )
                 if args.name is not None:
+                    same = db.by_name(args.name)
+                    if same is not None and same.id != lid:  # names are spoken and used by --to
+                        raise LandmarkDbError(
+                            f"a landmark named {safe(args.name)!r} exists (id {same.id})"
+                        )
                     db.rename(lid, args.name)
         except (LandmarkDbError, TypeError, ValueError) as exc:
             raise UserError(f"landmark {lid} not changed: {exc}") from None
@@ -329,9 +340,14 @@ def add_fix_parsers(
     p = sub.add_parser("edit", help="change one landmark's position, sigma, facing or name")
     p.add_argument("db")
     p.add_argument("landmark", metavar="ID|NAME")
-    p.add_argument("--latlon", nargs=2, type=float, metavar=("LAT", "LON"))
-    p.add_argument("--xy", nargs=2, type=float, metavar=("X", "Y"), help="local metres")
-    p.add_argument("--sigma", type=float, help="1-sigma of the position (m)")
-    p.add_argument("--facing", type=float, help="heading the photo faces (deg clockwise from N)")
+    where = p.add_mutually_exclusive_group()  # one position, never two
+    where.add_argument("--latlon", nargs=2, type=number, metavar=("LAT", "LON"))
+    where.add_argument("--xy", nargs=2, type=number, metavar=("X", "Y"), help="local metres")
+    p.add_argument("--sigma", type=number, help="1-sigma of the position (m)")
+    p.add_argument(
+        "--facing",
+        type=number_in(-360.0, 360.0),
+        help="heading the photo faces (deg clockwise from N)",
+    )
     p.add_argument("--name", help="a new name")
     p.set_defaults(func=cmd_edit)

@@ -11,7 +11,8 @@ from typing import TextIO
 
 from guidance.errors import UserError
 from landmark_db.cli_args import out
-from landmark_db.limits import MAX_CSV_BYTES, MAX_CSV_FIELD_CHARS, MAX_CSV_ROWS, MAX_PHOTO_BYTES
+from landmark_db.inputs import open_csv, read_photo
+from landmark_db.limits import MAX_CSV_FIELD_CHARS, MAX_CSV_ROWS, MAX_PHOTO_BYTES
 from landmark_db.store import DEFAULT_POSITION_SIGMA_M, LandmarkDb, open_db
 
 
@@ -54,16 +55,10 @@ def cell(text: str) -> str:
 
 def read_csv(path: Path) -> list[dict[str, str]]:
     """The rows of a CSV file, bounded before reading (``limits``); one-line errors."""
-    try:
-        size = path.stat().st_size
-    except OSError as exc:
-        raise UserError(f"{path}: {exc.strerror}") from exc
-    if size > MAX_CSV_BYTES:
-        raise UserError(f"{path}: larger than {MAX_CSV_BYTES // 2**20} MiB")
     rows: list[dict[str, str]] = []
     line = 0
     try:
-        with path.open(newline="", encoding="utf-8-sig") as fh:
+        with open_csv(path, "utf-8-sig") as fh:
             reader = csv.DictReader(fh)
             for row in reader:
                 line = reader.line_num
@@ -135,7 +130,7 @@ def _import_row(
     facing = _csv_float(row, "facing_deg", "facing")
     sigma = _csv_float(row, "sigma_m", "position_sigma_m")
     conditions = _text(row, "conditions", "condition")
-    data = image.read_bytes()
+    data = read_photo(image)
     if key in groups:
         db.add_photo(groups[key], data, facing_deg=facing, conditions=conditions, source=name_col)
         return "photo"

@@ -13,6 +13,7 @@ from guidance.errors import UserError
 from landmark_db.acceptance import AcceptanceReport, evaluate, evaluate_db, read_truth
 from landmark_db.cli_args import area, area_args, err, out, safe
 from landmark_db.features import decode_image
+from landmark_db.inputs import read_photo
 from landmark_db.limits import frame_problem
 from landmark_db.recognise import Recogniser, RecognitionResult
 from landmark_db.store import LandmarkDb, open_db, query_gate
@@ -21,7 +22,7 @@ from landmark_db.store import LandmarkDb, open_db, query_gate
 def read_image(path: Path) -> np.ndarray:
     """An image file's pixels; ``UserError`` (one line) if missing, damaged or not an image."""
     try:
-        data = path.read_bytes()
+        data = read_photo(path)
     except OSError as exc:
         raise UserError(f"{path}: {exc.strerror or exc}") from exc
     try:

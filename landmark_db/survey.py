@@ -15,7 +15,6 @@ The NMEA clock is aligned so that the first fix is at ``nmea_offset_s`` on the f
 
 from __future__ import annotations
 
-import csv
 import math
 from collections.abc import Iterator
 from dataclasses import dataclass
@@ -26,8 +25,10 @@ import cv2
 import numpy as np
 import pynmea2
 
+from guidance import files
 from landmark_db.acceptance import IMAGE_EXTS
 from landmark_db.features import decode_image
+from landmark_db.inputs import read_csv_rows, read_photo
 from landmark_db.store import LandmarkDb, LandmarkDbError
 
 
@@ -66,7 +67,7 @@ def read_nmea(path: Path) -> GpsTrack:
     rmc: list[tuple[datetime, float, float]] = []
     gga: list[tuple[float, float, float]] = []
     try:
-        lines = path.read_text(errors="replace").splitlines()
+        lines = files.read_bytes(path, "nmea_log").decode(errors="replace").splitlines()
     except OSError as exc:
         raise LandmarkDbError(f"{path}: {exc.strerror}") from exc
     for line in lines:
@@ -115,11 +116,7 @@ def _opt_float(row: dict[str, str], *keys: str) -> float | None:
 
 def read_marks(path: Path) -> list[Mark]:
     """Marks CSV: ``t_s`` required; ``name``, ``lat``/``lon`` or ``x_m``/``y_m`` optional."""
-    try:
-        with path.open(newline="") as fh:
-            rows = list(csv.DictReader(fh))
-    except OSError as exc:
-        raise LandmarkDbError(f"{path}: {exc.strerror}") from exc
+    rows = read_csv_rows(path)
     marks = []
     for i, row in enumerate(rows, start=2):
         try:
@@ -175,12 +172,12 @@ def frames_from_video(path: Path) -> Iterator[tuple[float, np.ndarray]]:
 
 def frames_from_folder(path: Path, fps: float) -> Iterator[tuple[float, np.ndarray]]:
     """(t_s, image) for the images of a folder, sorted by name, ``1 / fps`` apart."""
-    files = sorted(p for p in path.iterdir() if p.suffix.lower() in IMAGE_EXTS)
-    if not files:
+    images = sorted(p for p in path.iterdir() if p.suffix.lower() in IMAGE_EXTS)
+    if not images:
         raise LandmarkDbError(f"{path}: no images")
-    for i, p in enumerate(files):
+    for i, p in enumerate(images):
         try:
-            image = decode_image(p.read_bytes())  # refuses a truncated file
+            image = decode_image(read_photo(p))  # refuses a truncated file
         except (OSError, ValueError) as exc:
             raise LandmarkDbError(f"{p}: cannot read image ({exc})") from exc
         yield i / fps, image

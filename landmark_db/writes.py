@@ -214,6 +214,8 @@ def name_problem(name: str) -> str | None:
         return f"a landmark name has at most {MAX_NAME_CHARS} characters"
     if any(unicodedata.category(ch)[0] == "C" for ch in name):
         return f"landmark name {name!r} holds control characters"
+    if name.strip().isdigit():  # `remove DB 1` would take it for landmark id 1 (issue 40)
+        return f"landmark name {name!r} is all digits: the tools would read it as an id"
     return None
 
 

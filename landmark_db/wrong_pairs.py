@@ -24,6 +24,7 @@ import numpy as np
 
 from landmark_db.acceptance import CONDITIONS, IMAGE_EXTS, SAME_PLACE
 from landmark_db.features import ExtractorConfig, decode_image, extract
+from landmark_db.inputs import read_photo
 from landmark_db.matcher import MatchConfig, PairMatcher, PhotoIndex
 from landmark_db.recognise import FRAME_FEATURES
 
@@ -85,7 +86,7 @@ def score_pairs(
     cfg = match or MatchConfig()
     photos, frames, pixels = [], [], []
     for i, im in enumerate(images):
-        img = decode_image(im.path.read_bytes())
+        img = decode_image(read_photo(im.path))
         pixels.append(hashlib.sha256(np.ascontiguousarray(img).tobytes()).hexdigest())
         photos.append(PhotoIndex(i, extract(img, ext, det), cfg.flann_checks, cfg.flann_trees))
         frames.append(extract(img, frame_ext, frame_det))

@@ -38,6 +38,7 @@ GUIDANCE_VOCABULARY = {
         "guidance.core.health",
         "guidance.core.co_driver",
         "guidance.errors",
+        "guidance.files",
     ),
     "landmark_db": (
         "guidance.core.messages",
@@ -45,12 +46,14 @@ GUIDANCE_VOCABULARY = {
         "guidance.core.model",
         "guidance.core.geo",
         "guidance.errors",
+        "guidance.files",
     ),
 }
 """All that ``drivers`` and ``landmark_db`` may import from ``guidance``: the messages and
 health vocabulary, plus the pure co-driver line parser the keyboard driver decodes with, and
 the shared ellipse/Mahalanobis math the landmark gate uses (one definition of the math), and
-the one geodesy (``guidance.core.geo.Origin``)."""
+the one geodesy (``guidance.core.geo.Origin``), and the one door for reading files
+(``guidance.files``)."""
 
 KNOWN_LONG: set[str] = set()
 """Modules still over the limit: none left; the list may only shrink (docs/layout.md)."""
@@ -351,3 +354,139 @@ def test_only_the_estimator_moves_its_state() -> None:
                 ):
                     calls.append(f"{p.relative_to(ROOT)}:{node.lineno} {node.func.attr}")
     assert not calls, "go through the estimator's own methods:\n" + "\n".join(calls)
+
+
+# -- the one door for files (issue 40) -----------------------------------------------------------
+DOOR_PACKAGES = ("guidance", "drivers", "landmark_db")
+"""The product: what runs in the car and its tools (the simulator's own caches are not read by
+the car)."""
+DOOR_CALLS = {"check", "open_binary", "opened", "read_bytes", "read_text", "read_json"}
+RAW_READS = {
+    ("open",),
+    ("json", "load"),
+    ("json", "loads"),
+    ("tomllib", "load"),
+    ("np", "load"),
+    ("os", "open"),
+    ("gzip", "open"),
+    ("wave", "open"),
+    ("cv2", "imread"),
+    ("sqlite3", "connect"),
+    ("*", "read_bytes"),
+    ("*", "read_text"),
+    ("*", "open"),
+}
+"""Ways to read a file without the door (``*``: a method of any object, ``Path.open``...)."""
+NOT_A_FILE_READ = {
+    ("guidance/_numba_cache.py", "read_text"): "the package's own sources, for the cache key",
+    ("drivers/opendbc_dbc.py", "read_text"): "a DBC inside the installed opendbc package",
+    ("guidance/_numba_cache.py", "read_bytes"): "the package's own sources, for the cache key",
+    ("guidance/version.py", "open"): "the checkout's own pyproject.toml",
+    ("guidance/version.py", "tomllib.load"): "the checkout's own pyproject.toml",
+    ("landmark_db/cli.py", "read_text"): "the checkout's own pyproject.toml (version)",
+    ("guidance/tools/web/server.py", "read_bytes"): "the package's own static files",
+    ("guidance/app/checks.py", "read_text"): "/sys/class/net attributes (the kernel's, bytes)",
+    ("guidance/app/checkpoint.py", "os.open"): "writes, and a folder opened to fsync it",
+    ("guidance/tools/car_toml.py", "os.open"): "writes, and a folder opened to fsync it",
+    ("guidance/recording/files.py", "os.open"): "writes a new recording",
+    ("guidance/app/learned_file.py", "os.open"): "the lock file beside the learned file",
+    ("landmark_db/cli.py", "os.open"): "/dev/null for writing",
+    ("landmark_db/cli_fix.py", "os.open"): "its own temp copy, opened to fsync it",
+    ("landmark_db/cli_fix.py", "sqlite3.connect"): "SQLite's backup of a database open_db took",
+    ("landmark_db/schema.py", "sqlite3.connect"): "the database open_db checked first",
+    ("landmark_db/store.py", "sqlite3.connect"): "the database open_db checked first",
+    ("drivers/evdev_keys.py", "os.open"): "the keypad's input device the config names",
+    ("drivers/candump.py", "gzip.open"): "decompresses a file the door opened",
+    ("guidance/voice/wav.py", "wave.open"): "WAV bytes in memory, and writes",
+    ("guidance/telemetry/client.py", "json.loads"): "zenoh samples, not files",
+    ("guidance/telemetry/session.py", "json.loads"): "zenoh config values and samples",
+}
+"""Reads that are not the product reading a file from outside, each with its reason."""
+
+
+def _call_name(node: ast.Call) -> tuple[str, str] | None:
+    """("", "open") for ``open(...)``, ("json", "loads"), ("*", "open") for ``x.open(...)``."""
+    f = node.func
+    if isinstance(f, ast.Name):
+        return ("", f.id)
+    if isinstance(f, ast.Attribute):
+        owner = f.value.id if isinstance(f.value, ast.Name) else "*"
+        return (owner, f.attr)
+    return None
+
+
+def _writes(node: ast.Call) -> bool:
+    """An ``open`` whose mode writes (``"w"``, ``"xb"``, ``mode="a"``...)."""
+    modes = [a for a in node.args if isinstance(a, ast.Constant) and isinstance(a.value, str)]
+    modes += [
+        k.value for k in node.keywords if k.arg == "mode" and isinstance(k.value, ast.Constant)
+    ]
+    return any(set(str(m.value)) & set("wax+") for m in modes)  # type: ignore[union-attr]
+
+
+NOT_FILES = {"self", "client", "zenoh", "files", "os", "json", "tomllib", "gzip", "wave"}
+"""Objects whose ``open`` is no file (a zenoh session, a client) or is matched by name."""
+
+
+def _raw_read(owner: str, attr: str) -> bool:
+    if (owner, attr) in RAW_READS or (owner == "" and attr == "open"):
+        return True
+    return owner not in NOT_FILES and owner != "" and ("*", attr) in RAW_READS
+
+
+def _door_scan() -> tuple[dict[str, set[str]], list[str]]:
+    """(function -> kinds it opens through the door, raw reads outside it)."""
+    door: dict[str, set[str]] = {}
+    raw: list[str] = []
+    for pkg in DOOR_PACKAGES:
+        for path in sorted((ROOT / pkg).rglob("*.py")):
+            rel = str(path.relative_to(ROOT))
+            if rel == "guidance/files.py":
+                continue
+            module = rel.removesuffix(".py").replace("/", ".").removesuffix(".__init__")
+            tree = ast.parse(path.read_text(), filename=rel)
+
+            def visit(
+                node: ast.AST, scope: tuple[str, ...], rel: str = rel, module: str = module
+            ) -> None:
+                for child in ast.iter_child_nodes(node):
+                    if isinstance(child, ast.FunctionDef | ast.AsyncFunctionDef | ast.ClassDef):
+                        visit(child, (*scope, child.name))
+                        continue
+                    if isinstance(child, ast.Call) and (name := _call_name(child)):
+                        owner, attr = name
+                        where = ".".join((module, *scope))
+                        if owner == "files" and attr in DOOR_CALLS:
+                            kind = child.args[1] if len(child.args) > 1 else None
+                            k = kind.value if isinstance(kind, ast.Constant) else "?"
+                            door.setdefault(where, set()).add(str(k))
+                        elif _raw_read(owner, attr) and not _writes(child):
+                            named = owner not in ("", "*") and (owner, attr) in RAW_READS
+                            short = f"{owner}.{attr}" if named else attr
+                            if (rel, short) not in NOT_A_FILE_READ:
+                                raw.append(f"{rel}:{child.lineno} {ast.unparse(child)[:70]}")
+                    visit(child, scope)
+
+            visit(tree, ())
+    return door, raw
+
+
+def test_every_file_is_read_through_the_door_and_every_reader_is_in_the_table() -> None:
+    """Issue 40: the product opens a file to read only through ``guidance.files`` (a regular
+    file, a size limit per kind, strict JSON, one error), and every function that does is in
+    ``guidance.files.READERS`` with its kind, where ``tests/reliability/test_file_door.py``
+    throws the hostile corpus at it. A new reader (a raw ``open``, ``read_bytes``,
+    ``json.loads``..., or a door call from a function not in the table) fails here."""
+    from guidance import files
+
+    door, raw = _door_scan()
+    assert not raw, "read these through guidance.files (or say why not in NOT_A_FILE_READ):\n" + (
+        "\n".join(raw)
+    )
+    found = {fn: kinds for fn, kinds in door.items()}
+    missing = sorted(set(found) - set(files.READERS))
+    assert not missing, f"add these readers to guidance.files.READERS: {missing}"
+    gone = sorted(set(files.READERS) - set(found))
+    assert not gone, f"in guidance.files.READERS but reading nothing through the door: {gone}"
+    wrong = {fn: k for fn, k in found.items() if k != {files.READERS[fn]}}
+    assert not wrong, f"the kinds these read differ from the table: {wrong}"

@@ -25,23 +25,26 @@ restore, and a state it refuses moved aside.
 from __future__ import annotations
 
 import contextlib
+import errno
 import hashlib
 import json
 import logging
 import math
 import os
+import stat
 import time
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
+from guidance import files
 from guidance.errors import UserError
 
 log = logging.getLogger(__name__)
 
 SCHEMA = "guidance.checkpoint/2"
-MAX_BYTES = 16 << 20
+MAX_BYTES = files.KINDS["checkpoint"].max_bytes
 """A checkpoint is a few kB to a few hundred kB; anything larger is not read."""
 
 
@@ -129,8 +132,14 @@ def write_atomic(path: Path, data: bytes, mode: int = 0o644) -> None:
     """Write ``data`` to ``path`` so that readers see the old or the new content, never a mix;
     the new file gets ``mode`` (less the umask).
 
-    The temporary file is removed on every error path (a full disk, a size limit, a signal)."""
+    The temporary file is removed on every error path (a full disk, a size limit, a signal).
+    Only a regular file (or a link) is replaced: a FIFO, a device or a folder at ``path`` is not
+    the product's to delete (issue 40): ``OSError``, which the callers log once."""
     path.parent.mkdir(parents=True, exist_ok=True)
+    with contextlib.suppress(FileNotFoundError):
+        kind = os.lstat(path).st_mode
+        if not (stat.S_ISREG(kind) or stat.S_ISLNK(kind)):
+            raise OSError(errno.EEXIST, "not a regular file: not replaced", str(path))
     tmp = path.with_name(f".{path.name}.{os.getpid()}.tmp")
     fd = os.open(tmp, os.O_WRONLY | os.O_CREAT | os.O_TRUNC, mode)
     try:
@@ -257,19 +266,16 @@ def load_checkpoint(
     """
     p = Path(path)
     try:
-        with p.open("rb") as f:
-            raw = f.read(MAX_BYTES + 1)
-    except FileNotFoundError:
-        return None
-    except OSError as exc:
-        log.warning("checkpoint %s cannot be read (%s): starting afresh", p, exc.strerror or exc)
-        return None
-    if len(raw) > MAX_BYTES:
-        set_aside(p, f"it is larger than {MAX_BYTES >> 20} MiB")
+        raw = files.read_bytes(p, "checkpoint")
+    except files.FileRefused as exc:
+        if exc.code == "too_large":
+            set_aside(p, f"it is {exc.why}")
+        elif exc.code != "missing":  # a FIFO, a folder, a device: not ours to move
+            log.warning("%s: starting afresh", exc)
         return None
     try:
-        doc = json.loads(raw)
-    except (ValueError, RecursionError) as exc:
+        doc = files.parse_json(raw)
+    except ValueError as exc:
         set_aside(p, f"it is damaged ({str(exc)[:80]})")
         return None
     if not isinstance(doc, dict) or doc.get("schema") != SCHEMA:

@@ -17,15 +17,16 @@ import tomllib
 from pathlib import Path
 from typing import TYPE_CHECKING
 
+from guidance import files
+
 if TYPE_CHECKING:
     from guidance.app.config import AppConfig
 
 
 def _raw_table(config_path: str | Path, name: str) -> dict[str, object] | None:
     try:
-        with open(config_path, "rb") as f:
-            doc = tomllib.load(f)
-    except (OSError, tomllib.TOMLDecodeError):
+        doc = tomllib.loads(files.read_bytes(config_path, "config").decode("utf-8"))
+    except (files.FileRefused, UnicodeDecodeError, tomllib.TOMLDecodeError):
         return None
     t = doc.get(name)
     return t if isinstance(t, dict) else None

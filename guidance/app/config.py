@@ -23,6 +23,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
+from guidance import files
 from guidance.app.backends import BACKENDS, import_backend
 from guidance.app.landmarks import LandmarkSettings, parse_landmarks_table
 from guidance.app.settings import (
@@ -239,12 +240,7 @@ def load_config(
 ) -> AppConfig:
     """Read and validate a TOML configuration file."""
     p = Path(path)
-    try:
-        text = p.read_bytes()
-    except FileNotFoundError:
-        raise UserError(f"config file not found: {p}") from None
-    except OSError as exc:
-        raise UserError(f"{p}: {exc.strerror or exc}") from None
+    text = files.read_bytes(p, "config")
     try:
         data = tomllib.loads(text.decode("utf-8"))
     except (tomllib.TOMLDecodeError, UnicodeDecodeError) as exc:

@@ -20,30 +20,32 @@ import fcntl
 import json
 import os
 import stat
+from dataclasses import replace
 from pathlib import Path
 
+from guidance import files
 from guidance.app.checkpoint import remove_stale_temps, write_atomic
 from guidance.core.estimator import PoseEstimator
 from guidance.core.learned import LearnedParams
+from guidance.core.state_limits import FUTURE_TOLERANCE_S
 
-MAX_BYTES = 64 << 10
+MAX_BYTES = files.KINDS["learned"].max_bytes
 """The file is a few hundred bytes; a larger one (or ``/dev/zero``) is not read."""
 
 
-def load_learned(path: Path, vehicle_id: str) -> tuple[LearnedParams | None, str | None]:
+def load_learned(
+    path: Path, vehicle_id: str, now_unix_s: float | None = None
+) -> tuple[LearnedParams | None, str | None]:
     """(the parameters, None), or (None, the one line why they were refused); (None, None)
-    when there is no file yet."""
-    if not path.exists():
+    when there is no file yet. Given ``now_unix_s`` (the wall clock: the car, a tool), a file
+    saved more than ``FUTURE_TOLERANCE_S`` after it is refused: its age, which widens it, is
+    unknown (a replay of an old log passes None: its clock is the log's)."""
+    if not os.path.lexists(path):
         return None, None
     try:
-        with path.open("rb") as f:
-            raw = f.read(MAX_BYTES + 1)
-        if len(raw) > MAX_BYTES:
-            raise ValueError(f"larger than {MAX_BYTES >> 10} KiB")
-        data = json.loads(raw)
-    except (OSError, ValueError, RecursionError, OverflowError) as exc:
-        why = exc.strerror if isinstance(exc, OSError) and exc.strerror else str(exc)[:120]
-        return None, f"{path}: learned parameters unreadable ({why}): starting from the priors"
+        data = files.read_json(path, "learned")
+    except files.FileRefused as exc:
+        return None, f"{exc}: starting from the priors"
     if not isinstance(data, dict):
         return (
             None,
@@ -53,6 +55,12 @@ def load_learned(path: Path, vehicle_id: str) -> tuple[LearnedParams | None, str
         params = LearnedParams.from_dict(data)
     except ValueError as exc:
         return None, f"{path}: learned parameters refused ({exc}): starting from the priors"
+    if now_unix_s is not None and params.saved_unix_s > now_unix_s + FUTURE_TOLERANCE_S:
+        ahead_d = (params.saved_unix_s - now_unix_s) / 86400.0
+        return None, (
+            f"{path}: learned parameters refused (saved {ahead_d:.1f} days after this clock's "
+            "now: their age is unknown): starting from the priors"
+        )
     if params.vehicle_id != vehicle_id:
         return None, (
             f"{path}: learned parameters are vehicle {params.vehicle_id!r}'s, not "
@@ -132,12 +140,13 @@ def save_learned(path: Path, params: LearnedParams) -> None:
 
 
 def start_from_learned(
-    est: PoseEstimator, path: Path, vehicle_id: str, now_unix_s: float
+    est: PoseEstimator, path: Path, vehicle_id: str, now_unix_s: float, *, wall_clock: bool = True
 ) -> tuple[LearnedParams | None, str]:
     """Start a fresh car-model filter from the file (widened for the time since): what was
-    used, and one line saying so (or why not)."""
+    used, and one line saying so (or why not). ``wall_clock``: ``now_unix_s`` is the wall
+    clock (the car), so a file saved in the future is refused; a replay's is the log's."""
     remove_stale_temps(path)  # a save a SIGKILL cut short
-    params, refused = load_learned(path, vehicle_id)
+    params, refused = load_learned(path, vehicle_id, now_unix_s if wall_clock else None)
     if params is None:
         return None, refused or f"{path}: no learned parameters yet: starting from the priors"
     used = params.widened(now_unix_s, est.config)
@@ -159,6 +168,21 @@ def start_from_learned(
         f"{100 * used.scale_sigma:.2f} %, left/right {100 * used.diff:+.3f} +- "
         f"{100 * used.diff_sigma:.3f} %{bias}{turn}"
     )
+
+
+def counter_after_resume(
+    path: Path, vehicle_id: str, odometer_m: float
+) -> LearnedParams | None:
+    """A resumed trip's ``before`` (its state already carries what was learned): the file's
+    distance counter, less the trip's odometer so far, which the periodic saves of this trip
+    already added (at most one ``learned_interval_s`` of driving is lost, never the file's
+    history: a crash-resume once restarted 12,000 km at 2.4 m). Temp files a SIGKILL left
+    beside the file are removed here too."""
+    remove_stale_temps(path)
+    params, _ = load_learned(path, vehicle_id)
+    if params is None:
+        return None
+    return replace(params, distance_m=max(0.0, params.distance_m - max(0.0, odometer_m)))
 
 
 def save_after(

@@ -246,10 +246,14 @@ def _lock_learned(cfg: Any) -> Any:
 def _start_learned(cfg: Any, pipeline: Any, *, resumed: bool) -> Any:
     """``[checkpoint] learned_path``: a fresh start begins from the car's learned parameters
     (a resumed trip already carries them in its state). One log line either way."""
-    from guidance.app.learned_file import start_from_learned
+    from guidance.app.learned_file import counter_after_resume, start_from_learned
 
-    if not cfg.checkpoint.learned_path or resumed:
+    if not cfg.checkpoint.learned_path:
         return None
+    if resumed:  # the state carries what was learned; the file keeps its distance counter
+        return counter_after_resume(
+            Path(cfg.checkpoint.learned_path), cfg.vehicle_id, pipeline.st.odometer_m
+        )
     used, note = start_from_learned(
         pipeline.estimator, Path(cfg.checkpoint.learned_path), cfg.vehicle_id, time.time()
     )
@@ -269,6 +273,7 @@ async def _keep_learned(
         return
     path = Path(cfg.checkpoint.learned_path)
     loop = asyncio.get_running_loop()
+    failing = False  # one ERROR line per run of failures, one line when saving works again
     while True:
         try:
             await asyncio.wait_for(stop.wait(), cfg.checkpoint.learned_interval_s)
@@ -283,7 +288,13 @@ async def _keep_learned(
         try:
             await loop.run_in_executor(None, save_learned, path, params)
         except OSError as exc:
-            log.error("learned parameters not saved to %s: %s", path, exc)
+            if not failing:
+                log.error("learned parameters not saved to %s: %s (said once)", path, exc)
+            failing = True
+        else:
+            if failing:
+                log.info("learned parameters saved to %s again", path)
+            failing = False
 
 
 def _save_learned(cfg: Any, pipeline: Any, before: Any) -> None:

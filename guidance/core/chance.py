@@ -19,14 +19,14 @@ from __future__ import annotations
 
 import bisect
 import functools
-import json
 import logging
 import math
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
-from importlib import resources
+from pathlib import Path
 from typing import TYPE_CHECKING, Any, TypeVar
 
+from guidance import files
 from guidance.config_tables import rule
 
 if TYPE_CHECKING:
@@ -101,6 +101,8 @@ class ChanceTable:
         if not isinstance(raw_c, list) or not raw_c:
             raise ChanceTableError("compass_two_sigma_deg must be a non-empty list")
         numbers = [c for c in raw_c if c is not None]
+        if not numbers:  # a car with a compass would find no slice of its own
+            raise ChanceTableError("compass_two_sigma_deg must hold at least one number")
         comp: tuple[float | None, ...] = ((None,) if None in raw_c else ()) + (
             _axis(numbers, "compass_two_sigma_deg", 0.0, 180.0) if numbers else ()
         )
@@ -206,13 +208,20 @@ class ChanceTable:
         return sigmoid(sum(wi * xi for wi, xi in zip(w, x, strict=True)))
 
 
+def load_table(path: Path) -> ChanceTable:
+    """A chance table from a file, read through the product's one door (``guidance.files``:
+    a regular file of at most 1 MiB, strict JSON); ``FileRefused`` or ``ChanceTableError``."""
+    return ChanceTable.from_json(files.read_json(path, "chance_table"))
+
+
 @functools.cache
 def _shipped() -> ChanceTable:
-    text = resources.files("guidance.core").joinpath(TABLE_FILE).read_text()
-    return ChanceTable.from_json(json.loads(text))
+    return load_table(TABLE_PATH)
 
 
 TABLE_FILE = "chance_table.json"
+TABLE_PATH = Path(__file__).with_name(TABLE_FILE)
+"""The package's table, beside this module (read with ``load_table``)."""
 
 
 @functools.cache
@@ -222,7 +231,7 @@ def shipped_or_none() -> ChanceTable | None:
     guidance."""
     try:
         return ChanceTable.shipped()
-    except (OSError, ValueError) as e:  # ChanceTableError and JSONDecodeError are ValueErrors
+    except (files.FileRefused, ValueError) as e:  # ChanceTableError is a ValueError
         log.error("no chance of success: the package's %s cannot be read (%s)", TABLE_FILE, e)
         return None
 

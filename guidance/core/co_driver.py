@@ -48,8 +48,15 @@ KEYPAD_DIGITS: dict[str, str] = {
     "2": "u",
 }
 
-_ANGLE_RE = re.compile(r"^([lr])(\d+(?:\.\d+)?)$")
-_NUMBER_RE = re.compile(r"^[+-]\d+(?:\.\d+)?$")
+_ANGLE_RE = re.compile(r"^([lr])([0-9]{1,3}(?:\.[0-9]{1,3})?)$")
+_NUMBER_RE = re.compile(r"^[+-][0-9]{1,3}(?:\.[0-9]{1,3})?$")
+"""Angles in ASCII digits only (``float`` takes "١٢٠" and "1_20"), at most 3 before the point."""
+MAX_LINE_CHARS = 80
+"""A report is a few tokens ("bl s r", "+30 -120 u", "turned left"): a longer line is refused
+before it is split (an 8 MB line once cost the car 120 MB and a blocked loop)."""
+MAX_EXITS = 8
+"""At most eight exits at one intersection: eight directions 45 degrees apart (a report of
+33,334 "lsr" exits once blocked the loop for 1.5 s)."""
 _TURN_PREFIXES = ("turned", "took", "went", "t")
 
 
@@ -102,6 +109,8 @@ def parse_line(line: str) -> ExitsTyped | TurnTyped | None:
     ("846": each digit is one key), or signed angles in degrees, left positive ("+30 -90").
     Turn reports: "turned left", "took r", "t l", "tl", "went straight", "t 8".
     """
+    if len(line) > MAX_LINE_CHARS:
+        raise SceneParseError(f"a line of {len(line)} characters (at most {MAX_LINE_CHARS})")
     text = line.strip().lower().replace(",", " ")
     if not text:
         return None
@@ -119,6 +128,8 @@ def parse_line(line: str) -> ExitsTyped | TurnTyped | None:
     if len(words) == 1 and words[0] not in EXIT_TOKENS and set(words[0]) <= set("sflru"):
         words = list(words[0])  # "lsr"
     words = [k for w in words for k in (list(w) if w.isdigit() else [w])]  # keypad "846"
+    if len(words) > MAX_EXITS:
+        raise SceneParseError(f"{len(words)} exits (at most {MAX_EXITS} at one intersection)")
     exits = [_direction(w) for w in words]
     return ExitsTyped(tuple(a for a, _ in exits), tuple(lab for _, lab in exits))
 

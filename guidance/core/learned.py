@@ -31,6 +31,10 @@ from guidance.core.state_limits import (
     MAX_DIFF_SIGMA,
     MAX_SCALE_SIGMA,
     MAX_TURN_SIGMA,
+    MIN_BIAS_SIGMA_DEG,
+    MIN_DIFF_SIGMA,
+    MIN_SCALE_SIGMA,
+    MIN_TURN_SIGMA,
 )
 
 SCHEMA = "guidance.learned/2"
@@ -81,8 +85,8 @@ class LearnedParams:
             return None
         x, P = est.x, est.P
 
-        def sd(i: int) -> float:
-            return math.sqrt(max(0.0, float(P[i, i])))
+        def sd(i: int, floor: float) -> float:  # never below what a drive can know
+            return max(floor, math.sqrt(max(0.0, float(P[i, i]))))
 
         bias = est.config.compass_two_sigma_deg is not None
         return cls(
@@ -90,13 +94,15 @@ class LearnedParams:
             saved_unix_s=float(now_unix_s),
             distance_m=float(distance_m) + (before.distance_m if before is not None else 0.0),
             scale=float(x[model.STATE_SCALE]),
-            scale_sigma=sd(model.STATE_SCALE),
+            scale_sigma=sd(model.STATE_SCALE, MIN_SCALE_SIGMA),
             diff=float(x[model.STATE_DIFF]),
-            diff_sigma=sd(model.STATE_DIFF),
+            diff_sigma=sd(model.STATE_DIFF, MIN_DIFF_SIGMA),
             compass_bias_deg=math.degrees(float(x[model.STATE_BIAS])) if bias else None,
-            compass_bias_sigma_deg=math.degrees(sd(model.STATE_BIAS)) if bias else None,
+            compass_bias_sigma_deg=(
+                max(MIN_BIAS_SIGMA_DEG, math.degrees(sd(model.STATE_BIAS, 0.0))) if bias else None
+            ),
             turn_scale=float(x[model.STATE_TURN]),
-            turn_scale_sigma=sd(model.STATE_TURN),
+            turn_scale_sigma=sd(model.STATE_TURN, MIN_TURN_SIGMA),
         )
 
     def widened(self, now_unix_s: float, config: EstimatorConfig) -> LearnedParams:
@@ -174,19 +180,19 @@ class LearnedParams:
             or data.get("compass_bias_sigma_deg") is not None
         ):
             bias = num("compass_bias_deg", -MAX_ABS_BIAS_DEG, MAX_ABS_BIAS_DEG)
-            bias_sigma = num("compass_bias_sigma_deg", 1e-6, MAX_BIAS_SIGMA_DEG)
+            bias_sigma = num("compass_bias_sigma_deg", MIN_BIAS_SIGMA_DEG, MAX_BIAS_SIGMA_DEG)
         turn = turn_sigma = None
         if data.get("turn_scale") is not None or data.get("turn_scale_sigma") is not None:
             turn = num("turn_scale", -MAX_ABS_TURN, MAX_ABS_TURN)
-            turn_sigma = num("turn_scale_sigma", 1e-6, MAX_TURN_SIGMA)
+            turn_sigma = num("turn_scale_sigma", MIN_TURN_SIGMA, MAX_TURN_SIGMA)
         return cls(
             vehicle_id=vid,
             saved_unix_s=num("saved_unix_s", 0.0, 1e11),
             distance_m=num("distance_m", 0.0, 1e9),
             scale=num("scale", -MAX_ABS_SCALE, MAX_ABS_SCALE),
-            scale_sigma=num("scale_sigma", 1e-6, MAX_SCALE_SIGMA),
+            scale_sigma=num("scale_sigma", MIN_SCALE_SIGMA, MAX_SCALE_SIGMA),
             diff=num("diff", -MAX_ABS_DIFF, MAX_ABS_DIFF),
-            diff_sigma=num("diff_sigma", 1e-8, MAX_DIFF_SIGMA),
+            diff_sigma=num("diff_sigma", MIN_DIFF_SIGMA, MAX_DIFF_SIGMA),
             compass_bias_deg=bias,
             compass_bias_sigma_deg=bias_sigma,
             turn_scale=turn,

@@ -37,6 +37,31 @@ MAX_BIAS_SIGMA_DEG = 180.0
 MAX_TURN_SIGMA = 1.0
 """1-sigma bounds of the four (wider than any prior: a sigma beyond them is no knowledge)."""
 
+MIN_SCALE_SIGMA = 1e-4
+"""The smallest 1-sigma a learned wheel scale may claim (issue 40, defect 3): what the longest
+drive can teach. The scale is learned from how far the car went between two places it knows:
+a surveyed 10 km stretch, with the car's own position known to 1 m at either end (it is a
+4.5 m object; no landmark fix or map pin is better), teaches it to 1 m / 10 km = 1e-4; and the
+quantity itself moves by more within one drive (a tyre warming up gains about 0.2 bar, about
+0.1-0.2 % of its rolling radius). A file claiming 1e-6 (100 m known to 0.1 mm) is not a drive's
+knowledge: it is refused, and the car never saves less than this."""
+MIN_DIFF_SIGMA = 1e-5
+"""The left/right difference's: the two rolling radii differ with the two tyres' pressures; a
+tyre gauge resolves 0.05-0.1 bar, about 0.05-0.1 % of the radius, and the pressures of two
+tyres, one in the sun, drift apart by more in a drive: a tenth of a gauge's step, 1e-5
+(0.001 %), is below anything a drive's heading can tell (drives reach 1-2e-4)."""
+MIN_BIAS_SIGMA_DEG = 0.1
+"""The compass bias's, degrees: the compasses a car carries resolve 0.1 degrees and repeat to
+0.5-1 degree, and the car's own field moves with its electrical loads; no drive knows the bias
+closer than the instrument's resolution."""
+MIN_TURN_SIGMA = 1e-4
+"""The turn scale's: learned from the heading a compass sees after a turn; 10,000 right-angle
+turns (weeks of town driving) against a 1-degree compass teach it to 1 / (90 x 100) = 1.1e-4."""
+FUTURE_TOLERANCE_S = 86400.0
+"""A learned file saved later than this after the reader's clock is refused (defect 3): its
+age, which widens it, would be taken as zero for ever. A clock set by hand or off by a time
+zone is within a day, and a day's widening is (0.1 %)^2 / 30 of variance: nothing lost."""
+
 LEARNED_STATES: tuple[tuple[int, str, float, float], ...] = (
     (model.STATE_SCALE, "wheel scale", MAX_ABS_SCALE, MAX_SCALE_SIGMA),
     (model.STATE_DIFF, "left/right difference", MAX_ABS_DIFF, MAX_DIFF_SIGMA),

@@ -14,8 +14,12 @@ from guidance.config_tables import from_table, rule
 from guidance.errors import UserError
 from guidance.outputs.messages import check_origin
 
-
 # -- configuration --------------------------------------------------------------------------------
+MAX_CHUNK_SIZE_BYTES = 16 << 20
+"""The largest chunk the recorder may write: the readers refuse a chunk that inflates past
+64 MiB (``guidance.recording.scan.MAX_UNCOMPRESSED``)."""
+
+
 @dataclass(frozen=True, slots=True)
 class RecordingConfig:
     """The ``[recording]`` table of the car's TOML config (docs/telemetry.md)."""
@@ -59,6 +63,8 @@ class RecordingConfig:
         for name in positive:
             if not getattr(self, name) > 0:
                 raise UserError(f"[recording] {name} must be > 0")
+        if self.chunk_size_bytes > MAX_CHUNK_SIZE_BYTES:  # readers bound a chunk (recording.scan)
+            raise UserError(f"[recording] chunk_size_bytes must be <= {MAX_CHUNK_SIZE_BYTES}")
         if self.max_total_size_bytes < self.max_file_size_bytes:
             raise UserError("[recording] max_total_size_bytes must be >= max_file_size_bytes")
 

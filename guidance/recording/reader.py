@@ -3,19 +3,16 @@
 from __future__ import annotations
 
 import heapq
-import json
 import logging
 import math
-import struct
 from collections.abc import Iterable, Iterator, Sequence
 from pathlib import Path
 from typing import Any, NamedTuple
 
-from mcap.exceptions import McapError
 from mcap.reader import make_reader
 from mcap.records import Channel, Message, Schema
-from mcap.stream_reader import StreamReader
 
+from guidance import files
 from guidance.errors import UserError
 from guidance.recording.scan import Damage, scan_records
 
@@ -30,22 +27,17 @@ class RecordedMessage(NamedTuple):
 
 
 def recording_files(source: str | Path | Sequence[str | Path]) -> list[Path]:
-    """The MCAP files of a recording: one file, a folder of rotated files, or a list."""
+    """The MCAP files of a recording: one file, a folder of rotated files, or a list; each a
+    regular file (``guidance.files``: a FIFO or ``/dev/zero`` is refused, never read)."""
     if isinstance(source, str | Path):
         p = Path(source)
         if p.is_dir():
-            files = sorted(p.glob("*.mcap"))
-            if not files:
+            found = sorted(p.glob("*.mcap"))
+            if not found:
                 raise UserError(f"no .mcap files in {p}")
-            return files
-        if not p.is_file():
-            raise UserError(f"recording not found: {p}")
-        return [p]
-    files = [Path(s) for s in source]
-    for p in files:
-        if not p.is_file():
-            raise UserError(f"recording not found: {p}")
-    return files
+            return [files.check(f, "recording") for f in found]
+        return [files.check(p, "recording")]
+    return [files.check(s, "recording") for s in source]
 
 
 class Reader:
@@ -90,27 +82,26 @@ class Reader:
         """Topic -> schema name over all files (readable summaries or a scan)."""
         out: dict[str, str] = {}
         for path in self.files:
-            with path.open("rb") as f:
+            with files.opened(path, "recording") as f:
                 summary = _summary(f)
-                if summary is not None:
-                    for ch in summary.channels.values():
-                        sch = summary.schemas.get(ch.schema_id)
-                        out.setdefault(ch.topic, sch.name if sch else "")
-                    continue
-                f.seek(0)
-                schemas: dict[int, str] = {}
-                for record in _records_until_damage(f):
-                    if isinstance(record, Schema):
-                        schemas[record.id] = record.name
-                    elif isinstance(record, Channel):
-                        out.setdefault(record.topic, schemas.get(record.schema_id, ""))
+            if summary is not None:
+                for ch in summary.channels.values():
+                    sch = summary.schemas.get(ch.schema_id)
+                    out.setdefault(ch.topic, sch.name if sch else "")
+                continue
+            schemas: dict[int, str] = {}
+            for record in scan_records(path, Damage()):  # chunks decompressed with a bound
+                if isinstance(record, Schema):
+                    schemas[record.id] = record.name
+                elif isinstance(record, Channel):
+                    out.setdefault(record.topic, schemas.get(record.schema_id, ""))
         return out
 
     def _iter_file(self, path: Path) -> Iterator[tuple[int, RecordedMessage]]:
         """Chunk by chunk with CRCs checked (``scan``): damage is counted in ``damage`` and
         the rest read; the summary, when readable, only names the channels."""
         channels: dict[int, str] = {}
-        with path.open("rb") as f:
+        with files.opened(path, "recording") as f:
             summary = _summary(f)
         if summary is not None:
             channels.update({cid: ch.topic for cid, ch in summary.channels.items()})
@@ -147,11 +138,9 @@ class Reader:
         (``RecursionError``), not an object, or a ``t_s`` that is no finite number (10^400)."""
         why = ""
         try:
-            data = json.loads(message.data)
-        except RecursionError:
-            data, why = None, "its JSON is nested too deep"
+            data = files.parse_json(message.data)
         except ValueError as exc:
-            data, why = None, f"not JSON ({str(exc)[:60]})"
+            data, why = None, str(exc)[:80]
         if data is not None and not isinstance(data, dict):
             why = f"a JSON {type(data).__name__}, not an object"
         t_s: float = message.log_time / 1e9
@@ -182,20 +171,3 @@ def _summary(f: Any) -> Any:
     except Exception as exc:  # a cut-short file ends in arbitrary bytes: any parse error
         log.debug("recording: no readable summary: %s", exc)
         return None
-
-
-def _records_until_damage(f: Any) -> Iterator[Any]:
-    """MCAP records in file order, stopping quietly at a truncated or corrupt record."""
-    records = StreamReader(f, skip_magic=False).records
-    while True:
-        try:
-            record = next(records)
-        except StopIteration:
-            return
-        except (McapError, struct.error, ValueError, EOFError) as exc:
-            log.debug("recording: stopped at damaged record: %s", exc)
-            return
-        except Exception as exc:  # decompression errors come from zstd/lz4 with their own types
-            log.debug("recording: stopped at undecodable record: %s", exc)
-            return
-        yield record

@@ -20,6 +20,7 @@ from mcap.reader import make_reader
 from mcap.records import Channel, Message, Metadata, Schema
 from mcap.writer import CompressionType, Writer
 
+from guidance import files
 from guidance.errors import UserError
 from guidance.recording.scan import Damage, scan_records
 
@@ -39,8 +40,7 @@ class Repaired:
 
 def repair(src: Path, dest: Path) -> Repaired:
     """Write the complete records of ``src`` into ``dest`` (see the module docstring)."""
-    if not src.is_file():
-        raise UserError(f"{src}: " + ("not a regular file" if src.exists() else "no such file"))
+    files.check(src, "recording")  # a regular file, or one line why not
     if dest.exists():
         raise UserError(f"{dest} exists: give a new file")
     if dest.parent.resolve() == src.parent.resolve() and dest.name == src.name:
@@ -78,7 +78,8 @@ def repair(src: Path, dest: Path) -> Repaired:
             os.fsync(f.fileno())
         if messages == 0:
             raise UserError(f"{src}: no complete message to recover")
-        with tmp.open("rb") as f:  # what other tools will do: the standard reader, to the end
+        # what other tools will do: the standard reader, to the end
+        with files.opened(tmp, "recording") as f:
             n = sum(1 for _ in make_reader(f).iter_messages())
         if n != messages:
             raise UserError(f"{dest}: the standard reader reads {n} of {messages} messages")

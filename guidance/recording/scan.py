@@ -22,11 +22,16 @@ from mcap.data_stream import ReadDataStream
 from mcap.opcode import Opcode
 from mcap.records import Channel, Chunk, Message, Metadata, Schema
 
+from guidance import files
+
 MAGIC = b"\x89MCAP0\r\n"
 _U64 = struct.Struct("<Q")
 _KNOWN = frozenset(int(op) for op in Opcode)
-MAX_UNCOMPRESSED = 1 << 30
-"""A chunk claiming more than this when decompressed is damaged (the recorder's are ~1 MiB)."""
+MAX_UNCOMPRESSED = 64 << 20
+"""A chunk claiming more than this when decompressed is damaged: the recorder closes a chunk
+at ``[recording] chunk_size_bytes`` (64 KiB by default, at most 16 MiB) plus one message (a
+thumbnail is a few KiB). Every chunk is decompressed to at most the size it claims (zstd and
+lz4 alike), so a small file cannot inflate to gigabytes in memory (issue 40, defect 8)."""
 
 
 @dataclass
@@ -74,7 +79,10 @@ def _chunk_at(data: bytes | mmap.mmap, pos: int) -> tuple[Chunk, bytes, int] | N
         elif chunk.compression == "lz4":
             import lz4.frame  # type: ignore[import-untyped]
 
-            raw = lz4.frame.decompress(chunk.data)
+            lz = lz4.frame.LZ4FrameDecompressor()  # bounded: never past the claimed size
+            raw = lz.decompress(chunk.data, max_length=chunk.uncompressed_size)
+            if not lz.needs_input:  # more to come than the chunk claims: a bomb or damage
+                return None
         elif chunk.compression == "":
             raw = chunk.data
         else:
@@ -139,7 +147,7 @@ def _top_record(opcode: int, body: bytes) -> Channel | Schema | Message | Metada
 def scan_records(path: Path, damage: Damage) -> Iterator[Channel | Schema | Message | Metadata]:
     """Channels, schemas, messages and metadata of one file in written order, past damage
     (counted)."""
-    with path.open("rb") as f:
+    with files.opened(path, "recording") as f:
         try:
             data: bytes | mmap.mmap = mmap.mmap(f.fileno(), 0, access=mmap.ACCESS_READ)
         except ValueError:  # an empty file cannot be mapped

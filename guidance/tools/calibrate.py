@@ -28,7 +28,7 @@ from guidance.core.compass_cal import (
     reference_headings_from_odometry,
 )
 from guidance.core.model import heading_to_compass
-from guidance.errors import UserError
+from guidance.errors import UserError, number
 from guidance.tools import calibrate_scale
 from guidance.tools.car_toml import write_card
 from guidance.tools.replay import can_inputs, nmea_inputs, raw_setup
@@ -90,7 +90,7 @@ def register(sub: Any) -> None:
     p.add_argument("--profile", default=None, help="CAN profile (default: the config's)")
     p.add_argument(
         "--start-heading-deg",
-        type=float,
+        type=number,
         default=None,
         help="true heading at the start, clockwise from north (default: [start])",
     )

@@ -21,8 +21,9 @@ from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
+from guidance.core.state_limits import FUTURE_TOLERANCE_S, MAX_SCALE_SIGMA, MIN_SCALE_SIGMA
 from guidance.core.wheel_cal import MAX_TURN_DEG, ScaleFit, fuse, scale_from_distance, stretch
-from guidance.errors import UserError
+from guidance.errors import UserError, number
 
 if TYPE_CHECKING:  # the estimator stack loads on first use only
     from guidance.core.estimator import EstimatorConfig
@@ -47,13 +48,13 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     g = p.add_argument_group("wheel scale from a drive of known length")
     g.add_argument(
         "--distance-m",
-        type=float,
+        type=number,
         default=None,
         help="the known length of the drive (or of --from-t..--to-t), metres",
     )
     g.add_argument(
         "--distance-sigma-m",
-        type=float,
+        type=number,
         default=None,
         help=f"its 1-sigma (default {DEFAULT_DISTANCE_SIGMA_M:g} m; "
         f"{DEFAULT_POINT_SIGMA_M:g} m per point with --points)",
@@ -67,13 +68,13 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     )
     g.add_argument(
         "--from-t",
-        type=float,
+        type=number,
         default=None,
         metavar="T_S",
         help="the stretch starts at this log time (s, the log's time base)",
     )
     g.add_argument(
-        "--to-t", type=float, default=None, metavar="T_S", help="the stretch ends at this log time"
+        "--to-t", type=number, default=None, metavar="T_S", help="the stretch ends at this log time"
     )
     g.add_argument(
         "--learned",
@@ -139,10 +140,17 @@ def scale_calibration(log: Path, args: argparse.Namespace) -> ScaleResult:
                                   st.turn_deg)  # fmt: skip
     except ValueError as exc:
         raise UserError(str(exc)) from None
+    if not fit.scale_sigma <= MAX_SCALE_SIGMA:  # defect 7: a sigma the car's loader refuses
+        raise UserError(
+            f"the scale's uncertainty, +-{100 * fit.scale_sigma:.0f} %, is no calibration "
+            f"(the car takes at most +-{100 * MAX_SCALE_SIGMA:.0f} %): the distance's "
+            f"uncertainty ({sigma:g} m) must be well below the distance ({known:g} m)"
+        )
     path = args.learned
     if path is None and cfg.checkpoint.learned_path:
         path = Path(cfg.checkpoint.learned_path)
-    end = st.t_to_s if st.t_to_s > 1e9 else time.time()  # a Unix-time log: its own clock
+    now = time.time()  # a Unix-time log: its own clock, unless it is ahead of this one
+    end = st.t_to_s if 1e9 < st.t_to_s <= now + FUTURE_TOLERANCE_S else now
     return ScaleResult(fit, cfg.vehicle_id, path, end, args.points is not None, est)
 
 
@@ -173,10 +181,12 @@ def _write_scale_locked(res: ScaleResult) -> str:
 
     assert res.learned_path is not None
     est = res.estimator
-    old, refused = load_learned(res.learned_path, res.vehicle_id)
+    old, refused = load_learned(res.learned_path, res.vehicle_id, time.time())
     if refused is not None:
         raise UserError(f"{refused.split(': starting')[0]}; not written (move it away first)")
     fit = res.fit
+    if fit.scale_sigma < MIN_SCALE_SIGMA:  # no drive knows the scale better (state_limits)
+        fit = replace(fit, scale_sigma=MIN_SCALE_SIGMA)
     if old is None:
         new = LearnedParams(res.vehicle_id, res.end_unix_s, fit.wheel_m, fit.scale,
                             fit.scale_sigma, 0.0, est.diff_sigma)  # fmt: skip
@@ -184,6 +194,7 @@ def _write_scale_locked(res: ScaleResult) -> str:
     else:
         before = old.widened(res.end_unix_s, est)
         k, s, fused = fuse(before.scale, before.scale_sigma, fit.scale, fit.scale_sigma)
+        s = max(s, MIN_SCALE_SIGMA)
         new = replace(before, saved_unix_s=max(res.end_unix_s, old.saved_unix_s), scale=k,
                       scale_sigma=s, distance_m=old.distance_m + fit.wheel_m)  # fmt: skip
         how = (

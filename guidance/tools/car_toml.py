@@ -26,9 +26,10 @@ import tomlkit
 import tomlkit.items
 from tomlkit.exceptions import TOMLKitError
 
+from guidance import files
 from guidance.errors import UserError
 
-MAX_CONFIG_BYTES = 1 << 20
+MAX_CONFIG_BYTES = files.KINDS["config"].max_bytes
 """A car's TOML is a few kB; a larger file is not a config and is not read."""
 CARD_COMMENT = "guidance calibrate: A, B, C, D, E"
 
@@ -120,11 +121,9 @@ def write_card(config: Path, values: list[float]) -> Path:
 
     target, st = _target(config)
     try:
-        with target.open("rb") as f:
-            raw = f.read(MAX_CONFIG_BYTES + 1)
-        text = raw.decode("utf-8")
-    except OSError as exc:
-        raise _refuse(config, exc.strerror or str(exc)) from None
+        text = files.read_bytes(target, "config").decode("utf-8")
+    except files.FileRefused as exc:
+        raise _refuse(config, exc.why) from None
     except UnicodeDecodeError:
         raise _refuse(config, "it is not UTF-8 text") from None
     new = _edited(config, text, values).encode("utf-8")

@@ -18,6 +18,7 @@ from __future__ import annotations
 
 import argparse
 import csv
+import io
 import itertools
 import json
 import math
@@ -33,6 +34,7 @@ from typing import Any, TextIO
 import numpy as np
 import numpy.typing as npt
 
+from guidance import files
 from guidance.core.model import CHI2_2D_2SIGMA, mahalanobis_sq_2d
 from guidance.errors import UserError
 from guidance.tools.track import COLUMNS
@@ -49,7 +51,7 @@ NEES_2SIGMA = CHI2_2D_2SIGMA  # d^2 bound of the 2-sigma ellipse, 2 dof
 INSIDE_2SIGMA_EXPECTED = 1.0 - math.exp(-NEES_2SIGMA / 2.0)  # 0.865 for an honest filter
 MEAN_NEES_EXPECTED = 2.0
 MIN_ERROR_M = 1e-6  # steps with a smaller true error are left out of the axis ratio
-MAX_INPUT_BYTES = 128 << 20
+MAX_INPUT_BYTES = files.KINDS["truth_csv"].max_bytes
 MAX_ROWS = 1_000_000
 MAX_LINE_CHARS = 4096
 """Bounds of what is read (14 h of a 20 Hz truth fit): ``/dev/zero``, a file without line breaks
@@ -140,9 +142,10 @@ def _read_columns(
     course of a car standing still)."""
     line = 1
     try:
-        if path.is_file() and path.stat().st_size > MAX_INPUT_BYTES:
-            raise UserError(f"{path}: the {what} file is larger than {MAX_INPUT_BYTES >> 20} MiB")
-        with path.open(newline="", encoding="utf-8-sig") as f:
+        with (
+            files.opened(path, "truth_csv") as raw,
+            io.TextIOWrapper(raw, encoding="utf-8-sig", newline="") as f,
+        ):
             reader = csv.reader(_bounded_lines(f, path, what))
             header = next(reader, None)
             if header is None:

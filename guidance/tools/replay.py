@@ -32,6 +32,7 @@ from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
+from guidance import files
 from guidance.core.messages import CompassHeading, WheelOdometry
 from guidance.errors import UserError
 from guidance.tools.replay_mcap import (
@@ -66,27 +67,28 @@ _STAMPED = re.compile(r"^\s*([0-9]+(?:\.[0-9]*)?)[\s,;]+(.*)$")
 """A time stamp before an NMEA line: ASCII digits only (``float()`` takes ``1_0_0``)."""
 
 
+MAX_NMEA_LINE_BYTES = 4096
+"""A stamped NMEA line is under 100 bytes; a longer one is cut here and the parser rejects it."""
+
+
 def nmea_inputs(path: Path, start_s: float, rate_hz: float) -> Iterator[CompassHeading]:
     """Headings of an NMEA text file; a leading number on a line is its time (s)."""
     from drivers.compass import NmeaCompassParser
 
     parser = NmeaCompassParser()
     t = start_s
-    try:
-        lines = path.read_bytes().splitlines()
-    except OSError as exc:
-        raise UserError(f"{path}: {exc.strerror or exc}") from None
-    for raw in lines:
-        text = raw.decode("ascii", errors="replace")
-        m = _STAMPED.match(text)
-        if m:
-            t_line, body = float(m.group(1)), m.group(2)
-        else:
-            t_line, body = t, text
-            t += 1.0 / rate_hz
-        out = parser.feed_line(body.encode("ascii", errors="replace"), t_line)
-        if out is not None:
-            yield out
+    with files.opened(path, "nmea_log") as f:
+        for raw in files.text_lines(f, MAX_NMEA_LINE_BYTES):
+            text = raw.rstrip(b"\r\n").decode("ascii", errors="replace")
+            m = _STAMPED.match(text)
+            if m:
+                t_line, body = float(m.group(1)), m.group(2)
+            else:
+                t_line, body = t, text
+                t += 1.0 / rate_hz
+            out = parser.feed_line(body.encode("ascii", errors="replace"), t_line)
+            if out is not None:
+                yield out
 
 
 def can_inputs(path: Path, profile: str) -> Iterator[WheelOdometry]:
@@ -94,8 +96,6 @@ def can_inputs(path: Path, profile: str) -> Iterator[WheelOdometry]:
     from drivers.can_decode import WheelSpeedDecoder
     from drivers.can_odometry import LogReadResult, read_can_log
 
-    if not path.is_file():
-        raise UserError(f"{path}: no such file")
     decoder = WheelSpeedDecoder(profile)
     for msg in read_can_log(path, LogReadResult()):
         out = decoder.feed(msg)
@@ -475,7 +475,9 @@ def _replay_raw(
 
     vid = load_config(args.config, require_goal=False).vehicle_id if args.config else "replay"
     est = current[-1].estimator
-    before, note = start_from_learned(est, args.learned, vid, _first_can_time(path))
+    before, note = start_from_learned(
+        est, args.learned, vid, _first_can_time(path), wall_clock=False
+    )
     sys.stderr.write(f"guidance replay: {note}\n")
     res = replay(current[-1], merged, speed=args.speed, on_output=on_output)
     save_after(est, args.learned, vid, res.last_t_s or 0.0, res.odometer_m, before)

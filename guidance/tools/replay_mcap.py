@@ -81,11 +81,14 @@ def mcap_inputs(
     bad: list[str] = skipped if skipped is not None else []
     from guidance.recording.reader import Reader
 
-    sessions = list(Reader(path, topics=["/session"], log_time_order=False))
+    session_reader = Reader(path, topics=["/session"], log_time_order=False)
+    sessions = list(session_reader)
     if not sessions:
         where = path if isinstance(path, str | Path) else ", ".join(Path(p).name for p in path)
+        why = f": {session_reader.skipped_why[0]}" if session_reader.skipped_why else ""
         raise UserError(
             f"{where}: no readable /session record (damaged, or not recorded by guidance run/sim)"
+            f"{why}"
         )
     session = sessions[0].data
 

@@ -51,7 +51,7 @@ def test_odometry_max_gap_option(capsys: pytest.CaptureFixture[str]) -> None:
         (["odometry", "MISSING", "--profile", "toyota"], "no such file"),
         (["odometry", "RAV4", "--profile", "tesla"], "unknown vehicle profile 'tesla'"),
         (["odometry", "RAV4", "--profile", "toyota", "--max-gap", "-1"], "--max-gap"),
-        (["compass", "MISSING"], "no such file"),
+        (["compass", "MISSING"], "not found"),
     ],
 )
 def test_user_errors_are_one_line(

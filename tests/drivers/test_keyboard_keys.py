@@ -60,3 +60,18 @@ def test_terminal_keys_are_acknowledged_one_by_one() -> None:
     assert feedback[0] == "ok: exits straight, right"
     assert feedback[1:] == list(HELP_LINES)
     assert after == before  # the terminal is given back as it was
+
+
+def test_an_8_mb_line_is_read_in_pieces_and_the_next_line_still_counts() -> None:
+    """Issue 40, low: an 8 MB co-driver line cost the car 120 MB; now at most
+    ``MAX_LINE_CHARS + 1`` characters of it are held, the rest dropped unread in pieces."""
+    import io
+
+    from drivers.keyboard import _bounded_line
+    from guidance.core.co_driver import MAX_LINE_CHARS
+
+    stream = io.StringIO("l" * (8 << 20) + "\nl s r\n")
+    first = _bounded_line(stream)
+    assert len(first) == MAX_LINE_CHARS + 1
+    assert _bounded_line(stream) == "l s r\n"
+    assert _bounded_line(stream) == ""

@@ -238,7 +238,7 @@ def test_capture_of_arbitrary_bytes_ends_with_a_summary(tmp_path: Path) -> None:
 
 
 def test_capture_missing_file_is_a_user_error(tmp_path: Path) -> None:
-    with pytest.raises(UserError, match="no such file"):
+    with pytest.raises(UserError, match="not found"):
         parse_capture(tmp_path / "none.nmea")
 
 

@@ -26,3 +26,62 @@ def test_the_first_build_of_the_landmark_database_says_so_with_progress(
     # later runs reuse it, silently
     assert [lm.id for lm in import_sim_landmark_db(path, xy, seed=3)] == [lm.id for lm in lms]
     assert capsys.readouterr().err == ""
+
+
+def test_the_simulator_never_deletes_a_database_it_did_not_make(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """Issue 40, defect 11: ``[sim] devices = true`` deleted the landmark database it names,
+    and every file whose name started with it (``landmarks.sqlite.bak``), whenever the file did
+    not hold the simulated city, then rebuilt it in place. Now a file it did not make is
+    refused with one line and left as it was, with everything beside it."""
+    from guidance.core.geo import Origin
+    from guidance.errors import UserError
+    from hal_sim.sim_camera import facade
+    from landmark_db.store import create_db
+
+    xy = np.array([[10.0 * i, 5.0 * i] for i in range(4)])
+    path = tmp_path / "landmarks.sqlite"
+    theirs = create_db(path, Origin(52.5, 13.4))
+    theirs.add("the old mill", facade(5), x_m=1.0, y_m=2.0)
+    theirs.close()
+    before = path.read_bytes()
+    backup = tmp_path / "landmarks.sqlite.bak"
+    backup.write_bytes(b"the user's backup")
+    for damaged in (False, True):
+        if damaged:
+            path.write_bytes(before[:3000])  # a damaged file the simulator did not make
+            before = path.read_bytes()
+        with pytest.raises(UserError, match="move it away or name another"):
+            import_sim_landmark_db(path, xy, seed=3)
+        assert path.read_bytes() == before and backup.read_bytes() == b"the user's backup"
+        assert sorted(p.name for p in tmp_path.iterdir()) == [
+            "landmarks.sqlite",
+            "landmarks.sqlite.bak",
+        ]
+    capsys.readouterr()
+
+
+def test_a_stop_during_the_build_leaves_no_half_built_file_at_the_path(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """The build goes to a temp file beside the path and is renamed over it when complete: a
+    stop (here, the import failing half way) leaves the path as it was (absent), no temp."""
+    import landmark_db.cli as landmark_cli
+
+    real = landmark_cli.main
+
+    def stops_half_way(argv: list[str]) -> int:
+        if argv[0] == "import":
+            raise KeyboardInterrupt  # the operator's Ctrl-C, mid-import
+        return real(argv)
+
+    monkeypatch.setattr(landmark_cli, "main", stops_half_way)
+    xy = np.array([[10.0 * i, 5.0 * i] for i in range(4)])
+    path = tmp_path / "landmarks.sqlite"
+    with pytest.raises(KeyboardInterrupt):
+        import_sim_landmark_db(path, xy, seed=3)
+    assert not path.exists()
+    assert not [p for p in tmp_path.iterdir() if p.name.startswith(".landmarks.sqlite")]
+    monkeypatch.setattr(landmark_cli, "main", real)
+    assert len(import_sim_landmark_db(path, xy, seed=3)) == 4  # the next run builds it

@@ -192,3 +192,38 @@ def test_migrate_follows_a_symlink_and_refuses_a_read_only_file(
     assert code == 0, err
     assert link.is_symlink() and _version(real) == 3  # the link stays, its file is migrated
     assert sorted(p.name for p in real.parent.iterdir()) == ["old.sqlite"]
+
+
+def test_remove_and_edit_never_take_a_name_for_an_id_or_a_huge_id_for_a_crash(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """Issue 40, defects 9 and 10: ``edit --name 1`` was accepted, after which ``remove DB 1``
+    deleted landmark id 1 (another place); duplicate names were accepted by ``edit``; a 30-digit
+    id printed a raw traceback (an integer beyond SQLite's)."""
+    db = tmp_path / "old.sqlite"
+    _v2_file(db)
+    d = str(db)
+    def names_now() -> dict[int, str]:
+        with sqlite3.connect(db) as conn:
+            return dict(conn.execute("SELECT id, name FROM landmarks").fetchall())
+
+    names = names_now()
+    code, _, err = run(capsys, "edit", d, "2", "--sigma", "4", "--name", "1")
+    assert code == 2 and "all digits" in err and len(err.splitlines()) == 1
+    code, _, err = run(capsys, "edit", d, "2", "--sigma", "4", "--name", names[1])
+    assert code == 2 and "exists (id 1)" in err
+    for huge in ("9" * 30, "1" + "0" * 19):
+        for cmd in (("remove", d, huge), ("edit", d, huge, "--sigma", "3")):
+            code, _, err = run(capsys, *cmd)
+            assert code == 2 and "no landmark" in err and "Traceback" not in err, err
+    code, _, err = run(capsys, "remove", d, "\u0662")  # an Arabic-Indic two is no id
+    assert code == 2 and "no landmark" in err
+    for argv, said in (
+        (("--xy", "1", "2", "--latlon", "1", "2"), "not allowed with argument"),
+        (("--facing", "1e308"), "invalid number in [-360, 360] value"),  # was stored as 296
+        (("--sigma", "6_00"), "invalid number value"),
+    ):
+        with pytest.raises(SystemExit) as exit_:
+            main(["edit", d, "2", *argv])
+        assert exit_.value.code == 2 and said in capsys.readouterr().err
+    assert names_now() == names  # nothing changed

@@ -6,11 +6,22 @@ Before: every increment was one callback on the loop (78k queued for 10 s at 20,
 1-15 s loop lag, false "odometry silent"). Now the reader folds increments together while the
 loop has more than ``BACKLOG_LIMIT`` messages unprocessed: the queue stays bounded, no distance
 is lost, and the loop stays on time.
+
+Honest under load (issue 40: it failed once in a full ``make test`` at load 8): the claims
+about time (the loop's lag, no false "odometry silent") are judged against what the machine
+did, measured, not assumed. Each thread's run-queue wait (``/proc/self/task/TID/schedstat``:
+the time it was ready to run and the kernel ran something else) and the sender's own send
+times are recorded; a lag is the app's only beyond what the kernel withheld from the loop's
+thread, and "silent" is false only while frames were being sent and neither the reader nor the
+loop was held off the CPU. On an idle machine the waits are a few ms and the bounds are the old
+ones.
 """
 
 from __future__ import annotations
 
 import asyncio
+import bisect
+import itertools
 import os
 import threading
 import time
@@ -42,8 +53,21 @@ def no_leaks(leak_check: Callable[..., AbstractContextManager[None]]) -> Iterato
         yield
 
 
-def _blast(channel: str, stop: threading.Event, sent: list[int]) -> None:
-    """Send the wheels' frames back to back at up to RATE_HZ frames/s, on the wall clock."""
+def _run_delay_s(tid: int) -> float:
+    """Seconds thread ``tid`` of this process has waited on a run queue (ready, not running)."""
+    try:
+        with open(f"/proc/self/task/{tid}/schedstat") as f:
+            return int(f.read().split()[1]) / 1e9
+    except (OSError, IndexError, ValueError):
+        return 0.0
+
+
+def _blast(
+    channel: str, stop: threading.Event, sent: list[int], when: list[float], tids: list[int]
+) -> None:
+    """Send the wheels' frames back to back at up to RATE_HZ frames/s, on the wall clock
+    (``when``: the monotonic time of each batch sent)."""
+    tids.append(threading.get_native_id())
     wheels = SimCanWheels(channel)
     wheels.set_speeds(SPEED_MPS, SPEED_MPS)
     frames = wheels.encode()
@@ -55,6 +79,7 @@ def _blast(channel: str, stop: threading.Event, sent: list[int]) -> None:
             for f in frames:
                 bus.send(f)
                 n += 1
+            when.append(time.monotonic())
             ahead = n / RATE_HZ - (time.monotonic() - t0)
             if ahead > 0:
                 time.sleep(ahead)
@@ -90,18 +115,35 @@ def test_a_can_flood_is_coalesced_the_loop_queue_stays_bounded_and_no_distance_i
     backlog: list[int] = []
     sent: list[int] = []
     blast_end: list[float] = []
+    send_times: list[float] = []
+    tids: dict[str, list[int]] = {"loop": [], "reader": [], "sender": []}
+    waits: list[tuple[float, dict[str, float]]] = []  # (monotonic, run-queue wait per role)
+
+    def sample_waits() -> None:
+        waits.append(
+            (time.monotonic(), {r: sum(_run_delay_s(t) for t in ts) for r, ts in tids.items()})
+        )
 
     async def scenario() -> App:
         app = App(pipeline, sources={"odometry": odo}, loop=LoopSettings(tick_hz=50, max_lag_s=0.5))
         app.listeners.append(listen)
         stop = threading.Event()
         async with app.running():
-            sender = threading.Thread(target=_blast, args=(channel, stop, sent), name="blast")
+            tids["loop"].append(threading.get_native_id())
+            tids["reader"] += [
+                t.native_id
+                for t in threading.enumerate()
+                if t.name.startswith(odo.name) and t.native_id
+            ]
+            sender = threading.Thread(
+                target=_blast, args=(channel, stop, sent, send_times, tids["sender"]), name="blast"
+            )
             sender.start()
             try:
                 t_end = time.monotonic() + BLAST_S + 1.0
                 while time.monotonic() < t_end:
                     backlog.append(app.backlog())
+                    sample_waits()
                     await asyncio.sleep(0.01)
             finally:
                 stop.set()
@@ -113,6 +155,7 @@ def test_a_can_flood_is_coalesced_the_loop_queue_stays_bounded_and_no_distance_i
     app = asyncio.run(scenario())
     stats = odo.stats()
     print(f"sent {sent} frames, stats {stats}, max backlog {max(backlog)}, {app.lag_summary()}")
+    assert tids["reader"] and tids["sender"] and len(waits) > 100  # the waits were measured
     assert sent and sent[0] > 10_000  # a real flood (several thousand frames per second)
     assert max(backlog) <= BACKLOG_LIMIT + 2  # bounded, not tens of thousands
     assert stats.get("coalesced", 0) > 0
@@ -120,10 +163,49 @@ def test_a_can_flood_is_coalesced_the_loop_queue_stays_bounded_and_no_distance_i
     # rejected as time going back.
     assert stats.get("clock_steps", 0) == 0 and stats["rejected"] == 0, stats
     lag = app.lag_summary()
-    assert lag["loop_lag_max_ms"] is not None and lag["loop_lag_max_ms"] < 500
+    withheld_s = max(
+        (b[1]["loop"] - a[1]["loop"] for a, b in itertools.pairwise(waits)), default=0.0
+    )
+    print(f"longest run-queue wait of the loop's thread between samples: {withheld_s * 1e3:.0f} ms")
+    assert lag["loop_lag_max_ms"] is not None
+    assert lag["loop_lag_max_ms"] < 500 + 1000 * withheld_s, (lag, withheld_s)
     # Never a false "odometry silent" while frames arrive (it is true once the flood ended).
-    assert all(t > blast_end[0] - 0.9 for t in silent_at), (silent_at, blast_end)
+    false_silent = [
+        t
+        for t in silent_at
+        if t <= blast_end[0] - 0.9
+        and _frames_flowed(send_times, t - 1.0, t)
+        and _withheld(waits, t - 1.5, t, ("reader", "loop")) < 0.5
+    ]
+    assert not false_silent, (false_silent, blast_end, silent_at[:5])
     # No distance lost: 10 m/s over the span of the first to the last increment (one frame
     # period of the first increment is not in it).
     span = times[-1] - times[0]
     assert pipeline.st.odometer_m == pytest.approx(SPEED_MPS * span, rel=0.02, abs=0.5)
+
+
+def _frames_flowed(send_times: list[float], t0: float, t1: float) -> bool:
+    """Whether the sender sent frames in every half second of [t0, t1] (else the silence was
+    real: the sender itself was held off the CPU)."""
+    i = bisect.bisect_left(send_times, t0)
+    last = t0
+    for t in send_times[i:]:
+        if t > t1:
+            break
+        if t - last > 0.5:
+            return False
+        last = t
+    return t1 - last <= 0.5
+
+
+def _withheld(
+    waits: list[tuple[float, dict[str, float]]], t0: float, t1: float, roles: tuple[str, ...]
+) -> float:
+    """The longest run-queue wait over [t0, t1] of the threads of ``roles`` (from the samples
+    around it)."""
+    times = [w[0] for w in waits]
+    i0 = max(0, bisect.bisect_right(times, t0) - 1)
+    i1 = min(len(waits) - 1, bisect.bisect_left(times, t1))
+    if i1 <= i0:
+        return 0.0
+    return max(waits[i1][1][r] - waits[i0][1][r] for r in roles)

@@ -202,3 +202,23 @@ def test_kill_9_at_20_random_points_still_reaches_the_goal(tmp_path: Path) -> No
     for f in files:
         first = next(iter(Reader(f, log_time_order=False)), None)
         assert first is None or first.topic == "/session"
+
+
+def test_an_atomic_write_never_replaces_what_is_not_a_regular_file(tmp_path: Path) -> None:
+    """Issue 40: a FIFO (or a folder) at ``[checkpoint] path`` or the learned file's path is
+    refused by the reader at start (``guidance.files``) and is not replaced by the first save
+    either: not the product's to delete. A link is replaced as before (the link, not its
+    target)."""
+    fifo = tmp_path / "ck.json"
+    os.mkfifo(fifo)
+    folder = tmp_path / "learned.json"
+    folder.mkdir()
+    for path in (fifo, folder):
+        with pytest.raises(OSError, match="not a regular file"):
+            write_atomic(path, b"{}")
+    assert fifo.is_fifo() and folder.is_dir()
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["ck.json", "learned.json"]
+    link = tmp_path / "link.json"
+    link.symlink_to("target.json")
+    write_atomic(link, b"{}")
+    assert link.read_bytes() == b"{}" and not link.is_symlink()

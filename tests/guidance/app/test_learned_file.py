@@ -132,3 +132,80 @@ def test_the_lock_is_exclusive_across_processes_and_dies_with_its_holder(tmp_pat
             LearnedLock.take(path)  # exclusive within one process too
         assert lock.path == path
     LearnedLock.take(path).release()
+
+
+# -- issue 40, defect 3 and the lows: physical floors, a save time in the future, resume ----------
+@pytest.mark.parametrize(
+    ("key", "value"),
+    [
+        ("scale_sigma", 1e-6),  # 100 m known to 0.1 mm: the hand edit of the issue
+        ("diff_sigma", 1e-8),
+        ("compass_bias_sigma_deg", 1e-6),
+        ("turn_scale_sigma", 1e-6),
+    ],
+)
+def test_a_sigma_below_what_any_drive_can_teach_is_refused(
+    tmp_path: Path, key: str, value: float
+) -> None:
+    """Defect 3: the old bounds let a file claim sigmas about 1,000 times below anything a
+    drive reaches (``guidance.core.state_limits.MIN_*``, with their reasons)."""
+    path = tmp_path / "learned.json"
+    doc = GOOD.to_dict() | {"compass_bias_deg": 2.0, "compass_bias_sigma_deg": 3.0}
+    doc |= {"turn_scale": 0.01, "turn_scale_sigma": 0.002}
+    path.write_text(json.dumps(doc))
+    assert load_learned(path, "car1")[0] is not None  # the same file with honest sigmas
+    path.write_text(json.dumps(doc | {key: value}))
+    params, why = load_learned(path, "car1")
+    assert params is None and why is not None and key in why and "outside" in why
+
+
+def test_the_car_never_saves_a_sigma_below_the_floor_so_it_never_refuses_its_own_file(
+    tmp_path: Path,
+) -> None:
+    from guidance.core import model, state_limits
+
+    est = PoseEstimator(car_model(EstimatorConfig(), calibrated=False), 0.0, 0.0, 0.0)
+    P = est.P
+    for i in (model.STATE_SCALE, model.STATE_DIFF, model.STATE_BIAS, model.STATE_TURN):
+        P[i, :] = 0.0
+        P[:, i] = 0.0
+        P[i, i] = 1e-20  # a filter that believes it knows everything
+    est.set_state(est.x, P)
+    params = LearnedParams.from_estimator(est, "car1", 1000.0, 10.0)
+    assert params is not None
+    assert params.scale_sigma == state_limits.MIN_SCALE_SIGMA
+    assert params.diff_sigma == state_limits.MIN_DIFF_SIGMA
+    assert params.turn_scale_sigma == state_limits.MIN_TURN_SIGMA
+    path = tmp_path / "learned.json"
+    save_learned(path, params)
+    assert load_learned(path, "car1") == (params, None)
+
+
+def test_a_save_time_in_the_future_is_refused_by_the_car_not_by_a_replay(tmp_path: Path) -> None:
+    """Defect 3: a file saved ten days after the car's clock would never be widened (its age
+    taken as zero); the car refuses it, a replay (its clock is the log's) takes it."""
+    path = tmp_path / "learned.json"
+    now = time.time()
+    save_learned(path, LearnedParams("car1", now + 10 * 86400.0, 2500.0, -0.011, 0.003, 0.0, 1e-4))
+    est = PoseEstimator(car_model(EstimatorConfig(), calibrated=False), 0.0, 0.0, 0.0)
+    used, note = start_from_learned(est, path, "car1", now)
+    assert used is None and "saved 10.0 days after this clock" in note and est.x[3] == 0.0
+    used, _ = start_from_learned(est, path, "car1", now, wall_clock=False)
+    assert used is not None
+    save_learned(path, LearnedParams("car1", now + 3600.0, 2500.0, -0.011, 0.003, 0.0, 1e-4))
+    assert start_from_learned(est, path, "car1", now)[0] is not None  # a clock an hour off
+
+
+def test_a_resumed_trip_keeps_the_file_s_distance_and_removes_stale_temps(tmp_path: Path) -> None:
+    """Lows: after a crash-resume the learned file's distance counter restarted at the trip's
+    odometer (12,000 km became 2.4 m), and temp files a SIGKILL left were not removed."""
+    from guidance.app.learned_file import counter_after_resume
+
+    path = tmp_path / "learned.json"
+    save_learned(path, LearnedParams("car1", 1000.0, 12_000_000.0, -0.011, 0.003, 0.0, 1e-4))
+    stale = tmp_path / ".learned.json.999999999.tmp"  # a pid that is not running
+    stale.write_text("{")
+    before = counter_after_resume(path, "car1", odometer_m=2400.0)
+    assert before is not None and before.distance_m == 12_000_000.0 - 2400.0
+    assert not stale.exists()
+    assert counter_after_resume(tmp_path / "none.json", "car1", 10.0) is None

@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import copy
 import math
+from pathlib import Path
 
 import pytest
 
@@ -184,3 +185,49 @@ def test_a_damaged_shipped_table_costs_the_chance_not_the_car(
     assert values and all(v is None for v in values)
     assert p.st.odometer_m > 25.0
     assert sum("no chance of success" in r.message for r in caplog.records) == 1
+
+
+@pytest.mark.parametrize(
+    "damage", ["deep", "digits_400", "dev_zero", "fifo", "nan", "no_compass_slice_only"]
+)
+def test_a_hostile_shipped_table_is_one_error_line_and_a_null_chance(
+    damage: str,
+    tmp_path: Path,
+    monkeypatch: pytest.MonkeyPatch,
+    caplog: pytest.LogCaptureFixture,
+) -> None:
+    """Defect 5: the package's table nested 200,000 deep (RecursionError), a 400-digit number
+    (OverflowError), /dev/zero (MemoryError) crashed the car at start, a FIFO hung it; a table
+    with only the no-compass slice was accepted. Now: one ERROR line, the chance None."""
+    import json
+    import os
+
+    good = json.loads(chance.TABLE_PATH.read_text())
+    path = tmp_path / "chance_table.json"
+    if damage == "deep":
+        path.write_text('{"schema": ' + "[" * 200_000 + "]" * 200_000 + "}")
+    elif damage == "digits_400":
+        text = json.dumps(good | {"lost_major_axis_m": 7})
+        key = '"lost_major_axis_m": '
+        path.write_text(text.replace(key + "7", key + "1" + "0" * 400))
+    elif damage == "dev_zero":
+        path.symlink_to("/dev/zero")
+    elif damage == "fifo":
+        os.mkfifo(path)
+    elif damage == "nan":
+        path.write_text(json.dumps(good | {"lost_major_axis_m": float("nan")}))
+    else:
+        only = [None]
+        coef = {k: v for k, v in good["coef"].items() if k.endswith("/none")}
+        path.write_text(json.dumps(good | {"compass_two_sigma_deg": only, "coef": coef}))
+    monkeypatch.setattr(chance, "TABLE_PATH", path)
+    chance._shipped.cache_clear()
+    chance.shipped_or_none.cache_clear()
+    try:
+        with caplog.at_level("ERROR", logger="guidance.core.chance"):
+            assert chance.shipped_or_none() is None
+    finally:
+        chance._shipped.cache_clear()
+        chance.shipped_or_none.cache_clear()
+    lines = [r.getMessage() for r in caplog.records if r.levelname == "ERROR"]
+    assert len(lines) == 1 and "no chance of success" in lines[0] and "\n" not in lines[0]

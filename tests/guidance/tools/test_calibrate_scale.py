@@ -3,19 +3,23 @@ written into the car's learned-parameters file with its uncertainty; absurd resu
 
 from __future__ import annotations
 
+import contextlib
 import csv
 import io
 import itertools
 import json
 import math
+import os
 import re
+import time
 from contextlib import redirect_stdout
 from pathlib import Path
 
 import can
 import pytest
 
-from guidance.app.learned_file import load_learned
+from guidance.app.learned_file import load_learned, start_from_learned
+from guidance.core.estimator import EstimatorConfig, PoseEstimator, car_model
 from guidance.core.wheel_cal import fuse, scale_from_distance
 from guidance.tools.cli import main
 from hal_sim.sim_can import SimCanWheels
@@ -197,3 +201,60 @@ def test_comma2k19_over_the_truth_span_gives_the_truth_scale(
     out = _cli("evaluate", "--track", str(track), "--truth", str(truth), "--json")
     ev = json.loads(out.splitlines()[-1])
     assert ev["inside_2sigma_frac"] >= 0.95 and ev["mean_nees"] <= 1.5, ev
+
+
+# -- issue 40, defects 7 and 12: what calibrate writes the car takes; one line, never internal ---
+def test_calibrate_refuses_bad_inputs_with_one_line_and_no_internal_error(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    log = _straight_drive(tmp_path)
+    car = tmp_path / "car.toml"
+    car.write_text(CAR)
+    nmea = tmp_path / "compass.log"
+    nmea.write_text("0.0 $HCHDG,30.0,,,,*6D\n")
+    cases = {  # argv -> what the line says
+        (str(tmp_path / "missing.log"), "--distance-m", "600"): "not found",
+        (str(tmp_path), "--distance-m", "600"): "not a regular file (a folder)",
+        (str(log), "--nmea", str(nmea), "--start-heading-deg", "nan"): "invalid number value",
+        (str(log), "--nmea", str(nmea), "--start-heading-deg", "inf"): "invalid number value",
+        (str(log), "--distance-m", "6_00"): "invalid number value",
+        (str(log), "--distance-m", "\u0666\u0660\u0660"): "invalid number value",  # Arabic-Indic
+        (str(log), "--distance-m", "600", "--distance-sigma-m", "2000", "--write"): "+-344 %",
+    }
+    for argv, said in cases.items():
+        with pytest.raises(SystemExit) if "invalid" in said else contextlib.nullcontext():
+            assert main(["calibrate", *argv, "--config", str(car)]) == 2
+        err = capsys.readouterr().err
+        assert said in err and "internal error" not in err and "Traceback" not in err, (argv, err)
+        assert err.strip().splitlines()[-1].startswith("guidance calibrate: error:"), err
+    assert not (tmp_path / "learned.json").exists()
+    fifo = tmp_path / "fifo.json"  # defect 4: `calibrate --write` hung on a FIFO learned file
+    os.mkfifo(fifo)
+    assert main(["calibrate", str(log), "--config", str(car), "--distance-m", "600",
+                 "--learned", str(fifo), "--write"]) == 2  # fmt: skip
+    err = capsys.readouterr().err
+    assert f"learned parameters {fifo}: not a regular file (a FIFO); not written" in err, err
+
+
+def test_what_calibrate_writes_passes_the_car_s_loader(tmp_path: Path) -> None:
+    """Defect 7: a 2 cm distance sigma over 600 m (below what any drive can know: floored at
+    ``MIN_SCALE_SIGMA``), and a log stamped after 1e11 s (the file's save time is then now,
+    not the log's future): both written, both taken by the car's own loader at its start."""
+    from guidance.core.state_limits import MIN_SCALE_SIGMA
+
+    log = _straight_drive(tmp_path)
+    car = tmp_path / "car.toml"
+    car.write_text(CAR)
+    out = _cli("calibrate", str(log), "--config", str(car), "--distance-m", "600",
+               "--distance-sigma-m", "0.02", "--write")  # fmt: skip
+    assert "+- 0.01 %" in out
+    est = PoseEstimator(car_model(EstimatorConfig(), calibrated=False), 0.0, 0.0, 0.0)
+    used, note = start_from_learned(est, tmp_path / "learned.json", "cal", time.time())
+    assert used is not None and used.scale_sigma >= MIN_SCALE_SIGMA, note
+    future = tmp_path / "future.log"  # the same drive stamped 1.7e11 s (about 5,000 years on)
+    ahead = 168_300_000_000  # every stamp after 1e11 s
+    future.write_text(re.sub(r"\((\d+)\.", lambda m: f"({int(m[1]) + ahead}.", log.read_text()))
+    (tmp_path / "learned.json").unlink()
+    _cli("calibrate", str(future), "--config", str(car), "--distance-m", "600", "--write")
+    params, why = load_learned(tmp_path / "learned.json", "cal", time.time())
+    assert why is None and params is not None and params.saved_unix_s <= time.time()

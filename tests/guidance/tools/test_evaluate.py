@@ -267,7 +267,7 @@ def test_bad_truth_files(tmp_path: Path) -> None:
     (tmp_path / "empty.csv").write_text("")
     with pytest.raises(UserError, match=r"empty truth file"):
         read_truth(tmp_path / "empty.csv")
-    with pytest.raises(UserError, match=r"absent.csv: cannot read the truth file"):
+    with pytest.raises(UserError, match=r"absent.csv: not found"):
         read_truth(tmp_path / "absent.csv")
     (tmp_path / "bin.csv").write_bytes(b"t,east_m,north_m\n\xff\xfe\x00\x01")
     with pytest.raises(UserError, match=r"not UTF-8"):
