@@ -234,6 +234,7 @@ LIGHT_IMPORTS = [
             "guidance.outputs.sink",
             "guidance.recording.topics",
             "guidance.tools.monitor_check",
+            "guidance.tools.monitor",  # issue 37: the whole monitor, not only its checks
         )
     ),
 ]

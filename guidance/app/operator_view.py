@@ -17,6 +17,7 @@ from collections.abc import Mapping
 from dataclasses import dataclass
 from typing import Any
 
+from guidance.core.angles import heading_to_compass
 from guidance.core.chance import shown
 from guidance.core.messages import (
     Approach,
@@ -26,7 +27,6 @@ from guidance.core.messages import (
     IntersectionScene,
     Target,
 )
-from guidance.core.model import heading_to_compass
 from guidance.core.prompts import manoeuvre
 
 KEYS_LINE = (

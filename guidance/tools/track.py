@@ -12,8 +12,8 @@ import csv
 from pathlib import Path
 from typing import TextIO
 
+from guidance.core.angles import heading_to_compass
 from guidance.core.messages import EstimateState
-from guidance.core.model import heading_to_compass
 from guidance.errors import UserError
 
 COLUMNS = (
