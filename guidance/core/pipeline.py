@@ -284,6 +284,9 @@ class Pipeline:
             last = self.st.landmark_said.get(str(fix.landmark_id), -math.inf)
             if r.reason == RELOCALISED or was_lost:  # found again: said by the place's name
                 self.counts["relocalisations"] += 1
+                # found: a reset's ellipse (80 m across for a 20 m sight) sits on the lost
+                # hysteresis, so the episode is closed here, not by the axis
+                self.st.lost_said = False
                 self.st.landmark_said[str(fix.landmark_id)] = fix.t_s
                 self.turns.reset()  # the heading history before the jump says nothing now
                 how = "reset there" if r.reason == RELOCALISED else "inside the lost ellipse"
