@@ -234,19 +234,21 @@ def fig_field(data: StudyData, summary: dict[str, Any], path: Path, caption: str
                     transform=ax.transAxes, ha="right", fontsize=7, color="0.3")  # fmt: skip
     for ax in axes[0, : len(conds)]:
         ax.set_xlim(0.0, float(np.ceil(d_max)))
-    axes[0, 0].set_ylabel("Goals reached (never lost on the way)")
+    reloc = bool(summary.get("relocalise"))
+    axes[0, 0].set_ylabel("Goals reached" if reloc else "Goals reached (never lost on the way)")
     surv = axes[0, -1]
+    end = engine.RES_FINAL_LOST_AT_M if reloc else engine.RES_DRIVEN_M  # where lost for good
     for i, c in enumerate(conds):
         r = data.results[c.key]
         lost = r[:, engine.RES_OUTCOME] == engine.OUTCOME_LOST
-        km = np.sort(r[lost, engine.RES_DRIVEN_M] / 1000.0)
+        km = np.sort(r[lost, end] / 1000.0)
         n = len(r)
         xs = np.concatenate([[0.0], km, [r[:, engine.RES_DRIVEN_M].max() / 1000.0]])
         ys = 1.0 - np.concatenate([[0], np.arange(1, len(km) + 1), [len(km)]]) / n
         surv.step(xs, ys, where="post", color=colours(i), label=figures._method_name(c.method))
     surv.set_xlabel("Distance driven, km")
-    surv.set_ylabel("Runs not yet lost")
-    surv.set_title("Runs (75 min or lost)", fontsize=10)
+    surv.set_ylabel("Runs not yet lost for good" if reloc else "Runs not yet lost")
+    surv.set_title("Runs (75 min; relocalising)" if reloc else "Runs (75 min or lost)", fontsize=10)
     surv.legend(fontsize=8, loc="lower left")
     for ax in axes[0]:
         ax.set_ylim(0, 1.02)
@@ -260,6 +262,12 @@ def fig_field(data: StudyData, summary: dict[str, Any], path: Path, caption: str
         f"Field protocol: successive goals until lost or {summary['time_limit_min']:g} min, "
         f"{c0.density_per_km2:g} landmarks/km², {c0.detection_rate:.0%} detection, compass "
         f"±{c0.compass_two_sigma_deg:g}° (2σ); ★ paper: 80 % at 6.9 km; bands: 95 % Wilson"
+        + (
+            "\nrelocalising arm: lost runs carry on, a landmark sighted while lost resets the "
+            "position (reached: arrived, lost on the way or not)"
+            if reloc
+            else ""
+        )
     )
     fig.tight_layout(rect=(0, 0.03, 1, 0.95))
     figures._caption(fig, caption)
