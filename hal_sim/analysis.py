@@ -226,14 +226,18 @@ def summarise_landmarks(data: StudyData, seed: int = 0) -> dict[str, Any]:
     return {"study": "landmarks", "conditions": conds, "methods": per_method}
 
 
-def write_trials_csv(data: StudyData, path: Path, header: str = "") -> None:
+def write_trials_csv(
+    data: StudyData, path: Path, header: str = "", relocalise: bool = False
+) -> None:
     """Per-trial results, one row per trial, with the condition's columns first; the first
-    line is the provenance, as a comment (``#``; ``read_csv_rows`` skips it)."""
+    line is the provenance, as a comment (``#``; ``read_csv_rows`` skips it). The relocalising
+    arm's counts are columns only when the study ran it (``engine.N_PAPER_RESULT``)."""
     cols = ["condition", "method", "compass_2sigma_deg", "density_per_km2", "detection_rate"]
+    names = engine.RESULT_NAMES if relocalise else engine.RESULT_NAMES[: engine.N_PAPER_RESULT]
     with path.open("w") as f:
         if header:
             f.write(f"# {header}\n")
-        f.write(",".join([*cols, *engine.RESULT_NAMES]) + "\n")
+        f.write(",".join([*cols, *names]) + "\n")
         for c in data.conditions:
             head = [
                 c.key,
@@ -246,7 +250,7 @@ def write_trials_csv(data: StudyData, path: Path, header: str = "") -> None:
                 vals = [
                     engine.OUTCOME_NAMES[int(v)] if i == engine.RES_OUTCOME else
                     ("" if not math.isfinite(v) else f"{v:.6g}")
-                    for i, v in enumerate(row)
+                    for i, v in enumerate(row[: len(names)])
                 ]  # fmt: skip
                 f.write(",".join(head + vals) + "\n")
 

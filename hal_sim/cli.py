@@ -50,6 +50,12 @@ def register(sub: Any) -> None:
         action="store_true",
         help="print the comparison with the paper's figures (also in paper_check.csv)",
     )
+    study.add_argument(
+        "--relocalise",
+        action="store_true",
+        help="field study: the relocalising arm (a lost run carries on; a landmark sighted "
+        "while lost resets the position around it); default out/field-relocalise",
+    )
     study.set_defaults(func=_study)
 
 
@@ -65,6 +71,7 @@ def _study(args: argparse.Namespace) -> int:
     )
     from rich.table import Table
 
+    from hal_sim.params import SimParams
     from hal_sim.studies import DEFAULT_TRIALS, StudyRun
 
     trials = (
@@ -76,8 +83,11 @@ def _study(args: argparse.Namespace) -> int:
         raise UserError("--seed must be a non-negative integer")
     if args.workers < 1:
         raise UserError("--workers must be at least 1")
-    out = args.out or Path("out") / args.which
-    run = StudyRun(args.which, out, trials, args.seed, args.workers, args.scheduler)
+    if args.relocalise and args.which != "field":
+        raise UserError("--relocalise applies to the field study only")
+    out = args.out or Path("out") / (args.which + ("-relocalise" if args.relocalise else ""))
+    sim = SimParams(relocalise=args.relocalise)
+    run = StudyRun(args.which, out, trials, args.seed, args.workers, args.scheduler, sim)
     console = Console(stderr=True)
     if args.no_progress:
         summary = run.run()
@@ -202,6 +212,10 @@ def _print_summary(console: Any, summary: dict[str, Any], out: Path, table_cls: 
                 _interval(c["leg_range_km_ci95"], "{:.1f}"),
                 "limit" if run is None else f"{run:.1f}",
             )  # fmt: skip
+        if summary.get("relocalise"):
+            t.caption = "relocalising: " + "; ".join(
+                _relocalised(c["method"], c["relocalisation"]) for c in summary["conditions"]
+            )
     else:
         for col in ("method", "density/km²", "detection", "success", "95 %", "range@80% km",
                     "driven km"):  # fmt: skip
@@ -219,6 +233,16 @@ def _print_summary(console: Any, summary: dict[str, Any], out: Path, table_cls: 
             )
     console.print(t)
     console.print(f"results in {out}/ (summary.json, trials.csv, figures)")
+
+
+def _relocalised(method: str, r: dict[str, Any]) -> str:
+    """One method's relocalising counts, for the field table's caption."""
+    return (
+        f"{method}: {r['found_again']} of {r['ever_lost']} lost runs found again "
+        f"({_interval(r['found_again_ci95'], '{:.0%}')}), {r['goal_after_lost']} reached a goal "
+        f"after, {r['ended_lost']} ended lost, {r['false_relocalisations']} false of "
+        f"{r['relocalisations']} relocalisations"
+    )
 
 
 def register_check(sub: Any) -> None:

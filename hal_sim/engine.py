@@ -19,6 +19,12 @@ A trial (SPEC section 5):
 * field study (``study=STUDY_FIELD``, SPEC 5's field protocol): goals one after the other,
   each at a random distance like the landmark study's, one landmark placed for each
   (``hal_sim.field``), until lost or the time limit; the sample row holds the legs.
+
+The relocalising arm (``SimParams.relocalise``, any study): lost no longer ends a trial. A lost
+episode opens when the major axis passes the lost limit; a landmark sighted while one is open
+resets the position around it (``ekf.reset_position``, the car's rule) and closes it; the
+trial ends on arrival or at its limit, as lost when an episode is still open. Up to its first
+lost a trial is the paper's, step for step (the arm draws nothing of its own).
 """
 
 from __future__ import annotations
@@ -47,6 +53,8 @@ from hal_sim.params import (
     I_MAG_NOISE,
     I_MAX_WHEEL_STEP,
     I_QUANTUM,
+    I_RELOCALISE,
+    I_RESET_SIGMA,
     I_REVISIT_FLOOR,
     I_REVISIT_GATE,
     I_SLIP,
@@ -57,6 +65,7 @@ from hal_sim.params import (
 from hal_sim.trial import (
     MAX_EXITS,
     MAX_MEMORY,
+    N_PAPER_RESULT,
     N_RESULT,
     OUTCOME_ARRIVED,
     OUTCOME_LOST,
@@ -67,21 +76,27 @@ from hal_sim.trial import (
     RES_COMPASS_REJECTS,
     RES_DRIVEN_M,
     RES_EUCLID_M,
+    RES_FALSE_RELOCALISATIONS,
     RES_FINAL_ERR_M,
+    RES_FINAL_LOST_AT_M,
     RES_GOAL_LANDMARKS,
     RES_GOALS,
+    RES_GOALS_AFTER_LOST,
     RES_INTERFERENCE_REJECTS,
     RES_LANDMARK_REJECTS,
     RES_LANDMARK_UPDATES,
     RES_LOST_AT_M,
+    RES_LOST_EPISODES,
     RES_MANHATTAN_M,
     RES_MAX_ERR_M,
     RES_N_LANDMARKS,
     RES_OUTCOME,
+    RES_RELOCALISATIONS,
     RES_STEPS,
     RES_TRUE_LOST_AT_M,
     RES_TURNS,
     RESULT_NAMES,
+    STEP_LOST,
     STEP_NEW_GOAL,
     STEP_ON,
     STUCK_FACTOR,
@@ -103,6 +118,7 @@ from hal_sim.trial import (
 __all__ = [  # the trial's names, re-exported: callers use engine.*
     "MAX_EXITS",
     "MAX_MEMORY",
+    "N_PAPER_RESULT",
     "N_RESULT",
     "OUTCOME_ARRIVED",
     "OUTCOME_LOST",
@@ -114,20 +130,26 @@ __all__ = [  # the trial's names, re-exported: callers use engine.*
     "RES_COMPASS_REJECTS",
     "RES_DRIVEN_M",
     "RES_EUCLID_M",
+    "RES_FALSE_RELOCALISATIONS",
     "RES_FINAL_ERR_M",
+    "RES_FINAL_LOST_AT_M",
     "RES_GOALS",
+    "RES_GOALS_AFTER_LOST",
     "RES_GOAL_LANDMARKS",
     "RES_INTERFERENCE_REJECTS",
     "RES_LANDMARK_REJECTS",
     "RES_LANDMARK_UPDATES",
     "RES_LOST_AT_M",
+    "RES_LOST_EPISODES",
     "RES_MANHATTAN_M",
     "RES_MAX_ERR_M",
     "RES_N_LANDMARKS",
     "RES_OUTCOME",
+    "RES_RELOCALISATIONS",
     "RES_STEPS",
     "RES_TRUE_LOST_AT_M",
     "RES_TURNS",
+    "STEP_LOST",
     "STEP_NEW_GOAL",
     "STEP_ON",
     "STUCK_FACTOR",
@@ -245,6 +267,13 @@ def drive(
     if method == law.METHOD_HYBRID:
         threshold = min(threshold, p[I_HYBRID_SWITCH])
     bound_max = threshold * threshold / (4.0 * model.CHI2_2D_2SIGMA) * (1.0 - 1e-12)
+    # The relocalising arm: the open lost episode, its counts, and the reset's 2-sigma circle.
+    carry_on = p[I_RELOCALISE] > 0.0
+    reset_var = p[I_RESET_SIGMA] * p[I_RESET_SIGMA]
+    lost_open = False
+    leg_lost = False
+    episodes = resets = false_resets = goals_after = 0
+    first_lost_m = final_lost_m = math.nan
     s0, s1 = rng.from_word(ns[world.R_RNG0]), rng.from_word(ns[world.R_RNG1])  # in registers
     while True:
         # world.world_step, its draws made here: see world.step_core. A reading is due when
@@ -276,7 +305,16 @@ def drive(
         landmark_update = False
         if events[3] >= 0.0:
             k = int(events[3])
-            if ekf.landmark_update_xy(x, P, lm_xy[k, 0], lm_xy[k, 1], lm_var, p[I_LM_GATE], work):
+            if lost_open:  # found again: reset around the landmark sighted
+                ekf.reset_position(x, P, lm_xy[k, 0], lm_xy[k, 1], reset_var)
+                dx, dy = ts[world.T_X] - lm_xy[k, 0], ts[world.T_Y] - lm_xy[k, 1]
+                resets += 1
+                if dx * dx + dy * dy > model.CHI2_2D_2SIGMA * reset_var:
+                    false_resets += 1  # the truth outside the reset's 2-sigma circle
+                lost_open = False
+                passed[k] = True
+                landmark_update = True
+            elif ekf.landmark_update_xy(x, P, lm_xy[k, 0], lm_xy[k, 1], lm_var, p[I_LM_GATE], work):
                 lm_updates += 1
                 passed[k] = True
                 landmark_update = True
@@ -293,11 +331,21 @@ def drive(
         mode = law.next_mode(method, mode, major, p[I_HYBRID_SWITCH], landmark_update)
         status, trial = end_step(
             trial, samples, ts[world.T_DRIVEN], ts[world.T_X], ts[world.T_Y], x[0], x[1], major,
-            step, study, p,
+            step, study, p, carry_on,
         )  # fmt: skip
         if status >= 0:
             break
-        if status == STEP_NEW_GOAL:
+        if status == STEP_LOST:
+            if not lost_open:
+                lost_open = leg_lost = True
+                final_lost_m = ts[world.T_DRIVEN]
+                episodes += 1
+                if episodes == 1:
+                    first_lost_m = final_lost_m
+        elif status == STEP_NEW_GOAL:
+            if episodes > 0:
+                goals_after += 1
+            leg_lost = False
             if is_field:
                 n_legs = field.record_leg(legs, n_legs, leg_m, True)
                 old_x, old_y = trial.goal_x, trial.goal_y
@@ -331,10 +379,19 @@ def drive(
     if is_field:
         if status == OUTCOME_STUCK:  # the time limit, the protocol's normal end
             status = OUTCOME_TIMEOUT
-        elif status == OUTCOME_LOST:
+        if status == OUTCOME_LOST or leg_lost:  # lost on this leg, never reached
             n_legs = field.record_leg(legs, n_legs, leg_m, False)
+    if lost_open:  # the relocalising arm ended lost
+        status = OUTCOME_LOST
     finish_trial(res, trial, status, ts, ns, x, step, lm_updates, c_rej, l_rej, i_rej)
     res[RES_GOAL_LANDMARKS] = n_active - n_base
+    if carry_on:
+        res[RES_LOST_EPISODES] = episodes
+        res[RES_RELOCALISATIONS] = resets
+        res[RES_FALSE_RELOCALISATIONS] = false_resets
+        res[RES_GOALS_AFTER_LOST] = goals_after
+        res[RES_LOST_AT_M] = first_lost_m  # where it was first lost (the paper's end)
+        res[RES_FINAL_LOST_AT_M] = final_lost_m if lost_open else math.nan
 
 
 @njit(cache=True, error_model="numpy")

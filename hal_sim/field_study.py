@@ -9,6 +9,13 @@ km2, 60 % detection) are reported, each with a 95 % interval:
 * per run: the distance driven that 80 % of runs reach before being lost (the 20th
   percentile of the distance at which each run is lost, runs that reach the time limit
   counting as never lost; bootstrap over runs).
+
+The relocalising arm (``--relocalise``, ``SimParams.relocalise``): a lost run carries on and
+a landmark sighted while lost resets its position. A goal is then reached when the car
+arrives, lost on the way or not, and failed when the car was lost on the way and did not
+arrive before the time limit; a run is lost for good where the episode still open at the
+limit began. ``relocalisation`` in the summary: how many runs were ever lost, how many of
+those were found again and reached a goal afterwards, and the false relocalisations.
 """
 
 from __future__ import annotations
@@ -63,7 +70,8 @@ def summarise_field(data: StudyData, sim: SimParams, seed: int = 0) -> dict[str,
         n = len(r)
         run, leg_km, ok = legs_of(data.samples[c.key])
         lost = r[:, engine.RES_OUTCOME] == engine.OUTCOME_LOST
-        lost_km = np.where(lost, r[:, engine.RES_DRIVEN_M] / 1000.0, np.nan)
+        end_m = r[:, engine.RES_FINAL_LOST_AT_M] if sim.relocalise else r[:, engine.RES_DRIVEN_M]
+        lost_km = np.where(lost, end_m / 1000.0, np.nan)
         far = leg_km >= PAPER_FIELD_KM
         km, censored = range_at_success(leg_km, ok)
 
@@ -75,6 +83,7 @@ def summarise_field(data: StudyData, sim: SimParams, seed: int = 0) -> dict[str,
             return range_at_success(leg_km[take], ok[take])[0]
 
         run80 = km_at_run_success(lost_km)
+        extra = {"relocalisation": relocalisation_counts(r)} if sim.relocalise else {}
         conds.append({
             "method": c.method.value,
             "density_per_km2": c.density_per_km2,
@@ -102,12 +111,39 @@ def summarise_field(data: StudyData, sim: SimParams, seed: int = 0) -> dict[str,
             "run_km_ci95": _bootstrap(
                 n, seed + 100 + c.index, lambda idx, v=lost_km: km_at_run_success(v[idx])
             ),
+            **extra,
         })  # fmt: skip
     return {
         "study": "field",
         "time_limit_min": sim.field_time_limit_min,
         "goal_landmark": sim.field_goal_landmark,
+        "relocalise": sim.relocalise,
         "conditions": conds,
+    }
+
+
+def relocalisation_counts(r: np.ndarray) -> dict[str, Any]:
+    """The relocalising arm's counts over a condition's runs (``engine.RES_*``): runs ever
+    lost; of those, found again (at least one relocalisation) and reaching a goal after their
+    first lost, each with its Wilson interval; relocalisations and false ones (the truth
+    outside the reset's 2-sigma circle); the distance driven after first lost."""
+    ever = np.isfinite(r[:, engine.RES_LOST_AT_M])
+    found = ever & (r[:, engine.RES_RELOCALISATIONS] > 0)
+    goal_after = ever & (r[:, engine.RES_GOALS_AFTER_LOST] > 0)
+    n_ever = int(ever.sum())
+    after_km = (r[ever, engine.RES_DRIVEN_M] - r[ever, engine.RES_LOST_AT_M]) / 1000.0
+    return {
+        "ever_lost": n_ever,
+        "found_again": int(found.sum()),
+        "found_again_ci95": wilson_pair(int(found.sum()), n_ever),
+        "goal_after_lost": int(goal_after.sum()),
+        "goal_after_lost_ci95": wilson_pair(int(goal_after.sum()), n_ever),
+        "ended_lost": int((r[:, engine.RES_OUTCOME] == engine.OUTCOME_LOST).sum()),
+        "lost_episodes": int(r[:, engine.RES_LOST_EPISODES].sum()),
+        "relocalisations": int(r[:, engine.RES_RELOCALISATIONS].sum()),
+        "false_relocalisations": int(r[:, engine.RES_FALSE_RELOCALISATIONS].sum()),
+        "goals_after_lost": int(r[:, engine.RES_GOALS_AFTER_LOST].sum()),
+        "mean_km_after_first_lost": float(after_km.mean()) if n_ever else None,
     }
 
 
@@ -149,16 +185,26 @@ TABLE_COLUMNS = (
 )  # fmt: skip
 
 
+RELOCALISE_COLUMNS = (
+    "ever_lost", "found_again", "goal_after_lost", "ended_lost", "relocalisations",
+    "false_relocalisations",
+)  # fmt: skip
+"""The relocalising arm's columns of ``field_table.csv`` (only when it ran)."""
+
+
 def write_field_table(summary: dict[str, Any], path: Path, header: str) -> None:
+    reloc = bool(summary.get("relocalise"))
+    cols = TABLE_COLUMNS + (RELOCALISE_COLUMNS if reloc else ())
     with path.open("w", newline="") as f:
         f.write(f"# {header}\n")
-        w = csv.DictWriter(f, fieldnames=TABLE_COLUMNS, extrasaction="ignore")
+        w = csv.DictWriter(f, fieldnames=cols, extrasaction="ignore")
         w.writeheader()
         for c in summary["conditions"]:
             far = c["far_leg_success_ci95"] or [None, None]
             rng = c["leg_range_km_ci95"] or [None, None]
-            w.writerow({**c, "far_ci95_low": far[0], "far_ci95_high": far[1],
-                        "leg_range_ci95_low": rng[0], "leg_range_ci95_high": rng[1]})  # fmt: skip
+            w.writerow({**c, **c.get("relocalisation", {}), "far_ci95_low": far[0],
+                        "far_ci95_high": far[1], "leg_range_ci95_low": rng[0],
+                        "leg_range_ci95_high": rng[1]})  # fmt: skip
 
 
 def fig_field(data: StudyData, summary: dict[str, Any], path: Path, caption: str = "") -> None:
@@ -188,19 +234,21 @@ def fig_field(data: StudyData, summary: dict[str, Any], path: Path, caption: str
                     transform=ax.transAxes, ha="right", fontsize=7, color="0.3")  # fmt: skip
     for ax in axes[0, : len(conds)]:
         ax.set_xlim(0.0, float(np.ceil(d_max)))
-    axes[0, 0].set_ylabel("Goals reached (never lost on the way)")
+    reloc = bool(summary.get("relocalise"))
+    axes[0, 0].set_ylabel("Goals reached" if reloc else "Goals reached (never lost on the way)")
     surv = axes[0, -1]
+    end = engine.RES_FINAL_LOST_AT_M if reloc else engine.RES_DRIVEN_M  # where lost for good
     for i, c in enumerate(conds):
         r = data.results[c.key]
         lost = r[:, engine.RES_OUTCOME] == engine.OUTCOME_LOST
-        km = np.sort(r[lost, engine.RES_DRIVEN_M] / 1000.0)
+        km = np.sort(r[lost, end] / 1000.0)
         n = len(r)
         xs = np.concatenate([[0.0], km, [r[:, engine.RES_DRIVEN_M].max() / 1000.0]])
         ys = 1.0 - np.concatenate([[0], np.arange(1, len(km) + 1), [len(km)]]) / n
         surv.step(xs, ys, where="post", color=colours(i), label=figures._method_name(c.method))
     surv.set_xlabel("Distance driven, km")
-    surv.set_ylabel("Runs not yet lost")
-    surv.set_title("Runs (75 min or lost)", fontsize=10)
+    surv.set_ylabel("Runs not yet lost for good" if reloc else "Runs not yet lost")
+    surv.set_title("Runs (75 min; relocalising)" if reloc else "Runs (75 min or lost)", fontsize=10)
     surv.legend(fontsize=8, loc="lower left")
     for ax in axes[0]:
         ax.set_ylim(0, 1.02)
@@ -214,6 +262,12 @@ def fig_field(data: StudyData, summary: dict[str, Any], path: Path, caption: str
         f"Field protocol: successive goals until lost or {summary['time_limit_min']:g} min, "
         f"{c0.density_per_km2:g} landmarks/km², {c0.detection_rate:.0%} detection, compass "
         f"±{c0.compass_two_sigma_deg:g}° (2σ); ★ paper: 80 % at 6.9 km; bands: 95 % Wilson"
+        + (
+            "\nrelocalising arm: lost runs carry on, a landmark sighted while lost resets the "
+            "position (reached: arrived, lost on the way or not)"
+            if reloc
+            else ""
+        )
     )
     fig.tight_layout(rect=(0, 0.03, 1, 0.95))
     figures._caption(fig, caption)

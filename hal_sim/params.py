@@ -15,6 +15,7 @@ from typing import Any
 import numpy as np
 
 from guidance.core.estimator import EstimatorConfig
+from guidance.core.messages import reset_sigma_m
 from guidance.core.navigator import NavigatorConfig
 
 
@@ -82,6 +83,12 @@ class SimParams:
     """Field protocol (SPEC 5): successive goals until lost or this much driving time."""
     field_goal_landmark: bool = True
     """Field protocol: place one landmark for each new goal (none when its node has one)."""
+    relocalise: bool = False
+    """The studies' relocalising arm (issue 36; off: the paper's definition, a trial ends at
+    lost). On, a lost trial carries on; a landmark sighted while lost resets the position
+    around it with a 1-sigma of ``guidance.core.messages.reset_sigma_m`` (the sighting range
+    plus the landmark's position sigma, 0 here: the study's landmarks stand where the database
+    says), the heading and its variance kept; the trial ends on arrival or at its limit."""
 
     def with_(self, **changes: Any) -> SimParams:
         return replace(self, **changes)
@@ -142,9 +149,14 @@ class SimParams:
     I_MAG_NOISE,
     I_FIELD_STEPS,
     I_FIELD_GOAL_LM,
+    I_RELOCALISE,
+    I_RESET_SIGMA,
     N_PARAMS,
-) = range(54)
+) = range(56)
 
+LANDMARK_POSITION_SIGMA_M = 0.0
+"""The study's landmarks stand exactly where the database says (``world.place_landmarks``):
+their position sigma in the relocalising arm's reset (``reset_sigma_m``)."""
 SAMPLE_FIRST_M = 10.0
 N_SAMPLES = 120
 """The major axis is recorded at N_SAMPLES distances, log-spaced from SAMPLE_FIRST_M to the cap."""
@@ -236,4 +248,6 @@ def pack(
     p[I_MAG_NOISE] = math.radians(sim.interference_noise_deg)
     p[I_FIELD_STEPS] = round(sim.field_time_limit_min * 60.0 / sim.dt_s)
     p[I_FIELD_GOAL_LM] = 1.0 if sim.field_goal_landmark else 0.0
+    p[I_RELOCALISE] = 1.0 if sim.relocalise else 0.0
+    p[I_RESET_SIGMA] = reset_sigma_m(sim.sighting_range_m, LANDMARK_POSITION_SIGMA_M)
     return p

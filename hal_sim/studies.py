@@ -509,7 +509,9 @@ class StudyRun:
         summary["wall_s"] = wall_s
         summary["provenance"] = prov
         summary["parameters"] = self.parameters()
-        analysis.write_trials_csv(data, self.out / "trials.csv", header=cap)
+        analysis.write_trials_csv(
+            data, self.out / "trials.csv", header=cap, relocalise=self.sim.relocalise
+        )
         if "paper_check" in summary:
             analysis.write_paper_check(summary["paper_check"], self.out / "paper_check.csv", cap)
         drawn()

@@ -70,8 +70,19 @@ STUCK_FACTOR = 3.0
     RES_MAX_ERR_M,
     RES_TRUE_LOST_AT_M,
     RES_GOAL_LANDMARKS,
+    RES_LOST_EPISODES,
+    RES_RELOCALISATIONS,
+    RES_FALSE_RELOCALISATIONS,
+    RES_GOALS_AFTER_LOST,
+    RES_FINAL_LOST_AT_M,
     N_RESULT,
-) = range(19)
+) = range(24)
+N_PAPER_RESULT = RES_LOST_EPISODES
+"""The results of a trial under the paper's definition (it ends at lost): ``trials.csv``'s
+columns unless the study runs the relocalising arm (``SimParams.relocalise``), whose counts
+follow: lost episodes, relocalisations, false relocalisations (the truth outside the reset's
+2-sigma ellipse), goals reached after first lost, and where the episode still open at the
+end began (NaN: the trial ended found). ``lost_at_m`` is where it was first lost."""
 TRUE_LOST_FRACTION = 0.5
 """The truth is "lost" when the true position error exceeds this fraction of the lost
 major axis (the radius of the ellipse at which the estimate declares itself lost)."""
@@ -94,6 +105,11 @@ RESULT_NAMES = (
     "max_true_error_m",
     "true_lost_at_m",
     "goal_landmarks",
+    "lost_episodes",
+    "relocalisations",
+    "false_relocalisations",
+    "goals_after_lost",
+    "final_lost_at_m",
 )
 
 MAX_MEMORY = NavigatorConfig().max_intersections
@@ -184,6 +200,9 @@ STEP_ON = -1
 STEP_NEW_GOAL = -2
 """``end_step``: a goal was reached and the trial goes on (range study): draw the next goal
 with ``next_goal`` and forget the passed landmarks. Any other status is the outcome."""
+STEP_LOST = -3
+"""``end_step`` with ``carry_on``: the estimate is lost and the trial goes on (the
+relocalising arm, ``SimParams.relocalise``)."""
 
 
 @njit(cache=True, error_model="numpy")
@@ -213,6 +232,8 @@ def begin_trial(
     res[RES_AREA_KM2] = area
     res[RES_N_LANDMARKS] = n_landmarks
     res[RES_GOAL_LANDMARKS] = 0.0  # the field study's run_trial counts them
+    for i in range(RES_LOST_EPISODES, RES_FINAL_LOST_AT_M):  # the relocalising arm's counts
+        res[i] = 0.0
     if study == STUDY_RANGE:
         cap = p[I_RANGE_CAP]
     elif study == STUDY_FIELD:
@@ -242,6 +263,7 @@ def end_step(
     step: int,
     study: int,
     p: np.ndarray,
+    carry_on: bool = False,
 ) -> tuple[int, Trial]:
     """The trial's bookkeeping after the estimator's updates of one step: (status, next Trial).
 
@@ -250,7 +272,8 @@ def end_step(
     axis over the limit), arrived (the estimate within the arrival radius of the
     goal: the landmark study ends, the range study goes on, ``STEP_NEW_GOAL``),
     timeout (the distance cap), stuck (``Trial.max_steps``). The status is
-    ``STEP_ON``, ``STEP_NEW_GOAL`` or the outcome.
+    ``STEP_ON``, ``STEP_NEW_GOAL`` or the outcome; lost is ``STEP_LOST`` when the trial
+    ``carry_on`` (the relocalising arm: no arrival while lost, the limits still hold).
 
     Inlined into the compiled loop; it takes scalars and the loop's own argument
     arrays only, as other arrays would be reference-counted at every step.
@@ -276,7 +299,7 @@ def end_step(
     goals = trial.goals
     status = STEP_ON
     if major > p[I_LOST]:
-        status = OUTCOME_LOST
+        status = STEP_LOST if carry_on else OUTCOME_LOST
     elif (est_x - trial.goal_x) ** 2 + (est_y - trial.goal_y) ** 2 <= p[I_ARRIVE] ** 2:
         goals += 1
         one_goal = study in (STUDY_LANDMARKS, STUDY_CHANCE)

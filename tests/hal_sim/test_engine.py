@@ -7,7 +7,8 @@ import math
 import numpy as np
 import pytest
 
-from guidance.core.estimator import PoseEstimator
+from guidance.core.estimator import RELOCALISED, PoseEstimator
+from guidance.core.messages import LandmarkFix, WheelOdometry, reset_sigma_m
 from guidance.core.navigator import Method, NavigatorConfig
 from hal_sim import ekf, engine, params, reference, studies
 from hal_sim.params import SimParams
@@ -147,3 +148,25 @@ def test_range_trials_stay_within_the_papers_fig3_tolerance(
     lost = res[:, engine.RES_LOST_AT_M]
     assert np.isfinite(lost).mean() > 0.9
     assert abs(np.nanmean(lost) / 1000.0 - paper_km) / paper_km <= 0.15
+
+
+def test_the_engines_reset_is_the_cars_relocalisation() -> None:
+    """``ekf.reset_position`` against ``PoseEstimator``'s reset on a lost estimate: the position
+    at the place with the reset's variance, uncorrelated; the heading and its variance kept."""
+    sim = SimParams()
+    cfg = params.estimator_config(sim, None)
+    est = PoseEstimator(cfg, 10.0, -20.0, 0.3)
+    t = 0.0
+    for _ in range(3000):  # no compass: lost after a few hundred metres
+        t += 0.1
+        est.process(WheelOdometry(t, 1.0, 1.004))
+    assert est.major_axis_m > cfg.lost_major_axis_m
+    x, P = ekf.state(*(float(v) for v in est.x[:3])), np.array(est.P[:3, :3], dtype=float)
+    sigma = reset_sigma_m(sim.sighting_range_m, params.LANDMARK_POSITION_SIGMA_M)
+    r = est.process(LandmarkFix(t, 7, 250.0, 40.0, sigma, relocalised=True))
+    assert r.accepted and r.reason == RELOCALISED
+    ekf.reset_position(x, P, 250.0, 40.0, sigma**2)
+    np.testing.assert_array_equal(x[:3], est.x[:3])
+    np.testing.assert_array_equal(P, est.P[:3, :3])
+    assert P[2, 2] > 0 and P[0, 2] == 0 and P[0, 0] == sigma**2
+    assert params.pack(sim, cfg, NavigatorConfig())[params.I_RESET_SIGMA] == sigma

@@ -5,6 +5,8 @@ from __future__ import annotations
 
 import json
 import math
+import subprocess
+import sys
 from dataclasses import replace
 from pathlib import Path
 
@@ -104,3 +106,107 @@ def test_field_study_outputs_and_paper_check(tmp_path: Path) -> None:
     assert [r["method"] for r in table] == [m.value for m in studies.LANDMARK_METHODS]
     assert (tmp_path / "field_table.csv").read_text().startswith("# commit ")
     assert (tmp_path / "fig_field.png").stat().st_size > 20_000
+
+
+# ----------------------------------------------------------------------------- relocalising arm
+def _arms(n: int, minutes: float, p_change: dict[int, float] | None = None) -> tuple[
+    tuple[np.ndarray, np.ndarray], tuple[np.ndarray, np.ndarray]
+]:  # fmt: skip
+    """(paper's arm, relocalising arm) on the same runs of the hybrid at the field conditions."""
+    out = []
+    for reloc in (False, True):
+        sim = SimParams(field_time_limit_min=minutes, relocalise=reloc)
+        p = params.pack(sim, params.estimator_config(sim, 30.0), NavigatorConfig(), 0.6)
+        for i, v in (p_change or {}).items():
+            p[i] = v
+        seeds = studies.trial_seeds(8, 0, 0, n)
+        out.append(engine.run_batch(
+            seeds, engine.STUDY_FIELD, Method.HYBRID.code, 0.55, p, params.N_SAMPLES
+        ))  # fmt: skip
+    return out[0], out[1]
+
+
+def test_the_relocalising_arm_is_the_papers_until_lost_then_carries_on_and_is_found() -> None:
+    (paper, paper_legs), (reloc, reloc_legs) = _arms(40, 40.0)
+    lost = paper[:, engine.RES_OUTCOME] == engine.OUTCOME_LOST
+    assert 5 <= lost.sum() < 40
+    # The arm draws nothing of its own: first lost where the paper's run ended, and a run
+    # never lost is the same run to the last bit.
+    np.testing.assert_array_equal(reloc[:, engine.RES_LOST_AT_M], paper[:, engine.RES_LOST_AT_M])
+    n = engine.N_PAPER_RESULT
+    np.testing.assert_array_equal(reloc[~lost, :n], paper[~lost, :n])
+    np.testing.assert_array_equal(reloc_legs[~lost], paper_legs[~lost])
+    assert (paper[:, engine.RES_LOST_EPISODES : engine.RES_FINAL_LOST_AT_M] == 0).all()
+    episodes = reloc[:, engine.RES_LOST_EPISODES]
+    resets = reloc[:, engine.RES_RELOCALISATIONS]
+    ended_lost = reloc[:, engine.RES_OUTCOME] == engine.OUTCOME_LOST
+    assert (episodes[~lost] == 0).all() and (episodes[lost] >= 1).all()
+    # Each episode closes at a reset, the last one possibly never.
+    np.testing.assert_array_equal(resets, episodes - ended_lost)
+    assert np.isfinite(reloc[ended_lost, engine.RES_FINAL_LOST_AT_M]).all()
+    assert np.isnan(reloc[~ended_lost, engine.RES_FINAL_LOST_AT_M]).all()
+    # Lost runs carry on to the time limit; found again, most reach goals.
+    assert (reloc[lost, engine.RES_STEPS] == round(40.0 * 60 / 0.1)).all()
+    assert (reloc[lost, engine.RES_GOALS_AFTER_LOST] > 0).sum() >= lost.sum() // 2
+    assert reloc[:, engine.RES_GOALS].sum() > paper[:, engine.RES_GOALS].sum()
+    # Every sighting is of a true landmark within 20 m: none outside the 40 m 2-sigma circle.
+    assert reloc[:, engine.RES_FALSE_RELOCALISATIONS].sum() == 0
+    for r, row in zip(reloc, reloc_legs, strict=True):
+        rec = row[np.isfinite(row)]
+        assert (rec > 0).sum() == r[engine.RES_GOALS]
+        assert (rec < 0).sum() <= 1  # only the leg running at the limit can fail
+        if (rec < 0).any():
+            assert rec[-1] < 0 and r[engine.RES_LOST_EPISODES] >= 1
+
+
+def test_a_reset_narrower_than_the_sighting_range_counts_false_relocalisations() -> None:
+    """The count is the truth against the reset's 2-sigma circle: with a 5 m sigma (10 m
+    circle) some of the 20 m sightings fall outside it."""
+    _, (reloc, _) = _arms(40, 40.0, {params.I_RESET_SIGMA: 5.0})
+    false = reloc[:, engine.RES_FALSE_RELOCALISATIONS].sum()
+    assert 0 < false < reloc[:, engine.RES_RELOCALISATIONS].sum()
+
+
+def test_relocalising_field_study_outputs(tmp_path: Path) -> None:
+    sim = SimParams(field_time_limit_min=30.0, relocalise=True)
+    summary = StudyRun("field", tmp_path, 8, seed=2, workers=1, sim=sim).run()
+    assert summary["relocalise"] is True
+    head = (tmp_path / "trials.csv").read_text().splitlines()[1].split(",")
+    assert head[-5:] == list(engine.RESULT_NAMES[engine.N_PAPER_RESULT :])
+    rows = analysis.read_csv_rows(tmp_path / "trials.csv")
+    for c in summary["conditions"]:
+        r = c["relocalisation"]
+        mine = [x for x in rows if x["method"] == c["method"]]
+        assert r["ever_lost"] == sum(x["lost_at_m"] != "" for x in mine)
+        assert r["relocalisations"] == sum(int(x["relocalisations"]) for x in mine)
+        assert r["found_again"] <= r["ever_lost"] and r["false_relocalisations"] == 0
+        assert r["ended_lost"] == sum(x["outcome"] == "lost" for x in mine)
+    table = analysis.read_csv_rows(tmp_path / "field_table.csv")
+    assert set(field_study.RELOCALISE_COLUMNS) <= set(table[0])
+
+
+def test_the_papers_field_study_writes_the_papers_columns_only(tmp_path: Path) -> None:
+    StudyRun("field", tmp_path, 2, seed=2, workers=1, sim=SimParams(field_time_limit_min=5.0)).run()
+    head = (tmp_path / "trials.csv").read_text().splitlines()[1].split(",")
+    assert head[5:] == list(engine.RESULT_NAMES[: engine.N_PAPER_RESULT])
+    table = analysis.read_csv_rows(tmp_path / "field_table.csv")
+    assert not set(field_study.RELOCALISE_COLUMNS) & set(table[0])
+
+
+def test_cli_relocalise_flag(tmp_path: Path) -> None:
+    guidance = [sys.executable, "-m", "guidance.tools.cli", "study"]
+    done = subprocess.run(
+        [*guidance, "field", "--relocalise", "--trials-per-condition", "2", "--out",
+         str(tmp_path), "--no-progress", "--json", "--workers", "1"],
+        capture_output=True, text=True, timeout=600, check=False,
+    )  # fmt: skip
+    assert done.returncode == 0, done.stderr
+    summary = json.loads(done.stdout.strip().splitlines()[-1])
+    assert summary["relocalise"] is True and summary["parameters"]["sim"]["relocalise"] is True
+    assert all("relocalisation" in c for c in summary["conditions"])
+    bad = subprocess.run(
+        [*guidance, "landmarks", "--relocalise", "--out", str(tmp_path / "x")],
+        capture_output=True, text=True, timeout=120, check=False,
+    )  # fmt: skip
+    assert bad.returncode == 2
+    assert "Traceback" not in bad.stderr and "field study only" in bad.stderr
