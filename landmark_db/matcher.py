@@ -38,7 +38,7 @@ from typing import Any
 import cv2
 import numpy as np
 
-from landmark_db.features import CV, Features
+from landmark_db.features import CV, FLOAT_KINDS, Features
 
 FEW_MATCHES = "few_matches"
 FAILED_GEOMETRY = "failed_geometry"
@@ -46,7 +46,7 @@ FAILED_GEOMETRY = "failed_geometry"
 MIN_MATCHES_FOR_GEOMETRY = 6
 """Below this many ratio-test survivors no homography is attempted (4 define one exactly)."""
 
-MAX_LOG10_NFA = {"rootsift": -9.5, "orb": -9.0}
+MAX_LOG10_NFA = {"rootsift": -9.5, "orb": -9.0, "xfeat": -9.5}
 """A pair verifies when log10 NFA is at most this (docs/landmarks.md, "The decision rule")."""
 MIN_INLIERS = 8
 """And its homography has at least this many MAGSAC++ inliers: a floor that does not come
@@ -55,8 +55,15 @@ RESIDUAL_FLOOR_PX = 0.5
 """Residuals below this count as this (keypoint localisation; keeps alpha away from 0)."""
 FLANN_SEED = 0x5EED
 """OpenCV's random state before a photo's k-d trees are built: the same trees everywhere."""
-REPROJ_PX = {"rootsift": 3.0, "orb": 4.0}
-"""MAGSAC++ threshold in frame pixels (frames at 480 px for RootSIFT, 1024 px for ORB)."""
+REPROJ_PX = {"rootsift": 3.0, "orb": 4.0, "xfeat": 4.0}
+"""MAGSAC++ threshold in frame pixels (frames at 440 px for RootSIFT, 1024 px for ORB, 640 px
+for XFeat: about the same fraction of the frame as RootSIFT's)."""
+MIN_COSINE = 0.82
+"""XFeat: a mutual nearest neighbour is a putative match only above this cosine similarity
+(the reference implementation's default, ``XFeat.match(min_cossim=0.82)``; not fitted here),
+and only if it also passes Lowe's ratio test (``MatchConfig.ratio``, as RootSIFT): without
+it, one synthetic city gave 1060 of 10,740 wrong pairs verified at log10 NFA <= -9.5, the
+window grids of look-alike facades matching corner to corner (docs/landmarks.md)."""
 
 
 @dataclass(frozen=True, slots=True)
@@ -122,11 +129,16 @@ class PhotoIndex:
         self.features = features
         self._desc = features.for_matching()
         self._flann: Any = None
-        if features.kind != "orb" and len(features) >= 2:
+        if features.kind == "rootsift" and len(features) >= 2:
             self._flann = CV.FlannBasedMatcher({"algorithm": 1, "trees": trees}, {"checks": checks})
             self._flann.add([self._desc])
             cv2.setRNGSeed(FLANN_SEED)  # the randomised trees: the same in every process
             self._flann.train()
+
+    @property
+    def descriptors(self) -> np.ndarray:
+        """The descriptors as matched (RootSIFT, ORB bytes, or unit float vectors)."""
+        return self._desc
 
     def knn(self, frame_desc: np.ndarray, bf: Any) -> Any:
         if self._flann is not None:
@@ -150,6 +162,8 @@ class PairMatcher:
         """
         if len(frame) < 2 or len(photo.features) < 2:
             return np.zeros((0, 2), np.int64)
+        if photo.features.kind in FLOAT_KINDS:
+            return mutual_nearest(frame_desc, photo.descriptors, MIN_COSINE, self.config.ratio)
         best: dict[int, tuple[float, int]] = {}
         ratio = self.config.ratio
         for pair in photo.knn(frame_desc, self._bf):
@@ -193,6 +207,29 @@ class PairMatcher:
         else:
             reason = FEW_MATCHES if n_good < cfg.min_inliers else FAILED_GEOMETRY
         return MatchEvidence(landmark_id, n_good, inliers, "homography", reason, pid, lnfa)
+
+
+def mutual_nearest(
+    a: np.ndarray, b: np.ndarray, min_cosine: float, ratio: float = 1.0
+) -> np.ndarray:
+    """Pairs (row of ``a``, row of ``b``) of unit vectors that are each other's nearest
+    neighbour (largest dot product) with a cosine above ``min_cosine`` and, for ``ratio`` < 1,
+    Lowe's ratio test on the Euclidean distances (``sqrt(2 - 2 cos)``) to the row's best and
+    second-best neighbour in ``b``: M x 2 int64."""
+    if len(a) == 0 or len(b) == 0:
+        return np.zeros((0, 2), np.int64)
+    sim = a @ b.T
+    ab = np.argmax(sim, axis=1)
+    ba = np.argmax(sim, axis=0)
+    i = np.arange(len(a))
+    best = sim[i, ab]
+    keep = (ba[ab] == i) & (best > min_cosine)
+    if ratio < 1.0 and sim.shape[1] >= 2:
+        second = np.partition(sim, -2, axis=1)[:, -2]
+        d1 = np.sqrt(np.maximum(2.0 - 2.0 * best, 0.0))
+        d2 = np.sqrt(np.maximum(2.0 - 2.0 * second, 0.0))
+        keep &= d1 < ratio * d2
+    return np.stack([i[keep], ab[keep]], axis=1).astype(np.int64)
 
 
 def plausible_homography(H: np.ndarray, points: np.ndarray) -> np.ndarray | None:
