@@ -64,6 +64,9 @@ MIN_COSINE = 0.82
 and only if it also passes Lowe's ratio test (``MatchConfig.ratio``, as RootSIFT): without
 it, one synthetic city gave 1060 of 10,740 wrong pairs verified at log10 NFA <= -9.5, the
 window grids of look-alike facades matching corner to corner (docs/landmarks.md)."""
+RATIO_EXCLUSION_PX = 16.0
+"""XFeat's ratio test compares the best neighbour with the best one farther than this from
+it in the photo: two of the network's 8-pixel cells (``mutual_nearest``)."""
 
 
 @dataclass(frozen=True, slots=True)
@@ -163,7 +166,14 @@ class PairMatcher:
         if len(frame) < 2 or len(photo.features) < 2:
             return np.zeros((0, 2), np.int64)
         if photo.features.kind in FLOAT_KINDS:
-            return mutual_nearest(frame_desc, photo.descriptors, MIN_COSINE, self.config.ratio)
+            return mutual_nearest(
+                frame_desc,
+                photo.descriptors,
+                MIN_COSINE,
+                self.config.ratio,
+                photo.features.points,
+                RATIO_EXCLUSION_PX,
+            )
         best: dict[int, tuple[float, int]] = {}
         ratio = self.config.ratio
         for pair in photo.knn(frame_desc, self._bf):
@@ -210,12 +220,23 @@ class PairMatcher:
 
 
 def mutual_nearest(
-    a: np.ndarray, b: np.ndarray, min_cosine: float, ratio: float = 1.0
+    a: np.ndarray,
+    b: np.ndarray,
+    min_cosine: float,
+    ratio: float = 1.0,
+    b_points: np.ndarray | None = None,
+    exclusion_px: float = 0.0,
 ) -> np.ndarray:
     """Pairs (row of ``a``, row of ``b``) of unit vectors that are each other's nearest
-    neighbour (largest dot product) with a cosine above ``min_cosine`` and, for ``ratio`` < 1,
-    Lowe's ratio test on the Euclidean distances (``sqrt(2 - 2 cos)``) to the row's best and
-    second-best neighbour in ``b``: M x 2 int64."""
+    neighbour (largest dot product) with a cosine above ``min_cosine``: M x 2 int64.
+
+    With ``ratio`` < 1, also Lowe's ratio test on the Euclidean distances (``sqrt(2 - 2
+    cos)``) to the best neighbour and to the best one *more than ``exclusion_px`` away from
+    it* in ``b`` (positions ``b_points``): dense descriptors such as XFeat's are nearly equal
+    for keypoints a few pixels apart (median cosine to the nearest other keypoint of a photo
+    0.98), so the plain second-best is the same structure and the test would refuse
+    everything; what it must refuse is another, similar structure elsewhere (a repeated
+    window)."""
     if len(a) == 0 or len(b) == 0:
         return np.zeros((0, 2), np.int64)
     sim = a @ b.T
@@ -224,11 +245,20 @@ def mutual_nearest(
     i = np.arange(len(a))
     best = sim[i, ab]
     keep = (ba[ab] == i) & (best > min_cosine)
-    if ratio < 1.0 and sim.shape[1] >= 2:
-        second = np.partition(sim, -2, axis=1)[:, -2]
-        d1 = np.sqrt(np.maximum(2.0 - 2.0 * best, 0.0))
-        d2 = np.sqrt(np.maximum(2.0 - 2.0 * second, 0.0))
-        keep &= d1 < ratio * d2
+    if ratio < 1.0 and sim.shape[1] >= 2 and np.any(keep):
+        rows = i[keep]
+        s = sim[rows]
+        if b_points is not None and exclusion_px > 0.0:
+            p = b_points[ab[rows]]
+            d2 = ((b_points[None, :, :] - p[:, None, :]) ** 2).sum(axis=2)
+            s = np.where(d2 > exclusion_px * exclusion_px, s, -1.0)
+        else:
+            s = s.copy()
+            s[np.arange(len(rows)), ab[rows]] = -1.0
+        second = s.max(axis=1)
+        d1 = np.sqrt(np.maximum(2.0 - 2.0 * best[rows], 0.0))
+        d2nd = np.sqrt(np.maximum(2.0 - 2.0 * second, 0.0))
+        keep[rows] = d1 < ratio * d2nd
     return np.stack([i[keep], ab[keep]], axis=1).astype(np.int64)
 
 

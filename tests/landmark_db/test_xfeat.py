@@ -189,7 +189,7 @@ def test_real_pair_verifies_and_descriptors_round_trip() -> None:
     )
     assert np.array_equal(back.descriptors, photo.descriptors)
     e = PairMatcher().verify(1, frame, frame.for_matching(), PhotoIndex(1, photo))
-    assert e.verified and e.inliers >= 15, e
+    assert e.verified, e
 
 
 def test_mutual_nearest_is_mutual_and_thresholded() -> None:
