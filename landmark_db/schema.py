@@ -124,7 +124,9 @@ CREATE TABLE vocabulary (
     photos INTEGER NOT NULL,
     k INTEGER NOT NULL,
     dims INTEGER NOT NULL,
-    centres BLOB NOT NULL
+    centres BLOB NOT NULL,
+    mean BLOB NOT NULL,
+    projection BLOB NOT NULL
 );
 CREATE TABLE photo_global (
     photo_id INTEGER PRIMARY KEY REFERENCES photos(id) ON DELETE CASCADE,

@@ -31,9 +31,9 @@ from landmark_db.features import ExtractorConfig, Features
 from landmark_db.global_index import GlobalIndex, load_index
 from landmark_db.matcher import MatchConfig, PairMatcher
 
-SHORTLIST = 10
+SHORTLIST = 20
 """Places verified geometrically after the global ranking."""
-SEARCH_MAX_PHOTOS = 12
+SEARCH_MAX_PHOTOS = 20
 """Photos compared per searched frame at most (the time budget of a lost car's frame)."""
 TAIL_RATE_PER_DECADE = 0.56
 """The wrong pairs' tail, ``P(-log10 NFA > t) ~ exp(-rate t)``: the pessimistic fitted rate
