@@ -356,6 +356,25 @@ def pair_log10_nfa(H: np.ndarray, src: np.ndarray, dst: np.ndarray) -> float:
     return log10_nfa(res, dst)[0]
 
 
+SAME_PLACE_RADIUS_M = 40.0
+"""A photo taken this close to a landmark (twice the sighting range) may join it on the
+weaker visual check ``SAME_PLACE_LOG10_NFA`` (docs/landmarks.md, "Several photos per
+place")."""
+SAME_PLACE_LOG10_NFA = {"rootsift": -4.0, "orb": -4.0}
+"""The weaker check for a photo whose position agrees with the landmark's: wrong pairs beyond
+log10 NFA -4 were 2.6e-3 (fit cities) and 3.4e-3 (held-out cities) of the synthetic wrong
+pairs for RootSIFT, 1.2e-3 / 2.4e-3 for ORB. XFeat has no weaker level (its synthetic tail is
+far heavier): its photos need the full rule."""
+
+
+def agreement_config(kind: str, position_agrees: bool) -> MatchConfig:
+    """The check a photo added to a landmark must pass: the decision rule, or, when its
+    position is within ``SAME_PLACE_RADIUS_M`` of the landmark, the weaker level."""
+    if position_agrees and kind in SAME_PLACE_LOG10_NFA:
+        return MatchConfig(max_log10_nfa=SAME_PLACE_LOG10_NFA[kind])
+    return MatchConfig()
+
+
 def photo_agreement(
     landmark_id: int,
     new: Features,
