@@ -116,7 +116,9 @@ def vlad(desc: np.ndarray, centres: np.ndarray) -> np.ndarray:
         # squared distances without the |x|^2 term (constant per row)
         d2 = (centres * centres).sum(axis=1)[None, :] - 2.0 * desc @ centres.T
         nearest = np.argmin(d2, axis=1)
-        np.add.at(out, nearest, desc - centres[nearest])
+        assign = np.zeros((k, len(desc)), np.float32)
+        assign[nearest, np.arange(len(desc))] = 1.0
+        out = assign @ desc - assign.sum(axis=1)[:, None] * centres
     norms = np.linalg.norm(out, axis=1, keepdims=True)
     out = np.divide(out, norms, out=np.zeros_like(out), where=norms > 0)
     v = out.ravel()
@@ -135,17 +137,18 @@ def _vocabulary_row(conn: sqlite3.Connection) -> Vocabulary | None:
     if r is None:
         return None
     extractor, photos, k, dims, blob, mblob, pblob = r
-    try:
+    try:  # a damaged row is no vocabulary: the search then builds one in memory
         centres = np.frombuffer(blob, "<f4").reshape(k, dims)
         mean = np.frombuffer(mblob, "<f4")
         proj = np.frombuffer(pblob, "<f4").reshape(len(mean), dims)
-    except (TypeError, ValueError):
+        n_photos = int(photos)
+    except (TypeError, ValueError, OverflowError):
         return None
-    if not all(np.all(np.isfinite(a)) for a in (centres, mean, proj)):
+    if not all(np.all(np.isfinite(a)) for a in (centres, mean, proj)) or min(k, dims) < 1:
         return None
     return Vocabulary(
         centres.astype(np.float32), mean.astype(np.float32), proj.astype(np.float32),
-        str(extractor), int(photos),
+        str(extractor), n_photos,
     )  # fmt: skip
 
 
@@ -219,8 +222,14 @@ def build(
     if len(sample) == 0:
         raise ValueError("no descriptors to build a vocabulary from")
     voc = train(sample, extractor.ident, len(features), k)
-    vecs = np.stack([voc.encode(s) for s in spaces])
-    return voc, vecs.astype(np.float32)
+    memo: dict[bytes, np.ndarray] = {}  # photos that share features (bulk inserts) once
+    vecs = []
+    for sp in spaces:
+        key = hashlib.sha256(sp.tobytes()).digest()
+        if key not in memo:
+            memo[key] = voc.encode(sp)
+        vecs.append(memo[key])
+    return voc, np.stack(vecs).astype(np.float32)
 
 
 def rebuild(conn: sqlite3.Connection, extractor: ExtractorConfig) -> int:
