@@ -46,7 +46,7 @@ FAILED_GEOMETRY = "failed_geometry"
 MIN_MATCHES_FOR_GEOMETRY = 6
 """Below this many ratio-test survivors no homography is attempted (4 define one exactly)."""
 
-MAX_LOG10_NFA = {"rootsift": -9.5, "orb": -9.0, "xfeat": -9.5}
+MAX_LOG10_NFA = {"rootsift": -9.5, "orb": -9.0, "xfeat": -24.0}
 """A pair verifies when log10 NFA is at most this (docs/landmarks.md, "The decision rule")."""
 MIN_INLIERS = 8
 """And its homography has at least this many MAGSAC++ inliers: a floor that does not come

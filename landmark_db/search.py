@@ -35,26 +35,35 @@ SHORTLIST = 20
 """Places verified geometrically after the global ranking."""
 SEARCH_MAX_PHOTOS = 20
 """Photos compared per searched frame at most (the time budget of a lost car's frame)."""
-TAIL_RATE_PER_DECADE = 0.56
+TAIL_RATE_PER_DECADE = {"rootsift": 0.56, "orb": 0.56, "xfeat": 0.30}
 """The wrong pairs' tail, ``P(-log10 NFA > t) ~ exp(-rate t)``: the pessimistic fitted rate
-of the RootSIFT calibration (docs/landmarks.md)."""
+of each calibration (docs/landmarks.md; ORB takes RootSIFT's, its own fit was not kept)."""
 PER_FRAME_FALSE = 1e-3
 """The false-match rate per frame the rule is set for (docs/landmarks.md)."""
-SINGLE_FRAME_DECADES = 12.5
-"""One frame alone confirms a search when its log10 NFA is this far below the search level:
-``ln(1 / PER_FRAME_FALSE) / TAIL_RATE_PER_DECADE`` = 12.3, rounded up (module docstring)."""
+
+
+def single_frame_decades(kind: str) -> float:
+    """How far below the search level one frame alone confirms a search:
+    ``ln(1 / PER_FRAME_FALSE) / rate``, rounded up to the half decade (RootSIFT 12.5,
+    XFeat 23.5; module docstring)."""
+    d = math.log(1.0 / PER_FRAME_FALSE) / TAIL_RATE_PER_DECADE[kind]
+    return math.ceil(2.0 * d) / 2.0
+
+
+SINGLE_FRAME_DECADES = single_frame_decades("rootsift")
 
 
 @dataclass(frozen=True, slots=True)
 class SearchConfig:
     shortlist: int = SHORTLIST
     max_photos: int = SEARCH_MAX_PHOTOS
-    single_frame_decades: float = SINGLE_FRAME_DECADES
+    single_frame_decades: float | None = None
+    """None: ``single_frame_decades`` of the file's extractor."""
 
     def __post_init__(self) -> None:
         if self.shortlist < 1 or self.max_photos < 1:
             raise ValueError("shortlist and max_photos must be >= 1")
-        if not self.single_frame_decades >= 0.0:
+        if self.single_frame_decades is not None and not self.single_frame_decades >= 0.0:
             raise ValueError("single_frame_decades must be >= 0")
 
 
@@ -111,4 +120,7 @@ class WholeDbSearch:
     def single_frame_level(self) -> float:
         """The log10 NFA at or below which one frame alone confirms a search."""
         self.index()
-        return self.level - self.config.single_frame_decades
+        margin = self.config.single_frame_decades
+        if margin is None:
+            margin = single_frame_decades(self.extractor.kind)
+        return self.level - margin

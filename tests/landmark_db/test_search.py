@@ -22,7 +22,7 @@ from hal_sim.sim_camera import (
 from landmark_db import global_index
 from landmark_db.matcher import MAX_LOG10_NFA
 from landmark_db.recognise import NO_CANDIDATE, NOT_CONSISTENT, Recogniser, RecogniserConfig
-from landmark_db.search import SearchConfig, bonferroni_decades
+from landmark_db.search import SINGLE_FRAME_DECADES, SearchConfig, bonferroni_decades
 from landmark_db.store import open_db
 
 N_PLACES = 24
@@ -131,7 +131,7 @@ def test_lost_car_relocalises_on_two_agreeing_frames(city: tuple[Path, list[SimL
             fixes.append(r.fix)
             if not fixes[1:] and k == 0:  # one frame alone: only far past the level
                 best = min(e.log_nfa for e in r.evidence if e.landmark_id == lm.id)
-                assert best <= r.level - SearchConfig().single_frame_decades
+                assert best <= r.level - SINGLE_FRAME_DECADES
         elif k == 0:
             assert r.reason in (NOT_CONSISTENT, "failed_geometry", "few_matches")
     assert len(fixes) == 1, fixes
