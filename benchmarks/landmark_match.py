@@ -8,7 +8,7 @@ Run: .venv/bin/python benchmarks/landmark_match.py [--part real|1|2|all] [--fram
 Part real: the shared real image pairs (../shared/data/images; skipped when absent): B images
 resized to 1232x1616, each against 5 gated candidates (its own place and the 4 nearest other
 places, one A photo each). RootSIFT at the defaults, RootSIFT "fast" (400 px frame, one k-d
-tree, 16 checks) and ORB.
+tree, 16 checks), XFeat (640 px, mutual nearest neighbours) and ORB.
 
 Part 1: five landmarks within 10 m of each other (distinct facade photos), with 1 or 3 photos
 each (the extra photos are other simulated views); frames are 1232x1616 perturbed views of one
@@ -35,7 +35,13 @@ import numpy as np
 
 from guidance.core.geo import Origin
 from hal_sim.sim_camera import SimCamera, SimCameraConfig, facade
-from landmark_db.features import ExtractorConfig, OrbConfig, encode_image, extract
+from landmark_db.features import (
+    PHOTO_MAX_SIDE_PX,
+    ExtractorConfig,
+    OrbConfig,
+    encode_image,
+    extract,
+)
 from landmark_db.matcher import MatchConfig, PairMatcher, PhotoIndex
 from landmark_db.recognise import Recogniser, RecogniserConfig
 from landmark_db.store import create_db, open_db
@@ -118,6 +124,8 @@ def part1(tmp: Path, n_frames: int) -> None:
     cases = [
         ("rootsift", ExtractorConfig(), 1),
         ("rootsift x3", ExtractorConfig(), 3),
+        ("xfeat", ExtractorConfig("xfeat", 1000, PHOTO_MAX_SIDE_PX["xfeat"]), 1),
+        ("xfeat x3", ExtractorConfig("xfeat", 1000, PHOTO_MAX_SIDE_PX["xfeat"]), 3),
         ("orb", OrbConfig(), 1),
         ("orb x3", OrbConfig(), 3),
     ]
@@ -166,6 +174,7 @@ def part_real(tmp: Path, folder: Path, n_frames: int) -> None:
     variants = (
         ("rootsift", ExtractorConfig(), RecogniserConfig()),
         ("rootsift fast", ExtractorConfig(), fast),
+        ("xfeat", ExtractorConfig("xfeat", 1000, PHOTO_MAX_SIDE_PX["xfeat"]), RecogniserConfig()),
         ("orb", OrbConfig(), RecogniserConfig()),
     )
     print(f"{'':<34}" + "".join(f"{lab:>14}" for lab, _e, _c in variants))

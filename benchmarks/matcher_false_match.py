@@ -27,7 +27,13 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from landmark_db.features import PHOTO_MAX_SIDE_PX, ExtractorConfig, Features, extract
+from landmark_db.features import (
+    EXTRACTOR_VERSIONS,
+    PHOTO_MAX_SIDE_PX,
+    ExtractorConfig,
+    Features,
+    extract,
+)
 from landmark_db.matcher import MAX_LOG10_NFA, MatchConfig, PairMatcher, PhotoIndex
 from landmark_db.recognise import FRAME_FEATURES
 from landmark_db.wrong_pairs import (
@@ -225,7 +231,7 @@ def main() -> None:
     ap.add_argument("--check-seeds", type=int, nargs="*", default=[26, 27])
     ap.add_argument("--target", type=float, default=1e-3, help="false matches per frame")
     ap.add_argument("--photos", type=int, default=6, help="photos compared per frame")
-    ap.add_argument("--extractor", choices=("rootsift", "orb"), default="rootsift")
+    ap.add_argument("--extractor", choices=sorted(EXTRACTOR_VERSIONS), default="rootsift")
     ap.add_argument("--images", type=Path, default=SHARED / "images")
     ap.add_argument("--images2", type=Path, default=SHARED / "images2")
     args = ap.parse_args()

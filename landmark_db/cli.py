@@ -29,7 +29,11 @@ from landmark_db.features import (
 )
 from landmark_db.gate import GATE_PROBABILITY_2SIGMA
 from landmark_db.inputs import read_photo
-from landmark_db.matcher import MatchConfig, photo_agreement
+from landmark_db.matcher import (
+    SAME_PLACE_RADIUS_M,
+    agreement_config,
+    photo_agreement,
+)
 from landmark_db.query import query_radius
 from landmark_db.recognise import RecogniserConfig
 from landmark_db.store import (
@@ -67,25 +71,50 @@ def cmd_init(args: argparse.Namespace) -> None:
         )
 
 
-def _check_agreement(db: LandmarkDb, lid: int, name: str, path: Path, data: bytes) -> None:
+def _check_agreement(
+    db: LandmarkDb, lid: int, name: str, path: Path, data: bytes, near: bool = False
+) -> None:
     """Refuse (one line, with the figures) a photo that does not match the landmark's own
-    photos by the decision rule (``matcher.photo_agreement``)."""
+    photos by the decision rule, or by the weaker level when its position agrees (``near``:
+    ``matcher.agreement_config``)."""
     try:
         feats = extract(decode_image(data), db.extractor)
     except ValueError as exc:
         raise UserError(f"{path}: not a readable image ({exc})") from exc
-    e = photo_agreement(lid, feats, db.photo_features(lid))
+    cfg = agreement_config(db.extractor.kind, near)
+    e = photo_agreement(lid, feats, db.photo_features(lid), cfg)
     if e is None or e.verified:
         return
-    cfg = MatchConfig()
     nfa = f"{e.log_nfa:.1f}" if math.isfinite(e.log_nfa) else "none"
     level = cfg.nfa_needed(db.extractor.kind)
+    kind = db.extractor.kind
+    weak = agreement_config(kind, True).nfa_needed(kind)
+    hint = (
+        ""
+        if near or weak == level
+        else f"; <= {weak:g} with --xy/--latlon within {SAME_PLACE_RADIUS_M:.0f} m"
+    )
     raise UserError(
         f"{path} does not match the photos of landmark {lid} ({safe(name)}): best"
         f" {e.inliers} inliers, log10 NFA {nfa} (the rule needs <= {level:g}"
-        f" and >= {cfg.min_inliers} inliers); a photo that does not show the same place would"
-        " make the landmark match what it shows: add it as a landmark of its own"
+        f" and >= {cfg.min_inliers} inliers{hint}); a photo that does not show the same place"
+        " would make the landmark match what it shows: add it as a landmark of its own"
     )
+
+
+def _near_landmark(db: LandmarkDb, lm_xy: tuple[float, float], args: argparse.Namespace) -> bool:
+    """Whether ``add --to`` was given a position (--xy/--latlon) within the same-place
+    radius of the landmark; a position farther away is refused."""
+    if not (args.xy or args.latlon):
+        return False
+    xy = tuple(args.xy) if args.xy else db.origin.to_local(*args.latlon)
+    d = math.hypot(xy[0] - lm_xy[0], xy[1] - lm_xy[1])
+    if d > SAME_PLACE_RADIUS_M:
+        raise UserError(
+            f"the photo was taken {d:.0f} m from the landmark: farther than the"
+            f" {SAME_PLACE_RADIUS_M:.0f} m of one place; add it as a landmark of its own"
+        )
+    return True
 
 
 NEAR_M = 2.0 * RecogniserConfig().sighting_range_m
@@ -128,7 +157,8 @@ def cmd_add(args: argparse.Namespace) -> None:
             if lm is None:
                 raise UserError(f"no landmark {args.to!r}")
             data = read_photo(path)
-            _check_agreement(db, lm.id, lm.name, path, data)
+            near = _near_landmark(db, (lm.x_m, lm.y_m), args)
+            _check_agreement(db, lm.id, lm.name, path, data, near)
             pid = db.add_photo(
                 lm.id, data, facing_deg=args.facing, conditions=args.conditions,
                 source=path.name,

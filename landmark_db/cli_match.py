@@ -1,4 +1,4 @@
-"""``landmark-db match`` and ``landmark-db acceptance`` (the recognition commands)."""
+"""``landmark-db match``, ``locate`` and ``acceptance`` (the recognition commands)."""
 
 from __future__ import annotations
 
@@ -123,6 +123,68 @@ def cmd_match(args: argparse.Namespace) -> None:
         raise UserError("")  # each was reported in its line; exit status 2
 
 
+def locate_record(image: str, res: RecognitionResult, db: LandmarkDb) -> dict[str, object]:
+    """One image's whole-database search as a JSON-ready dict (``locate --json``)."""
+    base = match_record(image, res, db)
+    return {
+        "image": image,
+        "landmark": base["name"],
+        "id": base["landmark_id"],
+        "reason": res.reason,
+        "level_log10_nfa": round(res.level, 2) if math.isfinite(res.level) else None,
+        "shortlist": [
+            {"id": lid, "name": _name(db, lid), "cosine": round(sim, 4)}
+            for lid, sim in res.shortlist
+        ],
+        "frame_features": res.frame_features,
+        "ms": base["ms"],
+        "evidence": base["evidence"],
+    }
+
+
+def cmd_locate(args: argparse.Namespace) -> None:
+    """Each image searched against the whole database (``Recogniser.locate``): the place or
+    ``none``, with the evidence; an unreadable image is reported in its line (exit 2)."""
+    if len(args.images) == 1:
+        read_image(Path(args.images[0]))
+    failed = 0
+    with open_db(args.db) as db:
+        rec = Recogniser(db)
+        for path in args.images:
+            try:
+                image = read_image(Path(path))
+            except UserError as exc:
+                failed += 1
+                if args.json:
+                    out(json.dumps({"image": path, "error": str(exc)}))
+                else:
+                    err(f"landmark-db: error: {exc}")
+                continue
+            res = rec.locate(image)
+            record = locate_record(path, res, db)
+            if args.json:
+                out(json.dumps(record))
+                continue
+            if record["id"] is not None:
+                out(f"{path}: landmark {record['id']} ({safe(str(record['landmark']))})")
+            else:
+                out(f"{path}: none ({res.reason})")
+            n_places = len(db)
+            out(
+                f"searched {n_places} places (shortlist {len(res.shortlist)}); level log10 NFA"
+                f" <= {_nfa(res.level)}; {res.frame_features} frame features;"
+                f" {res.elapsed_s * 1000:.0f} ms"
+            )
+            for e in sorted(res.evidence, key=lambda e: (-e.inliers, -e.good_matches)):
+                out(
+                    f"  {e.landmark_id:>6}  {safe(_name(db, e.landmark_id) or '?'):<24.24}"
+                    f" {e.inliers:>4} inliers  log10 NFA {_nfa(e.log_nfa):>7}"
+                    f"  {e.reason or 'verified'}"
+                )
+    if failed:
+        raise UserError("")
+
+
 def _nfa(v: float) -> str:
     return f"{v:.1f}" if math.isfinite(v) else "-"
 
@@ -190,6 +252,12 @@ def add_match_parsers(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--json", action="store_true", help="one JSON object per image and line")
     area_args(p)
     p.set_defaults(func=cmd_match)
+
+    p = sub.add_parser("locate", help="search the whole database for each image's place")
+    p.add_argument("db")
+    p.add_argument("images", nargs="+", metavar="image")
+    p.add_argument("--json", action="store_true", help="one JSON object per image and line")
+    p.set_defaults(func=cmd_locate)
 
     p = sub.add_parser("acceptance", help="precision/recall on real photos, with negatives")
     p.add_argument("folder", nargs="?", default=str(Path("..") / "shared" / "data" / "images"))

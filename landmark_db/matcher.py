@@ -38,7 +38,7 @@ from typing import Any
 import cv2
 import numpy as np
 
-from landmark_db.features import CV, Features
+from landmark_db.features import CV, FLOAT_KINDS, Features
 
 FEW_MATCHES = "few_matches"
 FAILED_GEOMETRY = "failed_geometry"
@@ -46,8 +46,10 @@ FAILED_GEOMETRY = "failed_geometry"
 MIN_MATCHES_FOR_GEOMETRY = 6
 """Below this many ratio-test survivors no homography is attempted (4 define one exactly)."""
 
-MAX_LOG10_NFA = {"rootsift": -9.5, "orb": -9.0}
-"""A pair verifies when log10 NFA is at most this (docs/landmarks.md, "The decision rule")."""
+MAX_LOG10_NFA = {"rootsift": -9.5, "orb": -9.0, "xfeat": -24.0}
+"""A pair verifies when log10 NFA is at most this (docs/landmarks.md, "The decision rule");
+XFeat's from its own synthetic fit (-23.56), whose held-out cities exceed the claim
+(docs/landmarks.md, "XFeat")."""
 MIN_INLIERS = 8
 """And its homography has at least this many MAGSAC++ inliers: a floor that does not come
 from the null model, so a handful of exact fits on one element never decides alone."""
@@ -55,8 +57,18 @@ RESIDUAL_FLOOR_PX = 0.5
 """Residuals below this count as this (keypoint localisation; keeps alpha away from 0)."""
 FLANN_SEED = 0x5EED
 """OpenCV's random state before a photo's k-d trees are built: the same trees everywhere."""
-REPROJ_PX = {"rootsift": 3.0, "orb": 4.0}
-"""MAGSAC++ threshold in frame pixels (frames at 480 px for RootSIFT, 1024 px for ORB)."""
+REPROJ_PX = {"rootsift": 3.0, "orb": 4.0, "xfeat": 4.0}
+"""MAGSAC++ threshold in frame pixels (frames at 440 px for RootSIFT, 1024 px for ORB, 640 px
+for XFeat: about the same fraction of the frame as RootSIFT's)."""
+MIN_COSINE = 0.82
+"""XFeat: a mutual nearest neighbour is a putative match only above this cosine similarity
+(the reference implementation's default, ``XFeat.match(min_cossim=0.82)``; not fitted here),
+and only if it also passes Lowe's ratio test (``MatchConfig.ratio``, as RootSIFT): without
+it, one synthetic city gave 1060 of 10,740 wrong pairs verified at log10 NFA <= -9.5, the
+window grids of look-alike facades matching corner to corner (docs/landmarks.md)."""
+RATIO_EXCLUSION_PX = 16.0
+"""XFeat's ratio test compares the best neighbour with the best one farther than this from
+it in the photo: two of the network's 8-pixel cells (``mutual_nearest``)."""
 
 
 @dataclass(frozen=True, slots=True)
@@ -122,11 +134,16 @@ class PhotoIndex:
         self.features = features
         self._desc = features.for_matching()
         self._flann: Any = None
-        if features.kind != "orb" and len(features) >= 2:
+        if features.kind == "rootsift" and len(features) >= 2:
             self._flann = CV.FlannBasedMatcher({"algorithm": 1, "trees": trees}, {"checks": checks})
             self._flann.add([self._desc])
             cv2.setRNGSeed(FLANN_SEED)  # the randomised trees: the same in every process
             self._flann.train()
+
+    @property
+    def descriptors(self) -> np.ndarray:
+        """The descriptors as matched (RootSIFT, ORB bytes, or unit float vectors)."""
+        return self._desc
 
     def knn(self, frame_desc: np.ndarray, bf: Any) -> Any:
         if self._flann is not None:
@@ -150,6 +167,15 @@ class PairMatcher:
         """
         if len(frame) < 2 or len(photo.features) < 2:
             return np.zeros((0, 2), np.int64)
+        if photo.features.kind in FLOAT_KINDS:
+            return mutual_nearest(
+                frame_desc,
+                photo.descriptors,
+                MIN_COSINE,
+                self.config.ratio,
+                photo.features.points,
+                RATIO_EXCLUSION_PX,
+            )
         best: dict[int, tuple[float, int]] = {}
         ratio = self.config.ratio
         for pair in photo.knn(frame_desc, self._bf):
@@ -193,6 +219,49 @@ class PairMatcher:
         else:
             reason = FEW_MATCHES if n_good < cfg.min_inliers else FAILED_GEOMETRY
         return MatchEvidence(landmark_id, n_good, inliers, "homography", reason, pid, lnfa)
+
+
+def mutual_nearest(
+    a: np.ndarray,
+    b: np.ndarray,
+    min_cosine: float,
+    ratio: float = 1.0,
+    b_points: np.ndarray | None = None,
+    exclusion_px: float = 0.0,
+) -> np.ndarray:
+    """Pairs (row of ``a``, row of ``b``) of unit vectors that are each other's nearest
+    neighbour (largest dot product) with a cosine above ``min_cosine``: M x 2 int64.
+
+    With ``ratio`` < 1, also Lowe's ratio test on the Euclidean distances (``sqrt(2 - 2
+    cos)``) to the best neighbour and to the best one *more than ``exclusion_px`` away from
+    it* in ``b`` (positions ``b_points``): dense descriptors such as XFeat's are nearly equal
+    for keypoints a few pixels apart (median cosine to the nearest other keypoint of a photo
+    0.98), so the plain second-best is the same structure and the test would refuse
+    everything; what it must refuse is another, similar structure elsewhere (a repeated
+    window)."""
+    if len(a) == 0 or len(b) == 0:
+        return np.zeros((0, 2), np.int64)
+    sim = a @ b.T
+    ab = np.argmax(sim, axis=1)
+    ba = np.argmax(sim, axis=0)
+    i = np.arange(len(a))
+    best = sim[i, ab]
+    keep = (ba[ab] == i) & (best > min_cosine)
+    if ratio < 1.0 and sim.shape[1] >= 2 and np.any(keep):
+        rows = i[keep]
+        s = sim[rows]
+        if b_points is not None and exclusion_px > 0.0:
+            p = b_points[ab[rows]]
+            d2 = ((b_points[None, :, :] - p[:, None, :]) ** 2).sum(axis=2)
+            s = np.where(d2 > exclusion_px * exclusion_px, s, -1.0)
+        else:
+            s = s.copy()
+            s[np.arange(len(rows)), ab[rows]] = -1.0
+        second = s.max(axis=1)
+        d1 = np.sqrt(np.maximum(2.0 - 2.0 * best[rows], 0.0))
+        d2nd = np.sqrt(np.maximum(2.0 - 2.0 * second, 0.0))
+        keep[rows] = d1 < ratio * d2nd
+    return np.stack([i[keep], ab[keep]], axis=1).astype(np.int64)
 
 
 def plausible_homography(H: np.ndarray, points: np.ndarray) -> np.ndarray | None:
@@ -287,6 +356,25 @@ def pair_log10_nfa(H: np.ndarray, src: np.ndarray, dst: np.ndarray) -> float:
     res = np.linalg.norm(proj - dst.astype(np.float64), axis=1)
     res[~np.isfinite(res)] = np.inf
     return log10_nfa(res, dst)[0]
+
+
+SAME_PLACE_RADIUS_M = 40.0
+"""A photo taken this close to a landmark (twice the sighting range) may join it on the
+weaker visual check ``SAME_PLACE_LOG10_NFA`` (docs/landmarks.md, "Several photos per
+place")."""
+SAME_PLACE_LOG10_NFA = {"rootsift": -4.0, "orb": -4.0}
+"""The weaker check for a photo whose position agrees with the landmark's: wrong pairs beyond
+log10 NFA -4 were 2.6e-3 (fit cities) and 3.4e-3 (held-out cities) of the synthetic wrong
+pairs for RootSIFT, 1.2e-3 / 2.4e-3 for ORB. XFeat has no weaker level (its synthetic tail is
+far heavier): its photos need the full rule."""
+
+
+def agreement_config(kind: str, position_agrees: bool) -> MatchConfig:
+    """The check a photo added to a landmark must pass: the decision rule, or, when its
+    position is within ``SAME_PLACE_RADIUS_M`` of the landmark, the weaker level."""
+    if position_agrees and kind in SAME_PLACE_LOG10_NFA:
+        return MatchConfig(max_log10_nfa=SAME_PLACE_LOG10_NFA[kind])
+    return MatchConfig()
 
 
 def photo_agreement(

@@ -16,6 +16,7 @@ import cv2
 import numpy as np
 
 from guidance.errors import checked_number
+from landmark_db import global_index
 from landmark_db.features import ExtractorConfig, Features, decode_image, encode_image, extract
 from landmark_db.limits import MAX_TEXT_CHARS, MIN_PHOTO_FEATURES, photo_problem
 from landmark_db.schema import LandmarkDbError
@@ -148,12 +149,16 @@ class PhotoStore:
         self._insert_features(int(pid), feats)
         return int(pid)
 
-    def _insert_features(self, pid: int, feats: Features) -> None:
+    def _insert_features(self, pid: int, feats: Features, index: bool = True) -> None:
+        """Store a photo's features and (``index``) its global descriptor, in the caller's
+        transaction (``global_index.photo_added``: encoded, or everything rebuilt when due)."""
         self._conn.execute(
             "INSERT OR REPLACE INTO photo_features VALUES (?, ?, ?, ?, ?, ?, ?)",
             (pid, self.extractor.ident, len(feats), feats.width, feats.height,
              feats.keypoint_blob(), feats.descriptor_blob()),
         )  # fmt: skip
+        if index:
+            global_index.photo_added(self._conn, pid, feats, self.extractor)
 
     def add_photo(
         self,
@@ -211,8 +216,17 @@ class PhotoStore:
                     feats = extract(decode_image(bytes(data)), ext)
                 except ValueError as exc:
                     raise LandmarkDbError(f"{self.path}: photo {pid}: {exc}") from exc
-                self._insert_features(int(pid), feats)
+                self._insert_features(int(pid), feats, index=False)
+            if rows or global_index.needs_rebuild(self._conn, ext):
+                global_index.rebuild(self._conn, ext)
         return len(rows)
+
+    def rebuild_global_index(self) -> int:
+        """Train the search's vocabulary on every photo and encode them all (``landmark-db
+        migrate`` does it); returns the photos encoded."""
+        self._writable()
+        with self._lock, self._tx():
+            return global_index.rebuild(self._conn, self.extractor)
 
     def photos(self, landmark_id: int) -> list[Photo]:
         """A landmark's photos, oldest first."""

@@ -17,6 +17,12 @@
    already fixed less than ``refix_interval_s`` ago -> ``repeat`` (one fix per pass, so the
    filter does not count the same sighting many times).
 
+**Lost** (``state.lost``): no gate; the whole database is searched (``landmark_db.search``:
+a global shortlist, then the same check at a Bonferroni level), and a place verified in two
+frames within ``confirm_window_s`` (or one far past the level) gives a fix with
+``relocalised=True``. ``locate(image)`` is the same search for one image, without temporal
+state (``landmark-db locate``).
+
 A confirmed match becomes a ``LandmarkFix`` at the landmark's surveyed position with
 ``sigma_m = sqrt((sighting_range_m / 2)^2 + position_sigma_m^2)``: the car is somewhere
 within the sighting range, in an unknown direction (a uniform disc of radius r has a
@@ -37,15 +43,15 @@ import time
 from collections import Counter, OrderedDict
 from collections.abc import Mapping, Sequence
 from concurrent.futures import Executor, Future, ProcessPoolExecutor
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from multiprocessing import get_context
 from pathlib import Path
 
 import numpy as np
 
-from guidance.core.messages import CameraFrame, EstimateState, LandmarkFix
+from guidance.core.messages import CameraFrame, EstimateState, LandmarkFix, reset_sigma_m
 from guidance.core.model import CHI2_2D_2SIGMA
-from landmark_db.features import ExtractorConfig, extract
+from landmark_db.features import ExtractorConfig, Features, extract
 from landmark_db.gate import valid_covariance
 from landmark_db.limits import frame_problem
 from landmark_db.matcher import (
@@ -56,6 +62,7 @@ from landmark_db.matcher import (
     PairMatcher,
     PhotoIndex,
 )
+from landmark_db.search import SearchConfig, WholeDbSearch
 from landmark_db.store import Candidate, LandmarkDb, open_db, query_gate
 
 FRAME_FEATURES = 600
@@ -109,6 +116,8 @@ class RecogniserConfig:
     match: MatchConfig = field(default_factory=MatchConfig)
     feature_cache: int = 512
     """Landmarks whose photo features are kept in memory (LRU)."""
+    search: SearchConfig = field(default_factory=SearchConfig)
+    """The whole-database search of a lost car and of ``locate``."""
 
     def __post_init__(self) -> None:
         if not (math.isfinite(self.sighting_range_m) and self.sighting_range_m >= 0.0):
@@ -135,6 +144,11 @@ class RecognitionResult:
     frame_features: int = 0
     elapsed_s: float = 0.0
     """Processing time (diagnostics only)."""
+    shortlist: tuple[tuple[int, float], ...] = ()
+    """A whole-database search's shortlist: (landmark id, global cosine), best first."""
+    level: float = math.nan
+    """A search's log10 NFA level (the rule's, lowered by the Bonferroni term); NaN when
+    the frame was gated."""
 
     @property
     def verified(self) -> bool:
@@ -183,6 +197,9 @@ class Recogniser:
         self._streak_n = 0
         self._streak_t = -math.inf
         self._last_fix_t: dict[int, float] = {}
+        self._search = WholeDbSearch(
+            db._conn, db._lock, db.extractor, self.config.match, self.config.search
+        )
 
     @classmethod
     def from_path(cls, path: str | Path, config: RecogniserConfig | None = None) -> Recogniser:
@@ -197,29 +214,34 @@ class Recogniser:
     def stats(self) -> Mapping[str, int]:
         """Frames, fixes, verified frames, candidates compared, and rejections by reason."""
         with self._lock:
-            keys = ("frames", "fixes", "verified", "compared", *REASONS)
+            keys = ("frames", "fixes", "relocalisations", "searched", "verified", "compared",
+                    *REASONS)  # fmt: skip
             return {k: self._counts[k] for k in keys}
 
     # --- main entry points -------------------------------------------------------------------
 
     def process(self, frame: CameraFrame, state: EstimateState) -> RecognitionResult:
-        """One frame against the landmarks gated by the estimator's published state."""
+        """One frame against the landmarks gated by the estimator's published state, or,
+        when ``state.lost``, against the whole database (``locate``'s search)."""
         mean, cov = state_xy(state)
-        return self.process_xy(frame, mean, cov)
+        return self.process_xy(frame, mean, cov, lost=bool(state.lost))
 
     def process_xy(
         self,
         frame: CameraFrame,
         mean_xy: Sequence[float],
         cov_xy: Sequence[Sequence[float]],
+        lost: bool = False,
     ) -> RecognitionResult:
-        """As ``process``, from a mean and a 2x2 covariance."""
+        """As ``process``, from a mean and a 2x2 covariance (ignored when ``lost``)."""
         with self._lock:
             t0 = time.perf_counter()
-            result = self._process(frame, mean_xy, cov_xy)
+            result = self._process_lost(frame) if lost else self._process(frame, mean_xy, cov_xy)
             self._counts["frames"] += 1
+            self._counts["searched"] += lost
             if result.fix is not None:
                 self._counts["fixes"] += 1
+                self._counts["relocalisations"] += result.fix.relocalised
             else:
                 assert result.reason is not None
                 self._counts[result.reason] += 1
@@ -274,12 +296,23 @@ class Recogniser:
         """(reason, verified id, evidence, frame feature count) for one image against ``ids``
         (their photos in order, at most ``max_photos`` of them; None: all). A landmark's
         evidence is its best photo's."""
+        feats = self._frame_features(image)
+        if isinstance(feats, str):
+            return feats, None, (), 0
+        return self._match_features(feats, ids, max_photos, self._matcher)
+
+    def _frame_features(self, image: np.ndarray) -> Features | str:
+        """The frame's features, or the reason it has none (``too_small``, ``bad_input``)."""
         if image.dtype == np.uint8 and frame_problem(image.shape[1], image.shape[0]) is not None:
-            return TOO_SMALL, None, (), 0
+            return TOO_SMALL
         try:
-            feats = extract(image, self.frame_extractor, self._detector)
+            return extract(image, self.frame_extractor, self._detector)
         except ValueError:
-            return BAD_INPUT, None, (), 0
+            return BAD_INPUT
+
+    def _match_features(
+        self, feats: Features, ids: Sequence[int], max_photos: int | None, matcher: PairMatcher
+    ) -> tuple[str | None, int | None, tuple[MatchEvidence, ...], int]:
         desc = feats.for_matching()
         photos = {lid: self._landmark_photos(lid) for lid in ids}
         # Round robin: every candidate's first photo, then every second photo... so a
@@ -297,7 +330,7 @@ class Recogniser:
         for lid, photo in order:
             # every photo in the budget is scored (no early stop on the first verified one):
             # the ambiguity rule compares each landmark's best photo
-            e = self._matcher.verify(lid, feats, desc, photo)
+            e = matcher.verify(lid, feats, desc, photo)
             b = per_lm.get(lid)
             if b is None or _strength(e) > _strength(b):
                 per_lm[lid] = e
@@ -350,29 +383,76 @@ class Recogniser:
         if lid is None:
             self._break_streak()
             return out(reason, None)
+        fix, reason = self._confirm(lid, t, strong=False, relocalised=False)
+        return out(reason, None if reason == NO_CANDIDATE else lid, fix)
+
+    def locate(self, image: np.ndarray) -> RecognitionResult:
+        """The whole-database search for one image, without gate or temporal state
+        (``landmark_db.search``): ``landmark_id`` is the place verified at the search's
+        level, if any; ``fix`` stays None."""
+        with self._lock:
+            t0 = time.perf_counter()
+            if not isinstance(image, np.ndarray) or image.size == 0:
+                return RecognitionResult(0.0, None, BAD_INPUT, None)
+            return _with_elapsed(self._locate(image, 0.0), time.perf_counter() - t0)
+
+    def _locate(self, image: np.ndarray, t: float) -> RecognitionResult:
+        feats = self._frame_features(image)
+        if isinstance(feats, str):
+            return RecognitionResult(t, None, feats, None)
+        short = tuple(self._search.shortlist(feats))
+        level = self._search.level
+        if not short:
+            return RecognitionResult(t, None, NO_CANDIDATE, None, level=level)
+        assert self._search.matcher is not None
+        ids = [lid for lid, _sim in short]
+        reason, lid, ev, n = self._match_features(
+            feats, ids, self.config.search.max_photos, self._search.matcher
+        )
+        return RecognitionResult(t, None, reason, lid, (), ev, n, 0.0, short, level)
+
+    def _process_lost(self, frame: CameraFrame) -> RecognitionResult:
+        """A lost car's frame: the whole-database search, confirmed over two frames (or
+        one far past the level); the fix is ``relocalised``."""
+        t = float(frame.t_s)
+        image = frame.image
+        if not isinstance(image, np.ndarray) or image.size == 0 or not math.isfinite(t):
+            self._break_streak()
+            return RecognitionResult(t, None, BAD_INPUT, None)
+        res = self._locate(image, t)
+        lid = res.landmark_id
+        if lid is None:
+            self._break_streak()
+            return res
+        best = next(e for e in res.evidence if e.landmark_id == lid)
+        strong = best.log_nfa <= self._search.single_frame_level()
+        fix, reason = self._confirm(lid, t, strong, relocalised=True)
+        return replace(res, fix=fix, reason=reason)
+
+    def _confirm(
+        self, lid: int, t: float, strong: bool, relocalised: bool
+    ) -> tuple[LandmarkFix | None, str | None]:
+        """The temporal rule on a verified landmark: (fix, None) or (None, reason)."""
+        cfg = self.config
         if lid == self._streak_id and t - self._streak_t <= cfg.confirm_window_s:
             self._streak_n += 1
         else:
             self._streak_id, self._streak_n = lid, 1
         self._streak_t = t
-        if self._streak_n < cfg.confirm_frames:
-            return out(NOT_CONSISTENT, lid)
+        if self._streak_n < cfg.confirm_frames and not strong:
+            return None, NOT_CONSISTENT
         last = self._last_fix_t.get(lid)
         if last is not None and t - last < cfg.refix_interval_s:
-            return out(REPEAT, lid)
+            return None, REPEAT
         landmark = self.db.get(lid)
         if landmark is None:
             self._break_streak()
-            return out(NO_CANDIDATE, None)
+            return None, NO_CANDIDATE
         self._last_fix_t[lid] = t
-        fix = LandmarkFix(
-            t_s=t,
-            landmark_id=lid,
-            x_m=landmark.x_m,
-            y_m=landmark.y_m,
-            sigma_m=fix_sigma_m(cfg.sighting_range_m, landmark.position_sigma_m),
-        )
-        return out(None, lid, fix)
+        sigma = (reset_sigma_m if relocalised else fix_sigma_m)(
+            cfg.sighting_range_m, landmark.position_sigma_m
+        )  # a reset holds every point the place can be seen from
+        return LandmarkFix(t, lid, landmark.x_m, landmark.y_m, sigma, relocalised), None
 
 
 def _strength(e: MatchEvidence) -> tuple[bool, float, int, int]:
@@ -382,16 +462,7 @@ def _strength(e: MatchEvidence) -> tuple[bool, float, int, int]:
 
 
 def _with_elapsed(r: RecognitionResult, elapsed_s: float) -> RecognitionResult:
-    return RecognitionResult(
-        r.t_s,
-        r.fix,
-        r.reason,
-        r.landmark_id,
-        r.candidates,
-        r.evidence,
-        r.frame_features,
-        elapsed_s,
-    )
+    return replace(r, elapsed_s=elapsed_s)
 
 
 async def recognise_async(

@@ -10,6 +10,10 @@
   and parameters); the v1 tables' rows move over with their ids, and the file keeps
   describing photos as before (metadata ``extractor``). Recomputing features for another
   extractor is ``LandmarkDb.refresh_features`` (``landmark-db migrate --extractor``).
+* v4: the whole-database search's global descriptors (``landmark_db.global_index``): the
+  VLAD ``vocabulary`` (one row) and a vector per photo (``photo_global``). Both start empty;
+  the next write (or ``landmark-db migrate``) builds them, and a read-only open of a file
+  without them computes them in memory.
 """
 
 from __future__ import annotations
@@ -29,7 +33,7 @@ class LandmarkDbError(UserError):
         super().__init__(" ".join(str(message).split()))
 
 
-SCHEMA_VERSION = 3
+SCHEMA_VERSION = 4
 """The version this code writes and reads; older files are migrated by ``open_db(writable)``."""
 
 V1 = """
@@ -114,10 +118,31 @@ DROP TABLE features;
 UPDATE schema_version SET version = 3;
 """
 
-MIGRATIONS: tuple[tuple[int, str], ...] = ((1, V1), (2, V2), (3, V3))
+V4 = """
+CREATE TABLE vocabulary (
+    extractor TEXT NOT NULL,
+    photos INTEGER NOT NULL,
+    k INTEGER NOT NULL,
+    dims INTEGER NOT NULL,
+    centres BLOB NOT NULL,
+    mean BLOB NOT NULL,
+    projection BLOB NOT NULL
+);
+CREATE TABLE photo_global (
+    photo_id INTEGER PRIMARY KEY REFERENCES photos(id) ON DELETE CASCADE,
+    vocabulary TEXT NOT NULL,
+    vector BLOB NOT NULL
+);
+UPDATE schema_version SET version = 4;
+"""
+
+MIGRATIONS: tuple[tuple[int, str], ...] = ((1, V1), (2, V2), (3, V3), (4, V4))
 """(version, script): applying script k brings a file from version k-1 to version k."""
 
-TABLES = frozenset({"metadata", "landmarks", "photos", "photo_features", "landmark_index"})
+TABLES = frozenset(
+    {"metadata", "landmarks", "photos", "photo_features", "landmark_index", "vocabulary",
+     "photo_global"}
+)  # fmt: skip
 """The tables a current file must have (besides ``schema_version``)."""
 
 

@@ -27,9 +27,10 @@ import pynmea2
 
 from guidance import files
 from landmark_db.acceptance import IMAGE_EXTS
-from landmark_db.features import decode_image
+from landmark_db.features import decode_image, extract
 from landmark_db.inputs import read_csv_rows, read_photo
-from landmark_db.store import LandmarkDb, LandmarkDbError
+from landmark_db.matcher import SAME_PLACE_RADIUS_M, agreement_config, photo_agreement
+from landmark_db.store import LandmarkDb, LandmarkDbError, LandmarkRecord
 
 
 @dataclass(frozen=True, slots=True)
@@ -252,17 +253,22 @@ def survey(
         src = f"survey t={mark.t_s:.2f}"
         existing = db.find(name) if mark.name else None
         first = 0
+        pos: dict[str, float] = {}
+        if mark.lat_deg is not None and mark.lon_deg is not None:
+            pos = {"lat_deg": mark.lat_deg, "lon_deg": mark.lon_deg}
+        elif mark.x_m is not None and mark.y_m is not None:
+            pos = {"x_m": mark.x_m, "y_m": mark.y_m}
+        elif track is not None and (ll := track.at(mark.t_s)) is not None:
+            pos = {"lat_deg": ll[0], "lon_deg": ll[1]}
         if existing is not None:
             lid = existing.id
+            picked = _agreeing(
+                db, existing, pos, [window[i][1] for i in picked], picked, name, notes
+            )
+            if not picked:
+                return
         else:
-            pos: dict[str, float] = {}
-            if mark.lat_deg is not None and mark.lon_deg is not None:
-                pos = {"lat_deg": mark.lat_deg, "lon_deg": mark.lon_deg}
-            elif mark.x_m is not None and mark.y_m is not None:
-                pos = {"x_m": mark.x_m, "y_m": mark.y_m}
-            elif track is not None and (ll := track.at(mark.t_s)) is not None:
-                pos = {"lat_deg": ll[0], "lon_deg": ll[1]}
-            else:
+            if not pos:
                 notes.append(f"{name}: no position at t={mark.t_s:.2f} (no mark position, no GPS)")
                 return
             lid = db.add(
@@ -292,3 +298,41 @@ def survey(
         else:
             notes.append(f"mark at t={mark.t_s:.2f}: no frames")
     return saved, notes
+
+
+def _agreeing(
+    db: LandmarkDb,
+    landmark: LandmarkRecord,
+    pos: dict[str, float],
+    images: list[np.ndarray],
+    picked: list[int],
+    name: str,
+    notes: list[str],
+) -> list[int]:
+    """The frames of a mark naming an existing landmark (the place passed again) that may
+    join it: each must match the landmark's photos by the decision rule, or by the weaker
+    level when the mark's position is within ``SAME_PLACE_RADIUS_M`` of the landmark
+    (``matcher.agreement_config``). The others are left out with a note."""
+    near = False
+    if pos:
+        if "x_m" in pos:
+            xy = (pos["x_m"], pos["y_m"])
+        else:
+            xy = db.origin.to_local(pos["lat_deg"], pos["lon_deg"])
+        near = math.hypot(xy[0] - landmark.x_m, xy[1] - landmark.y_m) <= SAME_PLACE_RADIUS_M
+    kind = db.extractor.kind
+    cfg = agreement_config(kind, near)
+    existing = db.photo_features(landmark.id)
+    keep = []
+    for i, image in zip(picked, images, strict=True):
+        e = photo_agreement(landmark.id, extract(image, db.extractor), existing, cfg)
+        if e is None or e.verified:
+            keep.append(i)
+        else:
+            nfa = f"{e.log_nfa:.1f}" if math.isfinite(e.log_nfa) else "none"
+            where = "near it" if near else "not within 40 m of it"
+            notes.append(
+                f"{name}: a frame does not match landmark {landmark.id}'s photos ({where}:"
+                f" {e.inliers} inliers, log10 NFA {nfa}, needs <= {cfg.nfa_needed(kind):g})"
+            )
+    return keep

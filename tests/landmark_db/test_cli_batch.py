@@ -182,16 +182,22 @@ def test_migrate_switches_the_extractor(tmp_path: Path, capsys: pytest.CaptureFi
 def test_survey_keeps_several_frames_per_mark_and_joins_passes(
     tmp_path: Path, capsys: pytest.CaptureFixture[str]
 ) -> None:
+    from hal_sim.sim_camera import SimCamera, SimCameraConfig
+
     frames = tmp_path / "frames"
+    # the second pass (frames 6-8) sees the bridge (facade 82, the first pass's mark frame)
+    # again from other distances: it must pass the same-place check (issue 36)
+    cam = SimCamera([], 4, SimCameraConfig(perspective=0.08, occlusion=(0.0, 0.1)))
     for i in range(10):  # 2 fps: t = 0, 0.5, ... 4.5 s
-        _write(frames, f"{i:02d}.png", facade(80 + i))
+        image = cam.view(facade(82), 6.0 + i) if 6 <= i <= 8 else facade(80 + i)
+        _write(frames, f"{i:02d}.png", image)
     marks = tmp_path / "marks.csv"
     marks.write_text("t_s,name,x_m,y_m\n1.0,bridge,10,20\n3.5,bridge,10,20\n")
     db = str(tmp_path / "s.sqlite")
     main(["init", db, "--origin", "0", "0"])
     capsys.readouterr()
     code, out, _ = run(capsys, "survey", db, str(frames), "--marks", str(marks), "--fps", "2")
-    assert code == 0 and "2 landmarks saved" in out  # two passes, one place
+    assert code == 0 and "2 landmarks saved" in out, out  # two passes, one place
     with open_db(db) as ro:
         assert len(ro) == 1
         srcs = [p.source for p in ro.photos(1)]
@@ -218,3 +224,23 @@ def test_survey_refuses_a_truncated_frame_in_one_line(
     capsys.readouterr()
     code, _, err = run(capsys, "survey", db, str(frames), "--marks", str(tmp_path / "marks.csv"))
     assert code == 2 and err.count("\n") == 1 and "01.jpg" in err and "truncated JPEG" in err
+
+
+def test_survey_leaves_out_a_pass_that_shows_other_buildings(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """A mark naming an existing landmark whose frames show other buildings (a wrong name,
+    a wrong time) adds none of them: each is left out with a note (issue 36)."""
+    frames = tmp_path / "frames"
+    for i in range(10):
+        _write(frames, f"{i:02d}.png", facade(80 + i))
+    marks = tmp_path / "marks.csv"
+    marks.write_text("t_s,name,x_m,y_m\n1.0,bridge,10,20\n3.5,bridge,10,20\n")
+    db = str(tmp_path / "s.sqlite")
+    main(["init", db, "--origin", "0", "0"])
+    capsys.readouterr()
+    code, out, _ = run(capsys, "survey", db, str(frames), "--marks", str(marks), "--fps", "2")
+    assert code == 0 and "1 landmarks saved" in out
+    assert out.count("does not match landmark 1's photos (near it") == 3
+    with open_db(db) as ro:
+        assert len(ro.photos(1)) == 3

@@ -190,7 +190,7 @@ def test_migrate_follows_a_symlink_and_refuses_a_read_only_file(
     real.chmod(0o644)
     code, _, err = run(capsys, "migrate", str(link), "--quarantine", str(tmp_path / "q"))
     assert code == 0, err
-    assert link.is_symlink() and _version(real) == 3  # the link stays, its file is migrated
+    assert link.is_symlink() and _version(real) == 4  # the link stays, its file is migrated
     assert sorted(p.name for p in real.parent.iterdir()) == ["old.sqlite"]
 
 
