@@ -202,6 +202,7 @@ def output_settings(cfg: AppConfig, pipeline: Pipeline) -> OutputSettings:
         voice=cfg.voice.voice,
         rate_wpm=cfg.voice.rate_wpm,
         volume=cfg.voice.volume,
+        device=cfg.voice.device,
         telemetry=cfg.telemetry,
         recording=cfg.recording,
         session=session_record(pipeline, cfg.path),

@@ -66,10 +66,13 @@ class VoiceSettings:
     backend: str = field(default="auto", metadata=rule(choices=(*SPEAKER_KINDS, "none")))
     wav_path: str = ""
     voice: str = "en"
-    """The speech engine's voice (espeak-ng: a language code such as en, en-us, de)."""
+    """The voice's language (en, en-us, en-gb, de...; Pico speaks en, de, es, fr, it, espeak-ng
+    the others)."""
     rate_wpm: int = field(default=170, metadata=rule(lo=80, hi=400))
     """Speech rate in words per minute (a little slower than espeak-ng's 175, for traffic)."""
     volume: float = field(default=1.0, metadata=rule(lo=0, hi=1))
+    device: str = "default"
+    """The ALSA playback device (``aplay -D``): default, plughw:1,0, null (plays into nothing)."""
 
 
 @dataclass(frozen=True, slots=True)
