@@ -73,6 +73,8 @@ class OperatorSession:
         )
         self.operator = Operator(self.screen, pipeline, clock=clock)
         self.speaker: MutableSpeaker | None = None
+        self.speech: Any = None
+        """The speech input beside the keys, when there is one."""
 
     @property
     def live(self) -> bool:
@@ -88,13 +90,17 @@ class OperatorSession:
         scene = self.cfg.scene
         if scene.input == "none":
             return None
+        if scene.input == "speech":
+            source = self._speech(heading_fn)
+            self.operator.co_driver = source
+            return source
         per_key = self.on and (scene.input == "evdev" or self.screen.live)
         cls = import_backend(SCENE_BACKENDS[scene.input])
         args: list[Any] = []
         if scene.input in SCENE_CONFIGS:
             conf_cls = import_backend(SCENE_CONFIGS[scene.input])
             args.append(conf_cls(device=scene.device, grab=scene.grab))
-        source: Source = cls(
+        source = cls(
             *args,
             heading_fn,
             feedback=self.screen.ack if self.on else None,
@@ -104,6 +110,49 @@ class OperatorSession:
         )
         self.operator.co_driver = source
         return source
+
+    def speech_beside(self, heading_fn: Callable[[], float]) -> Source | None:
+        """The microphone beside the keypad or keyboard (``[scene] speech = true``), after
+        ``co_driver_input``: with a keypad, its 5 is the talk key."""
+        if not self.cfg.scene.speech or self.cfg.scene.input == "speech":
+            return None
+        speech = self._speech(heading_fn)
+        keys = self.operator.co_driver
+        if keys is not None and hasattr(keys, "on_talk"):
+            keys.on_talk = speech.set_talking
+        self.speech = speech
+        return speech
+
+    def _speech(self, heading_fn: Callable[[], float]) -> Any:
+        """The speech input (``drivers.speech``): heard reports acknowledged on the screen,
+        read back by the car's voice, deaf to it (``guidance.voice.activity.CAR_VOICE``)."""
+        from guidance.app.backends import SCENE_BACKENDS, SCENE_CONFIGS, import_backend
+        from guidance.voice.activity import CAR_VOICE
+
+        scene = self.cfg.scene
+        conf = import_backend(SCENE_CONFIGS["speech"])(device=scene.microphone,
+                                                       talk=scene.talk_mode)  # fmt: skip
+        return import_backend(SCENE_BACKENDS["speech"])(
+            conf,
+            heading_fn,
+            feedback=self.screen.ack if self.on else None,
+            echo=self.screen.echo if self.on else None,
+            on_command=self.operator.on_command,
+            read_back=self._read_back,
+            car_voice=CAR_VOICE,
+            clock=self.clock,
+        )
+
+    def _read_back(self, text: str) -> None:
+        """Say what the speech input heard ("Left, straight, right."), from its thread."""
+        from guidance.core.messages import Priority
+
+        loop = self.operator.loop
+        if loop is None:
+            return
+        loop.call_soon_threadsafe(
+            lambda: self.operator.say(text, Priority.GUIDANCE, self.clock())
+        )
 
     def attach(self, speaker: Speaker | None) -> MutableSpeaker | None:
         """On the loop, once the outputs are open: the speaker the app is given (muted by the

@@ -80,11 +80,31 @@ class SceneSettings:
     """``[scene]``: where the co-driver's keys come from."""
 
     input: str = field(default="keyboard", metadata=rule(choices=(*SCENE_BACKENDS, "none")))
-    """keyboard (lines on stdin), evdev (a keypad or keyboard: ``device``) or none."""
+    """keyboard (lines on stdin), evdev (a keypad or keyboard: ``device``), speech (the
+    microphone alone) or none."""
     device: str = field(default="", metadata=rule(path=True))
     """The input device for ``evdev``: /dev/input/by-id/...-event-kbd."""
     grab: bool = True
     """evdev: take the device exclusively."""
+    speech: bool = False
+    """The microphone beside the keypad or keyboard (docs/app.md, "Driving alone")."""
+    microphone: str = "default"
+    """The ALSA capture device of the speech input (``arecord -D``)."""
+    talk: str = field(default="auto", metadata=rule(choices=("auto", "key", "always")))
+    """When the speech input listens: ``key`` while the keypad's 5 is held, ``always`` (voice
+    activity), ``auto``: ``key`` with a keypad (input = "evdev"), else ``always``."""
+
+    @property
+    def listens(self) -> bool:
+        """The microphone is one of the co-driver inputs."""
+        return self.input == "speech" or self.speech
+
+    @property
+    def talk_mode(self) -> str:
+        """``key`` or ``always`` (``auto`` resolved)."""
+        if self.talk != "auto":
+            return self.talk
+        return "key" if self.input == "evdev" else "always"
 
 
 @dataclass(frozen=True, slots=True)
@@ -151,4 +171,9 @@ def read_scene(data: object, base_dir: Path | None) -> SceneSettings:
         )
     if scene.device and scene.input != "evdev":
         raise UserError(f"[scene] device is only read with input = 'evdev', not {scene.input!r}")
+    if scene.talk == "key" and scene.listens and scene.input != "evdev":
+        raise UserError(
+            "[scene] talk = 'key' is push-to-talk on the keypad's 5: it needs input = 'evdev'; "
+            "without a keypad use talk = 'always'"
+        )
     return scene

@@ -76,7 +76,7 @@ def test_the_warning_is_said_once_and_rearms_above_the_margin() -> None:
         text, said = w.update(5000, axis, 100.0, 30.0, said=said, quiet=False)
         texts.append(text)
     spoken = [t for t in texts if t]
-    assert len(spoken) == 1 and "Chance of reaching the goal is now" in spoken[0]
+    assert len(spoken) == 1 and "Chance of reaching the destination is now" in spoken[0]
     assert w.value is not None and w.value < 0.5
     # near the goal with a small ellipse (a landmark fix): high again, re-armed
     text, said = w.update(300, 5.0, 100.0, 30.0, said=said, quiet=False)
