@@ -33,7 +33,10 @@ from guidance.tools.voice_corpus import (
 from hal_sim.sim_world import landmark_name
 
 VOICES = "pico:en-GB,espeak:en-us,espeak:en+m3,flite:slt,flite:awb,flite:rms"
-SNRS_DB = (20.0, 10.0, 5.0)
+SNRS_DB = (40.0, 20.0, 10.0, 5.0)
+"""40 dB: a quiet cabin. Not digital silence: pocketsphinx's running mean normalisation
+mis-hears espeak-ng's commands padded with exact zeros (13 of 40 right), which no microphone
+delivers; with a 40 dB noise floor they are 38 of 40."""
 PAD_S = 0.3
 
 
@@ -63,7 +66,7 @@ class _Stream:
 
 
 def push_to_talk(
-    voice: str, snr_db: float | None, rec: CommandRecogniser, seed: int
+    voice: str, snr_db: float, rec: CommandRecogniser, seed: int
 ) -> tuple[int, int, float, float]:
     """(right, total, cpu s, audio s) of every command said by ``voice`` at ``snr_db``."""
     s = _Stream("key", rec)
@@ -73,9 +76,7 @@ def push_to_talk(
         speech = render(voice, text)
         pad = int(PAD_S * RATE_HZ)
         clip = np.concatenate([np.zeros(pad), speech, np.zeros(pad)])
-        if snr_db is not None:
-            noise = cabin_noise(clip.size, seed * 1000 + i)
-            clip = mix_at_snr(np.concatenate([np.zeros(pad), speech, np.zeros(pad)]), noise, snr_db)
+        clip = mix_at_snr(clip, cabin_noise(clip.size, seed * 1000 + i), snr_db)
         n_before = len(s.input.heard)
         s.input.set_talking(True)
         s.feed(clip)
@@ -145,12 +146,12 @@ def main() -> None:
     args = ap.parse_args()
     rec = CommandRecogniser()
     print("Push-to-talk commands, right / said (cabin noise; SNR against the voiced speech)\n")
-    print(f"{'voice':16} {'clean':>7} " + " ".join(f"{s:>5.0f} dB" for s in SNRS_DB))
-    totals = {s: [0, 0] for s in (None, *SNRS_DB)}
+    print(f"{'voice':16} " + " ".join(f"{s:>5.0f} dB" for s in SNRS_DB))
+    totals = {s: [0, 0] for s in SNRS_DB}
     cpu = audio = 0.0
     for v, voice in enumerate(args.voices.split(",")):
         cells = []
-        for snr in (None, *SNRS_DB):
+        for snr in SNRS_DB:
             r, n, c, a = push_to_talk(voice, snr, rec, seed=v)
             totals[snr][0] += r
             totals[snr][1] += n

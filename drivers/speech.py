@@ -47,8 +47,8 @@ from drivers.keyboard import CoDriverLines, Feedback, SceneMessage
 from drivers.speech_grammar import (
     RATE_HZ,
     SAY_AGAIN_TEXT,
-    CommandRecogniser,
     Heard,
+    ProcessRecogniser,
     Segmenter,
     read_back,
     read_wav_16k,
@@ -58,6 +58,14 @@ CHUNK = 480
 """Samples read at a time: 30 ms, the voice activity detector's frame."""
 MAX_HELD_S = 8.0
 """Push-to-talk audio beyond this is not kept (a key stuck down must not fill memory)."""
+
+
+class Recogniser(Protocol):
+    """``CommandRecogniser`` (in this process: tests, tools) or ``ProcessRecogniser`` (the car)."""
+
+    def hear(
+        self, samples: np.ndarray, t_s: float = 0.0, *, push_to_talk: bool = False
+    ) -> Heard | None: ...
 
 
 class CarVoiceState(Protocol):
@@ -122,7 +130,7 @@ class SpeechInput(ThreadedSource[SceneMessage]):
         on_command: Callable[[str], str] | None = None,
         read_back: Callable[[str], None] | None = None,
         car_voice: CarVoiceState | None = None,
-        recogniser: CommandRecogniser | None = None,
+        recogniser: Recogniser | None = None,
         name: str = "speech",
     ) -> None:
         if config.talk not in ("key", "always"):
@@ -142,6 +150,7 @@ class SpeechInput(ThreadedSource[SceneMessage]):
         self._segmenter: Segmenter | None = None
         self._audio_s = 0.0
         self._t0 = 0.0
+        self._own: ProcessRecogniser | None = None
         self.heard: list[Heard] = []
         """Every utterance taken or answered (the operator screen shows the last)."""
 
@@ -172,11 +181,19 @@ class SpeechInput(ThreadedSource[SceneMessage]):
     def _source_stats(self) -> dict[str, int]:
         return self.lines.stats()
 
+    def _on_stop(self) -> None:
+        """The recogniser process this input started goes with it."""
+        if self._own is not None:
+            self._own.close()
+            self._own = None
+            self.recogniser = None
+
     # -- audio -------------------------------------------------------------------------------------
     def start_stream(self, t0: float | None = None) -> None:
         """A new stream of audio whose first sample is at ``t0`` (monotonic; default now)."""
-        if self.recogniser is None:
-            self.recogniser = CommandRecogniser()
+        if self.recogniser is None:  # the car's: a worker process, off the loop's GIL
+            self._own = ProcessRecogniser()
+            self.recogniser = self._own
         self._segmenter = Segmenter() if self.config.talk == "always" else None
         self._ptt = []
         self._audio_s = 0.0
