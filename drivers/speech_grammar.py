@@ -239,6 +239,37 @@ class CommandRecogniser:
         return out
 
 
+RUMBLE_CUT_HZ = 250.0
+"""Below this a car cabin is engine and road rumble, and speech carries little the recogniser
+uses (its lowest filter is at 133 Hz): cut before the voice activity detector, which otherwise
+takes 20 dB of cabin noise for one endless utterance (measured: one 10 s segment for two
+sentences and a command; with the cut, the three)."""
+_TAPS = 401
+
+
+def _high_pass_taps(cut_hz: float = RUMBLE_CUT_HZ) -> np.ndarray:
+    n = np.arange(_TAPS) - _TAPS // 2
+    fc = cut_hz / RATE_HZ
+    low = np.sinc(2 * fc * n) * 2 * fc * np.hamming(_TAPS)
+    high = -low
+    high[_TAPS // 2] += 1.0
+    return np.asarray(high)
+
+
+class HighPass:
+    """Streaming linear-phase high-pass (``RUMBLE_CUT_HZ``; a windowed-sinc FIR, 12.5 ms delay):
+    feed chunks in order, get filtered chunks of the same length."""
+
+    def __init__(self) -> None:
+        self._taps = _high_pass_taps()
+        self._tail = np.zeros(_TAPS - 1)
+
+    def __call__(self, x: np.ndarray) -> np.ndarray:
+        buf = np.concatenate([self._tail, x])
+        self._tail = buf[-(_TAPS - 1) :]
+        return np.asarray(np.convolve(buf, self._taps, mode="valid"))
+
+
 def utterances(samples: np.ndarray) -> Iterator[tuple[float, np.ndarray]]:
     """(start s, samples) of each stretch of speech in a 16 kHz recording (``Segmenter``)."""
     seg = Segmenter()
@@ -246,47 +277,64 @@ def utterances(samples: np.ndarray) -> Iterator[tuple[float, np.ndarray]]:
     yield from seg.flush()
 
 
+HISTORY_S = MAX_COMMAND_S + 4.0
+"""Audio kept to cut utterances from: the longest a command may take, and some."""
+
+
 class Segmenter:
-    """Streaming utterance cutter on pocketsphinx's ``Endpointer`` (its voice activity detector,
-    the loop of pocketsphinx's own ``Segmenter``): feed it samples as they come; it yields each
-    utterance once the pause after it is heard."""
+    """Streaming utterance cutter: pocketsphinx's ``Endpointer`` (its voice activity detector)
+    listens to the audio with the rumble cut (``HighPass``), and each utterance it finds is cut
+    from the audio as it came (the recogniser does better with all of it: cutting the rumble
+    before decoding cost 4 of 20 Pico en-GB commands at 10 dB). Feed samples as they come; an
+    utterance is yielded once the pause after it is heard. An utterance longer than
+    ``HISTORY_S`` comes out shortened (it is no command anyway)."""
 
     def __init__(self) -> None:
         from pocketsphinx import Endpointer
 
         self._ep: Any = Endpointer(window=0.3, ratio=0.9, vad_mode=2, sample_rate=RATE_HZ)
         self._frame = int(self._ep.frame_bytes) // 2
+        self._rumble = HighPass()
         self._pending = np.zeros(0)
-        self._speech: list[bytes] = []
-        self._start_s = 0.0
+        self._history = np.zeros(0)
+        self._history_end = 0  # samples fed so far (the index after the history's last)
+        self._start_s: float | None = None
 
-    def _take(self, speech: bytes | None) -> Iterator[tuple[float, np.ndarray]]:
+    def _cut(self, start_s: float, end_s: float) -> tuple[float, np.ndarray]:
+        delay = _TAPS // 2
+        first = self._history_end - self._history.size
+        a = max(first, round(start_s * RATE_HZ) - delay)
+        b = min(self._history_end, round(end_s * RATE_HZ) - delay)
+        return (a / RATE_HZ, self._history[a - first : max(a, b) - first])
+
+    def _step(self, frame: np.ndarray, end: bool = False) -> Iterator[tuple[float, np.ndarray]]:
+        pcm = to_pcm16(frame)
+        speech = self._ep.end_stream(pcm) if end else self._ep.process(pcm)
         if speech is None:
             return
-        if not self._speech:
+        if self._start_s is None:
             self._start_s = float(self._ep.speech_start)
-        self._speech.append(speech)
         if not self._ep.in_speech:
-            pcm = b"".join(self._speech)
-            self._speech = []
-            yield self._start_s, np.frombuffer(pcm, dtype="<i2").astype(np.float64)
+            start, self._start_s = self._start_s, None
+            yield self._cut(start, float(self._ep.speech_end))
 
     def feed(self, samples: np.ndarray) -> Iterator[tuple[float, np.ndarray]]:
-        buf = np.concatenate([self._pending, samples.astype(np.float64)])
+        raw = samples.astype(np.float64)
+        keep = int(HISTORY_S * RATE_HZ)
+        self._history = np.concatenate([self._history, raw])[-keep:]
+        self._history_end += raw.size
+        buf = np.concatenate([self._pending, self._rumble(raw)])
         n = buf.size // self._frame
         for k in range(n):
-            frame = to_pcm16(buf[k * self._frame : (k + 1) * self._frame])
-            yield from self._take(self._ep.process(frame))
+            yield from self._step(buf[k * self._frame : (k + 1) * self._frame])
         self._pending = buf[n * self._frame :]
 
     def flush(self) -> Iterator[tuple[float, np.ndarray]]:
         """The end of the audio: the utterance in progress, if any."""
-        if self._pending.size or self._speech:
-            yield from self._take(self._ep.end_stream(to_pcm16(self._pending)))
-        if self._speech:  # the detector had not closed it
-            pcm = b"".join(self._speech)
-            self._speech = []
-            yield self._start_s, np.frombuffer(pcm, dtype="<i2").astype(np.float64)
+        yield from self._step(self._pending, end=True)
+        if self._start_s is not None:  # the detector had not closed it
+            start, self._start_s = self._start_s, None
+            yield self._cut(start, self._history_end / RATE_HZ + (_TAPS // 2) / RATE_HZ)
         self._pending = np.zeros(0)
 
 
