@@ -120,6 +120,7 @@ class OperatorSession:
         keys = self.operator.co_driver
         if keys is not None and hasattr(keys, "on_talk"):
             keys.on_talk = speech.set_talking
+        self.operator.co_driver = _KeysAndMicrophone(keys, speech)  # the INPUT row shows both
         self.speech = speech
         return speech
 
@@ -186,3 +187,19 @@ class OperatorSession:
             lambda v: v.add(time.time(), "info", f"NO CO-DRIVER INPUT: {problem}", "bad")
         )
         self.operator.say(NO_INPUT_PROMPT, Priority.SAFETY, time.monotonic())
+
+
+class _KeysAndMicrophone:
+    """What the screen's INPUT row says of a keypad (or keyboard) and the microphone beside it:
+    both, the microphone with what it last heard."""
+
+    def __init__(self, keys: Any, speech: Any) -> None:
+        self.keys, self.speech = keys, speech
+
+    def describe(self) -> str:
+        parts = [x.describe() for x in (self.keys, self.speech) if x is not None]
+        return " + ".join(parts)
+
+    @property
+    def connected(self) -> bool:
+        return bool(getattr(self.keys, "connected", True) or self.speech.connected)
