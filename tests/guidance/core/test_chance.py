@@ -87,8 +87,8 @@ def test_the_warning_is_said_once_and_rearms_above_the_margin() -> None:
 
 
 def test_spoken_and_shown_forms() -> None:
-    assert chance.spoken(0.42) == "Chance of reaching the goal is now about 40 percent."
-    assert chance.spoken(0.03) == "Chance of reaching the goal is now below 10 percent."
+    assert chance.spoken(0.42) == "Chance of reaching the destination is now about 40 percent."
+    assert chance.spoken(0.03) == "Chance of reaching the destination is now below 10 percent."
     assert chance.shown(0.42) == "40 %" and chance.shown(0.999) == ">95 %"
     assert chance.shown(0.001) == "<5 %" and chance.shown(None) == "-"
     assert chance.shown(float("nan")) == "-"
