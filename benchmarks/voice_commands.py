@@ -88,6 +88,21 @@ def push_to_talk(
     return right, len(SPOKEN_COMMANDS), s.cpu_s, audio_s
 
 
+def always_listening(voice: str, snr_db: float, rec: CommandRecogniser, seed: int) -> int:
+    """Commands taken right when always listening: each said after 1 s of cabin noise and
+    followed by 1 s, the stream continuous (the voice activity detector cuts them)."""
+    s = _Stream("always", rec)
+    right = 0
+    for i, (text, line) in enumerate(SPOKEN_COMMANDS):
+        clip = np.concatenate([np.zeros(RATE_HZ), render(voice, text), np.zeros(RATE_HZ)])
+        clip = mix_at_snr(clip, cabin_noise(clip.size, seed * 1000 + i), snr_db)
+        before = len(s.input.heard)
+        s.feed(clip)
+        heard = s.input.heard[before:]
+        right += any(h.line == line for h in heard)
+    return right
+
+
 class _CarVoiceOnTape:
     """The car's voice as a recorded timeline: busy during the prompts placed on the tape."""
 
@@ -162,6 +177,12 @@ def main() -> None:
     print(f"{'all':16} " + " ".join(f"{100 * r / n:7.1f}%" for r, n in totals.values()))
     print(f"\nrecognition while the key is held: {cpu / audio:.3f} of real time "
           f"({cpu:.1f} s CPU for {audio:.1f} s of audio)")  # fmt: skip
+
+    print("\nAlways listening, commands taken right (of 20), cabin noise")
+    print(f"{'voice':16} " + " ".join(f"{s:>5.0f} dB" for s in (20.0, 10.0)))
+    for v, voice in enumerate(args.voices.split(",")):
+        cells = [always_listening(voice, snr, rec, v) for snr in (20.0, 10.0)]
+        print(f"{voice:16} " + " ".join(f"{c:8d}" for c in cells))
 
     tape, spans = non_command_tape(args.minutes)
     hours = tape.size / RATE_HZ / 3600
