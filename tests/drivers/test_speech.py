@@ -291,3 +291,32 @@ def test_guidance_voice_listen_prints_the_lines_as_json(tmp_path: Path) -> None:
                          capture_output=True, text=True, timeout=60)  # fmt: skip
     assert bad.returncode == 2 and "none.wav" in bad.stderr
 
+
+
+@needs_voices
+def test_the_car_recognises_in_a_worker_process() -> None:
+    """``ProcessRecogniser`` (what the car uses: pocketsphinx holds the GIL) answers as the
+    in-process recogniser does, and a thread waiting for it leaves the GIL to others."""
+    from drivers.speech_grammar import ProcessRecogniser
+
+    clip = np.concatenate([PAD, render("flite:slt", "bear right straight"), PAD])
+    worker = ProcessRecogniser()
+    try:
+        heard = worker.hear(clip, 1.5, push_to_talk=True)
+        ticks = 0
+        done = threading.Event()
+
+        def wait_for_it() -> None:
+            worker.hear(np.tile(clip, 4), push_to_talk=True)
+            done.set()
+
+        t = threading.Thread(target=wait_for_it)
+        t.start()
+        while not done.is_set():
+            time.sleep(0.001)
+            ticks += 1
+        t.join()
+    finally:
+        worker.close()
+    assert heard is not None and heard.line == "br s" and heard.t_s == 1.5
+    assert ticks > 10  # this thread ran while the worker decoded
