@@ -19,7 +19,7 @@ def test_talk_is_push_to_talk_with_a_keypad_and_always_without() -> None:
 
 
 def test_push_to_talk_without_a_keypad_is_refused_with_the_way_out() -> None:
-    with pytest.raises(UserError, match="needs input = 'evdev'.*talk = 'always'"):
+    with pytest.raises(UserError, match=r"needs input = 'evdev'.*talk = 'always'"):
         read_scene({"input": "keyboard", "speech": True, "talk": "key"}, None)
     with pytest.raises(UserError, match="talk"):
         read_scene({"input": "speech", "talk": "sometimes"}, None)
