@@ -225,6 +225,16 @@ class SpeechInput(ThreadedSource[SceneMessage]):
             self._ptt = []
             self._utterance(utterance, self._audio_s - utterance.size / RATE_HZ, sink)
 
+    def end_stream(self, sink: Callable[[SceneMessage], None]) -> None:
+        """The audio ended: the utterance in progress is heard (a WAV that ends mid-phrase)."""
+        if self._segmenter is not None:
+            for t, utterance in self._segmenter.flush():
+                self._utterance(utterance, t, sink)
+        elif self._ptt:
+            utterance = np.concatenate(self._ptt)
+            self._ptt = []
+            self._utterance(utterance, self._audio_s - utterance.size / RATE_HZ, sink)
+
     def _utterance(
         self, samples: np.ndarray, t_s: float, sink: Callable[[SceneMessage], None]
     ) -> None:
@@ -288,6 +298,7 @@ class SpeechInput(ThreadedSource[SceneMessage]):
                 stream.close()
             if ended and not self._stop.is_set():
                 if stream.process is None:  # a file or FIFO: nothing more will come
+                    self.end_stream(sink)
                     self._log.info("%s: end of audio on %s", self.name, self.config.device)
                     self._health.ended()
                     return

@@ -331,7 +331,8 @@ class Segmenter:
 
     def flush(self) -> Iterator[tuple[float, np.ndarray]]:
         """The end of the audio: the utterance in progress, if any."""
-        yield from self._step(self._pending, end=True)
+        if self._pending.size:  # end_stream takes a last, short frame (not an empty one)
+            yield from self._step(self._pending, end=True)
         if self._start_s is not None:  # the detector had not closed it
             start, self._start_s = self._start_s, None
             yield self._cut(start, self._history_end / RATE_HZ + (_TAPS // 2) / RATE_HZ)

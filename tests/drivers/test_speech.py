@@ -320,3 +320,17 @@ def test_the_car_recognises_in_a_worker_process() -> None:
         worker.close()
     assert heard is not None and heard.line == "br s" and heard.t_s == 1.5
     assert ticks > 10  # this thread ran while the worker decoded
+
+
+@needs_voices
+def test_a_wav_that_ends_mid_phrase_is_still_heard(
+    tmp_path: Path, recogniser: CommandRecogniser
+) -> None:
+    wav = tmp_path / "abrupt.wav"
+    write_wav(wav, np.concatenate([np.zeros(RATE_HZ), render("flite:awb", "bear left")]))
+    inp, got = make_input("always", recogniser, device=str(wav))
+    done = threading.Event()
+    inp.start(lambda m: (got["msgs"].append(m), done.set()))
+    assert done.wait(30)
+    inp.stop()
+    assert [m.labels for m in got["msgs"]] == [("bl",)]
