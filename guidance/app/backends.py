@@ -23,9 +23,13 @@ BACKENDS: dict[str, dict[str, tuple[str, str]]] = {
 SCENE_BACKENDS: dict[str, str] = {
     "keyboard": "drivers.keyboard:KeyboardScene",
     "evdev": "drivers.evdev_keys:EvdevKeys",
+    "speech": "drivers.speech:SpeechInput",
 }
 """Co-driver input backends (``[scene] input``, ``module:Class``), imported on first use."""
-SCENE_CONFIGS: dict[str, str] = {"evdev": "drivers.evdev_keys:EvdevKeysConfig"}
+SCENE_CONFIGS: dict[str, str] = {
+    "evdev": "drivers.evdev_keys:EvdevKeysConfig",
+    "speech": "drivers.speech:SpeechInputConfig",
+}
 """The driver config dataclass of a co-driver input that takes one (``[scene] device``...)."""
 
 

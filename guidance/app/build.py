@@ -46,11 +46,13 @@ class OutputSettings:
     """What to open: each part is optional."""
 
     voice_backend: str = "none"
-    """auto, voice, wav, text or none (``guidance.voice.make_speaker``)."""
+    """auto, pico, espeak, voice, wav, text or none (``guidance.voice.make_speaker``)."""
     wav_path: str = ""
     voice: str = "en"
     rate_wpm: int = 170
     volume: float = 1.0
+    device: str = "default"
+    """The ALSA playback device of a live voice."""
     telemetry: TelemetryConfig | None = None
     recording: RecordingConfig | None = None
     ros2: Ros2Config | None = None
@@ -84,6 +86,7 @@ def build_speaker(
     voice: str = "en",
     rate_wpm: int = 170,
     volume: float = 1.0,
+    device: str = "default",
 ) -> Speaker | None:
     """The configured voice (``none`` for no speaker)."""
     if backend == "none":
@@ -101,6 +104,7 @@ def build_speaker(
         voice=voice,
         rate_wpm=rate_wpm,
         volume=volume,
+        device=device,
     )
 
 
@@ -134,6 +138,7 @@ async def open_outputs(
                 voice=settings.voice,
                 rate_wpm=settings.rate_wpm,
                 volume=settings.volume,
+                device=settings.device,
             )
         if settings.telemetry is not None:
             from guidance.telemetry.publisher import Telemetry

@@ -73,6 +73,8 @@ class OperatorSession:
         )
         self.operator = Operator(self.screen, pipeline, clock=clock)
         self.speaker: MutableSpeaker | None = None
+        self.speech: Any = None
+        """The speech input beside the keys, when there is one."""
 
     @property
     def live(self) -> bool:
@@ -88,13 +90,17 @@ class OperatorSession:
         scene = self.cfg.scene
         if scene.input == "none":
             return None
+        if scene.input == "speech":
+            source = self._speech(heading_fn)
+            self.operator.co_driver = source
+            return source
         per_key = self.on and (scene.input == "evdev" or self.screen.live)
         cls = import_backend(SCENE_BACKENDS[scene.input])
         args: list[Any] = []
         if scene.input in SCENE_CONFIGS:
             conf_cls = import_backend(SCENE_CONFIGS[scene.input])
             args.append(conf_cls(device=scene.device, grab=scene.grab))
-        source: Source = cls(
+        source = cls(
             *args,
             heading_fn,
             feedback=self.screen.ack if self.on else None,
@@ -104,6 +110,50 @@ class OperatorSession:
         )
         self.operator.co_driver = source
         return source
+
+    def speech_beside(self, heading_fn: Callable[[], float]) -> Source | None:
+        """The microphone beside the keypad or keyboard (``[scene] speech = true``), after
+        ``co_driver_input``: with a keypad, its 5 is the talk key."""
+        if not self.cfg.scene.speech or self.cfg.scene.input == "speech":
+            return None
+        speech = self._speech(heading_fn)
+        keys = self.operator.co_driver
+        if keys is not None and hasattr(keys, "on_talk"):
+            keys.on_talk = speech.set_talking
+        self.operator.co_driver = _KeysAndMicrophone(keys, speech)  # the INPUT row shows both
+        self.speech = speech
+        return speech
+
+    def _speech(self, heading_fn: Callable[[], float]) -> Any:
+        """The speech input (``drivers.speech``): heard reports acknowledged on the screen,
+        read back by the car's voice, deaf to it (``guidance.voice.activity.CAR_VOICE``)."""
+        from guidance.app.backends import SCENE_BACKENDS, SCENE_CONFIGS, import_backend
+        from guidance.voice.activity import CAR_VOICE
+
+        scene = self.cfg.scene
+        conf = import_backend(SCENE_CONFIGS["speech"])(device=scene.microphone,
+                                                       talk=scene.talk_mode)  # fmt: skip
+        return import_backend(SCENE_BACKENDS["speech"])(
+            conf,
+            heading_fn,
+            feedback=self.screen.ack if self.on else None,
+            echo=self.screen.echo if self.on else None,
+            on_command=self.operator.on_command,
+            read_back=self._read_back,
+            car_voice=CAR_VOICE,
+            clock=self.clock,
+        )
+
+    def _read_back(self, text: str) -> None:
+        """Say what the speech input heard ("Left, straight, right."), from its thread."""
+        from guidance.core.messages import Priority
+
+        loop = self.operator.loop
+        if loop is None:
+            return
+        loop.call_soon_threadsafe(
+            lambda: self.operator.say(text, Priority.GUIDANCE, self.clock())
+        )
 
     def attach(self, speaker: Speaker | None) -> MutableSpeaker | None:
         """On the loop, once the outputs are open: the speaker the app is given (muted by the
@@ -137,3 +187,19 @@ class OperatorSession:
             lambda v: v.add(time.time(), "info", f"NO CO-DRIVER INPUT: {problem}", "bad")
         )
         self.operator.say(NO_INPUT_PROMPT, Priority.SAFETY, time.monotonic())
+
+
+class _KeysAndMicrophone:
+    """What the screen's INPUT row says of a keypad (or keyboard) and the microphone beside it:
+    both, the microphone with what it last heard."""
+
+    def __init__(self, keys: Any, speech: Any) -> None:
+        self.keys, self.speech = keys, speech
+
+    def describe(self) -> str:
+        parts = [x.describe() for x in (self.keys, self.speech) if x is not None]
+        return " + ".join(parts)
+
+    @property
+    def connected(self) -> bool:
+        return bool(getattr(self.keys, "connected", True) or self.speech.connected)

@@ -74,6 +74,8 @@ def co_driver_problem(scene: SceneSettings, stdin: TextIO | None) -> str:
         return "[scene] input = 'none'"
     if scene.input == "evdev":
         return "" if os.path.exists(scene.device) else f"input device {scene.device} not found"
+    if scene.input == "speech":
+        return ""  # the microphone's health says whether it hears
     problem = stdin_problem(stdin)
     return f"{problem}; name a keypad in [scene] (input = 'evdev', device)" if problem else ""
 
@@ -122,9 +124,10 @@ async def run_car(
     async with open_outputs(settings, time.monotonic, on_goal=on_goal) as out:
         speaker = session.attach(out.speaker)
         voice = type(out.speaker).__name__ if out.speaker is not None else "none"
-        co_driver = {"evdev": f"keypad {cfg.scene.device}", "keyboard": "keyboard (stdin)"}.get(
-            cfg.scene.input, "none"
-        )
+        co_driver = {"evdev": f"keypad {cfg.scene.device}", "keyboard": "keyboard (stdin)",
+                     "speech": f"microphone {cfg.scene.microphone}"}.get(cfg.scene.input, "none")
+        if cfg.scene.speech:
+            co_driver += f" + microphone {cfg.scene.microphone} (talk: {cfg.scene.talk_mode})"
         if no_input:
             co_driver += f" - NOT AVAILABLE: {no_input}"
         app = App(
@@ -194,6 +197,9 @@ def build_devices(
     scene = session.co_driver_input(heading_fn)
     if scene is not None:
         sources["scene"] = scene
+    speech = session.speech_beside(heading_fn)
+    if speech is not None:
+        sources["speech"] = speech
     camera = cfg.camera.build() if cfg.camera is not None else None
     return sources, camera
 
@@ -207,6 +213,7 @@ def output_settings(cfg: AppConfig, pipeline: Pipeline) -> OutputSettings:
         voice=cfg.voice.voice,
         rate_wpm=cfg.voice.rate_wpm,
         volume=cfg.voice.volume,
+        device=cfg.voice.device,
         telemetry=cfg.telemetry,
         recording=cfg.recording,
         ros2=cfg.ros2,

@@ -66,10 +66,13 @@ class VoiceSettings:
     backend: str = field(default="auto", metadata=rule(choices=(*SPEAKER_KINDS, "none")))
     wav_path: str = ""
     voice: str = "en"
-    """The speech engine's voice (espeak-ng: a language code such as en, en-us, de)."""
+    """The voice's language (en, en-us, en-gb, de...; Pico speaks en, de, es, fr, it, espeak-ng
+    the others)."""
     rate_wpm: int = field(default=170, metadata=rule(lo=80, hi=400))
     """Speech rate in words per minute (a little slower than espeak-ng's 175, for traffic)."""
     volume: float = field(default=1.0, metadata=rule(lo=0, hi=1))
+    device: str = "default"
+    """The ALSA playback device (``aplay -D``): default, plughw:1,0, null (plays into nothing)."""
 
 
 @dataclass(frozen=True, slots=True)
@@ -77,11 +80,31 @@ class SceneSettings:
     """``[scene]``: where the co-driver's keys come from."""
 
     input: str = field(default="keyboard", metadata=rule(choices=(*SCENE_BACKENDS, "none")))
-    """keyboard (lines on stdin), evdev (a keypad or keyboard: ``device``) or none."""
+    """keyboard (lines on stdin), evdev (a keypad or keyboard: ``device``), speech (the
+    microphone alone) or none."""
     device: str = field(default="", metadata=rule(path=True))
     """The input device for ``evdev``: /dev/input/by-id/...-event-kbd."""
     grab: bool = True
     """evdev: take the device exclusively."""
+    speech: bool = False
+    """The microphone beside the keypad or keyboard (docs/app.md, "Driving alone")."""
+    microphone: str = "default"
+    """The ALSA capture device of the speech input (``arecord -D``)."""
+    talk: str = field(default="auto", metadata=rule(choices=("auto", "key", "always")))
+    """When the speech input listens: ``key`` while the keypad's 5 is held, ``always`` (voice
+    activity), ``auto``: ``key`` with a keypad (input = "evdev"), else ``always``."""
+
+    @property
+    def listens(self) -> bool:
+        """The microphone is one of the co-driver inputs."""
+        return self.input == "speech" or self.speech
+
+    @property
+    def talk_mode(self) -> str:
+        """``key`` or ``always`` (``auto`` resolved)."""
+        if self.talk != "auto":
+            return self.talk
+        return "key" if self.input == "evdev" else "always"
 
 
 @dataclass(frozen=True, slots=True)
@@ -148,4 +171,9 @@ def read_scene(data: object, base_dir: Path | None) -> SceneSettings:
         )
     if scene.device and scene.input != "evdev":
         raise UserError(f"[scene] device is only read with input = 'evdev', not {scene.input!r}")
+    if scene.talk == "key" and scene.listens and scene.input != "evdev":
+        raise UserError(
+            "[scene] talk = 'key' is push-to-talk on the keypad's 5: it needs input = 'evdev'; "
+            "without a keypad use talk = 'always'"
+        )
     return scene

@@ -343,8 +343,8 @@ class ChanceWatch:
 def spoken(p: float) -> str:
     """The sentence: rounded to 10 % above 10 %, so a number is not read as precise."""
     if p < 0.1:
-        return "Chance of reaching the goal is now below 10 percent."
-    return f"Chance of reaching the goal is now about {round(p * 10) * 10:.0f} percent."
+        return "Chance of reaching the destination is now below 10 percent."
+    return f"Chance of reaching the destination is now about {round(p * 10) * 10:.0f} percent."
 
 
 def shown(p: float | None) -> str:

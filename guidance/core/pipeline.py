@@ -428,7 +428,7 @@ class Pipeline:
                     self.st.warned.remove(st.name)
                 log.warning("%s is back (%.1f Hz)", st.name, st.rate_hz)
                 continue
-            problem = "is silent" if not st.alive else "sends garbage"
+            problem = "is silent" if not st.alive else "sends bad data"
             judged = st.name == "compass" and st.alive and self.compass_judge.unusable
             if judged:  # its readings arrive and parse; the filter rejects most of them
                 log.warning("compass is unusable (%s): the filter rejected most of its "

@@ -29,6 +29,7 @@ _COMMAND_MODULES = (
     "guidance.tools.evaluate",  # evaluate
     "guidance.tools.calibrate",  # calibrate
     "guidance.tools.recording_cli",  # recording repair
+    "guidance.tools.voice_cli",  # voice say, voice listen
 )
 
 

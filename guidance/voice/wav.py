@@ -1,4 +1,5 @@
-"""Prompts rendered to a WAV file (espeak-ng), for the demo and tests."""
+"""Prompts rendered to a WAV file (Pico by default, or espeak-ng), for the demo and tests;
+level-normalised as the played voice is (``guidance.voice.level``)."""
 
 from __future__ import annotations
 
@@ -16,6 +17,7 @@ from pathlib import Path
 from typing import TextIO
 
 from guidance.core.messages import Priority
+from guidance.voice.level import normalise_level
 from guidance.voice.queue import (
     DEFAULT_QUEUE_SIZE,
     DEFAULT_RATE_WPM,
@@ -202,6 +204,11 @@ class WavSpeaker(_QueuedSpeaker):
             self._failover.speaker.close()
 
     @property
+    def renderer_name(self) -> str:
+        """The engine that renders the prompts ("PicoRenderer", "EspeakNgRenderer"...)."""
+        return type(self._render).__name__
+
+    @property
     def recorded(self) -> tuple[RecordedPrompt, ...]:
         with self._cond:
             return tuple(self._recorded)
@@ -248,11 +255,7 @@ class WavSpeaker(_QueuedSpeaker):
                 return
             self._current = prompt
             pcm, rate = self._render(prompt.text)
-            if self._volume < 1.0:
-                import numpy as np
-
-                samples = np.frombuffer(pcm, dtype="<i2").astype(np.float64) * self._volume
-                pcm = samples.astype("<i2").tobytes()
+            pcm = normalise_level(pcm, self._volume)
             if rate != self._rate:
                 raise SpeechEngineError(f"sample rate changed from {self._rate} to {rate} Hz")
             gap = self._gap_frames if self._frames else 0

@@ -213,6 +213,25 @@ def _read_photo(path: Path) -> object:
     return read_photo(path)
 
 
+def _wav_sample() -> bytes:
+    import io
+    import wave
+
+    buf = io.BytesIO()
+    with wave.open(buf, "wb") as w:
+        w.setnchannels(1)
+        w.setsampwidth(2)
+        w.setframerate(16000)
+        w.writeframes(b"\x10\x00\xf0\xff" * 4000)
+    return buf.getvalue()
+
+
+def _read_wav(path: Path) -> object:
+    from drivers.speech_grammar import read_wav_16k
+
+    return read_wav_16k(path)
+
+
 @dataclass(frozen=True)
 class Adapter:
     call: Callable[[Path], object]
@@ -260,6 +279,7 @@ ADAPTERS: dict[str, Adapter] = {
     "guidance.tools.evaluate._read_columns": Adapter(_read_columns, _truth_sample, ".csv"),
     "landmark_db.inputs.open_csv": Adapter(_open_csv, _truth_sample, ".csv"),
     "landmark_db.inputs.read_photo": Adapter(_read_photo, _photo_sample, ".png"),
+    "drivers.speech_grammar.read_wav_16k": Adapter(_read_wav, _wav_sample, ".wav"),
 }
 
 

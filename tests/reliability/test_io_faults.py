@@ -134,6 +134,7 @@ def test_missing_speech_engine_falls_back_to_text_and_says_so(
     empty.mkdir()
     monkeypatch.setenv("PATH", str(empty))  # no espeak-ng to be found
     monkeypatch.setitem(sys.modules, "espeakng_loader", None)  # nor its wheel
+    monkeypatch.setitem(sys.modules, "py_nanotts", None)  # nor Pico
     shown = io.StringIO()
     with caplog.at_level(logging.WARNING, logger="guidance.voice"):
         speaker = make_speaker("wav", tmp_path / "p.wav", text_stream=shown, clock=lambda: 0.0)

@@ -51,7 +51,7 @@ def test_a_relative_device_is_relative_to_the_config_file(tmp_path: Path) -> Non
     [
         ({"input": "evdev"}, r"\[scene\] device is required with input = 'evdev'"),
         ({"device": "/dev/input/event3"}, r"\[scene\] device is only read with input = 'evdev'"),
-        ({"input": "keypad"}, r"\[scene\] input must be one of keyboard, evdev, none"),
+        ({"input": "keypad"}, r"\[scene\] input must be one of keyboard, evdev, speech, none"),
         ({"input": "none", "keyboard": False}, r"\[scene\] give input or keyboard"),
         ({"input": "evdev", "device": "/x", "grap": True}, r"\[scene\] unknown key\(s\): grap"),
     ],

@@ -250,10 +250,11 @@ def test_unavailable_engine_falls_back_to_text_with_exactly_one_warning(
 def test_missing_espeak_ng_for_wav_falls_back_to_text_and_writes_no_file(
     tmp_path: Path, monkeypatch: pytest.MonkeyPatch, caplog: pytest.LogCaptureFixture
 ) -> None:
-    """No speech engine at all: no espeak-ng command on PATH and no espeakng-loader package
-    (an import of it fails, as on a machine without the wheel)."""
+    """No speech engine at all: no Pico, no espeak-ng command on PATH and no espeakng-loader
+    package (an import of each fails, as on a machine without the wheel)."""
     monkeypatch.setenv("PATH", str(tmp_path / "empty"))
     monkeypatch.setitem(sys.modules, "espeakng_loader", None)
+    monkeypatch.setitem(sys.modules, "py_nanotts", None)  # nor Pico
     wav = tmp_path / "prompts.wav"
     sp = make_speaker("wav", wav, text_stream=io.StringIO())
     sp.close()

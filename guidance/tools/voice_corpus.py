@@ -1,0 +1,255 @@
+"""Every prompt the product can say, and the word error rate of a voice over them (issue 39).
+
+``prompt_corpus`` enumerates the sentences through the functions that write them today
+(``guidance.core.prompts``, ``guidance.core.chance.spoken``, the drivers' spoken warnings, the
+operator's and the speech input's sentences), so the intelligibility figure follows any change of
+wording. ``word_error_rate`` compares what a recogniser wrote with what was meant, after
+``normalise``: numbers as words, British spellings as the recogniser's dictionary writes them
+("metres" -> "meters": spelling, not hearing), punctuation and hyphens out.
+"""
+
+from __future__ import annotations
+
+import math
+import re
+from collections.abc import Iterable, Sequence
+
+import numpy as np
+
+from guidance.core import prompts
+from guidance.core.chance import spoken as chance_spoken
+from guidance.core.prompts import Units
+from guidance.voice.wav import Renderer
+
+MANOEUVRE_DEG = (0.0, 45.0, -45.0, 90.0, -90.0, 150.0, -150.0, 180.0)
+"""continue straight, bear left/right, turn left/right, turn sharp left/right, U-turn."""
+DISTANCES_M = (30.0, 80.0, 150.0, 300.0, 650.0, 1200.0, 1500.0, 4000.0, 12000.0)
+"""One of each way a distance is said, metric and imperial (tens, fifties, decimals, whole)."""
+
+def prompt_corpus(landmark_names: Sequence[str]) -> list[str]:
+    """Every kind of sentence the car says, each distance form and landmark name once."""
+    from drivers.camera import WARNINGS as CAMERA
+    from drivers.can_odometry import WARNINGS as ODOMETRY
+    from drivers.compass import WARNINGS as COMPASS
+    from drivers.speech_grammar import SAY_AGAIN_TEXT, read_back
+    from guidance.app.screen import DIFFERENT_EXIT_PROMPT, NO_INPUT_PROMPT
+
+    rad = [math.radians(d) for d in MANOEUVRE_DEG]
+    out = [prompts.turn_prompt(a) for a in rad]
+    k = 0
+    for units in Units:
+        for d in DISTANCES_M:
+            out.append(prompts.turn_prompt(rad[k % len(rad)], d, units))
+            k += 1
+    for i, a in enumerate(rad[1:]):  # each manoeuvre as the second of two
+        out.append(prompts.turn_prompt(rad[1 + (i + 3) % 7], 120.0 + 10 * i, then_turn_rad=a,
+                                       then_gap_m=80.0))  # fmt: skip
+    out.append(prompts.changed(prompts.turn_prompt(rad[4], 120.0)))
+    out.append(prompts.changed(prompts.turn_prompt(rad[3])))
+    names = list(dict.fromkeys(landmark_names))
+    out += [prompts.landmark_confirmed(n) for n in names]
+    out.append(prompts.landmark_confirmed(""))
+    out += [prompts.position_found(n) for n in names[:: max(1, len(names) // 4)]]
+    # a manoeuvre said by its side or its road's direction (the heading too uncertain)
+    out += [prompts.turn_prompt(0.0, 200.0, action="go left"),
+            prompts.turn_prompt(0.0, None, action="go right")]  # fmt: skip
+    out += [prompts.turn_prompt(0.0, 90.0, action=f"take the road towards the {b}")
+            for b in prompts.BEARINGS[::3]]  # fmt: skip
+    out += [prompts.position_uncertain(d, u) for d, u in ((80.0, Units.METRIC),
+            (350.0, Units.METRIC), (350.0, Units.IMPERIAL))]  # fmt: skip
+    out += [prompts.new_destination(False), prompts.new_destination(True), prompts.arrived()]
+    out += [prompts.lost(), prompts.lost(searching=True), prompts.waiting_for_heading()]
+    out += [prompts.compass_unusable("interference"), prompts.compass_unusable("uncalibrated")]
+    for sensor in ("odometry", "compass", "camera"):
+        out += [prompts.sensor_warning(sensor, "is silent"),
+                prompts.sensor_warning(sensor, "sends bad data")]  # fmt: skip
+    for table in (ODOMETRY, COMPASS, CAMERA):
+        out += list(table.values())
+    out += [chance_spoken(p) for p in (0.05, 0.1, 0.2, 0.3, 0.4, 0.5, 0.6, 0.7, 0.8, 0.9)]
+    out += [DIFFERENT_EXIT_PROMPT, NO_INPUT_PROMPT, SAY_AGAIN_TEXT]
+    out += [read_back(line) for line in ("l s r", "bl br", "hl hr u", "t l", "repeat", "mute")]
+    return list(dict.fromkeys(out))
+
+
+_ONES = (
+    "zero", "one", "two", "three", "four", "five", "six", "seven", "eight", "nine", "ten",
+    "eleven", "twelve", "thirteen", "fourteen", "fifteen", "sixteen", "seventeen", "eighteen",
+    "nineteen",
+)
+_TENS = (
+    "_", "_", "twenty", "thirty", "forty", "fifty", "sixty", "seventy", "eighty", "ninety",
+)
+_SPELLING = {"metres": "meters", "metre": "meter", "kilometres": "kilometers",
+             "kilometre": "kilometer", "theatre": "theater", "centre": "center"}  # fmt: skip
+
+
+def number_words(n: int) -> str:
+    """0-999999 as the recogniser writes them: 150 -> "one hundred fifty" (no "and")."""
+    if n < 0 or n >= 1_000_000:
+        raise ValueError(f"out of range: {n}")
+    if n < 20:
+        return _ONES[n]
+    if n < 100:
+        return _TENS[n // 10] + ("" if n % 10 == 0 else " " + _ONES[n % 10])
+    if n < 1000:
+        rest = n % 100
+        return f"{_ONES[n // 100]} hundred" + (f" {number_words(rest)}" if rest else "")
+    rest = n % 1000
+    return f"{number_words(n // 1000)} thousand" + (f" {number_words(rest)}" if rest else "")
+
+
+def _numbers(text: str) -> str:
+    def spell(m: re.Match[str]) -> str:
+        whole, _, frac = m.group(0).partition(".")
+        words = number_words(int(whole))
+        return words + (" point " + " ".join(_ONES[int(c)] for c in frac) if frac else "")
+
+    return re.sub(r"\d+(?:\.\d+)?", spell, text)
+
+
+def normalise(text: str) -> list[str]:
+    """Lower-case words: numbers spelled out, American spelling, no punctuation or hyphens;
+    "and" between two number words dropped (en-GB voices say "one hundred and fifty")."""
+    text = _numbers(text.lower()).replace("-", " ")
+    words = [_SPELLING.get(w, w) for w in re.findall(r"[a-z']+", text)]
+    numeric = set(_ONES) | set(_TENS) | {"hundred", "thousand"}
+    return [w for i, w in enumerate(words)
+            if not (w == "and" and 0 < i < len(words) - 1 and words[i - 1] in numeric
+                    and words[i + 1] in numeric)]  # fmt: skip
+
+
+def edit_distance(ref: Sequence[str], hyp: Sequence[str]) -> int:
+    row = list(range(len(hyp) + 1))
+    for i, r in enumerate(ref, 1):
+        prev, row[0] = row[:], i
+        for j, h in enumerate(hyp, 1):
+            row[j] = min(prev[j] + 1, row[j - 1] + 1, prev[j - 1] + (r != h))
+    return row[-1]
+
+
+def word_error_rate(pairs: Iterable[tuple[str, str]]) -> float:
+    """Σ edits / Σ reference words over (meant, heard) pairs, both normalised."""
+    edits = words = 0
+    for meant, heard in pairs:
+        ref = normalise(meant)
+        edits += edit_distance(ref, normalise(heard))
+        words += len(ref)
+    return edits / words if words else 0.0
+
+
+# ------------------------------------------------------------------------- voices under test
+
+
+def flite_renderer(voice: str = "slt") -> Renderer:
+    """Festival Lite's command line (Debian ``flite``; voices kal, awb, rms, slt) as a Renderer:
+    a voice the product did not make, for the speech input's tests."""
+    import io
+    import shutil
+    import subprocess
+    import tempfile
+    import wave
+
+    from guidance.voice.speakers import SpeechEngineError
+
+    exe = shutil.which("flite")
+    if exe is None:
+        raise SpeechEngineError("flite not found (Debian package flite)")
+
+    def render(text: str) -> tuple[bytes, int]:
+        with tempfile.NamedTemporaryFile(suffix=".wav") as f:
+            subprocess.run([exe, "-voice", voice, "-t", text, "-o", f.name], check=True,
+                           capture_output=True, timeout=30)  # fmt: skip
+            with wave.open(io.BytesIO(open(f.name, "rb").read())) as w:
+                return w.readframes(w.getnframes()), w.getframerate()
+
+    return render
+
+
+def voice_renderer(name: str) -> Renderer:
+    """A voice by name: ``pico:en-US``, ``espeak:en+f3`` (espeak-ng voice and variant),
+    ``flite:awb``."""
+    from guidance.voice.pico import PicoRenderer
+    from guidance.voice.wav import EspeakNgRenderer
+
+    engine, _, voice = name.partition(":")
+    if engine == "pico":
+        return PicoRenderer(voice or "en")
+    if engine == "espeak":
+        return EspeakNgRenderer(voice or "en")
+    if engine == "flite":
+        return flite_renderer(voice or "slt")
+    raise ValueError(f"unknown voice {name!r}: pico:V, espeak:V or flite:V")
+
+
+# ------------------------------------------------------------------ spoken commands and noise
+
+SPOKEN_COMMANDS: tuple[tuple[str, str], ...] = (
+    ("left straight right", "l s r"),
+    ("bear left", "bl"),
+    ("hard right", "hr"),
+    ("U turn", "u"),
+    ("turned left", "t l"),
+    ("repeat", "repeat"),
+    ("mute", "mute"),
+    ("help", "help"),
+    ("cancel", "cancel"),
+    ("straight", "s"),
+    ("left right", "l r"),
+    ("bear right straight", "br s"),
+    ("turned right", "t r"),
+    ("straight right", "s r"),
+    ("hard left straight", "hl s"),
+    ("left", "l"),
+    ("right", "r"),
+    ("turned straight", "t s"),
+    ("bear left hard right", "bl hr"),
+    ("left straight", "l s"),
+)
+"""(what the co-driver says, the line it must make): every word of the grammar."""
+
+RADIO_TEXT = (
+    "Good morning, it is eight o'clock and here is the news. The council met last night to "
+    "discuss the new bus lanes on the ring road. Traffic is heavy on the bridge this morning, so "
+    "leave a little earlier if you can. The weather today will be mostly dry with sunny spells "
+    "in the afternoon and a light breeze from the west. In sport, the home side won their match "
+    "by two goals to one after a late penalty. Coming up after the break: the best songs of the "
+    "summer, a recipe for a quick dinner, and your calls about the new parking rules in the old "
+    "town. Now, a look at the markets: shares rose slightly at the opening bell. Stay with us, "
+    "we will be right back after these messages. Turn the dial, hold the line, and keep your "
+    "eyes on the road. The left lane of the motorway is closed near the junction because of "
+    "road works, and drivers heading straight into town should expect delays of ten minutes."
+)
+"""Radio-like talk for the false-command test, with command words inside ordinary sentences
+("right back", "left lane", "straight into town", "turn the dial")."""
+
+
+def cabin_noise(n: int, seed: int = 0, rate_hz: int = 16000) -> np.ndarray:
+    """Car-cabin-like noise (unit RMS): road and engine rumble below a few hundred hertz
+    falling about 9 dB per octave above 200 Hz, engine orders at 70 Hz and its harmonics,
+    and a weaker broadband wind part. A generated stand-in for a recording."""
+    rng = np.random.default_rng(seed)
+    f = np.fft.rfftfreq(n, 1.0 / rate_hz)
+    shape = 1.0 / np.sqrt(np.maximum(f, 20.0)) / (1.0 + (f / 200.0) ** 1.0)
+    shape[f < 20.0] = 0.0
+    spec = (rng.normal(size=f.size) + 1j * rng.normal(size=f.size)) * shape
+    x = np.fft.irfft(spec, n)
+    t = np.arange(n) / rate_hz
+    for k, amp in ((1, 0.5), (2, 0.3), (3, 0.15)):
+        x += amp * np.std(x) * np.sin(2 * np.pi * 70.0 * k * t + rng.uniform(0, 6.3))
+    wind = rng.normal(size=n)
+    x = x / np.std(x) + 0.1 * wind
+    return np.asarray(x / np.std(x))
+
+
+def speech_power(x: np.ndarray) -> float:
+    """Mean power of the voiced part (samples within 40 dB of the peak), as for SNR."""
+    peak = float(np.max(np.abs(x))) if x.size else 0.0
+    voiced = x[np.abs(x) > peak * 0.01]
+    return float(np.mean(voiced * voiced)) if voiced.size else 0.0
+
+
+def mix_at_snr(speech: np.ndarray, noise: np.ndarray, snr_db: float) -> np.ndarray:
+    """``speech`` plus ``noise`` (same length) scaled to ``snr_db`` against the voiced speech."""
+    p_noise = float(np.mean(noise * noise))
+    gain = np.sqrt(speech_power(speech) / (p_noise * 10 ** (snr_db / 10))) if p_noise else 0.0
+    return np.asarray(speech + gain * noise)
