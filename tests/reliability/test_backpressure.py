@@ -32,6 +32,7 @@ import can
 import pytest
 
 from drivers._reader import BACKLOG_LIMIT
+from drivers.can_decode import MAX_GAP_S
 from drivers.can_odometry import CanOdometry, CanOdometryConfig
 from guidance.app.app import App
 from guidance.app.settings import LoopSettings
@@ -161,7 +162,18 @@ def test_a_can_flood_is_coalesced_the_loop_queue_stays_bounded_and_no_distance_i
     assert stats.get("coalesced", 0) > 0
     # Issue 23, item 10: the reader's lag under the flood is no clock step, and no frame is
     # rejected as time going back.
-    assert stats.get("clock_steps", 0) == 0 and stats["rejected"] == 0, stats
+    # A frame after a silence longer than the decoder's bound is rejected as a gap: the app's
+    # fault only if frames were being sent and the reader was on the CPU meanwhile (on a
+    # machine at load 19 the sender or the reader was held off for over a second).
+    send_gap = max((b - a for a, b in itertools.pairwise(send_times)), default=0.0)
+    reader_held = max(
+        (b[1]["reader"] - a[1]["reader"] for a, b in itertools.pairwise(waits)), default=0.0
+    )
+    gaps = stats.get("rejected_gap", 0)
+    machine = send_gap >= 0.5 * MAX_GAP_S or reader_held >= 0.5 * MAX_GAP_S
+    print(f"longest send gap {send_gap * 1e3:.0f} ms, reader held off {reader_held * 1e3:.0f} ms")
+    assert stats.get("clock_steps", 0) == 0 and stats["rejected"] == gaps, stats
+    assert gaps == 0 or machine, (stats, send_gap, reader_held)
     lag = app.lag_summary()
     withheld_s = max(
         (b[1]["loop"] - a[1]["loop"] for a, b in itertools.pairwise(waits)), default=0.0

@@ -180,8 +180,9 @@ def test_the_simulator_applies_the_remote_goal_it_accepts(loopback_acl: str) -> 
         vehicle_id="simgoal", listen=(tcp(port),), allow_remote_goal=True, zenoh_config=loopback_acl
     )
     app_config = SimpleNamespace(
-        telemetry=tcfg, recording=None, origin_lat_lon_deg=None, pipeline=None
-    )
+        telemetry=tcfg, recording=None, origin_lat_lon_deg=None, pipeline=None,
+        vehicle_id="simgoal", ros2=None,
+    )  # fmt: skip
     opts = DriveOptions(seed=7, voice="none", telemetry=True, record=False, png=False)
     opts = replace(opts, speed=10.0, duration_s=150.0, vehicle_id="simgoal")
     seen: dict[str, Any] = {}
