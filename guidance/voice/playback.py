@@ -113,12 +113,7 @@ class PlayedSpeaker(_QueuedSpeaker):
         t_s: float | None = None,
         max_age_s: float | None = None,
     ) -> None:
-        with self._lock:
-            self._counts["said"] += 1
-            if not self._failover.failed:
-                self._queue.put(text, priority, t_s, max_age_s)
-                return
-        self._failover.speaker.say(text, priority, t_s)
+        self._enqueue(text, priority, t_s, max_age_s)
 
     def close(self, drain: bool = True, timeout_s: float = 30.0) -> None:
         """Stop taking prompts; play (``drain``) or discard the pending ones; join the thread."""

@@ -206,6 +206,18 @@ class _QueuedSpeaker:
     def failed(self) -> bool:
         return self._failover.failed
 
+    def _enqueue(
+        self, text: str, priority: int, t_s: float | None, max_age_s: float | None
+    ) -> None:
+        """Queue a prompt for the engine's thread, or, once the engine failed, hand it to the
+        failover (text, or the fallback voice)."""
+        with self._lock:
+            self._counts["said"] += 1
+            if not self._failover.failed:
+                self._queue.put(text, priority, t_s, max_age_s)
+                return
+        self._failover.speaker.say(text, priority, t_s)
+
     def stats(self) -> dict[str, int]:
         with self._lock:
             return {**self._queue.stats(), **self._counts, "failed": int(self.failed)}
@@ -283,12 +295,7 @@ class Pyttsx3Speaker(_QueuedSpeaker):
         since = self._speaking_since
         if since is not None and time.monotonic() - since > self._hang_timeout_s:
             self._fail(f"one utterance took over {self._hang_timeout_s:.0f} s", None)
-        with self._lock:
-            self._counts["said"] += 1
-            if not self._failover.failed:
-                self._queue.put(text, priority, t_s, max_age_s)
-                return
-        self._failover.speaker.say(text, priority, t_s)
+        self._enqueue(text, priority, t_s, max_age_s)
 
     def close(self, drain: bool = True, timeout_s: float = 10.0) -> None:
         """Stop taking prompts; speak (``drain``) or discard the pending ones; join the thread."""
