@@ -101,14 +101,9 @@ def cmd_match(args: argparse.Namespace) -> None:
                 out(f"{len(ids)} candidates near ({mean[0]:.1f}, {mean[1]:.1f})")
         many = len(args.images) > 1
         for path in args.images:
-            try:
-                image = read_image(Path(path))
-            except UserError as exc:
+            image = _image_or_report(path, args.json, "query")
+            if image is None:
                 failed += 1
-                if args.json:
-                    out(json.dumps({"query": path, "error": str(exc)}))
-                else:
-                    err(f"landmark-db: error: {exc}")
                 continue
             res = rec.match_image(image, ids)
             detail = frame_problem(image.shape[1], image.shape[0])
@@ -142,6 +137,19 @@ def locate_record(image: str, res: RecognitionResult, db: LandmarkDb) -> dict[st
     }
 
 
+def _image_or_report(path: str, as_json: bool, key: str) -> np.ndarray | None:
+    """The image, or None with its error reported in the command's format (a JSON record under
+    ``key``, or one ``error:`` line)."""
+    try:
+        return read_image(Path(path))
+    except UserError as exc:
+        if as_json:
+            out(json.dumps({key: path, "error": str(exc)}))
+        else:
+            err(f"landmark-db: error: {exc}")
+        return None
+
+
 def cmd_locate(args: argparse.Namespace) -> None:
     """Each image searched against the whole database (``Recogniser.locate``): the place or
     ``none``, with the evidence; an unreadable image is reported in its line (exit 2)."""
@@ -151,14 +159,9 @@ def cmd_locate(args: argparse.Namespace) -> None:
     with open_db(args.db) as db:
         rec = Recogniser(db)
         for path in args.images:
-            try:
-                image = read_image(Path(path))
-            except UserError as exc:
+            image = _image_or_report(path, args.json, "image")
+            if image is None:
                 failed += 1
-                if args.json:
-                    out(json.dumps({"image": path, "error": str(exc)}))
-                else:
-                    err(f"landmark-db: error: {exc}")
                 continue
             res = rec.locate(image)
             record = locate_record(path, res, db)
