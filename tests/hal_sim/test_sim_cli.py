@@ -4,6 +4,7 @@ command line over it (explicit precedence, no peeking at sys.argv)."""
 from __future__ import annotations
 
 import argparse
+import os
 from dataclasses import replace
 from pathlib import Path
 
@@ -12,7 +13,7 @@ import pytest
 from guidance.config_tables import plain
 from guidance.core import law
 from guidance.errors import UserError
-from hal_sim.drive_options import METHODS, DriveOptions, options_from_config
+from hal_sim.drive_options import METHODS, DriveOptions, options_from_config, sim_vehicle_id
 from hal_sim.sim_cli import register
 
 REPO = Path(__file__).resolve().parents[2]
@@ -46,7 +47,11 @@ def test_sim_table_values_paths_and_the_config_s_defaults(tmp_path: Path) -> Non
     assert opts.out == str(path.parent / "drives")  # from the config's folder, not the cwd
     assert opts.method == cfg.pipeline.navigator.method.value
     assert opts.compass_deg == cfg.pipeline.estimator.compass_two_sigma_deg
-    assert opts.vehicle_id == cfg.vehicle_id
+    # config/sim.toml names no [vehicle] id: each drive is a car of its own (issue 41)
+    assert opts.vehicle_id == "" and sim_vehicle_id(opts) == f"sim7-{os.getpid()}"
+    named = tmp_path / "named.toml"
+    named.write_text(path.read_text().replace("[vehicle]\n", '[vehicle]\nid = "car9"\n', 1))
+    assert options_from_config(str(named), DriveOptions())[0].vehicle_id == "car9"
 
 
 def test_the_simulator_runs_the_configured_car(tmp_path: Path) -> None:
