@@ -31,6 +31,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from hal_sim.drive_options import DriveOptions
 from hal_sim.guided import GuidedTrip, guided_drive
+from hal_sim.oracle import TruthPath
 
 DENSITIES = (1.0, 2.0, 3.0, 5.0)
 
@@ -67,25 +68,14 @@ class Arm:
         t_lost = trip.lost_at[0]
         self.recovered += any(t >= t_lost for t, _ok in trip.relocalisations)
         self.arrived_after_lost += arrived
-        s_lost = _s_at(trip, t_lost)
-        self.km_after_lost.append((trip.driven_m - s_lost) / 1000.0)
+        path = TruthPath(trip.truth)
+        self.km_after_lost.append((path.length_m - path.s_at(t_lost)) / 1000.0)
         windows = _lost_windows(trip)
         turn = [p for p in trip.prompts if p.kind == "turn"]
         self.words_while_lost += sum(any(a <= p.t_s < b for a, b in windows) for p in turn)
         self.wrong_while_lost += sum(
             any(a <= f.t_s < b for a, b in windows) for f in res.wrong
         )
-
-
-def _s_at(trip: GuidedTrip, t: float) -> float:
-    s, prev = 0.0, None
-    for smp in trip.truth:
-        if prev is not None:
-            s += math.hypot(smp.x_m - prev.x_m, smp.y_m - prev.y_m)
-        if smp.t_s >= t:
-            return s
-        prev = smp
-    return s
 
 
 def _lost_windows(trip: GuidedTrip) -> list[tuple[float, float]]:

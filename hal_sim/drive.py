@@ -250,8 +250,7 @@ class SimDrive:
         if self.camera is not None:
             await self._camera_frame(ev.t_s)
         elif ev.landmark is not None:
-            searching = self.pipeline.config.relocalise and self.pipeline.st.lost_said
-            self.dev.sightings.sighted(ev.t_s, ev.landmark, relocalised=searching)
+            self.dev.sightings.sighted(ev.t_s, ev.landmark, relocalised=self.pipeline.searching)
             await self.lockstep.drained()
 
     async def _camera_frame(self, t: float) -> None:

@@ -221,17 +221,6 @@ def landmark_update_xy(
 
 
 @njit(cache=True, error_model="numpy")
-def reset_position(x: np.ndarray, P: np.ndarray, zx: float, zy: float, var: float) -> None:
-    """The car's relocalisation (``PoseEstimator._relocalise``) in place: the position
-    restarts at (zx, zy) with ``var`` on each axis, uncorrelated with the heading, whose mean
-    and variance are kept (so are the kept cos and sin)."""
-    x[0], x[1] = zx, zy
-    for j in range(P.shape[0]):
-        P[0, j] = P[j, 0] = P[1, j] = P[j, 1] = 0.0
-    P[0, 0] = P[1, 1] = var
-
-
-@njit(cache=True, error_model="numpy")
 def filter_sequence(
     x0: np.ndarray, P0: np.ndarray, inputs: np.ndarray, p: np.ndarray
 ) -> tuple[np.ndarray, np.ndarray]:

@@ -22,7 +22,7 @@ A trial (SPEC section 5):
 
 The relocalising arm (``SimParams.relocalise``, any study): lost no longer ends a trial. A lost
 episode opens when the major axis passes the lost limit; a landmark sighted while one is open
-resets the position around it (``ekf.reset_position``, the car's rule) and closes it; the
+resets the position around it (``model.reset_position``, the car's own) and closes it; the
 trial ends on arrival or at its limit, as lost when an episode is still open. Up to its first
 lost a trial is the paper's, step for step (the arm draws nothing of its own).
 """
@@ -306,7 +306,7 @@ def drive(
         if events[3] >= 0.0:
             k = int(events[3])
             if lost_open:  # found again: reset around the landmark sighted
-                ekf.reset_position(x, P, lm_xy[k, 0], lm_xy[k, 1], reset_var)
+                model.reset_position(x, P, lm_xy[k, 0], lm_xy[k, 1], reset_var)
                 dx, dy = ts[world.T_X] - lm_xy[k, 0], ts[world.T_Y] - lm_xy[k, 1]
                 resets += 1
                 if dx * dx + dy * dy > model.CHI2_2D_2SIGMA * reset_var:

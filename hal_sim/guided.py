@@ -30,7 +30,6 @@ from guidance.core.messages import (
     LandmarkFix,
     Prompt,
     WheelOdometry,
-    reset_sigma_m,
 )
 from guidance.core.model import CHI2_2D_2SIGMA, mahalanobis_sq_2d, wrap_angle
 from guidance.core.pipeline import Input, Pipeline
@@ -38,7 +37,7 @@ from hal_sim import world as world_mod
 from hal_sim.drive import drive_cap_m, drive_pipeline_config, make_world
 from hal_sim.drive_options import DriveOptions
 from hal_sim.oracle import CheckResult, Report, SpokenPrompt, TruthSample, check
-from hal_sim.sim_scene import SimScene
+from hal_sim.sim_scene import SimScene, sighting_fix
 
 TRUTH_EVERY = 1
 """Truth samples every this many world steps (the world's 10 Hz, as the recorder's /truth)."""
@@ -121,7 +120,6 @@ def guided_drive(
         feedback=lambda _text: None,
     )  # fmt: skip
     cap = drive_cap_m(world, opts)
-    sigma = world.sim.landmark_sigma_m
     missed: list[tuple[float, float, float]] = []  # increments lost in a CAN silence
     at_node: dict[int, int] = {}  # node -> index in trip.reports, until the car is through
     while True:
@@ -146,10 +144,7 @@ def guided_drive(
         if compass and ev.heading_rad is not None and not _in(opts.compass_garbage, t):
             feed(HeadingFix(t, ev.heading_rad))
         if ev.landmark is not None:
-            x, y = world.lm_xy[ev.landmark]
-            searching = pipeline.config.relocalise and pipeline.st.lost_said
-            s = reset_sigma_m(world.sim.sighting_range_m, 0.0) if searching else sigma
-            feed(LandmarkFix(t, ev.landmark, float(x), float(y), s, searching))
+            feed(sighting_fix(world, t, ev.landmark, pipeline.searching))
         pipeline.tick(t)
         if world.step_count % TRUTH_EVERY == 0:
             _sample(trip, world.truth, t, pipeline)

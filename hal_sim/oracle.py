@@ -213,7 +213,7 @@ class CheckResult:
         return "\n".join(lines)
 
 
-class _Path:
+class TruthPath:
     """The true track as distance along the path."""
 
     def __init__(self, truth: Sequence[TruthSample]) -> None:
@@ -249,7 +249,7 @@ def check(
     prompts: Iterable[SpokenPrompt],
 ) -> CheckResult:
     """Check one drive's turn prompts against its truth (see the module doc)."""
-    path = _Path(truth)
+    path = TruthPath(truth)
     res = CheckResult(km=path.length_m / 1000.0)
     # Each report places an intersection on the true path; reports of one intersection (the
     # first sight of it, the distances as the car approaches) form one cluster, placed by the

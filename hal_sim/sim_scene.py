@@ -172,13 +172,20 @@ class SimSightings:
         return dict(self._counts)
 
     def sighted(self, t_s: float, k: int, *, relocalised: bool = False) -> LandmarkFix:
-        """Landmark ``k`` sighted; ``relocalised``: the car is lost, and the sighting stands
-        for a whole-database search's find (the sighting range and the landmark's sigma are
-        the fix's sigma either way: ``landmark_sigma_m``)."""
-        x, y = self.world.lm_xy[k]
-        sigma = reset_sigma_m(self.world.sim.sighting_range_m, 0.0) if relocalised else self.sigma_m
-        fix = LandmarkFix(t_s, k, float(x), float(y), sigma, relocalised)
+        """Landmark ``k`` sighted (``sighting_fix``)."""
+        fix = sighting_fix(self.world, t_s, k, relocalised)
         self._counts["sightings"] += 1
         if self._sink is not None:
             self._sink(fix)
         return fix
+
+
+def sighting_fix(world_: Any, t_s: float, k: int, relocalised: bool) -> LandmarkFix:
+    """The fix a sighting of landmark ``k`` gives the car: ``landmark_sigma_m`` (the sighting
+    range and the landmark's sigma); ``relocalised`` (the car is lost and looks for itself):
+    the sighting stands for a whole-database search's find, its sigma ``reset_sigma_m`` (the
+    simulated landmarks stand exactly where the database says)."""
+    x, y = world_.lm_xy[k]
+    sim = world_.sim
+    sigma = reset_sigma_m(sim.sighting_range_m, 0.0) if relocalised else sim.landmark_sigma_m
+    return LandmarkFix(t_s, k, float(x), float(y), sigma, relocalised)

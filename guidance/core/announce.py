@@ -8,6 +8,8 @@ from collections.abc import Collection
 from dataclasses import dataclass
 from typing import Literal
 
+import numpy as np
+
 from guidance.core.model import wrap_angle
 from guidance.core.navigator import Decision
 
@@ -39,6 +41,11 @@ def arrives_before(
         return False  # the road never comes within the radius
     enter = along - math.sqrt(radius_m * radius_m - off2)
     return enter <= max(0.0, ahead_m) - ARRIVE_MARGIN_M
+
+
+def heading_sd(P: np.ndarray) -> float:
+    """The estimate's heading 1-sigma (rad) from its covariance: the words' uncertainty."""
+    return math.sqrt(max(0.0, float(P[2, 2])))
 
 
 def heading_cannot_tell(d: Decision, heading_sd_rad: float) -> bool:

@@ -576,10 +576,7 @@ class PoseEstimator:
         own account of them: a heading that drifted without a compass is as wide as it was)."""
         x = np.array(self._kf.x, dtype=float)
         P = np.array(self._kf.P, dtype=float)
-        x[0], x[1] = x_m, y_m
-        P[:2, :] = 0.0
-        P[:, :2] = 0.0
-        P[0, 0] = P[1, 1] = var
+        model.reset_position(x, P, x_m, y_m, var)
         self._kf.x = x
         self._kf.P = P
         self.accepted["relocalisations"] += 1

@@ -44,6 +44,7 @@ from guidance.core.announce import (
     arrives_before,
     due_announcements,
     heading_cannot_tell,
+    heading_sd,
 )
 from guidance.core.estimator import PoseEstimator
 from guidance.core.messages import (
@@ -101,9 +102,13 @@ class Guide:
         say: Say,
         counts: Counter[str],
         speed_fn: Callable[[], float],
+        reckoning_fn: Callable[[], bool],
     ) -> None:
         self.config = config
         self._speed = speed_fn
+        self._reckoning = reckoning_fn
+        """The distance is dead-reckoned (odometry overdue): no turn named for a place on the
+        road, nothing passed straight by distance alone."""
         self.navigator = navigator
         self._say = say
         self.counts = counts
@@ -120,12 +125,6 @@ class Guide:
         self._said_at: dict[str, float] = {}
         self.last_exit_heading_rad: float | None = None
         """The exit the car took at the last intersection it went through (estimate frame)."""
-        self.heading_sd_rad = 0.0
-        """The estimate's heading 1-sigma at the last update (the words' uncertainty)."""
-        self.reckoning = False
-        """Odometry is overdue and the distance is dead-reckoned (``Pipeline._dead_reckon``):
-        where the car is along the road is a guess, so no turn is named for a place on it and
-        no intersection is taken as passed straight by distance alone."""
 
     # -- inputs ---------------------------------------------------------------------------------
     def report(
@@ -242,7 +241,7 @@ class Guide:
             near = odometer_m >= a.at_odometer_m - cfg.turn_detector.window_m
             if turn is not None and near:
                 self._resolve(a, t_s, heading, "detected", est, out)
-            elif odometer_m >= a.at_odometer_m + cfg.straight_after_m and not self.reckoning:
+            elif odometer_m >= a.at_odometer_m + cfg.straight_after_m and not self._reckoning():
                 self._resolve(a, t_s, heading, "no_turn", est, out)
             return
         if turn is not None and a.approach_heading_rad is not None:
@@ -267,7 +266,7 @@ class Guide:
             self.counts["resolved_undecided"] += 1
             return
         best = min(d.options, key=lambda o: abs(wrap_angle(o.heading_rad - heading))).index
-        blind = heading_cannot_tell(d, self.heading_sd_rad)
+        blind = heading_cannot_tell(d, heading_sd(est.P))
         if best != d.exit_index and source != "co-driver" and blind:
             best = d.exit_index  # the heading cannot tell the exits apart: as advised
             self.counts["exit_assumed_followed"] += 1
@@ -316,7 +315,6 @@ class Guide:
         estimate re-evaluates it), then what is due to be said."""
         if not self.ahead:
             return
-        self.heading_sd_rad = math.sqrt(max(0.0, float(est.P[2, 2])))
         prev: Ahead | None = None
         steady_for = self.history.steady_for_m(
             odometer_m, max(ROAD_STEADY_M, self.history.steady_m)
@@ -441,21 +439,21 @@ class Guide:
             out.decisions.append(new)
 
     def announce(
-        self, t_s: float, odometer_m: float, out: Outputs, est: PoseEstimator | None = None
+        self, t_s: float, odometer_m: float, out: Outputs, est: PoseEstimator
     ) -> None:
         """What is due for the next intersection still ahead of the car."""
         i, a = self._announce_target(odometer_m)
         if a is None or a.decision is None:
             return
-        if est is not None and self._arrives_before(a, est, odometer_m):
+        if self._arrives_before(a, est, odometer_m):
             self.counts["goal_intersection_not_said"] += 1  # "You have arrived" comes first
             a.said_exit = a.decision.exit_index  # held as if said: no silent swapping
             return
-        if self.reckoning and a.at_odometer_m is not None:
+        if self._reckoning() and a.at_odometer_m is not None:
             self.counts["words_withheld_gap"] += 1  # said once the wheels speak again
             return
         d = a.decision
-        band = WORD_SIGMAS * self.heading_sd_rad if a.approach_estimated else 0.0
+        band = WORD_SIGMAS * heading_sd(est.P) if a.approach_estimated else 0.0
         action = prompts.manoeuvre_within(d.turn_rad, band, d.exit_heading_rad)
         changed = a.said_exit >= 0 and a.said_exit != d.exit_index
         straight = action == "continue straight"
@@ -495,8 +493,7 @@ class Guide:
         circle that far before ``a`` (a turn made before arriving is announced as any other)."""
         if a.at_odometer_m is None or a.approach_heading_rad is None:
             return False
-        x = est.x
-        start, start_odo = (float(x[0]), float(x[1])), odometer_m
+        start, start_odo = (float(est.x[0]), float(est.x[1])), odometer_m
         i = self.ahead.index(a) if a in self.ahead else 0
         if i > 0:  # on the road from the intersection before it
             prev = self.ahead[i - 1]
@@ -524,14 +521,14 @@ class Guide:
         return -1, None
 
     def _then(
-        self, i: int, a: Ahead, est: PoseEstimator | None, odometer_m: float
+        self, i: int, a: Ahead, est: PoseEstimator, odometer_m: float
     ) -> tuple[float | None, float | None]:
         if i + 1 >= len(self.ahead):
             return None, None
         b = self.ahead[i + 1]
         if b.decision is None or a.at_odometer_m is None or b.at_odometer_m is None:
             return None, None
-        if est is not None and self._arrives_before(b, est, odometer_m):
+        if self._arrives_before(b, est, odometer_m):
             b.said_exit = b.decision.exit_index  # held as if said, but the car arrives first
             return None, None
         return b.decision.turn_rad, b.at_odometer_m - a.at_odometer_m

@@ -326,6 +326,18 @@ def compass_to_heading(compass_deg: float, declination_deg: float) -> float:
     return wrap_angle(math.radians(90.0 - true_deg))
 
 
+@njit(cache=True, error_model="numpy")
+def reset_position(x: np.ndarray, P: np.ndarray, zx: float, zy: float, var: float) -> None:
+    """A relocalisation in place (the car's ``PoseEstimator`` and the study engine): the
+    position restarts at (zx, zy) with ``var`` on each axis, uncorrelated with every other
+    state; the heading and the car's error states keep their means and variances (the
+    engine's kept cos and sin of the heading too)."""
+    x[0], x[1] = zx, zy
+    for j in range(P.shape[0]):
+        P[0, j] = P[j, 0] = P[1, j] = P[j, 1] = 0.0
+    P[0, 0] = P[1, 1] = var
+
+
 heading_to_compass = njit(cache=True, error_model="numpy")(angles.heading_to_compass)
 """Filter heading (rad) to magnetic compass degrees in [0, 360) (``guidance.core.angles``,
 compiled)."""

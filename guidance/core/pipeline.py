@@ -108,8 +108,9 @@ class Pipeline:
         )
         self.counts: Counter[str] = Counter()
         self.guide = Guide(
-            config, self.navigator, self._say, self.counts, lambda: self.st.speed_mps
-        )
+            config, self.navigator, self._say, self.counts, lambda: self.st.speed_mps,
+            lambda: self.tr.dr_to_t is not None,  # the distance is being dead-reckoned
+        )  # fmt: skip
 
     # -- the one entry point ----------------------------------------------------------------
     def feed(self, msg: Input) -> Outputs:
@@ -223,7 +224,6 @@ class Pipeline:
         turn = self.turns.update(msg.t_s, est.heading_rad, self.st.odometer_m)
         if turn is not None:
             out.turns.append(turn)
-        self.guide.reckoning = False
         self.guide.step(msg.t_s, est, self.st.odometer_m, turn, out)
         self._after_step(msg.t_s, out)
 
@@ -247,7 +247,6 @@ class Pipeline:
         self.st.odometer_m += moved
         self.tr.dr_m += moved
         self.tr.dr_to_t = t
-        self.guide.reckoning = True
         if out is not None:  # the intersections ahead move on with it (turns detected)
             self.guide.step(t, est, self.st.odometer_m, None, out)
 
@@ -451,6 +450,12 @@ class Pipeline:
 
     def state(self) -> EstimateState:
         return self.estimator.state()
+
+    @property
+    def searching(self) -> bool:
+        """The car is lost and can find itself again (``PipelineConfig.relocalise``): a place
+        recognised now is a whole-database find (``LandmarkFix.relocalised``)."""
+        return self.config.relocalise and self.st.lost_said
 
     def target(self) -> Target:
         return self.navigator.target(self.estimator.x)

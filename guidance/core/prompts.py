@@ -62,18 +62,23 @@ def format_distance(distance_m: float, units: Units = Units.METRIC) -> str:
     return f"{v:.0f} miles"
 
 
+STRAIGHT_DEG, BEAR_DEG, TURN_DEG, SHARP_DEG = 20.0, 60.0, 135.0, 170.0
+"""A turn's name changes at these angles (either side): straight below the first, then bear,
+turn, sharp, and a U-turn from the last."""
+
+
 def manoeuvre(turn_rad: float) -> str:
     """Name a turn by its angle (CCW positive = left)."""
     deg = math.degrees(turn_rad)
     a = abs(deg)
     side = "left" if deg > 0 else "right"
-    if a < 20:
+    if a < STRAIGHT_DEG:
         return "continue straight"
-    if a < 60:
+    if a < BEAR_DEG:
         return f"bear {side}"
-    if a < 135:
+    if a < TURN_DEG:
         return f"turn {side}"
-    if a < 170:
+    if a < SHARP_DEG:
         return f"turn sharp {side}"
     return "make a U-turn"
 
@@ -97,17 +102,16 @@ def manoeuvre_within(turn_rad: float, band_rad: float, exit_heading_rad: float) 
     north-east", from ``exit_heading_rad``, which the scene gives without the car's heading
     error)."""
     name = manoeuvre(turn_rad)
-    if not band_rad > 0.0:
+    deg, band = math.degrees(turn_rad), math.degrees(max(0.0, band_rad))
+    lo, hi = deg - band, deg + band
+    bounds = (STRAIGHT_DEG, BEAR_DEG, TURN_DEG, SHARP_DEG)
+    # the name changes going up through +c (at c) and through -c (just above it)
+    if not any(lo < c <= hi or lo <= -c < hi for c in bounds):
         return name
-    steps = max(2, int(math.degrees(min(band_rad, math.pi)) // 1.0) + 1)
-    names = {
-        manoeuvre(turn_rad + band_rad * (2.0 * k / steps - 1.0)) for k in range(steps + 1)
-    }
-    if names == {name}:
-        return name
-    for side in ("left", "right"):
-        if all(n.endswith(side) for n in names):
-            return f"go {side}"
+    if lo >= STRAIGHT_DEG and hi < SHARP_DEG:
+        return "go left"
+    if lo > -SHARP_DEG and hi <= -STRAIGHT_DEG:
+        return "go right"
     return f"take the road towards the {bearing_word(exit_heading_rad)}"
 
 

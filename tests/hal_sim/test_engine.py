@@ -7,6 +7,7 @@ import math
 import numpy as np
 import pytest
 
+from guidance.core import model
 from guidance.core.estimator import RELOCALISED, PoseEstimator
 from guidance.core.messages import LandmarkFix, WheelOdometry, reset_sigma_m
 from guidance.core.navigator import Method, NavigatorConfig
@@ -151,8 +152,9 @@ def test_range_trials_stay_within_the_papers_fig3_tolerance(
 
 
 def test_the_engines_reset_is_the_cars_relocalisation() -> None:
-    """``ekf.reset_position`` against ``PoseEstimator``'s reset on a lost estimate: the position
-    at the place with the reset's variance, uncorrelated; the heading and its variance kept."""
+    """``model.reset_position`` on the engine's state against ``PoseEstimator``'s reset on a
+    lost estimate: the position at the place with the reset's variance, uncorrelated; the
+    heading and its variance kept."""
     sim = SimParams()
     cfg = params.estimator_config(sim, None)
     est = PoseEstimator(cfg, 10.0, -20.0, 0.3)
@@ -165,7 +167,7 @@ def test_the_engines_reset_is_the_cars_relocalisation() -> None:
     sigma = reset_sigma_m(sim.sighting_range_m, params.LANDMARK_POSITION_SIGMA_M)
     r = est.process(LandmarkFix(t, 7, 250.0, 40.0, sigma, relocalised=True))
     assert r.accepted and r.reason == RELOCALISED
-    ekf.reset_position(x, P, 250.0, 40.0, sigma**2)
+    model.reset_position(x, P, 250.0, 40.0, sigma**2)
     np.testing.assert_array_equal(x[:3], est.x[:3])
     np.testing.assert_array_equal(P, est.P[:3, :3])
     assert P[2, 2] > 0 and P[0, 2] == 0 and P[0, 0] == sigma**2

@@ -239,15 +239,13 @@ def test_lost_cars_find_themselves_again_and_say_only_true_words() -> None:
     sys.path.insert(0, str(Path(__file__).resolve().parents[2] / "benchmarks"))
     from relocalisation import Arm, options  # the benchmark's drives, other seeds
 
-    arm, coarse = Arm(), 0
+    arm = Arm()
     for i in range(12):
-        trip = guided_drive(options(i, 71_000))
-        arm.add(trip)
-        coarse += trip.check().coarse
+        arm.add(guided_drive(options(i, 71_000)))
     assert arm.lost == 12
     assert arm.relocalisations >= 4 and arm.false_relocalisations == 0
     assert arm.recovered >= arm.lost // 3
-    assert arm.words_while_lost > 20 and coarse > 0  # the uncertain heading said coarsely
+    assert arm.words_while_lost > 20 and arm.coarse > 0  # the uncertain heading said coarsely
     # not yet the 0: a few prompts after a long gap or a reset are about another
     # intersection than the one the car reaches next (docs/app.md, "While lost")
     assert arm.wrong_while_lost <= 0.05 * arm.words_while_lost
