@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import asyncio
 import os
+import time
 from collections.abc import Mapping
 from concurrent.futures import Future, ProcessPoolExecutor
 from multiprocessing import get_context
@@ -69,15 +70,23 @@ def worker_setup(threads: int | None = WORKER_THREADS) -> str:
 
 def worker_scheduling() -> dict[str, int]:
     """How the calling process is scheduled: its policy (``os.SCHED_*``), nice level, OpenCV
-    thread count and the largest thread count of its BLAS libraries (``blas_threads``, 0
-    when none is loaded); run in the worker by ``RecogniserWorker.scheduling``."""
+    thread count, the largest thread count of its BLAS libraries (``blas_threads``, 0 when
+    none is loaded), its OS threads (``os_threads``, idle pool threads included) and the CPU
+    time it has used (``cpu_ms``, every thread); run in the worker by
+    ``RecogniserWorker.scheduling``."""
     import cv2
 
+    try:
+        os_threads = len(os.listdir("/proc/self/task"))
+    except OSError:
+        os_threads = 0
     return {
         "policy": os.sched_getscheduler(0),
         "nice": os.getpriority(os.PRIO_PROCESS, 0),
         "opencv_threads": int(cv2.getNumThreads()),
         "blas_threads": max(blas_threads().values(), default=0),
+        "os_threads": os_threads,
+        "cpu_ms": round(time.process_time() * 1e3),
     }
 
 
