@@ -26,7 +26,7 @@ from guidance.core import prompts
 from guidance.core.chance import ChanceWatch, shipped_or_none
 from guidance.core.compass_cal import CompassCalibration, compass_heading_to_theta
 from guidance.core.estimator import LOST_HYSTERESIS, RELOCALISED, PoseEstimator
-from guidance.core.guide import Guide
+from guidance.core.guide import SAME_PLACE_M, Guide
 from guidance.core.health import (
     CompassJudge,
     DeviceStatus,
@@ -48,6 +48,7 @@ from guidance.core.messages import (
     WheelOdometry,
 )
 from guidance.core.navigator import Decision, Navigator
+from guidance.core.odometry_gap import placeable_s
 from guidance.core.pipeline_config import INPUT_KINDS, Input, Outputs, PipelineConfig
 from guidance.core.pipeline_state import PipelineState, Transient
 from guidance.core.snapshot_check import check_snapshot, integer
@@ -214,6 +215,9 @@ class Pipeline:
                 log.warning("odometry resumed after %.1f s: dead-reckoned %.0f m at %.1f m/s",
                             gap, self.tr.dr_m, self.st.speed_mps)  # fmt: skip
                 self.counts["odometry_gaps"] += 1
+                self.turns.reset()  # the heading across the gap is judged once, just below
+                placeable = placeable_s(SAME_PLACE_M)  # the gap's bound within "same place"
+                self.guide.after_gap(msg.t_s, msg.t_s - gap, placeable, est, out)
             else:
                 self.st.speed_mps = abs(d_wheels) / gap
         if not long_gap:
