@@ -79,6 +79,11 @@ DR_AFTER_PERIODS = 3.0
 it comes: a stale estimate with a tight ellipse would put the truth outside it."""
 
 
+UNKNOWN_START_SIGMA_M = 10_000.0
+"""A car that starts anywhere (``PipelineConfig.start_unknown``) is somewhere in a city 20 km
+across (the 2-sigma circle): lost from the first step, and any landmark it finds is inside."""
+
+
 class Pipeline:
     """Estimator + navigator + turn detector + health, driven by messages (see module doc)."""
 
@@ -92,6 +97,9 @@ class Pipeline:
         self.tr = Transient()
         if not self.st.heading_known:
             self.estimator.forget_heading()
+        if config.start_unknown:
+            self.st.placed = False
+            self.estimator.inflate_position(2.0 * UNKNOWN_START_SIGMA_M)
         self.navigator = Navigator(config.goal_xy_m, config.navigator, config.landmarks)
         self.chance = ChanceWatch(
             config.chance,
@@ -287,6 +295,7 @@ class Pipeline:
             last = self.st.landmark_said.get(str(fix.landmark_id), -math.inf)
             if r.reason == RELOCALISED or was_lost:  # found again: said by the place's name
                 self.counts["relocalisations"] += 1
+                first, self.st.placed = not self.st.placed, True
                 # found: a reset's ellipse (80 m across for a 20 m sight) sits on the lost
                 # hysteresis, so the episode is closed here, not by the axis
                 self.st.lost_said = False
@@ -295,7 +304,8 @@ class Pipeline:
                 how = "reset there" if r.reason == RELOCALISED else "inside the lost ellipse"
                 log.warning("position found again near landmark %d %r (%s)",
                             fix.landmark_id, name, how)  # fmt: skip
-                self._say(out, fix.t_s, prompts.position_found(name), Priority.SAFETY, "found")
+                text = prompts.position_found(name, again=not first)
+                self._say(out, fix.t_s, text, Priority.SAFETY, "found")
             elif fix.t_s - last >= LANDMARK_REPEAT_S:  # a second fix from the same pass: silent
                 self.st.landmark_said[str(fix.landmark_id)] = fix.t_s
                 self._say(out, fix.t_s, prompts.landmark_confirmed(name), Priority.INFO, "landmark")
@@ -309,6 +319,10 @@ class Pipeline:
         if not scene.exit_headings_rad:
             out.accepted, out.reason = False, "no_exits"
             return
+        if not self.st.placed:  # started anywhere, no place found yet: no advice
+            out.accepted, out.reason = False, "position_unknown"
+            self.counts["advice_withheld"] += 1
+            return
         if not self.st.heading_known:  # no advice out of a heading the car does not have
             out.accepted, out.reason = False, "heading_unknown"
             self.counts["advice_withheld"] += 1
@@ -319,6 +333,8 @@ class Pipeline:
         self.guide.report(scene, self.estimator, self.st.odometer_m, out)
 
     def _approach(self, msg: Approach, out: Outputs) -> None:
+        if not self.st.placed:
+            return
         self.guide.approach(msg, self.estimator, self.st.odometer_m, out)
 
     def _turn(self, turn: TurnCompleted, out: Outputs) -> None:
@@ -359,7 +375,10 @@ class Pipeline:
             self.st.uncertain_said = False
         if lost:
             out.lost = True
-            if not self.st.lost_said:
+            if not self.st.lost_said and not self.st.placed:  # started anywhere: not lost
+                self.st.lost_said = True
+                self._say(out, t, prompts.position_unknown(), Priority.SAFETY, "lost")
+            elif not self.st.lost_said:
                 self.st.lost_said = True
                 self.counts["lost_episodes"] += 1
                 searching = self.config.relocalise
