@@ -138,9 +138,8 @@ class SimDrive:
         """Open the devices and the outputs, drive, close everything; the drive's result."""
         try:
             compass = self.opts.compass_deg is not None
-            seed = self.opts.seed if self.opts.start_unknown else None
             with open_sim_devices(self.world, self.opts.profile, self.clock, compass=compass,
-                                  drive_on_seed=seed) as d:  # fmt: skip
+                                  drive_on_seed=self.opts.seed) as d:  # fmt: skip
                 self.dev = d
                 sim = {"seed": self.opts.seed, "method": self.method.value}
                 session = session_record(self.pipeline, self.opts.config or "", sim=sim)
