@@ -107,6 +107,22 @@ def rule_of(cls: type, name: str) -> Rule:
     return r
 
 
+def like(cls: type, name: str, **changes: Any) -> dict[str, Rule]:
+    """Field metadata with the rule of ``cls``'s field ``name`` (``changes`` applied): a
+    table that offers the same setting under its own dataclass reads it by the same rule
+    (``[vehicle] track_m`` is ``EstimatorConfig.track_m``)."""
+    return {RULE: dataclasses.replace(rule_of(cls, name), **changes)}
+
+
+def file_keys(cls: type, part: str | None = None) -> tuple[str, ...]:
+    """The keys the config file offers for ``cls`` (with ``part``: those in that table)."""
+    return tuple(
+        file_key(f.name, r)
+        for f in dataclasses.fields(cls)
+        if (r := rule_of(cls, f.name)).read and (part is None or r.table == part)
+    )
+
+
 def names_where(cls: type, **match: object) -> tuple[str, ...]:
     """``cls``'s field names whose rule matches, e.g. ``names_where(EstimatorConfig,
     group="car")`` or ``names_where(PipelineConfig, table="compass")``."""

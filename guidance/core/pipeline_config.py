@@ -69,8 +69,11 @@ class Outputs:
     lost: bool = False
 
 
-_COORDINATE = rule(lo=-1e8, hi=1e8)
+COORDINATE = rule(lo=-1e8, hi=1e8)
 """Local metres: a point farther than 100,000 km is damage, not a place."""
+MIN_STATE_PERIOD_S = 1e-3
+MAX_STATE_PERIOD_S = 60.0
+"""The state is published between 1000 times a second and once a minute."""
 _NAVIGATION_M = rule(positive=True, table="navigation")
 
 
@@ -82,8 +85,8 @@ class PipelineConfig:
 
     estimator: EstimatorConfig
     navigator: NavigatorConfig
-    start_xy_m: tuple[float, float] = field(metadata=_COORDINATE)
-    goal_xy_m: tuple[float, float] = field(metadata=_COORDINATE)
+    start_xy_m: tuple[float, float] = field(metadata=COORDINATE)
+    goal_xy_m: tuple[float, float] = field(metadata=COORDINATE)
     start_heading_rad: float | None = field(default=None, metadata=rule(lo=-7.0, hi=7.0))
     """None: taken from the first compass reading."""
     landmarks: tuple[Landmark, ...] = field(default=(), metadata=rule(max_items=100_000))
@@ -101,7 +104,9 @@ class PipelineConfig:
     )
     """A compass whose readings are mostly rejected for this long is reported unusable."""
     units: Units = field(default=Units.METRIC, metadata=rule(table="navigation"))
-    state_period_s: float = field(default=0.1, metadata=rule(lo=1e-3, hi=60.0))
+    state_period_s: float = field(
+        default=0.1, metadata=rule(lo=MIN_STATE_PERIOD_S, hi=MAX_STATE_PERIOD_S)
+    )
     """Seconds between state publications (``[loop] state_rate_hz``)."""
     expected_rates_hz: Mapping[str, float | None] = field(
         default_factory=dict, metadata=rule(positive=True, hi=1e4)
