@@ -2,7 +2,7 @@
 the app's time-driven work runs at the world's steps.
 
 ``LockstepSink`` wraps ``App.sink``; the simulated drive starts the sources with it
-(``app.source_sink = LockstepSink(app.sink)``). It counts what it hands over and, behind each
+(``App(..., wrap_sink=LockstepSink)``). It counts what it hands over and, behind each
 message on the loop, what has been processed, and wakes its waiters then: ``wait_until``
 re-checks its predicate right after the app's state changed, and ``drained`` returns once
 everything handed over so far is processed. ``LockstepClock`` is the world's clock as the
@@ -33,7 +33,7 @@ async def recognise_now(app: App, frame: CameraFrame) -> None:
     """A frame of the simulated camera, seen now and matched at once (in lockstep), not through
     the app's frame ring: the camera noted alive as the ring's reader notes it, then
     ``App.recognise``; the frame is not recorded."""
-    app.pipeline.health.observe("camera", frame.t_s)
+    app.pipeline.camera_seen(frame.t_s)
     await app.recognise(frame)
 
 

@@ -95,11 +95,14 @@ class App:
         checkpointer: Checkpointer | None = None,
         clock: Callable[[], float] = time.monotonic,
         loop: LoopSettings = DEFAULT_LOOP,
+        wrap_sink: Callable[[Callable[[Message], None]], Callable[[Message], None]] | None = None,
     ) -> None:
         """``sinks``: telemetry and the recorder (the one among them that records inputs, an
         ``InputRecorder``, gets the inputs too); ``clock``: the message clock (a
         ``ports.SteppedClock`` runs ``tick`` itself, as it steps); ``loop``: the ``[loop]`` table
-        (tick rate, health publication period, the lag that counts as late)."""
+        (tick rate, health publication period, the lag that counts as late); ``wrap_sink``:
+        given ``sink``, what the sources are started with instead (the simulator's
+        ``hal_sim.lockstep.LockstepSink`` counts what passes, to step the world in lockstep)."""
 
         self.failures = LogOnce(log)
         """Failures of messages, ticks, stats and the recogniser: logged once, counted."""
@@ -126,9 +129,10 @@ class App:
         self.loop_lag_s: deque[float] = deque(maxlen=LATENCY_SAMPLES)
         self.stop_event = asyncio.Event()
         self._loop: asyncio.AbstractEventLoop | None = None
-        self.source_sink: Callable[[Message], None] = self.sink
-        """What the sources are started with: ``sink``, or a wrapper around it (the simulator's
-        ``hal_sim.lockstep.LockstepSink`` counts what passes, to step the world in lockstep)."""
+        self.source_sink: Callable[[Message], None] = (
+            self.sink if wrap_sink is None else wrap_sink(self.sink)
+        )
+        """What the sources are started with: ``sink``, or ``wrap_sink``'s wrapper around it."""
         self._submitted = 0
         self._processed = 0
         self._sub_lock = threading.Lock()
@@ -232,7 +236,7 @@ class App:
             frame = self._frame
         if frame is None:
             return
-        self.pipeline.health.observe("camera", frame.t_s)
+        self.pipeline.camera_seen(frame.t_s)
         self._frame_ready.set()
         if self.recorder is not None:
             self.recorder.record_camera(frame)

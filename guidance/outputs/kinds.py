@@ -16,9 +16,10 @@ from collections.abc import Callable, Iterable, Mapping, Sequence
 from dataclasses import dataclass, field
 from typing import TYPE_CHECKING, Any, Literal
 
+from guidance.core.geo import LatLon
 from guidance.core.messages import EstimateState, Health, LandmarkFix, Prompt, Target
 from guidance.outputs import messages as m
-from guidance.outputs.messages import LandmarkRejection, Origin
+from guidance.outputs.messages import LandmarkRejection
 from guidance.outputs.schemas import SCHEMAS
 
 if TYPE_CHECKING:
@@ -34,7 +35,7 @@ class OutputContext:
     goal: tuple[float, float] | None = None
     method: str | None = None
     mode: str | None = None
-    origin_lat_lon_deg: Origin | None = None
+    origin_lat_lon_deg: LatLon | None = None
     """The sink's: the local frame's WGS-84 origin (state messages then carry lat/lon)."""
     chance: float | None = None
     """The chance of reaching the goal (``guidance.core.chance``)."""

@@ -21,7 +21,6 @@ from guidance.core.messages import (
     Target,
     TurnCompleted,
 )
-from guidance.errors import UserError
 
 if TYPE_CHECKING:
     from guidance.core.navigator import Decision
@@ -69,20 +68,6 @@ def _wrap_deg(angle_rad: float) -> float | None:
     return _num(math.degrees(wrap_angle(angle_rad))) if math.isfinite(angle_rad) else None
 
 
-Origin = geo.LatLon
-"""(latitude, longitude) in degrees (WGS-84) of the local frame's origin: x east, y north (a
-config value; ``guidance.core.geo.Origin`` converts)."""
-
-
-def check_origin(origin: Origin | None) -> None:
-    """An origin is a (latitude, longitude) in degrees within range, or None."""
-    if origin is None:
-        return
-    lat, lon = origin
-    if not (-90.0 <= lat <= 90.0 and -180.0 <= lon <= 180.0):
-        raise UserError(f"origin {origin!r}: latitude must be in [-90, 90], longitude [-180, 180]")
-
-
 def heading_deg_true(heading_rad: float | None) -> float | None:
     """Compass heading: degrees clockwise from true north in [0, 360), from ``heading_rad``
     (counter-clockwise from east, the local frame's convention)."""
@@ -91,7 +76,9 @@ def heading_deg_true(heading_rad: float | None) -> float | None:
     return float(heading_to_compass(heading_rad, 0.0))  # true: no declination
 
 
-def lat_lon_deg(x_m: float | None, y_m: float | None, origin: Origin | None) -> Origin | None:
+def lat_lon_deg(
+    x_m: float | None, y_m: float | None, origin: geo.LatLon | None
+) -> geo.LatLon | None:
     """WGS-84 latitude and longitude of a local point (east, north metres from ``origin``,
     ``guidance.core.geo``); None without an origin or a finite point."""
     if origin is None or x_m is None or y_m is None:
@@ -101,7 +88,7 @@ def lat_lon_deg(x_m: float | None, y_m: float | None, origin: Origin | None) -> 
     return geo.Origin.of(origin).to_geodetic(x_m, y_m)
 
 
-def _with_geo(point: dict[str, Any] | None, origin: Origin | None) -> dict[str, Any] | None:
+def _with_geo(point: dict[str, Any] | None, origin: geo.LatLon | None) -> dict[str, Any] | None:
     """A point dict with ``lat_deg``/``lon_deg`` added (null without an origin)."""
     if point is None:
         return None
@@ -121,7 +108,7 @@ def state_message(
     goal: tuple[float, float] | None = None,
     method: str | None = None,
     mode: str | None = None,
-    origin_lat_lon_deg: Origin | None = None,
+    origin_lat_lon_deg: geo.LatLon | None = None,
     chance: float | None = None,
 ) -> dict[str, Any]:
     """The ``guidance.state`` message (docs/telemetry.md).
