@@ -31,7 +31,7 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 from drivers.can_odometry import MAX_GAP_S
-from guidance.app.app import App, Message
+from guidance.app.app import App
 from guidance.app.build import OpenOutputs, open_outputs, session_record
 from guidance.app.checkpoint import INVALID, Checkpointer, resume_from_checkpoint
 from guidance.app.magnetic import declination_deg
@@ -363,18 +363,13 @@ class SimDrive:
             sinks=out.sinks,
             checkpointer=self.checkpointer,
             clock=self.clock,
-            wrap_sink=self._lockstep,  # the world waits for the app
         )
         if self.checkpointer is not None:
             self.checkpointer.extra = self._extra_state  # the world, for a resumed drive
         self.app.listeners.append(self._on_output)
+        self.lockstep = self.app.wrap_source_sink(LockstepSink)  # the world waits for the app
         if screen is not None:
             screen.listen(self.app)
-
-    def _lockstep(self, sink: Callable[[Message], None]) -> LockstepSink:
-        """The app's sink, counted: the sources are started with it (``App(wrap_sink=)``)."""
-        self.lockstep = LockstepSink(sink)
-        return self.lockstep
 
     # -- checkpoints ----------------------------------------------------------------------------
     def _resume(self, path: str) -> None:

@@ -31,19 +31,13 @@ from guidance.core.messages import Ellipse, EstimateState, HeadingFix, LandmarkF
 from guidance.core.odometry_gap import dead_reckon
 
 EstimatorInput = WheelOdometry | HeadingFix | LandmarkFix
-
-
-_CAR = rule(lo=0.0, group="car")
-"""A setting of the car model (``[estimator] model = "car"``)."""
-_FIXED_POSITIVE = rule(positive=True, read=False)
-"""> 0, and not offered in the config file (recorded with the session)."""
+_CAR = rule(lo=0.0, group="car")  # a setting of the car model ([estimator] model = "car")
+_FIXED_POSITIVE = rule(positive=True, read=False)  # > 0; recorded, not offered in [estimator]
 
 
 @dataclass(frozen=True, slots=True)
 class EstimatorConfig:
-    """Sensor noise and gate settings. Defaults: the reference car (2007 Tahoe). Each field's
-    rule (``guidance.config_tables.rule``) is the one the config file, the session record and
-    the checkpoint's identity are read with; ``read=False``: not offered in ``[estimator]``."""
+    """Sensor noise and gate settings, each with its config ``rule``. Defaults: the 2007 Tahoe."""
 
     track_m: float = field(default=1.72, metadata=rule(positive=True, read=False))
     """Rear track width, m (Tahoe GMT900: 1.72 m)."""

@@ -46,8 +46,8 @@ class RecordingConfig:
     from ``[start]``, the simulator from its city); the Foxglove topics need it for the map."""
 
     def __post_init__(self) -> None:
-        if self.origin_lat_lon_deg is not None:  # a place on Earth, or ValueError naming it
-            Origin.of(self.origin_lat_lon_deg)
+        if self.origin_lat_lon_deg is not None:  # a place on Earth
+            Origin.checked(self.origin_lat_lon_deg)
         if not re.match(r"^[A-Za-z0-9_.-]{1,64}$", self.prefix):
             raise UserError(f"[recording] prefix {self.prefix!r}: use letters, digits, _ . -")
         if self.compression not in ("zstd", "lz4", "none"):

@@ -87,8 +87,8 @@ class TelemetryConfig:
 
     def __post_init__(self) -> None:
         validate_vehicle_id(self.vehicle_id)
-        if self.origin_lat_lon_deg is not None:  # a place on Earth, or ValueError naming it
-            Origin.of(self.origin_lat_lon_deg)
+        if self.origin_lat_lon_deg is not None:  # a place on Earth
+            Origin.checked(self.origin_lat_lon_deg)
         if self.mode not in _MODES:
             raise UserError(f"telemetry mode must be one of {_MODES}, not {self.mode!r}")
         for ep in (*self.listen, *self.connect):

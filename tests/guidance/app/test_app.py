@@ -124,9 +124,9 @@ def test_co_driver_keyboard_drives_decisions_and_corrects_the_memory(
             clock=lambda: clock_t[0],
         )
         app = App(pipeline, sources={"scene": scene}, speaker=TextSpeaker(speech),
-                  clock=lambda: clock_t[0], wrap_sink=LockstepSink)  # fmt: skip
+                  clock=lambda: clock_t[0])  # fmt: skip
         app.listeners.append(listen)
-        lockstep = app.source_sink
+        lockstep = app.wrap_source_sink(LockstepSink)
         assert isinstance(lockstep, LockstepSink)
         async with app.running():
             for k in range(50):  # drive 50 m east
