@@ -41,12 +41,13 @@ from guidance.app.settings import (
 )
 from guidance.app.tables import check_document
 from guidance.config_tables import Rule, field_default, file_keys, from_table, names_where
-from guidance.core.chance import ChanceSettings
-from guidance.core.estimator import EstimatorConfig, car_model
 from guidance.core.geo import LatLon, Origin
 from guidance.core.health import HealthConfig
-from guidance.core.navigator import Landmark, NavigatorConfig
+from guidance.core.localize.car_model import car_model
+from guidance.core.localize.estimator import EstimatorConfig
 from guidance.core.pipeline import PipelineConfig
+from guidance.core.plan.chance import ChanceSettings
+from guidance.core.plan.navigator import Landmark, NavigatorConfig
 from guidance.errors import UserError
 from guidance.recording.config import RecordingConfig
 from guidance.telemetry.config import Ros2Config, TelemetryConfig
@@ -236,7 +237,7 @@ def _compass(
 
 def _deviation(card: tuple[float, ...]) -> tuple[float, ...]:
     """``[compass] deviation_deg = [A, B, C, D, E]`` (``guidance calibrate`` writes it)."""
-    from guidance.core.compass_cal import CompassCalibration
+    from guidance.core.localize.compass_cal import CompassCalibration
 
     if len(card) != 5:
         raise UserError("[compass] deviation_deg must be a list of 5 numbers [A, B, C, D, E]")

@@ -16,7 +16,7 @@ from pathlib import Path
 
 from guidance.app.backends import SCENE_BACKENDS
 from guidance.config_tables import from_table, like, rule
-from guidance.core.estimator import EstimatorConfig
+from guidance.core.localize.estimator import EstimatorConfig
 from guidance.core.pipeline_config import (
     COORDINATE,
     MAX_STATE_PERIOD_S,

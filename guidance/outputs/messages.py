@@ -37,7 +37,7 @@ from guidance.outputs.shapes import (
 )
 
 if TYPE_CHECKING:
-    from guidance.core.navigator import Decision
+    from guidance.core.plan.navigator import Decision
 
 
 SCHEMA_VERSION = 1

@@ -107,7 +107,7 @@ class StateMessage(Envelope, total=False):
             minimum=0,
             maximum=1,
             description="chance of reaching the goal from here (the study engine's table, "
-            "guidance.core.chance); null: not computed",
+            "guidance.core.plan.chance); null: not computed",
         ),
     ]
     lost: bool

@@ -12,7 +12,7 @@ from typing import Any
 import pytest
 
 from guidance.app.config import load_config, parse_config
-from guidance.core.navigator import Method
+from guidance.core.plan.navigator import Method
 from guidance.errors import UserError
 from guidance.tools.cli import main
 
@@ -278,11 +278,11 @@ def _offered() -> list[tuple[str, str, float]]:
     """Every numeric setting the config file offers from the core's config dataclasses, and a
     value just past each bound of its rule: (table, key, value)."""
     from guidance.config_tables import file_key, rule_of
-    from guidance.core.chance import ChanceSettings
-    from guidance.core.estimator import EstimatorConfig
     from guidance.core.health import HealthConfig
-    from guidance.core.navigator import NavigatorConfig
+    from guidance.core.localize.estimator import EstimatorConfig
     from guidance.core.pipeline_config import PipelineConfig
+    from guidance.core.plan.chance import ChanceSettings
+    from guidance.core.plan.navigator import NavigatorConfig
 
     cases = []
     for cls, table in [(EstimatorConfig, "estimator"), (NavigatorConfig, "navigation"),
