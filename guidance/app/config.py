@@ -174,6 +174,54 @@ def _place(data: object, where: str, origin: LatLon | None, cls: type[Place] = P
     return p, (0.0, 0.0) if origin is None else Origin.of(origin).to_local(lat, lon)
 
 
+@dataclass(frozen=True, slots=True)
+class _Trip:
+    start: StartSettings
+    start_xy: tuple[float, float]
+    goal_xy: tuple[float, float]
+    origin: LatLon | None
+    """The local frame's WGS-84 origin: the start's latitude and longitude (start anywhere:
+    the goal's)."""
+    unknown: bool
+    """Start anywhere: the car starts unplaced, waiting at the goal for its first landmark."""
+
+
+def _trip(data: Mapping[str, Any], require_goal: bool) -> _Trip:
+    """``[start]`` and ``[goal]``. A ``[start]`` with no position (``unknown = true``, or none
+    and a goal on the globe, whose place is then the frame's origin) starts the car unplaced."""
+    start, start_xy = _place(data.get("start", {}), "start", None, StartSettings)
+    placed = start.geodetic or start.local
+    if start.unknown and placed:
+        raise UserError("[start] unknown = true and a position: give one or the other")
+    origin, unknown = _lat_lon(start), start.unknown
+    if "goal" not in data and require_goal:
+        raise UserError("[goal] is required (lat_deg/lon_deg or x_m/y_m)")
+    goal_xy = (0.0, 0.0)
+    if "goal" in data:
+        goal, goal_xy = _place(data["goal"], "goal", origin)
+        if not placed and origin is None and goal.geodetic:
+            origin, unknown = _lat_lon(goal), True  # start anywhere: the frame is the goal's
+    return _Trip(start, goal_xy if unknown else start_xy, goal_xy, origin, unknown)
+
+
+def _lat_lon(p: Place) -> LatLon | None:
+    return None if p.lat_deg is None or p.lon_deg is None else (p.lat_deg, p.lon_deg)
+
+
+def _relocalise(
+    trip: _Trip, camera: DeviceConfig | None, landmark_db: LandmarkSettings | None
+) -> bool:
+    """A car with a camera and a landmark database finds itself again when lost; a car that
+    starts unplaced must."""
+    relocalise = camera is not None and landmark_db is not None
+    if trip.unknown and not relocalise:
+        raise UserError(
+            "[start] gives no position, so the car must find itself: that needs a camera "
+            "([camera] enabled = true) and a landmark database ([landmarks] database = ...)"
+        )
+    return relocalise
+
+
 def _estimator(
     data: object, track_m: float, *, compass: bool, calibrated: bool
 ) -> EstimatorConfig:
@@ -324,11 +372,8 @@ def parse_config(
     check_document(data, TABLES)
     t = {name: data.get(name, {}) for name in TABLES}
     vehicle = from_table(VehicleSettings, t["vehicle"], "vehicle")
-    start, start_xy = _place(t["start"], "start", None, StartSettings)
-    origin = (start.lat_deg, start.lon_deg) if start.geodetic else None
-    if "goal" not in data and require_goal:
-        raise UserError("[goal] is required (lat_deg/lon_deg or x_m/y_m)")
-    goal_xy = _place(t["goal"], "goal", origin)[1] if "goal" in data else (0.0, 0.0)
+    trip = _trip(data, require_goal)
+    origin = trip.origin
     nav_keys = file_keys(PipelineConfig, "navigation")
     navigator = from_table(NavigatorConfig, t["navigation"], "navigation", others=nav_keys)
     odometry = _device("odometry", t["odometry"], base_dir, default_backend="can")
@@ -341,14 +386,16 @@ def parse_config(
     pipeline = PipelineConfig(
         estimator=EstimatorConfig(),
         navigator=navigator,
-        start_xy_m=start_xy,
-        goal_xy_m=goal_xy,
-        start_heading_rad=_heading_rad(start.heading_deg),
+        start_xy_m=trip.start_xy,
+        goal_xy_m=trip.goal_xy,
+        start_heading_rad=_heading_rad(trip.start.heading_deg),
         landmarks=landmarks,
         state_period_s=1.0 / loop.state_rate_hz,
         expected_rates_hz={k: d.expected_rate_hz for k, d in devices.items() if d is not None},
         health=from_table(HealthConfig, t["health"], "health"),
         chance=from_table(ChanceSettings, t["chance"], "chance"),
+        relocalise=_relocalise(trip, camera, landmark_db),
+        start_unknown=trip.unknown,
     )
     pipeline = from_table(PipelineConfig, t["navigation"], "navigation", part="navigation",
                           others=file_keys(NavigatorConfig), base=pipeline)  # fmt: skip
@@ -356,7 +403,7 @@ def parse_config(
     calibrated = bool(any(pipeline.compass_deviation_deg) or pipeline.mounting_offset_deg)
     estimator = _estimator(t["estimator"], _track_m(vehicle, odometry), compass=compass is not None,
                            calibrated=calibrated)  # fmt: skip
-    if estimator.compass_two_sigma_deg is None and start.heading_deg is None:
+    if estimator.compass_two_sigma_deg is None and trip.start.heading_deg is None:
         raise UserError(
             "[start] heading_deg is required when there is no compass (or "
             "compass_two_sigma_deg = false): the heading could never become known"

@@ -52,6 +52,9 @@ class StartSettings(Place):
 
     heading_deg: float | None = field(default=None, metadata=rule(lo=0.0, hi=360.0))
     """True heading, degrees clockwise from north (None: from the first compass reading)."""
+    unknown: bool = False
+    """Start anywhere: no position; the car finds itself at its first landmark (it needs a
+    camera and a landmark database)."""
 
 
 @dataclass(frozen=True, slots=True)
