@@ -368,10 +368,9 @@ class SimDrive:
         if self.checkpointer is not None:
             self.checkpointer.extra = self._extra_state  # the world, for a resumed drive
         self.app.listeners.append(self._on_output)
+        self.lockstep = self.app.wrap_source_sink(LockstepSink)  # the world waits for the app
         if screen is not None:
             screen.listen(self.app)
-        self.lockstep = LockstepSink(self.app.sink)  # the world waits for the app
-        self.app.source_sink = self.lockstep
 
     # -- checkpoints ----------------------------------------------------------------------------
     def _resume(self, path: str) -> None:
