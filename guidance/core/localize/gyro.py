@@ -1,0 +1,219 @@
+"""The car's gyro: the stability control's yaw-rate sensor as the car model's turn (issue 38).
+
+Every car with stability control (mandatory in the US since 2012, the EU since 2014) has a
+yaw-rate sensor whose reading is on its CAN bus. Its error is not a wheel's: a **bias** in
+rad/s that turns the heading by ``bias x time`` (stops included) and that the sensor shows
+while the car stands still, a **scale** error on every turn, and white noise (angle random
+walk). With ``[vehicle] yaw_source = "gyro"`` the heading change of each odometry step is the
+gyro's, the distance the wheels'; the wheels' left/right difference then turns nothing.
+
+State layout (after the car model's seven, ``guidance.core.model``):
+
+* ``STATE_GYRO_BIAS`` (rad/s): the gyro reads ``omega_true / (1 + kg) + bg``;
+* ``STATE_GYRO_SCALE`` (a fraction ``kg``): the true heading change is the gyro's, its bias
+  removed, times ``1 + kg``.
+
+The bias walks with **time** (``GyroConfig.bias_walk_deg2_per_s3``); while the wheels say the
+car stands still, each reading measures the bias (a zero-velocity update) and no heading is
+integrated from it. The priors and their data-sheet sources are in docs/estimation.md
+("The car's gyro").
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+from guidance.core import model
+
+STATE_GYRO_BIAS = model.N_STATE_CAR
+"""The gyro's bias, rad/s: it reads ``omega_true / (1 + kg) + bg``."""
+STATE_GYRO_SCALE = model.N_STATE_CAR + 1
+"""The gyro's scale error ``kg``: the true heading change is ``(gyro angle - bg dt)(1 + kg)``."""
+N_STATE_GYRO = model.N_STATE_CAR + 2
+"""The car model's state with the gyro's two (a car whose yaw comes from its gyro)."""
+
+YAW_SOURCES = ("wheels", "gyro")
+"""``[vehicle] yaw_source``: where the heading change comes from. "both" (each a measurement
+of the turn, weighed by the filter) is not built yet (issue 38 note)."""
+
+
+@dataclass(frozen=True, slots=True)
+class GyroConfig:
+    """The gyro's error model; each default's source is in docs/estimation.md."""
+
+    bias_sigma_deg_s: float = 0.5
+    """Prior 1-sigma of the bias as it reaches the CAN bus. An ESC yaw-rate sensor specifies
+    its zero-rate offset over life and temperature at +-3.75 deg/s (Hyundai/Kia ESC sensor
+    sheet) before the ESC unit's own standstill compensation; MEMS gyros of the same
+    generation +-1-3 deg/s typical. What reaches the bus is compensated at standstill by the
+    ESC unit and moves with temperature after it (below): 0.5 deg/s (1-sigma)."""
+    bias_walk_deg2_per_s3: float = 1e-5
+    """The bias's random walk, (deg/s)^2 per second: its temperature coefficient (0.01-0.015
+    deg/s per K for automotive MEMS gyros) times the 10 K an ECU warms in the first 20
+    minutes gives 0.1-0.15 deg/s over 1200 s: (0.1)^2 / 1000 s. The in-run bias instability
+    (1.6-10 deg/h, 0.0005-0.003 deg/s) is far below it."""
+    noise_density_deg_rt_s: float = 0.05
+    """White rate noise, deg/s per root Hz (angle random walk 0.05 deg per root second): an
+    automotive-qualified yaw gyro (ADXRS620 class, 0.05 deg/s/rtHz); consumer MEMS parts are
+    lower (0.004-0.014) but the car's vibration adds to it."""
+    scale_sigma: float = 0.02
+    """Prior 1-sigma of the scale error: ESC sensors specify non-linearity within +-1 % and
+    MEMS sensitivity tolerances of +-1-3 %; a sensor tilted 5 degrees reads cos(5) = 0.4 %
+    low: 2 %."""
+    bandwidth_hz: float = 50.0
+    """The sensor's bandwidth (ESC sensors: 45-60 Hz upper cut-off): readings closer than
+    1 / (2 x this) apart are not independent (``zupt_var``)."""
+    max_hold_s: float = 0.5
+    """A reading older than this does not turn the heading: the step falls back to the
+    wheels' left/right difference (counted), as before the first reading."""
+
+    def __post_init__(self) -> None:
+        for name in ("bias_sigma_deg_s", "scale_sigma", "noise_density_deg_rt_s"):
+            v = getattr(self, name)
+            if not (math.isfinite(v) and v > 0.0):
+                raise ValueError(f"gyro {name} must be a finite number > 0, not {v!r}")
+        for name in ("bias_walk_deg2_per_s3", "bandwidth_hz", "max_hold_s"):
+            v = getattr(self, name)
+            if not (math.isfinite(v) and v >= 0.0):
+                raise ValueError(f"gyro {name} must be a finite number >= 0, not {v!r}")
+
+    @property
+    def bias_var(self) -> float:
+        return math.radians(self.bias_sigma_deg_s) ** 2
+
+    @property
+    def walk_var_per_s(self) -> float:
+        """The bias's walk, (rad/s)^2 per second."""
+        return math.radians(1.0) ** 2 * self.bias_walk_deg2_per_s3
+
+    @property
+    def noise_var_per_s(self) -> float:
+        """The heading's angle random walk, rad^2 per second of integration."""
+        return math.radians(self.noise_density_deg_rt_s) ** 2
+
+
+def zupt_var(cfg: GyroConfig, dt_s: float) -> float:
+    """Variance (rad/s)^2 of one standstill reading as a measurement of the bias: white noise
+    of density N averaged over the ``dt_s`` since the previous reading is N^2 / dt, and no
+    reading is independent of the next closer than the sensor's correlation time
+    1 / (2 x bandwidth). The information of a stop so does not depend on the CAN rate."""
+    floor = 0.5 / cfg.bandwidth_hz if cfg.bandwidth_hz > 0.0 else 0.0
+    return cfg.noise_var_per_s / max(dt_s, floor, 1e-3)
+
+
+class GyroIntegrator:
+    """The gyro's angle between two odometry steps (the readings and the wheels arrive at their
+    own rates): each reading closes the interval since the previous one (trapezoid rule, as
+    the wheel decoder integrates speeds); a step takes what was gathered."""
+
+    __slots__ = ("angle", "last_rate", "last_t", "span_s")
+
+    def __init__(self) -> None:
+        self.last_t: float | None = None
+        self.last_rate = 0.0
+        self.angle = 0.0
+        """Integrated reading since the last step, rad (bias included)."""
+        self.span_s = 0.0
+        """The time that angle covers, s (what the bias turned it by is ``bg x span_s``)."""
+
+    def reading(self, t_s: float, rate_rad_s: float, *, standing: bool, max_gap_s: float) -> float:
+        """Take one reading; returns the time since the previous one (0 for the first or after
+        a gap). While the car stands still nothing is integrated: the reading is the bias."""
+        dt = 0.0 if self.last_t is None else t_s - self.last_t
+        if self.last_t is not None and 0.0 < dt <= max_gap_s and not standing:
+            self.angle += 0.5 * (self.last_rate + rate_rad_s) * dt
+            self.span_s += dt
+        self.last_t, self.last_rate = t_s, rate_rad_s
+        return dt if 0.0 < dt <= max_gap_s else 0.0
+
+    def fresh(self, t_s: float, max_age_s: float) -> bool:
+        return self.last_t is not None and abs(t_s - self.last_t) <= max_age_s
+
+    def take(self) -> tuple[float, float]:
+        """The angle gathered since the last step and the time it covers; starts over."""
+        out = (self.angle, self.span_s)
+        self.angle = self.span_s = 0.0
+        return out
+
+
+def gyro_turn(angle_rad: float, span_s: float, bias: float, scale: float) -> float:
+    """The heading change a gyro angle says, its bias removed and its scale applied."""
+    return (angle_rad - bias * span_s) * (1.0 + scale)
+
+
+def fill_gyro_step(
+    x: np.ndarray,
+    d_raw_m: float,
+    d_diff_raw_m: float,
+    d_m: float,
+    dtheta: float,
+    angle_rad: float,
+    span_s: float,
+    var_d_m2: float,
+    cfg: GyroConfig,
+    F: np.ndarray,
+    Q: np.ndarray,
+) -> None:
+    """Fill the state Jacobian ``F`` (identity on entry) and process noise ``Q`` (zeros on
+    entry) of one odometry step whose turn is the gyro's (``gyro_turn``) and whose distance
+    is the wheels' (``d_m`` corrected, ``d_raw_m`` their raw mean, ``d_diff_raw_m`` raw
+    right minus left). The position follows the chord at the mid-point heading
+    (``model.motion_predict``); ``var_d_m2`` is the distance's variance (the two wheels'
+    walks over four). The bias's time walk is not here: it is added for every interval of
+    time, driving or not (``bias_walk``)."""
+    theta = float(x[model.STATE_THETA])
+    mid = theta + 0.5 * dtheta
+    c, s = math.cos(mid), math.sin(mid)
+    bias, scale = float(x[STATE_GYRO_BIAS]), float(x[STATE_GYRO_SCALE])
+    F[0, model.STATE_THETA] = -d_m * s
+    F[1, model.STATE_THETA] = d_m * c
+    # the distance's scale states (true distance = raw x (1 + k) -/+ kd / 2 per wheel)
+    F[0, model.STATE_SCALE] = c * d_raw_m
+    F[1, model.STATE_SCALE] = s * d_raw_m
+    F[0, model.STATE_DIFF] = 0.25 * c * d_diff_raw_m
+    F[1, model.STATE_DIFF] = 0.25 * s * d_diff_raw_m
+    # the turn's: d(dtheta)/d(bg) and d(dtheta)/d(kg); the chord moves with half of it
+    dbg = -span_s * (1.0 + scale)
+    dkg = angle_rad - bias * span_s
+    for j, g in ((STATE_GYRO_BIAS, dbg), (STATE_GYRO_SCALE, dkg)):
+        F[0, j] = -d_m * s * 0.5 * g
+        F[1, j] = d_m * c * 0.5 * g
+        F[model.STATE_THETA, j] = g
+    # noise: the distance along the chord; the gyro's white noise turns the heading and,
+    # through the mid-point, the chord
+    var_th = cfg.noise_var_per_s * span_s * (1.0 + scale) ** 2
+    gd = (c, s, 0.0)
+    gt = (-0.5 * d_m * s, 0.5 * d_m * c, 1.0)
+    for i in range(3):
+        for j in range(3):
+            Q[i, j] = gd[i] * gd[j] * var_d_m2 + gt[i] * gt[j] * var_th
+
+
+def bias_walk(P: np.ndarray, cfg: GyroConfig, dt_s: float) -> None:
+    """The bias's random walk over ``dt_s`` of time (stops included), in place."""
+    if dt_s > 0.0:
+        P[STATE_GYRO_BIAS, STATE_GYRO_BIAS] += cfg.walk_var_per_s * dt_s
+
+
+def zupt_update(
+    x: np.ndarray, P: np.ndarray, rate_rad_s: float, var: float, gate_chi2: float
+) -> float | None:
+    """A standstill reading as a measurement of the bias (h(x) = bg: the true rate is 0), in
+    place, Joseph form. Returns its d^2, or None when gated out (the car was turning while
+    the wheels read zero: creeping below the wheel sensors' lowest speed)."""
+    b = STATE_GYRO_BIAS
+    y = rate_rad_s - float(x[b])
+    S = float(P[b, b]) + var
+    d2 = y * y / S
+    if d2 > gate_chi2:
+        return None
+    k = P[:, b] / S
+    x += k * y
+    n = P.shape[0]
+    A = np.eye(n)
+    A[:, b] -= k
+    P[:, :] = A @ P @ A.T + var * np.outer(k, k)
+    return d2
