@@ -44,21 +44,26 @@ of the turn, weighed by the filter) is not built yet (issue 38 note)."""
 class GyroConfig:
     """The gyro's error model; each default's source is in docs/estimation.md."""
 
-    bias_sigma_deg_s: float = 0.5
-    """Prior 1-sigma of the bias as it reaches the CAN bus. An ESC yaw-rate sensor specifies
-    its zero-rate offset over life and temperature at +-3.75 deg/s (Hyundai/Kia ESC sensor
-    sheet) before the ESC unit's own standstill compensation; MEMS gyros of the same
-    generation +-1-3 deg/s typical. What reaches the bus is compensated at standstill by the
-    ESC unit and moves with temperature after it (below): 0.5 deg/s (1-sigma)."""
+    bias_sigma_deg_s: float = 0.3
+    """Prior 1-sigma of the bias as it reaches the CAN bus. The sensor's own zero-rate offset
+    is specified at up to +-3.75 deg/s over life and temperature (a Hyundai/Kia ESC yaw-rate
+    and lateral-g sensor's sheet), +-1-3 deg/s typical for MEMS gyros (BMI055 +-1 deg/s
+    typical, BMI160 +-3); the stability control trims it at every standstill and while
+    driving straight (it judges under- and oversteer from the yaw rate to a few tenths of a
+    degree per second), so what reaches the bus is that compensation's residual plus what
+    moved since (below): 0.3 deg/s (1-sigma), a judgement from how the ESC uses the signal,
+    not a measured distribution. A car that starts from standstill learns it in its first
+    seconds; one that starts moving carries it as heading uncertainty growing with time."""
     bias_walk_deg2_per_s3: float = 1e-5
-    """The bias's random walk, (deg/s)^2 per second: its temperature coefficient (0.01-0.015
-    deg/s per K for automotive MEMS gyros) times the 10 K an ECU warms in the first 20
-    minutes gives 0.1-0.15 deg/s over 1200 s: (0.1)^2 / 1000 s. The in-run bias instability
-    (1.6-10 deg/h, 0.0005-0.003 deg/s) is far below it."""
-    noise_density_deg_rt_s: float = 0.05
-    """White rate noise, deg/s per root Hz (angle random walk 0.05 deg per root second): an
-    automotive-qualified yaw gyro (ADXRS620 class, 0.05 deg/s/rtHz); consumer MEMS parts are
-    lower (0.004-0.014) but the car's vibration adds to it."""
+    """The bias's random walk, (deg/s)^2 per second: its temperature coefficient (BMI055
+    0.015 deg/s per K, ICM-20602 0.01) times the 10 K an ECU warms in the first 20 minutes
+    gives 0.1-0.15 deg/s over 1200 s: (0.1)^2 / 1000 s. The in-run bias instability (BMI055
+    1.6 deg/h typical, BMI160 6: 0.0005-0.003 deg/s) is far below it."""
+    noise_density_deg_rt_s: float = 0.015
+    """White rate noise, deg/s per root Hz: MEMS gyros of the ESC generation specify
+    0.004-0.014 (ICM-42688 0.0028, ASM330LHH 0.005, BMI160 0.008, BMI055 0.014): the
+    largest, rounded up for the car's vibration. With the whole 50 Hz band in each reading
+    (``reading_var``) that is 0.11 deg/s per reading."""
     scale_sigma: float = 0.02
     """Prior 1-sigma of the scale error: ESC sensors specify non-linearity within +-1 % and
     MEMS sensitivity tolerances of +-1-3 %; a sensor tilted 5 degrees reads cos(5) = 0.4 %
@@ -95,21 +100,35 @@ class GyroConfig:
         return math.radians(self.noise_density_deg_rt_s) ** 2
 
 
-def zupt_var(cfg: GyroConfig, dt_s: float) -> float:
-    """Variance (rad/s)^2 of one standstill reading as a measurement of the bias: white noise
-    of density N averaged over the ``dt_s`` since the previous reading is N^2 / dt, and no
-    reading is independent of the next closer than the sensor's correlation time
-    1 / (2 x bandwidth). The information of a stop so does not depend on the CAN rate."""
-    floor = 0.5 / cfg.bandwidth_hz if cfg.bandwidth_hz > 0.0 else 0.0
-    return cfg.noise_var_per_s / max(dt_s, floor, 1e-3)
+def reading_var(cfg: GyroConfig, dt_s: float) -> float:
+    """Variance (rad/s)^2 of one reading's noise, ``dt_s`` after the previous one. A CAN yaw
+    rate is either the mean over its period (variance N^2 / dt for white noise of density N)
+    or a sample of the sensor's output (its whole band: N^2 x bandwidth); which one a car
+    sends is not written down, so the larger: N^2 x max(bandwidth, 1 / dt). Readings closer
+    than the sensor's correlation time are then not counted as independent (a stop teaches
+    the bias as much at 100 Hz as at 1 / (2 x bandwidth))."""
+    return cfg.noise_var_per_s * max(cfg.bandwidth_hz, 1.0 / max(dt_s, 1e-3))
+
+
+MAX_PENDING = 256
+"""Readings kept while waiting for the wheels to say whether the car stood still around them
+(a wheel step confirms or drops them; wheels that stop arriving cannot make this grow)."""
 
 
 class GyroIntegrator:
     """The gyro's angle between two odometry steps (the readings and the wheels arrive at their
     own rates): each reading closes the interval since the previous one (trapezoid rule, as
-    the wheel decoder integrates speeds); a step takes what was gathered."""
+    the wheel decoder integrates speeds); a step takes what was gathered.
 
-    __slots__ = ("angle", "last_rate", "last_t", "span_s")
+    It also says which readings were taken standing still: those the wheels read zero on
+    both sides of (``wheel_step``). The last reading before the wheels move and the first
+    after they stop are not: below the wheel sensors' lowest speed (about 1 km/h) a car
+    pulling away can already turn."""
+
+    __slots__ = (
+        "angle", "angle_var", "last_rate", "last_t", "last_wheel_t", "pending", "span_s",
+        "standing", "zero_since",
+    )  # fmt: skip
 
     def __init__(self) -> None:
         self.last_t: float | None = None
@@ -118,24 +137,55 @@ class GyroIntegrator:
         """Integrated reading since the last step, rad (bias included)."""
         self.span_s = 0.0
         """The time that angle covers, s (what the bias turned it by is ``bg x span_s``)."""
+        self.angle_var = 0.0
+        """The noise variance of that angle, rad^2 (each reading's variance x its interval^2)."""
+        self.standing = False
+        """The last wheel step read zero: nothing is integrated."""
+        self.last_wheel_t: float | None = None
+        self.zero_since: float | None = None
+        """Start of the wheels' current run of zero steps."""
+        self.pending: list[tuple[float, float, float]] = []
+        """(time, rate, variance) of readings the wheels have not judged yet."""
 
-    def reading(self, t_s: float, rate_rad_s: float, *, standing: bool, max_gap_s: float) -> float:
-        """Take one reading; returns the time since the previous one (0 for the first or after
-        a gap). While the car stands still nothing is integrated: the reading is the bias."""
+    def reading(self, t_s: float, rate_rad_s: float, cfg: GyroConfig) -> None:
+        """Take one reading. While the car stands still nothing is integrated: the reading is
+        the bias. A reading after a gap of more than ``cfg.max_hold_s`` starts over."""
         dt = 0.0 if self.last_t is None else t_s - self.last_t
-        if self.last_t is not None and 0.0 < dt <= max_gap_s and not standing:
-            self.angle += 0.5 * (self.last_rate + rate_rad_s) * dt
-            self.span_s += dt
+        if self.last_t is not None and 0.0 < dt <= cfg.max_hold_s:
+            var = reading_var(cfg, dt)
+            if not self.standing:
+                self.angle += 0.5 * (self.last_rate + rate_rad_s) * dt
+                self.span_s += dt
+                self.angle_var += var * dt * dt
+            self.pending.append((t_s, rate_rad_s, var))
+            del self.pending[:-MAX_PENDING]
         self.last_t, self.last_rate = t_s, rate_rad_s
-        return dt if 0.0 < dt <= max_gap_s else 0.0
 
     def fresh(self, t_s: float, max_age_s: float) -> bool:
         return self.last_t is not None and abs(t_s - self.last_t) <= max_age_s
 
-    def take(self) -> tuple[float, float]:
-        """The angle gathered since the last step and the time it covers; starts over."""
-        out = (self.angle, self.span_s)
-        self.angle = self.span_s = 0.0
+    def wheel_step(self, t_s: float, zero: bool) -> list[tuple[float, float]]:
+        """The wheels' step ending at ``t_s`` (``zero``: both read nothing): the (rate,
+        variance) of the readings it confirms were taken standing still, strictly inside the
+        run of zero steps; the readings it shows were not are dropped."""
+        start, self.last_wheel_t = self.last_wheel_t, t_s
+        self.standing = zero
+        if not zero:
+            self.zero_since = None
+            self.pending = [r for r in self.pending if r[0] > t_s]
+            return []
+        if self.zero_since is None:
+            self.zero_since = start if start is not None else t_s
+        since = self.zero_since
+        out = [(r, v) for (t, r, v) in self.pending if since <= t < t_s]
+        self.pending = [q for q in self.pending if q[0] >= t_s]
+        return out
+
+    def take(self) -> tuple[float, float, float]:
+        """The angle gathered since the last step, the time it covers and its noise variance;
+        starts over."""
+        out = (self.angle, self.span_s, self.angle_var)
+        self.angle = self.span_s = self.angle_var = 0.0
         return out
 
 
@@ -152,8 +202,8 @@ def fill_gyro_step(
     dtheta: float,
     angle_rad: float,
     span_s: float,
+    angle_var: float,
     var_d_m2: float,
-    cfg: GyroConfig,
     F: np.ndarray,
     Q: np.ndarray,
 ) -> None:
@@ -161,9 +211,10 @@ def fill_gyro_step(
     entry) of one odometry step whose turn is the gyro's (``gyro_turn``) and whose distance
     is the wheels' (``d_m`` corrected, ``d_raw_m`` their raw mean, ``d_diff_raw_m`` raw
     right minus left). The position follows the chord at the mid-point heading
-    (``model.motion_predict``); ``var_d_m2`` is the distance's variance (the two wheels'
-    walks over four). The bias's time walk is not here: it is added for every interval of
-    time, driving or not (``bias_walk``)."""
+    (``model.motion_predict``); ``angle_var`` is the gyro angle's noise variance
+    (``GyroIntegrator``), ``var_d_m2`` the distance's (the two wheels' walks over four).
+    The bias's time walk is not here: it is added for every interval of time, driving or
+    not (``bias_walk``)."""
     theta = float(x[model.STATE_THETA])
     mid = theta + 0.5 * dtheta
     c, s = math.cos(mid), math.sin(mid)
@@ -184,7 +235,7 @@ def fill_gyro_step(
         F[model.STATE_THETA, j] = g
     # noise: the distance along the chord; the gyro's white noise turns the heading and,
     # through the mid-point, the chord
-    var_th = cfg.noise_var_per_s * span_s * (1.0 + scale) ** 2
+    var_th = angle_var * (1.0 + scale) ** 2
     gd = (c, s, 0.0)
     gt = (-0.5 * d_m * s, 0.5 * d_m * c, 1.0)
     for i in range(3):
