@@ -35,12 +35,12 @@ from guidance.app.app import App
 from guidance.app.build import OpenOutputs, open_outputs, session_record
 from guidance.app.checkpoint import INVALID, Checkpointer, resume_from_checkpoint
 from guidance.app.magnetic import declination_deg
-from guidance.core.chance import ChanceSettings
 from guidance.core.messages import GoalUpdate
 from guidance.core.model import heading_to_compass
-from guidance.core.navigator import Landmark, Method, NavigatorConfig
 from guidance.core.pipeline import Input, Pipeline, PipelineConfig
 from guidance.core.pipeline import Outputs as PipelineOutputs
+from guidance.core.plan.chance import ChanceSettings
+from guidance.core.plan.navigator import Landmark, Method, NavigatorConfig
 from guidance.errors import UserError
 from hal_sim.drive_options import DriveOptions, DriveResult, output_settings, wav_has_speech
 from hal_sim.lockstep import LockstepClock, LockstepSink, recognise_now

@@ -23,7 +23,7 @@ from dataclasses import dataclass, field, replace
 
 from drivers.can_odometry import MAX_GAP_S
 from drivers.keyboard import CoDriverLines
-from guidance.core.estimator import RELOCALISED
+from guidance.core.localize.estimator import RELOCALISED
 from guidance.core.messages import (
     Approach,
     HeadingFix,

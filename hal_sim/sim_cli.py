@@ -15,7 +15,7 @@ import sys
 from dataclasses import replace
 from typing import Any
 
-from guidance.core.chance import shown
+from guidance.core.plan.chance import shown
 from hal_sim.drive_options import (
     METHODS,
     DriveOptions,

@@ -41,7 +41,7 @@ from hal_sim.sim_world import SimWorld, landmark_name
 
 if TYPE_CHECKING:
     from guidance.app.app import Source
-    from guidance.core.navigator import Landmark
+    from guidance.core.plan.navigator import Landmark
     from hal_sim.drive_options import DriveOptions
     from landmark_db.recognise import Recogniser
 
@@ -101,7 +101,7 @@ def open_sim_camera(
 ) -> tuple[SimCamera, Recogniser, tuple[Landmark, ...]]:
     """The simulated camera, the real recogniser on a database of the city's landmarks, and
     the navigator's landmark list with the database ids (``guidance sim --camera``)."""
-    from guidance.core.navigator import Landmark
+    from guidance.core.plan.navigator import Landmark
     from hal_sim.sim_camera import build_sim_landmark_db
     from landmark_db.recognise import Recogniser, RecogniserConfig
 

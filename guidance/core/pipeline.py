@@ -23,15 +23,13 @@ from dataclasses import asdict
 import numpy as np
 
 from guidance.core import prompts
-from guidance.core.chance import ChanceWatch, shipped_or_none
-from guidance.core.compass_cal import CompassCalibration, compass_heading_to_theta
-from guidance.core.estimator import LOST_HYSTERESIS, RELOCALISED, PoseEstimator
-from guidance.core.guide import Guide
 from guidance.core.health import (
     CompassJudge,
     DeviceStatus,
     HealthMonitor,
 )
+from guidance.core.localize.compass_cal import CompassCalibration, compass_heading_to_theta
+from guidance.core.localize.estimator import LOST_HYSTERESIS, RELOCALISED, PoseEstimator
 from guidance.core.messages import (
     Approach,
     CompassHeading,
@@ -47,11 +45,13 @@ from guidance.core.messages import (
     TurnCompleted,
     WheelOdometry,
 )
-from guidance.core.navigator import Decision, Navigator
 from guidance.core.pipeline_config import INPUT_KINDS, Input, Outputs, PipelineConfig
 from guidance.core.pipeline_state import PipelineState, Transient
+from guidance.core.plan.chance import ChanceWatch, shipped_or_none
+from guidance.core.plan.guide import Guide
+from guidance.core.plan.navigator import Decision, Navigator
+from guidance.core.plan.turns import TurnDetector
 from guidance.core.snapshot_check import check_snapshot, integer
-from guidance.core.turns import TurnDetector
 
 log = logging.getLogger(__name__)
 
@@ -230,8 +230,8 @@ class Pipeline:
     def _dead_reckon(self, t: float, out: Outputs | None) -> None:
         """Odometry overdue (a CAN dropout, or a frame late) while the heading is known: the
         estimate moves on at the last speed along its heading, widened along the road by what
-        the car could have gained or lost (``guidance.core.odometry_gap``), up to ``t``. Called
-        at each compass reading in the silence and when odometry resumes."""
+        the car could have gained or lost (``guidance.core.localize.odometry_gap``), up to
+        ``t``. Called at each compass reading in the silence and when odometry resumes."""
         last = self.tr.last_odo_t
         rate = self.health.expected.get("odometry")
         if last is None or not rate or not self.config.resume_gap_inflation:

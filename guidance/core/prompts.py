@@ -9,7 +9,7 @@ from __future__ import annotations
 import math
 from enum import StrEnum
 
-from guidance.core.navigator import Decision
+from guidance.core.plan.navigator import Decision
 
 METRES_PER_FOOT = 0.3048
 METRES_PER_MILE = 1609.344

@@ -1,4 +1,4 @@
-"""The intersections ahead (guidance/core/guide.py), fed by hand: the co-driver who reports
+"""The intersections ahead (guidance/core/plan/guide.py), fed by hand: the co-driver who reports
 early, a report during a turn, a changed instruction said as a change, "then", checkpoints."""
 
 from __future__ import annotations

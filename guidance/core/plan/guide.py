@@ -39,14 +39,7 @@ from dataclasses import replace
 import numpy as np
 
 from guidance.core import prompts
-from guidance.core.announce import (
-    WORD_SIGMAS,
-    arrives_before,
-    due_announcements,
-    heading_cannot_tell,
-    heading_sd,
-)
-from guidance.core.estimator import PoseEstimator
+from guidance.core.localize.estimator import PoseEstimator
 from guidance.core.messages import (
     Approach,
     ExitTaken,
@@ -55,9 +48,16 @@ from guidance.core.messages import (
     TurnCompleted,
 )
 from guidance.core.model import wrap_angle
-from guidance.core.navigator import Decision, Navigator
 from guidance.core.pipeline_config import Outputs, PipelineConfig
-from guidance.core.road import Ahead, RoadHistory
+from guidance.core.plan.announce import (
+    WORD_SIGMAS,
+    arrives_before,
+    due_announcements,
+    heading_cannot_tell,
+    heading_sd,
+)
+from guidance.core.plan.navigator import Decision, Navigator
+from guidance.core.plan.road import Ahead, RoadHistory
 from guidance.core.snapshot_check import integer
 
 log = logging.getLogger(__name__)

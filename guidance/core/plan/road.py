@@ -1,7 +1,7 @@
 """What the car keeps about the road (pure): each intersection reported ahead (``Ahead``, a
 checkpoint's plain data), and the estimate along the road behind it (``RoadHistory``: where the
 car was when it got somewhere, whether it is on a road or in a turn, the road's heading).
-``guidance.core.guide`` decides and speaks with them."""
+``guidance.core.plan.guide`` decides and speaks with them."""
 
 from __future__ import annotations
 
@@ -11,7 +11,7 @@ from collections.abc import Mapping
 from dataclasses import asdict, dataclass, field, fields
 
 from guidance.core.model import wrap_angle
-from guidance.core.navigator import Decision, ExitOption
+from guidance.core.plan.navigator import Decision, ExitOption
 from guidance.core.snapshot_check import check_decision, integer, number
 
 HISTORY_M = 120.0
