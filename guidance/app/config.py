@@ -19,7 +19,7 @@ import math
 import tomllib
 import types
 from collections.abc import Mapping
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any
 
@@ -42,6 +42,7 @@ from guidance.core.geo import Origin
 from guidance.core.health import HealthConfig
 from guidance.core.localize.car_model import car_model
 from guidance.core.localize.estimator import EstimatorConfig
+from guidance.core.localize.gyro import GyroConfig
 from guidance.core.pipeline import PipelineConfig
 from guidance.core.plan.chance import ChanceSettings
 from guidance.core.plan.navigator import Landmark
@@ -410,6 +411,10 @@ def parse_config(
     if noise_model == "car":
         calibrated = bool(any(deviation) or mounting)
         est_config = car_model(est_config, calibrated=calibrated, **car_overrides)
+        if vehicle.yaw_source == "gyro":
+            est_config = replace(est_config, gyro=GyroConfig())
+    elif vehicle.yaw_source == "gyro":
+        raise UserError('[vehicle] yaw_source = "gyro" needs [estimator] model = "car"')
     pipeline = PipelineConfig(
         estimator=est_config,
         navigator=nav.navigator(),

@@ -14,6 +14,7 @@ from pathlib import Path
 
 from guidance.app.backends import SCENE_BACKENDS
 from guidance.config_tables import Rule, field_default, from_table, rule
+from guidance.core.localize.gyro import YAW_SOURCES
 from guidance.core.pipeline_config import PipelineConfig
 from guidance.core.plan.navigator import Method, NavigatorConfig
 from guidance.core.prompts import Units
@@ -132,6 +133,10 @@ class VehicleSettings:
     id: str = "car1"
     track_m: float | None = field(default=None, metadata=rule(positive=True))
     """None: the ``[odometry] profile``'s track width."""
+    yaw_source: str = field(default="wheels", metadata=rule(choices=YAW_SOURCES))
+    """What turns the heading: "wheels" (the rear wheels' left/right difference) or "gyro"
+    (the stability control's yaw-rate sensor; the car model with its bias and scale as
+    states, docs/estimation.md)."""
 
 
 @dataclass(frozen=True, slots=True)

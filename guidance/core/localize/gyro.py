@@ -27,6 +27,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from guidance.core import model
+from guidance.core.messages import WheelOdometry, YawRate
 
 STATE_GYRO_BIAS = model.N_STATE_CAR
 """The gyro's bias, rad/s: it reads ``omega_true / (1 + kg) + bg``."""
@@ -34,6 +35,10 @@ STATE_GYRO_SCALE = model.N_STATE_CAR + 1
 """The gyro's scale error ``kg``: the true heading change is ``(gyro angle - bg dt)(1 + kg)``."""
 N_STATE_GYRO = model.N_STATE_CAR + 2
 """The car model's state with the gyro's two (a car whose yaw comes from its gyro)."""
+
+MAX_RATE_RAD_S = 5.0
+"""About 290 deg/s, beyond the measuring range of ESC yaw-rate sensors (100-300 deg/s): a
+larger reading is a unit mistake or a damaged frame, refused."""
 
 YAW_SOURCES = ("wheels", "gyro")
 """``[vehicle] yaw_source``: where the heading change comes from. "both" (each a measurement
@@ -74,6 +79,9 @@ class GyroConfig:
     max_hold_s: float = 0.5
     """A reading older than this does not turn the heading: the step falls back to the
     wheels' left/right difference (counted), as before the first reading."""
+    gate_chi2: float = model.CHI2_1D_P999
+    """A standstill reading further than this (d^2, 1 dof, P = 0.999) from the bias is not
+    used: the car was turning while its wheels read zero."""
 
     def __post_init__(self) -> None:
         for name in ("bias_sigma_deg_s", "scale_sigma", "noise_density_deg_rt_s"):
@@ -268,3 +276,64 @@ def zupt_update(
     A[:, b] -= k
     P[:, :] = A @ P @ A.T + var * np.outer(k, k)
     return d2
+
+
+def take_reading(g: GyroIntegrator, P: np.ndarray, msg: YawRate, cfg: GyroConfig) -> str | None:
+    """One reading into ``g`` (the bias walks in ``P`` with the time since the previous
+    one); returns why it was refused, or None."""
+    rate = msg.yaw_rate_rad_s
+    if not math.isfinite(rate):
+        return "non_finite_input"
+    if abs(rate) > MAX_RATE_RAD_S:
+        return "implausible_yaw_rate"
+    before = g.last_t
+    g.reading(msg.t_s, rate, cfg)
+    if before is not None and msg.t_s > before:
+        bias_walk(P, cfg, msg.t_s - before)
+    return None
+
+
+@dataclass(frozen=True, slots=True)
+class BeforeStep:
+    turned: tuple[float, float, float] | None
+    """(angle, span, variance) the gyro gathered; None: no fresh reading, the wheels turn."""
+    standstill: int
+    """Standstill readings that updated the bias."""
+    gated: int
+    """Standstill readings refused by the gate."""
+
+
+def before_step(
+    g: GyroIntegrator, x: np.ndarray, P: np.ndarray, msg: WheelOdometry, cfg: GyroConfig
+) -> BeforeStep:
+    """Before an odometry step: the standstill readings its wheels confirm update the bias
+    (``zupt_update``, in place), then what the gyro gathered for the step."""
+    zero = msg.d_left_m == 0.0 and msg.d_right_m == 0.0
+    used = gated = 0
+    for rate, var in g.wheel_step(msg.t_s, zero):
+        if zupt_update(x, P, rate, var, cfg.gate_chi2) is None:
+            gated += 1
+        else:
+            used += 1
+    turned = g.take()
+    return BeforeStep(turned if g.fresh(msg.t_s, cfg.max_hold_s) else None, used, gated)
+
+
+def gyro_step(
+    x: np.ndarray,
+    raw_l_m: float,
+    raw_r_m: float,
+    d_m: float,
+    turned: tuple[float, float, float],
+    var_wheels_m2: float,
+) -> tuple[float, np.ndarray, np.ndarray]:
+    """The heading change, state Jacobian and process noise of an odometry step turned by the
+    gyro (``turned``: ``GyroIntegrator.take``), its distance ``d_m`` the wheels' (corrected;
+    ``var_wheels_m2`` the two wheels' variances summed)."""
+    angle, span, angle_var = turned
+    n = x.shape[0]
+    dth = gyro_turn(angle, span, float(x[STATE_GYRO_BIAS]), float(x[STATE_GYRO_SCALE]))
+    F, Q = np.eye(n), np.zeros((n, n))
+    fill_gyro_step(x, 0.5 * (raw_l_m + raw_r_m), raw_r_m - raw_l_m, d_m, dth, angle, span,
+                   angle_var, 0.25 * var_wheels_m2, F, Q[:3, :3])  # fmt: skip
+    return dth, F, Q

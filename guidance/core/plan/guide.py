@@ -438,9 +438,7 @@ class Guide:
             self.last_decision = new
             out.decisions.append(new)
 
-    def announce(
-        self, t_s: float, odometer_m: float, out: Outputs, est: PoseEstimator
-    ) -> None:
+    def announce(self, t_s: float, odometer_m: float, out: Outputs, est: PoseEstimator) -> None:
         """What is due for the next intersection still ahead of the car."""
         i, a = self._announce_target(odometer_m)
         if a is None or a.decision is None:
