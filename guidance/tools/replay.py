@@ -475,8 +475,8 @@ def _replay_raw(
         pcfg = replace(pcfg, expected_rates_hz=rates)
     streams: list[Iterator[Any]] = [can_inputs(path, setup.profile)]
     if is_odometry_csv(path):  # a car's own speed and yaw rate (issue 38)
-        est = pcfg.estimator
-        streams = [odometry_inputs(path, gyro=est.gyro is not None, track_m=est.track_m)]
+        ecfg = pcfg.estimator
+        streams = [odometry_inputs(path, gyro=ecfg.gyro is not None, track_m=ecfg.track_m)]
     if args.nmea is not None:
         streams.append(nmea_inputs(args.nmea, _first_can_time(path), args.nmea_rate))
     merged = heapq.merge(*streams, key=lambda m: m.t_s)

@@ -3,6 +3,7 @@ whose whitened error is a persistent draw plus independent samples."""
 
 from __future__ import annotations
 
+import itertools
 import math
 
 import numpy as np
@@ -32,7 +33,7 @@ def test_the_limits_are_zero_and_e_to_the_minus_two() -> None:
     assert bars.below_half_fraction(1.0) == pytest.approx(math.exp(-2.0))
     assert bars.below_half_fraction(0.0) == 0.0
     fractions = [bars.below_half_fraction(r) for r in np.linspace(0.0, 1.0, 21)]
-    assert all(b >= a for a, b in zip(fractions, fractions[1:], strict=False))
+    assert all(b >= a for a, b in itertools.pairwise(fractions))
     with pytest.raises(ValueError):
         bars.below_half_fraction(1.2)
 
