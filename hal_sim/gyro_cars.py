@@ -18,7 +18,8 @@ a car stops with probability ``STOP_PROBABILITY`` for a time uniform in ``STOP_S
 signals run 60-120 s cycles with about half of it red for a given approach, and a car that
 arrives at a random moment waits a uniform part of the red (0-60 s); most intersections of a
 grid are signalised or yield. While it stands, its wheels read zero and its gyro reads its
-bias plus noise.
+bias plus noise. A drive with stops also starts from a parked car (the operator sets the start
+where the car stands), for a time drawn from the same range.
 """
 
 from __future__ import annotations

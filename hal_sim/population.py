@@ -43,7 +43,14 @@ from guidance.core.model import CHI2_2D_2SIGMA, mahalanobis_sq_2d, wrap_angle
 from guidance.core.pipeline import Pipeline, PipelineConfig
 from guidance.core.plan.navigator import NavigatorConfig
 from hal_sim import world as world_mod
-from hal_sim.gyro_cars import GYRO_BIAS_T4, GYRO_SCALE_T4, GyroErrors, GyroSim, stop_for
+from hal_sim.gyro_cars import (
+    GYRO_BIAS_T4,
+    GYRO_SCALE_T4,
+    STOP_S,
+    GyroErrors,
+    GyroSim,
+    stop_for,
+)
 from hal_sim.params import SimParams, estimator_config
 from hal_sim.provenance import wilson_pair
 from hal_sim.sim_world import SimWorld, WorldSpec
@@ -229,7 +236,7 @@ def drive_car(
     filter's calibrated compass prior; ``errors`` are then the card's residuals);
     ``filter_overrides``: car-model settings other than the shipped ones (a sensitivity);
     ``duration_s``: drive for this long (stops included) instead of ``distance_m``;
-    ``stops``: stand at intersections (``hal_sim.gyro_cars.stop_for``)."""
+    ``stops``: start from a parked car and stand at intersections (``hal_sim.gyro_cars``)."""
     rng = np.random.default_rng([seed, 99])
     sim = SimParams()
     est0 = estimator_config(sim, 20.0 if compass else None)
@@ -272,6 +279,8 @@ def drive_car(
     gyro = None if errors.gyro is None else GyroSim(errors.gyro, np.random.default_rng([seed, 97]))
     stop_rng = np.random.default_rng([seed, 96])
     t_off = 0.0  # time stood still: the world's clock does not run while the car stands
+    if stops:  # the drive starts from a parked car (the operator sets the start there)
+        t_off = _stand(p, gyro, 0.0, float(stop_rng.uniform(*STOP_S)), dt)
     while (world.driven_m < distance_m) if duration_s is None else (world.t_s + t_off < duration_s):
         ev = world.step()
         wait = 0.0
@@ -326,11 +335,7 @@ def drive_car(
                 res.lost_at_m = world.driven_m
                 if stop_when_lost:
                     break
-        for k in range(1, round(wait / dt) + 1):  # standing: wheels read zero, the gyro its bias
-            if gyro is not None:
-                p.feed(YawRate(t + k * dt, gyro.reading(0.0, dt)))
-            p.feed(WheelOdometry(t + k * dt, 0.0, 0.0))
-        t_off += round(wait / dt) * dt
+        t_off += _stand(p, gyro, t, wait, dt)
     res.driven_m = world.driven_m
     res.duration_s = world.t_s + t_off
     xe = p.estimator.x
@@ -340,6 +345,17 @@ def drive_car(
         p.estimator, "sim", world.t_s, world.driven_m, learned
     )
     return res
+
+
+def _stand(p: Pipeline, gyro: GyroSim | None, t0: float, seconds: float, dt: float) -> float:
+    """The car stands still from ``t0`` for ``seconds``: its wheels read zero, its gyro its
+    bias and noise. Returns the time stood (whole steps)."""
+    n = round(seconds / dt)
+    for k in range(1, n + 1):
+        if gyro is not None:
+            p.feed(YawRate(t0 + k * dt, gyro.reading(0.0, dt)))
+        p.feed(WheelOdometry(t0 + k * dt, 0.0, 0.0))
+    return n * dt
 
 
 def _sample(res: CarResult, p: Pipeline, x: float, y: float, th: float) -> None:
