@@ -6,8 +6,8 @@ gives for the number of cars, and the mean NEES band. Then four populations per 
 (wheel cars, gyro cars), each driven 1.5 km and, with ``--minutes``, that long, from a parked
 start and with stops at intersections (a gyro's error grows with time, stops included): cars
 drawn from the filter's own priors (the yardstick: mean NEES in its band, cars below 50 % in
-the closed form's interval) and the heavier-tailed cars (t4: inside 80-95 %, no more cars below 50 % than the matched filter).
-Every line prints the measured figure beside its bar.
+the closed form's interval) and the heavier-tailed cars (t4: inside 80-95 %, no more cars
+below 50 % than the matched filter). Every line prints the measured figure beside its bar.
 
     .venv/bin/python benchmarks/honest_bars.py [--cars 200] [--seed 1] [--minutes 20]
         [--kinds wheels,gyro] [--closed-form-only]
