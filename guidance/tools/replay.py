@@ -33,7 +33,7 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 from guidance import files
-from guidance.core.messages import CompassHeading, WheelOdometry
+from guidance.core.messages import CompassHeading, WheelOdometry, YawRate
 from guidance.errors import UserError
 from guidance.tools.odometry_csv import first_time, is_odometry_csv, odometry_inputs
 from guidance.tools.replay_mcap import (
@@ -98,6 +98,18 @@ def can_inputs(path: Path, profile: str) -> Iterator[WheelOdometry]:
     from drivers.can_odometry import LogReadResult, read_can_log
 
     decoder = WheelSpeedDecoder(profile)
+    for msg in read_can_log(path, LogReadResult()):
+        out = decoder.feed(msg)
+        if out is not None:
+            yield out
+
+
+def can_yaw_inputs(path: Path, profile: str) -> Iterator[YawRate]:
+    """The stability control's yaw rate of a CAN log (``drivers.can_yaw``): a gyro car's."""
+    from drivers.can_odometry import LogReadResult, read_can_log
+    from drivers.can_yaw import YawRateDecoder
+
+    decoder = YawRateDecoder(profile)
     for msg in read_can_log(path, LogReadResult()):
         out = decoder.feed(msg)
         if out is not None:
@@ -474,6 +486,9 @@ def _replay_raw(
         rates = {k: v for k, v in pcfg.expected_rates_hz.items() if k != "compass"}
         pcfg = replace(pcfg, expected_rates_hz=rates)
     streams: list[Iterator[Any]] = [can_inputs(path, setup.profile)]
+    if pcfg.estimator.gyro is not None and not is_odometry_csv(path):
+        streams.append(can_yaw_inputs(path, setup.profile))  # before the odometry of its time
+        streams.reverse()
     if is_odometry_csv(path):  # a car's own speed and yaw rate (issue 38)
         ecfg = pcfg.estimator
         streams = [odometry_inputs(path, gyro=ecfg.gyro is not None, track_m=ecfg.track_m)]
