@@ -5,7 +5,7 @@ estimator's ``YawRate`` (rad/s, counter-clockwise positive).
 The sign: the profiles' signals read counter-clockwise (left turn) positive as opendbc
 documents them; checked on the shared Toyota RAV4 log, whose ``KINEMATICS.YAW_RATE``
 follows the truth's yaw rate (correlation +0.85 over 1 s means on a straight drive). Frames
-that do not decode, or whose rate is beyond ``gyro.MAX_RATE_RAD_S``, are counted and dropped.
+that do not decode, or whose rate is beyond ``MAX_RATE_RAD_S``, are counted and dropped.
 """
 
 from __future__ import annotations
@@ -17,11 +17,13 @@ from typing import Any
 import can
 
 from drivers.profiles import get_profile, load_dbc
-from guidance.core.localize.gyro import MAX_RATE_RAD_S
 from guidance.core.messages import YawRate
 from guidance.errors import UserError
 
 UNIT_TO_RAD_S = {"deg/s": math.pi / 180.0, "rad/s": 1.0}
+MAX_RATE_RAD_S = 5.0
+"""About 290 deg/s, beyond the measuring range of ESC yaw-rate sensors (100-300 deg/s): a
+damaged frame (the estimator refuses the same, ``guidance.core.localize.gyro``)."""
 
 
 class YawRateDecoder:
