@@ -30,6 +30,7 @@ from guidance.core.health import (
 )
 from guidance.core.localize.compass_cal import CompassCalibration, compass_heading_to_theta
 from guidance.core.localize.estimator import LOST_HYSTERESIS, RELOCALISED, PoseEstimator
+from guidance.core.localize.odometry_gap import placeable_s
 from guidance.core.messages import (
     Approach,
     CompassHeading,
@@ -49,7 +50,7 @@ from guidance.core.messages import (
 from guidance.core.pipeline_config import INPUT_KINDS, Input, Outputs, PipelineConfig
 from guidance.core.pipeline_state import PipelineState, Transient
 from guidance.core.plan.chance import ChanceWatch, shipped_or_none
-from guidance.core.plan.guide import Guide
+from guidance.core.plan.guide import SAME_PLACE_M, Guide
 from guidance.core.plan.navigator import Decision, Navigator
 from guidance.core.plan.turns import TurnDetector
 from guidance.core.snapshot_check import check_snapshot, integer
@@ -79,6 +80,11 @@ DR_AFTER_PERIODS = 3.0
 it comes: a stale estimate with a tight ellipse would put the truth outside it."""
 
 
+UNKNOWN_START_SIGMA_M = 10_000.0
+"""A car that starts anywhere (``PipelineConfig.start_unknown``) is somewhere in a city 20 km
+across (the 2-sigma circle): lost from the first step, and any landmark it finds is inside."""
+
+
 class Pipeline:
     """Estimator + navigator + turn detector + health, driven by messages (see module doc)."""
 
@@ -92,6 +98,9 @@ class Pipeline:
         self.tr = Transient()
         if not self.st.heading_known:
             self.estimator.forget_heading()
+        if config.start_unknown:
+            self.st.placed = False
+            self.estimator.inflate_position(2.0 * UNKNOWN_START_SIGMA_M)
         self.navigator = Navigator(config.goal_xy_m, config.navigator, config.landmarks)
         self.chance = ChanceWatch(
             config.chance,
@@ -218,6 +227,9 @@ class Pipeline:
                 log.warning("odometry resumed after %.1f s: dead-reckoned %.0f m at %.1f m/s",
                             gap, self.tr.dr_m, self.st.speed_mps)  # fmt: skip
                 self.counts["odometry_gaps"] += 1
+                self.turns.reset()  # the heading across the gap is judged once, just below
+                placeable = placeable_s(SAME_PLACE_M)  # the gap's bound within "same place"
+                self.guide.after_gap(msg.t_s, msg.t_s - gap, placeable, est, out)
             else:
                 self.st.speed_mps = abs(d_wheels) / gap
         if not long_gap:
@@ -287,6 +299,7 @@ class Pipeline:
             last = self.st.landmark_said.get(str(fix.landmark_id), -math.inf)
             if r.reason == RELOCALISED or was_lost:  # found again: said by the place's name
                 self.counts["relocalisations"] += 1
+                first, self.st.placed = not self.st.placed, True
                 # found: a reset's ellipse (80 m across for a 20 m sight) sits on the lost
                 # hysteresis, so the episode is closed here, not by the axis
                 self.st.lost_said = False
@@ -295,7 +308,8 @@ class Pipeline:
                 how = "reset there" if r.reason == RELOCALISED else "inside the lost ellipse"
                 log.warning("position found again near landmark %d %r (%s)",
                             fix.landmark_id, name, how)  # fmt: skip
-                self._say(out, fix.t_s, prompts.position_found(name), Priority.SAFETY, "found")
+                text = prompts.position_found(name, again=not first)
+                self._say(out, fix.t_s, text, Priority.SAFETY, "found")
             elif fix.t_s - last >= LANDMARK_REPEAT_S:  # a second fix from the same pass: silent
                 self.st.landmark_said[str(fix.landmark_id)] = fix.t_s
                 self._say(out, fix.t_s, prompts.landmark_confirmed(name), Priority.INFO, "landmark")
@@ -309,6 +323,10 @@ class Pipeline:
         if not scene.exit_headings_rad:
             out.accepted, out.reason = False, "no_exits"
             return
+        if not self.st.placed:  # started anywhere, no place found yet: no advice
+            out.accepted, out.reason = False, "position_unknown"
+            self.counts["advice_withheld"] += 1
+            return
         if not self.st.heading_known:  # no advice out of a heading the car does not have
             out.accepted, out.reason = False, "heading_unknown"
             self.counts["advice_withheld"] += 1
@@ -319,6 +337,8 @@ class Pipeline:
         self.guide.report(scene, self.estimator, self.st.odometer_m, out)
 
     def _approach(self, msg: Approach, out: Outputs) -> None:
+        if not self.st.placed:
+            return
         self.guide.approach(msg, self.estimator, self.st.odometer_m, out)
 
     def _turn(self, turn: TurnCompleted, out: Outputs) -> None:
@@ -359,7 +379,10 @@ class Pipeline:
             self.st.uncertain_said = False
         if lost:
             out.lost = True
-            if not self.st.lost_said:
+            if not self.st.lost_said and not self.st.placed:  # started anywhere: not lost
+                self.st.lost_said = True
+                self._say(out, t, prompts.position_unknown(), Priority.SAFETY, "lost")
+            elif not self.st.lost_said:
                 self.st.lost_said = True
                 self.counts["lost_episodes"] += 1
                 searching = self.config.relocalise
