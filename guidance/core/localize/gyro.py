@@ -286,6 +286,8 @@ def take_reading(g: GyroIntegrator, P: np.ndarray, msg: YawRate, cfg: GyroConfig
         return "non_finite_input"
     if abs(rate) > MAX_RATE_RAD_S:
         return "implausible_yaw_rate"
+    if g.last_t is not None and msg.t_s <= g.last_t:  # the integral runs forward only
+        return "gyro_out_of_order"
     before = g.last_t
     g.reading(msg.t_s, rate, cfg)
     if before is not None and msg.t_s > before:

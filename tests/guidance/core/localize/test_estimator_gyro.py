@@ -94,6 +94,8 @@ def test_a_stale_gyro_hands_the_turn_back_to_the_wheels() -> None:
     assert est.x[2] == pytest.approx(50 * 0.01, rel=1e-6)
     assert est.process(YawRate(6.0, math.nan)).reason == "non_finite_input"
     assert est.process(YawRate(6.0, 10.0)).reason == "implausible_yaw_rate"
+    assert est.process(YawRate(6.0, 0.1)).accepted
+    assert est.process(YawRate(5.9, 0.1)).reason == "gyro_out_of_order"
 
 
 def test_a_wheel_car_refuses_a_yaw_rate() -> None:
