@@ -121,6 +121,7 @@ class Pipeline:
             config, self.navigator, self._say, self.counts, lambda: self.st.speed_mps,
             lambda: self.tr.dr_to_t is not None,  # the distance is being dead-reckoned
         )  # fmt: skip
+        self.guide.silent = not self.st.placed  # kept, undecided and unsaid, until placed
 
     # -- the one entry point ----------------------------------------------------------------
     def feed(self, msg: Input) -> Outputs:
@@ -297,9 +298,17 @@ class Pipeline:
             self.navigator.on_landmark_fix(fix.landmark_id, self.estimator.major_axis_m)
             name = next((lm.name for lm in self.config.landmarks if lm.id == fix.landmark_id), "")
             last = self.st.landmark_said.get(str(fix.landmark_id), -math.inf)
-            if r.reason == RELOCALISED or was_lost:  # found again: said by the place's name
+            still_lost = self.estimator.major_axis_m > self.estimator.config.lost_major_axis_m
+            if (r.reason == RELOCALISED or was_lost) and still_lost:
+                # a reset as wide as lost itself (a sighting range over a quarter of the lost
+                # axis: ``landmark_warnings``) finds nothing the driver can use: no "found"
+                self.counts["relocalisations_still_lost"] += 1
+                log.warning("landmark %d found while lost, but its reset is %.0f m across: "
+                            "still lost", fix.landmark_id, self.estimator.major_axis_m)  # fmt: skip
+            elif r.reason == RELOCALISED or was_lost:  # found again: said by the place's name
                 self.counts["relocalisations"] += 1
                 first, self.st.placed = not self.st.placed, True
+                self.guide.silent = False
                 # found: a reset's ellipse (80 m across for a 20 m sight) sits on the lost
                 # hysteresis, so the episode is closed here, not by the axis
                 self.st.lost_said = False
@@ -323,10 +332,6 @@ class Pipeline:
         if not scene.exit_headings_rad:
             out.accepted, out.reason = False, "no_exits"
             return
-        if not self.st.placed:  # started anywhere, no place found yet: no advice
-            out.accepted, out.reason = False, "position_unknown"
-            self.counts["advice_withheld"] += 1
-            return
         if not self.st.heading_known:  # no advice out of a heading the car does not have
             out.accepted, out.reason = False, "heading_unknown"
             self.counts["advice_withheld"] += 1
@@ -337,8 +342,6 @@ class Pipeline:
         self.guide.report(scene, self.estimator, self.st.odometer_m, out)
 
     def _approach(self, msg: Approach, out: Outputs) -> None:
-        if not self.st.placed:
-            return
         self.guide.approach(msg, self.estimator, self.st.odometer_m, out)
 
     def _turn(self, turn: TurnCompleted, out: Outputs) -> None:
@@ -569,6 +572,7 @@ class Pipeline:
         guide = snap.get("guide")
         if isinstance(guide, dict):
             self.guide.restore(guide)
+        self.guide.silent = not self.st.placed
         if isinstance(last, int | float):
             self.tr.last_t = float(last)
             self.tr.last_odo_t = float(last)

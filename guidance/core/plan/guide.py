@@ -126,6 +126,7 @@ class Guide:
         self.last_exit_heading_rad: float | None = None
         """The exit the car took at the last intersection it went through (estimate frame)."""
         self._heading_before_gap = 0.0  # the history's heading at the last odometry step
+        self.silent = False  # the car does not know where it is (started anywhere): no advice
 
     # -- inputs ---------------------------------------------------------------------------------
     def report(
@@ -331,13 +332,11 @@ class Guide:
     ) -> None:
         """Approach roads, decisions (re-evaluated every ``EVAL_EVERY_M`` where the distance is
         known; with none, where the intersection is stays unknown, so only a jump of the
-        estimate re-evaluates it), then what is due to be said."""
-        if not self.ahead:
+        estimate re-evaluates it), then what is due to be said. Nothing while ``silent``."""
+        if not self.ahead or self.silent:
             return
         prev: Ahead | None = None
-        steady_for = self.history.steady_for_m(
-            odometer_m, max(ROAD_STEADY_M, self.history.steady_m)
-        )
+        steady_for = self.history.steady_for_m(odometer_m, max(ROAD_STEADY_M, self.history.steady_m))  # noqa: E501
         steady = steady_for >= self.history.steady_m
         on_road = steady_for >= ROAD_STEADY_M
         for i, a in enumerate(self.ahead[:2]):
