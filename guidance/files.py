@@ -82,6 +82,7 @@ KINDS: dict[str, Kind] = {
     "can_log": Kind("CAN log", 4 * GIB),
     "nmea_log": Kind("NMEA log", 1 * GIB),
     "truth_csv": Kind("truth or track CSV", 128 * MIB),
+    "odometry_csv": Kind("speed and yaw-rate CSV", 128 * MIB),
     "wav": Kind("WAV recording", 512 * MIB),
 }
 """Size limits, each far above what the product writes of the kind and far below what would
@@ -110,6 +111,7 @@ READERS: dict[str, str] = {
     "guidance.tools.replay.nmea_inputs": "nmea_log",
     "landmark_db.survey.read_nmea": "nmea_log",
     "guidance.tools.evaluate._read_columns": "truth_csv",
+    "guidance.tools.odometry_csv.read_odometry_csv": "odometry_csv",
     "landmark_db.inputs.open_csv": "landmark_csv",
     "landmark_db.inputs.read_photo": "photo",
     "drivers.speech_grammar.read_wav_16k": "wav",

@@ -45,6 +45,7 @@ from guidance.core.geo import LatLon, Origin
 from guidance.core.health import HealthConfig
 from guidance.core.localize.car_model import car_model
 from guidance.core.localize.estimator import EstimatorConfig
+from guidance.core.localize.gyro import GyroConfig
 from guidance.core.pipeline import PipelineConfig
 from guidance.core.plan.chance import ChanceSettings
 from guidance.core.plan.navigator import Landmark, NavigatorConfig
@@ -223,7 +224,7 @@ def _relocalise(
 
 
 def _estimator(
-    data: object, track_m: float, *, compass: bool, calibrated: bool
+    data: object, track_m: float, *, compass: bool, calibrated: bool, gyro: bool = False
 ) -> EstimatorConfig:
     """``[estimator]``: ``EstimatorConfig``'s offered fields by their rules, ``model`` (car or
     paper) and ``compass_two_sigma_deg = false`` (no compass). The car model's defaults come
@@ -247,9 +248,12 @@ def _estimator(
     paper = {k: v for k, v in user.items() if k not in car}
     base = replace(EstimatorConfig(), **paper, track_m=track_m, compass_two_sigma_deg=sigma)
     if model != "car":
+        if gyro:
+            raise UserError('[vehicle] yaw_source = "gyro" needs [estimator] model = "car"')
         return base
     overrides = {k: v for k, v in user.items() if k in car or k == "initial_position_sigma_m"}
-    return car_model(base, calibrated=calibrated, **overrides)
+    est = car_model(base, calibrated=calibrated, **overrides)
+    return replace(est, gyro=GyroConfig()) if gyro else est  # [vehicle] yaw_source = "gyro"
 
 
 def _compass(
@@ -402,7 +406,7 @@ def parse_config(
     pipeline = _compass(pipeline, t["compass"], compass, origin, default_date)
     calibrated = bool(any(pipeline.compass_deviation_deg) or pipeline.mounting_offset_deg)
     estimator = _estimator(t["estimator"], _track_m(vehicle, odometry), compass=compass is not None,
-                           calibrated=calibrated)  # fmt: skip
+                           calibrated=calibrated, gyro=vehicle.yaw_source == "gyro")  # fmt: skip
     if estimator.compass_two_sigma_deg is None and trip.start.heading_deg is None:
         raise UserError(
             "[start] heading_deg is required when there is no compass (or "

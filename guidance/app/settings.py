@@ -17,6 +17,7 @@ from pathlib import Path
 from guidance.app.backends import SCENE_BACKENDS
 from guidance.config_tables import from_table, like, rule
 from guidance.core.localize.estimator import EstimatorConfig
+from guidance.core.localize.gyro import YAW_SOURCES
 from guidance.core.pipeline_config import (
     COORDINATE,
     MAX_STATE_PERIOD_S,
@@ -167,6 +168,10 @@ class VehicleSettings:
         default=None, metadata=like(EstimatorConfig, "track_m", read=True)
     )
     """None: the ``[odometry] profile``'s track width."""
+    yaw_source: str = field(default="wheels", metadata=rule(choices=YAW_SOURCES))
+    """What turns the heading: "wheels" (the rear wheels' left/right difference) or "gyro"
+    (the stability control's yaw-rate sensor; the car model with its bias and scale as
+    states, docs/estimation.md)."""
 
 
 @dataclass(frozen=True, slots=True)

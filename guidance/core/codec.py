@@ -26,6 +26,7 @@ from guidance.core.messages import (
     LandmarkFix,
     TurnCompleted,
     WheelOdometry,
+    YawRate,
 )
 from guidance.errors import checked_number
 
@@ -38,6 +39,7 @@ InputMessage = (
     | TurnCompleted
     | Approach
     | GoalUpdate
+    | YawRate
 )
 
 TOPICS: dict[type, str] = {
@@ -49,6 +51,7 @@ TOPICS: dict[type, str] = {
     TurnCompleted: "/scene",
     Approach: "/approach",
     GoalUpdate: "/goal",
+    YawRate: "/yaw_rate",
 }
 """Message type -> the topic it is recorded on (the one table)."""
 

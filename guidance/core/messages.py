@@ -26,6 +26,15 @@ class WheelOdometry:
 
 
 @dataclass(frozen=True, slots=True)
+class YawRate:
+    """The car's yaw-rate sensor (the stability control's gyro, on CAN): rad/s,
+    counter-clockwise positive, as read (bias and scale error included)."""
+
+    t_s: float
+    yaw_rate_rad_s: float
+
+
+@dataclass(frozen=True, slots=True)
 class CompassHeading:
     """A compass reading as it comes off the wire: degrees clockwise from north.
 

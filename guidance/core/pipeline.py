@@ -45,6 +45,7 @@ from guidance.core.messages import (
     Target,
     TurnCompleted,
     WheelOdometry,
+    YawRate,
 )
 from guidance.core.pipeline_config import INPUT_KINDS, Input, Outputs, PipelineConfig
 from guidance.core.pipeline_state import PipelineState, Transient
@@ -144,6 +145,9 @@ class Pipeline:
             out.accepted, out.reason = False, "finished"
         elif isinstance(msg, WheelOdometry):
             self._odometry(msg, out)
+        elif isinstance(msg, YawRate):  # gathered for the next odometry step
+            r = self.estimator.process(msg)
+            out.accepted, out.reason = r.accepted, r.reason
         elif isinstance(msg, CompassHeading):
             self._heading(self.compass_fix(msg), out)
         elif isinstance(msg, HeadingFix):

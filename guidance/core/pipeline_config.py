@@ -25,6 +25,7 @@ from guidance.core.messages import (
     Prompt,
     TurnCompleted,
     WheelOdometry,
+    YawRate,
 )
 from guidance.core.plan.chance import ChanceSettings
 from guidance.core.plan.navigator import Decision, Landmark, NavigatorConfig
@@ -37,6 +38,7 @@ status flips."""
 
 INPUT_KINDS: dict[type, str] = {
     WheelOdometry: "odometry",
+    YawRate: "gyro",
     CompassHeading: "compass",
     HeadingFix: "compass",
     LandmarkFix: "landmark",

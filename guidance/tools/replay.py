@@ -33,8 +33,9 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 from guidance import files
-from guidance.core.messages import CompassHeading, WheelOdometry
+from guidance.core.messages import CompassHeading, WheelOdometry, YawRate
 from guidance.errors import UserError
+from guidance.tools.odometry_csv import first_time, is_odometry_csv, odometry_inputs
 from guidance.tools.replay_mcap import (
     PROCESSED_TOPICS,
     RAW_TOPICS,
@@ -103,8 +104,24 @@ def can_inputs(path: Path, profile: str) -> Iterator[WheelOdometry]:
             yield out
 
 
-def _first_can_time(path: Path) -> float:
+def can_yaw_inputs(path: Path, profile: str) -> Iterator[YawRate]:
+    """The stability control's yaw rate of a CAN log (``drivers.can_yaw``): a gyro car's."""
     from drivers.can_odometry import LogReadResult, read_can_log
+    from drivers.can_yaw import YawRateDecoder
+
+    decoder = YawRateDecoder(profile)
+    for msg in read_can_log(path, LogReadResult()):
+        out = decoder.feed(msg)
+        if out is not None:
+            yield out
+
+
+def _first_can_time(path: Path) -> float:
+    """The first time of a CAN log, or of a speed and yaw-rate CSV (``odometry_csv``)."""
+    from drivers.can_odometry import LogReadResult, read_can_log
+
+    if is_odometry_csv(path):
+        return first_time(path)
 
     for msg in read_can_log(path, LogReadResult()):
         return float(msg.timestamp)
@@ -300,7 +317,12 @@ def register(sub: Any) -> None:
             "an NMEA text file."
         ),
     )
-    p.add_argument("file", type=Path, help="an .mcap recording (or folder), or a CAN log")
+    p.add_argument(
+        "file",
+        type=Path,
+        help="an .mcap recording (or folder), a CAN log, or a speed and yaw-rate CSV "
+        "(t,speed_mps,yaw_rate_rad_s)",
+    )
     p.add_argument("--nmea", type=Path, default=None, help="an NMEA compass capture to merge")
     p.add_argument(
         "--profile",
@@ -464,6 +486,12 @@ def _replay_raw(
         rates = {k: v for k, v in pcfg.expected_rates_hz.items() if k != "compass"}
         pcfg = replace(pcfg, expected_rates_hz=rates)
     streams: list[Iterator[Any]] = [can_inputs(path, setup.profile)]
+    if pcfg.estimator.gyro is not None and not is_odometry_csv(path):
+        streams.append(can_yaw_inputs(path, setup.profile))  # before the odometry of its time
+        streams.reverse()
+    if is_odometry_csv(path):  # a car's own speed and yaw rate (issue 38)
+        ecfg = pcfg.estimator
+        streams = [odometry_inputs(path, gyro=ecfg.gyro is not None, track_m=ecfg.track_m)]
     if args.nmea is not None:
         streams.append(nmea_inputs(args.nmea, _first_can_time(path), args.nmea_rate))
     merged = heapq.merge(*streams, key=lambda m: m.t_s)

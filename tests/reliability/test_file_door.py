@@ -195,6 +195,17 @@ def _survey_nmea(path: Path) -> object:
     return read_nmea(path)
 
 
+def _odometry_sample() -> bytes:
+    rows = "".join(f"{1500000000 + 0.2 * t:.1f},{5.0 + t * 0.1},{0.01 * t}\n" for t in range(20))
+    return ("t,speed_mps,yaw_rate_rad_s\n" + rows).encode()
+
+
+def _read_odometry_csv(path: Path) -> object:
+    from guidance.tools.odometry_csv import read_odometry_csv
+
+    return read_odometry_csv(path)
+
+
 def _read_columns(path: Path) -> object:
     from guidance.tools.evaluate import read_truth
 
@@ -277,6 +288,9 @@ ADAPTERS: dict[str, Adapter] = {
     "guidance.tools.replay.nmea_inputs": Adapter(_nmea_inputs, _bytes_of(NMEA_LOG), ".log"),
     "landmark_db.survey.read_nmea": Adapter(_survey_nmea, _bytes_of(GPS_LOG), ".log"),
     "guidance.tools.evaluate._read_columns": Adapter(_read_columns, _truth_sample, ".csv"),
+    "guidance.tools.odometry_csv.read_odometry_csv": Adapter(
+        _read_odometry_csv, _odometry_sample, ".csv"
+    ),
     "landmark_db.inputs.open_csv": Adapter(_open_csv, _truth_sample, ".csv"),
     "landmark_db.inputs.read_photo": Adapter(_read_photo, _photo_sample, ".png"),
     "drivers.speech_grammar.read_wav_16k": Adapter(_read_wav, _wav_sample, ".wav"),

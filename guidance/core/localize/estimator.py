@@ -1,11 +1,9 @@
 """Pose estimator: an extended Kalman filter on filterpy (SPEC section 2).
 
-Plain synchronous code with one entry point, ``process(msg)``, which takes a
-timestamped input and returns what happened. No I/O, no clock reads: time comes
-from the messages, so live driving, accelerated simulation and replay run the
-same code. The math lives in ``guidance.model`` (shared with the study engine);
-this module adds bookkeeping: time ordering, gates, counters, health, resets.
-"""
+One entry point, ``process(msg)``: a timestamped input in, what happened out. No I/O, no
+clock reads (time comes from the messages: live, simulated and replayed drives run the same
+code). The math is ``guidance.core.model``'s (shared with the study engine); this module
+adds time ordering, gates, counters, health, resets."""
 
 from __future__ import annotations
 
@@ -18,6 +16,7 @@ import numpy as np
 
 from guidance.config_tables import rule
 from guidance.core import model
+from guidance.core.localize import gyro as gyro_model
 from guidance.core.localize import state_limits
 from guidance.core.localize.measurements import (
     H_heading,
@@ -28,9 +27,16 @@ from guidance.core.localize.measurements import (
     heading_residual,
 )
 from guidance.core.localize.odometry_gap import dead_reckon
-from guidance.core.messages import Ellipse, EstimateState, HeadingFix, LandmarkFix, WheelOdometry
+from guidance.core.messages import (
+    Ellipse,
+    EstimateState,
+    HeadingFix,
+    LandmarkFix,
+    WheelOdometry,
+    YawRate,
+)
 
-EstimatorInput = WheelOdometry | HeadingFix | LandmarkFix
+EstimatorInput = WheelOdometry | HeadingFix | LandmarkFix | YawRate
 _CAR = rule(lo=0.0, group="car")  # a setting of the car model ([estimator] model = "car")
 _FIXED_POSITIVE = rule(positive=True, read=False)  # > 0; recorded, not offered in [estimator]
 
@@ -107,19 +113,25 @@ class EstimatorConfig:
     is ``3/4 |P_xy,theta|^2`` (``E[delta^4] = 3 sigma^4``): this factor times
     ``|P_xy,theta|^2`` is added along the lever as it grows (0.75 in the car model; 0, the
     paper's linear filter). docs/estimation.md, "The second-order heading term"."""
+    gyro: gyro_model.GyroConfig | None = None
+    """The car's yaw-rate sensor turns the heading (``[vehicle] yaw_source = "gyro"``), with
+    its bias and scale as states (``guidance.core.localize.gyro``); None: the wheels do."""
 
     @property
     def car_model(self) -> bool:
-        """True when the persistent errors are states (7-state filter)."""
+        """True when the persistent errors are states (7-state filter, 9 with a gyro)."""
         return (
             self.scale_sigma > 0.0
             or self.diff_sigma > 0.0
             or self.compass_bias_sigma_deg > 0.0
             or self.turn_scale_sigma > 0.0
+            or self.gyro is not None
         )
 
     @property
     def n_state(self) -> int:
+        if self.gyro is not None:
+            return gyro_model.N_STATE_GYRO
         return model.N_STATE_CAR if self.car_model else model.N_STATE
 
 
@@ -177,6 +189,7 @@ class PoseEstimator:
         self.healthy = True
         self._last_t: float | None = None
         self._turn_rad = 0.0
+        self._gyro = gyro_model.GyroIntegrator()
         self.out_of_order_run = 0
         """Inputs rejected in a row for being older than the estimate (a clock that stepped)."""
         self.interference_level = 1.0
@@ -218,6 +231,8 @@ class PoseEstimator:
         if self.n > model.N_STATE:
             sb = math.radians(cfg.compass_bias_sigma_deg)
             diag += [cfg.scale_sigma**2, cfg.diff_sigma**2, sb * sb, cfg.turn_scale_sigma**2]
+        if cfg.gyro is not None:
+            diag += [cfg.gyro.bias_var, cfg.gyro.scale_sigma**2]
         return np.diag(diag)
 
     def set_state(self, x: np.ndarray, P: np.ndarray) -> None:
@@ -382,6 +397,8 @@ class PoseEstimator:
             result = self._update_heading(msg)
         elif isinstance(msg, LandmarkFix):
             result = self._update_landmark(msg)
+        elif isinstance(msg, YawRate):
+            return self._gyro_reading(msg)  # gathered for the next step: moves no state, no time
         else:  # pragma: no cover - typing forbids it
             return self._reject(kind, "unknown_input")
         if result.accepted:
@@ -411,6 +428,7 @@ class PoseEstimator:
         if abs(dl) > cfg.max_wheel_step_m or abs(dr) > cfg.max_wheel_step_m:
             return self._reject(kind, "implausible_odometry")
         car = self.n > model.N_STATE
+        turned = self._gyro_step(msg) if cfg.gyro is not None else None
         x = self._kf.x
         raw_l, raw_r = dl, dr
         track = cfg.track_m
@@ -437,6 +455,8 @@ class PoseEstimator:
             Qc[model.STATE_THETA, model.STATE_THETA] += model.camber_heading_var(
                 d, cfg.camber_diff_sigma, cfg.camber_length_m, cfg.track_m
             )
+            if turned is not None:  # the gyro turns, not the wheels
+                dth, Fc, Qc = gyro_model.gyro_step(x, raw_l, raw_r, d, turned, var_l + var_r)
             dt = 0.0 if self._last_t is None else max(0.0, msg.t_s - self._last_t)
             walk = cfg.compass_bias_walk_deg2_per_s * dt
             self._turn_rad += dth
@@ -463,6 +483,28 @@ class PoseEstimator:
                 P[0, 1] -= g * cx * cy
                 P[1, 0] -= g * cx * cy
         return StepResult(kind, True)
+
+    def _gyro_reading(self, msg: YawRate) -> StepResult:
+        """A yaw-rate reading, gathered until the next odometry step (``gyro.take_reading``)."""
+        cfg = self.config.gyro
+        why = "no_gyro_configured" if cfg is None else None
+        if cfg is not None:
+            why = gyro_model.take_reading(self._gyro, self._kf.P, msg, cfg)
+        if why is not None:
+            return self._reject("YawRate", why)
+        self.accepted["YawRate"] += 1
+        return StepResult("YawRate", True)
+
+    def _gyro_step(self, msg: WheelOdometry) -> tuple[float, float, float] | None:
+        """Before a step: the bias from the standstill readings its wheels confirm, then the
+        gyro's angle or None (``gyro.before_step``)."""
+        assert self.config.gyro is not None
+        out = gyro_model.before_step(self._gyro, self._kf.x, self._kf.P, msg, self.config.gyro)
+        self._kf.x[2] = model.wrap_angle(float(self._kf.x[2]))
+        self.accepted["gyro_standstill"] += out.standstill
+        self.rejections["gyro_standstill_gate"] += out.gated
+        self.accepted["gyro_stale_wheel_turn"] += out.turned is None
+        return out.turned
 
     def _update_heading(self, msg: HeadingFix) -> StepResult:
         cfg = self.config

@@ -21,6 +21,7 @@ from guidance.core.messages import (
     LandmarkFix,
     TurnCompleted,
     WheelOdometry,
+    YawRate,
 )
 
 f = st.floats(allow_nan=False, allow_infinity=False, width=64)
@@ -41,6 +42,7 @@ MESSAGES: dict[type, st.SearchStrategy[Any]] = {
     TurnCompleted: st.builds(TurnCompleted, f, f, text),
     Approach: st.builds(Approach, f, f),
     GoalUpdate: st.builds(GoalUpdate, f, f, f, text),
+    YawRate: st.builds(YawRate, f, f),
 }
 
 

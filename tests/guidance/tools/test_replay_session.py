@@ -37,6 +37,14 @@ def _within(r: Rule, lo: float, hi: float) -> tuple[float, float]:
     return (max(low, 1e-3) if r.positive else low), high
 
 
+def _optional_dataclass(hint: Any) -> type | None:
+    """``X`` of a ``X | None`` hint whose ``X`` is a dataclass, else None."""
+    args = [a for a in typing.get_args(hint) if a is not type(None)]
+    if len(args) == 1 and len(typing.get_args(hint)) == 2 and dataclasses.is_dataclass(args[0]):
+        return args[0] if isinstance(args[0], type) else None
+    return None
+
+
 def _values(cls: type) -> st.SearchStrategy[Any]:
     """Any valid instance of one of the pipeline's config dataclasses, drawn within each
     field's own rule (the one the record is read with)."""
@@ -55,6 +63,8 @@ def _values(cls: type) -> st.SearchStrategy[Any]:
             fields[f.name] = st.none() | st.floats(*_within(r, 1e-3, 1e3))
         elif isinstance(hint, type) and issubclass(hint, Enum):
             fields[f.name] = st.sampled_from(list(hint))
+        elif (inner := _optional_dataclass(hint)) is not None:  # e.g. a gyro car's GyroConfig
+            fields[f.name] = st.none() | _values(inner)
         else:
             raise AssertionError(f"no strategy for {cls.__name__}.{f.name}: {hint}")
     return st.builds(cls, **fields)
