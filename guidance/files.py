@@ -44,6 +44,9 @@ GIB = 1 << 30
 
 MAX_JSON_DEPTH = 64
 """Deepest nesting of arrays and objects: the product's JSON files nest at most 6 deep."""
+MAX_NMEA_LINE_BYTES = 4 * KIB
+"""Longest line of an NMEA log: a sentence is at most 82 characters, under 100 with a time
+stamp before it; a longer line is cut here (``text_lines``) and the parser rejects it."""
 MAX_NUMBER_CHARS = 40
 """Longest JSON number (sign, digits, point, exponent): a float's 17 significant digits and an
 exponent fit in 25; a 400-digit integer is damage, not a value (it overflows a float)."""
