@@ -86,11 +86,13 @@ KINDS: dict[str, Kind] = {
     "nmea_log": Kind("NMEA log", 1 * GIB),
     "truth_csv": Kind("truth or track CSV", 128 * MIB),
     "wav": Kind("WAV recording", 512 * MIB),
+    "zenoh_passwords": Kind("zenoh password dictionary", 64 * KIB),
 }
 """Size limits, each far above what the product writes of the kind and far below what would
 exhaust the car's memory when read whole: a config or a chance table is a few KiB; a learned
 file a few hundred bytes; a checkpoint tens of KiB; a photo a few MiB; a recording and a CAN
-log are streamed (never read whole), bounded by the disk; an NMEA log is read line by line.
+log are streamed (never read whole), bounded by the disk; an NMEA log is read line by line;
+a zenoh password dictionary is a line per user (read only to warn of the example passwords).
 (The landmark database is opened by SQLite, read-only, after ``landmark_db.store.open_db``
 refuses anything but a regular file; the co-driver's lines come from a terminal, bounded by
 ``guidance.core.co_driver.MAX_LINE_CHARS``.)"""
@@ -116,6 +118,7 @@ READERS: dict[str, str] = {
     "landmark_db.inputs.open_csv": "landmark_csv",
     "landmark_db.inputs.read_photo": "photo",
     "drivers.speech_grammar.read_wav_16k": "wav",
+    "guidance.telemetry.example_passwords.dictionary_users": "zenoh_passwords",
 }
 """Every function of the product that opens a file to read, and the kind it reads (the
 functions' own names: ``module.function`` or ``module.Class.method``)."""

@@ -82,9 +82,9 @@ def read_nmea(path: Path) -> GpsTrack:
                     if isinstance(msg, pynmea2.types.talker.RMC):
                         if msg.status == "A" and msg.datestamp and msg.timestamp:
                             when = datetime.combine(msg.datestamp, msg.timestamp)
-                            lat, lon = float(msg.latitude), float(msg.longitude)
+                            la, lo = float(msg.latitude), float(msg.longitude)
                             t0_rmc = when if t0_rmc is None else t0_rmc
-                            rmc.add((when - t0_rmc).total_seconds(), lat, lon)
+                            rmc.add((when - t0_rmc).total_seconds(), la, lo)
                     elif (
                         isinstance(msg, pynmea2.types.talker.GGA)
                         and msg.gps_qual
