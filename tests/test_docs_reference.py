@@ -20,11 +20,13 @@ _ORDINAL = (
     r"|earlier|previous|later|last|next|this|that|each|every|the"
 )
 ROUND_WORDING = re.compile(
-    rf"\b(?:{_ORDINAL})\s+rounds?\b(?!\s+trips?\b)|\brounds?\s+(?:\d+|one|two|three|four|before)\b",
+    rf"\b(?:{_ORDINAL})\s+rounds?\b(?!\s+trips?\b)|\brounds?\s+(?:\d+|one|two|three|four|before)\b"
+    r"|\b(?:this|last|previous|earlier|next)\s+session\b|\bsession\s+before\b",
     re.IGNORECASE,
 )
-"""A round of work named as such ("the third round", "the round before", "round 4"); not a
-round trip, a round robin or a round ellipse."""
+"""A round of work named as such ("the third round", "the round before", "round 4", "the
+last session's change"); not a round trip, a round robin or a round ellipse, nor a zenoh
+session or other sessions' jobs on the machine."""
 
 
 def round_wording(text: str) -> list[str]:
@@ -43,6 +45,8 @@ def test_the_pattern_finds_history_and_not_other_rounds() -> None:
         "The rounds before, in order",
         "Reliability, round 4",
         "the tree before the round",
+        "the last session's change",
+        "the monitor of the session before",
     )
     other = (
         "the round trip is within 1 cm",
@@ -50,6 +54,8 @@ def test_the_pattern_finds_history_and_not_other_rounds() -> None:
         "about 1.7 for a round ellipse",
         "rounds of three publish calls",
         "round(x, 2)",
+        "other sessions' jobs",
+        "each its own zenoh client session",
     )
     assert all(round_wording(t) for t in history)
     assert not any(round_wording(t) for t in other)
