@@ -38,12 +38,13 @@ from guidance.app.settings import (
 )
 from guidance.app.tables import _check_document, _Table
 from guidance.config_tables import field_default, from_table, key_name
-from guidance.core.chance import ChanceSettings
-from guidance.core.estimator import EstimatorConfig, car_model
 from guidance.core.geo import Origin
 from guidance.core.health import HealthConfig
-from guidance.core.navigator import Landmark
+from guidance.core.localize.car_model import car_model
+from guidance.core.localize.estimator import EstimatorConfig
 from guidance.core.pipeline import PipelineConfig
+from guidance.core.plan.chance import ChanceSettings
+from guidance.core.plan.navigator import Landmark
 from guidance.errors import UserError
 from guidance.recording.config import RecordingConfig
 from guidance.telemetry.config import Ros2Config, TelemetryConfig
@@ -196,7 +197,7 @@ def _deviation(value: object) -> tuple[float, ...]:
     """``[compass] deviation_deg = [A, B, C, D, E]`` (``guidance calibrate`` writes it)."""
     if value is None:
         return ()
-    from guidance.core.compass_cal import CompassCalibration
+    from guidance.core.localize.compass_cal import CompassCalibration
 
     if not isinstance(value, list) or len(value) != 5:
         raise UserError("[compass] deviation_deg must be a list of 5 numbers [A, B, C, D, E]")
@@ -283,6 +284,10 @@ def parse_config(
 
     start = _Table("start", data.get("start", {}))
     (sx, sy), origin = _point(start, None)
+    no_position = not any(start.has(k) for k in ("lat_deg", "lon_deg", "x_m", "y_m"))
+    start_unknown = start.boolean("unknown", False)
+    if start_unknown and not no_position:
+        raise UserError("[start] unknown = true and a position: give one or the other")
     start_heading = start.number("heading_deg", None, lo=0.0, hi=360.0)
     """True heading, degrees clockwise from north (None: from the first compass reading)."""
     start.done()
@@ -292,8 +297,12 @@ def parse_config(
     gx = gy = 0.0
     if "goal" in data:
         goal_t = _Table("goal", data["goal"])
-        (gx, gy), _ = _point(goal_t, origin)
+        (gx, gy), goal_geo = _point(goal_t, origin)
         goal_t.done()
+        if no_position and origin is None and goal_geo is not None:
+            origin, start_unknown = goal_geo, True  # start anywhere: the frame is the goal's
+    if start_unknown:
+        sx, sy = gx, gy  # where the estimate waits, city-wide, for the first landmark
 
     nav = from_table(NavigationSettings, data.get("navigation", {}), "navigation")
 
@@ -394,6 +403,12 @@ def parse_config(
     else:  # [[landmarks]]: positions only
         landmarks = _landmarks(data.get("landmarks", []), origin)
 
+    relocalise = camera is not None and landmark_db is not None
+    if start_unknown and not relocalise:
+        raise UserError(
+            "[start] gives no position, so the car must find itself: that needs a camera "
+            "([camera] enabled = true) and a landmark database ([landmarks] database = ...)"
+        )
     rates: dict[str, float | None] = {}
     if odometry is not None:
         rates["odometry"] = odometry.expected_rate_hz
@@ -428,6 +443,8 @@ def parse_config(
         uncertain_warn_m=nav.uncertain_warn_m,
         stop_at_arrival=nav.stop_at_arrival,
         chance=chance,
+        relocalise=relocalise,
+        start_unknown=start_unknown,
     )
     sim = data.get("sim", {})
     if not isinstance(sim, Mapping):

@@ -277,7 +277,7 @@ class ExitTaken:
     source: str
 
 
-# -- the navigator's values (guidance.core.navigator makes them) -----------------------------
+# -- the navigator's values (guidance.core.plan.navigator makes them) -----------------------------
 class Method(StrEnum):
     STRAIGHT_TO_GOAL = "straight_to_goal"
     LANDMARK_TO_LANDMARK = "landmark_to_landmark"

@@ -1,7 +1,7 @@
 """Every prompt the product can say, and the word error rate of a voice over them (issue 39).
 
 ``prompt_corpus`` enumerates the sentences through the functions that write them today
-(``guidance.core.prompts``, ``guidance.core.chance.spoken``, the drivers' spoken warnings, the
+(``guidance.core.prompts``, ``guidance.core.plan.chance.spoken``, the drivers' spoken warnings, the
 operator's and the speech input's sentences), so the intelligibility figure follows any change of
 wording. ``word_error_rate`` compares what a recogniser wrote with what was meant, after
 ``normalise``: numbers as words, British spellings as the recogniser's dictionary writes them
@@ -17,7 +17,7 @@ from collections.abc import Iterable, Sequence
 import numpy as np
 
 from guidance.core import prompts
-from guidance.core.chance import spoken as chance_spoken
+from guidance.core.plan.chance import spoken as chance_spoken
 from guidance.core.prompts import Units
 from guidance.voice.wav import Renderer
 

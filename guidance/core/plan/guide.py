@@ -39,14 +39,7 @@ from dataclasses import replace
 import numpy as np
 
 from guidance.core import prompts
-from guidance.core.announce import (
-    WORD_SIGMAS,
-    arrives_before,
-    due_announcements,
-    heading_cannot_tell,
-    heading_sd,
-)
-from guidance.core.estimator import PoseEstimator
+from guidance.core.localize.estimator import PoseEstimator
 from guidance.core.messages import (
     Approach,
     ExitTaken,
@@ -55,9 +48,16 @@ from guidance.core.messages import (
     TurnCompleted,
 )
 from guidance.core.model import wrap_angle
-from guidance.core.navigator import Decision, Navigator
 from guidance.core.pipeline_config import Outputs, PipelineConfig
-from guidance.core.road import Ahead, RoadHistory
+from guidance.core.plan.announce import (
+    WORD_SIGMAS,
+    arrives_before,
+    due_announcements,
+    heading_cannot_tell,
+    heading_sd,
+)
+from guidance.core.plan.navigator import Decision, Navigator
+from guidance.core.plan.road import Ahead, RoadHistory, announce_target, unplaced_after_gap
 from guidance.core.snapshot_check import integer
 
 log = logging.getLogger(__name__)
@@ -125,6 +125,8 @@ class Guide:
         self._said_at: dict[str, float] = {}
         self.last_exit_heading_rad: float | None = None
         """The exit the car took at the last intersection it went through (estimate frame)."""
+        self._heading_before_gap = 0.0  # the history's heading at the last odometry step
+        self.silent = False  # the car does not know where it is (started anywhere): no advice
 
     # -- inputs ---------------------------------------------------------------------------------
     def report(
@@ -193,6 +195,22 @@ class Guide:
         self._resolve(first, turn.t_s, heading, turn.source, est, out)
         return True
 
+    def after_gap(
+        self, t_s: float, gap_from_s: float, placeable_s: float, est: PoseEstimator, out: Outputs
+    ) -> None:
+        """The wheel speeds are back after a silence (``road.unplaced_after_gap``). One place
+        no longer placed and a turn on the compass meanwhile: the turn was made there. Others
+        cannot be told apart (passed straight, turned at, still ahead): dropped unsaid, never
+        resolved by distance or credited with a later turn."""
+        lost = unplaced_after_gap(self.ahead, gap_from_s, t_s, placeable_s)
+        turned = abs(self.history.unwrapped_rad - self._heading_before_gap)
+        if len(lost) == 1 and turned >= self.config.turn_detector.min_turn_rad:
+            self._resolve(lost[0], t_s, est.heading_rad, "compass_gap", est, out)
+            lost = []
+        for a in lost:
+            self.ahead.remove(a)
+        self.counts["ahead_unplaced_after_gap"] += len(lost)
+
     def replan(self, t_s: float, est: PoseEstimator, odometer_m: float, out: Outputs) -> None:
         """The estimate jumped (a landmark fix) or the goal moved: the decisions ahead are looked
         at again, and may change even once said (``_evaluate``)."""
@@ -210,6 +228,8 @@ class Guide:
         re-evaluation and announcements."""
         x = est.x
         self.history.add(odometer_m, float(x[0]), float(x[1]), est.heading_rad)
+        if not self._reckoning():
+            self._heading_before_gap = self.history.unwrapped_rad
         first = self._first_unresolved()
         if first is not None:
             self._check_resolution(first, t_s, est, odometer_m, turn, out)
@@ -312,13 +332,11 @@ class Guide:
     ) -> None:
         """Approach roads, decisions (re-evaluated every ``EVAL_EVERY_M`` where the distance is
         known; with none, where the intersection is stays unknown, so only a jump of the
-        estimate re-evaluates it), then what is due to be said."""
-        if not self.ahead:
+        estimate re-evaluates it), then what is due to be said. Nothing while ``silent``."""
+        if not self.ahead or self.silent:
             return
         prev: Ahead | None = None
-        steady_for = self.history.steady_for_m(
-            odometer_m, max(ROAD_STEADY_M, self.history.steady_m)
-        )
+        steady_for = self.history.steady_for_m(odometer_m, max(ROAD_STEADY_M, self.history.steady_m))  # noqa: E501
         steady = steady_for >= self.history.steady_m
         on_road = steady_for >= ROAD_STEADY_M
         for i, a in enumerate(self.ahead[:2]):
@@ -438,11 +456,9 @@ class Guide:
             self.last_decision = new
             out.decisions.append(new)
 
-    def announce(
-        self, t_s: float, odometer_m: float, out: Outputs, est: PoseEstimator
-    ) -> None:
+    def announce(self, t_s: float, odometer_m: float, out: Outputs, est: PoseEstimator) -> None:
         """What is due for the next intersection still ahead of the car."""
-        i, a = self._announce_target(odometer_m)
+        i, a = announce_target(self.ahead, odometer_m, PASS_MARGIN_M)
         if a is None or a.decision is None:
             return
         if self._arrives_before(a, est, odometer_m):
@@ -506,20 +522,6 @@ class Guide:
         ahead = a.at_odometer_m - start_odo
         return arrives_before(self.navigator.goal, radius, start, a.approach_heading_rad, ahead)
 
-    def _announce_target(self, odometer_m: float) -> tuple[int, Ahead | None]:
-        """The next intersection still ahead: the first one the car has not reached, once it
-        is ``PASS_MARGIN_M`` past every one before it (a distance is a few metres off; the
-        driver must not hear the next manoeuvre while still at the previous corner)."""
-        for i, a in enumerate(self.ahead):
-            if a.at_odometer_m is not None:
-                if a.at_odometer_m > odometer_m:
-                    return i, a
-                if odometer_m < a.at_odometer_m + PASS_MARGIN_M:
-                    return -1, None
-            elif a.passed_odometer_m is None:  # distance unknown: once the ones before are behind
-                return (i, a) if i == 0 else (-1, None)
-        return -1, None
-
     def _then(
         self, i: int, a: Ahead, est: PoseEstimator, odometer_m: float
     ) -> tuple[float | None, float | None]:
@@ -569,7 +571,7 @@ class Guide:
 
     def next_ahead(self, odometer_m: float) -> tuple[Decision | None, float | None]:
         """The decision for the next intersection still ahead and its distance (None: unknown)."""
-        _i, a = self._announce_target(odometer_m)
+        _i, a = announce_target(self.ahead, odometer_m, PASS_MARGIN_M)
         if a is None:
             return None, None
         dist = None if a.at_odometer_m is None else max(0.0, a.at_odometer_m - odometer_m)
