@@ -55,6 +55,7 @@ from guidance.core.plan.announce import (
     due_announcements,
     heading_cannot_tell,
     heading_sd,
+    too_late,
 )
 from guidance.core.plan.navigator import Decision, Navigator
 from guidance.core.plan.road import Ahead, RoadHistory, announce_target, unplaced_after_gap
@@ -160,8 +161,10 @@ class Guide:
         for a in self.ahead:
             a.frozen = True  # the car is committed to the exits before this one
         self.last_seq = self.reports
+        at_one = any(a.at_odometer_m is not None and abs(a.at_odometer_m - odometer_m)
+                     <= SAME_PLACE_M for a in self.ahead)  # fmt: skip
         item = Ahead(self.reports, scene.t_s, tuple(scene.exit_headings_rad), heading,
-                     relative=not known, at_odometer_m=at)  # fmt: skip
+                     relative=not known, at_odometer_m=at, on_taken_road=at_one)  # fmt: skip
         self.ahead.append(item)
         if at is not None:
             self.ahead.sort(key=lambda a: math.inf if a.at_odometer_m is None else a.at_odometer_m)
@@ -294,7 +297,8 @@ class Guide:
         if not followed:
             self.counts["advice_not_followed"] += 1
             # Intersections reported behind this one were on the road of the advised exit.
-            dropped = [b for b in self.ahead if b.t_s <= t_s and b.at_odometer_m is not None]
+            dropped = [b for b in self.ahead if b.t_s <= t_s and b.at_odometer_m is not None
+                       and not b.on_taken_road]  # fmt: skip
             for b in dropped:
                 self.ahead.remove(b)
             self.counts["ahead_dropped"] += len(dropped)
@@ -362,7 +366,7 @@ class Guide:
         """The heading of the road ``a`` is approached on: the car's own once it has been
         steady on that road for ``ROAD_STEADY_M`` (a turn's tail, a U-turn settling back onto
         the road, must not name the manoeuvre), else the exit chosen at the intersection
-        before it."""
+        before it (not for one reported once the car was there: ``Ahead.on_taken_road``)."""
         on_its_road = prev is None or (
             prev.at_odometer_m is not None and odometer_m > prev.at_odometer_m + 5.0
         )
@@ -371,19 +375,15 @@ class Guide:
             if a.approach_heading_rad is None:
                 if prev is None and steady:
                     a.approach_heading_rad = est.heading_rad
-                elif (
-                    prev is not None
-                    and prev.decision is not None
-                    and prev.passed_odometer_m is None
-                ):
+                elif prev is not None and prev.decision and prev.passed_odometer_m is None:
                     a.approach_heading_rad = prev.decision.exit_heading_rad
             return
         near = a.at_odometer_m is not None and odometer_m >= a.at_odometer_m - 10.0
         if on_its_road and on_road and (a.approach_heading_rad is None or not near):
             a.approach_heading_rad = self.history.road_heading(est.heading_rad)
             a.approach_estimated = True
-        elif prev is not None and prev.decision is not None and a.approach_heading_rad is None:
-            a.approach_heading_rad = prev.decision.exit_heading_rad
+        elif prev and prev.decision and a.approach_heading_rad is None and not a.on_taken_road:
+            a.approach_heading_rad = prev.decision.exit_heading_rad  # (else: the car's own)
         elif prev is None and a.approach_heading_rad is None and steady:
             # Just out of a turn: the exit it took is the road, if the car has kept to it.
             taken = self.last_exit_heading_rad
@@ -486,6 +486,11 @@ class Guide:
             self._speak(a, out, t_s, text, action, changed)
             return
         distance = max(0.0, a.at_odometer_m - odometer_m)
+        if a.said_exit < 0 and too_late(distance, self._speed()):  # (a decision just made)
+            self.counts["too_late_not_said"] += 1  # the driver cannot act on it any more
+            a.said_exit, a.frozen = d.exit_index, True  # held as if said, never changed
+            a.announced.update(("early", "before"))
+            return
         due = due_announcements(distance, self._speed(), a.announced)
         if not due and not changed:
             return
@@ -493,7 +498,8 @@ class Guide:
             a.announced.add(due[0])
             if due[0] == "before":
                 a.frozen = True  # what the driver hears just before is what the car does
-        if straight and not changed and (not due or due[0] == "early"):
+        unsure = est.major_axis_m > self.config.uncertain_warn_m  # the next fix may change it
+        if (straight or unsure) and not changed and (not due or due[0] == "early"):
             return  # straight through needs no early warning (OsmAnd, Organic Maps)
         if straight and not changed and self.last_said == "continue straight":
             self.counts["straight_not_repeated"] += 1
@@ -522,9 +528,7 @@ class Guide:
         ahead = a.at_odometer_m - start_odo
         return arrives_before(self.navigator.goal, radius, start, a.approach_heading_rad, ahead)
 
-    def _then(
-        self, i: int, a: Ahead, est: PoseEstimator, odometer_m: float
-    ) -> tuple[float | None, float | None]:
+    def _then(self, i: int, a: Ahead, est: PoseEstimator, odometer_m: float) -> tuple[float | None, float | None]:  # noqa: E501
         if i + 1 >= len(self.ahead):
             return None, None
         b = self.ahead[i + 1]
@@ -535,9 +539,7 @@ class Guide:
             return None, None
         return b.decision.turn_rad, b.at_odometer_m - a.at_odometer_m
 
-    def _speak(
-        self, a: Ahead, out: Outputs, t_s: float, text: str, action: str, changed: bool
-    ) -> None:
+    def _speak(self, a: Ahead, out: Outputs, t_s: float, text: str, action: str, changed: bool) -> None:  # noqa: E501
         assert a.decision is not None
         exit_index = a.decision.exit_index
         if changed:
@@ -564,10 +566,8 @@ class Guide:
     # -- views and checkpoints ------------------------------------------------------------------
     def planned_exit(self, seq: int) -> int | None:
         """The exit now planned for report ``seq`` (the simulated driver follows it)."""
-        for a in self.ahead:
-            if a.seq == seq and a.decision is not None:
-                return a.decision.exit_index
-        return None
+        plans = (a.decision.exit_index for a in self.ahead if a.seq == seq and a.decision)
+        return next(plans, None)
 
     def next_ahead(self, odometer_m: float) -> tuple[Decision | None, float | None]:
         """The decision for the next intersection still ahead and its distance (None: unknown)."""
