@@ -20,7 +20,7 @@ _ORDINAL = (
     r"|earlier|previous|later|last|next|this|that|each|every|the"
 )
 ROUND_WORDING = re.compile(
-    rf"\b(?:{_ORDINAL})\s+rounds?\b(?!\s+trips?\b)|\brounds?\s+(?:\d+|one|two|three|four|before)\b"
+    rf"\b(?:{_ORDINAL})\s+rounds?\b(?!\s+trips?\b)|(?<!-)\brounds?\s+(?:\d+|one|two|three|four|before)\b"
     r"|\b(?:this|last|previous|earlier|next)\s+session\b|\bsession\s+before\b",
     re.IGNORECASE,
 )
@@ -56,6 +56,7 @@ def test_the_pattern_finds_history_and_not_other_rounds() -> None:
         "round(x, 2)",
         "other sessions' jobs",
         "each its own zenoh client session",
+        "matcher_worker_threads.py --rounds 3",
     )
     assert all(round_wording(t) for t in history)
     assert not any(round_wording(t) for t in other)
