@@ -16,6 +16,7 @@ import zenoh
 
 from guidance.errors import UserError
 from guidance.telemetry.config import TlsConfig
+from guidance.telemetry.example_passwords import warn_example_passwords
 from guidance.telemetry.keys import GOAL_SCHEMA
 from guidance.telemetry.redact import _zenoh_error_text
 
@@ -51,6 +52,7 @@ def session_config(
             if not Path(zenoh_config).is_file():
                 raise UserError(f"zenoh config file not found: {zenoh_config}")
             conf = zenoh.Config.from_file(zenoh_config)
+            warn_example_passwords(zenoh_config)
         else:
             conf = zenoh.Config()
             conf.insert_json5("transport/shared_memory/enabled", json.dumps(SHARED_MEMORY))

@@ -68,10 +68,6 @@ _STAMPED = re.compile(r"^\s*([0-9]+(?:\.[0-9]*)?)[\s,;]+(.*)$")
 """A time stamp before an NMEA line: ASCII digits only (``float()`` takes ``1_0_0``)."""
 
 
-MAX_NMEA_LINE_BYTES = 4096
-"""A stamped NMEA line is under 100 bytes; a longer one is cut here and the parser rejects it."""
-
-
 def nmea_inputs(path: Path, start_s: float, rate_hz: float) -> Iterator[CompassHeading]:
     """Headings of an NMEA text file; a leading number on a line is its time (s)."""
     from drivers.compass import NmeaCompassParser
@@ -79,7 +75,7 @@ def nmea_inputs(path: Path, start_s: float, rate_hz: float) -> Iterator[CompassH
     parser = NmeaCompassParser()
     t = start_s
     with files.opened(path, "nmea_log") as f:
-        for raw in files.text_lines(f, MAX_NMEA_LINE_BYTES):
+        for raw in files.text_lines(f, files.MAX_NMEA_LINE_BYTES):
             text = raw.rstrip(b"\r\n").decode("ascii", errors="replace")
             m = _STAMPED.match(text)
             if m:

@@ -52,6 +52,20 @@ def test_round_trip_positions_photo_and_features(tmp_path: Path) -> None:
         assert ro.check().ok
 
 
+def test_find_reads_only_ascii_digits_as_an_id(tmp_path: Path) -> None:
+    """Issue 40 (noticed): ``find("٣")`` returned landmark 3, since ``int`` reads Arabic-Indic
+    (and full-width) digits; only ASCII digits are an id, and an id beyond SQLite's integers is
+    no landmark (not an OverflowError)."""
+    db = _db(tmp_path, n=4)
+    third = db.get(3)
+    assert third is not None and db.find("3") == third and db.find("lm2") == third
+    # 3 in Arabic-Indic, Persian, full-width and Devanagari digits
+    for key in ("\u0663", "\u06f3", "\uff13", "\u0969"):
+        assert db.find(key) is None, key
+    assert db.find("9" * 30) is None and db.find("0" * 18 + "3") is None
+    db.close()
+
+
 def test_local_frame_matches_pymap3d_over_a_city(tmp_path: Path) -> None:
     for x, y in [(0.0, 0.0), (5000.0, 0.0), (0.0, -5000.0), (7000.0, 7000.0)]:
         lat, lon = ORIGIN.to_geodetic(x, y)

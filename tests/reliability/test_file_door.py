@@ -38,6 +38,7 @@ CAN_LOG = REPO / "tests" / "data" / "can" / "rav4_2020-02-03_bus0_wheelspeeds.lo
 NMEA_LOG = REPO / "tests" / "data" / "nmea" / "hemi_head.log"
 GPS_LOG = REPO / "tests" / "data" / "nmea" / "rst39.log"
 TAHOE = REPO / "config" / "tahoe.toml"
+ZENOH_PASSWORDS = REPO / "config" / "zenoh" / "passwords.example.txt"
 CHANCE = REPO / "guidance" / "core" / "plan" / "chance_table.json"
 TIMEOUT_S = 60.0
 """A reader that has not answered in this long hangs (each answers in well under a second)."""
@@ -243,6 +244,12 @@ def _read_wav(path: Path) -> object:
     return read_wav_16k(path)
 
 
+def _dictionary_users(path: Path) -> object:
+    from guidance.telemetry.example_passwords import dictionary_users
+
+    return dictionary_users(path)
+
+
 @dataclass(frozen=True)
 class Adapter:
     call: Callable[[Path], object]
@@ -294,6 +301,9 @@ ADAPTERS: dict[str, Adapter] = {
     "landmark_db.inputs.open_csv": Adapter(_open_csv, _truth_sample, ".csv"),
     "landmark_db.inputs.read_photo": Adapter(_read_photo, _photo_sample, ".png"),
     "drivers.speech_grammar.read_wav_16k": Adapter(_read_wav, _wav_sample, ".wav"),
+    "guidance.telemetry.example_passwords.dictionary_users": Adapter(
+        _dictionary_users, _bytes_of(ZENOH_PASSWORDS), ".txt"
+    ),
 }
 
 

@@ -5,6 +5,7 @@ from __future__ import annotations
 import dataclasses
 import json
 import math
+import os
 import tomllib
 from pathlib import Path
 from typing import Any
@@ -180,7 +181,22 @@ def test_cli_reports_toml_syntax_and_missing_file(
     assert main(["run", "--config", str(bad), "--check"]) == 2
     assert "not valid TOML" in capsys.readouterr().err
     assert main(["run", "--config", str(tmp_path / "nope.toml")]) == 2
-    assert "config file not found" in capsys.readouterr().err
+    assert f"config file {tmp_path / 'nope.toml'}: not found" in capsys.readouterr().err
+
+
+def test_a_config_that_is_no_regular_file_is_the_door_s_error_not_not_found(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """Issue 40 (noticed): ``guidance run`` checked ``is_file()`` before the file door, so a
+    FIFO or a folder as the config said "config file not found". Now the door answers, for the
+    run and for ``--check`` alike, at once (the FIFO has no writer: nothing waits on it)."""
+    fifo = tmp_path / "car.toml"
+    os.mkfifo(fifo)
+    for path, why in ((fifo, "not a regular file (a FIFO)"), (tmp_path, "not a regular file")):
+        for check in ([], ["--check"]):
+            assert main(["run", "--config", str(path), *check]) == 2
+            err = capsys.readouterr().err.strip().splitlines()
+            assert len(err) == 1 and f"config file {path}: {why}" in err[0], err
 
 
 def test_cli_check_accepts_the_tahoe_config(capsys: pytest.CaptureFixture[str]) -> None:
