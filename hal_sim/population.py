@@ -35,9 +35,9 @@ from scipy.stats import chi2
 from guidance.core.localize.car_model import car_model
 from guidance.core.localize.estimator import EstimatorConfig
 from guidance.core.localize.learned import LearnedParams
-from guidance.core.messages import HeadingFix, LandmarkFix, WheelOdometry
+from guidance.core.localize.localizer import Localizer, LocalizerConfig
+from guidance.core.messages import EstimateState, HeadingFix, LandmarkFix, WheelOdometry
 from guidance.core.model import CHI2_2D_2SIGMA, mahalanobis_sq_2d, wrap_angle
-from guidance.core.pipeline import Pipeline, PipelineConfig
 from guidance.core.plan.navigator import NavigatorConfig
 from hal_sim import world as world_mod
 from hal_sim.params import SimParams, estimator_config
@@ -209,21 +209,18 @@ def drive_car(
     )
     sx, sy, th0 = world.start_pose
     dt = world.dt_s
-    cfg = PipelineConfig(
+    cfg = LocalizerConfig(
         estimator=est,
-        navigator=NavigatorConfig(),
         start_xy_m=(sx + errors.start_dx_m, sy + errors.start_dy_m),
-        goal_xy_m=(sx + 1e6, sy),
         start_heading_rad=th0 + math.radians(errors.start_heading_deg),
         expected_rates_hz={
             "odometry": 1.0 / (dt * ODO_EVERY),
             **({"compass": 1.0 / (dt * COMPASS_EVERY)} if compass else {}),
         },
-        stop_at_arrival=False,
     )
-    p = Pipeline(cfg)
+    p = Localizer(cfg)  # the estimate alone: no goal, no navigator
     if learned is not None:
-        learned.apply(p.estimator)
+        p.adopt(learned)
     res = CarResult(errors, compass)
     left = right = 0.0
     drift = 0.0
@@ -258,7 +255,7 @@ def drive_car(
                 right += true + err
         step = world.step_count
         if step % ODO_EVERY == 0:
-            p.feed(WheelOdometry(ev.t_s, left, right))
+            p.handle(WheelOdometry(ev.t_s, left, right))
             left = right = 0.0
         if compass and step % COMPASS_EVERY == 0:
             drift += float(rng.normal()) * math.sqrt(
@@ -269,32 +266,30 @@ def drive_car(
                 + errors.deviation_rad(th)
                 + math.radians(drift + float(rng.normal()) * errors.compass_noise_deg)
             )
-            p.feed(HeadingFix(ev.t_s, wrap_angle(reading)))
+            p.handle(HeadingFix(ev.t_s, wrap_angle(reading)))
         if ev.landmark is not None:
             fx = x + float(rng.normal()) * FIX_SIGMA_M
             fy = y + float(rng.normal()) * FIX_SIGMA_M
-            p.feed(LandmarkFix(ev.t_s, ev.landmark, fx, fy, FIX_SIGMA_M))
+            p.handle(LandmarkFix(ev.t_s, ev.landmark, fx, fy, FIX_SIGMA_M))
         if step % SAMPLE_EVERY == 0:
-            _sample(res, p, x, y, th)
-            res.axis_m.append((world.driven_m, p.estimator.major_axis_m))
-            if res.lost_at_m is None and p.estimator.lost:
+            now = p.estimate()
+            _sample(res, now, x, y, th)
+            res.axis_m.append((world.driven_m, now.ellipse.major_axis_m))
+            if res.lost_at_m is None and now.lost:
                 res.lost_at_m = world.driven_m
                 if stop_when_lost:
                     break
     res.driven_m = world.driven_m
-    xe = p.estimator.x
-    res.final_error_m = math.hypot(prev[0] - xe[0], prev[1] - xe[1])
-    res.final_major_axis_m = p.estimator.major_axis_m
-    res.learned = LearnedParams.from_estimator(
-        p.estimator, "sim", world.t_s, world.driven_m, learned
-    )
+    now = p.estimate()
+    res.final_error_m = math.hypot(prev[0] - now.x_m, prev[1] - now.y_m)
+    res.final_major_axis_m = now.ellipse.major_axis_m
+    res.learned = p.learned("sim", world.t_s, world.driven_m, learned)
     return res
 
 
-def _sample(res: CarResult, p: Pipeline, x: float, y: float, th: float) -> None:
-    est = p.estimator
-    xe, P = est.x, est.P[:2, :2]
-    e = np.array([x - xe[0], y - xe[1]])
+def _sample(res: CarResult, est: EstimateState, x: float, y: float, th: float) -> None:
+    P = np.array(est.covariance)[:2, :2]
+    e = np.array([x - est.x_m, y - est.y_m])
     nees = mahalanobis_sq_2d(float(e[0]), float(e[1]), P[0, 0], P[0, 1], P[1, 1])
     u = np.array([math.cos(th), math.sin(th)])
     n = np.array([-u[1], u[0]])
@@ -303,7 +298,7 @@ def _sample(res: CarResult, p: Pipeline, x: float, y: float, th: float) -> None:
     res.across2.append(float((e @ n) ** 2 / (n @ P @ n)))
     err = float(np.hypot(*e))
     if err > 1e-6:
-        res.axis_ratio.append(0.5 * est.major_axis_m / err)
+        res.axis_ratio.append(0.5 * est.ellipse.major_axis_m / err)
     if res.lost_at_error_m is None and est.lost:
         res.lost_at_error_m = err
 

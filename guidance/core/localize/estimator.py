@@ -28,6 +28,7 @@ from guidance.core.localize.measurements import (
 )
 from guidance.core.localize.odometry_gap import dead_reckon
 from guidance.core.messages import Ellipse, EstimateState, HeadingFix, LandmarkFix, WheelOdometry
+from guidance.core.stages import LOST_HYSTERESIS, RELOCALISED
 
 EstimatorInput = WheelOdometry | HeadingFix | LandmarkFix
 
@@ -134,14 +135,6 @@ odometry): an estimate stamped in the future by a glitch never freezes for good.
 BIAS_TURN_STEP_RAD = math.radians(10.0)
 """The bias grows with heading changes counted in steps of this size, so that the wiggles of a
 straight drive (which cancel) do not add up as if they were turns."""
-
-
-LOST_HYSTERESIS = 0.8
-"""Lost once the 2-sigma major axis passes ``lost_major_axis_m``; found again only once it is
-back below this fraction of it (the pipeline says each once; a relocalisation resets while the
-axis is above it)."""
-RELOCALISED = "relocalised"
-"""``StepResult.reason`` of an accepted landmark fix that reset the position (``_relocalise``)."""
 
 
 @dataclass(frozen=True, slots=True)

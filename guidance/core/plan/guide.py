@@ -33,18 +33,19 @@ from __future__ import annotations
 import logging
 import math
 from collections import Counter
-from collections.abc import Callable, Mapping
+from collections.abc import Mapping
 from dataclasses import replace
 
 import numpy as np
 
 from guidance.core import prompts
-from guidance.core.localize.estimator import PoseEstimator
 from guidance.core.messages import (
     Approach,
+    EstimateState,
     ExitTaken,
     IntersectionScene,
     Priority,
+    Prompt,
     TurnCompleted,
 )
 from guidance.core.model import wrap_angle
@@ -87,30 +88,17 @@ PASS_MARGIN_M = 5.0
 MAX_AHEAD = 4
 """Intersections kept ahead at once (a co-driver who reports far ahead)."""
 
-Say = Callable[[Outputs, float, str, Priority, str], None]
-
-
 class Guide:
     """The queue of intersections ahead and everything said and decided about them (see the
-    module doc). The pipeline calls ``report``, ``approach``, ``co_driver_turn`` and, after
-    every odometry step, ``step``; ``replan`` after an accepted landmark fix or a new goal."""
+    module doc). The planner calls ``report``, ``approach``, ``co_driver_turn`` and, after
+    every move of the estimate, ``step``; ``replan`` after an accepted landmark fix or a new
+    goal. Each takes the estimate as a value (``EstimateState``: the pose, its covariance, the
+    distance driven, the speed, whether the distance is dead-reckoned) and writes what it
+    decides and says into ``out``."""
 
-    def __init__(
-        self,
-        config: PipelineConfig,
-        navigator: Navigator,
-        say: Say,
-        counts: Counter[str],
-        speed_fn: Callable[[], float],
-        reckoning_fn: Callable[[], bool],
-    ) -> None:
+    def __init__(self, config: PipelineConfig, navigator: Navigator, counts: Counter[str]) -> None:
         self.config = config
-        self._speed = speed_fn
-        self._reckoning = reckoning_fn
-        """The distance is dead-reckoned (odometry overdue): no turn named for a place on the
-        road, nothing passed straight by distance alone."""
         self.navigator = navigator
-        self._say = say
         self.counts = counts
         td = config.turn_detector
         self.history = RoadHistory(td.settle_m, td.settle_tol_rad)
@@ -127,11 +115,9 @@ class Guide:
         """The exit the car took at the last intersection it went through (estimate frame)."""
 
     # -- inputs ---------------------------------------------------------------------------------
-    def report(
-        self, scene: IntersectionScene, est: PoseEstimator, odometer_m: float, out: Outputs
-    ) -> None:
+    def report(self, scene: IntersectionScene, est: EstimateState, out: Outputs) -> None:
         """A reported intersection: queued, decided when its road is known, announced."""
-        heading = est.heading_rad
+        heading, odometer_m = est.heading_rad, est.odometer_m
         d = scene.distance_m
         known = d is not None and math.isfinite(d)
         self.reports += 1
@@ -147,8 +133,8 @@ class Guide:
                 same.at_odometer_m = at  # the same intersection again: a better distance
                 self.counts["report_repeated"] += 1
                 self.last_seq = same.seq
-                self._evaluate(same, est, odometer_m, scene.t_s, out)
-                self.announce(scene.t_s, odometer_m, out, est)
+                self._evaluate(same, est, scene.t_s, out)
+                self.announce(scene.t_s, est, out)
                 return
         else:
             for a in self.ahead:  # the co-driver reports the next one: the earlier are behind
@@ -166,11 +152,11 @@ class Guide:
         while len(self.ahead) > MAX_AHEAD:
             self.ahead.pop(0)
             self.counts["ahead_dropped"] += 1
-        self._update(scene.t_s, est, odometer_m, out, force=True)
+        self._update(scene.t_s, est, out, force=True)
 
-    def approach(self, msg: Approach, est: PoseEstimator, odometer_m: float, out: Outputs) -> None:
+    def approach(self, msg: Approach, est: EstimateState, out: Outputs) -> None:
         """The distance to an intersection ahead: re-anchors the one it matches, re-evaluates."""
-        d = msg.distance_m
+        d, odometer_m = msg.distance_m, est.odometer_m
         if not math.isfinite(d):
             return
         cands = [a for a in self.ahead if a.at_odometer_m is not None
@@ -180,9 +166,9 @@ class Guide:
             assert a.at_odometer_m is not None
             if abs(a.at_odometer_m - odometer_m - d) <= max(15.0, 0.2 * d):
                 a.at_odometer_m = odometer_m + max(0.0, d)
-        self._update(msg.t_s, est, odometer_m, out, force=True)
+        self._update(msg.t_s, est, out, force=True)
 
-    def co_driver_turn(self, turn: TurnCompleted, est: PoseEstimator, out: Outputs) -> bool:
+    def co_driver_turn(self, turn: TurnCompleted, est: EstimateState, out: Outputs) -> bool:
         """The co-driver says which way the car went: the first intersection ahead resolved
         with it. False when nothing was ahead."""
         first = self._first_unresolved()
@@ -193,30 +179,24 @@ class Guide:
         self._resolve(first, turn.t_s, heading, turn.source, est, out)
         return True
 
-    def replan(self, t_s: float, est: PoseEstimator, odometer_m: float, out: Outputs) -> None:
+    def replan(self, t_s: float, est: EstimateState, out: Outputs) -> None:
         """The estimate jumped (a landmark fix) or the goal moved: the decisions ahead are looked
         at again, and may change even once said (``_evaluate``)."""
-        self._update(t_s, est, odometer_m, out, force=True, jumped=True)
+        self._update(t_s, est, out, force=True, jumped=True)
 
     def step(
-        self,
-        t_s: float,
-        est: PoseEstimator,
-        odometer_m: float,
-        turn: TurnCompleted | None,
-        out: Outputs,
+        self, t_s: float, est: EstimateState, turn: TurnCompleted | None, out: Outputs
     ) -> None:
-        """After each odometry step: the road history, arrivals at intersections, exits taken,
-        re-evaluation and announcements."""
-        x = est.x
-        self.history.add(odometer_m, float(x[0]), float(x[1]), est.heading_rad)
+        """After each move of the estimate: the road history, arrivals at intersections, exits
+        taken, re-evaluation and announcements."""
+        self.history.add(est.odometer_m, est.x_m, est.y_m, est.heading_rad)
         first = self._first_unresolved()
         if first is not None:
-            self._check_resolution(first, t_s, est, odometer_m, turn, out)
+            self._check_resolution(first, t_s, est, turn, out)
         elif turn is not None:
             log.info("turn of %.0f deg with no intersection announced",
                      math.degrees(turn.heading_change_rad))  # fmt: skip
-        self._update(t_s, est, odometer_m, out, force=False)
+        self._update(t_s, est, out, force=False)
 
     # -- resolution -----------------------------------------------------------------------------
     def _first_unresolved(self) -> Ahead | None:
@@ -226,22 +206,19 @@ class Guide:
         self,
         a: Ahead,
         t_s: float,
-        est: PoseEstimator,
-        odometer_m: float,
+        est: EstimateState,
         turn: TurnCompleted | None,
         out: Outputs,
     ) -> None:
         cfg = self.config
-        heading = est.heading_rad
+        heading, odometer_m = est.heading_rad, est.odometer_m
         if a.at_odometer_m is not None:
             if a.reached is None and odometer_m >= a.at_odometer_m:
-                x, P = est.x, est.P
-                a.reached = (float(x[0]), float(x[1]), float(P[0, 0]), float(P[0, 1]),
-                             float(P[1, 1]))  # fmt: skip
+                a.reached = _reached(est)
             near = odometer_m >= a.at_odometer_m - cfg.turn_detector.window_m
             if turn is not None and near:
                 self._resolve(a, t_s, heading, "detected", est, out)
-            elif odometer_m >= a.at_odometer_m + cfg.straight_after_m and not self._reckoning():
+            elif odometer_m >= a.at_odometer_m + cfg.straight_after_m and not est.reckoning:
                 self._resolve(a, t_s, heading, "no_turn", est, out)
             return
         if turn is not None and a.approach_heading_rad is not None:
@@ -257,7 +234,7 @@ class Guide:
             self._resolve(a, t_s, heading, "passed", est, out)
 
     def _resolve(
-        self, a: Ahead, t_s: float, heading: float, source: str, est: PoseEstimator, out: Outputs
+        self, a: Ahead, t_s: float, heading: float, source: str, est: EstimateState, out: Outputs
     ) -> None:
         """``a`` is behind the car, which left it with ``heading``: the exit taken, remembered."""
         self.ahead.remove(a)
@@ -266,7 +243,7 @@ class Guide:
             self.counts["resolved_undecided"] += 1
             return
         best = min(d.options, key=lambda o: abs(wrap_angle(o.heading_rad - heading))).index
-        blind = heading_cannot_tell(d, heading_sd(est.P))
+        blind = heading_cannot_tell(d, heading_sd(_cov(est)))
         if best != d.exit_index and source != "co-driver" and blind:
             best = d.exit_index  # the heading cannot tell the exits apart: as advised
             self.counts["exit_assumed_followed"] += 1
@@ -284,10 +261,9 @@ class Guide:
             odo = (a.passed_odometer_m if a.passed_odometer_m is not None and source != "detected"
                    else self.history.last_odometer_m - back)  # fmt: skip
             xy = self.history.at(odo)
-            P = est.P
-            x = est.x
-            px, py = xy if xy is not None else (float(x[0]), float(x[1]))
-            reached = (px, py, float(P[0, 0]), float(P[0, 1]), float(P[1, 1]))
+            _x, _y, pxx, pxy, pyy = _reached(est)
+            px, py = xy if xy is not None else (est.x_m, est.y_m)
+            reached = (px, py, pxx, pxy, pyy)
         rx, ry, pxx, pxy, pyy = reached
         Pm = np.array([[pxx, pxy], [pxy, pyy]])
         k = self.navigator.commit((rx, ry), Pm, d.options[best].heading_rad)
@@ -303,8 +279,7 @@ class Guide:
     def _update(
         self,
         t_s: float,
-        est: PoseEstimator,
-        odometer_m: float,
+        est: EstimateState,
         out: Outputs,
         *,
         force: bool,
@@ -315,6 +290,7 @@ class Guide:
         estimate re-evaluates it), then what is due to be said."""
         if not self.ahead:
             return
+        odometer_m = est.odometer_m
         prev: Ahead | None = None
         steady_for = self.history.steady_for_m(
             odometer_m, max(ROAD_STEADY_M, self.history.steady_m)
@@ -323,21 +299,20 @@ class Guide:
         on_road = steady_for >= ROAD_STEADY_M
         for i, a in enumerate(self.ahead[:2]):
             if i == 0 or (prev is not None and prev.decision is not None):
-                self._set_approach(a, prev, est, odometer_m, steady, on_road)
+                self._set_approach(a, prev, est, steady, on_road)
                 due = force or odometer_m - a.last_eval_odometer_m >= EVAL_EVERY_M
                 if a.at_odometer_m is None and a.decision is not None:
                     due = jumped
                 if a.approach_heading_rad is not None and due:
-                    self._evaluate(a, est, odometer_m, t_s, out, jumped)
+                    self._evaluate(a, est, t_s, out, jumped)
             prev = a
-        self.announce(t_s, odometer_m, out, est)
+        self.announce(t_s, est, out)
 
     def _set_approach(
         self,
         a: Ahead,
         prev: Ahead | None,
-        est: PoseEstimator,
-        odometer_m: float,
+        est: EstimateState,
         steady: bool,
         on_road: bool,
     ) -> None:
@@ -345,6 +320,7 @@ class Guide:
         steady on that road for ``ROAD_STEADY_M`` (a turn's tail, a U-turn settling back onto
         the road, must not name the manoeuvre), else the exit chosen at the intersection
         before it."""
+        odometer_m = est.odometer_m
         on_its_road = prev is None or (
             prev.at_odometer_m is not None and odometer_m > prev.at_odometer_m + 5.0
         )
@@ -376,16 +352,16 @@ class Guide:
             ):
                 a.approach_heading_rad = taken
 
-    def _predicted_xy(self, a: Ahead, est: PoseEstimator, odometer_m: float) -> tuple[float, float]:
+    def _predicted_xy(self, a: Ahead, est: EstimateState) -> tuple[float, float]:
         """Where the car will be at ``a``: along its approach road from the car, or from the
         intersection before it."""
-        x = est.x
-        base_xy, base_odo = (float(x[0]), float(x[1])), odometer_m
+        odometer_m = est.odometer_m
+        base_xy, base_odo = (est.x_m, est.y_m), odometer_m
         i = self.ahead.index(a)
         if i > 0:
             prev = self.ahead[i - 1]
             if prev.at_odometer_m is not None and prev.at_odometer_m > odometer_m:
-                base_xy = self._predicted_xy(prev, est, odometer_m)
+                base_xy = self._predicted_xy(prev, est)
                 base_odo = prev.at_odometer_m
         if a.approach_heading_rad is None:
             return base_xy
@@ -397,8 +373,7 @@ class Guide:
     def _evaluate(
         self,
         a: Ahead,
-        est: PoseEstimator,
-        odometer_m: float,
+        est: EstimateState,
         t_s: float,
         out: Outputs,
         jumped: bool = False,
@@ -410,11 +385,10 @@ class Guide:
         exits = a.exits_now()
         if exits is None or a.approach_heading_rad is None:
             return
-        a.last_eval_odometer_m = odometer_m
-        at = self._predicted_xy(a, est, odometer_m)
-        x = est.x
+        a.last_eval_odometer_m = est.odometer_m
+        at = self._predicted_xy(a, est)
         new = self.navigator.evaluate(
-            t_s, at, est.P, exits, a.approach_heading_rad, (float(x[0]), float(x[1]))
+            t_s, at, _cov(est), exits, a.approach_heading_rad, (est.x_m, est.y_m)
         )
         old = a.decision
         if old is not None and new.exit_index != old.exit_index:
@@ -438,22 +412,21 @@ class Guide:
             self.last_decision = new
             out.decisions.append(new)
 
-    def announce(
-        self, t_s: float, odometer_m: float, out: Outputs, est: PoseEstimator
-    ) -> None:
+    def announce(self, t_s: float, est: EstimateState, out: Outputs) -> None:
         """What is due for the next intersection still ahead of the car."""
+        odometer_m = est.odometer_m
         i, a = self._announce_target(odometer_m)
         if a is None or a.decision is None:
             return
-        if self._arrives_before(a, est, odometer_m):
+        if self._arrives_before(a, est):
             self.counts["goal_intersection_not_said"] += 1  # "You have arrived" comes first
             a.said_exit = a.decision.exit_index  # held as if said: no silent swapping
             return
-        if self._reckoning() and a.at_odometer_m is not None:
+        if est.reckoning and a.at_odometer_m is not None:
             self.counts["words_withheld_gap"] += 1  # said once the wheels speak again
             return
         d = a.decision
-        band = WORD_SIGMAS * heading_sd(est.P) if a.approach_estimated else 0.0
+        band = WORD_SIGMAS * heading_sd(_cov(est)) if a.approach_estimated else 0.0
         action = prompts.manoeuvre_within(d.turn_rad, band, d.exit_heading_rad)
         changed = a.said_exit >= 0 and a.said_exit != d.exit_index
         straight = action == "continue straight"
@@ -465,12 +438,12 @@ class Guide:
                 self.counts["straight_not_repeated"] += 1  # the screen shows it; nothing new
                 a.said, a.said_exit = action, d.exit_index
                 return
-            then = self._then(i, a, est, odometer_m)
+            then = self._then(i, a, est)
             text = prompts.turn_prompt(d.turn_rad, None, self.config.units, *then, action=action)
             self._speak(a, out, t_s, text, action, changed)
             return
         distance = max(0.0, a.at_odometer_m - odometer_m)
-        due = due_announcements(distance, self._speed(), a.announced)
+        due = due_announcements(distance, est.speed_mps, a.announced)
         if not due and not changed:
             return
         if due:
@@ -483,24 +456,25 @@ class Guide:
             self.counts["straight_not_repeated"] += 1
             a.said, a.said_exit = action, d.exit_index
             return
-        then = self._then(i, a, est, odometer_m)
+        then = self._then(i, a, est)
         text = prompts.turn_prompt(d.turn_rad, distance, self.config.units, *then, action=action)
         self._speak(a, out, t_s, text, action, changed)
 
-    def _arrives_before(self, a: Ahead, est: PoseEstimator, odometer_m: float) -> bool:
+    def _arrives_before(self, a: Ahead, est: EstimateState) -> bool:
         """The car will be told it has arrived ``ARRIVE_MARGIN_M`` before it gets to ``a``:
         its road to ``a`` (from the car, or from the intersection before it) enters the arrival
         circle that far before ``a`` (a turn made before arriving is announced as any other)."""
         if a.at_odometer_m is None or a.approach_heading_rad is None:
             return False
-        start, start_odo = (float(est.x[0]), float(est.x[1])), odometer_m
+        odometer_m = est.odometer_m
+        start, start_odo = (est.x_m, est.y_m), odometer_m
         i = self.ahead.index(a) if a in self.ahead else 0
         if i > 0:  # on the road from the intersection before it
             prev = self.ahead[i - 1]
             if prev.at_odometer_m is not None and prev.at_odometer_m > odometer_m:
-                if self._arrives_before(prev, est, odometer_m):
+                if self._arrives_before(prev, est):
                     return True
-                start = self._predicted_xy(prev, est, odometer_m)
+                start = self._predicted_xy(prev, est)
                 start_odo = prev.at_odometer_m
         radius = self.navigator.config.arrival_radius_m
         ahead = a.at_odometer_m - start_odo
@@ -520,15 +494,13 @@ class Guide:
                 return (i, a) if i == 0 else (-1, None)
         return -1, None
 
-    def _then(
-        self, i: int, a: Ahead, est: PoseEstimator, odometer_m: float
-    ) -> tuple[float | None, float | None]:
+    def _then(self, i: int, a: Ahead, est: EstimateState) -> tuple[float | None, float | None]:
         if i + 1 >= len(self.ahead):
             return None, None
         b = self.ahead[i + 1]
         if b.decision is None or a.at_odometer_m is None or b.at_odometer_m is None:
             return None, None
-        if self._arrives_before(b, est, odometer_m):
+        if self._arrives_before(b, est):
             b.said_exit = b.decision.exit_index  # held as if said, but the car arrives first
             return None, None
         return b.decision.turn_rad, b.at_odometer_m - a.at_odometer_m
@@ -551,7 +523,7 @@ class Guide:
         self._said_at[text] = t_s
         a.said, a.said_exit = action, exit_index
         self.last_said = action
-        self._say(out, t_s, text, Priority.GUIDANCE, "turn")
+        out.prompts.append(Prompt(t_s, text, Priority.GUIDANCE, "turn"))
         i = self.ahead.index(a)
         if i + 1 < len(self.ahead) and ", then " in text:
             nxt = self.ahead[i + 1]
@@ -595,3 +567,14 @@ class Guide:
         self.last_said = str(snap.get("last_said", ""))[:40]
         decided = [a.decision for a in self.ahead if a.decision is not None]
         self.last_decision = decided[-1] if decided else None
+
+
+def _cov(est: EstimateState) -> np.ndarray:
+    """The estimate's pose covariance (x, y, heading) as a matrix."""
+    return np.array(est.covariance, dtype=float)
+
+
+def _reached(est: EstimateState) -> tuple[float, float, float, float, float]:
+    """Where the car is, with its x-y covariance (pxx, pxy, pyy): an intersection reached."""
+    c = est.covariance
+    return est.x_m, est.y_m, c[0][0], c[0][1], c[1][1]

@@ -27,7 +27,7 @@ class Drive:
     def __init__(self, p: Pipeline, speed_mps: float = 8.0, dt: float = 0.05) -> None:
         self.p, self.v, self.dt = p, speed_mps, dt
         self.t = 0.0
-        self.heading = float(p.estimator.x[2])
+        self.heading = float(p.localizer.estimator.x[2])
         self.prompts: list[Prompt] = []
         self.taken: list[ExitTaken] = []
 
@@ -51,7 +51,7 @@ class Drive:
     def type(self, line: str) -> None:
         typed = parse_line(line)
         assert typed is not None
-        self.feed(to_scene(typed, self.t, float(self.p.estimator.x[2])))
+        self.feed(to_scene(typed, self.t, float(self.p.localizer.estimator.x[2])))
 
     def said(self) -> list[str]:
         return [p.text for p in self.prompts if p.kind == "turn"]
