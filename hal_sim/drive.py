@@ -138,7 +138,9 @@ class SimDrive:
         """Open the devices and the outputs, drive, close everything; the drive's result."""
         try:
             compass = self.opts.compass_deg is not None
-            with open_sim_devices(self.world, self.opts.profile, self.clock, compass=compass) as d:
+            seed = self.opts.seed if self.opts.start_unknown else None
+            with open_sim_devices(self.world, self.opts.profile, self.clock, compass=compass,
+                                  drive_on_seed=seed) as d:  # fmt: skip
                 self.dev = d
                 sim = {"seed": self.opts.seed, "method": self.method.value}
                 session = session_record(self.pipeline, self.opts.config or "", sim=sim)
@@ -484,6 +486,8 @@ def drive_pipeline_config(
     world's), navigator, start and goal, the landmarks the car knows, the simulated compass's
     (uncalibrated, true-mounted) readings and the simulated devices' rates."""
     sx, sy, th0 = world.start_pose
+    if opts.start_unknown:  # the car is not told: it waits at the goal, city-wide
+        sx, sy = world.goal_xy
     rates: dict[str, float | None] = {"odometry": 1.0 / world.dt_s}
     if opts.compass_deg is not None:
         rates["compass"] = world.sim.compass_rate_hz
@@ -500,6 +504,7 @@ def drive_pipeline_config(
         "expected_rates_hz": rates,
         "stop_at_arrival": opts.duration_s is None,
         "relocalise": opts.relocalise and opts.density_per_km2 > 0.0,
+        "start_unknown": opts.start_unknown,
         # the car knows its matcher's recall: the world's detection rate
         "chance": replace(
             base.chance if base is not None else ChanceSettings(),

@@ -79,6 +79,9 @@ class DriveOptions:
     whole-database search; with ``camera_hz`` the real recogniser searches): being lost does not
     end the drive, it goes on until the car arrives or the cap. False (``--no-relocalise``):
     the paper's definition, a lost car's trip ends there."""
+    start_unknown: bool = False
+    """"Start anywhere" (``--start-unknown``): the car is not told where it starts; it waits
+    at the goal, 10 km wide, until its first landmark (needs landmarks and ``relocalise``)."""
 
 
 @dataclass

@@ -71,10 +71,16 @@ class SimDevices:
 
 @contextlib.contextmanager
 def open_sim_devices(
-    world: SimWorld, profile: str, clock: Callable[[], float], *, compass: bool = True
+    world: SimWorld,
+    profile: str,
+    clock: Callable[[], float],
+    *,
+    compass: bool = True,
+    drive_on_seed: int | None = None,
 ) -> Iterator[SimDevices]:
     """The devices of ``world`` (the compass with ``compass``), closed on the way out (on an
-    error too); ``profile`` is the car's CAN profile, ``clock`` the compass's."""
+    error too); ``profile`` is the car's CAN profile, ``clock`` the compass's; the scene's
+    driver chooses exits alone when told nothing (``drive_on_seed``: ``SimScene``)."""
     channel = f"sim-can-{os.getpid()}-{next(_channel_ids)}"
     with contextlib.ExitStack() as stack:
         wheels = SimCanWheels(channel, profile=profile).open()
@@ -88,7 +94,8 @@ def open_sim_devices(
             stack.callback(pty.close)
             reader = SerialCompass(SerialCompassConfig(port=pty.port, baudrate=4800), clock=clock)
             stack.callback(_stop, reader)
-        yield SimDevices(wheels, odo, SimScene(world), SimSightings(world), pty, reader)
+        scene = SimScene(world, drive_on_seed=drive_on_seed)
+        yield SimDevices(wheels, odo, scene, SimSightings(world), pty, reader)
 
 
 def _stop(source: CanOdometry | SerialCompass) -> None:

@@ -104,6 +104,11 @@ class PipelineConfig:
     """The car has a camera and a landmark database, whose whole-database search runs while
     it is lost: being lost does not end a simulated trip; a place found resets the position
     (``LandmarkFix.relocalised``) and guidance replans from there."""
+    start_unknown: bool = False
+    """``[start]`` gives no position ("start anywhere"): the car starts lost, says so, searches
+    the whole landmark database (``relocalise`` is required) and guides nobody until a place
+    is found; ``start_xy_m`` is then only where the estimate waits, ``UNKNOWN_START_SIGMA_M``
+    wide."""
     resume_gap_inflation: bool = True
     """After an odometry silence, inflate the position by the distance possibly driven."""
     chance: ChanceSettings = field(default_factory=ChanceSettings)

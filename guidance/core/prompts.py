@@ -202,12 +202,19 @@ def lost(searching: bool = False) -> str:
     return "Position lost. Guidance is unreliable; stop when safe"
 
 
-def position_found(name: str = "") -> str:
-    """A relocalisation: the place the whole-database search found, by its name."""
+def position_found(name: str = "", again: bool = True) -> str:
+    """A relocalisation: the place the whole-database search found, by its name (``again``
+    False: the first place of a car that started anywhere)."""
     spoken = name.strip()
+    found = "Position found again" if again else "Position found"
     if not spoken or _looks_like_an_id(spoken):
-        return "Position found again at a known landmark"
-    return f"Position found again near {spoken}"
+        return f"{found} at a known landmark"
+    return f"{found} near {spoken}"
+
+
+def position_unknown() -> str:
+    """Said once at the start of a car that starts anywhere (``[start]`` gives no position)."""
+    return "Position unknown. Drive on; looking for a known place"
 
 
 def sensor_warning(sensor: str, problem: str) -> str:

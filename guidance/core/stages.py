@@ -25,6 +25,9 @@ class Move:
     t_s: float
     estimate: EstimateState
     odometry: bool
+    gap_from_s: float | None = None
+    """The odometry resumed after a silence that began then (dead-reckoned through): the
+    places ahead may no longer be placed (``Guide.after_gap``)."""
 
 
 @dataclass(slots=True)

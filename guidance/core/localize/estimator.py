@@ -26,8 +26,8 @@ from guidance.core.localize.measurements import (
     h_position,
     heading_residual,
 )
-from guidance.core.localize.odometry_gap import dead_reckon
 from guidance.core.messages import Ellipse, EstimateState, HeadingFix, LandmarkFix, WheelOdometry
+from guidance.core.odometry_gap import dead_reckon
 from guidance.core.stages import LOST_HYSTERESIS, RELOCALISED
 
 EstimatorInput = WheelOdometry | HeadingFix | LandmarkFix
@@ -258,7 +258,7 @@ class PoseEstimator:
     def coast(self, speed_mps: float, gap_from_s: float, gap_to_s: float) -> None:
         """Odometry overdue: move on at ``speed_mps`` along the heading from ``gap_from_s`` to
         ``gap_to_s`` seconds into the gap, widened along the road and in heading
-        (``guidance.core.localize.odometry_gap.dead_reckon``, the one definition of that step)."""
+        (``guidance.core.odometry_gap.dead_reckon``, the one definition of that step)."""
         x, P = dead_reckon(self._kf.x, self._kf.P, speed_mps, gap_from_s, gap_to_s)
         self._kf.x = x
         self._kf.x[2] = model.wrap_angle(float(x[2]))

@@ -6,7 +6,7 @@ estimate the input produced, in order (``moves``: an odometry step, or the estim
 through a CAN gap), the verdict on the input, and the estimate after it. It owns the filter
 (``PoseEstimator``): nothing else moves x and P. It also keeps what the estimate is read with:
 the distance driven, the speed, whether the heading is known, and the dead reckoning through an
-odometry gap (``guidance.core.localize.odometry_gap``).
+odometry gap (``guidance.core.odometry_gap``).
 
 The planner (``guidance.core.plan.planner``) reads the estimates as values; the pipeline
 (``guidance.core.pipeline``) runs one then the other. Callers that need only the estimate
@@ -44,6 +44,10 @@ GAP_HOLD_S = 5.0
 """An odometry increment this long after the previous one waits for the next to confirm its
 time (a glitch stamping one frame far ahead must not widen the estimate by hours of driving)."""
 
+UNKNOWN_START_SIGMA_M = 10_000.0
+"""A car that starts anywhere (``PipelineConfig.start_unknown``) is somewhere in a city 20 km
+across (the 2-sigma circle): lost from the first step, and any landmark it finds is inside."""
+
 DR_AFTER_S = 0.1
 DR_AFTER_PERIODS = 3.0
 """Odometry this late (the larger of the two: 0.1 s, three frames) is dead-reckoned over until
@@ -65,6 +69,8 @@ class LocalizerConfig:
     compass_unusable_after_s: float = 20.0
     expected_rates_hz: Mapping[str, float | None] = field(default_factory=dict)
     health: HealthConfig = field(default_factory=HealthConfig)
+    start_unknown: bool = False
+    """``[start]`` gives no position: the estimate starts ``UNKNOWN_START_SIGMA_M`` wide."""
     resume_gap_inflation: bool = True
 
     @classmethod
@@ -95,6 +101,8 @@ class Localizer:
         self.tr = Transient()
         if not self.st.heading_known:
             self.estimator.forget_heading()
+        if config.start_unknown:
+            self.estimator.inflate_position(2.0 * UNKNOWN_START_SIGMA_M)
         self.health = health or HealthMonitor(config.expected_rates_hz, config.health)
         self.counts: Counter[str] = Counter() if counts is None else counts
         dev = config.compass_deviation_deg
@@ -180,11 +188,13 @@ class Localizer:
         self._judge_time("odometry", r.reason)
         if not r.accepted:
             return
+        gap_from_s = None
         if gap is not None and gap > 0:
             if long_gap:
                 log.warning("odometry resumed after %.1f s: dead-reckoned %.0f m at %.1f m/s",
                             gap, self.tr.dr_m, self.st.speed_mps)  # fmt: skip
                 self.counts["odometry_gaps"] += 1
+                gap_from_s = msg.t_s - gap
             else:
                 self.st.speed_mps = abs(d_wheels) / gap
         if not long_gap:
@@ -192,12 +202,12 @@ class Localizer:
         self.tr.dr_to_t, self.tr.dr_m = None, 0.0
         self.tr.last_odo_t = msg.t_s
         self.st.odometer_m += abs(d_wheels)
-        step.moves.append(Move(msg.t_s, self.estimate(), odometry=True))
+        step.moves.append(Move(msg.t_s, self.estimate(), odometry=True, gap_from_s=gap_from_s))
 
     def _dead_reckon(self, t: float, step: LocalizeStep | None) -> None:
         """Odometry overdue (a CAN dropout, or a frame late) while the heading is known: the
         estimate moves on at the last speed along its heading, widened along the road by what
-        the car could have gained or lost (``guidance.core.localize.odometry_gap``), up to
+        the car could have gained or lost (``guidance.core.odometry_gap``), up to
         ``t``. Done at each compass reading in the silence (a move of the step: the
         intersections ahead move on with it) and when odometry resumes."""
         last = self.tr.last_odo_t

@@ -58,7 +58,7 @@ from guidance.core.plan.announce import (
     heading_sd,
 )
 from guidance.core.plan.navigator import Decision, Navigator
-from guidance.core.plan.road import Ahead, RoadHistory
+from guidance.core.plan.road import Ahead, RoadHistory, announce_target, unplaced_after_gap
 from guidance.core.snapshot_check import integer
 
 log = logging.getLogger(__name__)
@@ -113,6 +113,7 @@ class Guide:
         self._said_at: dict[str, float] = {}
         self.last_exit_heading_rad: float | None = None
         """The exit the car took at the last intersection it went through (estimate frame)."""
+        self._heading_before_gap = 0.0  # the history's heading at the last odometry step
 
     # -- inputs ---------------------------------------------------------------------------------
     def report(self, scene: IntersectionScene, est: EstimateState, out: Outputs) -> None:
@@ -179,6 +180,22 @@ class Guide:
         self._resolve(first, turn.t_s, heading, turn.source, est, out)
         return True
 
+    def after_gap(
+        self, t_s: float, gap_from_s: float, placeable_s: float, est: EstimateState, out: Outputs
+    ) -> None:
+        """The wheel speeds are back after a silence (``road.unplaced_after_gap``). One place
+        no longer placed and a turn on the compass meanwhile: the turn was made there. Others
+        cannot be told apart (passed straight, turned at, still ahead): dropped unsaid, never
+        resolved by distance or credited with a later turn."""
+        lost = unplaced_after_gap(self.ahead, gap_from_s, t_s, placeable_s)
+        turned = abs(self.history.unwrapped_rad - self._heading_before_gap)
+        if len(lost) == 1 and turned >= self.config.turn_detector.min_turn_rad:
+            self._resolve(lost[0], t_s, est.heading_rad, "compass_gap", est, out)
+            lost = []
+        for a in lost:
+            self.ahead.remove(a)
+        self.counts["ahead_unplaced_after_gap"] += len(lost)
+
     def replan(self, t_s: float, est: EstimateState, out: Outputs) -> None:
         """The estimate jumped (a landmark fix) or the goal moved: the decisions ahead are looked
         at again, and may change even once said (``_evaluate``)."""
@@ -190,6 +207,8 @@ class Guide:
         """After each move of the estimate: the road history, arrivals at intersections, exits
         taken, re-evaluation and announcements."""
         self.history.add(est.odometer_m, est.x_m, est.y_m, est.heading_rad)
+        if not est.reckoning:
+            self._heading_before_gap = self.history.unwrapped_rad
         first = self._first_unresolved()
         if first is not None:
             self._check_resolution(first, t_s, est, turn, out)
@@ -415,7 +434,7 @@ class Guide:
     def announce(self, t_s: float, est: EstimateState, out: Outputs) -> None:
         """What is due for the next intersection still ahead of the car."""
         odometer_m = est.odometer_m
-        i, a = self._announce_target(odometer_m)
+        i, a = announce_target(self.ahead, odometer_m, PASS_MARGIN_M)
         if a is None or a.decision is None:
             return
         if self._arrives_before(a, est):
@@ -480,20 +499,6 @@ class Guide:
         ahead = a.at_odometer_m - start_odo
         return arrives_before(self.navigator.goal, radius, start, a.approach_heading_rad, ahead)
 
-    def _announce_target(self, odometer_m: float) -> tuple[int, Ahead | None]:
-        """The next intersection still ahead: the first one the car has not reached, once it
-        is ``PASS_MARGIN_M`` past every one before it (a distance is a few metres off; the
-        driver must not hear the next manoeuvre while still at the previous corner)."""
-        for i, a in enumerate(self.ahead):
-            if a.at_odometer_m is not None:
-                if a.at_odometer_m > odometer_m:
-                    return i, a
-                if odometer_m < a.at_odometer_m + PASS_MARGIN_M:
-                    return -1, None
-            elif a.passed_odometer_m is None:  # distance unknown: once the ones before are behind
-                return (i, a) if i == 0 else (-1, None)
-        return -1, None
-
     def _then(self, i: int, a: Ahead, est: EstimateState) -> tuple[float | None, float | None]:
         if i + 1 >= len(self.ahead):
             return None, None
@@ -541,7 +546,7 @@ class Guide:
 
     def next_ahead(self, odometer_m: float) -> tuple[Decision | None, float | None]:
         """The decision for the next intersection still ahead and its distance (None: unknown)."""
-        _i, a = self._announce_target(odometer_m)
+        _i, a = announce_target(self.ahead, odometer_m, PASS_MARGIN_M)
         if a is None:
             return None, None
         dist = None if a.at_odometer_m is None else max(0.0, a.at_odometer_m - odometer_m)

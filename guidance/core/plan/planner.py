@@ -31,10 +31,11 @@ from guidance.core.messages import (
     Target,
     TurnCompleted,
 )
+from guidance.core.odometry_gap import placeable_s
 from guidance.core.pipeline_config import Input, Outputs, PipelineConfig
 from guidance.core.pipeline_state import PlanState
 from guidance.core.plan.chance import ChanceWatch, shipped_or_none
-from guidance.core.plan.guide import Guide
+from guidance.core.plan.guide import SAME_PLACE_M, Guide
 from guidance.core.plan.navigator import Navigator
 from guidance.core.plan.turns import TurnDetector
 from guidance.core.snapshot_check import integer
@@ -58,7 +59,7 @@ class Planner:
     def __init__(self, config: PipelineConfig, counts: Counter[str] | None = None) -> None:
         self.config = config
         self.counts: Counter[str] = Counter() if counts is None else counts
-        self.st = PlanState()
+        self.st = PlanState(placed=not config.start_unknown)
         self.next_state_t = -math.inf
         self.navigator = Navigator(config.goal_xy_m, config.navigator, config.landmarks)
         self.chance = ChanceWatch(
@@ -77,6 +78,10 @@ class Planner:
         est = step.estimate
         assert est is not None, "Localizer.handle sets the estimate"
         for move in step.moves:
+            if move.gap_from_s is not None:  # the places ahead after a silence, judged once
+                self.turns.reset()  # the heading across the gap is judged there, not again
+                placeable = placeable_s(SAME_PLACE_M)  # the gap's bound within "same place"
+                self.guide.after_gap(move.t_s, move.gap_from_s, placeable, move.estimate, out)
             if move.odometry:
                 turn = self.turns.update(move.t_s, move.estimate.heading_rad,
                                          move.estimate.odometer_m)  # fmt: skip
@@ -98,7 +103,7 @@ class Planner:
             self._intersection(msg, est, out)
         elif isinstance(msg, TurnCompleted):
             self._turn(msg, est, out)
-        elif isinstance(msg, Approach):
+        elif isinstance(msg, Approach) and self.st.placed:
             self.guide.approach(msg, est, out)
         return out
 
@@ -117,6 +122,7 @@ class Planner:
         last = self.st.landmark_said.get(str(fix.landmark_id), -math.inf)
         if step.relocalised or was_lost:  # found again: said by the place's name
             self.counts["relocalisations"] += 1
+            first, self.st.placed = not self.st.placed, True
             # found: a reset's ellipse (80 m across for a 20 m sight) sits on the lost
             # hysteresis, so the episode is closed here, not by the axis
             self.st.lost_said = False
@@ -125,7 +131,8 @@ class Planner:
             how = "reset there" if step.relocalised else "inside the lost ellipse"
             log.warning("position found again near landmark %d %r (%s)",
                         fix.landmark_id, name, how)  # fmt: skip
-            self._say(out, fix.t_s, prompts.position_found(name), Priority.SAFETY, "found")
+            text = prompts.position_found(name, again=not first)
+            self._say(out, fix.t_s, text, Priority.SAFETY, "found")
         elif fix.t_s - last >= LANDMARK_REPEAT_S:  # a second fix from the same pass: silent
             self.st.landmark_said[str(fix.landmark_id)] = fix.t_s
             self._say(out, fix.t_s, prompts.landmark_confirmed(name), Priority.INFO, "landmark")
@@ -135,6 +142,10 @@ class Planner:
     def _intersection(self, scene: IntersectionScene, est: EstimateState, out: Outputs) -> None:
         if not scene.exit_headings_rad:
             out.accepted, out.reason = False, "no_exits"
+            return
+        if not self.st.placed:  # started anywhere, no place found yet: no advice
+            out.accepted, out.reason = False, "position_unknown"
+            self.counts["advice_withheld"] += 1
             return
         if not est.heading_known:  # no advice out of a heading the car does not have
             out.accepted, out.reason = False, "heading_unknown"
@@ -189,7 +200,10 @@ class Planner:
             self.st.uncertain_said = False
         if lost:
             out.lost = True
-            if not self.st.lost_said:
+            if not self.st.lost_said and not self.st.placed:  # started anywhere: not lost
+                self.st.lost_said = True
+                self._say(out, t, prompts.position_unknown(), Priority.SAFETY, "lost")
+            elif not self.st.lost_said:
                 self.st.lost_said = True
                 self.counts["lost_episodes"] += 1
                 searching = self.config.relocalise

@@ -117,6 +117,40 @@ class Ahead:
         )
 
 
+def announce_target(
+    ahead: list[Ahead], odometer_m: float, pass_margin_m: float
+) -> tuple[int, Ahead | None]:
+    """The next intersection still ahead and its index (-1, None: none now): the first one the
+    car has not reached, once it is ``pass_margin_m`` past every one before it (a distance is
+    a few metres off; the driver must not hear the next manoeuvre while still at the previous
+    corner). With no distance: once the ones before are behind."""
+    for i, a in enumerate(ahead):
+        if a.at_odometer_m is not None:
+            if a.at_odometer_m > odometer_m:
+                return i, a
+            if odometer_m < a.at_odometer_m + pass_margin_m:
+                return -1, None
+        elif a.passed_odometer_m is None:
+            return (i, a) if i == 0 else (-1, None)
+    return -1, None
+
+
+def unplaced_after_gap(
+    ahead: list[Ahead], gap_from_s: float, resume_s: float, placeable_s: float
+) -> list[Ahead]:
+    """The intersections ahead, placed by distance, that the car can no longer place once the
+    wheel speeds come back after a silence from ``gap_from_s`` to ``resume_s``: the odometer
+    was dead-reckoned at the last speed meanwhile, so where each one is along the road is
+    uncertain by what the car may have gained or lost since the gap began (or since it was
+    reported, if later). Past ``placeable_s`` of that (the time after which the gap's
+    along-road bound exceeds the guide's "same place") the car cannot tell whether it is still
+    ahead, passed straight or turned at: none of its distances or exits can be trusted."""
+    return [
+        a for a in ahead
+        if a.at_odometer_m is not None and resume_s - max(gap_from_s, a.t_s) > placeable_s
+    ]  # fmt: skip
+
+
 class RoadHistory:
     """The estimate along the road behind the car, one sample per metre of travel: where the
     car was when it got to an intersection, and whether its heading is steady now."""
@@ -169,6 +203,11 @@ class RoadHistory:
             if covered >= up_to_m:
                 return covered
         return math.inf if self._s[0][0] <= 1.0 else covered  # not turned since the start
+
+    @property
+    def unwrapped_rad(self) -> float:
+        """The newest heading, unwrapped (turns accumulate): differences are turns made."""
+        return self._unwrapped
 
     @property
     def last_odometer_m(self) -> float:
