@@ -478,8 +478,6 @@ MAX_CLASS_LINES = 300
 KNOWN_BIG_CLASSES = {
     "guidance/core/localize/estimator.py:PoseEstimator": "the filter; issue 38 adds a gyro state "
     "to it this session: split once that lands (the motion model and the two updates apart)",
-    "guidance/core/plan/guide.py:Guide": "the road ahead: its announcements (announce, "
-    "_then, _speak, _arrives_before) are the next cut, along the plan",
 }
 """Classes of the core still over ``MAX_CLASS_LINES``, with why; the list may only shrink."""
 

@@ -34,31 +34,25 @@ import logging
 import math
 from collections import Counter
 from collections.abc import Mapping
-from dataclasses import replace
 
-import numpy as np
-
-from guidance.core import prompts
 from guidance.core.messages import (
     Approach,
     EstimateState,
-    ExitTaken,
     IntersectionScene,
-    Priority,
-    Prompt,
     TurnCompleted,
 )
 from guidance.core.model import wrap_angle
 from guidance.core.pipeline_config import Outputs, PipelineConfig
-from guidance.core.plan.announce import (
-    WORD_SIGMAS,
-    arrives_before,
-    due_announcements,
-    heading_cannot_tell,
-    heading_sd,
-)
+from guidance.core.plan.announcer import PASS_MARGIN_M, Announcer
+from guidance.core.plan.exits import ExitResolver
 from guidance.core.plan.navigator import Decision, Navigator
-from guidance.core.plan.road import Ahead, RoadHistory, announce_target, unplaced_after_gap
+from guidance.core.plan.road import (
+    Ahead,
+    RoadHistory,
+    announce_target,
+    pose_covariance,
+    predicted_xy,
+)
 from guidance.core.snapshot_check import integer
 
 log = logging.getLogger(__name__)
@@ -72,21 +66,11 @@ estimate's wobble; a change the driver hears must be worth it). It is changed on
 and never after the just-before prompt."""
 SAME_PLACE_M = 20.0
 """A report within this distance (or 15 %) of one already ahead is the same intersection."""
-UNKNOWN_AHEAD_M = 50.0
-"""Where "the next intersection" (distance unknown) is taken to be for the law: a town
-block's least length ahead (never the intersection the car has just left behind)."""
-PASSED_STRAIGHT_M = 10.0
-"""No distance: once the next intersection is reported (so the car is at or in this one), a
-heading that has not turned over this much travel means the car went straight on (a car that
-turns at a corner a few metres ahead has turned by half within it)."""
-REPEAT_S = 5.0
-"""The same sentence is not said twice within this time (unless it says a change)."""
 ROAD_STEADY_M = 20.0
 """The car's own heading is the road's once it has been steady over this much travel."""
-PASS_MARGIN_M = 5.0
-"""The next intersection is announced once the car is this far past the one before it."""
 MAX_AHEAD = 4
 """Intersections kept ahead at once (a co-driver who reports far ahead)."""
+
 
 class Guide:
     """The queue of intersections ahead and everything said and decided about them (see the
@@ -108,12 +92,10 @@ class Guide:
         """The report number of the intersection the last report was about (a new one, or
         one already ahead reported again, e.g. by a simulator resumed from a checkpoint)."""
         self.last_decision: Decision | None = None
-        self.last_said = ""
-        """The last turn manoeuvre said (a straight after a straight is not repeated)."""
-        self._said_at: dict[str, float] = {}
-        self.last_exit_heading_rad: float | None = None
-        """The exit the car took at the last intersection it went through (estimate frame)."""
-        self._heading_before_gap = 0.0  # the history's heading at the last odometry step
+        self.announcer = Announcer(config, navigator, counts)
+        """What is said of the intersections ahead, and when."""
+        self.exits = ExitResolver(config, navigator, counts, self.history)
+        """The exit taken at each intersection, from what the car did."""
 
     # -- inputs ---------------------------------------------------------------------------------
     def report(self, scene: IntersectionScene, est: EstimateState, out: Outputs) -> None:
@@ -135,7 +117,7 @@ class Guide:
                 self.counts["report_repeated"] += 1
                 self.last_seq = same.seq
                 self._evaluate(same, est, scene.t_s, out)
-                self.announce(scene.t_s, est, out)
+                self.announcer.announce(self.ahead, scene.t_s, est, out)
                 return
         else:
             for a in self.ahead:  # the co-driver reports the next one: the earlier are behind
@@ -172,29 +154,14 @@ class Guide:
     def co_driver_turn(self, turn: TurnCompleted, est: EstimateState, out: Outputs) -> bool:
         """The co-driver says which way the car went: the first intersection ahead resolved
         with it. False when nothing was ahead."""
-        first = self._first_unresolved()
-        if first is None:
-            return False
-        base = first.approach_heading_rad
-        heading = est.heading_rad if base is None else wrap_angle(base + turn.heading_change_rad)
-        self._resolve(first, turn.t_s, heading, turn.source, est, out)
-        return True
+        return self.exits.co_driver_turn(self.ahead, turn, est, out)
 
     def after_gap(
         self, t_s: float, gap_from_s: float, placeable_s: float, est: EstimateState, out: Outputs
     ) -> None:
-        """The wheel speeds are back after a silence (``road.unplaced_after_gap``). One place
-        no longer placed and a turn on the compass meanwhile: the turn was made there. Others
-        cannot be told apart (passed straight, turned at, still ahead): dropped unsaid, never
-        resolved by distance or credited with a later turn."""
-        lost = unplaced_after_gap(self.ahead, gap_from_s, t_s, placeable_s)
-        turned = abs(self.history.unwrapped_rad - self._heading_before_gap)
-        if len(lost) == 1 and turned >= self.config.turn_detector.min_turn_rad:
-            self._resolve(lost[0], t_s, est.heading_rad, "compass_gap", est, out)
-            lost = []
-        for a in lost:
-            self.ahead.remove(a)
-        self.counts["ahead_unplaced_after_gap"] += len(lost)
+        """The wheel speeds are back after a silence: the places ahead it leaves unplaced
+        (``ExitResolver.after_gap``)."""
+        self.exits.after_gap(self.ahead, t_s, gap_from_s, placeable_s, est, out)
 
     def replan(self, t_s: float, est: EstimateState, out: Outputs) -> None:
         """The estimate jumped (a landmark fix) or the goal moved: the decisions ahead are looked
@@ -208,91 +175,13 @@ class Guide:
         taken, re-evaluation and announcements."""
         self.history.add(est.odometer_m, est.x_m, est.y_m, est.heading_rad)
         if not est.reckoning:
-            self._heading_before_gap = self.history.unwrapped_rad
-        first = self._first_unresolved()
-        if first is not None:
-            self._check_resolution(first, t_s, est, turn, out)
+            self.exits.heading_before_gap = self.history.unwrapped_rad
+        if self.ahead:
+            self.exits.check(self.ahead, t_s, est, turn, out)
         elif turn is not None:
             log.info("turn of %.0f deg with no intersection announced",
                      math.degrees(turn.heading_change_rad))  # fmt: skip
         self._update(t_s, est, out, force=False)
-
-    # -- resolution -----------------------------------------------------------------------------
-    def _first_unresolved(self) -> Ahead | None:
-        return self.ahead[0] if self.ahead else None
-
-    def _check_resolution(
-        self,
-        a: Ahead,
-        t_s: float,
-        est: EstimateState,
-        turn: TurnCompleted | None,
-        out: Outputs,
-    ) -> None:
-        cfg = self.config
-        heading, odometer_m = est.heading_rad, est.odometer_m
-        if a.at_odometer_m is not None:
-            if a.reached is None and odometer_m >= a.at_odometer_m:
-                a.reached = _reached(est)
-            near = odometer_m >= a.at_odometer_m - cfg.turn_detector.window_m
-            if turn is not None and near:
-                self._resolve(a, t_s, heading, "detected", est, out)
-            elif odometer_m >= a.at_odometer_m + cfg.straight_after_m and not est.reckoning:
-                self._resolve(a, t_s, heading, "no_turn", est, out)
-            return
-        if turn is not None and a.approach_heading_rad is not None:
-            self._resolve(a, t_s, heading, "detected", est, out)
-        elif (
-            a.passed_odometer_m is not None
-            and a.passed_heading_rad is not None
-            and odometer_m >= a.passed_odometer_m + PASSED_STRAIGHT_M
-            and self.history.steady(odometer_m)
-            and abs(wrap_angle(heading - a.passed_heading_rad))
-            < 0.5 * cfg.turn_detector.min_turn_rad
-        ):
-            self._resolve(a, t_s, heading, "passed", est, out)
-
-    def _resolve(
-        self, a: Ahead, t_s: float, heading: float, source: str, est: EstimateState, out: Outputs
-    ) -> None:
-        """``a`` is behind the car, which left it with ``heading``: the exit taken, remembered."""
-        self.ahead.remove(a)
-        d = a.decision
-        if d is None:  # never decided (its road never became known): nothing to remember
-            self.counts["resolved_undecided"] += 1
-            return
-        best = min(d.options, key=lambda o: abs(wrap_angle(o.heading_rad - heading))).index
-        blind = heading_cannot_tell(d, heading_sd(_cov(est)))
-        if best != d.exit_index and source != "co-driver" and blind:
-            best = d.exit_index  # the heading cannot tell the exits apart: as advised
-            self.counts["exit_assumed_followed"] += 1
-        followed = best == d.exit_index
-        if not followed:
-            self.counts["advice_not_followed"] += 1
-            # Intersections reported behind this one were on the road of the advised exit.
-            dropped = [b for b in self.ahead if b.t_s <= t_s and b.at_odometer_m is not None]
-            for b in dropped:
-                self.ahead.remove(b)
-            self.counts["ahead_dropped"] += len(dropped)
-        reached = a.reached
-        if reached is None:  # distance unknown: where the turn began, else where it was passed
-            back = self.config.turn_detector.settle_m + 5.0 if source == "detected" else 0.0
-            odo = (a.passed_odometer_m if a.passed_odometer_m is not None and source != "detected"
-                   else self.history.last_odometer_m - back)  # fmt: skip
-            xy = self.history.at(odo)
-            _x, _y, pxx, pxy, pyy = _reached(est)
-            px, py = xy if xy is not None else (est.x_m, est.y_m)
-            reached = (px, py, pxx, pxy, pyy)
-        rx, ry, pxx, pxy, pyy = reached
-        Pm = np.array([[pxx, pxy], [pxy, pyy]])
-        k = self.navigator.commit((rx, ry), Pm, d.options[best].heading_rad)
-        nxt = self.ahead[0] if self.ahead else None
-        if nxt is not None and nxt.relative and nxt.approach_heading_rad is None:
-            nxt.approach_heading_rad = d.options[best].heading_rad  # the road it is typed on
-        self.last_exit_heading_rad = d.options[best].heading_rad
-        out.exits_taken.append(
-            ExitTaken(t_s, replace(d, intersection_id=k), best, followed, source)
-        )
 
     # -- decisions and announcements ------------------------------------------------------------
     def _update(
@@ -325,7 +214,7 @@ class Guide:
                 if a.approach_heading_rad is not None and due:
                     self._evaluate(a, est, t_s, out, jumped)
             prev = a
-        self.announce(t_s, est, out)
+        self.announcer.announce(self.ahead, t_s, est, out)
 
     def _set_approach(
         self,
@@ -363,31 +252,13 @@ class Guide:
             a.approach_heading_rad = prev.decision.exit_heading_rad
         elif prev is None and a.approach_heading_rad is None and steady:
             # Just out of a turn: the exit it took is the road, if the car has kept to it.
-            taken = self.last_exit_heading_rad
+            taken = self.exits.last_exit_heading_rad
             heading = est.heading_rad
             if (
                 taken is not None
                 and abs(wrap_angle(heading - taken)) <= self.history.steady_tol_rad
             ):
                 a.approach_heading_rad = taken
-
-    def _predicted_xy(self, a: Ahead, est: EstimateState) -> tuple[float, float]:
-        """Where the car will be at ``a``: along its approach road from the car, or from the
-        intersection before it."""
-        odometer_m = est.odometer_m
-        base_xy, base_odo = (est.x_m, est.y_m), odometer_m
-        i = self.ahead.index(a)
-        if i > 0:
-            prev = self.ahead[i - 1]
-            if prev.at_odometer_m is not None and prev.at_odometer_m > odometer_m:
-                base_xy = self._predicted_xy(prev, est)
-                base_odo = prev.at_odometer_m
-        if a.approach_heading_rad is None:
-            return base_xy
-        known = a.at_odometer_m
-        ahead = UNKNOWN_AHEAD_M if known is None else max(0.0, known - base_odo)
-        h = a.approach_heading_rad
-        return base_xy[0] + ahead * math.cos(h), base_xy[1] + ahead * math.sin(h)
 
     def _evaluate(
         self,
@@ -405,9 +276,9 @@ class Guide:
         if exits is None or a.approach_heading_rad is None:
             return
         a.last_eval_odometer_m = est.odometer_m
-        at = self._predicted_xy(a, est)
+        at = predicted_xy(self.ahead, a, est)
         new = self.navigator.evaluate(
-            t_s, at, _cov(est), exits, a.approach_heading_rad, (est.x_m, est.y_m)
+            t_s, at, pose_covariance(est), exits, a.approach_heading_rad, (est.x_m, est.y_m)
         )
         old = a.decision
         if old is not None and new.exit_index != old.exit_index:
@@ -431,111 +302,6 @@ class Guide:
             self.last_decision = new
             out.decisions.append(new)
 
-    def announce(self, t_s: float, est: EstimateState, out: Outputs) -> None:
-        """What is due for the next intersection still ahead of the car."""
-        odometer_m = est.odometer_m
-        i, a = announce_target(self.ahead, odometer_m, PASS_MARGIN_M)
-        if a is None or a.decision is None:
-            return
-        if self._arrives_before(a, est):
-            self.counts["goal_intersection_not_said"] += 1  # "You have arrived" comes first
-            a.said_exit = a.decision.exit_index  # held as if said: no silent swapping
-            return
-        if est.reckoning and a.at_odometer_m is not None:
-            self.counts["words_withheld_gap"] += 1  # said once the wheels speak again
-            return
-        d = a.decision
-        band = WORD_SIGMAS * heading_sd(_cov(est)) if a.approach_estimated else 0.0
-        action = prompts.manoeuvre_within(d.turn_rad, band, d.exit_heading_rad)
-        changed = a.said_exit >= 0 and a.said_exit != d.exit_index
-        straight = action == "continue straight"
-        if a.at_odometer_m is None:
-            if "now" in a.announced and not changed:
-                return
-            a.announced.add("now")
-            if straight and not changed and self.last_said == "continue straight":
-                self.counts["straight_not_repeated"] += 1  # the screen shows it; nothing new
-                a.said, a.said_exit = action, d.exit_index
-                return
-            then = self._then(i, a, est)
-            text = prompts.turn_prompt(d.turn_rad, None, self.config.units, *then, action=action)
-            self._speak(a, out, t_s, text, action, changed)
-            return
-        distance = max(0.0, a.at_odometer_m - odometer_m)
-        due = due_announcements(distance, est.speed_mps, a.announced)
-        if not due and not changed:
-            return
-        if due:
-            a.announced.add(due[0])
-            if due[0] == "before":
-                a.frozen = True  # what the driver hears just before is what the car does
-        if straight and not changed and (not due or due[0] == "early"):
-            return  # straight through needs no early warning (OsmAnd, Organic Maps)
-        if straight and not changed and self.last_said == "continue straight":
-            self.counts["straight_not_repeated"] += 1
-            a.said, a.said_exit = action, d.exit_index
-            return
-        then = self._then(i, a, est)
-        text = prompts.turn_prompt(d.turn_rad, distance, self.config.units, *then, action=action)
-        self._speak(a, out, t_s, text, action, changed)
-
-    def _arrives_before(self, a: Ahead, est: EstimateState) -> bool:
-        """The car will be told it has arrived ``ARRIVE_MARGIN_M`` before it gets to ``a``:
-        its road to ``a`` (from the car, or from the intersection before it) enters the arrival
-        circle that far before ``a`` (a turn made before arriving is announced as any other)."""
-        if a.at_odometer_m is None or a.approach_heading_rad is None:
-            return False
-        odometer_m = est.odometer_m
-        start, start_odo = (est.x_m, est.y_m), odometer_m
-        i = self.ahead.index(a) if a in self.ahead else 0
-        if i > 0:  # on the road from the intersection before it
-            prev = self.ahead[i - 1]
-            if prev.at_odometer_m is not None and prev.at_odometer_m > odometer_m:
-                if self._arrives_before(prev, est):
-                    return True
-                start = self._predicted_xy(prev, est)
-                start_odo = prev.at_odometer_m
-        radius = self.navigator.config.arrival_radius_m
-        ahead = a.at_odometer_m - start_odo
-        return arrives_before(self.navigator.goal, radius, start, a.approach_heading_rad, ahead)
-
-    def _then(self, i: int, a: Ahead, est: EstimateState) -> tuple[float | None, float | None]:
-        if i + 1 >= len(self.ahead):
-            return None, None
-        b = self.ahead[i + 1]
-        if b.decision is None or a.at_odometer_m is None or b.at_odometer_m is None:
-            return None, None
-        if self._arrives_before(b, est):
-            b.said_exit = b.decision.exit_index  # held as if said, but the car arrives first
-            return None, None
-        return b.decision.turn_rad, b.at_odometer_m - a.at_odometer_m
-
-    def _speak(
-        self, a: Ahead, out: Outputs, t_s: float, text: str, action: str, changed: bool
-    ) -> None:
-        assert a.decision is not None
-        exit_index = a.decision.exit_index
-        if changed:
-            text = prompts.changed(text)
-            a.frozen = True  # one change at most
-        last_t = self._said_at.get(text)
-        if last_t is not None and t_s - last_t < REPEAT_S and not changed:
-            if a.said_exit >= 0:  # the same words again so soon tell nothing
-                self.counts["repeat_not_said"] += 1
-                return
-            text += " again"  # another intersection with the same manoeuvre, right after
-        self._said_at = {k: v for k, v in self._said_at.items() if t_s - v < REPEAT_S}
-        self._said_at[text] = t_s
-        a.said, a.said_exit = action, exit_index
-        self.last_said = action
-        out.prompts.append(Prompt(t_s, text, Priority.GUIDANCE, "turn"))
-        i = self.ahead.index(a)
-        if i + 1 < len(self.ahead) and ", then " in text:
-            nxt = self.ahead[i + 1]
-            if nxt.decision is not None:
-                nxt.said = prompts.manoeuvre(nxt.decision.turn_rad)
-                nxt.said_exit = nxt.decision.exit_index
-
     # -- views and checkpoints ------------------------------------------------------------------
     def planned_exit(self, seq: int) -> int | None:
         """The exit now planned for report ``seq`` (the simulated driver follows it)."""
@@ -558,7 +324,7 @@ class Guide:
             "history": self.history.snapshot(),
             "reports": self.reports,
             "last_seq": self.last_seq,
-            "last_said": self.last_said,
+            "last_said": self.announcer.last_said,
         }
 
     def restore(self, snap: Mapping[str, object]) -> None:
@@ -569,17 +335,6 @@ class Guide:
         self.history.restore(snap.get("history", []))
         self.reports = integer(snap.get("reports", 0), "guide.reports")
         self.last_seq = integer(snap.get("last_seq", 0), "guide.last_seq")
-        self.last_said = str(snap.get("last_said", ""))[:40]
+        self.announcer.last_said = str(snap.get("last_said", ""))[:40]
         decided = [a.decision for a in self.ahead if a.decision is not None]
         self.last_decision = decided[-1] if decided else None
-
-
-def _cov(est: EstimateState) -> np.ndarray:
-    """The estimate's pose covariance (x, y, heading) as a matrix."""
-    return np.array(est.covariance, dtype=float)
-
-
-def _reached(est: EstimateState) -> tuple[float, float, float, float, float]:
-    """Where the car is, with its x-y covariance (pxx, pxy, pyy): an intersection reached."""
-    c = est.covariance
-    return est.x_m, est.y_m, c[0][0], c[0][1], c[1][1]
