@@ -334,18 +334,30 @@ class PoseEstimator:
     def lost(self) -> bool:
         return self.major_axis_m > self.config.lost_major_axis_m
 
-    def state(self) -> EstimateState:
+    def state(
+        self,
+        odometer_m: float = 0.0,
+        speed_mps: float = 0.0,
+        heading_known: bool = True,
+        reckoning: bool = False,
+    ) -> EstimateState:
+        """The estimate as a value, with what the localizer reads it with (``EstimateState``)."""
         x = self._kf.x
-        P = self._kf.P
+        c = self._kf.P[:3, :3].tolist()
+        ellipse = self.ellipse()
         return EstimateState(
             t_s=self._last_t if self._last_t is not None else 0.0,
             x_m=float(x[0]),
             y_m=float(x[1]),
             heading_rad=float(x[2]),
-            covariance=tuple((float(r[0]), float(r[1]), float(r[2])) for r in P[:3]),
-            ellipse=self.ellipse(),
-            lost=self.lost,
+            covariance=(tuple(c[0]), tuple(c[1]), tuple(c[2])),
+            ellipse=ellipse,
+            lost=ellipse.major_axis_m > self.config.lost_major_axis_m,
             healthy=self.healthy,
+            odometer_m=odometer_m,
+            speed_mps=speed_mps,
+            heading_known=heading_known,
+            reckoning=reckoning,
         )
 
     # -- the one entry point ------------------------------------------------

@@ -126,20 +126,16 @@ class Localizer:
             self._heading(msg, step)
         elif isinstance(msg, LandmarkFix):
             self._landmark(msg, step)
-        step.estimate = self.estimate()
+        odometry_last = isinstance(msg, WheelOdometry) and step.accepted and step.moves
+        # an accepted odometry step is the input's last change: its move's estimate is the one
+        step.estimate = step.moves[-1].estimate if odometry_last else self.estimate()
         step.compass_unusable = self.compass_judge.unusable
         return step
 
     def estimate(self) -> EstimateState:
         """The estimate now, with what it is read with (one value)."""
-        s = self.estimator.state()
-        return EstimateState(
-            s.t_s, s.x_m, s.y_m, s.heading_rad, s.covariance, s.ellipse, s.lost, s.healthy,
-            odometer_m=self.st.odometer_m,
-            speed_mps=self.st.speed_mps,
-            heading_known=self.st.heading_known,
-            reckoning=self.tr.dr_to_t is not None,
-        )  # fmt: skip
+        st, reckoning = self.st, self.tr.dr_to_t is not None
+        return self.estimator.state(st.odometer_m, st.speed_mps, st.heading_known, reckoning)
 
     def compass_fix(self, msg: CompassHeading) -> HeadingFix:
         """A compass reading as a filter heading: card, mounting offset, declination unless true."""
