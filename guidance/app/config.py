@@ -284,6 +284,10 @@ def parse_config(
 
     start = _Table("start", data.get("start", {}))
     (sx, sy), origin = _point(start, None)
+    no_position = not any(start.has(k) for k in ("lat_deg", "lon_deg", "x_m", "y_m"))
+    start_unknown = start.boolean("unknown", False)
+    if start_unknown and not no_position:
+        raise UserError("[start] unknown = true and a position: give one or the other")
     start_heading = start.number("heading_deg", None, lo=0.0, hi=360.0)
     """True heading, degrees clockwise from north (None: from the first compass reading)."""
     start.done()
@@ -293,8 +297,12 @@ def parse_config(
     gx = gy = 0.0
     if "goal" in data:
         goal_t = _Table("goal", data["goal"])
-        (gx, gy), _ = _point(goal_t, origin)
+        (gx, gy), goal_geo = _point(goal_t, origin)
         goal_t.done()
+        if no_position and origin is None and goal_geo is not None:
+            origin, start_unknown = goal_geo, True  # start anywhere: the frame is the goal's
+    if start_unknown:
+        sx, sy = gx, gy  # where the estimate waits, city-wide, for the first landmark
 
     nav = from_table(NavigationSettings, data.get("navigation", {}), "navigation")
 
@@ -395,6 +403,12 @@ def parse_config(
     else:  # [[landmarks]]: positions only
         landmarks = _landmarks(data.get("landmarks", []), origin)
 
+    relocalise = camera is not None and landmark_db is not None
+    if start_unknown and not relocalise:
+        raise UserError(
+            "[start] gives no position, so the car must find itself: that needs a camera "
+            "([camera] enabled = true) and a landmark database ([landmarks] database = ...)"
+        )
     rates: dict[str, float | None] = {}
     if odometry is not None:
         rates["odometry"] = odometry.expected_rate_hz
@@ -429,6 +443,8 @@ def parse_config(
         uncertain_warn_m=nav.uncertain_warn_m,
         stop_at_arrival=nav.stop_at_arrival,
         chance=chance,
+        relocalise=relocalise,
+        start_unknown=start_unknown,
     )
     sim = data.get("sim", {})
     if not isinstance(sim, Mapping):

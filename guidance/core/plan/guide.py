@@ -96,6 +96,7 @@ class Guide:
         """What is said of the intersections ahead, and when."""
         self.exits = ExitResolver(config, navigator, counts, self.history)
         """The exit taken at each intersection, from what the car did."""
+        self.silent = False  # the car does not know where it is (started anywhere): no advice
 
     # -- inputs ---------------------------------------------------------------------------------
     def report(self, scene: IntersectionScene, est: EstimateState, out: Outputs) -> None:
@@ -195,8 +196,8 @@ class Guide:
     ) -> None:
         """Approach roads, decisions (re-evaluated every ``EVAL_EVERY_M`` where the distance is
         known; with none, where the intersection is stays unknown, so only a jump of the
-        estimate re-evaluates it), then what is due to be said."""
-        if not self.ahead:
+        estimate re-evaluates it), then what is due to be said. Nothing while ``silent``."""
+        if not self.ahead or self.silent:
             return
         odometer_m = est.odometer_m
         prev: Ahead | None = None

@@ -70,6 +70,7 @@ class Planner:
         self.chance.set_trip(self._landmarks_xy(), config.start_xy_m, config.goal_xy_m)
         self.turns = TurnDetector(config.turn_detector)
         self.guide = Guide(config, self.navigator, self.counts)
+        self.guide.silent = not self.st.placed  # kept, undecided and unsaid, until placed
 
     # -- the one entry point ----------------------------------------------------------------
     def handle(self, msg: Input, step: LocalizeStep) -> PlanStep:
@@ -103,7 +104,7 @@ class Planner:
             self._intersection(msg, est, out)
         elif isinstance(msg, TurnCompleted):
             self._turn(msg, est, out)
-        elif isinstance(msg, Approach) and self.st.placed:
+        elif isinstance(msg, Approach):
             self.guide.approach(msg, est, out)
         return out
 
@@ -120,9 +121,17 @@ class Planner:
         self.navigator.on_landmark_fix(fix.landmark_id, est.ellipse.major_axis_m)
         name = next((lm.name for lm in self.config.landmarks if lm.id == fix.landmark_id), "")
         last = self.st.landmark_said.get(str(fix.landmark_id), -math.inf)
-        if step.relocalised or was_lost:  # found again: said by the place's name
+        still_lost = est.ellipse.major_axis_m > self.config.estimator.lost_major_axis_m
+        if (step.relocalised or was_lost) and still_lost:
+            # a reset as wide as lost itself (a sighting range over a quarter of the lost
+            # axis: ``landmark_warnings``) finds nothing the driver can use: no "found"
+            self.counts["relocalisations_still_lost"] += 1
+            log.warning("landmark %d found while lost, but its reset is %.0f m across: "
+                        "still lost", fix.landmark_id, est.ellipse.major_axis_m)  # fmt: skip
+        elif step.relocalised or was_lost:  # found again: said by the place's name
             self.counts["relocalisations"] += 1
             first, self.st.placed = not self.st.placed, True
+            self.guide.silent = False
             # found: a reset's ellipse (80 m across for a 20 m sight) sits on the lost
             # hysteresis, so the episode is closed here, not by the axis
             self.st.lost_said = False
@@ -142,10 +151,6 @@ class Planner:
     def _intersection(self, scene: IntersectionScene, est: EstimateState, out: Outputs) -> None:
         if not scene.exit_headings_rad:
             out.accepted, out.reason = False, "no_exits"
-            return
-        if not self.st.placed:  # started anywhere, no place found yet: no advice
-            out.accepted, out.reason = False, "position_unknown"
-            self.counts["advice_withheld"] += 1
             return
         if not est.heading_known:  # no advice out of a heading the car does not have
             out.accepted, out.reason = False, "heading_unknown"
@@ -277,3 +282,4 @@ class Planner:
         guide = snap.get("guide")
         if isinstance(guide, dict):
             self.guide.restore(guide)
+        self.guide.silent = not self.st.placed
