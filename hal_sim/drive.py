@@ -138,9 +138,8 @@ class SimDrive:
         """Open the devices and the outputs, drive, close everything; the drive's result."""
         try:
             compass = self.opts.compass_deg is not None
-            seed = self.opts.seed if self.opts.start_unknown else None
             with open_sim_devices(self.world, self.opts.profile, self.clock, compass=compass,
-                                  drive_on_seed=seed) as d:  # fmt: skip
+                                  drive_on_seed=self.opts.seed) as d:  # fmt: skip
                 self.dev = d
                 sim = {"seed": self.opts.seed, "method": self.method.value}
                 session = session_record(self.pipeline, self.opts.config or "", sim=sim)
@@ -371,10 +370,9 @@ class SimDrive:
         if self.checkpointer is not None:
             self.checkpointer.extra = self._extra_state  # the world, for a resumed drive
         self.app.listeners.append(self._on_output)
+        self.lockstep = self.app.wrap_source_sink(LockstepSink)  # the world waits for the app
         if screen is not None:
             screen.listen(self.app)
-        self.lockstep = LockstepSink(self.app.sink)  # the world waits for the app
-        self.app.source_sink = self.lockstep
 
     # -- checkpoints ----------------------------------------------------------------------------
     def _resume(self, path: str) -> None:

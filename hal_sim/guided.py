@@ -89,8 +89,7 @@ def guided_drive(
     world = make_world(opts)
     pipeline = Pipeline(drive_pipeline_config(world, opts, world.landmarks(), 0.0))
     trip = GuidedTrip(opts, codriver)
-    scene = SimScene(world, report_next=report_next and not codriver,
-                     drive_on_seed=opts.seed if opts.start_unknown else None)  # fmt: skip
+    scene = SimScene(world, report_next=report_next and not codriver, drive_on_seed=opts.seed)
     dt = world.dt_s
 
     def feed(msg: Input) -> None:

@@ -557,6 +557,7 @@ NOT_A_FILE_READ = {
     ("landmark_db/cli.py", "read_text"): "the checkout's own pyproject.toml (version)",
     ("guidance/tools/web/server.py", "read_bytes"): "the package's own static files",
     ("guidance/app/checks.py", "read_text"): "/sys/class/net attributes (the kernel's, bytes)",
+    ("landmark_db/threads.py", "read_text"): "/proc/self/maps, the kernel's map of this process",
     ("guidance/app/checkpoint.py", "os.open"): "writes, and a folder opened to fsync it",
     ("guidance/tools/car_toml.py", "os.open"): "writes, and a folder opened to fsync it",
     ("guidance/recording/files.py", "os.open"): "writes a new recording",

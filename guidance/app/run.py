@@ -21,6 +21,7 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Any, TextIO
 
 from guidance.app.app import GIL_SWITCH_INTERVAL_S, App
+from guidance.app.backends import import_backend
 from guidance.app.build import OutputSettings, open_outputs, session_record, start_checkpoints
 from guidance.app.landmarks import landmark_warnings, open_landmarks
 from guidance.app.operator_session import SCREEN_MODES, OperatorSession
@@ -38,15 +39,10 @@ log = logging.getLogger(__name__)
 DeviceRunner = Callable[..., int]
 """``runner(config_path, *, as_json, screen)``: ``guidance run`` on devices the product does
 not build itself; ``screen`` is the ``--screen`` mode (``SCREEN_MODES``), "off" with
-``as_json`` (the prompts and the result as JSON, no operator screen)."""
-DEVICE_RUNNERS: dict[str, DeviceRunner] = {}
-"""Registered by whoever provides them (``register_device_runner``): the simulator registers
-"sim" for a config whose ``[sim]`` table says ``devices = true``, so ``guidance`` itself never
-names the simulator's package (ARCHITECTURE.md: the product does not import the simulator)."""
-
-
-def register_device_runner(name: str, runner: DeviceRunner) -> None:
-    DEVICE_RUNNERS[name] = runner
+``as_json`` (the prompts and the result as JSON, no operator screen). The ``guidance`` command
+names them in its table (``guidance.tools.cli.DEVICE_RUNNERS``: "sim" for a config whose
+``[sim]`` table says ``devices = true``), so the product never names the simulator's package
+(ARCHITECTURE.md: the product does not import the simulator)."""
 
 
 def stdin_problem(stream: TextIO | None) -> str:
@@ -397,12 +393,13 @@ def _cli_run(args: argparse.Namespace) -> int:
     global _end_without_finalizing
     _end_without_finalizing = True  # the program's entry ends the process (``end_process``)
     if load_config(args.config, require_goal=False).sim.get("devices", False):  # simulated city
-        runner = DEVICE_RUNNERS.get("sim")
-        if runner is None:
+        where = getattr(args, "device_runners", {}).get("sim")
+        if where is None:
             raise UserError(
-                f"{args.config}: [sim] devices = true, but no simulator registered a runner for "
-                "simulated devices (the simulator package registers one when `guidance` starts)"
+                f"{args.config}: [sim] devices = true, but this `guidance` command names no "
+                "runner for simulated devices (guidance.tools.cli.DEVICE_RUNNERS)"
             )
+        runner: DeviceRunner = import_backend(where)
         screen = "off" if args.json else args.screen  # --json: the prompts and the result
         return int(runner(str(args.config), as_json=args.json, screen=screen))
     return asyncio.run(run_car(str(args.config), resume=not args.fresh, screen=args.screen))

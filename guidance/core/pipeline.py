@@ -90,6 +90,10 @@ class Pipeline:
         self.st.prompt_count += len(out.prompts)
         return out
 
+    def camera_seen(self, t_s: float) -> None:
+        """A camera frame arrived (its liveness; the frame itself goes to the recogniser)."""
+        self.health.observe("camera", t_s)
+
     def update_source_counts(self, name: str, read: int, rejected: int) -> None:
         """Feed a source's cumulative read/rejected counts (garbled-input detection)."""
         self.health.update_counts(name, read, rejected)

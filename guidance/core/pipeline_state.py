@@ -10,6 +10,7 @@ from collections.abc import Mapping
 from dataclasses import dataclass, field, fields
 from typing import TypeVar
 
+from guidance.config_tables import rule, rule_of
 from guidance.core.messages import WheelOdometry
 from guidance.core.snapshot_check import (
     MAX_ODOMETER_M,
@@ -32,7 +33,7 @@ class _Checked:
     @classmethod
     def from_snapshot(cls: type[_S], snap: Mapping[str, object]) -> _S:
         """Each field from ``snap``, checked by its own type (a bool is true or false, a count
-        a non-negative integer, a number finite and within its bounds): ``SnapshotError``
+        a non-negative integer, a number finite and within its field's ``rule``): ``SnapshotError``
         names the first bad one. A field added later is checked without another list."""
         out = cls()
         for f in fields(cls):  # type: ignore[arg-type]
@@ -50,7 +51,9 @@ class _Checked:
             elif isinstance(default, int):
                 v = integer(v, f.name)
             else:
-                v = number(v, f.name, *_BOUNDS.get(f.name, (-MAX_NUMBER, MAX_NUMBER)))
+                r = rule_of(cls, f.name)  # the field's own bounds, else finite and moderate
+                lo = -MAX_NUMBER if r.lo is None else r.lo
+                v = number(v, f.name, lo, MAX_NUMBER if r.hi is None else r.hi)
             setattr(out, f.name, v)
         return out
 
@@ -64,8 +67,8 @@ class LocalizeState(_Checked):
     checkpoint carries of the first stage."""
 
     heading_known: bool = True
-    odometer_m: float = 0.0
-    speed_mps: float = 0.0
+    odometer_m: float = field(default=0.0, metadata=rule(lo=0.0, hi=MAX_ODOMETER_M))
+    speed_mps: float = field(default=0.0, metadata=rule(lo=-MAX_SPEED_MPS, hi=MAX_SPEED_MPS))
     landmark_updates: int = 0
 
 
@@ -101,9 +104,8 @@ class PipelineState(_Checked):
     """Inputs the driver has been warned about (by the pipeline or in the driver's words)."""
 
 
-_BOUNDS = {"odometer_m": (0.0, MAX_ODOMETER_M), "speed_mps": (-MAX_SPEED_MPS, MAX_SPEED_MPS)}
-"""A number field's bounds in a checkpoint (others: finite and at most ``MAX_NUMBER``)."""
 MAX_NUMBER = 1e12
+"""A number field without bounds of its own is at most this large in a checkpoint."""
 
 
 def _names(v: object, name: str) -> list[str]:

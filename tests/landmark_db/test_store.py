@@ -199,7 +199,7 @@ def test_refresh_features_recomputes_for_a_new_extractor_or_version(tmp_path: Pa
         assert db.refresh_features(ExtractorConfig("rootsift", 500, 640)) == 3
     with open_db(p) as ro:
         f = ro.features(1)
-        assert ro.extractor.ident == "rootsift/1:500@640" and ro.check().ok
+        assert ro.extractor.ident == "rootsift/2:500@640" and ro.check().ok
         assert f is not None and f.kind == "rootsift" and f.descriptors.shape[1] == 128
     with sqlite3.connect(p) as c:  # as if written by an older version of the extractor
         c.execute("UPDATE photo_features SET extractor = 'rootsift/0:500@640' WHERE photo_id = 2")

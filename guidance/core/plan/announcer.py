@@ -20,6 +20,7 @@ from guidance.core.plan.announce import (
     arrives_before,
     due_announcements,
     heading_sd,
+    too_late,
 )
 from guidance.core.plan.navigator import Navigator
 from guidance.core.plan.road import Ahead, announce_target, pose_covariance, predicted_xy
@@ -73,6 +74,11 @@ class Announcer:
             self._speak(ahead, a, out, t_s, text, action, changed)
             return
         distance = max(0.0, a.at_odometer_m - odometer_m)
+        if a.said_exit < 0 and too_late(distance, est.speed_mps):  # (a decision just made)
+            self.counts["too_late_not_said"] += 1  # the driver cannot act on it any more
+            a.said_exit, a.frozen = d.exit_index, True  # held as if said, never changed
+            a.announced.update(("early", "before"))
+            return
         due = due_announcements(distance, est.speed_mps, a.announced)
         if not due and not changed:
             return
@@ -80,7 +86,8 @@ class Announcer:
             a.announced.add(due[0])
             if due[0] == "before":
                 a.frozen = True  # what the driver hears just before is what the car does
-        if straight and not changed and (not due or due[0] == "early"):
+        unsure = est.ellipse.major_axis_m > self.config.uncertain_warn_m  # a fix may change it
+        if (straight or unsure) and not changed and (not due or due[0] == "early"):
             return  # straight through needs no early warning (OsmAnd, Organic Maps)
         if straight and not changed and self.last_said == "continue straight":
             self.counts["straight_not_repeated"] += 1

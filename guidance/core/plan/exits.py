@@ -145,7 +145,8 @@ class ExitResolver:
         if not followed:
             self.counts["advice_not_followed"] += 1
             # Intersections reported behind this one were on the road of the advised exit.
-            dropped = [b for b in ahead if b.t_s <= t_s and b.at_odometer_m is not None]
+            dropped = [b for b in ahead if b.t_s <= t_s and b.at_odometer_m is not None
+                       and not b.on_taken_road]  # fmt: skip
             for b in dropped:
                 ahead.remove(b)
             self.counts["ahead_dropped"] += len(dropped)

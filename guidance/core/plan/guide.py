@@ -128,8 +128,10 @@ class Guide:
         for a in self.ahead:
             a.frozen = True  # the car is committed to the exits before this one
         self.last_seq = self.reports
+        at_one = any(a.at_odometer_m is not None and abs(a.at_odometer_m - odometer_m)
+                     <= SAME_PLACE_M for a in self.ahead)  # fmt: skip
         item = Ahead(self.reports, scene.t_s, tuple(scene.exit_headings_rad), heading,
-                     relative=not known, at_odometer_m=at)  # fmt: skip
+                     relative=not known, at_odometer_m=at, on_taken_road=at_one)  # fmt: skip
         self.ahead.append(item)
         if at is not None:
             self.ahead.sort(key=lambda a: math.inf if a.at_odometer_m is None else a.at_odometer_m)
@@ -228,7 +230,7 @@ class Guide:
         """The heading of the road ``a`` is approached on: the car's own once it has been
         steady on that road for ``ROAD_STEADY_M`` (a turn's tail, a U-turn settling back onto
         the road, must not name the manoeuvre), else the exit chosen at the intersection
-        before it."""
+        before it (not for one reported once the car was there: ``Ahead.on_taken_road``)."""
         odometer_m = est.odometer_m
         on_its_road = prev is None or (
             prev.at_odometer_m is not None and odometer_m > prev.at_odometer_m + 5.0
@@ -249,8 +251,8 @@ class Guide:
         if on_its_road and on_road and (a.approach_heading_rad is None or not near):
             a.approach_heading_rad = self.history.road_heading(est.heading_rad)
             a.approach_estimated = True
-        elif prev is not None and prev.decision is not None and a.approach_heading_rad is None:
-            a.approach_heading_rad = prev.decision.exit_heading_rad
+        elif prev and prev.decision and a.approach_heading_rad is None and not a.on_taken_road:
+            a.approach_heading_rad = prev.decision.exit_heading_rad  # (else: the car's own)
         elif prev is None and a.approach_heading_rad is None and steady:
             # Just out of a turn: the exit it took is the road, if the car has kept to it.
             taken = self.exits.last_exit_heading_rad

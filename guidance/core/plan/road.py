@@ -57,6 +57,9 @@ class Ahead:
     reached: tuple[float, float, float, float, float] | None = None
     """(x, y, Pxx, Pxy, Pyy) of the estimate when the car got there (the tabu memory's place)."""
     last_eval_odometer_m: float = -math.inf
+    on_taken_road: bool = False
+    """Reported while the car was at the intersection before it (within the guide's same
+    place): on the road the car really takes there, whatever exit it was advised."""
 
     def exits_now(self) -> tuple[float, ...] | None:
         """The exits in the estimate frame, or None while the approach road is unknown."""
@@ -110,6 +113,7 @@ class Ahead:
             said=str(data.get("said", ""))[:40],
             said_exit=integer(data.get("said_exit", -1), "ahead.said_exit", -1, 64),
             frozen=bool(data.get("frozen")),
+            on_taken_road=bool(data.get("on_taken_road", False)),
             passed_odometer_m=opt("passed_odometer_m"),
             passed_heading_rad=opt("passed_heading_rad"),
             reached=(

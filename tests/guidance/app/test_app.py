@@ -126,7 +126,8 @@ def test_co_driver_keyboard_drives_decisions_and_corrects_the_memory(
         app = App(pipeline, sources={"scene": scene}, speaker=TextSpeaker(speech),
                   clock=lambda: clock_t[0])  # fmt: skip
         app.listeners.append(listen)
-        app.source_sink = lockstep = LockstepSink(app.sink)
+        lockstep = app.wrap_source_sink(LockstepSink)
+        assert isinstance(lockstep, LockstepSink)
         async with app.running():
             for k in range(50):  # drive 50 m east
                 clock_t[0] = 0.1 * (k + 1)
