@@ -38,9 +38,9 @@ from guidance.core.localize.car_model import car_model
 from guidance.core.localize.estimator import EstimatorConfig
 from guidance.core.localize.gyro import GyroConfig
 from guidance.core.localize.learned import LearnedParams
-from guidance.core.messages import HeadingFix, LandmarkFix, WheelOdometry, YawRate
+from guidance.core.localize.localizer import Localizer, LocalizerConfig
+from guidance.core.messages import EstimateState, HeadingFix, LandmarkFix, WheelOdometry, YawRate
 from guidance.core.model import CHI2_2D_2SIGMA, mahalanobis_sq_2d, wrap_angle
-from guidance.core.pipeline import Pipeline, PipelineConfig
 from guidance.core.plan.navigator import NavigatorConfig
 from hal_sim import world as world_mod
 from hal_sim.gyro_cars import (
@@ -253,21 +253,18 @@ def drive_car(
     )
     sx, sy, th0 = world.start_pose
     dt = world.dt_s
-    cfg = PipelineConfig(
+    cfg = LocalizerConfig(
         estimator=est,
-        navigator=NavigatorConfig(),
         start_xy_m=(sx + errors.start_dx_m, sy + errors.start_dy_m),
-        goal_xy_m=(sx + 1e6, sy),
         start_heading_rad=th0 + math.radians(errors.start_heading_deg),
         expected_rates_hz={
             "odometry": 1.0 / (dt * ODO_EVERY),
             **({"compass": 1.0 / (dt * COMPASS_EVERY)} if compass else {}),
         },
-        stop_at_arrival=False,
     )
-    p = Pipeline(cfg)
+    p = Localizer(cfg)  # the estimate alone: no goal, no navigator
     if learned is not None:
-        learned.apply(p.estimator)
+        p.adopt(learned)
     res = CarResult(errors, compass)
     left = right = 0.0
     drift = 0.0
@@ -310,9 +307,9 @@ def drive_car(
                 right += true + err
         step = world.step_count
         if gyro is not None:
-            p.feed(YawRate(t, gyro.reading(dth, dt)))
+            p.handle(YawRate(t, gyro.reading(dth, dt)))
         if step % ODO_EVERY == 0:
-            p.feed(WheelOdometry(t, left, right))
+            p.handle(WheelOdometry(t, left, right))
             left = right = 0.0
         if compass and step % COMPASS_EVERY == 0:
             drift += float(rng.normal()) * math.sqrt(
@@ -323,45 +320,43 @@ def drive_car(
                 + errors.deviation_rad(th)
                 + math.radians(drift + float(rng.normal()) * errors.compass_noise_deg)
             )
-            p.feed(HeadingFix(t, wrap_angle(reading)))
+            p.handle(HeadingFix(t, wrap_angle(reading)))
         if ev.landmark is not None:
             fx = x + float(rng.normal()) * FIX_SIGMA_M
             fy = y + float(rng.normal()) * FIX_SIGMA_M
-            p.feed(LandmarkFix(t, ev.landmark, fx, fy, FIX_SIGMA_M))
+            p.handle(LandmarkFix(t, ev.landmark, fx, fy, FIX_SIGMA_M))
         if step % SAMPLE_EVERY == 0:
-            _sample(res, p, x, y, th)
-            res.axis_m.append((world.driven_m, p.estimator.major_axis_m))
-            if res.lost_at_m is None and p.estimator.lost:
+            now = p.estimate()
+            _sample(res, now, x, y, th)
+            res.axis_m.append((world.driven_m, now.ellipse.major_axis_m))
+            if res.lost_at_m is None and now.lost:
                 res.lost_at_m = world.driven_m
                 if stop_when_lost:
                     break
         t_off += _stand(p, gyro, t, wait, dt)
     res.driven_m = world.driven_m
     res.duration_s = world.t_s + t_off
-    xe = p.estimator.x
-    res.final_error_m = math.hypot(prev[0] - xe[0], prev[1] - xe[1])
-    res.final_major_axis_m = p.estimator.major_axis_m
-    res.learned = LearnedParams.from_estimator(
-        p.estimator, "sim", world.t_s, world.driven_m, learned
-    )
+    now = p.estimate()
+    res.final_error_m = math.hypot(prev[0] - now.x_m, prev[1] - now.y_m)
+    res.final_major_axis_m = now.ellipse.major_axis_m
+    res.learned = p.learned("sim", world.t_s, world.driven_m, learned)
     return res
 
 
-def _stand(p: Pipeline, gyro: GyroSim | None, t0: float, seconds: float, dt: float) -> float:
+def _stand(p: Localizer, gyro: GyroSim | None, t0: float, seconds: float, dt: float) -> float:
     """The car stands still from ``t0`` for ``seconds``: its wheels read zero, its gyro its
     bias and noise. Returns the time stood (whole steps)."""
     n = round(seconds / dt)
     for k in range(1, n + 1):
         if gyro is not None:
-            p.feed(YawRate(t0 + k * dt, gyro.reading(0.0, dt)))
-        p.feed(WheelOdometry(t0 + k * dt, 0.0, 0.0))
+            p.handle(YawRate(t0 + k * dt, gyro.reading(0.0, dt)))
+        p.handle(WheelOdometry(t0 + k * dt, 0.0, 0.0))
     return n * dt
 
 
-def _sample(res: CarResult, p: Pipeline, x: float, y: float, th: float) -> None:
-    est = p.estimator
-    xe, P = est.x, est.P[:2, :2]
-    e = np.array([x - xe[0], y - xe[1]])
+def _sample(res: CarResult, est: EstimateState, x: float, y: float, th: float) -> None:
+    P = np.array(est.covariance)[:2, :2]
+    e = np.array([x - est.x_m, y - est.y_m])
     nees = mahalanobis_sq_2d(float(e[0]), float(e[1]), P[0, 0], P[0, 1], P[1, 1])
     u = np.array([math.cos(th), math.sin(th)])
     n = np.array([-u[1], u[0]])
@@ -370,7 +365,7 @@ def _sample(res: CarResult, p: Pipeline, x: float, y: float, th: float) -> None:
     res.across2.append(float((e @ n) ** 2 / (n @ P @ n)))
     err = float(np.hypot(*e))
     if err > 1e-6:
-        res.axis_ratio.append(0.5 * est.major_axis_m / err)
+        res.axis_ratio.append(0.5 * est.ellipse.major_axis_m / err)
     if res.lost_at_error_m is None and est.lost:
         res.lost_at_error_m = err
 

@@ -257,7 +257,7 @@ class App:
         p = self.pipeline
         context = NO_CONTEXT
         if out.state is not None:
-            context = OutputContext(speed_mps=p.st.speed_mps, target=p.target(),
+            context = OutputContext(speed_mps=p.estimate.speed_mps, target=p.target(),
                                     goal=p.navigator.goal, method=self.method,
                                     mode=p.navigator.mode, chance=out.chance)  # fmt: skip
         batch = [
@@ -273,11 +273,7 @@ class App:
             return
         inputs = self.pipeline.statuses(t_s)
         comps: dict[str, Health | Mapping[str, Any]] = {
-            "estimator": {
-                "healthy": self.pipeline.estimator.healthy,
-                "resets": self.pipeline.estimator.resets,
-                "rejections": dict(self.pipeline.estimator.rejections),
-            },
+            "estimator": self.pipeline.localizer.filter_health(),
             "loop": {
                 "lag_p99_s": _percentile(self._recent_lag(), 99),
                 "backlog": self._submitted - self._processed,

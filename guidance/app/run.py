@@ -112,7 +112,7 @@ async def run_car(
         cfg, pipeline, resumed=checkpointer is not None and checkpointer.resumed
     )
     session = OperatorSession(cfg, pipeline, screen=screen, stream=stdout)
-    sources, camera = build_devices(cfg, session, lambda: pipeline.estimator.heading_rad)
+    sources, camera = build_devices(cfg, session, lambda: pipeline.estimate.heading_rad)
     no_input = co_driver_problem(cfg.scene, sys.stdin)
     settings = output_settings(cfg, pipeline)
     stop = asyncio.Event()
@@ -260,10 +260,10 @@ def _start_learned(cfg: Any, pipeline: Any, *, resumed: bool) -> Any:
         return None
     if resumed:  # the state carries what was learned; the file keeps its distance counter
         return counter_after_resume(
-            Path(cfg.checkpoint.learned_path), cfg.vehicle_id, pipeline.st.odometer_m
+            Path(cfg.checkpoint.learned_path), cfg.vehicle_id, pipeline.estimate.odometer_m
         )
     used, note = start_from_learned(
-        pipeline.estimator, Path(cfg.checkpoint.learned_path), cfg.vehicle_id, time.time()
+        pipeline.localizer.estimator, Path(cfg.checkpoint.learned_path), cfg.vehicle_id, time.time()
     )
     (log.info if used is not None else log.warning)("%s", note)
     return used
@@ -275,7 +275,6 @@ async def _keep_learned(
     """Every ``[checkpoint] learned_interval_s`` while the car drives (and holds the file's
     lock): what it has learned so far (taken on the loop, written off it: the write fsyncs)."""
     from guidance.app.learned_file import save_learned
-    from guidance.core.localize.learned import LearnedParams
 
     if not cfg.checkpoint.learned_path or not held:
         return
@@ -288,8 +287,8 @@ async def _keep_learned(
             return  # the clean stop saves
         except TimeoutError:
             pass
-        params = LearnedParams.from_estimator(
-            pipeline.estimator, cfg.vehicle_id, time.time(), pipeline.st.odometer_m, before
+        params = pipeline.localizer.learned(
+            cfg.vehicle_id, time.time(), pipeline.estimate.odometer_m, before
         )
         if params is None:
             return  # the paper model learns nothing
@@ -307,13 +306,16 @@ async def _keep_learned(
 
 def _save_learned(cfg: Any, pipeline: Any, before: Any) -> None:
     """At a clean stop: what this drive taught the car, for the next one."""
-    from guidance.app.learned_file import save_after
+    from guidance.app.learned_file import save_learned
 
     if not cfg.checkpoint.learned_path:
         return
     try:
-        save_after(pipeline.estimator, Path(cfg.checkpoint.learned_path), cfg.vehicle_id,
-                   time.time(), pipeline.st.odometer_m, before)  # fmt: skip
+        params = pipeline.localizer.learned(
+            cfg.vehicle_id, time.time(), pipeline.estimate.odometer_m, before
+        )
+        if params is not None:  # the paper model learns nothing
+            save_learned(Path(cfg.checkpoint.learned_path), params)
     except OSError as exc:
         log.error("learned parameters not saved to %s: %s", cfg.checkpoint.learned_path, exc)
 

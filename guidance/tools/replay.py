@@ -198,16 +198,16 @@ def replay(
         if on_output is not None:
             on_output(msg, out)
     st = pipeline.state()
-    res.odometer_m = pipeline.st.odometer_m
-    res.landmark_updates = pipeline.st.landmark_updates
+    res.odometer_m = pipeline.estimate.odometer_m
+    res.landmark_updates = pipeline.landmark_updates
     res.final = {
         "t_s": st.t_s,
         "x_m": st.x_m,
         "y_m": st.y_m,
         "heading_rad": st.heading_rad,
         "major_axis_m": st.ellipse.major_axis_m,
-        "odometer_m": pipeline.st.odometer_m,
-        "arrived": pipeline.st.arrived,
+        "odometer_m": pipeline.estimate.odometer_m,
+        "arrived": pipeline.arrived,
         "lost": st.lost,
     }
     return res
@@ -498,7 +498,7 @@ def _replay_raw(
     from guidance.app.learned_file import save_after, start_from_learned
 
     vid = load_config(args.config, require_goal=False).vehicle_id if args.config else "replay"
-    est = current[-1].estimator
+    est = current[-1].localizer.estimator  # the learned parameters are the filter's
     before, note = start_from_learned(
         est, args.learned, vid, _first_can_time(path), wall_clock=False
     )

@@ -26,7 +26,6 @@ from guidance.core.localize.measurements import (
     h_position,
     heading_residual,
 )
-from guidance.core.localize.odometry_gap import dead_reckon
 from guidance.core.messages import (
     Ellipse,
     EstimateState,
@@ -35,6 +34,8 @@ from guidance.core.messages import (
     WheelOdometry,
     YawRate,
 )
+from guidance.core.odometry_gap import dead_reckon
+from guidance.core.stages import LOST_HYSTERESIS, RELOCALISED
 
 EstimatorInput = WheelOdometry | HeadingFix | LandmarkFix | YawRate
 _CAR = rule(lo=0.0, group="car")  # a setting of the car model ([estimator] model = "car")
@@ -149,14 +150,6 @@ odometry): an estimate stamped in the future by a glitch never freezes for good.
 BIAS_TURN_STEP_RAD = math.radians(10.0)
 """The bias grows with heading changes counted in steps of this size, so that the wiggles of a
 straight drive (which cancel) do not add up as if they were turns."""
-
-
-LOST_HYSTERESIS = 0.8
-"""Lost once the 2-sigma major axis passes ``lost_major_axis_m``; found again only once it is
-back below this fraction of it (the pipeline says each once; a relocalisation resets while the
-axis is above it)."""
-RELOCALISED = "relocalised"
-"""``StepResult.reason`` of an accepted landmark fix that reset the position (``_relocalise``)."""
 
 
 @dataclass(frozen=True, slots=True)
@@ -283,7 +276,7 @@ class PoseEstimator:
     def coast(self, speed_mps: float, gap_from_s: float, gap_to_s: float) -> None:
         """Odometry overdue: move on at ``speed_mps`` along the heading from ``gap_from_s`` to
         ``gap_to_s`` seconds into the gap, widened along the road and in heading
-        (``guidance.core.localize.odometry_gap.dead_reckon``, the one definition of that step)."""
+        (``guidance.core.odometry_gap.dead_reckon``, the one definition of that step)."""
         x, P = dead_reckon(self._kf.x, self._kf.P, speed_mps, gap_from_s, gap_to_s)
         self._kf.x = x
         self._kf.x[2] = model.wrap_angle(float(x[2]))
@@ -359,18 +352,30 @@ class PoseEstimator:
     def lost(self) -> bool:
         return self.major_axis_m > self.config.lost_major_axis_m
 
-    def state(self) -> EstimateState:
+    def state(
+        self,
+        odometer_m: float = 0.0,
+        speed_mps: float = 0.0,
+        heading_known: bool = True,
+        reckoning: bool = False,
+    ) -> EstimateState:
+        """The estimate as a value, with what the localizer reads it with (``EstimateState``)."""
         x = self._kf.x
-        P = self._kf.P
+        c = self._kf.P[:3, :3].tolist()
+        ellipse = self.ellipse()
         return EstimateState(
             t_s=self._last_t if self._last_t is not None else 0.0,
             x_m=float(x[0]),
             y_m=float(x[1]),
             heading_rad=float(x[2]),
-            covariance=tuple((float(r[0]), float(r[1]), float(r[2])) for r in P[:3]),
-            ellipse=self.ellipse(),
-            lost=self.lost,
+            covariance=(tuple(c[0]), tuple(c[1]), tuple(c[2])),
+            ellipse=ellipse,
+            lost=ellipse.major_axis_m > self.config.lost_major_axis_m,
             healthy=self.healthy,
+            odometer_m=odometer_m,
+            speed_mps=speed_mps,
+            heading_known=heading_known,
+            reckoning=reckoning,
         )
 
     # -- the one entry point ------------------------------------------------
@@ -568,15 +573,10 @@ class PoseEstimator:
         return StepResult(kind, True, None, d2)
 
     def _relocalise(self, x_m: float, y_m: float, var: float) -> None:
-        """A place found by a whole-database search while lost (outside the estimate's gate an
-        update would be refused; inside it, the lost mean and its correlations would still pull
-        the result: the estimate's mean is what failed). The fix's sigma for a reset is the
-        sighting range plus the place's own sigma (``LandmarkFix.relocalised``), so the
-        2-sigma ellipse holds every point the place can be seen from.
-        The position restarts at the place with the fix's variance on each axis, uncorrelated
-        with every other state (what the odometry said of the position is what is discarded);
-        the heading and the car's error states keep their means and variances (the filter's
-        own account of them: a heading that drifted without a compass is as wide as it was)."""
+        """A place found by a whole-database search while lost: the position restarts there with
+        the fix's variance (its sigma: the sighting range plus the place's, so the 2-sigma
+        ellipse holds every point it is seen from), uncorrelated with the rest; the heading and
+        the error states keep theirs (an update would be gated out, or pulled by the lost mean)."""
         x = np.array(self._kf.x, dtype=float)
         P = np.array(self._kf.P, dtype=float)
         model.reset_position(x, P, x_m, y_m, var)

@@ -100,7 +100,8 @@ class Navigator:
     def mode(self) -> str:
         return "landmark" if self._mode == law.MODE_LANDMARK else "goal"
 
-    def arrived(self, x: np.ndarray) -> bool:
+    def arrived(self, x: Sequence[float] | np.ndarray) -> bool:
+        """Within the arrival radius of the goal (``x``: the position first, x then y)."""
         return math.hypot(self.goal[0] - x[0], self.goal[1] - x[1]) <= self.config.arrival_radius_m
 
     def update_mode(self, major_axis_m: float, landmark_update: bool = False) -> None:
@@ -120,7 +121,7 @@ class Navigator:
                 self._passed[k] = True
         self.update_mode(major_axis_m, landmark_update=True)
 
-    def target(self, x: np.ndarray) -> Target:
+    def target(self, x: Sequence[float] | np.ndarray) -> Target:
         """The current target (a view: the goal, or the landmark the car aims at from ``x``).
 
         Landmarks within the pass radius of ``x`` count as passed for this answer only: the

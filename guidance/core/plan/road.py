@@ -10,6 +10,9 @@ from collections import deque
 from collections.abc import Mapping
 from dataclasses import asdict, dataclass, field, fields
 
+import numpy as np
+
+from guidance.core.messages import EstimateState
 from guidance.core.model import wrap_angle
 from guidance.core.plan.navigator import Decision, ExitOption
 from guidance.core.snapshot_check import check_decision, integer, number
@@ -153,6 +156,35 @@ def unplaced_after_gap(
         a for a in ahead
         if a.at_odometer_m is not None and resume_s - max(gap_from_s, a.t_s) > placeable_s
     ]  # fmt: skip
+
+
+UNKNOWN_AHEAD_M = 50.0
+"""Where "the next intersection" (distance unknown) is taken to be for the law: a town
+block's least length ahead (never the intersection the car has just left behind)."""
+
+
+def predicted_xy(ahead: list[Ahead], a: Ahead, est: EstimateState) -> tuple[float, float]:
+    """Where the car will be at ``a``: along its approach road from the car, or from the
+    intersection before it."""
+    odometer_m = est.odometer_m
+    base_xy, base_odo = (est.x_m, est.y_m), odometer_m
+    i = ahead.index(a)
+    if i > 0:
+        prev = ahead[i - 1]
+        if prev.at_odometer_m is not None and prev.at_odometer_m > odometer_m:
+            base_xy = predicted_xy(ahead, prev, est)
+            base_odo = prev.at_odometer_m
+    if a.approach_heading_rad is None:
+        return base_xy
+    known = a.at_odometer_m
+    to_go = UNKNOWN_AHEAD_M if known is None else max(0.0, known - base_odo)
+    h = a.approach_heading_rad
+    return base_xy[0] + to_go * math.cos(h), base_xy[1] + to_go * math.sin(h)
+
+
+def pose_covariance(est: EstimateState) -> np.ndarray:
+    """The estimate's pose covariance (x, y, heading) as a matrix."""
+    return np.array(est.covariance, dtype=float)
 
 
 class RoadHistory:

@@ -215,7 +215,7 @@ def test_a_car_that_starts_anywhere_finds_itself_at_a_landmark_then_guides(city:
         t, x = t + 0.5, x + 2.0
         pipeline.feed(WheelOdometry(t, 2.0, 2.0))
         pipeline.feed(HeadingFix(t, 0.0))
-        state = pipeline.estimator.state()
+        state = pipeline.estimate
         assert state.lost  # the whole database is searched
         result = recogniser.process(camera.frame_at(t, x, 0.0), state)
         if result.fix is not None:
@@ -224,8 +224,9 @@ def test_a_car_that_starts_anywhere_finds_itself_at_a_landmark_then_guides(city:
             break
     recogniser.close()
     assert "Position found near the town hall" in said, said
-    assert pipeline.estimator.major_axis_m < 100.0
-    assert math.hypot(pipeline.estimator.x[0] - x, pipeline.estimator.x[1]) < 40.0
+    est = pipeline.estimate
+    assert est.ellipse.major_axis_m < 100.0
+    assert math.hypot(est.x_m - x, est.y_m) < 40.0
     out = pipeline.feed(IntersectionScene(t + 0.1, (0.0, math.pi / 2), 80.0))
     assert out.decisions  # guidance has begun
 

@@ -27,7 +27,7 @@ class Drive:
     def __init__(self, p: Pipeline, speed_mps: float = 8.0, dt: float = 0.05) -> None:
         self.p, self.v, self.dt = p, speed_mps, dt
         self.t = 0.0
-        self.heading = float(p.estimator.x[2])
+        self.heading = float(p.localizer.estimator.x[2])
         self.prompts: list[Prompt] = []
         self.taken: list[ExitTaken] = []
 
@@ -67,7 +67,7 @@ class Drive:
     def type(self, line: str) -> None:
         typed = parse_line(line)
         assert typed is not None
-        self.feed(to_scene(typed, self.t, float(self.p.estimator.x[2])))
+        self.feed(to_scene(typed, self.t, float(self.p.localizer.estimator.x[2])))
 
     def said(self) -> list[str]:
         return [p.text for p in self.prompts if p.kind == "turn"]
@@ -276,6 +276,7 @@ def test_the_next_intersection_seen_from_the_corner_is_on_the_road_the_car_takes
     car.drive(12.0, SOUTH)  # the driver turns right instead
     car.drive(150.0)
     assert len(car.taken) == 1 and not car.taken[0].followed
-    assert car.p.guide.ahead and car.p.guide.ahead[0].on_taken_road
+    ahead = car.p.planner.guide.ahead
+    assert ahead and ahead[0].on_taken_road
     said = car.said()[1:]
     assert said and all("left" not in s for s in said), said  # west is right from the south
