@@ -223,7 +223,7 @@ class KeyboardScene(ThreadedSource[SceneMessage]):
         clock: Callable[[], float] = time.monotonic,
         name: str = "keyboard",
     ) -> None:
-        super().__init__(name, KeyboardTiming(), clock=clock, warnings={})
+        super().__init__(name, KeyboardTiming(), clock=clock)
         self._stream = stream
         write = feedback if feedback is None or callable(feedback) else _stream_feedback(feedback)
         self.lines = CoDriverLines(

@@ -77,8 +77,6 @@ public <command> = <exits> | <turned> | <control>;
 """The co-driver's vocabulary as a JSGF grammar (the keypad's, spoken)."""
 
 _EXIT_RE = re.compile("|".join(sorted(EXIT_WORDS, key=len, reverse=True)))
-_READ_BACK = {"l": "left", "r": "right", "s": "straight", "bl": "bear left",
-              "br": "bear right", "hl": "hard left", "hr": "hard right", "u": "U-turn"}  # fmt: skip
 _FILLERS = ("<s>", "</s>", "<sil>", "SIL", "[NOISE]")
 
 
@@ -112,20 +110,6 @@ def to_line(words: str) -> str | None:
     if rest[pos:].strip() or not tokens or (turned and len(tokens) != 1):
         return None
     return ("t " if turned else "") + " ".join(tokens)
-
-
-def read_back(line: str) -> str:
-    """What the car says back: "l s r" -> "Left, straight, right."; "t l" -> "Turned left."."""
-    if line in COMMAND_WORDS:
-        return f"{line.capitalize()}."
-    tokens = line.split()
-    if tokens and tokens[0] == "t":
-        return f"Turned {', '.join(_READ_BACK.get(t, t) for t in tokens[1:])}."
-    words = ", ".join(_READ_BACK.get(t, t) for t in tokens)
-    return f"{words[:1].upper()}{words[1:]}."
-
-
-SAY_AGAIN_TEXT = "Please say that again."
 
 
 def resample(x: np.ndarray, rate_hz: int, to_hz: int = RATE_HZ) -> np.ndarray:

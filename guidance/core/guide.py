@@ -25,7 +25,7 @@ ahead when it is known (the simulator, a detector), or "the next intersection" w
   Only then is the intersection remembered for the tabu law, at the estimate where the car got
   to it, with the exit it really took (``Navigator.commit``).
 * **"Then".** When the next intersection after the announced one is decided and within
-  ``prompts.THEN_MAX_GAP_M`` of it, its manoeuvre is appended ("..., then turn right").
+  ``speech.THEN_MAX_GAP_M`` of it, its manoeuvre is appended ("..., then turn right").
 """
 
 from __future__ import annotations
@@ -38,7 +38,7 @@ from dataclasses import replace
 
 import numpy as np
 
-from guidance.core import prompts
+from guidance.core import speech
 from guidance.core.announce import (
     WORD_SIGMAS,
     arrives_before,
@@ -52,6 +52,8 @@ from guidance.core.messages import (
     ExitTaken,
     IntersectionScene,
     Priority,
+    Say,
+    Speech,
     TurnCompleted,
 )
 from guidance.core.model import wrap_angle
@@ -87,7 +89,7 @@ PASS_MARGIN_M = 5.0
 MAX_AHEAD = 4
 """Intersections kept ahead at once (a co-driver who reports far ahead)."""
 
-Say = Callable[[Outputs, float, str, Priority, str], None]
+SayFn = Callable[[Outputs, float, Say, Priority, str], None]
 
 
 class Guide:
@@ -99,7 +101,7 @@ class Guide:
         self,
         config: PipelineConfig,
         navigator: Navigator,
-        say: Say,
+        say: SayFn,
         counts: Counter[str],
         speed_fn: Callable[[], float],
         reckoning_fn: Callable[[], bool],
@@ -454,7 +456,7 @@ class Guide:
             return
         d = a.decision
         band = WORD_SIGMAS * heading_sd(est.P) if a.approach_estimated else 0.0
-        action = prompts.manoeuvre_within(d.turn_rad, band, d.exit_heading_rad)
+        action = speech.manoeuvre_within(d.turn_rad, band, d.exit_heading_rad)
         changed = a.said_exit >= 0 and a.said_exit != d.exit_index
         straight = action == "continue straight"
         if a.at_odometer_m is None:
@@ -466,8 +468,9 @@ class Guide:
                 a.said, a.said_exit = action, d.exit_index
                 return
             then = self._then(i, a, est, odometer_m)
-            text = prompts.turn_prompt(d.turn_rad, None, self.config.units, *then, action=action)
-            self._speak(a, out, t_s, text, action, changed)
+            say = Say(Speech.TURN, d.turn_rad, None, *then, band_rad=band,
+                      exit_heading_rad=d.exit_heading_rad, changed=changed)  # fmt: skip
+            self._speak(a, out, t_s, say, action)
             return
         distance = max(0.0, a.at_odometer_m - odometer_m)
         due = due_announcements(distance, self._speed(), a.announced)
@@ -484,8 +487,9 @@ class Guide:
             a.said, a.said_exit = action, d.exit_index
             return
         then = self._then(i, a, est, odometer_m)
-        text = prompts.turn_prompt(d.turn_rad, distance, self.config.units, *then, action=action)
-        self._speak(a, out, t_s, text, action, changed)
+        say = Say(Speech.TURN, d.turn_rad, distance, *then, band_rad=band,
+                  exit_heading_rad=d.exit_heading_rad, changed=changed)  # fmt: skip
+        self._speak(a, out, t_s, say, action)
 
     def _arrives_before(self, a: Ahead, est: PoseEstimator, odometer_m: float) -> bool:
         """The car will be told it has arrived ``ARRIVE_MARGIN_M`` before it gets to ``a``:
@@ -533,30 +537,29 @@ class Guide:
             return None, None
         return b.decision.turn_rad, b.at_odometer_m - a.at_odometer_m
 
-    def _speak(
-        self, a: Ahead, out: Outputs, t_s: float, text: str, action: str, changed: bool
-    ) -> None:
+    def _speak(self, a: Ahead, out: Outputs, t_s: float, say: Say, action: str) -> None:
         assert a.decision is not None
         exit_index = a.decision.exit_index
-        if changed:
-            text = prompts.changed(text)
+        if say.changed:
             a.frozen = True  # one change at most
+        text = speech.words(say, self.config.units)  # compared with what was said last
         last_t = self._said_at.get(text)
-        if last_t is not None and t_s - last_t < REPEAT_S and not changed:
+        if last_t is not None and t_s - last_t < REPEAT_S and not say.changed:
             if a.said_exit >= 0:  # the same words again so soon tell nothing
                 self.counts["repeat_not_said"] += 1
                 return
-            text += " again"  # another intersection with the same manoeuvre, right after
+            say = replace(say, again=True)  # another intersection, same manoeuvre, right after
+            text = speech.words(say, self.config.units)
         self._said_at = {k: v for k, v in self._said_at.items() if t_s - v < REPEAT_S}
         self._said_at[text] = t_s
         a.said, a.said_exit = action, exit_index
         self.last_said = action
-        self._say(out, t_s, text, Priority.GUIDANCE, "turn")
+        self._say(out, t_s, say, Priority.GUIDANCE, text)
         i = self.ahead.index(a)
         if i + 1 < len(self.ahead) and ", then " in text:
             nxt = self.ahead[i + 1]
             if nxt.decision is not None:
-                nxt.said = prompts.manoeuvre(nxt.decision.turn_rad)
+                nxt.said = speech.manoeuvre(nxt.decision.turn_rad)
                 nxt.said_exit = nxt.decision.exit_index
 
     # -- views and checkpoints ------------------------------------------------------------------

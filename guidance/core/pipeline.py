@@ -22,12 +22,13 @@ from dataclasses import asdict
 
 import numpy as np
 
-from guidance.core import prompts
+from guidance.core import speech
 from guidance.core.chance import ChanceWatch, shipped_or_none
 from guidance.core.compass_cal import CompassCalibration, compass_heading_to_theta
 from guidance.core.estimator import LOST_HYSTERESIS, RELOCALISED, PoseEstimator
 from guidance.core.guide import Guide
 from guidance.core.health import (
+    BAD_STATUSES,
     CompassJudge,
     DeviceStatus,
     HealthMonitor,
@@ -43,6 +44,8 @@ from guidance.core.messages import (
     LandmarkFix,
     Priority,
     Prompt,
+    Say,
+    Speech,
     Target,
     TurnCompleted,
     WheelOdometry,
@@ -291,10 +294,10 @@ class Pipeline:
                 how = "reset there" if r.reason == RELOCALISED else "inside the lost ellipse"
                 log.warning("position found again near landmark %d %r (%s)",
                             fix.landmark_id, name, how)  # fmt: skip
-                self._say(out, fix.t_s, prompts.position_found(name), Priority.SAFETY, "found")
+                self._say(out, fix.t_s, Say(Speech.FOUND, name=name), Priority.SAFETY)
             elif fix.t_s - last >= LANDMARK_REPEAT_S:  # a second fix from the same pass: silent
                 self.st.landmark_said[str(fix.landmark_id)] = fix.t_s
-                self._say(out, fix.t_s, prompts.landmark_confirmed(name), Priority.INFO, "landmark")
+                self._say(out, fix.t_s, Say(Speech.LANDMARK, name=name), Priority.INFO)
             self._after_step(fix.t_s, out, mode_done=True)
             self.guide.replan(fix.t_s, self.estimator, self.st.odometer_m, out)
         else:
@@ -310,7 +313,7 @@ class Pipeline:
             self.counts["advice_withheld"] += 1
             if not self.st.waiting_said:
                 self.st.waiting_said = True
-                self._say(out, scene.t_s, prompts.waiting_for_heading(), Priority.SAFETY, "info")
+                self._say(out, scene.t_s, Say(Speech.WAITING_FOR_HEADING), Priority.SAFETY)
             return
         self.guide.report(scene, self.estimator, self.st.odometer_m, out)
 
@@ -335,8 +338,8 @@ class Pipeline:
         self.st.finished = False
         self.st.chance_said = False
         # a goal from the network is said as such: the driver hears who changed the route
-        text = prompts.new_destination(remote=goal.source == "remote")
-        self._say(out, goal.t_s, text, Priority.INFO, "info")
+        say = Say(Speech.NEW_DESTINATION, remote=goal.source == "remote")
+        self._say(out, goal.t_s, say, Priority.INFO)
         self.guide.replan(goal.t_s, self.estimator, self.st.odometer_m, out)
 
     # -- after every estimator step -------------------------------------------------------------
@@ -349,8 +352,7 @@ class Pipeline:
         warn = self.config.uncertain_warn_m
         if not self.st.uncertain_said and major > warn and not lost:
             self.st.uncertain_said = True
-            self._say(out, t, prompts.position_uncertain(major, self.config.units), Priority.SAFETY,
-                      "uncertain")  # fmt: skip
+            self._say(out, t, Say(Speech.UNCERTAIN, distance_m=major), Priority.SAFETY)
         elif self.st.uncertain_said and major < UNCERTAIN_HYSTERESIS * warn:
             self.st.uncertain_said = False
         if lost:
@@ -359,7 +361,7 @@ class Pipeline:
                 self.st.lost_said = True
                 self.counts["lost_episodes"] += 1
                 searching = self.config.relocalise
-                self._say(out, t, prompts.lost(searching), Priority.SAFETY, "lost")
+                self._say(out, t, Say(Speech.LOST, searching=searching), Priority.SAFETY)
                 if self.config.stop_at_arrival and not searching:
                     self.st.finished = True
         elif self.st.lost_said and major < LOST_HYSTERESIS * est.config.lost_major_axis_m:
@@ -367,7 +369,7 @@ class Pipeline:
         if not lost and not self.st.arrived and self.navigator.arrived(est.x):
             self.st.arrived = True
             out.arrived = True
-            self._say(out, t, prompts.arrived(), Priority.GUIDANCE, "arrived")
+            self._say(out, t, Say(Speech.ARRIVED), Priority.GUIDANCE)
             if self.config.stop_at_arrival:
                 self.st.finished = True
         if t >= self.tr.next_state_t:
@@ -384,24 +386,26 @@ class Pipeline:
         if self.compass_judge.unusable:
             sigma = None  # the compass is not helping: the table's no-compass slice
         quiet = self.st.lost_said or self.st.arrived or self.st.finished
-        text, self.st.chance_said = self.chance.update(
+        say, self.st.chance_said = self.chance.update(
             to_go, major, est.config.lost_major_axis_m, sigma,
             said=self.st.chance_said, quiet=quiet,
         )  # fmt: skip
         out.chance = self.chance.value
-        if text is not None:
-            self._say(out, t, text, Priority.INFO, "chance")
+        if say is not None:
+            self._say(out, t, say, Priority.INFO)
 
     def _landmarks_xy(self) -> list[tuple[float, float]]:
         return [(lm.x_m, lm.y_m) for lm in self.navigator.landmarks]
 
     def _device_status(self, msg: DeviceStatus, out: Outputs) -> None:
-        """A driver's status flip: its own sentence is what the driver hears ("Wheel speed bus
-        disconnected. Position is getting less certain."), once per flip to bad."""
+        """A driver's status flip: the input's sentence for that status is what the driver
+        hears ("Wheel speed bus disconnected. Position is getting less certain."), once per
+        episode, whether the driver or the pipeline's clock noticed first."""
         went_bad = self.health.report(msg)
-        if went_bad and msg.health.warning and msg.input not in self.st.warned:
+        if went_bad and msg.input not in self.st.warned:
             self.st.warned.append(msg.input)
-            self._say(out, msg.t_s, msg.health.warning, Priority.SAFETY, "sensor")
+            say = Say(Speech.SENSOR, input=msg.input, status=msg.health.status)
+            self._say(out, msg.t_s, say, Priority.SAFETY)
         self._health(msg.t_s, out, force=True)
 
     def _judge_time(self, name: str, reason: str | None) -> None:
@@ -411,9 +415,12 @@ class Pipeline:
             name, reason != "out_of_order", "time: stamped before the estimate", aspect="time"
         )
 
-    def _say(self, out: Outputs, t: float, text: str, priority: Priority, kind: str) -> None:
+    def _say(self, out: Outputs, t: float, say: Say, priority: Priority, text: str = "") -> None:
+        """One prompt: its words made here (``speech.words``, ``[navigation] units``) unless
+        the guide made them already to compare with what it said last."""
         self.st.prompt_count += 1
-        out.prompts.append(Prompt(t, text, priority, kind))
+        text = text or speech.words(say, self.config.units)
+        out.prompts.append(Prompt(t, text, priority, speech.kind(say), say))
 
     def _health(self, t: float, out: Outputs, force: bool) -> None:
         if not force and t < self.tr.next_health_t:
@@ -428,6 +435,8 @@ class Pipeline:
                 log.warning("%s is back (%.1f Hz)", st.name, st.rate_hz)
                 continue
             problem = "is silent" if not st.alive else "sends bad data"
+            bad = "silent" if not st.alive else "invalid"
+            status = st.status if st.status in BAD_STATUSES else bad
             judged = st.name == "compass" and st.alive and self.compass_judge.unusable
             if judged:  # its readings arrive and parse; the filter rejects most of them
                 log.warning("compass is unusable (%s): the filter rejected most of its "
@@ -438,10 +447,10 @@ class Pipeline:
             if st.name in self.st.warned:
                 continue  # one warning per input and episode (its driver may have said it)
             self.st.warned.append(st.name)
-            text = prompts.sensor_warning(st.name, problem)
+            say = Say(Speech.SENSOR, input=st.name, status=status)
             if judged:
-                text = prompts.compass_unusable(self.compass_judge.reason)
-            self._say(out, t, text, Priority.SAFETY, "sensor")
+                say = Say(Speech.COMPASS_UNUSABLE, status=self.compass_judge.reason)
+            self._say(out, t, say, Priority.SAFETY)
 
     # -- views ----------------------------------------------------------------------------------
     @property

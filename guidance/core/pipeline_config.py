@@ -28,7 +28,7 @@ from guidance.core.messages import (
     WheelOdometry,
 )
 from guidance.core.navigator import Decision, Landmark, NavigatorConfig
-from guidance.core.prompts import Units
+from guidance.core.speech import Units
 from guidance.core.turns import TurnDetectorConfig
 
 Input = InputMessage | DeviceStatus

@@ -21,7 +21,7 @@ from guidance.core.messages import CompassHeading, IntersectionScene, WheelOdome
 from guidance.core.navigator import Landmark, Method, NavigatorConfig
 from guidance.core.pipeline import Pipeline
 from guidance.core.pipeline_config import PipelineConfig
-from guidance.core.prompts import Units
+from guidance.core.speech import Units
 from guidance.core.turns import TurnDetectorConfig
 from guidance.errors import UserError
 from guidance.tools.replay import pipeline_config_from_session, replay
