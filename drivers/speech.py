@@ -257,7 +257,7 @@ class SpeechInput(ThreadedSource[SceneMessage]):
         self._count("commands_heard")
         self.lines.echo(f"heard {heard.text!r} (confidence {heard.confidence:.2f})")
         self.lines.handle(heard.line, functools.partial(self._deliver_scene, sink))
-        if self.read_back is not None:
+        if self.read_back is not None and heard.line != "cancel":  # the pipeline answers that
             self.read_back(Say(Speech.READ_BACK, line=heard.line))
 
     def _deliver_scene(self, sink: Callable[[SceneMessage], None], msg: SceneMessage) -> None:

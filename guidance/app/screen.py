@@ -408,8 +408,6 @@ class Operator:
                     lambda: self.say(text, Priority.GUIDANCE, self.clock())
                 )
             return f"repeating: {text}"
-        if command == "cancel":  # spoken: a report already went to the navigator
-            return "nothing to cancel: a report is taken at once"
         return f"unknown command {command}"
 
 

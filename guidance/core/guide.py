@@ -59,7 +59,7 @@ from guidance.core.messages import (
 from guidance.core.model import wrap_angle
 from guidance.core.navigator import Decision, Navigator
 from guidance.core.pipeline_config import Outputs, PipelineConfig
-from guidance.core.road import Ahead, RoadHistory
+from guidance.core.road import Ahead, LastReport, RoadHistory, announce_target
 from guidance.core.snapshot_check import integer
 
 log = logging.getLogger(__name__)
@@ -84,8 +84,6 @@ REPEAT_S = 5.0
 """The same sentence is not said twice within this time (unless it says a change)."""
 ROAD_STEADY_M = 20.0
 """The car's own heading is the road's once it has been steady over this much travel."""
-PASS_MARGIN_M = 5.0
-"""The next intersection is announced once the car is this far past the one before it."""
 MAX_AHEAD = 4
 """Intersections kept ahead at once (a co-driver who reports far ahead)."""
 
@@ -127,6 +125,7 @@ class Guide:
         self._said_at: dict[str, float] = {}
         self.last_exit_heading_rad: float | None = None
         """The exit the car took at the last intersection it went through (estimate frame)."""
+        self._undo: LastReport | None = None  # what ``cancel`` undoes
 
     # -- inputs ---------------------------------------------------------------------------------
     def report(
@@ -152,7 +151,8 @@ class Guide:
                 self._evaluate(same, est, odometer_m, scene.t_s, out)
                 self.announce(scene.t_s, odometer_m, out, est)
                 return
-        else:
+        undo = LastReport.of(self.reports, self.ahead)
+        if at is None:
             for a in self.ahead:  # the co-driver reports the next one: the earlier are behind
                 if a.at_odometer_m is None and a.passed_odometer_m is None:
                     a.passed_odometer_m = odometer_m
@@ -160,6 +160,7 @@ class Guide:
         for a in self.ahead:
             a.frozen = True  # the car is committed to the exits before this one
         self.last_seq = self.reports
+        self._undo = undo
         item = Ahead(self.reports, scene.t_s, tuple(scene.exit_headings_rad), heading,
                      relative=not known, at_odometer_m=at)  # fmt: skip
         self.ahead.append(item)
@@ -169,6 +170,19 @@ class Guide:
             self.ahead.pop(0)
             self.counts["ahead_dropped"] += 1
         self._update(scene.t_s, est, odometer_m, out, force=True)
+
+    def cancel(self, odometer_m: float) -> bool:
+        """Withdraw the last new report (the co-driver's mistake) while the car has not reached
+        it: it leaves the queue, and what its report did to the ones before it (taken as
+        behind the car, frozen) is undone. False when there is nothing to withdraw: no report,
+        already withdrawn, resolved, or reached (the car has acted on it). One level: the
+        report before it cannot be withdrawn next (nor after a restart from a checkpoint)."""
+        undo, self._undo = self._undo, None
+        if undo is None or not undo.withdraw(self.ahead, odometer_m):
+            return False
+        self.last_decision = next((b.decision for b in reversed(self.ahead) if b.decision), None)
+        self.counts["reports_cancelled"] += 1
+        return True
 
     def approach(self, msg: Approach, est: PoseEstimator, odometer_m: float, out: Outputs) -> None:
         """The distance to an intersection ahead: re-anchors the one it matches, re-evaluates."""
@@ -444,7 +458,7 @@ class Guide:
         self, t_s: float, odometer_m: float, out: Outputs, est: PoseEstimator
     ) -> None:
         """What is due for the next intersection still ahead of the car."""
-        i, a = self._announce_target(odometer_m)
+        i, a = announce_target(self.ahead, odometer_m)
         if a is None or a.decision is None:
             return
         if self._arrives_before(a, est, odometer_m):
@@ -468,8 +482,7 @@ class Guide:
                 a.said, a.said_exit = action, d.exit_index
                 return
             then = self._then(i, a, est, odometer_m)
-            say = Say(Speech.TURN, d.turn_rad, None, *then, band_rad=band,
-                      exit_heading_rad=d.exit_heading_rad, changed=changed)  # fmt: skip
+            say = Say(Speech.TURN, d.turn_rad, None, *then, band, d.exit_heading_rad, changed)
             self._speak(a, out, t_s, say, action)
             return
         distance = max(0.0, a.at_odometer_m - odometer_m)
@@ -487,8 +500,7 @@ class Guide:
             a.said, a.said_exit = action, d.exit_index
             return
         then = self._then(i, a, est, odometer_m)
-        say = Say(Speech.TURN, d.turn_rad, distance, *then, band_rad=band,
-                  exit_heading_rad=d.exit_heading_rad, changed=changed)  # fmt: skip
+        say = Say(Speech.TURN, d.turn_rad, distance, *then, band, d.exit_heading_rad, changed)
         self._speak(a, out, t_s, say, action)
 
     def _arrives_before(self, a: Ahead, est: PoseEstimator, odometer_m: float) -> bool:
@@ -509,20 +521,6 @@ class Guide:
         radius = self.navigator.config.arrival_radius_m
         ahead = a.at_odometer_m - start_odo
         return arrives_before(self.navigator.goal, radius, start, a.approach_heading_rad, ahead)
-
-    def _announce_target(self, odometer_m: float) -> tuple[int, Ahead | None]:
-        """The next intersection still ahead: the first one the car has not reached, once it
-        is ``PASS_MARGIN_M`` past every one before it (a distance is a few metres off; the
-        driver must not hear the next manoeuvre while still at the previous corner)."""
-        for i, a in enumerate(self.ahead):
-            if a.at_odometer_m is not None:
-                if a.at_odometer_m > odometer_m:
-                    return i, a
-                if odometer_m < a.at_odometer_m + PASS_MARGIN_M:
-                    return -1, None
-            elif a.passed_odometer_m is None:  # distance unknown: once the ones before are behind
-                return (i, a) if i == 0 else (-1, None)
-        return -1, None
 
     def _then(
         self, i: int, a: Ahead, est: PoseEstimator, odometer_m: float
@@ -572,7 +570,7 @@ class Guide:
 
     def next_ahead(self, odometer_m: float) -> tuple[Decision | None, float | None]:
         """The decision for the next intersection still ahead and its distance (None: unknown)."""
-        _i, a = self._announce_target(odometer_m)
+        _i, a = announce_target(self.ahead, odometer_m)
         if a is None:
             return None, None
         dist = None if a.at_odometer_m is None else max(0.0, a.at_odometer_m - odometer_m)

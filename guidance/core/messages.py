@@ -120,6 +120,15 @@ class TurnCompleted:
 
 
 @dataclass(frozen=True, slots=True)
+class CancelReport:
+    """The co-driver withdraws the last intersection report (a mistake): taken back while the
+    car has not yet reached it, else answered that there is nothing to cancel."""
+
+    t_s: float
+    source: str = "co-driver"
+
+
+@dataclass(frozen=True, slots=True)
 class HeadingFix:
     """A heading measurement already in the filter frame (rad, CCW from east).
 

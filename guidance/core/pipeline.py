@@ -35,6 +35,7 @@ from guidance.core.health import (
 )
 from guidance.core.messages import (
     Approach,
+    CancelReport,
     CompassHeading,
     EstimateState,
     GoalUpdate,
@@ -147,6 +148,8 @@ class Pipeline:
             self._intersection(msg, out)
         elif isinstance(msg, TurnCompleted):
             self._turn(msg, out)
+        elif isinstance(msg, CancelReport):
+            self._cancel(msg, out)
         elif isinstance(msg, Approach):
             self._approach(msg, out)
         elif isinstance(msg, DeviceStatus):
@@ -326,6 +329,15 @@ class Pipeline:
             log.info("turn of %.0f deg reported with no intersection ahead",
                      math.degrees(turn.heading_change_rad))  # fmt: skip
         self.turns.reset()  # the co-driver's report replaces what the heading would show
+
+    def _cancel(self, msg: CancelReport, out: Outputs) -> None:
+        """The co-driver takes the last report back: withdrawn while the car has not reached
+        it ("Last report cancelled."), else "Nothing to cancel."."""
+        done = self.guide.cancel(self.st.odometer_m)
+        if not done:
+            out.accepted, out.reason = False, "nothing_to_cancel"
+        speech_ = Speech.REPORT_CANCELLED if done else Speech.CANNOT_CANCEL
+        self._say(out, msg.t_s, Say(speech_), Priority.GUIDANCE)
 
     def _set_goal(self, goal: GoalUpdate, out: Outputs) -> None:
         if not (math.isfinite(goal.x_m) and math.isfinite(goal.y_m)):

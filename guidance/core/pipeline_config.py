@@ -14,6 +14,7 @@ from guidance.core.estimator import EstimatorConfig
 from guidance.core.health import HealthConfig
 from guidance.core.messages import (
     Approach,
+    CancelReport,
     CompassHeading,
     DeviceStatus,
     EstimateState,
@@ -42,6 +43,7 @@ INPUT_KINDS: dict[type, str] = {
     LandmarkFix: "landmark",
     IntersectionScene: "scene",
     TurnCompleted: "scene",
+    CancelReport: "scene",
     GoalUpdate: "goal",
     Approach: "scene",
 }

@@ -14,6 +14,7 @@ import sys
 import threading
 import time
 import wave
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -23,13 +24,27 @@ from drivers.speech import CHUNK, SpeechInput, SpeechInputConfig, is_echo
 from drivers.speech_grammar import (
     RATE_HZ,
     CommandRecogniser,
+    read_wav_16k,
     resample,
     to_line,
 )
-from guidance.core.messages import IntersectionScene, Say, Speech, TurnCompleted
+from guidance.core.estimator import EstimatorConfig
+from guidance.core.messages import (
+    CancelReport,
+    IntersectionScene,
+    Prompt,
+    Say,
+    Speech,
+    TurnCompleted,
+    WheelOdometry,
+)
+from guidance.core.navigator import Method, NavigatorConfig
+from guidance.core.pipeline import Pipeline
+from guidance.core.pipeline_config import PipelineConfig
 from guidance.core.speech import words
 from guidance.tools.voice_corpus import SPOKEN_COMMANDS, cabin_noise, mix_at_snr, voice_renderer
 from guidance.voice.activity import CarVoice
+from guidance.voice.pico import pico_available
 
 ESPEAK = shutil.which("espeak-ng") is not None
 FLITE = shutil.which("flite") is not None
@@ -102,6 +117,50 @@ def test_a_phrase_the_car_just_said_is_an_echo() -> None:
     assert is_echo("turn left", said)
     assert not is_echo("bear left", said) and not is_echo("right straight", said)
     assert not is_echo("left", ()) and not is_echo("", said)
+
+
+@pytest.mark.skipif(not pico_available(), reason="py-nanotts (Pico) not installed")
+def test_cancel_said_into_the_microphone_withdraws_the_last_report(
+    recogniser: CommandRecogniser, tmp_path: Path
+) -> None:
+    """Issue 39, "cancel", end to end: Pico says the reports into WAV files, the speech input
+    (push-to-talk) hears them through pocketsphinx, and the pipeline acts on what it delivers.
+    "left straight right", then "left right" by mistake, then "cancel": the mistake is taken
+    back (the first intersection is still ahead and not taken as passed) and the car says
+    "Last report cancelled."; a second "cancel" is answered "Nothing to cancel.". The
+    co-driver's own "cancel" is not read back (the pipeline's answer is)."""
+    p = Pipeline(PipelineConfig(
+        estimator=EstimatorConfig(compass_two_sigma_deg=20.0),
+        navigator=NavigatorConfig(method=Method.STRAIGHT_TO_GOAL), start_xy_m=(0.0, 0.0),
+        goal_xy_m=(1000.0, 0.0), start_heading_rad=0.0,
+    ))  # fmt: skip
+    prompts: list[Prompt] = []
+    inp, got = make_input("key", recogniser)
+    inp.start_stream(t0=0.0)
+    rng = np.random.default_rng(7)
+    t = 0.0
+    for k, text in enumerate(("left straight right", "left right", "cancel", "cancel")):
+        for _ in range(40 if k < 2 else 4):  # 20 m between the reports; cancel said at once
+            t += 0.05
+            prompts += p.feed(WheelOdometry(t, 0.5, 0.5)).prompts
+        wav = tmp_path / f"{k}.wav"
+        clip = np.concatenate([PAD, render("pico:en-US", text), PAD])
+        write_wav(wav, clip + rng.normal(0.0, 30.0, clip.size))  # a 40 dB floor, no silence
+        before = len(got["msgs"])
+        say_with_key(inp, read_wav_16k(wav), got)
+        for msg in got["msgs"][before:]:
+            prompts += p.feed(replace(msg, t_s=t)).prompts
+    kinds = [type(m).__name__ for m in got["msgs"]]
+    assert kinds == ["IntersectionScene", "IntersectionScene", "CancelReport", "CancelReport"]
+    assert isinstance(got["msgs"][2], CancelReport)
+    info = [pr.text for pr in prompts if pr.kind == "info"]
+    assert info == ["Last report cancelled.", "Nothing to cancel."]
+    assert got["said"] == ["Left, straight, right.", "Left, right."]  # no "Cancel." read back
+    assert p.planned_exit(1) is not None  # the first is still ahead, decided
+    for _ in range(400):  # 20 m more: not resolved "passed" by the withdrawn report
+        t += 0.05
+        p.feed(WheelOdometry(t, 0.05, 0.05))
+    assert p.planned_exit(1) is not None
 
 
 # ------------------------------------------------------------- speech the product did not make
