@@ -362,14 +362,14 @@ not delay the 100 Hz loop, and it must not starve either (a report waits for it)
 _worker: CommandRecogniser | None = None
 
 
-def _worker_init() -> None:
+def _worker_init(nice_levels: int = WORKER_NICE_LEVELS) -> None:
     import os
 
     global _worker
     if os.sched_getscheduler(0) & ~os.SCHED_RESET_ON_FORK in (os.SCHED_RR, os.SCHED_FIFO):
         os.sched_setscheduler(0, os.SCHED_OTHER, os.sched_param(0))
     os.setpriority(os.PRIO_PROCESS, 0, min(19, os.getpriority(os.PRIO_PROCESS, 0)
-                                           + WORKER_NICE_LEVELS))  # fmt: skip
+                                           + nice_levels))  # fmt: skip
     _worker = CommandRecogniser()
 
 
@@ -387,13 +387,14 @@ class ProcessRecogniser:
     machine). In a process of its own it takes nothing from the loop but a core; the reader
     thread waits for the answer with the GIL released."""
 
-    def __init__(self) -> None:
+    def __init__(self, nice_levels: int = WORKER_NICE_LEVELS) -> None:
         from concurrent.futures import ProcessPoolExecutor
         from multiprocessing import get_context
 
         self._pool = ProcessPoolExecutor(
-            max_workers=1, mp_context=get_context("spawn"), initializer=_worker_init
-        )
+            max_workers=1, mp_context=get_context("spawn"), initializer=_worker_init,
+            initargs=(nice_levels,),
+        )  # fmt: skip
 
     def hear(
         self, samples: np.ndarray, t_s: float = 0.0, *, push_to_talk: bool = False

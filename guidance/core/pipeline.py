@@ -332,7 +332,7 @@ class Pipeline:
 
     def _cancel(self, msg: CancelReport, out: Outputs) -> None:
         """The co-driver takes the last report back: withdrawn while the car has not reached
-        it ("Last report cancelled."), else "Nothing to cancel."."""
+        it ("The last report is cancelled."), else "Nothing to cancel."."""
         done = self.guide.cancel(self.st.odometer_m)
         if not done:
             out.accepted, out.reason = False, "nothing_to_cancel"

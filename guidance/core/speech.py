@@ -300,7 +300,7 @@ SPEECH: dict[Speech, Callable[[Say, Units], str]] = {
     ),
     Speech.READ_BACK: _read_back,
     Speech.SAY_AGAIN: lambda p, u: "Please say that again.",
-    Speech.REPORT_CANCELLED: lambda p, u: "Last report cancelled.",
+    Speech.REPORT_CANCELLED: lambda p, u: "The last report is cancelled.",
     Speech.CANNOT_CANCEL: lambda p, u: "Nothing to cancel.",
 }
 """Every sentence the product says: an event's words from its numbers and the units."""

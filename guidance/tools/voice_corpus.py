@@ -27,7 +27,7 @@ MANOEUVRE_DEG = (0.0, 45.0, -45.0, 90.0, -90.0, 150.0, -150.0, 180.0)
 """continue straight, bear left/right, turn left/right, turn sharp left/right, U-turn."""
 DISTANCES_M = (30.0, 80.0, 150.0, 300.0, 650.0, 1200.0, 1500.0, 4000.0, 12000.0)
 """One of each way a distance is said, metric and imperial (tens, fifties, decimals, whole)."""
-READ_BACK_LINES = ("l s r", "bl br", "hl hr u", "t l", "repeat", "mute", "cancel")
+READ_BACK_LINES = ("l s r", "bl br", "hl hr u", "t l", "repeat", "mute")
 
 
 def _turn_events() -> list[Say]:

@@ -127,7 +127,7 @@ def test_cancel_said_into_the_microphone_withdraws_the_last_report(
     (push-to-talk) hears them through pocketsphinx, and the pipeline acts on what it delivers.
     "left straight right", then "left right" by mistake, then "cancel": the mistake is taken
     back (the first intersection is still ahead and not taken as passed) and the car says
-    "Last report cancelled."; a second "cancel" is answered "Nothing to cancel.". The
+    "The last report is cancelled."; a second "cancel" is answered "Nothing to cancel.". The
     co-driver's own "cancel" is not read back (the pipeline's answer is)."""
     p = Pipeline(PipelineConfig(
         estimator=EstimatorConfig(compass_two_sigma_deg=20.0),
@@ -154,7 +154,7 @@ def test_cancel_said_into_the_microphone_withdraws_the_last_report(
     assert kinds == ["IntersectionScene", "IntersectionScene", "CancelReport", "CancelReport"]
     assert isinstance(got["msgs"][2], CancelReport)
     info = [pr.text for pr in prompts if pr.kind == "info"]
-    assert info == ["Last report cancelled.", "Nothing to cancel."]
+    assert info == ["The last report is cancelled.", "Nothing to cancel."]
     assert got["said"] == ["Left, straight, right.", "Left, right."]  # no "Cancel." read back
     assert p.planned_exit(1) is not None  # the first is still ahead, decided
     for _ in range(400):  # 20 m more: not resolved "passed" by the withdrawn report

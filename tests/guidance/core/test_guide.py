@@ -186,7 +186,7 @@ def test_cancel_withdraws_the_last_report_and_undoes_what_it_did(
     car.drive(20.0)
     car.type("l r")  # the mistake
     car.feed(CancelReport(car.t))
-    assert _info(car) == ["Last report cancelled."]
+    assert _info(car) == ["The last report is cancelled."]
     assert car.p.planned_exit(1) is not None
     car.drive(30.0)
     assert car.taken == []  # the first is still ahead: not "passed" by the withdrawn report
