@@ -228,6 +228,21 @@ RADIO_TEXT = (
 """Radio-like talk for the false-command test, with command words inside ordinary sentences
 ("right back", "left lane", "straight into town", "turn the dial")."""
 
+RADIO_TEXT_2 = (
+    "And that was the last song of the hour. You are listening to the afternoon show, with me "
+    "until six. A caller asked whether the new bridge will open before the winter; the answer "
+    "from the city is maybe, if the weather holds. Our reporter is standing right outside the "
+    "station, where a long queue has formed for the concert tonight. If you missed the start, "
+    "you can hear it again tomorrow. Help us choose the next record: send a message, and we will "
+    "repeat the best ones at the end of the programme. Please do not mute us yet, the quiz is "
+    "coming up straight after the travel news. Roads are clear in the north, the ring road is "
+    "slow near the hospital, and there is a hard shoulder closed on the way to the airport. "
+    "The match has been cancelled because of the rain, and the players went home early. We "
+    "turned the studio lights down and kept the music on."
+)
+"""Other radio-like talk (the held-out set of the confidence threshold: not used to choose
+it), with every control word and exit word inside ordinary sentences."""
+
 
 def cabin_noise(n: int, seed: int = 0, rate_hz: int = 16000) -> np.ndarray:
     """Car-cabin-like noise (unit RMS): road and engine rumble below a few hundred hertz
