@@ -1,6 +1,6 @@
 """The car's chance of reaching the goal against what its simulated drives then did.
 
-The table (``guidance/core/chance_table.json``) is calibrated on the study engine's trials
+The table (``guidance/core/plan/chance_table.json``) is calibrated on the study engine's trials
 (``guidance study chance``); this checks the number the *car* computes and publishes, through
 the full in-car stack (``guidance sim``: CAN on a virtual bus, the compass on a pseudo-terminal,
 the App, its pipeline, its navigator) on drives with random conditions: method, compass (none,

@@ -54,10 +54,10 @@ from drivers.can_odometry import CanOdometry, CanOdometryConfig
 from guidance.app.app import GIL_SWITCH_INTERVAL_S, App
 from guidance.app.ports import Recognised
 from guidance.app.settings import LoopSettings
-from guidance.core.estimator import EstimatorConfig
+from guidance.core.localize.estimator import EstimatorConfig
 from guidance.core.messages import CameraFrame, EstimateState, WheelOdometry
-from guidance.core.navigator import Method, NavigatorConfig
 from guidance.core.pipeline import Pipeline, PipelineConfig
+from guidance.core.plan.navigator import Method, NavigatorConfig
 from hal_sim.sim_can import SimCanWheels
 from landmark_db.recognise import worker_setup
 

@@ -27,7 +27,7 @@ from numba import njit
 
 # isort: on
 from guidance.core import law, model
-from guidance.core.navigator import Method, NavigatorConfig
+from guidance.core.plan.navigator import Method, NavigatorConfig
 from hal_sim import ekf, engine, params, rng, studies, world
 from hal_sim.params import I_COMPASS_PERIOD, I_DETECT, I_QUANTUM, I_SLIP, I_TRACK, SimParams
 

@@ -24,8 +24,8 @@ import time
 
 import numpy as np
 
-from guidance.core.estimator import PoseEstimator
-from guidance.core.navigator import Method, NavigatorConfig
+from guidance.core.localize.estimator import PoseEstimator
+from guidance.core.plan.navigator import Method, NavigatorConfig
 from hal_sim import ekf, engine, params, reference, studies
 from hal_sim.params import SimParams
 

@@ -98,7 +98,7 @@ READERS: dict[str, str] = {
     "guidance.tools.car_toml.write_card": "config",
     "guidance.app.learned_file.load_learned": "learned",
     "guidance.app.checkpoint.load_checkpoint": "checkpoint",
-    "guidance.core.chance.load_table": "chance_table",
+    "guidance.core.plan.chance.load_table": "chance_table",
     "guidance.recording.reader.recording_files": "recording",
     "guidance.recording.reader.Reader.channels": "recording",
     "guidance.recording.reader.Reader._iter_file": "recording",

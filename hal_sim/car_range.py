@@ -12,8 +12,8 @@ until it declares itself lost (2-sigma major axis over 100 m, as in the paper) o
 * **odometry only, uncalibrated**: the car model's priors (wheel scale 2 %, left/right 0.03 %);
 * **odometry only, calibrated**: the car first drives 3 km with landmark fixes (40 per km^2,
   60 % seen; ``population.learn_then_drive``) and the range drive, another route a day later
-  without landmarks, starts from what it learned (``guidance.core.learned``), widened for the
-  day;
+  without landmarks, starts from what it learned (``guidance.core.localize.learned``), widened
+  for the day;
 * **compass, uncalibrated**: its compass as delivered (offset N(0, 40 deg), hard iron up to 0.4
   of the earth's field), the filter's uncalibrated compass prior (60 deg, 250 deg^2/rad);
 * **compass, calibrated**: a deviation card from ``guidance calibrate`` (two circles give the
@@ -34,7 +34,8 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
-from guidance.core.estimator import EstimatorConfig, car_model
+from guidance.core.localize.car_model import car_model
+from guidance.core.localize.estimator import EstimatorConfig
 from hal_sim.population import CarErrors, CarResult, draw_car, drive_car
 
 CONDITIONS: tuple[tuple[str, bool, bool], ...] = (

@@ -1,11 +1,12 @@
 """The chance-of-success study (``guidance study chance``): the table the car ships
-(``guidance/core/chance_table.json``, read by ``guidance.core.chance``) and its calibration.
+(``guidance/core/plan/chance_table.json``, read by ``guidance.core.plan.chance``) and its
+calibration.
 
 Each condition of a grid (method, landmark density, detection rate, compass 2-sigma) runs the
 landmark study's trials with ``engine.STUDY_CHANCE``: at the study's sample distances along
 each trial the engine records the 2-sigma major axis and the *estimated* distance still to go
 (what the car knows), and the trial's outcome says whether that point led to the goal. A
-logistic model in those two numbers (``guidance.core.chance.FEATURES``) is fitted per condition
+logistic model in those two numbers (``guidance.core.plan.chance.FEATURES``) is fitted per condition
 by Newton's method. The calibration is measured on drives the table never saw: other seeds, and
 conditions drawn off the grid (the car interpolates between grid points), one point per drive at
 a random moment of it: predicted against realised success per decile.
@@ -20,8 +21,8 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from guidance.core import chance as core_chance
-from guidance.core.navigator import Method, NavigatorConfig
+from guidance.core.plan import chance as core_chance
+from guidance.core.plan.navigator import Method, NavigatorConfig
 from hal_sim import engine, params
 from hal_sim.provenance import wilson_pair
 

@@ -195,7 +195,7 @@ def _print_summary(console: Any, summary: dict[str, Any], out: Path, table_cls: 
         t.caption = (
             f"{cal['drives']} held-back drives: largest gap {cal['max_gap'] * 100:.1f} points "
             f"({'within' if cal['within_10_points'] else 'NOT within'} 10); the table is "
-            f"{summary['table']} (the car's: guidance/core/chance_table.json)"
+            f"{summary['table']} (the car's: guidance/core/plan/chance_table.json)"
         )
     elif summary["study"] == "field":
         for col in ("method", "runs", "goals/run", "lost", "goals ≥ 6.9 km reached", "95 %",

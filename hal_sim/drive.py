@@ -35,12 +35,12 @@ from guidance.app.app import App
 from guidance.app.build import OpenOutputs, open_outputs, session_record
 from guidance.app.checkpoint import INVALID, Checkpointer, resume_from_checkpoint
 from guidance.app.magnetic import declination_deg
-from guidance.core.chance import ChanceSettings
 from guidance.core.messages import GoalUpdate
 from guidance.core.model import heading_to_compass
-from guidance.core.navigator import Landmark, Method, NavigatorConfig
 from guidance.core.pipeline import Input, Pipeline, PipelineConfig
 from guidance.core.pipeline import Outputs as PipelineOutputs
+from guidance.core.plan.chance import ChanceSettings
+from guidance.core.plan.navigator import Landmark, Method, NavigatorConfig
 from guidance.errors import UserError
 from hal_sim.drive_options import DriveOptions, DriveResult, output_settings, wav_has_speech
 from hal_sim.lockstep import LockstepClock, LockstepSink, recognise_now
@@ -138,7 +138,9 @@ class SimDrive:
         """Open the devices and the outputs, drive, close everything; the drive's result."""
         try:
             compass = self.opts.compass_deg is not None
-            with open_sim_devices(self.world, self.opts.profile, self.clock, compass=compass) as d:
+            seed = self.opts.seed if self.opts.start_unknown else None
+            with open_sim_devices(self.world, self.opts.profile, self.clock, compass=compass,
+                                  drive_on_seed=seed) as d:  # fmt: skip
                 self.dev = d
                 sim = {"seed": self.opts.seed, "method": self.method.value}
                 session = session_record(self.pipeline, self.opts.config or "", sim=sim)
@@ -482,6 +484,8 @@ def drive_pipeline_config(
     world's), navigator, start and goal, the landmarks the car knows, the simulated compass's
     (uncalibrated, true-mounted) readings and the simulated devices' rates."""
     sx, sy, th0 = world.start_pose
+    if opts.start_unknown:  # the car is not told: it waits at the goal, city-wide
+        sx, sy = world.goal_xy
     rates: dict[str, float | None] = {"odometry": 1.0 / world.dt_s}
     if opts.compass_deg is not None:
         rates["compass"] = world.sim.compass_rate_hz
@@ -498,6 +502,7 @@ def drive_pipeline_config(
         "expected_rates_hz": rates,
         "stop_at_arrival": opts.duration_s is None,
         "relocalise": opts.relocalise and opts.density_per_km2 > 0.0,
+        "start_unknown": opts.start_unknown,
         # the car knows its matcher's recall: the world's detection rate
         "chance": replace(
             base.chance if base is not None else ChanceSettings(),

@@ -61,7 +61,7 @@ class DriveOptions:
     """``[sim] devices = true``: ``guidance run`` drives these simulated devices."""
     decision_distance_m: float = 250.0
     """The simulated co-driver announces the next intersection this far ahead: as soon as it
-    comes into view, so the voice's own timing (guidance.core.announce: about 8 s ahead, at
+    comes into view, so the voice's own timing (guidance.core.plan.announce: about 8 s ahead, at
     least 35 m) decides when the driver hears it, as in the car. The studies use 30 m."""
     cap_factor: float = 3.0
     cap_extra_m: float = 2000.0
@@ -79,6 +79,9 @@ class DriveOptions:
     whole-database search; with ``camera_hz`` the real recogniser searches): being lost does not
     end the drive, it goes on until the car arrives or the cap. False (``--no-relocalise``):
     the paper's definition, a lost car's trip ends there."""
+    start_unknown: bool = False
+    """"Start anywhere" (``--start-unknown``): the car is not told where it starts; it waits
+    at the goal, 10 km wide, until its first landmark (needs landmarks and ``relocalise``)."""
 
 
 @dataclass
@@ -103,7 +106,7 @@ class DriveResult:
     loop_lag_ms: dict[str, float | None] = field(default_factory=dict)
     goals_reached: int = 0
     chance_at_start: float | None = None
-    """The car's first published chance of reaching the goal (``guidance.core.chance``)."""
+    """The car's first published chance of reaching the goal (``guidance.core.plan.chance``)."""
     lowest_chance: float | None = None
     frames_sent: int = 0
     compass_lines: int = 0

@@ -23,7 +23,7 @@ from dataclasses import dataclass, field, replace
 
 from drivers.can_odometry import MAX_GAP_S
 from drivers.keyboard import CoDriverLines
-from guidance.core.estimator import RELOCALISED
+from guidance.core.localize.estimator import RELOCALISED
 from guidance.core.messages import (
     Approach,
     HeadingFix,
@@ -88,7 +88,8 @@ def guided_drive(
     world = make_world(opts)
     pipeline = Pipeline(drive_pipeline_config(world, opts, world.landmarks(), 0.0))
     trip = GuidedTrip(opts, codriver)
-    scene = SimScene(world, report_next=report_next and not codriver)
+    scene = SimScene(world, report_next=report_next and not codriver,
+                     drive_on_seed=opts.seed if opts.start_unknown else None)  # fmt: skip
     dt = world.dt_s
 
     def feed(msg: Input) -> None:

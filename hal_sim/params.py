@@ -14,9 +14,9 @@ from typing import Any
 
 import numpy as np
 
-from guidance.core.estimator import EstimatorConfig
+from guidance.core.localize.estimator import EstimatorConfig
 from guidance.core.messages import reset_sigma_m
-from guidance.core.navigator import NavigatorConfig
+from guidance.core.plan.navigator import NavigatorConfig
 
 
 @dataclass(frozen=True, slots=True)

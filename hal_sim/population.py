@@ -5,7 +5,7 @@ gets persistent errors drawn from the distributions below (``draw_car``), drives
 through a simulated city (the world of ``hal_sim.world``; at each intersection a random exit),
 and its wheel increments and compass readings are made from the true motion with *its* errors,
 then fed to the car's real ``Pipeline`` with the car model as a car nobody calibrated is
-configured (``guidance.core.estimator.car_model``, no deviation card). Per car: the truth
+configured (``guidance.core.localize.estimator.car_model``, no deviation card). Per car: the truth
 inside the 2-sigma ellipse, the NEES, the along/across split, the true error when "lost" is
 declared.
 
@@ -32,12 +32,13 @@ from dataclasses import dataclass, field, replace
 import numpy as np
 from scipy.stats import chi2
 
-from guidance.core.estimator import EstimatorConfig, car_model
-from guidance.core.learned import LearnedParams
+from guidance.core.localize.car_model import car_model
+from guidance.core.localize.estimator import EstimatorConfig
+from guidance.core.localize.learned import LearnedParams
 from guidance.core.messages import HeadingFix, LandmarkFix, WheelOdometry
 from guidance.core.model import CHI2_2D_2SIGMA, mahalanobis_sq_2d, wrap_angle
-from guidance.core.navigator import NavigatorConfig
 from guidance.core.pipeline import Pipeline, PipelineConfig
+from guidance.core.plan.navigator import NavigatorConfig
 from hal_sim import world as world_mod
 from hal_sim.params import SimParams, estimator_config
 from hal_sim.provenance import wilson_pair

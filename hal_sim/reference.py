@@ -16,9 +16,9 @@ from dataclasses import replace
 
 import numpy as np
 
-from guidance.core.estimator import EstimatorConfig, PoseEstimator
+from guidance.core.localize.estimator import EstimatorConfig, PoseEstimator
 from guidance.core.messages import HeadingFix, LandmarkFix, WheelOdometry
-from guidance.core.navigator import Landmark, Method, Navigator, NavigatorConfig
+from guidance.core.plan.navigator import Landmark, Method, Navigator, NavigatorConfig
 from hal_sim import engine, world
 from hal_sim.params import (
     I_COMPASS_PERIOD,

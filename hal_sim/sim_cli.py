@@ -15,7 +15,7 @@ import sys
 from dataclasses import replace
 from typing import Any
 
-from guidance.core.chance import shown
+from guidance.core.plan.chance import shown
 from hal_sim.drive_options import (
     METHODS,
     DriveOptions,
@@ -119,6 +119,12 @@ def register(sub: Any) -> None:
         "looks for itself again and drives on",
     )
     p.add_argument(
+        "--start-unknown",
+        action="store_true",
+        help="start anywhere: the car is not told where it starts and finds itself at its "
+        "first landmark ([start] with no position in a car's config)",
+    )
+    p.add_argument(
         "--can-silent",
         type=_window,
         default=None,
@@ -182,6 +188,8 @@ def _cli_sim(args: argparse.Namespace) -> int:
         changes["png"] = False
     if args.no_relocalise:
         changes["relocalise"] = False
+    if args.start_unknown:
+        changes["start_unknown"] = True
     opts = replace(opts, **changes)
 
     drive_and_report(opts, app_config, as_json=args.json)

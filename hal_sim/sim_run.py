@@ -41,7 +41,7 @@ from hal_sim.sim_world import SimWorld, landmark_name
 
 if TYPE_CHECKING:
     from guidance.app.app import Source
-    from guidance.core.navigator import Landmark
+    from guidance.core.plan.navigator import Landmark
     from hal_sim.drive_options import DriveOptions
     from landmark_db.recognise import Recogniser
 
@@ -71,10 +71,16 @@ class SimDevices:
 
 @contextlib.contextmanager
 def open_sim_devices(
-    world: SimWorld, profile: str, clock: Callable[[], float], *, compass: bool = True
+    world: SimWorld,
+    profile: str,
+    clock: Callable[[], float],
+    *,
+    compass: bool = True,
+    drive_on_seed: int | None = None,
 ) -> Iterator[SimDevices]:
     """The devices of ``world`` (the compass with ``compass``), closed on the way out (on an
-    error too); ``profile`` is the car's CAN profile, ``clock`` the compass's."""
+    error too); ``profile`` is the car's CAN profile, ``clock`` the compass's; the scene's
+    driver chooses exits alone when told nothing (``drive_on_seed``: ``SimScene``)."""
     channel = f"sim-can-{os.getpid()}-{next(_channel_ids)}"
     with contextlib.ExitStack() as stack:
         wheels = SimCanWheels(channel, profile=profile).open()
@@ -88,7 +94,8 @@ def open_sim_devices(
             stack.callback(pty.close)
             reader = SerialCompass(SerialCompassConfig(port=pty.port, baudrate=4800), clock=clock)
             stack.callback(_stop, reader)
-        yield SimDevices(wheels, odo, SimScene(world), SimSightings(world), pty, reader)
+        scene = SimScene(world, drive_on_seed=drive_on_seed)
+        yield SimDevices(wheels, odo, scene, SimSightings(world), pty, reader)
 
 
 def _stop(source: CanOdometry | SerialCompass) -> None:
@@ -101,7 +108,7 @@ def open_sim_camera(
 ) -> tuple[SimCamera, Recogniser, tuple[Landmark, ...]]:
     """The simulated camera, the real recogniser on a database of the city's landmarks, and
     the navigator's landmark list with the database ids (``guidance sim --camera``)."""
-    from guidance.core.navigator import Landmark
+    from guidance.core.plan.navigator import Landmark
     from hal_sim.sim_camera import build_sim_landmark_db
     from landmark_db.recognise import Recogniser, RecogniserConfig
 

@@ -14,6 +14,7 @@ Two ``RoadwayScene``/source objects sit on top of it:
 from __future__ import annotations
 
 import math
+import random
 from collections import Counter
 from collections.abc import Callable
 from typing import Any
@@ -37,9 +38,15 @@ class SimScene:
 
     name = "sim_scene"
 
-    def __init__(self, world_: SimWorld, report_next: bool = True) -> None:
+    def __init__(
+        self, world_: SimWorld, report_next: bool = True, drive_on_seed: int | None = None
+    ) -> None:
         self.world = world_
         self.report_next = report_next
+        self._drive_on = None if drive_on_seed is None else random.Random(drive_on_seed)
+        """A driver told nothing (a car that started anywhere, before its first landmark)
+        chooses an exit at random, never back the way it came unless it must: with None,
+        the car waits for a plan."""
         self._sink: Callable[[Any], None] | None = None
         self._counts: Counter[str] = Counter()
         self.approaching = False
@@ -100,9 +107,11 @@ class SimScene:
     def follow(self, planned: Callable[[int], int | None]) -> None:
         """The simulated driver does as told: the exit the car plans now for the intersection
         ahead (until the world has committed to it)."""
-        if self._seq is None or int(self.world.ns[world.R_B]) != self._b:
+        if int(self.world.ns[world.R_B]) != self._b:
             return
-        exit_index = planned(self._seq)
+        exit_index = None if self._seq is None else planned(self._seq)
+        if exit_index is None and self._drive_on is not None and self._followed is None:
+            exit_index = self._own_choice(self._drive_on)
         if exit_index is None or exit_index == self._followed:
             return
         if self._followed is not None:
@@ -111,6 +120,12 @@ class SimScene:
         self._followed = exit_index
         self.world.take_exit(exit_index)
         self.approaching = True
+
+    def _own_choice(self, rng: random.Random) -> int | None:
+        exits = self.world.exits()
+        road = float(self.world.ts[world.T_SEG_H])
+        ahead = [i for i, h in enumerate(exits) if abs(wrap_angle(h - road)) < 2.5]
+        return rng.choice(ahead or list(range(len(exits)))) if exits else None
 
     def due_next(self, ev: StepEvents) -> IntersectionScene | None:
         """With ``report_next``: the intersection after the one ahead, once the driver knows

@@ -16,8 +16,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from guidance.core.estimator import EstimatorConfig
-from guidance.core.navigator import Landmark, NavigatorConfig
+from guidance.core.localize.estimator import EstimatorConfig
+from guidance.core.plan.navigator import Landmark, NavigatorConfig
 from hal_sim import world
 from hal_sim.params import I_COMPASS_PERIOD, I_DETECT, I_DT, SimParams, pack
 

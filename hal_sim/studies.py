@@ -22,7 +22,7 @@ from typing import Any
 
 import numpy as np
 
-from guidance.core.navigator import Method, NavigatorConfig
+from guidance.core.plan.navigator import Method, NavigatorConfig
 from guidance.errors import UserError
 from hal_sim import engine, params
 from hal_sim.params import SimParams

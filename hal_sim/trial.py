@@ -10,7 +10,7 @@ from typing import NamedTuple
 import numpy as np
 from numba import njit
 
-from guidance.core.navigator import NavigatorConfig
+from guidance.core.plan.navigator import NavigatorConfig
 from hal_sim import field, world
 from hal_sim.params import (
     I_AREA_MAX,

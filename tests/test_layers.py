@@ -341,7 +341,7 @@ def test_only_the_estimator_moves_its_state() -> None:
     """ARCHITECTURE-3 (issue 37): the estimator is the only code that moves x and P. Dead
     reckoning through a gap is its ``coast()``, the learned start its ``adopt()``, a
     relocalisation its own update; nothing outside it calls ``set_state`` or ``set_pose``."""
-    owner = ROOT / "guidance" / "core" / "estimator.py"
+    owner = ROOT / "guidance" / "core" / "localize" / "estimator.py"
     calls = []
     for pkg in ("guidance", "drivers", "landmark_db", "hal_sim"):
         for p in sorted((ROOT / pkg).rglob("*.py")):

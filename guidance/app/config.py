@@ -38,12 +38,13 @@ from guidance.app.settings import (
 )
 from guidance.app.tables import _check_document, _Table
 from guidance.config_tables import field_default, from_table, key_name
-from guidance.core.chance import ChanceSettings
-from guidance.core.estimator import EstimatorConfig, car_model
 from guidance.core.geo import Origin
 from guidance.core.health import HealthConfig
-from guidance.core.navigator import Landmark
+from guidance.core.localize.car_model import car_model
+from guidance.core.localize.estimator import EstimatorConfig
 from guidance.core.pipeline import PipelineConfig
+from guidance.core.plan.chance import ChanceSettings
+from guidance.core.plan.navigator import Landmark
 from guidance.errors import UserError
 from guidance.recording.config import RecordingConfig
 from guidance.telemetry.config import Ros2Config, TelemetryConfig
@@ -196,7 +197,7 @@ def _deviation(value: object) -> tuple[float, ...]:
     """``[compass] deviation_deg = [A, B, C, D, E]`` (``guidance calibrate`` writes it)."""
     if value is None:
         return ()
-    from guidance.core.compass_cal import CompassCalibration
+    from guidance.core.localize.compass_cal import CompassCalibration
 
     if not isinstance(value, list) or len(value) != 5:
         raise UserError("[compass] deviation_deg must be a list of 5 numbers [A, B, C, D, E]")

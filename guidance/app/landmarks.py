@@ -17,7 +17,7 @@ from typing import Any
 
 from guidance.app.ports import Recogniser
 from guidance.core.geo import Origin
-from guidance.core.navigator import Landmark
+from guidance.core.plan.navigator import Landmark
 from guidance.errors import UserError
 
 RECOGNISER = "landmark_db.recognise:Recogniser"

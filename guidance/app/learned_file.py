@@ -1,9 +1,9 @@
-"""One car's learned-parameters file (``guidance.core.learned``): JSON, atomic, versioned.
+"""One car's learned-parameters file (``guidance.core.localize.learned``): JSON, atomic, versioned.
 
 Written with the checkpoint's ``write_atomic`` (temp file, fsync, rename: a SIGKILL leaves the
 old file or the new one, never a mix). Read with every value checked; a file that fails (not
 JSON, larger than ``MAX_BYTES``, another schema, a value out of the physical bounds of
-``guidance.core.state_limits``, another vehicle's) is refused with one line and
+``guidance.core.localize.state_limits``, another vehicle's) is refused with one line and
 the car starts from its priors, so a damaged or tampered file never makes it confident.
 
 The running car and the tools share the file through a lock (``LearnedLock``, an advisory
@@ -25,9 +25,9 @@ from pathlib import Path
 
 from guidance import files
 from guidance.app.checkpoint import remove_stale_temps, write_atomic
-from guidance.core.estimator import PoseEstimator
-from guidance.core.learned import LearnedParams
-from guidance.core.state_limits import FUTURE_TOLERANCE_S
+from guidance.core.localize.estimator import PoseEstimator
+from guidance.core.localize.learned import LearnedParams
+from guidance.core.localize.state_limits import FUTURE_TOLERANCE_S
 
 MAX_BYTES = files.KINDS["learned"].max_bytes
 """The file is a few hundred bytes; a larger one (or ``/dev/zero``) is not read."""

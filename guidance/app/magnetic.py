@@ -4,8 +4,9 @@ pygeomag (a port of NOAA's reference C code) ships the WMM coefficient files fro
 WMM-2025; the model whose 5-year life span holds the date is chosen, so old logs get the model
 of their day and today's drives get WMM-2025 (valid 2025.0-2030.0, released 11/13/2024).
 
-The reading -> filter heading conversion is ``guidance.core.compass_cal.compass_heading_to_theta``
-(the pipeline's); this module gives it the declination of the place and date.
+The reading -> filter heading conversion is
+``guidance.core.localize.compass_cal.compass_heading_to_theta`` (the pipeline's); this module
+gives it the declination of the place and date.
 """
 
 from __future__ import annotations

@@ -18,7 +18,6 @@ from dataclasses import dataclass
 from typing import Any
 
 from guidance.core.angles import heading_to_compass
-from guidance.core.chance import shown
 from guidance.core.messages import (
     Approach,
     EstimateState,
@@ -27,6 +26,7 @@ from guidance.core.messages import (
     IntersectionScene,
     Target,
 )
+from guidance.core.plan.chance import shown
 from guidance.core.speech import manoeuvre
 
 KEYS_LINE = (
@@ -141,7 +141,7 @@ class OperatorView:
         """The VOICE row: "" (no row), "on", or "MUTED ..." (``set_voice``)."""
         self.arrived = False
         self.chance: float | None = None
-        """The chance of reaching the goal, with each state (``guidance.core.chance``)."""
+        """The chance of reaching the goal, with each state (``guidance.core.plan.chance``)."""
         self.chance_warn_below = chance_warn_below
         """``[chance] warn_below``: the CHANCE row is yellow below it."""
         self.last_turn_prompt = ""

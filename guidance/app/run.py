@@ -274,7 +274,7 @@ async def _keep_learned(
     """Every ``[checkpoint] learned_interval_s`` while the car drives (and holds the file's
     lock): what it has learned so far (taken on the loop, written off it: the write fsyncs)."""
     from guidance.app.learned_file import save_learned
-    from guidance.core.learned import LearnedParams
+    from guidance.core.localize.learned import LearnedParams
 
     if not cfg.checkpoint.learned_path or not held:
         return

@@ -14,8 +14,8 @@ from pathlib import Path
 
 from guidance.app.backends import SCENE_BACKENDS
 from guidance.config_tables import Rule, field_default, from_table, rule
-from guidance.core.navigator import Method, NavigatorConfig
 from guidance.core.pipeline_config import PipelineConfig
+from guidance.core.plan.navigator import Method, NavigatorConfig
 from guidance.core.speech import Units
 from guidance.errors import UserError
 from guidance.voice import SPEAKER_KINDS

@@ -188,6 +188,7 @@ class Speech(StrEnum):
     NEW_DESTINATION = "new_destination"
     ARRIVED = "arrived"
     LOST = "lost"
+    POSITION_UNKNOWN = "position_unknown"
     WAITING_FOR_HEADING = "waiting_for_heading"
     SENSOR = "sensor"
     COMPASS_UNUSABLE = "compass_unusable"
@@ -221,7 +222,8 @@ class Say:
     changed: bool = False
     """TURN: a new instruction for an intersection already announced ("Change of plan: ...")."""
     again: bool = False
-    """TURN: the same words for another intersection right after ("... again")."""
+    """TURN: the same words for another intersection right after ("... again"); FOUND: found
+    *again* (False: the first place of a car that started anywhere)."""
     name: str = ""
     """LANDMARK, FOUND: the place's name (an id-like name is not read out)."""
     input: str = ""
@@ -350,7 +352,7 @@ class ExitTaken:
     source: str
 
 
-# -- the navigator's values (guidance.core.navigator makes them) -----------------------------
+# -- the navigator's values (guidance.core.plan.navigator makes them) -----------------------------
 class Method(StrEnum):
     STRAIGHT_TO_GOAL = "straight_to_goal"
     LANDMARK_TO_LANDMARK = "landmark_to_landmark"

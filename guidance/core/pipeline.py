@@ -23,16 +23,15 @@ from dataclasses import asdict
 import numpy as np
 
 from guidance.core import speech
-from guidance.core.chance import ChanceWatch, shipped_or_none
-from guidance.core.compass_cal import CompassCalibration, compass_heading_to_theta
-from guidance.core.estimator import LOST_HYSTERESIS, RELOCALISED, PoseEstimator
-from guidance.core.guide import Guide
 from guidance.core.health import (
     BAD_STATUSES,
     CompassJudge,
     DeviceStatus,
     HealthMonitor,
 )
+from guidance.core.localize.compass_cal import CompassCalibration, compass_heading_to_theta
+from guidance.core.localize.estimator import LOST_HYSTERESIS, RELOCALISED, PoseEstimator
+from guidance.core.localize.odometry_gap import placeable_s
 from guidance.core.messages import (
     Approach,
     CancelReport,
@@ -51,11 +50,13 @@ from guidance.core.messages import (
     TurnCompleted,
     WheelOdometry,
 )
-from guidance.core.navigator import Decision, Navigator
 from guidance.core.pipeline_config import INPUT_KINDS, Input, Outputs, PipelineConfig
 from guidance.core.pipeline_state import PipelineState, Transient
+from guidance.core.plan.chance import ChanceWatch, shipped_or_none
+from guidance.core.plan.guide import SAME_PLACE_M, Guide
+from guidance.core.plan.navigator import Decision, Navigator
+from guidance.core.plan.turns import TurnDetector
 from guidance.core.snapshot_check import check_snapshot, integer
-from guidance.core.turns import TurnDetector
 
 log = logging.getLogger(__name__)
 
@@ -82,6 +83,11 @@ DR_AFTER_PERIODS = 3.0
 it comes: a stale estimate with a tight ellipse would put the truth outside it."""
 
 
+UNKNOWN_START_SIGMA_M = 10_000.0
+"""A car that starts anywhere (``PipelineConfig.start_unknown``) is somewhere in a city 20 km
+across (the 2-sigma circle): lost from the first step, and any landmark it finds is inside."""
+
+
 class Pipeline:
     """Estimator + navigator + turn detector + health, driven by messages (see module doc)."""
 
@@ -95,6 +101,9 @@ class Pipeline:
         self.tr = Transient()
         if not self.st.heading_known:
             self.estimator.forget_heading()
+        if config.start_unknown:
+            self.st.placed = False
+            self.estimator.inflate_position(2.0 * UNKNOWN_START_SIGMA_M)
         self.navigator = Navigator(config.goal_xy_m, config.navigator, config.landmarks)
         self.chance = ChanceWatch(
             config.chance,
@@ -220,6 +229,9 @@ class Pipeline:
                 log.warning("odometry resumed after %.1f s: dead-reckoned %.0f m at %.1f m/s",
                             gap, self.tr.dr_m, self.st.speed_mps)  # fmt: skip
                 self.counts["odometry_gaps"] += 1
+                self.turns.reset()  # the heading across the gap is judged once, just below
+                placeable = placeable_s(SAME_PLACE_M)  # the gap's bound within "same place"
+                self.guide.after_gap(msg.t_s, msg.t_s - gap, placeable, est, out)
             else:
                 self.st.speed_mps = abs(d_wheels) / gap
         if not long_gap:
@@ -236,8 +248,8 @@ class Pipeline:
     def _dead_reckon(self, t: float, out: Outputs | None) -> None:
         """Odometry overdue (a CAN dropout, or a frame late) while the heading is known: the
         estimate moves on at the last speed along its heading, widened along the road by what
-        the car could have gained or lost (``guidance.core.odometry_gap``), up to ``t``. Called
-        at each compass reading in the silence and when odometry resumes."""
+        the car could have gained or lost (``guidance.core.localize.odometry_gap``), up to
+        ``t``. Called at each compass reading in the silence and when odometry resumes."""
         last = self.tr.last_odo_t
         rate = self.health.expected.get("odometry")
         if last is None or not rate or not self.config.resume_gap_inflation:
@@ -289,6 +301,7 @@ class Pipeline:
             last = self.st.landmark_said.get(str(fix.landmark_id), -math.inf)
             if r.reason == RELOCALISED or was_lost:  # found again: said by the place's name
                 self.counts["relocalisations"] += 1
+                first, self.st.placed = not self.st.placed, True
                 # found: a reset's ellipse (80 m across for a 20 m sight) sits on the lost
                 # hysteresis, so the episode is closed here, not by the axis
                 self.st.lost_said = False
@@ -297,7 +310,8 @@ class Pipeline:
                 how = "reset there" if r.reason == RELOCALISED else "inside the lost ellipse"
                 log.warning("position found again near landmark %d %r (%s)",
                             fix.landmark_id, name, how)  # fmt: skip
-                self._say(out, fix.t_s, Say(Speech.FOUND, name=name), Priority.SAFETY)
+                say = Say(Speech.FOUND, name=name, again=not first)
+                self._say(out, fix.t_s, say, Priority.SAFETY)
             elif fix.t_s - last >= LANDMARK_REPEAT_S:  # a second fix from the same pass: silent
                 self.st.landmark_said[str(fix.landmark_id)] = fix.t_s
                 self._say(out, fix.t_s, Say(Speech.LANDMARK, name=name), Priority.INFO)
@@ -311,6 +325,10 @@ class Pipeline:
         if not scene.exit_headings_rad:
             out.accepted, out.reason = False, "no_exits"
             return
+        if not self.st.placed:  # started anywhere, no place found yet: no advice
+            out.accepted, out.reason = False, "position_unknown"
+            self.counts["advice_withheld"] += 1
+            return
         if not self.st.heading_known:  # no advice out of a heading the car does not have
             out.accepted, out.reason = False, "heading_unknown"
             self.counts["advice_withheld"] += 1
@@ -321,6 +339,8 @@ class Pipeline:
         self.guide.report(scene, self.estimator, self.st.odometer_m, out)
 
     def _approach(self, msg: Approach, out: Outputs) -> None:
+        if not self.st.placed:
+            return
         self.guide.approach(msg, self.estimator, self.st.odometer_m, out)
 
     def _turn(self, turn: TurnCompleted, out: Outputs) -> None:
@@ -369,7 +389,10 @@ class Pipeline:
             self.st.uncertain_said = False
         if lost:
             out.lost = True
-            if not self.st.lost_said:
+            if not self.st.lost_said and not self.st.placed:  # started anywhere: not lost
+                self.st.lost_said = True
+                self._say(out, t, Say(Speech.POSITION_UNKNOWN), Priority.SAFETY)
+            elif not self.st.lost_said:
                 self.st.lost_said = True
                 self.counts["lost_episodes"] += 1
                 searching = self.config.relocalise

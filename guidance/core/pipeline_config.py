@@ -8,10 +8,9 @@ from collections.abc import Mapping
 from dataclasses import dataclass, field
 
 from guidance.config_tables import plain
-from guidance.core.chance import ChanceSettings
 from guidance.core.codec import InputMessage
-from guidance.core.estimator import EstimatorConfig
 from guidance.core.health import HealthConfig
+from guidance.core.localize.estimator import EstimatorConfig
 from guidance.core.messages import (
     Approach,
     CancelReport,
@@ -28,9 +27,10 @@ from guidance.core.messages import (
     TurnCompleted,
     WheelOdometry,
 )
-from guidance.core.navigator import Decision, Landmark, NavigatorConfig
+from guidance.core.plan.chance import ChanceSettings
+from guidance.core.plan.navigator import Decision, Landmark, NavigatorConfig
+from guidance.core.plan.turns import TurnDetectorConfig
 from guidance.core.speech import Units
-from guidance.core.turns import TurnDetectorConfig
 
 Input = InputMessage | DeviceStatus
 """Everything the pipeline is fed: the recorded inputs (``codec.InputMessage``) and the drivers'
@@ -66,7 +66,7 @@ class Outputs:
     state: EstimateState | None = None
     """The estimate, when a state publication is due (``state_period_s`` of message time)."""
     chance: float | None = None
-    """With ``state``: the chance of reaching the goal from here (``guidance.core.chance``)."""
+    """With ``state``: the chance of reaching the goal from here (``guidance.core.plan.chance``)."""
     arrived: bool = False
     lost: bool = False
 
@@ -106,10 +106,15 @@ class PipelineConfig:
     """The car has a camera and a landmark database, whose whole-database search runs while
     it is lost: being lost does not end a simulated trip; a place found resets the position
     (``LandmarkFix.relocalised``) and guidance replans from there."""
+    start_unknown: bool = False
+    """``[start]`` gives no position ("start anywhere"): the car starts lost, says so, searches
+    the whole landmark database (``relocalise`` is required) and guides nobody until a place
+    is found; ``start_xy_m`` is then only where the estimate waits, ``UNKNOWN_START_SIGMA_M``
+    wide."""
     resume_gap_inflation: bool = True
     """After an odometry silence, inflate the position by the distance possibly driven."""
     chance: ChanceSettings = field(default_factory=ChanceSettings)
-    """The live chance of reaching the goal (``guidance.core.chance``)."""
+    """The live chance of reaching the goal (``guidance.core.plan.chance``)."""
 
     def describe(self) -> dict[str, object]:
         """Plain data for the recording's session record and the checkpoint's trip identity:

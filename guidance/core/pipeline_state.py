@@ -37,6 +37,9 @@ class PipelineState:
     lost_said: bool = False
     uncertain_said: bool = False
     chance_said: bool = False
+    placed: bool = True
+    """The position has been known since the start or found since (False: "start anywhere",
+    until the first landmark)."""
     waiting_said: bool = False
     """"Waiting for the first odometry" has been said."""
     warned: list[str] = field(default_factory=list)

@@ -17,7 +17,7 @@ from collections.abc import Mapping, Sequence
 
 import numpy as np
 
-from guidance.core.state_limits import state_problem
+from guidance.core.localize.state_limits import state_problem
 from guidance.errors import checked_number
 
 MAX_OFFSET_M = 200_000.0
@@ -180,7 +180,7 @@ def check_decision(d: object, where: str) -> None:
 
 
 def check_guide(guide: object) -> None:
-    """The intersections ahead (``guidance.core.guide.Guide.snapshot``)."""
+    """The intersections ahead (``guidance.core.plan.guide.Guide.snapshot``)."""
     if guide is None:
         return
     if not isinstance(guide, dict):

@@ -196,11 +196,11 @@ def _landmark(p: Say, units: Units) -> str:
 
 
 def _found(p: Say, units: Units) -> str:
-    """A relocalisation: the place the whole-database search found, by its name."""
+    """A relocalisation: the place the whole-database search found, by its name (``again``
+    False: the first place of a car that started anywhere)."""
     place = _place(p.name)
-    if not place:
-        return "Position found again at a known landmark"
-    return f"Position found again near {place}"
+    found = "Position found again" if p.again else "Position found"
+    return f"{found} near {place}" if place else f"{found} at a known landmark"
 
 
 def _lost(p: Say, units: Units) -> str:
@@ -288,6 +288,7 @@ SPEECH: dict[Speech, Callable[[Say, Units], str]] = {
     ),
     Speech.ARRIVED: lambda p, u: "You have arrived at your destination",
     Speech.LOST: _lost,
+    Speech.POSITION_UNKNOWN: lambda p, u: "Position unknown. Drive on; looking for a known place",
     Speech.WAITING_FOR_HEADING: lambda p, u: (
         "Waiting for a heading: no turn advice yet. Drive on, or give the start heading."
     ),
@@ -308,6 +309,7 @@ SPEECH: dict[Speech, Callable[[Say, Units], str]] = {
 KIND: dict[Speech, str] = {
     Speech.TURN: "turn", Speech.LANDMARK: "landmark", Speech.FOUND: "found",
     Speech.UNCERTAIN: "uncertain", Speech.ARRIVED: "arrived", Speech.LOST: "lost",
+    Speech.POSITION_UNKNOWN: "lost",
     Speech.SENSOR: "sensor", Speech.COMPASS_UNUSABLE: "sensor", Speech.CHANCE: "chance",
     Speech.NO_CO_DRIVER_INPUT: "sensor",
 }  # fmt: skip

@@ -37,7 +37,7 @@ class OutputContext:
     origin_lat_lon_deg: Origin | None = None
     """The sink's: the local frame's WGS-84 origin (state messages then carry lat/lon)."""
     chance: float | None = None
-    """The chance of reaching the goal (``guidance.core.chance``)."""
+    """The chance of reaching the goal (``guidance.core.plan.chance``)."""
 
 
 @dataclass(frozen=True, slots=True)

@@ -24,7 +24,7 @@ from guidance.core.messages import (
 from guidance.errors import UserError
 
 if TYPE_CHECKING:
-    from guidance.core.navigator import Decision
+    from guidance.core.plan.navigator import Decision
 
 
 SCHEMA_VERSION = 1

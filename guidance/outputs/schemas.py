@@ -129,7 +129,7 @@ SCHEMAS: dict[str, dict[str, Any]] = {
                 "minimum": 0,
                 "maximum": 1,
                 "description": "chance of reaching the goal from here (the study engine's "
-                "table, guidance.core.chance); null: not computed",
+                "table, guidance.core.plan.chance); null: not computed",
             },
             "lost": {"type": "boolean"},
             "healthy": {"type": "boolean"},

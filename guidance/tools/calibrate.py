@@ -3,8 +3,9 @@
 The drive (a candump CAN log and a time-stamped NMEA capture, the inputs ``guidance replay``
 takes) starts with the car standing at a known true heading (``[start] heading_deg`` in the
 car's TOML, or ``--start-heading-deg``); wheel odometry carries that heading through the drive
-as the reference, and ``guidance.core.compass_cal`` fits ``deviation = A + B sin h + C cos h +
-D sin 2h + E cos 2h`` to the readings (docs/estimation.md, "Calibrating the compass"). With
+as the reference, and ``guidance.core.localize.compass_cal`` fits
+``deviation = A + B sin h + C cos h + D sin 2h + E cos 2h`` to the readings (docs/estimation.md,
+"Calibrating the compass"). With
 ``--write`` the card goes into the TOML as ``[compass] deviation_deg = [A, B, C, D, E]``
 (``guidance.tools.car_toml``: edited with tomlkit, loaded back before it replaces the file);
 the car then applies it to every reading before the declination.
@@ -22,7 +23,7 @@ import sys
 from pathlib import Path
 from typing import Any
 
-from guidance.core.compass_cal import (
+from guidance.core.localize.compass_cal import (
     FitResult,
     calibrate_from_drive,
     reference_headings_from_odometry,

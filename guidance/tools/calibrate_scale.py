@@ -2,7 +2,7 @@
 
 Next to the compass card: drive a stretch whose length is known (between two landmarks whose
 distance along the road you measured on a map, or a measured straight), and the wheel-speed
-scale is ``known / wheel - 1`` (``guidance.core.wheel_cal``), with its uncertainty from the
+scale is ``known / wheel - 1`` (``guidance.core.localize.wheel_cal``), with its uncertainty from the
 distance's own (``--distance-sigma-m``) and the wheel noise. With ``--write`` it goes into
 the car's learned-parameters file (``[checkpoint] learned_path`` or ``--learned``;
 ``guidance.app.learned_file``: atomic, validated), combined with what the file already holds
@@ -21,12 +21,18 @@ from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
-from guidance.core.state_limits import FUTURE_TOLERANCE_S, MAX_SCALE_SIGMA, MIN_SCALE_SIGMA
-from guidance.core.wheel_cal import MAX_TURN_DEG, ScaleFit, fuse, scale_from_distance, stretch
+from guidance.core.localize.state_limits import FUTURE_TOLERANCE_S, MAX_SCALE_SIGMA, MIN_SCALE_SIGMA
+from guidance.core.localize.wheel_cal import (
+    MAX_TURN_DEG,
+    ScaleFit,
+    fuse,
+    scale_from_distance,
+    stretch,
+)
 from guidance.errors import UserError, number
 
 if TYPE_CHECKING:  # the estimator stack loads on first use only
-    from guidance.core.estimator import EstimatorConfig
+    from guidance.core.localize.estimator import EstimatorConfig
 
 DEFAULT_DISTANCE_SIGMA_M = 1.0
 """A distance measured along the road on a map (two landmarks 1 km apart: about 1 m)."""
@@ -177,7 +183,7 @@ def _write_scale_locked(res: ScaleResult) -> str:
     """The read-modify-write, under the file's lock; what is written passes the car's own
     loader first, or nothing is written."""
     from guidance.app.learned_file import load_learned, save_learned
-    from guidance.core.learned import LearnedParams
+    from guidance.core.localize.learned import LearnedParams
 
     assert res.learned_path is not None
     est = res.estimator

@@ -25,7 +25,7 @@ from typing import TYPE_CHECKING, Any
 from rich.cells import cell_len
 
 from guidance.core.angles import heading_to_compass
-from guidance.core.chance import shown
+from guidance.core.plan.chance import shown
 from guidance.tools.monitor_check import MAX_NUMBER, message_problem
 from guidance.tools.monitor_ids import Publishers
 

@@ -271,9 +271,9 @@ def raw_setup(
 
 
 def _default_pipeline(start_heading_deg: float | None) -> PipelineConfig:
-    from guidance.core.estimator import EstimatorConfig
-    from guidance.core.navigator import NavigatorConfig
+    from guidance.core.localize.estimator import EstimatorConfig
     from guidance.core.pipeline import PipelineConfig
+    from guidance.core.plan.navigator import NavigatorConfig
 
     return PipelineConfig(
         estimator=EstimatorConfig(),

@@ -53,11 +53,12 @@ def corpus_events(landmark_names: Sequence[str]) -> list[Say]:
     names = list(dict.fromkeys(landmark_names))
     out = _turn_events()
     out += [Say(Speech.LANDMARK, name=n) for n in [*names, ""]]
-    out += [Say(Speech.FOUND, name=n) for n in [*names[:: max(1, len(names) // 4)], ""]]
+    out += [Say(Speech.FOUND, name=n, again=True) for n in [*names[:: max(1, len(names) // 4)], ""]]
+    out += [Say(Speech.FOUND, name=n) for n in (names[0], "")]  # a car that started anywhere
     out += [Say(Speech.UNCERTAIN, distance_m=d) for d in (80.0, 350.0)]
     out += [Say(Speech.NEW_DESTINATION, remote=r) for r in (False, True)]
     out += [Say(Speech.LOST, searching=s) for s in (False, True)]
-    out += [Say(Speech.ARRIVED), Say(Speech.WAITING_FOR_HEADING)]
+    out += [Say(Speech.ARRIVED), Say(Speech.WAITING_FOR_HEADING), Say(Speech.POSITION_UNKNOWN)]
     out += [Say(Speech.SENSOR, input=i, status=st) for i, t in SENSOR_WORDS.items() for st in t]
     out += [Say(Speech.COMPASS_UNUSABLE, status=r) for r in ("interference", "uncalibrated")]
     out += [Say(Speech.CHANCE, chance=p) for p in (0.05, 0.1, 0.2, 0.3, 0.4, 0.5, 0.6, 0.7, 0.8,

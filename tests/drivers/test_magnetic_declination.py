@@ -10,7 +10,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from guidance.app.magnetic import declination_deg, wmm_model_for
-from guidance.core.compass_cal import compass_heading_to_theta
+from guidance.core.localize.compass_cal import compass_heading_to_theta
 from guidance.core.messages import CompassHeading
 from guidance.core.model import heading_to_compass, wrap_angle
 from guidance.errors import UserError

@@ -9,9 +9,9 @@ from typing import Any
 
 import pytest
 
-from guidance.core.estimator import EstimatorConfig
-from guidance.core.navigator import Method, NavigatorConfig
+from guidance.core.localize.estimator import EstimatorConfig
 from guidance.core.pipeline import Pipeline, PipelineConfig
+from guidance.core.plan.navigator import Method, NavigatorConfig
 
 
 @pytest.fixture

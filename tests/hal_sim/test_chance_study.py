@@ -9,8 +9,8 @@ import math
 
 import numpy as np
 
-from guidance.core import chance as core_chance
-from guidance.core.navigator import Method, NavigatorConfig
+from guidance.core.plan import chance as core_chance
+from guidance.core.plan.navigator import Method, NavigatorConfig
 from hal_sim import chance, engine, params, studies
 from hal_sim.params import SimParams
 

@@ -12,7 +12,7 @@ from pathlib import Path
 
 import numpy as np
 
-from guidance.core.navigator import Method, NavigatorConfig
+from guidance.core.plan.navigator import Method, NavigatorConfig
 from hal_sim import analysis, engine, field, field_study, params, studies, world
 from hal_sim.params import SimParams
 from hal_sim.studies import StudyRun

@@ -96,7 +96,7 @@ def test_the_oracle_fails_the_old_behaviour() -> None:
     (the defect of issue 20: the turn taken relative to the heading when the co-driver
     reported, 250 m ahead and often before the car had turned out of the previous corner)
     give wrong manoeuvres."""
-    import guidance.core.guide as guide
+    import guidance.core.plan.guide as guide
 
     real = guide.Guide._set_approach
 

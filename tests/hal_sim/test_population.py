@@ -64,7 +64,8 @@ def test_a_car_with_the_filters_own_errors_is_inside_most_of_the_time() -> None:
 def test_a_second_drive_from_learned_parameters_has_a_smaller_ellipse_and_is_still_honest() -> None:
     """Issue 21, item 3: each car learns on a drive with landmark fixes; its next drive (another
     route, no landmarks, a day later) starts from what it learned, widened for the day."""
-    from guidance.core.estimator import EstimatorConfig, car_model
+    from guidance.core.localize.car_model import car_model
+    from guidance.core.localize.estimator import EstimatorConfig
     from hal_sim.population import learn_then_drive
 
     cfg = car_model(EstimatorConfig(compass_two_sigma_deg=None), calibrated=False)

@@ -7,7 +7,7 @@ import math
 import numpy as np
 import pytest
 
-from guidance.core.navigator import NavigatorConfig
+from guidance.core.plan.navigator import NavigatorConfig
 from hal_sim import city, engine, params, world
 from hal_sim.params import SimParams
 

@@ -1,12 +1,12 @@
 """The landmark file's limits (``landmark_db.limits``) agree with what the estimator accepts
-(``guidance.core.estimator``): landmark_db may not import the estimator, so the two
+(``guidance.core.localize.estimator``): landmark_db may not import the estimator, so the two
 definitions are checked here."""
 
 from __future__ import annotations
 
 import numpy as np
 
-from guidance.core import estimator
+from guidance.core.localize import estimator
 from landmark_db import limits
 from landmark_db.recognise import RecogniserConfig, fix_sigma_m
 

@@ -11,7 +11,7 @@ import pytest
 
 from guidance.app.ports import NullRecogniser
 from guidance.app.ports import Recogniser as RecogniserPort
-from guidance.core.estimator import PoseEstimator
+from guidance.core.localize.estimator import PoseEstimator
 from guidance.core.messages import CameraFrame, Ellipse, EstimateState, WheelOdometry
 from hal_sim.sim_camera import SimCamera, SimCameraConfig, SimLandmark
 from landmark_db.recognise import (

@@ -36,10 +36,10 @@ from drivers.can_decode import MAX_GAP_S
 from drivers.can_odometry import CanOdometry, CanOdometryConfig
 from guidance.app.app import App
 from guidance.app.settings import LoopSettings
-from guidance.core.estimator import EstimatorConfig
+from guidance.core.localize.estimator import EstimatorConfig
 from guidance.core.messages import WheelOdometry
-from guidance.core.navigator import Method, NavigatorConfig
 from guidance.core.pipeline import Outputs, Pipeline, PipelineConfig
+from guidance.core.plan.navigator import Method, NavigatorConfig
 from hal_sim.sim_can import SimCanWheels
 
 SPEED_MPS = 10.0

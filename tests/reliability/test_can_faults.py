@@ -28,7 +28,7 @@ from reliability_helpers import HEALTH_KEYS, FakeClock, wait_until
 
 from drivers.can_odometry import CanOdometry, CanOdometryConfig
 from drivers.profiles import get_profile, load_dbc
-from guidance.core.estimator import PoseEstimator
+from guidance.core.localize.estimator import PoseEstimator
 from guidance.core.messages import WheelOdometry
 from hal_sim.sim_can import SimCanWheels
 

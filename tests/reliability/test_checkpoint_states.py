@@ -2,7 +2,7 @@
 Pipeline, Checkpointer and ``start_checkpoints`` / ``start_from_learned`` the car runs.
 
 * the car model's learned states (wheel scale, left/right difference, compass bias) are held
-  to their physical range when read, by one definition (``guidance.core.state_limits``);
+  to their physical range when read, by one definition (``guidance.core.localize.state_limits``);
 * the checker and the estimator agree on what a valid state is: a car-model car without a
   compass (bias variance 0 by design) is resumed, not refused as "not positive-definite";
 * a temporary file a SIGKILL left mid-write is removed at the next start.
@@ -29,12 +29,14 @@ from reliability_helpers import REPO
 from guidance.app.build import start_checkpoints
 from guidance.app.checkpoint import Checkpointer, trip_identity
 from guidance.app.learned_file import load_learned, start_from_learned
-from guidance.core import model, state_limits
-from guidance.core.estimator import EstimatorConfig, car_model
-from guidance.core.learned import LearnedParams
+from guidance.core import model
+from guidance.core.localize import state_limits
+from guidance.core.localize.car_model import car_model
+from guidance.core.localize.estimator import EstimatorConfig
+from guidance.core.localize.learned import LearnedParams
 from guidance.core.messages import HeadingFix, WheelOdometry
-from guidance.core.navigator import Method, NavigatorConfig
 from guidance.core.pipeline import Pipeline, PipelineConfig
+from guidance.core.plan.navigator import Method, NavigatorConfig
 
 GOAL = (800.0, 300.0)
 
@@ -266,7 +268,7 @@ def test_a_temp_file_left_by_sigkill_is_removed_at_the_next_start(
 def test_a_temp_file_of_the_learned_parameters_is_removed_at_the_next_start(
     tmp_path: Path,
 ) -> None:
-    from guidance.core.estimator import PoseEstimator
+    from guidance.core.localize.estimator import PoseEstimator
 
     learned = tmp_path / "learned.json"
     stale = _killed_mid_write(learned)

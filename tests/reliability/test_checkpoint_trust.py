@@ -23,10 +23,10 @@ from reliability_helpers import REPO
 
 from guidance.app.build import start_checkpoints
 from guidance.app.checkpoint import Checkpointer, load_checkpoint, trip_identity
-from guidance.core.estimator import EstimatorConfig
+from guidance.core.localize.estimator import EstimatorConfig
 from guidance.core.messages import HeadingFix, WheelOdometry
-from guidance.core.navigator import Method, NavigatorConfig
 from guidance.core.pipeline import Pipeline, PipelineConfig
+from guidance.core.plan.navigator import Method, NavigatorConfig
 
 GOAL = (800.0, 300.0)
 

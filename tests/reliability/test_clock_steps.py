@@ -16,10 +16,10 @@ import time
 import pytest
 
 from drivers.can_odometry import CanOdometry, CanOdometryConfig
-from guidance.core.estimator import EstimatorConfig
+from guidance.core.localize.estimator import EstimatorConfig
 from guidance.core.messages import CompassHeading, WheelOdometry
-from guidance.core.navigator import NavigatorConfig
 from guidance.core.pipeline import Pipeline, PipelineConfig
+from guidance.core.plan.navigator import NavigatorConfig
 from hal_sim.sim_can import SimCanWheels
 
 SPEED = 10.0

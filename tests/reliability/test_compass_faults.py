@@ -21,8 +21,8 @@ import pytest
 from reliability_helpers import HEALTH_KEYS, FakeClock, wait_until
 
 from drivers.compass import SerialCompass, SerialCompassConfig
-from guidance.core.compass_cal import compass_heading_to_theta
-from guidance.core.estimator import EstimatorConfig, PoseEstimator
+from guidance.core.localize.compass_cal import compass_heading_to_theta
+from guidance.core.localize.estimator import EstimatorConfig, PoseEstimator
 from guidance.core.messages import CompassHeading, HeadingFix, WheelOdometry
 from hal_sim.sim_compass import SimCompassPty
 

@@ -38,7 +38,7 @@ CAN_LOG = REPO / "tests" / "data" / "can" / "rav4_2020-02-03_bus0_wheelspeeds.lo
 NMEA_LOG = REPO / "tests" / "data" / "nmea" / "hemi_head.log"
 GPS_LOG = REPO / "tests" / "data" / "nmea" / "rst39.log"
 TAHOE = REPO / "config" / "tahoe.toml"
-CHANCE = REPO / "guidance" / "core" / "chance_table.json"
+CHANCE = REPO / "guidance" / "core" / "plan" / "chance_table.json"
 TIMEOUT_S = 60.0
 """A reader that has not answered in this long hangs (each answers in well under a second)."""
 
@@ -54,7 +54,7 @@ class Refused(Exception):
 def _learned_sample() -> bytes:
     import json
 
-    from guidance.core.learned import LearnedParams
+    from guidance.core.localize.learned import LearnedParams
 
     p = LearnedParams("car1", 1000.0, 2500.0, -0.011, 0.003, 0.0002, 0.0001, 38.0, 3.0)
     return json.dumps(p.to_dict()).encode()
@@ -125,7 +125,7 @@ def _load_checkpoint(path: Path) -> object:
 
 
 def _load_table(path: Path) -> object:
-    from guidance.core.chance import load_table
+    from guidance.core.plan.chance import load_table
 
     return load_table(path)
 
@@ -259,7 +259,7 @@ ADAPTERS: dict[str, Adapter] = {
     ),
     "guidance.app.learned_file.load_learned": Adapter(_load_learned, _learned_sample, ".json"),
     "guidance.app.checkpoint.load_checkpoint": Adapter(_load_checkpoint, _checkpoint_sample),
-    "guidance.core.chance.load_table": Adapter(_load_table, _bytes_of(CHANCE), ".json"),
+    "guidance.core.plan.chance.load_table": Adapter(_load_table, _bytes_of(CHANCE), ".json"),
     "guidance.recording.reader.recording_files": Adapter(
         _recording_files, _bytes_of(RECORDING), ".mcap", takes_folder=True
     ),

@@ -30,8 +30,8 @@ from reliability_helpers import REPO
 from drivers.can_decode import MAX_SPEED_MPS, REJECT_REASONS, WheelSpeedDecoder
 from drivers.compass import LineAssembler, NmeaCompassParser
 from drivers.profiles import PROFILES, get_profile, honda_checksum, load_dbc
-from guidance.core.compass_cal import compass_heading_to_theta
-from guidance.core.estimator import PoseEstimator
+from guidance.core.localize.compass_cal import compass_heading_to_theta
+from guidance.core.localize.estimator import PoseEstimator
 from guidance.core.messages import HeadingFix
 from guidance.tools.cli import main as guidance_main
 from hal_sim.sim_compass import nmea_checksum

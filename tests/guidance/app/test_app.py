@@ -31,8 +31,8 @@ from guidance.core.messages import (
     LandmarkFix,
     WheelOdometry,
 )
-from guidance.core.navigator import Landmark
 from guidance.core.pipeline import Outputs, Pipeline
+from guidance.core.plan.navigator import Landmark
 from guidance.voice.speakers import TextSpeaker
 from hal_sim.lockstep import LockstepSink
 from hal_sim.sim_can import SimCanWheels

@@ -10,7 +10,7 @@ from typing import Any
 import pytest
 
 from guidance.app.config import load_config, parse_config
-from guidance.core.navigator import Method
+from guidance.core.plan.navigator import Method
 from guidance.errors import UserError
 from guidance.tools.cli import main
 

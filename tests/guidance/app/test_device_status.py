@@ -13,10 +13,10 @@ from pathlib import Path
 from drivers.compass import SerialCompass, SerialCompassConfig
 from guidance.app.app import App
 from guidance.app.settings import LoopSettings
-from guidance.core.estimator import EstimatorConfig
+from guidance.core.localize.estimator import EstimatorConfig
 from guidance.core.messages import DeviceStatus, Health, Say, Speech
-from guidance.core.navigator import NavigatorConfig
 from guidance.core.pipeline import Pipeline, PipelineConfig
+from guidance.core.plan.navigator import NavigatorConfig
 from guidance.outputs.messages import health_message
 from guidance.voice.speakers import TextSpeaker
 

@@ -14,8 +14,9 @@ from pathlib import Path
 import pytest
 
 from guidance.app.learned_file import load_learned, save_learned, start_from_learned
-from guidance.core.estimator import EstimatorConfig, PoseEstimator, car_model
-from guidance.core.learned import LearnedParams
+from guidance.core.localize.car_model import car_model
+from guidance.core.localize.estimator import EstimatorConfig, PoseEstimator
+from guidance.core.localize.learned import LearnedParams
 
 REPO = Path(__file__).resolve().parents[3]
 GOOD = LearnedParams("car1", 1000.0, 2500.0, -0.011, 0.003, 0.0002, 0.0001, 38.0, 3.0)
@@ -62,7 +63,7 @@ def test_a_sigkill_while_saving_leaves_the_old_file_or_the_new_one(tmp_path: Pat
         "import sys, itertools\n"
         "from pathlib import Path\n"
         "from guidance.app.learned_file import save_learned\n"
-        "from guidance.core.learned import LearnedParams\n"
+        "from guidance.core.localize.learned import LearnedParams\n"
         "p = Path(sys.argv[1])\n"
         "for k in itertools.count():\n"
         "    save_learned(p, LearnedParams('car1', float(k), 1.0, 0.01, 0.003, 0.0, 1e-4))\n"
@@ -148,7 +149,7 @@ def test_a_sigma_below_what_any_drive_can_teach_is_refused(
     tmp_path: Path, key: str, value: float
 ) -> None:
     """Defect 3: the old bounds let a file claim sigmas about 1,000 times below anything a
-    drive reaches (``guidance.core.state_limits.MIN_*``, with their reasons)."""
+    drive reaches (``guidance.core.localize.state_limits.MIN_*``, with their reasons)."""
     path = tmp_path / "learned.json"
     doc = GOOD.to_dict() | {"compass_bias_deg": 2.0, "compass_bias_sigma_deg": 3.0}
     doc |= {"turn_scale": 0.01, "turn_scale_sigma": 0.002}
@@ -162,7 +163,8 @@ def test_a_sigma_below_what_any_drive_can_teach_is_refused(
 def test_the_car_never_saves_a_sigma_below_the_floor_so_it_never_refuses_its_own_file(
     tmp_path: Path,
 ) -> None:
-    from guidance.core import model, state_limits
+    from guidance.core import model
+    from guidance.core.localize import state_limits
 
     est = PoseEstimator(car_model(EstimatorConfig(), calibrated=False), 0.0, 0.0, 0.0)
     P = est.P

@@ -34,8 +34,7 @@ from drivers.evdev_keys import key_press_records
 from guidance.app.operator_view import OperatorView, compass_deg, uncertainty_text
 from guidance.app.run import co_driver_problem, run_car, stdin_problem
 from guidance.app.screen import OperatorScreen, render_rows
-from guidance.core import chance
-from guidance.core.estimator import EstimatorConfig
+from guidance.core.localize.estimator import EstimatorConfig
 from guidance.core.messages import (
     HeadingFix,
     Health,
@@ -43,8 +42,9 @@ from guidance.core.messages import (
     TurnCompleted,
     WheelOdometry,
 )
-from guidance.core.navigator import Method, NavigatorConfig
 from guidance.core.pipeline import Pipeline, PipelineConfig
+from guidance.core.plan import chance
+from guidance.core.plan.navigator import Method, NavigatorConfig
 from hal_sim.sim_can import SimCanWheels
 from hal_sim.sim_compass import SimCompassPty
 

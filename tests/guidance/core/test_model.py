@@ -10,7 +10,7 @@ import pytest
 from scipy.stats import chi2
 
 from guidance.core import model
-from guidance.core.estimator import EstimatorConfig, PoseEstimator
+from guidance.core.localize.estimator import EstimatorConfig, PoseEstimator
 from guidance.core.messages import HeadingFix, LandmarkFix, WheelOdometry
 
 

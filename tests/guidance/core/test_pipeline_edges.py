@@ -6,11 +6,11 @@ import math
 
 import pytest
 
-from guidance.core.estimator import REANCHOR_AFTER, EstimatorConfig
+from guidance.core.localize.estimator import REANCHOR_AFTER, EstimatorConfig
+from guidance.core.localize.odometry_gap import GAP_ACCEL_MPS2
 from guidance.core.messages import HeadingFix, WheelOdometry
-from guidance.core.navigator import NavigatorConfig
-from guidance.core.odometry_gap import GAP_ACCEL_MPS2
 from guidance.core.pipeline import Pipeline, PipelineConfig
+from guidance.core.plan.navigator import NavigatorConfig
 
 
 def _pipeline() -> Pipeline:

@@ -14,10 +14,10 @@ import pytest
 
 from drivers.keyboard import KeyboardScene
 from guidance.core.co_driver import ExitsTyped, SceneParseError, TurnTyped, parse_line, to_scene
-from guidance.core.estimator import EstimatorConfig, PoseEstimator
+from guidance.core.localize.estimator import EstimatorConfig, PoseEstimator
 from guidance.core.messages import HeadingFix, IntersectionScene, TurnCompleted, WheelOdometry
 from guidance.core.model import wrap_angle
-from guidance.core.turns import TurnDetector
+from guidance.core.plan.turns import TurnDetector
 
 DEG = math.pi / 180
 

@@ -463,7 +463,7 @@ def test_reader_errors_are_user_errors(tmp_path: Path) -> None:
 def test_turns_and_exits_taken_leave_the_process(tmp_path: Path) -> None:
     """Outputs the pipeline computes (turns, exits taken) are recorded on their own topics."""
     from guidance.core.messages import ExitTaken
-    from guidance.core.navigator import Decision
+    from guidance.core.plan.navigator import Decision
     from guidance.outputs.schemas import SCHEMAS
 
     decision = Decision(

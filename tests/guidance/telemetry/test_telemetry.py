@@ -25,7 +25,7 @@ from pathlib import Path
 import pytest
 
 from guidance.core.messages import Ellipse, EstimateState, Health, LandmarkFix, Prompt, Target
-from guidance.core.navigator import Decision, ExitOption
+from guidance.core.plan.navigator import Decision, ExitOption
 from guidance.errors import UserError
 from guidance.outputs.kinds import (
     DECISION,

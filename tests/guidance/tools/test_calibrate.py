@@ -14,7 +14,7 @@ import numpy as np
 import pytest
 
 from guidance.app.config import load_config
-from guidance.core.compass_cal import CompassCalibration
+from guidance.core.localize.compass_cal import CompassCalibration
 from guidance.tools.calibrate import write_card
 from guidance.tools.cli import main
 from hal_sim.sim_can import SimCanWheels

@@ -19,8 +19,9 @@ import can
 import pytest
 
 from guidance.app.learned_file import load_learned, start_from_learned
-from guidance.core.estimator import EstimatorConfig, PoseEstimator, car_model
-from guidance.core.wheel_cal import fuse, scale_from_distance
+from guidance.core.localize.car_model import car_model
+from guidance.core.localize.estimator import EstimatorConfig, PoseEstimator
+from guidance.core.localize.wheel_cal import fuse, scale_from_distance
 from guidance.tools.cli import main
 from hal_sim.sim_can import SimCanWheels
 
@@ -240,7 +241,7 @@ def test_what_calibrate_writes_passes_the_car_s_loader(tmp_path: Path) -> None:
     """Defect 7: a 2 cm distance sigma over 600 m (below what any drive can know: floored at
     ``MIN_SCALE_SIGMA``), and a log stamped after 1e11 s (the file's save time is then now,
     not the log's future): both written, both taken by the car's own loader at its start."""
-    from guidance.core.state_limits import MIN_SCALE_SIGMA
+    from guidance.core.localize.state_limits import MIN_SCALE_SIGMA
 
     log = _straight_drive(tmp_path)
     car = tmp_path / "car.toml"

@@ -68,7 +68,7 @@ def _pipeline(model: str) -> tuple[Pipeline, list[WheelOdometry | CompassHeading
     setup = raw_setup(str(COMMA_CAR), None, None, COMMA_LOG)
     pcfg = setup.pipeline
     if model == "paper":  # the paper's white-noise filter, as `[estimator] model = "paper"`
-        from guidance.core.estimator import EstimatorConfig
+        from guidance.core.localize.estimator import EstimatorConfig
 
         est = EstimatorConfig(track_m=1.62, compass_two_sigma_deg=5.0)
         pcfg = replace(pcfg, estimator=est)

@@ -15,14 +15,15 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from guidance.core.estimator import EstimatorConfig, car_model
 from guidance.core.health import HealthConfig
+from guidance.core.localize.car_model import car_model
+from guidance.core.localize.estimator import EstimatorConfig
 from guidance.core.messages import CompassHeading, IntersectionScene, WheelOdometry
-from guidance.core.navigator import Landmark, Method, NavigatorConfig
 from guidance.core.pipeline import Pipeline
 from guidance.core.pipeline_config import PipelineConfig
+from guidance.core.plan.navigator import Landmark, Method, NavigatorConfig
+from guidance.core.plan.turns import TurnDetectorConfig
 from guidance.core.speech import Units
-from guidance.core.turns import TurnDetectorConfig
 from guidance.errors import UserError
 from guidance.tools.replay import pipeline_config_from_session, replay
 

@@ -17,8 +17,12 @@ import numpy as np
 import pytest
 
 from guidance.app.ports import Speaker
-from guidance.core.announce import EARLY_TOO_CLOSE_M, announcement_distances_m, due_announcements
 from guidance.core.messages import Priority
+from guidance.core.plan.announce import (
+    EARLY_TOO_CLOSE_M,
+    announcement_distances_m,
+    due_announcements,
+)
 from guidance.voice import make_speaker
 from guidance.voice.queue import PromptQueue
 from guidance.voice.speakers import (

@@ -11,7 +11,7 @@ from typing import Literal
 import numpy as np
 
 from guidance.core.model import wrap_angle
-from guidance.core.navigator import Decision
+from guidance.core.plan.navigator import Decision
 
 ARRIVE_MARGIN_M = 15.0
 """The goal's own intersection is not announced when the car will be told it has arrived at

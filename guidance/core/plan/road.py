@@ -1,7 +1,7 @@
 """What the car keeps about the road (pure): each intersection reported ahead (``Ahead``, a
 checkpoint's plain data), and the estimate along the road behind it (``RoadHistory``: where the
 car was when it got somewhere, whether it is on a road or in a turn, the road's heading).
-``guidance.core.guide`` decides and speaks with them."""
+``guidance.core.plan.guide`` decides and speaks with them."""
 
 from __future__ import annotations
 
@@ -11,7 +11,7 @@ from collections.abc import Mapping
 from dataclasses import asdict, dataclass, field, fields
 
 from guidance.core.model import wrap_angle
-from guidance.core.navigator import Decision, ExitOption
+from guidance.core.plan.navigator import Decision, ExitOption
 from guidance.core.snapshot_check import check_decision, integer, number
 
 HISTORY_M = 120.0
@@ -117,6 +117,40 @@ class Ahead:
         )
 
 
+def announce_target(
+    ahead: list[Ahead], odometer_m: float, pass_margin_m: float
+) -> tuple[int, Ahead | None]:
+    """The next intersection still ahead and its index (-1, None: none now): the first one the
+    car has not reached, once it is ``pass_margin_m`` past every one before it (a distance is
+    a few metres off; the driver must not hear the next manoeuvre while still at the previous
+    corner). With no distance: once the ones before are behind."""
+    for i, a in enumerate(ahead):
+        if a.at_odometer_m is not None:
+            if a.at_odometer_m > odometer_m:
+                return i, a
+            if odometer_m < a.at_odometer_m + pass_margin_m:
+                return -1, None
+        elif a.passed_odometer_m is None:
+            return (i, a) if i == 0 else (-1, None)
+    return -1, None
+
+
+def unplaced_after_gap(
+    ahead: list[Ahead], gap_from_s: float, resume_s: float, placeable_s: float
+) -> list[Ahead]:
+    """The intersections ahead, placed by distance, that the car can no longer place once the
+    wheel speeds come back after a silence from ``gap_from_s`` to ``resume_s``: the odometer
+    was dead-reckoned at the last speed meanwhile, so where each one is along the road is
+    uncertain by what the car may have gained or lost since the gap began (or since it was
+    reported, if later). Past ``placeable_s`` of that (the time after which the gap's
+    along-road bound exceeds the guide's "same place") the car cannot tell whether it is still
+    ahead, passed straight or turned at: none of its distances or exits can be trusted."""
+    return [
+        a for a in ahead
+        if a.at_odometer_m is not None and resume_s - max(gap_from_s, a.t_s) > placeable_s
+    ]  # fmt: skip
+
+
 class RoadHistory:
     """The estimate along the road behind the car, one sample per metre of travel: where the
     car was when it got to an intersection, and whether its heading is steady now."""
@@ -171,6 +205,11 @@ class RoadHistory:
         return math.inf if self._s[0][0] <= 1.0 else covered  # not turned since the start
 
     @property
+    def unwrapped_rad(self) -> float:
+        """The newest heading, unwrapped (turns accumulate): differences are turns made."""
+        return self._unwrapped
+
+    @property
     def last_odometer_m(self) -> float:
         """The odometer at the newest sample (0 before any)."""
         return self._s[-1][0] if self._s else 0.0
@@ -213,23 +252,26 @@ class RoadHistory:
                 self._last_raw = wrap_angle(self._unwrapped)
 
 
-PASS_MARGIN_M = 5.0
-"""The next intersection is announced once the car is this far past the one before it."""
-
-
-def announce_target(ahead: list[Ahead], odometer_m: float) -> tuple[int, Ahead | None]:
-    """The next intersection still ahead: the first one the car has not reached, once it
-    is ``PASS_MARGIN_M`` past every one before it (a distance is a few metres off; the
-    driver must not hear the next manoeuvre while still at the previous corner)."""
-    for i, a in enumerate(ahead):
-        if a.at_odometer_m is not None:
-            if a.at_odometer_m > odometer_m:
-                return i, a
-            if odometer_m < a.at_odometer_m + PASS_MARGIN_M:
-                return -1, None
-        elif a.passed_odometer_m is None:  # distance unknown: once the ones before are behind
-            return (i, a) if i == 0 else (-1, None)
-    return -1, None
+def predicted_xy(
+    ahead: list[Ahead], a: Ahead, car_xy: tuple[float, float], odometer_m: float,
+    unknown_ahead_m: float,
+) -> tuple[float, float]:
+    """Where the car will be at ``a``: along its approach road from the car (at ``car_xy``),
+    or from the intersection before it; ``unknown_ahead_m`` along it when its distance is
+    not known."""
+    base_xy, base_odo = car_xy, odometer_m
+    i = ahead.index(a)
+    if i > 0:
+        prev = ahead[i - 1]
+        if prev.at_odometer_m is not None and prev.at_odometer_m > odometer_m:
+            base_xy = predicted_xy(ahead, prev, car_xy, odometer_m, unknown_ahead_m)
+            base_odo = prev.at_odometer_m
+    if a.approach_heading_rad is None:
+        return base_xy
+    known = a.at_odometer_m
+    along = unknown_ahead_m if known is None else max(0.0, known - base_odo)
+    h = a.approach_heading_rad
+    return base_xy[0] + along * math.cos(h), base_xy[1] + along * math.sin(h)
 
 
 @dataclass(slots=True)

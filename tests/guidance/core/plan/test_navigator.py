@@ -8,7 +8,7 @@ import math
 import numpy as np
 import pytest
 
-from guidance.core.navigator import Landmark, Method, Navigator, NavigatorConfig
+from guidance.core.plan.navigator import Landmark, Method, Navigator, NavigatorConfig
 
 NORTH, EAST, WEST, SOUTH = math.pi / 2, 0.0, math.pi, -math.pi / 2
 

@@ -1,7 +1,7 @@
 """What a valid estimator state is: one definition (issue 23, items 6 and 13).
 
 Used where a state comes from outside the filter: a checkpoint (``snapshot_check``), the car's
-learned-parameter file (``guidance.core.learned``), and by the estimator itself
+learned-parameter file (``guidance.core.localize.learned``), and by the estimator itself
 (``PoseEstimator.state_problem``), so the three can never disagree.
 
 * **The car model's persistent states** have a physical range: the wheel-speed scale error

@@ -11,7 +11,7 @@ import pytest
 from hypothesis import given
 from hypothesis import strategies as st
 
-from guidance.core.compass_cal import (
+from guidance.core.localize.compass_cal import (
     MIN_READINGS,
     CompassCalibration,
     calibrate_from_drive,
@@ -20,7 +20,7 @@ from guidance.core.compass_cal import (
     reference_headings_from_odometry,
 )
 
-REALDRIVES = Path(__file__).resolve().parents[4] / "shared" / "data" / "realdrives"
+REALDRIVES = Path(__file__).resolve().parents[5] / "shared" / "data" / "realdrives"
 """tests/guidance/core/<this> -> parents: core, guidance, tests, main, work: /work/shared/..."""
 
 CARD = CompassCalibration(a_deg=40.0, b_deg=8.0, c_deg=-5.0, d_deg=3.0, e_deg=2.0)

@@ -9,7 +9,8 @@ import pytest
 from scipy.stats import chi2
 
 from guidance.core import model
-from guidance.core.estimator import REANCHOR_AFTER, EstimatorConfig, PoseEstimator, car_model
+from guidance.core.localize.car_model import car_model
+from guidance.core.localize.estimator import REANCHOR_AFTER, EstimatorConfig, PoseEstimator
 from guidance.core.messages import HeadingFix, LandmarkFix, WheelOdometry
 
 TRACK = 1.72
@@ -297,7 +298,7 @@ def test_the_car_model_adds_the_second_order_heading_term_along_the_lever() -> N
     Checked against a Monte Carlo of the heading error on a straight drive north."""
     from dataclasses import replace
 
-    from guidance.core.estimator import car_model
+    from guidance.core.localize.car_model import car_model
 
     # the heading error all from the start (10 degrees), none from the wheels on the way
     base = car_model(
@@ -330,7 +331,7 @@ def test_the_camber_process_adds_its_heading_walk_and_nothing_when_off() -> None
     heading is the only state it feeds), and 0 leaves every state as it was."""
     from dataclasses import replace
 
-    from guidance.core.estimator import car_model
+    from guidance.core.localize.car_model import car_model
 
     base = car_model(
         EstimatorConfig(track_m=1.6, compass_two_sigma_deg=None), calibrated=False,
@@ -353,7 +354,7 @@ def test_a_relocalised_fix_while_lost_resets_the_position_and_keeps_the_heading(
     the position at the place with the fix's sigma (uncorrelated with every other state); the
     heading and its variance are kept. The same fix on a car that is not lost is gated as any
     other, so a wrong find cannot move a good estimate."""
-    from guidance.core.estimator import RELOCALISED
+    from guidance.core.localize.estimator import RELOCALISED
     from guidance.core.messages import LandmarkFix as Fix
 
     est = PoseEstimator(car_model(EstimatorConfig(), calibrated=False), 0.0, 0.0, 0.3)

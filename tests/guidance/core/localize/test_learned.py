@@ -1,4 +1,4 @@
-"""Learned parameters (guidance/core/learned.py): taken from the filter, widened with time,
+"""Learned parameters (guidance/core/localize/learned.py): taken from the filter, widened with time,
 applied to the next drive, refused when absurd."""
 
 from __future__ import annotations
@@ -8,8 +8,9 @@ import math
 import pytest
 
 from guidance.core import model
-from guidance.core.estimator import EstimatorConfig, PoseEstimator, car_model
-from guidance.core.learned import SCHEMA, LearnedParams
+from guidance.core.localize.car_model import car_model
+from guidance.core.localize.estimator import EstimatorConfig, PoseEstimator
+from guidance.core.localize.learned import SCHEMA, LearnedParams
 from guidance.core.messages import WheelOdometry
 
 

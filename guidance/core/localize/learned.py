@@ -8,8 +8,8 @@ next drive starts from them (``apply``), their uncertainty widened with the time
 (``widened``): tyre pressure and wear move the scale and the difference between drives, and
 whatever moved in the car moves the compass bias at the filter's own drift rate. Nothing is
 ever more certain than it was measured, and nothing wider than the uncalibrated prior. A value
-outside physical bounds (``guidance.core.state_limits``, the ranges a checkpoint's states are
-held to as well) is refused (``from_dict`` raises ``ValueError`` naming it), as openpilot
+outside physical bounds (``guidance.core.localize.state_limits``, the ranges a checkpoint's
+states are held to as well) is refused (``from_dict`` raises ``ValueError`` naming it), as openpilot
 refuses a learned-parameter file that fails its sanity checks. The file itself (atomic,
 versioned) is ``guidance.app.learned_file``.
 """
@@ -21,8 +21,8 @@ from collections.abc import Mapping
 from dataclasses import asdict, dataclass, fields, replace
 
 from guidance.core import model
-from guidance.core.estimator import EstimatorConfig, PoseEstimator
-from guidance.core.state_limits import (
+from guidance.core.localize.estimator import EstimatorConfig, PoseEstimator
+from guidance.core.localize.state_limits import (
     MAX_ABS_BIAS_DEG,
     MAX_ABS_DIFF,
     MAX_ABS_SCALE,

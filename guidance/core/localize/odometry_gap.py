@@ -29,6 +29,12 @@ def along_sigma_m(gap_s: float) -> float:
     return 0.25 * GAP_ACCEL_MPS2 * gap_s * gap_s
 
 
+def placeable_s(tol_m: float) -> float:
+    """The longest dead reckoning whose along-road 2-sigma bound (``a t^2 / 2``) stays within
+    ``tol_m``: beyond it a place ahead on the road can no longer be told from the next one."""
+    return math.sqrt(2.0 * tol_m / GAP_ACCEL_MPS2)
+
+
 def dead_reckon(
     x: np.ndarray, P: np.ndarray, speed_mps: float, gap_from_s: float, gap_to_s: float
 ) -> tuple[np.ndarray, np.ndarray]:

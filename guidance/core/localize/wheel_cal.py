@@ -12,7 +12,7 @@ parts, both first order:
   and ``k`` the term ``(known / wheel^2)^2 q D / 2``.
 
 A fit whose scale lies outside the physical bound of a learned scale
-(``guidance.core.state_limits.MAX_ABS_SCALE``), or from less than ``MIN_DISTANCE_M`` of
+(``guidance.core.localize.state_limits.MAX_ABS_SCALE``), or from less than ``MIN_DISTANCE_M`` of
 driving, is refused (``ValueError``, one line saying what to check): it is a wrong distance,
 a wrong stretch of the log, or a wrong CAN profile, never a tyre.
 
@@ -26,7 +26,7 @@ from collections.abc import Sequence
 from dataclasses import dataclass
 from typing import Final
 
-from guidance.core.state_limits import MAX_ABS_SCALE
+from guidance.core.localize.state_limits import MAX_ABS_SCALE
 
 MIN_DISTANCE_M: Final = 100.0
 """Shortest stretch accepted: a scale of 1 % is 1 m over 100 m, about what a map pin is worth."""

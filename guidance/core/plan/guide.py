@@ -39,14 +39,7 @@ from dataclasses import replace
 import numpy as np
 
 from guidance.core import speech
-from guidance.core.announce import (
-    WORD_SIGMAS,
-    arrives_before,
-    due_announcements,
-    heading_cannot_tell,
-    heading_sd,
-)
-from guidance.core.estimator import PoseEstimator
+from guidance.core.localize.estimator import PoseEstimator
 from guidance.core.messages import (
     Approach,
     ExitTaken,
@@ -57,9 +50,23 @@ from guidance.core.messages import (
     TurnCompleted,
 )
 from guidance.core.model import wrap_angle
-from guidance.core.navigator import Decision, Navigator
 from guidance.core.pipeline_config import Outputs, PipelineConfig
-from guidance.core.road import Ahead, LastReport, RoadHistory, announce_target
+from guidance.core.plan.announce import (
+    WORD_SIGMAS,
+    arrives_before,
+    due_announcements,
+    heading_cannot_tell,
+    heading_sd,
+)
+from guidance.core.plan.navigator import Decision, Navigator
+from guidance.core.plan.road import (
+    Ahead,
+    LastReport,
+    RoadHistory,
+    announce_target,
+    predicted_xy,
+    unplaced_after_gap,
+)
 from guidance.core.snapshot_check import integer
 
 log = logging.getLogger(__name__)
@@ -76,6 +83,8 @@ SAME_PLACE_M = 20.0
 UNKNOWN_AHEAD_M = 50.0
 """Where "the next intersection" (distance unknown) is taken to be for the law: a town
 block's least length ahead (never the intersection the car has just left behind)."""
+PASS_MARGIN_M = 5.0
+"""The next intersection is announced once the car is this far past the one before it."""
 PASSED_STRAIGHT_M = 10.0
 """No distance: once the next intersection is reported (so the car is at or in this one), a
 heading that has not turned over this much travel means the car went straight on (a car that
@@ -126,6 +135,7 @@ class Guide:
         self.last_exit_heading_rad: float | None = None
         """The exit the car took at the last intersection it went through (estimate frame)."""
         self._undo: LastReport | None = None  # what ``cancel`` undoes
+        self._heading_before_gap = 0.0  # the history's heading at the last odometry step
 
     # -- inputs ---------------------------------------------------------------------------------
     def report(
@@ -172,11 +182,8 @@ class Guide:
         self._update(scene.t_s, est, odometer_m, out, force=True)
 
     def cancel(self, odometer_m: float) -> bool:
-        """Withdraw the last new report (the co-driver's mistake) while the car has not reached
-        it: it leaves the queue, and what its report did to the ones before it (taken as
-        behind the car, frozen) is undone. False when there is nothing to withdraw: no report,
-        already withdrawn, resolved, or reached (the car has acted on it). One level: the
-        report before it cannot be withdrawn next (nor after a restart from a checkpoint)."""
+        """Withdraw the last new report (``LastReport.withdraw``); False when there is none
+        the car has not acted on. One level (and none after a restart from a checkpoint)."""
         undo, self._undo = self._undo, None
         if undo is None or not undo.withdraw(self.ahead, odometer_m):
             return False
@@ -209,6 +216,22 @@ class Guide:
         self._resolve(first, turn.t_s, heading, turn.source, est, out)
         return True
 
+    def after_gap(
+        self, t_s: float, gap_from_s: float, placeable_s: float, est: PoseEstimator, out: Outputs
+    ) -> None:
+        """The wheel speeds are back after a silence (``road.unplaced_after_gap``). One place
+        no longer placed and a turn on the compass meanwhile: the turn was made there. Others
+        cannot be told apart (passed straight, turned at, still ahead): dropped unsaid, never
+        resolved by distance or credited with a later turn."""
+        lost = unplaced_after_gap(self.ahead, gap_from_s, t_s, placeable_s)
+        turned = abs(self.history.unwrapped_rad - self._heading_before_gap)
+        if len(lost) == 1 and turned >= self.config.turn_detector.min_turn_rad:
+            self._resolve(lost[0], t_s, est.heading_rad, "compass_gap", est, out)
+            lost = []
+        for a in lost:
+            self.ahead.remove(a)
+        self.counts["ahead_unplaced_after_gap"] += len(lost)
+
     def replan(self, t_s: float, est: PoseEstimator, odometer_m: float, out: Outputs) -> None:
         """The estimate jumped (a landmark fix) or the goal moved: the decisions ahead are looked
         at again, and may change even once said (``_evaluate``)."""
@@ -226,6 +249,8 @@ class Guide:
         re-evaluation and announcements."""
         x = est.x
         self.history.add(odometer_m, float(x[0]), float(x[1]), est.heading_rad)
+        if not self._reckoning():
+            self._heading_before_gap = self.history.unwrapped_rad
         first = self._first_unresolved()
         if first is not None:
             self._check_resolution(first, t_s, est, odometer_m, turn, out)
@@ -392,24 +417,6 @@ class Guide:
             ):
                 a.approach_heading_rad = taken
 
-    def _predicted_xy(self, a: Ahead, est: PoseEstimator, odometer_m: float) -> tuple[float, float]:
-        """Where the car will be at ``a``: along its approach road from the car, or from the
-        intersection before it."""
-        x = est.x
-        base_xy, base_odo = (float(x[0]), float(x[1])), odometer_m
-        i = self.ahead.index(a)
-        if i > 0:
-            prev = self.ahead[i - 1]
-            if prev.at_odometer_m is not None and prev.at_odometer_m > odometer_m:
-                base_xy = self._predicted_xy(prev, est, odometer_m)
-                base_odo = prev.at_odometer_m
-        if a.approach_heading_rad is None:
-            return base_xy
-        known = a.at_odometer_m
-        ahead = UNKNOWN_AHEAD_M if known is None else max(0.0, known - base_odo)
-        h = a.approach_heading_rad
-        return base_xy[0] + ahead * math.cos(h), base_xy[1] + ahead * math.sin(h)
-
     def _evaluate(
         self,
         a: Ahead,
@@ -427,11 +434,9 @@ class Guide:
         if exits is None or a.approach_heading_rad is None:
             return
         a.last_eval_odometer_m = odometer_m
-        at = self._predicted_xy(a, est, odometer_m)
-        x = est.x
-        new = self.navigator.evaluate(
-            t_s, at, est.P, exits, a.approach_heading_rad, (float(x[0]), float(x[1]))
-        )
+        car = (float(est.x[0]), float(est.x[1]))
+        at = predicted_xy(self.ahead, a, car, odometer_m, UNKNOWN_AHEAD_M)
+        new = self.navigator.evaluate(t_s, at, est.P, exits, a.approach_heading_rad, car)
         old = a.decision
         if old is not None and new.exit_index != old.exit_index:
             keep = a.frozen or (
@@ -454,11 +459,9 @@ class Guide:
             self.last_decision = new
             out.decisions.append(new)
 
-    def announce(
-        self, t_s: float, odometer_m: float, out: Outputs, est: PoseEstimator
-    ) -> None:
+    def announce(self, t_s: float, odometer_m: float, out: Outputs, est: PoseEstimator) -> None:
         """What is due for the next intersection still ahead of the car."""
-        i, a = announce_target(self.ahead, odometer_m)
+        i, a = announce_target(self.ahead, odometer_m, PASS_MARGIN_M)
         if a is None or a.decision is None:
             return
         if self._arrives_before(a, est, odometer_m):
@@ -516,7 +519,7 @@ class Guide:
             if prev.at_odometer_m is not None and prev.at_odometer_m > odometer_m:
                 if self._arrives_before(prev, est, odometer_m):
                     return True
-                start = self._predicted_xy(prev, est, odometer_m)
+                start = predicted_xy(self.ahead, prev, start, odometer_m, UNKNOWN_AHEAD_M)
                 start_odo = prev.at_odometer_m
         radius = self.navigator.config.arrival_radius_m
         ahead = a.at_odometer_m - start_odo
@@ -537,9 +540,7 @@ class Guide:
 
     def _speak(self, a: Ahead, out: Outputs, t_s: float, say: Say, action: str) -> None:
         assert a.decision is not None
-        exit_index = a.decision.exit_index
-        if say.changed:
-            a.frozen = True  # one change at most
+        a.frozen = a.frozen or say.changed  # one change at most
         text = speech.words(say, self.config.units)  # compared with what was said last
         last_t = self._said_at.get(text)
         if last_t is not None and t_s - last_t < REPEAT_S and not say.changed:
@@ -550,7 +551,7 @@ class Guide:
             text = speech.words(say, self.config.units)
         self._said_at = {k: v for k, v in self._said_at.items() if t_s - v < REPEAT_S}
         self._said_at[text] = t_s
-        a.said, a.said_exit = action, exit_index
+        a.said, a.said_exit = action, a.decision.exit_index
         self.last_said = action
         self._say(out, t_s, say, Priority.GUIDANCE, text)
         i = self.ahead.index(a)
@@ -570,7 +571,7 @@ class Guide:
 
     def next_ahead(self, odometer_m: float) -> tuple[Decision | None, float | None]:
         """The decision for the next intersection still ahead and its distance (None: unknown)."""
-        _i, a = announce_target(self.ahead, odometer_m)
+        _i, a = announce_target(self.ahead, odometer_m, PASS_MARGIN_M)
         if a is None:
             return None, None
         dist = None if a.at_odometer_m is None else max(0.0, a.at_odometer_m - odometer_m)

@@ -9,13 +9,13 @@ from pathlib import Path
 
 import pytest
 
-from guidance.core import chance
-from guidance.core.chance import ChanceSettings, ChanceTable, ChanceTableError, ChanceWatch
-from guidance.core.estimator import EstimatorConfig
+from guidance.core.localize.estimator import EstimatorConfig
 from guidance.core.messages import GoalUpdate, Say, Speech, WheelOdometry
-from guidance.core.navigator import Method, NavigatorConfig
 from guidance.core.pipeline import Pipeline
 from guidance.core.pipeline_config import PipelineConfig
+from guidance.core.plan import chance
+from guidance.core.plan.chance import ChanceSettings, ChanceTable, ChanceTableError, ChanceWatch
+from guidance.core.plan.navigator import Method, NavigatorConfig
 from guidance.core.speech import words
 
 
@@ -182,7 +182,7 @@ def test_a_damaged_shipped_table_costs_the_chance_not_the_car(
     monkeypatch.setattr(chance, "_shipped", broken)
     chance.shipped_or_none.cache_clear()
     try:
-        with caplog.at_level("ERROR", logger="guidance.core.chance"):
+        with caplog.at_level("ERROR", logger="guidance.core.plan.chance"):
             p = _pipeline((3000.0, 0.0))
             values = _drive(p, 30)
             _pipeline((3000.0, 0.0))  # a second pipeline: no second log line
@@ -230,7 +230,7 @@ def test_a_hostile_shipped_table_is_one_error_line_and_a_null_chance(
     chance._shipped.cache_clear()
     chance.shipped_or_none.cache_clear()
     try:
-        with caplog.at_level("ERROR", logger="guidance.core.chance"):
+        with caplog.at_level("ERROR", logger="guidance.core.plan.chance"):
             assert chance.shipped_or_none() is None
     finally:
         chance._shipped.cache_clear()

@@ -13,12 +13,12 @@ import math
 from collections import Counter
 from collections.abc import Sequence
 from dataclasses import dataclass
-from typing import Any
 
 import numpy as np
 
-from guidance.core import model, state_limits
-from guidance.core.measurements import (
+from guidance.core import model
+from guidance.core.localize import state_limits
+from guidance.core.localize.measurements import (
     H_heading,
     H_position,
     ekf_class,
@@ -26,8 +26,8 @@ from guidance.core.measurements import (
     h_position,
     heading_residual,
 )
+from guidance.core.localize.odometry_gap import dead_reckon
 from guidance.core.messages import Ellipse, EstimateState, HeadingFix, LandmarkFix, WheelOdometry
-from guidance.core.odometry_gap import dead_reckon
 
 EstimatorInput = WheelOdometry | HeadingFix | LandmarkFix
 
@@ -118,48 +118,6 @@ class EstimatorConfig:
     @property
     def n_state(self) -> int:
         return model.N_STATE_CAR if self.car_model else model.N_STATE
-
-
-CAR_MODEL: dict[str, float] = {
-    "wheel_quantum_m": 0.0,
-    "wheel_slip_frac": 0.0,
-    "wheel_walk_var_m2_per_m": 5e-6,
-    "scale_sigma": 0.02,
-    "diff_sigma": 3e-4,
-    "camber_diff_sigma": 1.6e-4,
-    "camber_length_m": 250.0,
-    "turn_scale_sigma": 0.02,
-    "compass_bias_walk_deg2_per_s": 0.15,
-    "initial_position_sigma_m": 3.0,
-    "heading_second_order": 0.75,
-}
-"""The car model's defaults (``[estimator] model = "car"``); each value's reason and the
-real-drive figures behind it are in docs/estimation.md. Wheel speeds on CAN are speeds, not
-tick counts, so there is no per-increment quantisation; the random part of the wheel noise is
-a walk in distance (2.2 mm per sqrt(m) per wheel); a common scale error of 2 % for a car nobody
-calibrated (tyre wear takes up to 2.2 % off the rolling radius over a tyre's life, tyres of one
-size differ by up to 1.5 %, pressure, load and speed 0.5 %, and the speed signal carries
-whatever scaling its maker chose: issue 21) and a left/right difference of 0.03 % (0.1 mm of
-rolling radius) are states, the difference also changing from street to street by 0.016 %
-(road camber, tyre temperature: a bounded Gauss-Markov process over 250 m, not a walk); the
-compass bias drifts 3 degrees a minute (real RAV4: about 3
-degrees after the first 20 s); the operator's start is a point picked on a map, 3 m (1 sigma)."""
-CAR_COMPASS_UNCALIBRATED = {"compass_bias_sigma_deg": 60.0, "compass_bias_turn_deg2_per_rad": 250.0}
-"""No deviation card: real in-car magnetometers read 40-90 degrees off, and the uncorrected
-deviation changes by about 20 degrees over a quarter turn."""
-CAR_COMPASS_CALIBRATED = {"compass_bias_sigma_deg": 5.0, "compass_bias_turn_deg2_per_rad": 16.0}
-"""With a deviation card from ``guidance calibrate``: about the fit's residual (2-5 degrees)."""
-
-
-def car_model(base: EstimatorConfig, *, calibrated: bool, **overrides: float) -> EstimatorConfig:
-    """``base`` with the car model's defaults, then the config's own values (``overrides``)."""
-    from dataclasses import replace
-
-    values: dict[str, Any] = dict(CAR_MODEL)
-    if base.compass_two_sigma_deg is not None:
-        values.update(CAR_COMPASS_CALIBRATED if calibrated else CAR_COMPASS_UNCALIBRATED)
-    values.update(overrides)
-    return replace(base, **values)
 
 
 MIN_LANDMARK_SIGMA_M = 0.01
@@ -307,7 +265,7 @@ class PoseEstimator:
     def coast(self, speed_mps: float, gap_from_s: float, gap_to_s: float) -> None:
         """Odometry overdue: move on at ``speed_mps`` along the heading from ``gap_from_s`` to
         ``gap_to_s`` seconds into the gap, widened along the road and in heading
-        (``guidance.core.odometry_gap.dead_reckon``, the one definition of that step)."""
+        (``guidance.core.localize.odometry_gap.dead_reckon``, the one definition of that step)."""
         x, P = dead_reckon(self._kf.x, self._kf.P, speed_mps, gap_from_s, gap_to_s)
         self._kf.x = x
         self._kf.x[2] = model.wrap_angle(float(x[2]))
