@@ -10,8 +10,9 @@ bursts. The car's own prompts are not in it: the input is deaf while the car spe
 the car's words (``drivers.speech``), and "turn right" said by the car is, to any recogniser,
 "turned right" (docs/voice.md).
 
-* **Choosing set**: the sentences of ``RADIO_TEXT`` said by Pico en-US and espeak-ng en-us in
-  cabin noise at 20 dB, and bursts of noise (cabin rumble 15 dB up, white noise) of 0.3-2 s.
+* **Choosing set**: ``RADIO_TEXT`` cut into phrases of one to four words (as short as a
+  command: a longer utterance is never decoded), each said alone by Pico en-US and espeak-ng
+  en-us in cabin noise at 20 dB, and bursts of noise (rumble, white noise) of 0.3-2 s.
 * **Rule**: accept from the smallest multiple of 0.05 above every command-shaped null score of
   the choosing set. For N such scores, a new null utterance from the same population scores
   above all N with probability at most 1/(N+1) (exchangeable samples: the rank of a new one is
@@ -63,19 +64,36 @@ def _render(voice: str, text: str) -> np.ndarray:
     return resample(np.frombuffer(pcm, dtype="<i2").astype(np.float64), rate)
 
 
-def sentences(text: str) -> list[str]:
-    return [s.strip() for s in re.split(r"(?<=[.:;,])\s+", text) if len(s.split()) >= 2]
-
-
-def talk_tape(voices: tuple[str, ...], text: str, snr_db: float, seed: int) -> np.ndarray:
-    """Each phrase of ``text`` by each voice, with pauses, in cabin noise at ``snr_db``."""
+def phrases(text: str, seed: int) -> list[str]:
+    """``text`` cut into runs of one to four words (a command is one to four): what a radio,
+    a passenger or the driver says that is as short as a command but is not one."""
     rng = np.random.default_rng(seed)
-    parts = []
-    for voice in voices:
-        for s in sentences(text):
-            parts += [_render(voice, s), np.zeros(int(rng.uniform(0.4, 1.0) * RATE_HZ))]
-    x = np.concatenate(parts)
-    return mix_at_snr(x, cabin_noise(x.size, seed), snr_db)
+    words = re.findall(r"[A-Za-z']+", text)
+    out, k = [], 0
+    while k < len(words):
+        n = int(rng.integers(1, 5))
+        out.append(" ".join(words[k : k + n]))
+        k += n
+    return out
+
+
+def null_scores(
+    rec: CommandRecogniser, voices: tuple[str, ...], text: str, snr_db: float, seed: int
+) -> tuple[list[tuple[float, str]], int, float]:
+    """Each phrase of ``text`` said by each voice, alone with 0.7 s of cabin noise either side
+    at ``snr_db``, cut by the voice activity detector: (confidence, phrase) of the
+    command-shaped utterances, how many utterances were decoded, the seconds of audio."""
+    out, n, audio = [], 0, 0.0
+    pad = np.zeros(int(0.7 * RATE_HZ))
+    for v, voice in enumerate(voices):
+        for k, p in enumerate(phrases(text, seed + v)):
+            clip = np.concatenate([pad, _render(voice, p), pad])
+            clip = mix_at_snr(clip, cabin_noise(clip.size, seed * 7919 + v * 1000 + k), snr_db)
+            audio += clip.size / RATE_HZ
+            s, m = scores(rec, clip)
+            out += s
+            n += m
+    return out, n, audio
 
 
 def noise_tape(n: int, seed: int) -> np.ndarray:
@@ -124,19 +142,17 @@ def main() -> None:
     args = ap.parse_args()
     rec = CommandRecogniser()
     c0 = time.process_time()
-    choose = [talk_tape(CHOOSE_VOICES, RADIO_TEXT, 20.0, seed=1), noise_tape(args.bursts, 2)]
-    null: list[tuple[float, str]] = []
-    decoded = 0
-    for x in choose:
-        s, n = scores(rec, x)
-        null += s
-        decoded += n
-    hours = sum(x.size for x in choose) / RATE_HZ / 3600
+    null, decoded, audio = null_scores(rec, CHOOSE_VOICES, RADIO_TEXT, 20.0, seed=1)
+    x = noise_tape(args.bursts, 2)
+    s, n = scores(rec, x)
+    null += s
+    decoded += n
+    hours = (audio + x.size / RATE_HZ) / 3600
     top = sorted(null, reverse=True)
     accept = math.floor(top[0][0] / STEP + 1) * STEP if top else STEP
-    print(f"Choosing set: {hours * 60:.1f} min ({', '.join(CHOOSE_VOICES)} on RADIO_TEXT at "
-          f"20 dB; {args.bursts} noise bursts): {decoded} utterances decoded, {len(null)} "
-          f"command-shaped")  # fmt: skip
+    print(f"Choosing set: {hours * 60:.1f} min ({', '.join(CHOOSE_VOICES)}: RADIO_TEXT's "
+          f"phrases at 20 dB; {args.bursts} noise bursts): {decoded} utterances decoded, "
+          f"{len(null)} command-shaped")  # fmt: skip
     print("  highest null scores: " + ", ".join(f"{c:.2f} {t!r}" for c, t in top[:6]))
     print(f"  threshold: {accept:.2f} (the code's ACCEPT: {ACCEPT:.2f}); a new null utterance "
           f"from this population passes with p <= 1/{len(null) + 1}")  # fmt: skip
@@ -148,9 +164,8 @@ def main() -> None:
     total_h = 0.0
     false_at = {a: 0 for a in (accept, ACCEPT)}
     for snr in (20.0, 10.0):
-        x = talk_tape(HELD_OUT_VOICES, RADIO_TEXT_2, snr, seed=int(snr) + 10)
-        s, n = scores(rec, x)
-        h = x.size / RATE_HZ / 3600
+        s, n, audio = null_scores(rec, HELD_OUT_VOICES, RADIO_TEXT_2, snr, seed=int(snr) + 10)
+        h = audio / 3600
         total_h += h
         for a in false_at:
             false_at[a] += sum(c >= a for c, _ in s)
