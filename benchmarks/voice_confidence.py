@@ -30,7 +30,6 @@ from __future__ import annotations
 
 import argparse
 import math
-import re
 import time
 
 import numpy as np
@@ -51,6 +50,7 @@ from guidance.tools.voice_corpus import (
     SPOKEN_COMMANDS,
     cabin_noise,
     mix_at_snr,
+    short_phrases,
     voice_renderer,
 )
 
@@ -64,19 +64,6 @@ def _render(voice: str, text: str) -> np.ndarray:
     return resample(np.frombuffer(pcm, dtype="<i2").astype(np.float64), rate)
 
 
-def phrases(text: str, seed: int) -> list[str]:
-    """``text`` cut into runs of one to four words (a command is one to four): what a radio,
-    a passenger or the driver says that is as short as a command but is not one."""
-    rng = np.random.default_rng(seed)
-    words = re.findall(r"[A-Za-z']+", text)
-    out, k = [], 0
-    while k < len(words):
-        n = int(rng.integers(1, 5))
-        out.append(" ".join(words[k : k + n]))
-        k += n
-    return out
-
-
 def null_scores(
     rec: CommandRecogniser, voices: tuple[str, ...], text: str, snr_db: float, seed: int
 ) -> tuple[list[tuple[float, str]], int, float]:
@@ -86,7 +73,7 @@ def null_scores(
     out, n, audio = [], 0, 0.0
     pad = np.zeros(int(0.7 * RATE_HZ))
     for v, voice in enumerate(voices):
-        for k, p in enumerate(phrases(text, seed + v)):
+        for k, p in enumerate(short_phrases(text, seed + v)):
             clip = np.concatenate([pad, _render(voice, p), pad])
             clip = mix_at_snr(clip, cabin_noise(clip.size, seed * 7919 + v * 1000 + k), snr_db)
             audio += clip.size / RATE_HZ

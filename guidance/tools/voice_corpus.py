@@ -245,6 +245,25 @@ RADIO_TEXT_2 = (
 it), with every control word and exit word inside ordinary sentences."""
 
 
+def short_phrases(text: str, seed: int) -> list[str]:
+    """``text`` cut into runs of one to four words (a command is one to four): what a radio,
+    a passenger or the driver says that is as short as a command but is not one (a run that
+    is itself a phrase of the co-driver grammar, "right" alone, is left out: no recogniser can
+    tell it from the command)."""
+    from drivers.speech_grammar import to_line
+
+    rng = np.random.default_rng(seed)
+    words = re.findall(r"[A-Za-z']+", text)
+    out, k = [], 0
+    while k < len(words):
+        n = int(rng.integers(1, 5))
+        phrase = " ".join(words[k : k + n])
+        if to_line(phrase.lower()) is None:
+            out.append(phrase)
+        k += n
+    return out
+
+
 def cabin_noise(n: int, seed: int = 0, rate_hz: int = 16000) -> np.ndarray:
     """Car-cabin-like noise (unit RMS): road and engine rumble below a few hundred hertz
     falling about 9 dB per octave above 200 Hz, engine orders at 70 Hz and its harmonics,

@@ -28,7 +28,7 @@ from drivers.speech_grammar import (
     resample,
     to_line,
 )
-from guidance.core.estimator import EstimatorConfig
+from guidance.core.localize.estimator import EstimatorConfig
 from guidance.core.messages import (
     CancelReport,
     IntersectionScene,
@@ -38,11 +38,18 @@ from guidance.core.messages import (
     TurnCompleted,
     WheelOdometry,
 )
-from guidance.core.navigator import Method, NavigatorConfig
 from guidance.core.pipeline import Pipeline
 from guidance.core.pipeline_config import PipelineConfig
+from guidance.core.plan.navigator import Method, NavigatorConfig
 from guidance.core.speech import words
-from guidance.tools.voice_corpus import SPOKEN_COMMANDS, cabin_noise, mix_at_snr, voice_renderer
+from guidance.tools.voice_corpus import (
+    RADIO_TEXT_2,
+    SPOKEN_COMMANDS,
+    cabin_noise,
+    mix_at_snr,
+    short_phrases,
+    voice_renderer,
+)
 from guidance.voice.activity import CarVoice
 from guidance.voice.pico import pico_available
 
@@ -57,6 +64,16 @@ PAD = np.zeros(int(0.3 * RATE_HZ))
 @pytest.fixture(scope="module")
 def recogniser() -> CommandRecogniser:
     return CommandRecogniser()
+
+
+LENIENT = 0.3
+"""The always-listening threshold before the null model: for tests of the reader, the WAV end
+and deafness (what they test is not the threshold; clean synthetic commands score 0.3-0.6)."""
+
+
+@pytest.fixture(scope="module")
+def lenient() -> CommandRecogniser:
+    return CommandRecogniser(accept=LENIENT, say_again=0.2)
 
 
 def render(voice: str, text: str) -> np.ndarray:
@@ -194,6 +211,36 @@ def test_commands_by_three_other_voices_in_cabin_noise_at_10_db(
 
 
 @needs_voices
+@pytest.mark.slow
+def test_always_listening_takes_no_command_from_talk_it_was_not_tuned_on(
+    recogniser: CommandRecogniser,
+) -> None:
+    """0 false commands: always listening (the rules of ``ACCEPT``), short phrases of talk
+    that are not commands (``RADIO_TEXT_2``, every control and exit word inside ordinary
+    sentences) said by two voices the threshold was not chosen on, at 10 dB of cabin noise,
+    one continuous stream. The phrases must reach the recogniser (most are decoded), so the
+    test can fail (benchmarks/voice_confidence.py prints the distribution)."""
+    parts, n = [], 0
+    for v, voice in enumerate(("flite:awb", "espeak:en+m3")):
+        for text in short_phrases(RADIO_TEXT_2, 50 + v):
+            speech = render(voice, text)
+            gap = np.zeros(int(1.2 * RATE_HZ))
+            parts += [speech, gap]
+            n += 1
+    x = np.concatenate(parts)
+    x = mix_at_snr(x, cabin_noise(x.size, seed=123), 10.0)
+    inp, got = make_input("always", recogniser)
+    inp.start_stream(t0=0.0)
+    feed(inp, x, got)
+    inp.end_stream(got["msgs"].append)
+    stats = inp.stats()
+    assert stats.get("utterances", 0) >= 0.5 * n, stats
+    assert got["msgs"] == [] and stats.get("commands_heard", 0) == 0, [
+        (h.text, round(h.confidence, 2)) for h in inp.heard if h.line
+    ]
+
+
+@needs_voices
 def test_push_to_talk_delivers_the_report_reads_it_back_and_says_again_when_unsure(
     recogniser: CommandRecogniser,
 ) -> None:
@@ -222,12 +269,12 @@ def test_push_to_talk_delivers_the_report_reads_it_back_and_says_again_when_unsu
 
 
 @needs_voices
-def test_deaf_while_the_car_speaks_and_for_a_tail_after(recogniser: CommandRecogniser) -> None:
+def test_deaf_while_the_car_speaks_and_for_a_tail_after(lenient: CommandRecogniser) -> None:
     """Audio time is the car voice's clock here: the car speaks from 0 to 2 s."""
     now = [0.0]
     car = CarVoice(clock=lambda: now[0])
     car.started("At the next intersection, turn left", 2.0)
-    inp, got = make_input("always", recogniser, car_voice=car)
+    inp, got = make_input("always", lenient, car_voice=car)
     inp.start_stream(t0=0.0)
     clip = np.concatenate([render("flite:slt", "left"), np.zeros(int(0.8 * RATE_HZ))])
     feed(inp, clip, got)  # 0 to ~1.4 s: the car is speaking
@@ -260,12 +307,12 @@ def test_a_phrase_matching_what_the_car_just_said_is_refused(recogniser: Command
 
 @needs_voices
 def test_the_reader_hears_a_wav_and_ends_with_it(
-    tmp_path: Path, recogniser: CommandRecogniser
+    tmp_path: Path, lenient: CommandRecogniser
 ) -> None:
     wav = tmp_path / "driver.wav"
     quiet = np.zeros(RATE_HZ)
     write_wav(wav, np.concatenate([quiet, render("flite:slt", "bear left"), quiet]))
-    inp, got = make_input("always", recogniser, device=str(wav))
+    inp, got = make_input("always", lenient, device=str(wav))
     done = threading.Event()
     inp.start(lambda m: (got["msgs"].append(m), done.set()))
     assert done.wait(30)
@@ -337,7 +384,8 @@ def test_guidance_voice_listen_prints_the_lines_as_json(tmp_path: Path) -> None:
     write_wav(wav, np.concatenate([quiet, render("flite:slt", "bear left"), quiet,
                                    render("flite:awb", "turned left"), quiet]))  # fmt: skip
     r = subprocess.run([sys.executable, "-m", "guidance.tools.cli", "voice", "listen", str(wav),
-                        "--json"], capture_output=True, text=True, timeout=120)  # fmt: skip
+                        "--json", "--accept", str(LENIENT)], capture_output=True, text=True,
+                       timeout=120)  # fmt: skip
     assert r.returncode == 0, r.stderr
     rows = [json.loads(line) for line in r.stdout.splitlines()]
     assert [row["line"] for row in rows] == ["bl", "t l"]
@@ -380,11 +428,11 @@ def test_the_car_recognises_in_a_worker_process() -> None:
 
 @needs_voices
 def test_a_wav_that_ends_mid_phrase_is_still_heard(
-    tmp_path: Path, recogniser: CommandRecogniser
+    tmp_path: Path, lenient: CommandRecogniser
 ) -> None:
     wav = tmp_path / "abrupt.wav"
     write_wav(wav, np.concatenate([np.zeros(RATE_HZ), render("flite:awb", "bear left")]))
-    inp, got = make_input("always", recogniser, device=str(wav))
+    inp, got = make_input("always", lenient, device=str(wav))
     done = threading.Event()
     inp.start(lambda m: (got["msgs"].append(m), done.set()))
     assert done.wait(30)
