@@ -9,10 +9,12 @@ the 20 spoken commands and radio-like talk in cabin noise at 20 dB). The machine
 (two cores shared with other jobs), so the comparison is between neighbouring blocks, and the
 first ``SETTLE_S`` of each block (the input starting or stopping) is left out.
 
-Printed: each pair's p99 (off, on), the pooled p50 / p99 / max of each condition, and the
-criterion. "Unchanged" is judged against the off blocks' own spread: the on-minus-off p99
-difference, pair by pair, has a median inside the range of differences between consecutive
-off blocks (what the drift alone does).
+Printed: each pair's p99 (off, on), the pooled p50 / p99 / max of each condition (and of the
+"on" ticks while an utterance was being decoded), and the criterion. "Unchanged" is judged
+against the off blocks' own spread: the on-minus-off p99 difference, pair by pair, has a median
+inside the range of differences between consecutive off blocks (what the drift alone does);
+beside it, how many pairs had "on" above "off" (a sign test: a consistent small cost shows
+there even when the drift hides it).
 
     .venv/bin/python benchmarks/voice_loop.py [--pairs 6] [--block 10]
 """
@@ -21,6 +23,7 @@ from __future__ import annotations
 
 import argparse
 import asyncio
+import math
 import os
 import subprocess
 import sys
@@ -222,8 +225,11 @@ def main() -> None:
     med = float(np.median(diffs))
     lo, hi = (float(drift.min()), float(drift.max())) if drift.size else (0.0, 0.0)
     verdict = "unchanged" if lo <= med <= hi else "CHANGED"
+    above = sum(d > 0 for d in diffs)
+    sign_p = sum(math.comb(len(diffs), k) for k in range(above, len(diffs) + 1)) / 2 ** len(diffs)
     print(f"  median on - off p99 {med:+.2f} ms; off-to-off drift {lo:+.2f} .. {hi:+.2f} ms: "
-          f"{verdict}")  # fmt: skip
+          f"{verdict}; on above off in {above} of {len(diffs)} pairs (one-sided sign test "
+          f"p = {sign_p:.3f})")  # fmt: skip
 
 
 if __name__ == "__main__":
