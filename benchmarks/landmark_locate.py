@@ -21,13 +21,8 @@ a wrong place was (the false locates are the ones to watch).
 
 from __future__ import annotations
 
-import os
-
-# one BLAS thread, as the matcher worker has one OpenCV thread: on a busy 2-core machine
-# OpenBLAS's own threads made one VLAD encoding 120 ms instead of 1.7 ms
-os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
-
 import argparse
+import os
 import tempfile
 import time
 from pathlib import Path
@@ -40,6 +35,7 @@ from hal_sim.sim_camera import SimCamera, SimCameraConfig, facade, photo_seed
 from landmark_db.features import PHOTO_MAX_SIDE_PX, ExtractorConfig, encode_image, extract
 from landmark_db.recognise import Recogniser
 from landmark_db.store import create_db, open_db
+from landmark_db.threads import cap_threads
 
 ORIGIN = Origin(42.444, -76.5019)
 FRAME_SIZE = (1232, 1616)
@@ -114,12 +110,16 @@ def main() -> None:
     ap.add_argument("--extractors", nargs="+", default=["rootsift", "xfeat"])
     ap.add_argument("--seed", type=int, default=5)
     ap.add_argument("--pool", type=int, default=500, help="distinct facades (places share them)")
-    ap.add_argument("--threads", type=int, default=1, help="OpenCV threads (the worker's: 1)")
+    ap.add_argument(
+        "--threads", type=int, default=1, help="OpenCV and BLAS threads (the worker's: 1)"
+    )
     ap.add_argument(
         "--cache", type=Path, default=Path(tempfile.gettempdir()) / "urban-guidance-bench"
     )
     args = ap.parse_args()
-    cv2.setNumThreads(args.threads)
+    # the worker's threads (landmark_db.threads): on a busy 2-core machine OpenBLAS's own
+    # threads made one VLAD encoding 120 ms instead of 1.7 ms
+    cap_threads(args.threads)
     args.cache.mkdir(parents=True, exist_ok=True)
     cols: dict[str, dict[str, float]] = {}
     for kind in args.extractors:
@@ -136,7 +136,8 @@ def main() -> None:
         cols[kind] = col
     print(
         f"locate over {args.places} places, {args.queries} queries of"
-        f" {FRAME_SIZE[0]}x{FRAME_SIZE[1]} (OpenCV {cv2.__version__}, {args.threads} thread(s),"
+        f" {FRAME_SIZE[0]}x{FRAME_SIZE[1]} (OpenCV {cv2.__version__}, {args.threads} OpenCV and"
+        f" BLAS thread(s),"
         f" load average {os.getloadavg()[0]:.1f} on {os.cpu_count()} cores)"
     )
     print(f"{'':<40}" + "".join(f"{k:>12}" for k in cols))

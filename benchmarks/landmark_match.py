@@ -3,7 +3,11 @@
 stays flat as the database grows. Prints the extractors' figures side by side.
 
 Run: .venv/bin/python benchmarks/landmark_match.py [--part real|1|2|all] [--frames 60]
-     [--sizes 100 1000 10000]
+     [--sizes 100 1000 10000] [--threads 1]
+
+The process takes the matcher worker's threads (``--threads``, default one OpenCV and one BLAS
+thread, ``landmark_db.worker.WORKER_THREADS``); ``--threads 0`` leaves the pools at their
+defaults (a thread per core).
 
 Part real: the shared real image pairs (../shared/data/images; skipped when absent): B images
 resized to 1232x1616, each against 5 gated candidates (its own place and the 4 nearest other
@@ -37,14 +41,20 @@ from guidance.core.geo import Origin
 from hal_sim.sim_camera import SimCamera, SimCameraConfig, facade
 from landmark_db.features import (
     PHOTO_MAX_SIDE_PX,
+    STRETCHED_KINDS,
     ExtractorConfig,
     OrbConfig,
+    downscale,
     encode_image,
     extract,
+    stretch_contrast,
+    to_grey,
 )
 from landmark_db.matcher import MatchConfig, PairMatcher, PhotoIndex
 from landmark_db.recognise import Recogniser, RecogniserConfig
 from landmark_db.store import create_db, open_db
+from landmark_db.threads import cap_threads
+from landmark_db.worker import WORKER_THREADS
 
 FRAME_SIZE = (1232, 1616)  # (width, height) of the camera
 ORIGIN = Origin(42.444, -76.5019)
@@ -95,6 +105,13 @@ def _run_case(
         for _ in range(10):
             feats = extract(frames[-1], rec.frame_extractor, detector)
         t_feat = (time.perf_counter() - t0) / 10
+        t_stretch = 0.0
+        if rec.frame_extractor.kind in STRETCHED_KINDS:
+            grey = downscale(to_grey(frames[-1]), rec.frame_extractor.max_side_px)
+            t0 = time.perf_counter()
+            for _ in range(10):
+                stretch_contrast(grey)
+            t_stretch = (time.perf_counter() - t0) / 10
         desc = feats.for_matching()
         index = PhotoIndex(1, ro.photo_features(1)[0][1])
         pm = PairMatcher(rec.config.match)
@@ -109,6 +126,7 @@ def _run_case(
         "max": float(ms.max()),
         "cpu": float(np.median(cpu) * 1e3),
         "features": t_feat * 1e3,
+        "stretch": t_stretch * 1e3,
         "per_photo": t_pair * 1e3,
         "photos": float(np.mean(compared)),
         "found": found / len(frames),
@@ -144,6 +162,7 @@ def part1(tmp: Path, n_frames: int) -> None:
         ("wall max ms", "max", "{:.1f}"),
         ("CPU ms median (all threads)", "cpu", "{:.1f}"),
         ("frame features ms", "features", "{:.1f}"),
+        ("of which contrast stretch ms", "stretch", "{:.2f}"),
         ("per photo ms (kNN, ratio, MAGSAC)", "per_photo", "{:.1f}"),
         ("photos compared per frame", "photos", "{:.0f}"),
         ("right landmark verified", "found", "{:.2f}"),
@@ -277,8 +296,17 @@ def main() -> None:
     )
     ap.add_argument("--density", type=float, default=10.0)
     ap.add_argument("--frames", type=int, default=60)
+    ap.add_argument(
+        "--threads",
+        type=int,
+        default=WORKER_THREADS,
+        help="OpenCV and BLAS threads (default: the matcher worker's; 0: their defaults)",
+    )
     args = ap.parse_args()
-    print(f"OpenCV {cv2.__version__}, {cv2.getNumThreads()} threads")
+    if args.threads > 0:
+        cap_threads(args.threads)
+    print(f"OpenCV {cv2.__version__}, {cv2.getNumThreads()} OpenCV threads, BLAS threads capped:"
+          f" {args.threads or 'no'}")  # fmt: skip
     with tempfile.TemporaryDirectory() as tmp:
         if args.part in ("real", "all"):
             part_real(Path(tmp), args.images, args.frames)

@@ -16,6 +16,7 @@ One photo / several photos per place and their leave-one-out runs are ``landmark
 acceptance`` (run it beside this: ``landmark-db acceptance ../shared/data/images [--several]``).
 
     python benchmarks/landmark_real_cli.py [--distractors 300] [--extractor rootsift]
+        [--frames none|dark3|dark5|blur]   # the queries as a worse camera takes them
 """
 
 from __future__ import annotations
@@ -29,16 +30,23 @@ import shutil
 import tempfile
 import time
 from collections import defaultdict
+from dataclasses import replace
 from pathlib import Path
 
-import cv2
 import numpy as np
 
 from hal_sim.sim_camera import facade, photo_seed
 from landmark_db.cli import main as cli
-from landmark_db.features import PHOTO_MAX_SIDE_PX, ExtractorConfig, encode_image, extract
+from landmark_db.features import (
+    PHOTO_MAX_SIDE_PX,
+    ExtractorConfig,
+    decode_image,
+    encode_image,
+    extract,
+)
 from landmark_db.store import open_db
-from landmark_db.wrong_pairs import LabelledImage, shared_images, wilson
+from landmark_db.threads import cap_threads
+from landmark_db.wrong_pairs import DEGRADATIONS, LabelledImage, degrade, shared_images, wilson
 
 SHARED = Path(__file__).resolve().parents[2] / "shared" / "data"
 
@@ -59,10 +67,16 @@ def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawTextHelpFormatter)
     ap.add_argument("--distractors", type=int, default=300)
     ap.add_argument("--extractor", default="rootsift")
+    ap.add_argument(
+        "--frames",
+        choices=DEGRADATIONS,
+        default="none",
+        help="the queries as taken (wrong_pairs.degrade: darkN underexposed by N stops, blur)",
+    )
     ap.add_argument("--images", type=Path, default=SHARED / "images")
     ap.add_argument("--images2", type=Path, default=SHARED / "images2")
     args = ap.parse_args()
-    cv2.setNumThreads(1)
+    cap_threads(1)
     ims = shared_images(args.images, args.images2)
     if not ims:
         print("no shared images: nothing to do")
@@ -78,6 +92,15 @@ def main() -> None:
     xy = {p: (100.0 * i, 0.0) for i, p in enumerate(places)}
     tmp = Path(tempfile.mkdtemp(prefix="real-cli-"))
     try:
+        if args.frames != "none":
+            (tmp / "queries").mkdir()
+            taken = []
+            for k, q in enumerate(queries):
+                out = tmp / "queries" / f"{k:02d}-{q.path.stem}.png"
+                img = degrade(decode_image(q.path.read_bytes()), args.frames, k)
+                out.write_bytes(encode_image(img))
+                taken.append(replace(q, path=out))
+            queries = taken
         folder = tmp / "photos"
         folder.mkdir()
         with (folder / "landmarks.csv").open("w", newline="") as fh:
@@ -92,7 +115,10 @@ def main() -> None:
         run("init", str(base), "--origin", "42.444", "-76.5019", "--extractor", ext.kind)
         code, _out = run("import", str(base), str(folder))
         assert code == 0, "import failed"
-        print(f"{len(places)} places, {len(queries)} queries ({args.extractor})")
+        print(
+            f"{len(places)} places, {len(queries)} queries ({args.extractor}, queries"
+            f" {args.frames})"
+        )
         add_to(base, tmp, queries, places, xy)
         locate(base, tmp, queries, places, ext, args.distractors)
     finally:

@@ -12,7 +12,7 @@ as on a laptop that runs other things (issue 23, item 9). The benchmark runs at 
 the car's systemd unit gives (``Nice=`` and the main thread's ``CPUSchedulingPolicy=rr`` with
 reset-on-fork, of systemd/guidance.service, when this user may take them: root, or
 CAP_SYS_NICE; ``--no-nice`` to measure without), the matcher worker sets
-itself up as in the car (``landmark_db.recognise.worker_setup``: 10 nice levels below the
+itself up as in the car (``landmark_db.worker.worker_setup``: 10 nice levels below the
 app, one OpenCV thread), and the busy process runs at nice 0 in the same session.
 
 Printed figures:
@@ -59,7 +59,7 @@ from guidance.core.messages import CameraFrame, EstimateState, WheelOdometry
 from guidance.core.pipeline import Pipeline, PipelineConfig
 from guidance.core.plan.navigator import Method, NavigatorConfig
 from hal_sim.sim_can import SimCanWheels
-from landmark_db.recognise import worker_setup
+from landmark_db.worker import worker_setup
 
 
 def _texture(seed: int, h: int = 480, w: int = 640) -> np.ndarray:

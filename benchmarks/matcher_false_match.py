@@ -13,7 +13,11 @@ distinct files of ../shared/data/images and ../shared/data/images2: the wrong pa
 places) with the shipped rule, per pair and per query (a query against every photo of every
 other place), with 95 % Wilson intervals; recall over the positive pairs, by condition.
 
-    python benchmarks/matcher_false_match.py [--part synthetic|real|all]
+``--frames dark3 dark5 blur``: the same with the queries degraded (``wrong_pairs.degrade``:
+underexposed by 3 or 5 stops, motion blur), the photos as they are.
+
+    python benchmarks/matcher_false_match.py [--part synthetic|real|all] [--frames none dark5]
+        [--cache DIR]   # e.g. three runs, --fit-seeds 22 23 / 24 25 / 26 27, then one pooling
 """
 
 from __future__ import annotations
@@ -34,9 +38,18 @@ from landmark_db.features import (
     Features,
     extract,
 )
-from landmark_db.matcher import MAX_LOG10_NFA, MatchConfig, PairMatcher, PhotoIndex
+from landmark_db.matcher import (
+    MAX_LOG10_NFA,
+    MIN_COSINE,
+    RATIO_EXCLUSION_PX,
+    REPROJ_PX,
+    MatchConfig,
+    PairMatcher,
+    PhotoIndex,
+)
 from landmark_db.recognise import FRAME_FEATURES
 from landmark_db.wrong_pairs import (
+    DEGRADATIONS,
     decide_queries,
     positive,
     query_false_matches,
@@ -54,11 +67,10 @@ def _rate(k: int, n: int) -> str:
     return f"{k}/{n} = {k / max(n, 1):.4f} (95% {lo:.4f}-{hi:.4f})"
 
 
-def _synthetic_city(
-    n_buildings: int, seed: int, kind: str
-) -> tuple[np.ndarray, dict[str, int], dict[str, int], int]:
-    """(-log10 NFA of every wrong pair, verified wrong pairs by frame kind, wrong pairs by
-    frame kind, right pairs verified) for one synthetic city."""
+def _synthetic_pairs(n_buildings: int, seed: int, kind: str) -> np.ndarray:
+    """Every (frame, photo) pair of one synthetic city: structured rows (frame kind: 0
+    landmark, 1 look-alike, 2 unrelated scene; right: the frame shows that photo's building;
+    log10 NFA; inliers)."""
     from hal_sim.sim_camera import SimCamera, facade
 
     ext = ExtractorConfig(kind, max_side_px=PHOTO_MAX_SIDE_PX[kind])
@@ -68,30 +80,55 @@ def _synthetic_city(
     rng = np.random.default_rng([seed, 22])
     seeds = [int(s) for s in rng.integers(1, 2**40, n_buildings)]
     index = [PhotoIndex(i, extract(facade(s), ext, det)) for i, s in enumerate(seeds)]
-    frames: list[tuple[int, str, Features]] = []  # (building shown or -1, kind, features)
+    frames: list[tuple[int, int, Features]] = []  # (building shown or -1, kind, features)
     for i, s in enumerate(seeds):
         d = float(rng.uniform(0.0, 20.0))
-        frames.append((i, "landmark", extract(cam.view(facade(s), d), frame_ext, frame_det)))
+        frames.append((i, 0, extract(cam.view(facade(s), d), frame_ext, frame_det)))
         other = int(rng.integers(1, 2**40))
         look = facade(other, family_seed=s)
-        frames.append((-1, "lookalike", extract(cam.view(look, d), frame_ext, frame_det)))
-        frames.append((-1, "scene", extract(cam.view(facade(other + 1), d), frame_ext, frame_det)))
+        frames.append((-1, 1, extract(cam.view(look, d), frame_ext, frame_det)))
+        frames.append((-1, 2, extract(cam.view(facade(other + 1), d), frame_ext, frame_det)))
     matcher = PairMatcher(MatchConfig())
-    t_wrong: list[float] = []
-    hits: dict[str, int] = defaultdict(int)
-    n_wrong: dict[str, int] = defaultdict(int)
-    right_ok = 0
+    rows = []
     for shown, fkind, f in frames:
         desc = f.for_matching()
         for ph in index:
             e = matcher.verify(ph.photo_id, f, desc, ph)
-            if ph.photo_id == shown:
-                right_ok += e.verified
-                continue
-            n_wrong[fkind] += 1
-            hits[fkind] += e.verified
-            t_wrong.append(-e.log_nfa if math.isfinite(e.log_nfa) else -math.inf)
-    return np.array(t_wrong), hits, n_wrong, right_ok
+            rows.append((fkind, ph.photo_id == shown, e.log_nfa, e.inliers))
+    return np.array(rows, dtype=PAIR_DTYPE)
+
+
+PAIR_DTYPE = np.dtype([("frame", "i1"), ("right", "?"), ("log_nfa", "f8"), ("inliers", "i4")])
+FRAME_KINDS = ("landmark", "lookalike", "scene")
+
+
+def _synthetic_city(
+    n_buildings: int, seed: int, kind: str, cache: Path | None = None
+) -> tuple[np.ndarray, dict[str, int], dict[str, int], int]:
+    """(-log10 NFA of every wrong pair, verified wrong pairs by frame kind, wrong pairs by
+    frame kind, right pairs verified) for one synthetic city, by the shipped rule. With
+    ``cache``, the city's pair scores are kept there (keyed by the extractor's identity and
+    the matcher's constants), so cities can be scored by several processes at once and
+    pooled by a last run."""
+    ident = ExtractorConfig(kind, max_side_px=PHOTO_MAX_SIDE_PX[kind]).ident.replace("/", "_")
+    key = f"{ident}-{REPROJ_PX[kind]}-{MIN_COSINE}-{RATIO_EXCLUSION_PX}-{n_buildings}-{seed}"
+    path = None if cache is None else cache / f"synthetic-{key}.npy"
+    if path is not None and path.exists():
+        pairs = np.load(path)
+    else:
+        pairs = _synthetic_pairs(n_buildings, seed, kind)
+        if path is not None:
+            path.parent.mkdir(parents=True, exist_ok=True)
+            np.save(path.with_suffix(".part.npy"), pairs)
+            path.with_suffix(".part.npy").rename(path)
+    cfg = MatchConfig()
+    ok = (pairs["inliers"] >= cfg.min_inliers) & (pairs["log_nfa"] <= cfg.nfa_needed(kind))
+    wrong_ = ~pairs["right"]
+    hits = {k: int(np.sum(ok & wrong_ & (pairs["frame"] == i))) for i, k in enumerate(FRAME_KINDS)}
+    n_wrong = {k: int(np.sum(wrong_ & (pairs["frame"] == i))) for i, k in enumerate(FRAME_KINDS)}
+    lnfa = pairs["log_nfa"][wrong_]
+    t = np.where(np.isfinite(lnfa), -lnfa, -np.inf)
+    return t, hits, n_wrong, int(np.sum(ok & pairs["right"]))
 
 
 def tail_level(t: np.ndarray, per_pair: float, t0: float = 0.0) -> tuple[float, float, float]:
@@ -110,7 +147,7 @@ def tail_level(t: np.ndarray, per_pair: float, t0: float = 0.0) -> tuple[float, 
 
 def synthetic(
     n_buildings: int, fit_seeds: list[int], check_seeds: list[int], target: float, photos: int,
-    kind: str,
+    kind: str, cache: Path | None = None,
 ) -> None:  # fmt: skip
     per_pair = target / photos
     shipped = -MAX_LOG10_NFA[kind]
@@ -121,7 +158,7 @@ def synthetic(
         ts = []
         by_rule = 0
         for seed in seeds:
-            t, hits, n_wrong, right_ok = _synthetic_city(n_buildings, seed, kind)
+            t, hits, n_wrong, right_ok = _synthetic_city(n_buildings, seed, kind, cache)
             ts.append(t)
             by_rule += sum(hits.values())
             by = ", ".join(
@@ -154,17 +191,19 @@ def synthetic(
         print(f"  (the check cities took no part in the fit; per pair the claim is {per_pair:.2g})")
 
 
-def real(images: Path, images2: Path, kind: str) -> None:
+def real(images: Path, images2: Path, kind: str, frames_as: str = "none") -> None:
     ims = shared_images(images, images2)
     if not ims:
         print(f"no shared images under {images} or {images2}")
         return
     t0 = time.perf_counter()
-    scores = score_pairs(ims, extractor=ExtractorConfig(kind, max_side_px=PHOTO_MAX_SIDE_PX[kind]))
+    ext = ExtractorConfig(kind, max_side_px=PHOTO_MAX_SIDE_PX[kind])
+    scores = score_pairs(ims, extractor=ext, frames_as=frames_as)
     dt = time.perf_counter() - t0
     cfg = MatchConfig()
     print(
-        f"real ({kind}): {len(ims)} images, {len(scores)} ordered pairs scored in {dt:.1f} s;"
+        f"real ({kind}, queries {frames_as}): {len(ims)} images, {len(scores)} ordered pairs"
+        f" scored in {dt:.1f} s;"
         f" rule: log10 NFA <= {cfg.nfa_needed(kind):g} and >= {cfg.min_inliers} inliers"
     )
     groups = sorted({im.group for im in ims})
@@ -232,6 +271,19 @@ def main() -> None:
     ap.add_argument("--target", type=float, default=1e-3, help="false matches per frame")
     ap.add_argument("--photos", type=int, default=6, help="photos compared per frame")
     ap.add_argument("--extractor", choices=sorted(EXTRACTOR_VERSIONS), default="rootsift")
+    ap.add_argument(
+        "--frames",
+        nargs="+",
+        choices=DEGRADATIONS,
+        default=["none"],
+        help="--part real: the queries as taken (darkN: N stops underexposed; blur)",
+    )
+    ap.add_argument(
+        "--cache",
+        type=Path,
+        default=None,
+        help="keep each synthetic city's pair scores here (score cities in parallel runs)",
+    )
     ap.add_argument("--images", type=Path, default=SHARED / "images")
     ap.add_argument("--images2", type=Path, default=SHARED / "images2")
     args = ap.parse_args()
@@ -239,10 +291,11 @@ def main() -> None:
     if args.part in ("synthetic", "all"):
         synthetic(
             args.buildings, args.fit_seeds, args.check_seeds, args.target, args.photos,
-            args.extractor,
+            args.extractor, args.cache,
         )  # fmt: skip
     if args.part in ("real", "all"):
-        real(args.images, args.images2, args.extractor)
+        for how in args.frames:
+            real(args.images, args.images2, args.extractor, how)
 
 
 if __name__ == "__main__":

@@ -12,11 +12,18 @@ what was expected: ``[telemetry] fifo_size must be an integer, not '32'``,
 ...)``. A bool is never an integer or a number (TOML's ``true`` is not 1); an integer is a
 number. The config file's own name is added once, by ``guidance.app.config.load_config``.
 
-What a type does not say is a ``Rule``, in the field's metadata
-(``field(default=1.0, metadata=rule(positive=True))``) or, for a dataclass this module may not
-annotate, in ``from_table(..., rules={"name": Rule(...)})``: a range, a set of choices, a path
-(a relative one is taken from ``base_dir``, the config file's folder; a default is left as it
-is), or ``read=False`` for a field the program sets, not the table.
+What a type does not say is a ``Rule``, written once in the field's metadata next to its
+default (``field(default=1.0, metadata=rule(positive=True))``) or, for a dataclass this module
+may not annotate, in ``from_table(..., rules={"name": Rule(...)})``: a range, a set of choices,
+a path (a relative one is taken from ``base_dir``, the config file's folder; a default is left
+as it is), the most items a list or table may hold, ``read=False`` for a field the program sets
+(not offered in the config file, but recorded), ``degrees`` for an angle the file gives in
+degrees, and ``table``/``key`` for a field of a dataclass that the config file spreads over
+its tables (``PipelineConfig.units`` is ``[navigation] units``).
+
+The same rules read the config file, the recording's session record and the checkpoint's
+identity: ``from_table(..., record=True)`` reads every field by its own name (``read=False``
+ones included) and holds a number no rule bounds to ``RECORD_MAX`` (a file from outside).
 
 Pure data validation: no I/O, nothing imported from the app, so ``guidance.app``,
 ``guidance.telemetry``, ``guidance.recording`` and ``hal_sim`` all share it (docs/layout.md).
@@ -31,7 +38,7 @@ import math
 import re
 import types
 import typing
-from collections.abc import Mapping
+from collections.abc import Collection, Mapping
 from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING, Any, Literal, TypeVar
@@ -59,7 +66,19 @@ class Rule:
     path: bool = False
     """A file or folder name: a relative one is taken from the config file's folder."""
     read: bool = True
-    """False: not a key of the table (the program sets it, e.g. ``origin_lat_lon_deg``)."""
+    """False: not a key of the config file (the program sets it, e.g. ``origin_lat_lon_deg``,
+    or keeps it fixed); a record (``record=True``) still carries and reads it."""
+    max_items: int | None = None
+    """A list or table of at most this many items (None: ``RECORD_MAX_ITEMS`` in a record)."""
+    degrees: bool = False
+    """An angle in radians (``<stem>_rad``) that the config file gives in degrees
+    (``<stem>_deg``)."""
+    table: str = ""
+    """For a dataclass spread over the config file's tables: the table offering this field."""
+    key: str = ""
+    """Its key there, when not the field's name (``[compass] unusable_after_s``)."""
+    group: str = ""
+    """A set of fields that belong together (the estimator's ``car`` model)."""
 
 
 def rule(
@@ -70,9 +89,64 @@ def rule(
     choices: tuple[object, ...] = (),
     path: bool = False,
     read: bool = True,
+    max_items: int | None = None,
+    degrees: bool = False,
+    table: str = "",
+    key: str = "",
+    group: str = "",
 ) -> dict[str, Rule]:
     """Field metadata for ``from_table``: ``field(default=0.5, metadata=rule(lo=0, hi=1))``."""
-    return {RULE: Rule(lo, hi, positive, tuple(choices), path, read)}
+    r = Rule(lo, hi, positive, tuple(choices), path, read, max_items, degrees, table, key, group)
+    return {RULE: r}
+
+
+def rule_of(cls: type, name: str) -> Rule:
+    """The ``Rule`` of ``cls``'s field ``name`` (a field with none: no rule)."""
+    f = next(f for f in dataclasses.fields(cls) if f.name == name)
+    r: Rule = f.metadata.get(RULE, Rule())
+    return r
+
+
+def like(cls: type, name: str, **changes: Any) -> dict[str, Rule]:
+    """Field metadata with the rule of ``cls``'s field ``name`` (``changes`` applied): a
+    table that offers the same setting under its own dataclass reads it by the same rule
+    (``[vehicle] track_m`` is ``EstimatorConfig.track_m``)."""
+    return {RULE: dataclasses.replace(rule_of(cls, name), **changes)}
+
+
+def file_keys(cls: type, part: str | None = None) -> tuple[str, ...]:
+    """The keys the config file offers for ``cls`` (with ``part``: those in that table)."""
+    return tuple(
+        file_key(f.name, r)
+        for f in dataclasses.fields(cls)
+        if (r := rule_of(cls, f.name)).read and (part is None or r.table == part)
+    )
+
+
+def names_where(cls: type, **match: object) -> tuple[str, ...]:
+    """``cls``'s field names whose rule matches, e.g. ``names_where(EstimatorConfig,
+    group="car")`` or ``names_where(PipelineConfig, table="compass")``."""
+    return tuple(
+        f.name
+        for f in dataclasses.fields(cls)
+        if all(getattr(rule_of(cls, f.name), k) == v for k, v in match.items())
+    )
+
+
+def file_key(name: str, r: Rule) -> str:
+    """The key the config file gives a field by: ``key``, ``<stem>_deg`` or its name."""
+    if r.key:
+        return r.key
+    if r.degrees:
+        return name.removesuffix("_rad") + "_deg"
+    return name
+
+
+RECORD_MAX = 1e9
+"""A record's number that no rule bounds is at most this large (a session record or a
+checkpoint is a file from outside: 1e308 is damage, not a setting)."""
+RECORD_MAX_ITEMS = 64
+"""A record's list or table that no rule sizes holds at most this many items."""
 
 
 BARE_KEY = re.compile(r"[A-Za-z0-9_-]+")
@@ -128,13 +202,19 @@ def from_table(
     *,
     rules: Mapping[str, Rule] | None = None,
     base: T | None = None,
+    record: bool = False,
+    part: str | None = None,
+    others: Collection[str] = (),
 ) -> T:
     """The dataclass ``cls`` read from the TOML table ``[where]``; ``UserError`` names the key.
 
     ``base_dir`` is the config file's folder (relative paths are taken from it; None: left
     as they are). ``rules`` overrides the fields' own ``Rule`` by field name. ``base``: start
     from this instance instead of the defaults (``dataclasses.replace``), e.g. options that
-    the command line already set.
+    the command line already set. ``record``: a record the program wrote (every field by its
+    own name, numbers within ``RECORD_MAX``). ``part``: read only the fields whose rule names
+    this table (the rest keep ``base``'s values). ``others``: keys of this table that another
+    reader takes (listed as known, not read here).
     """
     if not isinstance(table, Mapping):
         raise UserError(f"[{where}] must be a table, not {_show(table)}")
@@ -144,7 +224,14 @@ def from_table(
         if not set(rules) <= names:
             raise TypeError(f"rules for no field of {cls.__name__}: {set(rules) - names}")
         fields = tuple(dataclasses.replace(f, rule=rules.get(f.name, f.rule)) for f in fields)
-    known = sorted(f.name for f in fields if f.rule.read)
+    if part is not None:
+        fields = tuple(f for f in fields if f.rule.table == part)
+    keys = {
+        f.name: f.name if record else file_key(f.name, f.rule)
+        for f in fields
+        if record or f.rule.read
+    }
+    known = sorted({*keys.values(), *others})
     unknown = sorted((k for k in table if k not in known), key=str)
     if unknown:
         raise UserError(
@@ -153,18 +240,25 @@ def from_table(
         )
     kwargs: dict[str, Any] = {}
     for f in fields:
-        if f.name in table:
-            kwargs[f.name] = _read(table[f.name], f.hint, f.rule, where, f.name, base_dir)
-        elif f.required and f.rule.read and base is None:
-            raise UserError(f"[{where}] {f.name} is required")
+        k = keys.get(f.name)
+        if k is not None and k in table:
+            value = _read(table[k], f.hint, f.rule, where, k, base_dir, record)
+            if f.rule.degrees and not record and value is not None:
+                value = math.radians(value)
+            kwargs[f.name] = value
+        elif f.required and k is not None and base is None:
+            raise UserError(f"[{where}] {k} is required")
     try:
         return cls(**kwargs) if base is None else dataclasses.replace(base, **kwargs)
     except (UserError, TypeError, ValueError) as exc:  # the dataclass's own checks
         raise UserError(prefixed(where, str(exc))) from None
 
 
-def _read(value: Any, hint: Any, r: Rule, where: str, key: str, base_dir: Path | None) -> Any:
-    """``value`` as the type ``hint`` says, then checked against the rule ``r``."""
+def _read(
+    value: Any, hint: Any, r: Rule, where: str, key: str, base_dir: Path | None, record: bool
+) -> Any:
+    """``value`` as the type ``hint`` says, then checked against the rule ``r`` (and, in a
+    record, against ``RECORD_MAX``/``RECORD_MAX_ITEMS`` where the rule says nothing)."""
 
     def wrong() -> UserError:
         return UserError(f"[{where}] {key} must be {expected(hint)}, not {_show(value)}")
@@ -177,10 +271,10 @@ def _read(value: Any, hint: Any, r: Rule, where: str, key: str, base_dir: Path |
         if value is None and len(arms) < len(typing.get_args(hint)):
             return None
         if len(arms) == 1:  # Optional[X]: X's own message (a nested table names its key)
-            return _read(value, arms[0], r, where, key, base_dir)
+            return _read(value, arms[0], r, where, key, base_dir, record)
         for arm in arms:
             try:
-                return _read(value, arm, r, where, key, base_dir)
+                return _read(value, arm, r, where, key, base_dir, record)
             except UserError:
                 continue
         raise wrong()
@@ -194,20 +288,22 @@ def _read(value: Any, hint: Any, r: Rule, where: str, key: str, base_dir: Path |
             value = [value]  # one string: a list of one
         if not isinstance(value, list | tuple) or (not variable and len(value) != len(args)):
             raise wrong()
+        _count(value, r, where, key, record)
         item_hints = [args[0]] * len(value) if variable else list(args)
         items = [
-            _read(v, h, r, where, f"{key}[{i}]", base_dir)
+            _read(v, h, r, where, f"{key}[{i}]", base_dir, record)
             for i, (v, h) in enumerate(zip(value, item_hints, strict=True))
         ]
         return tuple(items) if origin is tuple else items
     if origin in (dict, Mapping) or hint in (dict, Mapping):
         if not isinstance(value, Mapping):
             raise wrong()
+        _count(value, r, where, key, record)
         args = typing.get_args(hint)
         if len(args) != 2:
             return dict(value)
         return {
-            k: _read(v, args[1], r, where, f"{key}.{key_name(k)}", base_dir)
+            k: _read(v, args[1], r, where, f"{key}.{key_name(k)}", base_dir, record)
             for k, v in value.items()
         }
     if origin is Literal:
@@ -215,7 +311,7 @@ def _read(value: Any, hint: Any, r: Rule, where: str, key: str, base_dir: Path |
             raise wrong()
         return value
     if isinstance(hint, type) and dataclasses.is_dataclass(hint):
-        return from_table(hint, value, f"{where}.{key}", base_dir)
+        return from_table(hint, value, f"{where}.{key}", base_dir, record=record)
     if isinstance(hint, type) and issubclass(hint, enum.Enum):
         for member in hint:
             if type(value) is type(member.value) and value == member.value:
@@ -227,12 +323,20 @@ def _read(value: Any, hint: Any, r: Rule, where: str, key: str, base_dir: Path |
     elif hint is int:
         if isinstance(value, bool) or not isinstance(value, int):
             raise wrong()
+        if not -(2**63) <= value < 2**63:
+            raise UserError(f"[{where}] {key} must be a 64-bit integer, not {_show(value)}")
     elif hint is float:
         if isinstance(value, bool) or not isinstance(value, int | float):
             raise wrong()
-        value = float(value)
+        try:
+            value = float(value)
+        except OverflowError:
+            value = math.inf
         if not math.isfinite(value):
             raise UserError(f"[{where}] {key} must be finite, not {value!r}")
+        bounded = r.lo is not None or r.hi is not None
+        if record and not bounded and abs(value) > RECORD_MAX:
+            raise UserError(f"[{where}] {key} must be within +-{RECORD_MAX:g}, not {value!r}")
     elif hint is str or hint is Path:
         if not isinstance(value, str):
             raise wrong()
@@ -243,6 +347,14 @@ def _read(value: Any, hint: Any, r: Rule, where: str, key: str, base_dir: Path |
             value = Path(value)
     # Other types: as given; the dataclass checks them.
     return _check(value, r, where, key)
+
+
+def _count(value: Any, r: Rule, where: str, key: str, record: bool) -> None:
+    """A list or table within the rule's size (in a record, ``RECORD_MAX_ITEMS`` by default),
+    checked before its items are read."""
+    cap = r.max_items if r.max_items is not None else RECORD_MAX_ITEMS if record else None
+    if cap is not None and len(value) > cap:
+        raise UserError(f"[{where}] {key} must hold at most {cap} items, not {len(value)}")
 
 
 def _check(value: Any, r: Rule, where: str, key: str) -> Any:

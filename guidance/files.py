@@ -44,6 +44,9 @@ GIB = 1 << 30
 
 MAX_JSON_DEPTH = 64
 """Deepest nesting of arrays and objects: the product's JSON files nest at most 6 deep."""
+MAX_NMEA_LINE_BYTES = 4 * KIB
+"""Longest line of an NMEA log: a sentence is at most 82 characters, under 100 with a time
+stamp before it; a longer line is cut here (``text_lines``) and the parser rejects it."""
 MAX_NUMBER_CHARS = 40
 """Longest JSON number (sign, digits, point, exponent): a float's 17 significant digits and an
 exponent fit in 25; a 400-digit integer is damage, not a value (it overflows a float)."""
@@ -82,12 +85,15 @@ KINDS: dict[str, Kind] = {
     "can_log": Kind("CAN log", 4 * GIB),
     "nmea_log": Kind("NMEA log", 1 * GIB),
     "truth_csv": Kind("truth or track CSV", 128 * MIB),
+    "odometry_csv": Kind("speed and yaw-rate CSV", 128 * MIB),
     "wav": Kind("WAV recording", 512 * MIB),
+    "zenoh_passwords": Kind("zenoh password dictionary", 64 * KIB),
 }
 """Size limits, each far above what the product writes of the kind and far below what would
 exhaust the car's memory when read whole: a config or a chance table is a few KiB; a learned
 file a few hundred bytes; a checkpoint tens of KiB; a photo a few MiB; a recording and a CAN
-log are streamed (never read whole), bounded by the disk; an NMEA log is read line by line.
+log are streamed (never read whole), bounded by the disk; an NMEA log is read line by line;
+a zenoh password dictionary is a line per user (read only to warn of the example passwords).
 (The landmark database is opened by SQLite, read-only, after ``landmark_db.store.open_db``
 refuses anything but a regular file; the co-driver's lines come from a terminal, bounded by
 ``guidance.core.co_driver.MAX_LINE_CHARS``.)"""
@@ -110,9 +116,11 @@ READERS: dict[str, str] = {
     "guidance.tools.replay.nmea_inputs": "nmea_log",
     "landmark_db.survey.read_nmea": "nmea_log",
     "guidance.tools.evaluate._read_columns": "truth_csv",
+    "guidance.tools.odometry_csv.read_odometry_csv": "odometry_csv",
     "landmark_db.inputs.open_csv": "landmark_csv",
     "landmark_db.inputs.read_photo": "photo",
     "drivers.speech_grammar.read_wav_16k": "wav",
+    "guidance.telemetry.example_passwords.dictionary_users": "zenoh_passwords",
 }
 """Every function of the product that opens a file to read, and the kind it reads (the
 functions' own names: ``module.function`` or ``module.Class.method``)."""

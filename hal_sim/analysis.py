@@ -14,10 +14,10 @@ import numpy as np
 from hal_sim import engine
 from hal_sim.params import SimParams
 from hal_sim.provenance import bootstrap_mean, inside, wilson_pair
-from hal_sim.studies import LANDMARK_METHODS, LOSS_LINE_M, SUCCESS_TARGET
+from hal_sim.study_design import LANDMARK_METHODS, LOSS_LINE_M, SUCCESS_TARGET
 
 if TYPE_CHECKING:
-    from hal_sim.studies import StudyData
+    from hal_sim.study_design import StudyData
 
 
 def fit_growth(

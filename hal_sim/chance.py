@@ -27,7 +27,7 @@ from hal_sim import engine, params
 from hal_sim.provenance import wilson_pair
 
 if TYPE_CHECKING:
-    from hal_sim.studies import Condition, StudyData
+    from hal_sim.study_design import Condition, StudyData
 
 METHODS = (Method.STRAIGHT_TO_GOAL, Method.LANDMARK_TO_LANDMARK, Method.HYBRID)
 DENSITIES = (0.0, 0.5, 1.0, 2.0, 5.0, 10.0)
@@ -190,7 +190,7 @@ def calibration(
 
 
 def conditions() -> list[Condition]:
-    from hal_sim.studies import Condition
+    from hal_sim.study_design import Condition
 
     out: list[Condition] = []
     for m in METHODS:

@@ -129,7 +129,7 @@ class SimDrive:
         self.expect_odo = self.expect_heading = self.expect_lines = 0
         self.last_can_t: float | None = None
         self.next_track_t = self.next_frame_t = world.t_s
-        self.next_ellipse_m = self.pipeline.st.odometer_m
+        self.next_ellipse_m = self.pipeline.estimate.odometer_m
         self.next_progress_t = 0.0
         self.pace0 = (time.monotonic(), world.t_s)
 
@@ -138,9 +138,8 @@ class SimDrive:
         """Open the devices and the outputs, drive, close everything; the drive's result."""
         try:
             compass = self.opts.compass_deg is not None
-            seed = self.opts.seed if self.opts.start_unknown else None
             with open_sim_devices(self.world, self.opts.profile, self.clock, compass=compass,
-                                  drive_on_seed=seed) as d:  # fmt: skip
+                                  drive_on_seed=self.opts.seed) as d:  # fmt: skip
                 self.dev = d
                 sim = {"seed": self.opts.seed, "method": self.method.value}
                 session = session_record(self.pipeline, self.opts.config or "", sim=sim)
@@ -175,10 +174,10 @@ class SimDrive:
         ):
             raise UserError("the simulated compass pty did not open")
         p, world = self.pipeline, self.world
-        outcome = self._end_state() if p.st.finished else "timeout"
+        outcome = self._end_state() if p.finished else "timeout"
         self.pace0 = (time.monotonic(), world.t_s)
         first_step = world.step_count
-        while not p.st.finished:
+        while not p.finished:
             if stop_signal.is_set():
                 return "stopped"
             ev = world.step()
@@ -188,7 +187,7 @@ class SimDrive:
             await self._send_compass(ev)
             await self._landmark(ev)
             self._tick(ev.t_s)
-            if p.st.finished:
+            if p.finished:
                 return self._end_state()
             self._progress(ev.t_s)
             if await self._field_protocol(ev.t_s):
@@ -210,7 +209,7 @@ class SimDrive:
         app.feed(GoalUpdate(self.world.t_s, x_m, y_m, "remote"))
 
     def _end_state(self) -> str:
-        return "arrived" if self.pipeline.st.arrived else "lost"
+        return "arrived" if self.pipeline.arrived else "lost"
 
     # -- one step -------------------------------------------------------------------------------
     async def _send_wheels(self, ev: StepEvents) -> None:
@@ -276,17 +275,19 @@ class SimDrive:
         if t >= self.next_track_t:
             self.next_track_t = t + TRACK_EVERY_S
             self._track_point()
-            trace.axis.append((p.st.odometer_m, p.estimator.major_axis_m))
-        if p.st.odometer_m >= self.next_ellipse_m:
-            self.next_ellipse_m = p.st.odometer_m + ELLIPSE_EVERY_M
-            x, P = p.estimator.x, p.estimator.P
-            trace.ellipses.append((float(x[0]), float(x[1]), P[:2, :2].tolist()))
+            est = p.estimate
+            trace.axis.append((est.odometer_m, est.ellipse.major_axis_m))
+        est = p.estimate
+        if est.odometer_m >= self.next_ellipse_m:
+            self.next_ellipse_m = est.odometer_m + ELLIPSE_EVERY_M
+            c = est.covariance
+            trace.ellipses.append((est.x_m, est.y_m, [list(c[0][:2]), list(c[1][:2])]))
 
     def _track_point(self) -> None:
         tx, ty, _ = self.world.truth
-        x = self.pipeline.estimator.x
+        est = self.pipeline.estimate
         self.trace.truth.append((tx, ty))
-        self.trace.est.append((float(x[0]), float(x[1])))
+        self.trace.est.append((est.x_m, est.y_m))
 
     def _progress(self, t: float) -> None:
         if self.on_progress is not None and t >= self.next_progress_t:
@@ -297,7 +298,7 @@ class SimDrive:
         """SPEC 5: on arrival a new random goal; True once the time limit is reached."""
         if not self.field_protocol:
             return False
-        if self.pipeline.st.arrived:
+        if self.pipeline.arrived:
             self.goals_reached += 1
             self.world.new_goal()
             gx, gy = self.world.goal_xy
@@ -348,9 +349,9 @@ class SimDrive:
             self.chances.append(out.chance)
         p = self.pipeline
         for fix in out.landmark_updates:
-            x = p.estimator.x
-            self.trace.fixes.append((p.st.odometer_m, float(x[0]), float(x[1]), fix.landmark_id))
-            self.trace.axis.append((p.st.odometer_m, p.estimator.major_axis_m))
+            est = p.estimate
+            self.trace.fixes.append((est.odometer_m, est.x_m, est.y_m, fix.landmark_id))
+            self.trace.axis.append((est.odometer_m, est.ellipse.major_axis_m))
 
     # -- building -------------------------------------------------------------------------------
     def _build_app(self) -> None:
@@ -369,10 +370,9 @@ class SimDrive:
         if self.checkpointer is not None:
             self.checkpointer.extra = self._extra_state  # the world, for a resumed drive
         self.app.listeners.append(self._on_output)
+        self.lockstep = self.app.wrap_source_sink(LockstepSink)  # the world waits for the app
         if screen is not None:
             screen.listen(self.app)
-        self.lockstep = LockstepSink(self.app.sink)  # the world waits for the app
-        self.app.source_sink = self.lockstep
 
     # -- checkpoints ----------------------------------------------------------------------------
     def _resume(self, path: str) -> None:
@@ -426,7 +426,7 @@ class SimDrive:
     def _result(self, outcome: str, lag_ms: dict[str, float | None]) -> DriveResult:
         opts, world, recorder = self.opts, self.world, self.outputs.recorder
         tx, ty, _ = world.truth
-        x = self.pipeline.estimator.x
+        est = self.pipeline.estimate
         png = None
         if opts.png:
             png = str(Path(opts.out) / f"drive-seed{opts.seed}.png")
@@ -434,9 +434,9 @@ class SimDrive:
         return DriveResult(
             outcome=outcome,
             driven_km=world.driven_m / 1000.0,
-            final_error_m=math.hypot(tx - float(x[0]), ty - float(x[1])),
+            final_error_m=math.hypot(tx - est.x_m, ty - est.y_m),
             prompts=self.pipeline.st.prompt_count,
-            landmark_updates=self.pipeline.st.landmark_updates,
+            landmark_updates=self.pipeline.landmark_updates,
             relocalisations=self.pipeline.counts["relocalisations"],
             lost_episodes=self.pipeline.counts["lost_episodes"],
             decisions=self.pipeline.navigator.decisions,

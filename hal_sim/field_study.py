@@ -32,7 +32,7 @@ from hal_sim.params import SimParams
 from hal_sim.provenance import bootstrap_mean, wilson_pair
 
 if TYPE_CHECKING:
-    from hal_sim.studies import StudyData
+    from hal_sim.study_design import StudyData
 
 RESAMPLES = 200
 RUN_SUCCESS = 0.8

@@ -19,7 +19,7 @@ from hal_sim import engine
 from hal_sim.provenance import wilson_interval
 
 if TYPE_CHECKING:
-    from hal_sim.studies import StudyData
+    from hal_sim.study_design import StudyData
 
 Fit = tuple[float, float, float, float]
 """``analysis.fit_growth``'s coefficients."""
@@ -38,7 +38,7 @@ def fig3(
     legend gives each mean lost distance with its 95 % bootstrap interval. ``fits``: each
     condition's ``analysis.fit_growth``, when the caller has them (else fitted here)."""
     from hal_sim.analysis import fit_growth, growth_curve
-    from hal_sim.studies import LOSS_LINE_M
+    from hal_sim.study_design import LOSS_LINE_M
 
     fig, ax = plt.subplots(figsize=(9, 6), dpi=110)
     colours = plt.get_cmap("tab10")
@@ -205,7 +205,7 @@ def fig4(
 
     Small studies draw what there is: bins are pooled to ``MIN_BIN_TRIALS`` trials (the
     panel says so), and a condition with fewer trials than that is drawn trial by trial."""
-    from hal_sim.studies import LANDMARK_DENSITIES, LANDMARK_METHODS, SUCCESS_TARGET
+    from hal_sim.study_design import LANDMARK_DENSITIES, LANDMARK_METHODS, SUCCESS_TARGET
 
     methods = [m for m in LANDMARK_METHODS if any(c.method is m for c in data.conditions)]
     fig, axes = plt.subplots(
@@ -289,7 +289,7 @@ def range_grid(data: StudyData, method: Any) -> tuple[np.ndarray, np.ndarray]:
     """(range km at 80 % success, censored) over density (rows) x detection rate (columns)
     for one method; NaN where the condition was not run."""
     from hal_sim.analysis import range_at_success
-    from hal_sim.studies import LANDMARK_DENSITIES, LANDMARK_DETECTION_RATES
+    from hal_sim.study_design import LANDMARK_DENSITIES, LANDMARK_DETECTION_RATES
 
     km = np.full((len(LANDMARK_DENSITIES), len(LANDMARK_DETECTION_RATES)), np.nan)
     censored = np.zeros(km.shape, dtype=bool)
@@ -306,7 +306,7 @@ def range_heatmap(data: StudyData, path: Path, caption: str = "") -> None:
     """One heatmap per method: the range at 80 % success over landmark density x detection
     rate, one colour scale for all, each cell labelled ("+": success stayed above 80 % at
     every distance tried, so the range is at least that)."""
-    from hal_sim.studies import LANDMARK_DENSITIES, LANDMARK_DETECTION_RATES, LANDMARK_METHODS
+    from hal_sim.study_design import LANDMARK_DENSITIES, LANDMARK_DETECTION_RATES, LANDMARK_METHODS
 
     methods = [m for m in LANDMARK_METHODS if any(c.method is m for c in data.conditions)]
     grids = [range_grid(data, m) for m in methods]

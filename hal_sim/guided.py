@@ -23,9 +23,9 @@ from dataclasses import dataclass, field, replace
 
 from drivers.can_odometry import MAX_GAP_S
 from drivers.keyboard import CoDriverLines
-from guidance.core.localize.estimator import RELOCALISED
 from guidance.core.messages import (
     Approach,
+    EstimateState,
     HeadingFix,
     LandmarkFix,
     Prompt,
@@ -33,6 +33,7 @@ from guidance.core.messages import (
 )
 from guidance.core.model import CHI2_2D_2SIGMA, mahalanobis_sq_2d, wrap_angle
 from guidance.core.pipeline import Input, Pipeline
+from guidance.core.stages import RELOCALISED
 from hal_sim import world as world_mod
 from hal_sim.drive import drive_cap_m, drive_pipeline_config, make_world
 from hal_sim.drive_options import DriveOptions
@@ -88,20 +89,18 @@ def guided_drive(
     world = make_world(opts)
     pipeline = Pipeline(drive_pipeline_config(world, opts, world.landmarks(), 0.0))
     trip = GuidedTrip(opts, codriver)
-    scene = SimScene(world, report_next=report_next and not codriver,
-                     drive_on_seed=opts.seed if opts.start_unknown else None)  # fmt: skip
+    scene = SimScene(world, report_next=report_next and not codriver, drive_on_seed=opts.seed)
     dt = world.dt_s
 
     def feed(msg: Input) -> None:
         if isinstance(msg, Approach):  # the co-driver's distances place it for the oracle too
             trip.reports.append(Report(msg.t_s, msg.distance_m))
-        was_lost = pipeline.st.lost_said
+        was_lost = pipeline.lost
         out = pipeline.feed(msg)
         found = out.reason == RELOCALISED or was_lost
         if isinstance(msg, LandmarkFix) and out.accepted and found:
             tx, ty, _ = world.truth
-            x, P = pipeline.estimator.x, pipeline.estimator.P
-            d2 = mahalanobis_sq_2d(tx - x[0], ty - x[1], P[0, 0], P[0, 1], P[1, 1])
+            d2 = _d2(tx, ty, pipeline.estimate)
             trip.relocalisations.append((msg.t_s, d2 <= CHI2_2D_2SIGMA))
         for pr in out.prompts:
             if pr.kind == "lost":
@@ -117,7 +116,7 @@ def guided_drive(
 
     scene.start(oracle_only if codriver else feed)
     lines = CoDriverLines(
-        "co-driver", lambda: float(pipeline.estimator.x[2]), clock=lambda: world.t_s,
+        "co-driver", lambda: pipeline.estimate.heading_rad, clock=lambda: world.t_s,
         feedback=lambda _text: None,
     )  # fmt: skip
     cap = drive_cap_m(world, opts)
@@ -149,8 +148,8 @@ def guided_drive(
         pipeline.tick(t)
         if world.step_count % TRUTH_EVERY == 0:
             _sample(trip, world.truth, t, pipeline)
-        if pipeline.st.finished:
-            trip.outcome = "arrived" if pipeline.st.arrived else "lost"
+        if pipeline.finished:
+            trip.outcome = "arrived" if pipeline.arrived else "lost"
             break
         if world.driven_m >= cap:
             break
@@ -184,6 +183,11 @@ def guided_drive(
 def _sample(trip: GuidedTrip, truth: tuple[float, float, float], t: float, p: Pipeline) -> None:
     tx, ty, th = truth
     trip.truth.append(TruthSample(t, tx, ty, th))
-    x, P = p.estimator.x, p.estimator.P
-    d2 = mahalanobis_sq_2d(tx - x[0], ty - x[1], P[0, 0], P[0, 1], P[1, 1])
+    d2 = _d2(tx, ty, p.estimate)
     trip.inside.append((t, d2 <= CHI2_2D_2SIGMA))
+
+
+def _d2(tx: float, ty: float, est: EstimateState) -> float:
+    """The truth's squared Mahalanobis distance from the estimate."""
+    c = est.covariance
+    return float(mahalanobis_sq_2d(tx - est.x_m, ty - est.y_m, c[0][0], c[0][1], c[1][1]))

@@ -2,15 +2,15 @@
 the app's time-driven work runs at the world's steps.
 
 ``LockstepSink`` wraps ``App.sink``; the simulated drive starts the sources with it
-(``app.source_sink = LockstepSink(app.sink)``). It counts what it hands over and, behind each
-message on the loop, what has been processed, and wakes its waiters then: ``wait_until``
-re-checks its predicate right after the app's state changed, and ``drained`` returns once
-everything handed over so far is processed. ``LockstepClock`` is the world's clock as the
-app's message clock, a ``guidance.app.ports.SteppedClock``: the app hands it ``App.tick``, and
-the drive runs that after each world step (``tick``), not the wall-clock ticker. A drive is then
-reproducible for a seed however fast the machine is. ``App`` itself knows nothing of the
-simulation (it keeps only its backlog figure, the drivers' back-pressure, and asks a clock
-whether it is stepped).
+(``app.wrap_source_sink(LockstepSink)``, the hook ``App`` offers). It counts what it hands over
+and, behind each message on the loop, what has been processed, and wakes its waiters then:
+``wait_until`` re-checks its predicate right after the app's state changed, and ``drained``
+returns once everything handed over so far is processed. ``LockstepClock`` is the world's clock
+as the app's message clock, a ``guidance.app.ports.SteppedClock``: the app hands it
+``App.tick``, and the drive runs that after each world step (``tick``), not the wall-clock
+ticker. A drive is then reproducible for a seed however fast the machine is. ``App`` itself
+knows nothing of the simulation (it keeps only its backlog figure, the drivers' back-pressure,
+and asks a clock whether it is stepped).
 """
 
 from __future__ import annotations
@@ -33,7 +33,7 @@ async def recognise_now(app: App, frame: CameraFrame) -> None:
     """A frame of the simulated camera, seen now and matched at once (in lockstep), not through
     the app's frame ring: the camera noted alive as the ring's reader notes it, then
     ``App.recognise``; the frame is not recorded."""
-    app.pipeline.health.observe("camera", frame.t_s)
+    app.pipeline.camera_seen(frame.t_s)
     await app.recognise(frame)
 
 

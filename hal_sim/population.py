@@ -21,7 +21,9 @@ The car errors, with heavier tails than the filter's priors (Student t, 4 degree
 * compass: a mounting offset N(0, 40 deg), a hard-iron field of r x the earth's horizontal
   field (r uniform 0-0.4, direction uniform) giving the heading-dependent deviation
   atan2(r sin(h - phi), 1 + r cos(h - phi)), a bias drift of 0.1 deg^2/s, white noise 3 deg;
-* start: the operator's heading N(0, 1 deg) off, the position N(0, 3 m) off per axis.
+* start: the operator's heading N(0, 1 deg) off, the position N(0, 3 m) off per axis;
+* gyro cars (``draw_gyro``, ``hal_sim.gyro_cars``): the yaw-rate sensor's bias, its walk with
+  time, its scale and noise; with ``stops``, stops at intersections of realistic length.
 """
 
 from __future__ import annotations
@@ -34,12 +36,21 @@ from scipy.stats import chi2
 
 from guidance.core.localize.car_model import car_model
 from guidance.core.localize.estimator import EstimatorConfig
+from guidance.core.localize.gyro import GyroConfig
 from guidance.core.localize.learned import LearnedParams
-from guidance.core.messages import HeadingFix, LandmarkFix, WheelOdometry
+from guidance.core.localize.localizer import Localizer, LocalizerConfig
+from guidance.core.messages import EstimateState, HeadingFix, LandmarkFix, WheelOdometry, YawRate
 from guidance.core.model import CHI2_2D_2SIGMA, mahalanobis_sq_2d, wrap_angle
-from guidance.core.pipeline import Pipeline, PipelineConfig
 from guidance.core.plan.navigator import NavigatorConfig
 from hal_sim import world as world_mod
+from hal_sim.gyro_cars import (
+    GYRO_BIAS_T4,
+    GYRO_SCALE_T4,
+    STOP_S,
+    GyroErrors,
+    GyroSim,
+    stop_for,
+)
 from hal_sim.params import SimParams, estimator_config
 from hal_sim.provenance import wilson_pair
 from hal_sim.sim_world import SimWorld, WorldSpec
@@ -79,6 +90,9 @@ class CarErrors:
     (road camber, each side's tyre temperature): a Gauss-Markov process of correlation length
     ``camber_length_m`` added to ``diff`` (``with_camber``). 0: none."""
     camber_length_m: float = 250.0
+    gyro: GyroErrors | None = None
+    """A gyro car's yaw-rate sensor (its filter then turns the heading by it); None: a car
+    whose heading comes from its wheels."""
 
     def deviation_rad(self, heading_rad: float) -> float:
         """The compass error at a true heading: the offset plus the hard-iron curve."""
@@ -141,6 +155,26 @@ def draw_matched_car(rng: np.random.Generator) -> CarErrors:
     )
 
 
+def draw_gyro(car: CarErrors, rng: np.random.Generator) -> CarErrors:
+    """``car`` as a gyro car, its sensor heavier-tailed than the filter's priors
+    (``hal_sim.gyro_cars``), drawn from ``rng`` (a stream of its own)."""
+    return replace(car, gyro=GyroErrors(t4_draw(rng, *GYRO_BIAS_T4), t4_draw(rng, *GYRO_SCALE_T4)))
+
+
+def draw_matched_gyro(car: CarErrors, rng: np.random.Generator) -> CarErrors:
+    """``car`` as a gyro car whose sensor is drawn from the filter's own priors."""
+    from guidance.core.localize.gyro import GyroConfig
+
+    g = GyroConfig()
+    errors = GyroErrors(
+        float(rng.normal(0.0, g.bias_sigma_deg_s)),
+        float(rng.normal(0.0, g.scale_sigma)),
+        g.bias_walk_deg2_per_s3,
+        g.noise_density_deg_rt_s,
+    )
+    return replace(car, gyro=errors)
+
+
 def t4_draw(rng: np.random.Generator, scale: float, limit: float) -> float:
     """A Student-t (4 dof) draw times ``scale``, redrawn beyond ``limit`` (a wheel scale 25 %
     off is a wrong DBC, not a tyre)."""
@@ -155,6 +189,8 @@ class CarResult:
     errors: CarErrors
     compass: bool
     driven_m: float = 0.0
+    duration_s: float = 0.0
+    """The drive's time, stops included."""
     nees: list[float] = field(default_factory=list)
     along2: list[float] = field(default_factory=list)
     across2: list[float] = field(default_factory=list)
@@ -190,40 +226,45 @@ def drive_car(
     stop_when_lost: bool = False,
     calibrated: bool = False,
     filter_overrides: dict[str, float] | None = None,
+    duration_s: float | None = None,
+    stops: bool = False,
 ) -> CarResult:
     """One car, ``distance_m`` of random route in the city of ``seed`` (module doc); with
     ``landmarks_per_km2``, fixes where the world has sightings (60 % detected); with
     ``learned``, the drive starts from what an earlier drive learned; ``stop_when_lost``
     ends it when "lost" is declared; ``calibrated``: the compass has its deviation card (the
     filter's calibrated compass prior; ``errors`` are then the card's residuals);
-    ``filter_overrides``: car-model settings other than the shipped ones (a sensitivity)."""
+    ``filter_overrides``: car-model settings other than the shipped ones (a sensitivity);
+    ``duration_s``: drive for this long (stops included) instead of ``distance_m``;
+    ``stops``: start from a parked car and stand at intersections (``hal_sim.gyro_cars``)."""
     rng = np.random.default_rng([seed, 99])
     sim = SimParams()
     est0 = estimator_config(sim, 20.0 if compass else None)
     spec = WorldSpec(seed, 4.0, 300.0, 800.0, landmarks_per_km2, 0.6)
     world = SimWorld(spec, sim, est0, NavigatorConfig())
     est = car_model(
-        EstimatorConfig(track_m=TRACK_M, compass_two_sigma_deg=None if not compass else 30.0),
+        EstimatorConfig(
+            track_m=TRACK_M,
+            compass_two_sigma_deg=None if not compass else 30.0,
+            gyro=None if errors.gyro is None else GyroConfig(),
+        ),
         calibrated=calibrated,
         **(filter_overrides or {}),
     )
     sx, sy, th0 = world.start_pose
     dt = world.dt_s
-    cfg = PipelineConfig(
+    cfg = LocalizerConfig(
         estimator=est,
-        navigator=NavigatorConfig(),
         start_xy_m=(sx + errors.start_dx_m, sy + errors.start_dy_m),
-        goal_xy_m=(sx + 1e6, sy),
         start_heading_rad=th0 + math.radians(errors.start_heading_deg),
         expected_rates_hz={
             "odometry": 1.0 / (dt * ODO_EVERY),
             **({"compass": 1.0 / (dt * COMPASS_EVERY)} if compass else {}),
         },
-        stop_at_arrival=False,
     )
-    p = Pipeline(cfg)
+    p = Localizer(cfg)  # the estimate alone: no goal, no navigator
     if learned is not None:
-        learned.apply(p.estimator)
+        p.adopt(learned)
     res = CarResult(errors, compass)
     left = right = 0.0
     drift = 0.0
@@ -232,11 +273,19 @@ def drive_car(
     if errors.camber_sigma > 0.0:
         camber = errors.camber_sigma * float(camber_rng.normal())
     prev = world.truth
-    while world.driven_m < distance_m:
+    gyro = None if errors.gyro is None else GyroSim(errors.gyro, np.random.default_rng([seed, 97]))
+    stop_rng = np.random.default_rng([seed, 96])
+    t_off = 0.0  # time stood still: the world's clock does not run while the car stands
+    if stops:  # the drive starts from a parked car (the operator sets the start there)
+        t_off = _stand(p, gyro, 0.0, float(stop_rng.uniform(*STOP_S)), dt)
+    while (world.driven_m < distance_m) if duration_s is None else (world.t_s + t_off < duration_s):
         ev = world.step()
+        wait = 0.0
         if ev.decide and int(world.ns[world_mod.R_C]) < 0:
             n = len(world.exits())
             world.take_exit(int(rng.integers(n)))
+            wait = stop_for(stop_rng) if stops else 0.0
+        t = ev.t_s + t_off
         x, y, th = world.truth
         d = math.hypot(x - prev[0], y - prev[1])
         dth = wrap_angle(th - prev[2])
@@ -257,8 +306,10 @@ def drive_car(
             else:
                 right += true + err
         step = world.step_count
+        if gyro is not None:
+            p.handle(YawRate(t, gyro.reading(dth, dt)))
         if step % ODO_EVERY == 0:
-            p.feed(WheelOdometry(ev.t_s, left, right))
+            p.handle(WheelOdometry(t, left, right))
             left = right = 0.0
         if compass and step % COMPASS_EVERY == 0:
             drift += float(rng.normal()) * math.sqrt(
@@ -269,32 +320,43 @@ def drive_car(
                 + errors.deviation_rad(th)
                 + math.radians(drift + float(rng.normal()) * errors.compass_noise_deg)
             )
-            p.feed(HeadingFix(ev.t_s, wrap_angle(reading)))
+            p.handle(HeadingFix(t, wrap_angle(reading)))
         if ev.landmark is not None:
             fx = x + float(rng.normal()) * FIX_SIGMA_M
             fy = y + float(rng.normal()) * FIX_SIGMA_M
-            p.feed(LandmarkFix(ev.t_s, ev.landmark, fx, fy, FIX_SIGMA_M))
+            p.handle(LandmarkFix(t, ev.landmark, fx, fy, FIX_SIGMA_M))
         if step % SAMPLE_EVERY == 0:
-            _sample(res, p, x, y, th)
-            res.axis_m.append((world.driven_m, p.estimator.major_axis_m))
-            if res.lost_at_m is None and p.estimator.lost:
+            now = p.estimate()
+            _sample(res, now, x, y, th)
+            res.axis_m.append((world.driven_m, now.ellipse.major_axis_m))
+            if res.lost_at_m is None and now.lost:
                 res.lost_at_m = world.driven_m
                 if stop_when_lost:
                     break
+        t_off += _stand(p, gyro, t, wait, dt)
     res.driven_m = world.driven_m
-    xe = p.estimator.x
-    res.final_error_m = math.hypot(prev[0] - xe[0], prev[1] - xe[1])
-    res.final_major_axis_m = p.estimator.major_axis_m
-    res.learned = LearnedParams.from_estimator(
-        p.estimator, "sim", world.t_s, world.driven_m, learned
-    )
+    res.duration_s = world.t_s + t_off
+    now = p.estimate()
+    res.final_error_m = math.hypot(prev[0] - now.x_m, prev[1] - now.y_m)
+    res.final_major_axis_m = now.ellipse.major_axis_m
+    res.learned = p.learned("sim", world.t_s, world.driven_m, learned)
     return res
 
 
-def _sample(res: CarResult, p: Pipeline, x: float, y: float, th: float) -> None:
-    est = p.estimator
-    xe, P = est.x, est.P[:2, :2]
-    e = np.array([x - xe[0], y - xe[1]])
+def _stand(p: Localizer, gyro: GyroSim | None, t0: float, seconds: float, dt: float) -> float:
+    """The car stands still from ``t0`` for ``seconds``: its wheels read zero, its gyro its
+    bias and noise. Returns the time stood (whole steps)."""
+    n = round(seconds / dt)
+    for k in range(1, n + 1):
+        if gyro is not None:
+            p.handle(YawRate(t0 + k * dt, gyro.reading(0.0, dt)))
+        p.handle(WheelOdometry(t0 + k * dt, 0.0, 0.0))
+    return n * dt
+
+
+def _sample(res: CarResult, est: EstimateState, x: float, y: float, th: float) -> None:
+    P = np.array(est.covariance)[:2, :2]
+    e = np.array([x - est.x_m, y - est.y_m])
     nees = mahalanobis_sq_2d(float(e[0]), float(e[1]), P[0, 0], P[0, 1], P[1, 1])
     u = np.array([math.cos(th), math.sin(th)])
     n = np.array([-u[1], u[0]])
@@ -303,7 +365,7 @@ def _sample(res: CarResult, p: Pipeline, x: float, y: float, th: float) -> None:
     res.across2.append(float((e @ n) ** 2 / (n @ P @ n)))
     err = float(np.hypot(*e))
     if err > 1e-6:
-        res.axis_ratio.append(0.5 * est.major_axis_m / err)
+        res.axis_ratio.append(0.5 * est.ellipse.major_axis_m / err)
     if res.lost_at_error_m is None and est.lost:
         res.lost_at_error_m = err
 

@@ -42,10 +42,6 @@ def _window(text: str) -> tuple[float, float]:
 
 
 def register(sub: Any) -> None:
-    from guidance.app.run import register_device_runner
-
-    # `guidance run` on a config with [sim] devices = true drives the simulated city
-    register_device_runner("sim", run_on_simulated_devices)
     p = sub.add_parser(
         "sim",
         help="a simulated drive through the full in-car stack (make demo)",

@@ -139,7 +139,8 @@ def import_sim_landmark_db(
     path = Path(path)
     xy = np.asarray(landmarks_xy, dtype=np.float64).reshape(-1, 2)
     names = [landmark_name(i) for i in range(len(xy))]
-    if not _holds(path, names):
+    images = [photo_file(seed, i) for i in range(len(xy))]
+    if not _holds(path, names, images, xy):
         from landmark_db.cli_io import progress
 
         why = _not_the_simulators(path)
@@ -167,9 +168,8 @@ def import_sim_landmark_db(
             w = csv.writer(fh)
             w.writerow(["image", "name", "x_m", "y_m", "sigma_m"])
             for i, (x, y) in enumerate(xy):
-                image = f"landmark{i:05d}.png"
-                cv2.imwrite(str(photos / image), facade(photo_seed(seed, i)))
-                w.writerow([image, names[i], f"{x:.3f}", f"{y:.3f}", "0.5"])
+                cv2.imwrite(str(photos / images[i]), facade(photo_seed(seed, i)))
+                w.writerow([images[i], names[i], f"{x:.3f}", f"{y:.3f}", "0.5"])
                 progress("writing photos", i + 1, len(xy), err)
         # built beside, then renamed over: a stop mid-build leaves the configured path as it was
         tmp = path.with_name(f".{path.name}.building-{os.getpid()}")
@@ -236,8 +236,23 @@ def _not_the_simulators(path: Path) -> str:
     return ""
 
 
-def _holds(path: Path, names: list[str]) -> bool:
-    """True when ``path`` is a landmark database with exactly these landmark names."""
+def photo_file(seed: int, index: int) -> str:
+    """The file name of landmark ``index``'s photo in a city of ``seed``: it names the photo's
+    seed, and import keeps it as the landmark's ``source``, so a database of another city with
+    the same landmark names and positions (another seed's photos) is told apart."""
+    return f"landmark{index:05d}-{photo_seed(seed, index):016x}.png"
+
+
+POSITION_TOLERANCE_M = 0.002
+"""How far a stored landmark may be from the city's and still be it: the CSV writes positions
+to the millimetre (``%.3f``), so half of that, plus what a float's round trip adds."""
+
+
+def _holds(path: Path, names: list[str], images: list[str], xy: np.ndarray) -> bool:
+    """True when ``path`` is a landmark database of exactly this city: the same landmark
+    names, each with its photo (``photo_file``: the city's seed) and position. Names alone
+    (issue 40, noticed) reused another city's database of the same size: the camera then saw
+    the other city's photos at this city's places."""
     if not path.is_file():
         return False
     from landmark_db.store import open_db
@@ -247,6 +262,15 @@ def _holds(path: Path, names: list[str]) -> bool:
     except Exception:  # damaged or foreign: rebuild it
         return False
     try:
-        return sorted(lm.name for lm in db.landmarks()) == sorted(names)
+        rows = list(db.landmarks())
     finally:
         db.close()
+    found = {lm.name: lm for lm in rows}
+    if len(rows) != len(names) or sorted(found) != sorted(names):
+        return False
+    for name, image, (x, y) in zip(names, images, xy, strict=True):
+        lm = found[name]
+        far = max(abs(lm.x_m - x), abs(lm.y_m - y)) > POSITION_TOLERANCE_M
+        if lm.source != image or far:
+            return False
+    return True

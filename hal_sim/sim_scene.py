@@ -44,9 +44,11 @@ class SimScene:
         self.world = world_
         self.report_next = report_next
         self._drive_on = None if drive_on_seed is None else random.Random(drive_on_seed)
-        """A driver told nothing (a car that started anywhere, before its first landmark)
-        chooses an exit at random, never back the way it came unless it must: with None,
-        the car waits for a plan."""
+        """A driver told nothing by the corner (``OWN_CHOICE_M``: a car that started anywhere,
+        before its first landmark; an intersection the car could no longer place after a CAN
+        gap) chooses an exit at random, never back the way it came unless it must: with
+        None, the car drives on past the corner, off the streets."""
+        self._to_b = math.inf
         self._sink: Callable[[Any], None] | None = None
         self._counts: Counter[str] = Counter()
         self.approaching = False
@@ -56,6 +58,8 @@ class SimScene:
         self._seq: int | None = None
         """The car's report number for ``_b``."""
         self._followed: int | None = None
+        self._own = False
+        """The exit followed is the driver's own choice (``drive_on_seed``), not a plan."""
         self._next: tuple[int, int | None] | None = None
         """(node, report number) of the intersection after ``_b``, reported ahead."""
 
@@ -110,8 +114,12 @@ class SimScene:
         if int(self.world.ns[world.R_B]) != self._b:
             return
         exit_index = None if self._seq is None else planned(self._seq)
-        if exit_index is None and self._drive_on is not None and self._followed is None:
-            exit_index = self._own_choice(self._drive_on)
+        self._own = False
+        if exit_index is None and self._drive_on is not None and self._to_b <= OWN_CHOICE_M:
+            if self._followed is not None:
+                self._own = True  # still the driver's own choice: nothing planned yet
+                return
+            exit_index, self._own = self._own_choice(self._drive_on), True
         if exit_index is None or exit_index == self._followed:
             return
         if self._followed is not None:
@@ -130,8 +138,8 @@ class SimScene:
     def due_next(self, ev: StepEvents) -> IntersectionScene | None:
         """With ``report_next``: the intersection after the one ahead, once the driver knows
         which way to leave that one and it is in view too."""
-        if not self.report_next or self._followed is None or self._next is not None:
-            return None
+        if not self.report_next or self._followed is None or self._next is not None or self._own:
+            return None  # (the road beyond an exit the driver chose alone may not be taken)
         c = int(self.world.ns[world.R_C])
         if c < 0:
             return None
@@ -153,6 +161,7 @@ class SimScene:
     def update(self, ev: StepEvents, every_s: float = 0.5) -> None:
         """While driving up to a decided intersection, tell the app how far it is (the second
         announcement is timed on it); stop once the car has passed it."""
+        self._to_b = ev.to_intersection_m
         if ev.passed:
             self.approaching = False
             return
@@ -161,6 +170,9 @@ class SimScene:
             self._next_update_t = ev.t_s + every_s
             self.send(Approach(ev.t_s, ev.to_intersection_m))
 
+
+OWN_CHOICE_M = 20.0
+"""A simulated driver told nothing chooses alone this far before the corner (``SimScene``)."""
 
 _TYPED = {tok: EXIT_TOKENS[tok] for tok in ("s", "l", "r", "u", "bl", "br", "hl", "hr")}
 """The co-driver's short tokens and their angles (rad, left positive), from the parser's table."""

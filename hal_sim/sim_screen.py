@@ -44,7 +44,7 @@ class SimScreen:
         work now; the simulated co-driver reports the intersections either way."""
         if not self.no_input:
             self.co_driver = self.session.co_driver_input(
-                lambda: self.pipeline.estimator.heading_rad
+                lambda: self.pipeline.estimate.heading_rad
             )
         self.session.operator.co_driver = _CoDrivers(self.co_driver)  # the INPUT row
         return {"co_driver": self.co_driver} if self.co_driver is not None else {}

@@ -36,7 +36,7 @@ from landmark_db.limits import (
     sigma_problem,
 )
 from landmark_db.schema import SCHEMA_VERSION, LandmarkDbError
-from landmark_db.store import LandmarkDb, open_db
+from landmark_db.store import MAX_ID_DIGITS, LandmarkDb, open_db
 from landmark_db.writes import name_problem
 
 Problem = tuple[int, int | None, str]
@@ -252,7 +252,7 @@ def _landmark(db: LandmarkDb, key: str) -> int:
     its values are bad. An id beyond SQLite's integers (30 digits) is no landmark, never a
     traceback; a name two landmarks share is refused (which one would go?)."""
     if key.isascii() and key.isdigit():
-        if len(key) > 18:  # SQLite's integers end at 2^63 - 1
+        if len(key) > MAX_ID_DIGITS:  # SQLite's integers end at 2^63 - 1
             raise UserError(f"no landmark {safe(key[:24])!r}")
         rows = db._conn.execute("SELECT id FROM landmarks WHERE id = ?", (int(key),)).fetchall()
     else:

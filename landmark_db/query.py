@@ -4,15 +4,12 @@ from __future__ import annotations
 
 from collections.abc import Sequence
 from dataclasses import dataclass
-from typing import TYPE_CHECKING
+from typing import Protocol
 
 import numpy as np
 
 from guidance.core.model import CHI2_2D_2SIGMA
 from landmark_db.gate import gate_box, in_gate, mahalanobis_sq
-
-if TYPE_CHECKING:
-    from landmark_db.store import LandmarkDb
 
 
 @dataclass(frozen=True, slots=True)
@@ -25,8 +22,17 @@ class Candidate:
     distance_m: float
 
 
+class BoxIndex(Protocol):
+    """What a query needs of the store (``LandmarkDb.in_box``, its R*Tree): a protocol, so
+    this module does not import the store that imports it (no import circle)."""
+
+    def in_box(
+        self, min_x: float, max_x: float, min_y: float, max_y: float
+    ) -> tuple[np.ndarray, np.ndarray]: ...
+
+
 def query_gate(
-    db: LandmarkDb,
+    db: BoxIndex,
     mean_xy: Sequence[float],
     cov_xy: Sequence[Sequence[float]],
     range_m: float,
@@ -51,6 +57,6 @@ def query_gate(
     return [Candidate(int(ids[i]), float(xy[i, 0]), float(xy[i, 1]), float(dist[i])) for i in keep]
 
 
-def query_radius(db: LandmarkDb, x_m: float, y_m: float, radius_m: float) -> list[Candidate]:
+def query_radius(db: BoxIndex, x_m: float, y_m: float, radius_m: float) -> list[Candidate]:
     """Landmarks within ``radius_m`` of a point, nearest first (distance is to the point)."""
     return query_gate(db, (x_m, y_m), ((0.0, 0.0), (0.0, 0.0)), radius_m)

@@ -30,21 +30,20 @@ per-axis standard deviation of r / 2), and the landmark's own survey error adds 
 With the default 20 m range and an exactly known landmark, sigma = 10 m.
 
 Matching is CPU-heavy; run it off the event loop with ``recognise_async`` (a thread of the
-default executor: the OpenCV calls release the GIL) or in a ``RecogniserWorker`` process.
+default executor: the OpenCV calls release the GIL) or in a ``RecogniserWorker`` process
+(``landmark_db.worker``).
 """
 
 from __future__ import annotations
 
 import asyncio
 import math
-import os
 import threading
 import time
 from collections import Counter, OrderedDict
 from collections.abc import Mapping, Sequence
-from concurrent.futures import Executor, Future, ProcessPoolExecutor
+from concurrent.futures import Executor
 from dataclasses import dataclass, field, replace
-from multiprocessing import get_context
 from pathlib import Path
 
 import numpy as np
@@ -478,115 +477,3 @@ async def recognise_async(
     """
     loop = asyncio.get_running_loop()
     return await loop.run_in_executor(executor, recogniser.process, frame, state)
-
-
-# --- worker process --------------------------------------------------------------------------
-
-_worker: Recogniser | None = None
-
-
-WORKER_NICE_LEVELS = 10
-"""The matcher worker runs this many nice levels below the app that starts it (issue 23,
-item 9): the loop then weighs about 9 times the matcher with the scheduler (1.25 a level)."""
-
-
-def lower_priority(levels: int = WORKER_NICE_LEVELS) -> str:
-    """Make this process background work: ``levels`` nice levels below what it inherited
-    (the app's: -10 under the car's systemd unit, so 0 there), at most 19.
-
-    Matching must never delay the odometry loop, but must not starve either: under the
-    unit the worker is level with the laptop's other programs, and the loop above them all.
-    ``SCHED_IDLE`` (used before) gives way to every other program: beside one CPU-bound
-    process on a busy 2-core machine the worker got no CPU at all (0 matches in 3 s, the
-    first one minutes late), so a busy laptop meant no landmark fixes. Raising one's own
-    nice value needs no privilege."""
-    if os.sched_getscheduler(0) & ~os.SCHED_RESET_ON_FORK in (os.SCHED_RR, os.SCHED_FIFO):
-        os.sched_setscheduler(0, os.SCHED_OTHER, os.sched_param(0))  # never real-time
-    nice = min(19, os.getpriority(os.PRIO_PROCESS, 0) + levels)
-    os.setpriority(os.PRIO_PROCESS, 0, nice)
-    return f"nice {nice}"
-
-
-WORKER_OPENCV_THREADS = 1
-"""OpenCV threads in the matcher worker (issue 23, item 9): one. OpenCV's default (a thread
-per core) spreads each match over every core, the loop's included; the matcher is one
-process working one frame at a time, and a frame it cannot take is overwritten anyway."""
-
-
-def worker_setup() -> str:
-    """The matcher worker's own setup, before any matching: a lower priority than the app's
-    (``lower_priority``) and ``WORKER_OPENCV_THREADS`` OpenCV threads (threads OpenCV starts
-    later inherit the priority). Returns the priority taken."""
-    import cv2
-
-    taken = lower_priority()
-    cv2.setNumThreads(WORKER_OPENCV_THREADS)
-    return taken
-
-
-def worker_scheduling() -> dict[str, int]:
-    """How the calling process is scheduled: its policy (``os.SCHED_*``), nice level and
-    OpenCV thread count; run in the worker by ``RecogniserWorker.scheduling``."""
-    import cv2
-
-    return {
-        "policy": os.sched_getscheduler(0),
-        "nice": os.getpriority(os.PRIO_PROCESS, 0),
-        "opencv_threads": int(cv2.getNumThreads()),
-    }
-
-
-def _worker_init(path: str, config: RecogniserConfig | None) -> None:
-    global _worker
-    worker_setup()
-    _worker = Recogniser.from_path(path, config)
-
-
-def _worker_process(frame: CameraFrame, state: EstimateState) -> RecognitionResult:
-    assert _worker is not None, "worker not initialised"
-    return _worker.process(frame, state)
-
-
-def _worker_stats() -> dict[str, int]:
-    assert _worker is not None, "worker not initialised"
-    return dict(_worker.stats())
-
-
-class RecogniserWorker:
-    """A ``Recogniser`` in its own process, for when the GIL must not be shared at all.
-
-    One worker process (spawned, so no locks are inherited) opens the database read-only;
-    frames are pickled to it. ``process`` returns a future; ``process_async`` awaits it.
-    The worker's temporal state persists between calls, as in-process.
-    """
-
-    def __init__(self, db_path: str | Path, config: RecogniserConfig | None = None) -> None:
-        open_db(db_path, readonly=True).close()  # fail here, with a clear message, if bad
-        self._pool = ProcessPoolExecutor(
-            max_workers=1,
-            mp_context=get_context("spawn"),
-            initializer=_worker_init,
-            initargs=(str(db_path), config),
-        )
-
-    def process(self, frame: CameraFrame, state: EstimateState) -> Future[RecognitionResult]:
-        return self._pool.submit(_worker_process, frame, state)
-
-    async def process_async(self, frame: CameraFrame, state: EstimateState) -> RecognitionResult:
-        return await asyncio.wrap_future(self.process(frame, state))
-
-    def stats(self) -> Mapping[str, int]:
-        return self._pool.submit(_worker_stats).result()
-
-    def scheduling(self) -> dict[str, int]:
-        """The worker's scheduling (``worker_scheduling``): background, one OpenCV thread."""
-        return self._pool.submit(worker_scheduling).result()
-
-    def close(self) -> None:
-        self._pool.shutdown(wait=True, cancel_futures=True)
-
-    def __enter__(self) -> RecogniserWorker:
-        return self
-
-    def __exit__(self, *exc: object) -> None:
-        self.close()

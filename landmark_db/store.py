@@ -54,6 +54,7 @@ from landmark_db.writes import DEFAULT_POSITION_SIGMA_M, LandmarkWriter
 
 __all__ = [
     "DEFAULT_POSITION_SIGMA_M",
+    "MAX_ID_DIGITS",
     "MIGRATIONS",
     "SCHEMA_VERSION",
     "Candidate",
@@ -74,6 +75,9 @@ _READ_ERRORS = (sqlite3.DatabaseError, UnicodeDecodeError)
 """What reading a damaged file raises (UnicodeDecodeError: text or an error message that is
 not UTF-8)."""
 
+MAX_ID_DIGITS = 18
+"""Longest landmark id as text: SQLite's integers end at 2**63 - 1 (19 digits, not all of
+which fit); a longer run of digits is no id."""
 _MAX_FLOAT = "1.7976931348623157e308"
 _FINITE_SQL = f"coalesce({{c}} BETWEEN -{_MAX_FLOAT} AND {_MAX_FLOAT}, 0)"
 """SQL true for a finite number only: NULL, text, blobs and infinities fail it."""
@@ -248,9 +252,12 @@ class LandmarkDb(LandmarkWriter):
         return None if r is None else self._row(r)
 
     def find(self, key: str) -> LandmarkRecord | None:
-        """A landmark by id (digits) or by exact name (the first such)."""
-        if key.isdigit():
-            return self.get(int(key))
+        """A landmark by id (ASCII digits) or by exact name (the first such). Only ASCII digits
+        are an id: ``int`` also reads Arabic-Indic or full-width digits ("٣" is 3), which would
+        take a landmark's name for another landmark's id (issue 40); an id beyond SQLite's
+        integers (19 digits and more) is no landmark."""
+        if key.isascii() and key.isdigit():
+            return self.get(int(key)) if len(key) <= MAX_ID_DIGITS else None
         return self.by_name(key)
 
     def by_name(self, name: str) -> LandmarkRecord | None:

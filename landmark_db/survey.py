@@ -16,6 +16,7 @@ The NMEA clock is aligned so that the first fix is at ``nmea_offset_s`` on the f
 from __future__ import annotations
 
 import math
+from array import array
 from collections.abc import Iterator
 from dataclasses import dataclass
 from datetime import datetime
@@ -64,47 +65,76 @@ class GpsTrack:
 
 
 def read_nmea(path: Path) -> GpsTrack:
-    """Valid RMC fixes (else GGA fixes with quality > 0) of an NMEA log; bad lines are skipped."""
-    rmc: list[tuple[datetime, float, float]] = []
-    gga: list[tuple[float, float, float]] = []
+    """Valid RMC fixes (else GGA fixes with quality > 0) of an NMEA log; bad lines are skipped.
+
+    The log is streamed through the door line by line (``files.text_lines``: a line at most
+    ``files.MAX_NMEA_LINE_BYTES``), and the fixes kept as doubles (24 bytes a fix), so a
+    gigabyte of log never sits in memory as text (issue 40, noticed)."""
+    rmc, gga = _Fixes(), _Fixes()
+    t0_rmc: datetime | None = None
     try:
-        lines = files.read_bytes(path, "nmea_log").decode(errors="replace").splitlines()
+        with files.opened(path, "nmea_log") as f:
+            for raw in files.text_lines(f, files.MAX_NMEA_LINE_BYTES):
+                msg = _sentence(raw)
+                if msg is None:
+                    continue
+                try:
+                    if isinstance(msg, pynmea2.types.talker.RMC):
+                        if msg.status == "A" and msg.datestamp and msg.timestamp:
+                            when = datetime.combine(msg.datestamp, msg.timestamp)
+                            la, lo = float(msg.latitude), float(msg.longitude)
+                            t0_rmc = when if t0_rmc is None else t0_rmc
+                            rmc.add((when - t0_rmc).total_seconds(), la, lo)
+                    elif (
+                        isinstance(msg, pynmea2.types.talker.GGA)
+                        and msg.gps_qual
+                        and int(msg.gps_qual) > 0
+                        and msg.timestamp
+                    ):
+                        ts = msg.timestamp
+                        sod = ts.hour * 3600 + ts.minute * 60 + ts.second + ts.microsecond / 1e6
+                        gga.add(sod, float(msg.latitude), float(msg.longitude))
+                except (TypeError, ValueError):
+                    continue
     except OSError as exc:
         raise LandmarkDbError(f"{path}: {exc.strerror}") from exc
-    for line in lines:
-        start = line.find("$")
-        if start < 0:
-            continue
-        try:
-            msg = pynmea2.parse(line[start:].strip(), check=True)
-        except (pynmea2.ParseError, ValueError, AttributeError):
-            continue
-        try:
-            if isinstance(msg, pynmea2.types.talker.RMC):
-                if msg.status == "A" and msg.datestamp and msg.timestamp:
-                    when = datetime.combine(msg.datestamp, msg.timestamp)
-                    rmc.append((when, float(msg.latitude), float(msg.longitude)))
-            elif (
-                isinstance(msg, pynmea2.types.talker.GGA)
-                and msg.gps_qual
-                and int(msg.gps_qual) > 0
-                and msg.timestamp
-            ):
-                ts = msg.timestamp
-                sod = ts.hour * 3600 + ts.minute * 60 + ts.second + ts.microsecond / 1e6
-                gga.append((sod, float(msg.latitude), float(msg.longitude)))
-        except (TypeError, ValueError):
-            continue
-    if rmc:
-        t0 = rmc[0][0]
-        rows = [((w - t0).total_seconds(), la, lo) for w, la, lo in rmc]
-    elif gga:
-        t0s = gga[0][0]
-        rows = [((s - t0s) % 86400.0, la, lo) for s, la, lo in gga]
+    if len(rmc.t):
+        t, lat, lon = rmc.arrays()
+    elif len(gga.t):
+        t, lat, lon = gga.arrays()
+        t = (t - t[0]) % 86400.0
     else:
         raise LandmarkDbError(f"{path}: no valid GPS fixes (RMC or GGA)")
-    arr = np.array(sorted(rows), dtype=np.float64)
-    return GpsTrack(arr[:, 0], arr[:, 1], arr[:, 2])
+    order = np.lexsort((lon, lat, t))  # by time (then position: the order sorted() gave)
+    return GpsTrack(t[order], lat[order], lon[order])
+
+
+class _Fixes:
+    """Fixes as three arrays of doubles."""
+
+    def __init__(self) -> None:
+        self.t, self.lat, self.lon = array("d"), array("d"), array("d")
+
+    def add(self, t_s: float, lat_deg: float, lon_deg: float) -> None:
+        self.t.append(t_s)
+        self.lat.append(lat_deg)
+        self.lon.append(lon_deg)
+
+    def arrays(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        t, lat, lon = (np.array(a, dtype=np.float64) for a in (self.t, self.lat, self.lon))
+        return t, lat, lon
+
+
+def _sentence(raw: bytes) -> pynmea2.NMEASentence | None:
+    """The NMEA sentence a log line holds from its first ``$`` (checksum checked), or None."""
+    line = raw.decode(errors="replace")
+    start = line.find("$")
+    if start < 0:
+        return None
+    try:
+        return pynmea2.parse(line[start:].strip(), check=True)
+    except (pynmea2.ParseError, ValueError, AttributeError):
+        return None
 
 
 def _opt_float(row: dict[str, str], *keys: str) -> float | None:

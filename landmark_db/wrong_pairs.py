@@ -20,6 +20,7 @@ from collections.abc import Iterable, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 
+import cv2
 import numpy as np
 
 from landmark_db.acceptance import CONDITIONS, IMAGE_EXTS, SAME_PLACE
@@ -74,12 +75,45 @@ def shared_images(images: Path | None, images2: Path | None) -> list[LabelledIma
     return out
 
 
+DEGRADATIONS = ("none", "dark3", "dark5", "blur")
+"""What ``degrade`` can do to a query (the camera's frame; the photos stay as they are)."""
+READ_NOISE_DN = 2.0
+"""Sensor noise added to a darkened frame (grey levels, 1-sigma)."""
+
+
+def degrade(image: np.ndarray, how: str, seed: int = 0) -> np.ndarray:
+    """A frame as a worse camera would take it (``DEGRADATIONS``):
+
+    * ``darkN``: underexposed by N stops, in linear light (sRGB decoded, scaled by 2^-N,
+      encoded again), with ``READ_NOISE_DN`` of sensor noise and 8-bit quantisation: dusk,
+      or a camera at a fixed exposure in the shade. 3 stops keep a bright facade near grey
+      level 90, 5 stops near 50.
+    * ``blur``: 21 px of horizontal motion blur and a 2 px Gaussian at the photo's own
+      resolution (a car passing at speed with a slow shutter).
+    """
+    if how == "none":
+        return image
+    if how.startswith("dark"):
+        stops = float(how[4:])
+        f = image.astype(np.float64) / 255.0
+        lin = np.where(f <= 0.04045, f / 12.92, ((f + 0.055) / 1.055) ** 2.4) * 2.0**-stops
+        out = np.where(lin <= 0.0031308, 12.92 * lin, 1.055 * lin ** (1 / 2.4) - 0.055)
+        noise = np.random.default_rng(seed).normal(0.0, READ_NOISE_DN, image.shape)
+        return np.clip(np.round(out * 255.0 + noise), 0, 255).astype(np.uint8)
+    if how == "blur":
+        kernel = np.full((1, 21), 1.0 / 21.0)
+        return cv2.GaussianBlur(cv2.filter2D(image, -1, kernel), (0, 0), 2.0)
+    raise ValueError(f"unknown degradation {how!r} (one of {', '.join(DEGRADATIONS)})")
+
+
 def score_pairs(
     images: Sequence[LabelledImage],
     match: MatchConfig | None = None,
     extractor: ExtractorConfig | None = None,
+    frames_as: str = "none",
 ) -> list[PairScore]:
-    """Every ordered pair of distinct files, scored by the shipped pairwise check."""
+    """Every ordered pair of distinct files, scored by the shipped pairwise check; the
+    queries (frames) taken as ``degrade(frames_as)`` makes them, the photos as they are."""
     ext = extractor or ExtractorConfig()
     frame_ext = ext.for_frames(FRAME_FEATURES)
     det, frame_det = ext.create(), frame_ext.create()
@@ -89,7 +123,7 @@ def score_pairs(
         img = decode_image(read_photo(im.path))
         pixels.append(hashlib.sha256(np.ascontiguousarray(img).tobytes()).hexdigest())
         photos.append(PhotoIndex(i, extract(img, ext, det), cfg.flann_checks, cfg.flann_trees))
-        frames.append(extract(img, frame_ext, frame_det))
+        frames.append(extract(degrade(img, frames_as, i), frame_ext, frame_det))
     matcher = PairMatcher(cfg)
     out = []
     for q, feats in enumerate(frames):

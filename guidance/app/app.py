@@ -18,7 +18,7 @@
 
 The simulation (``hal_sim.drive``) builds the same ``App`` around simulated devices and
 steps it in lockstep with the simulated world (``hal_sim.lockstep``: its clock is a stepped
-clock, and it wraps ``source_sink``); replay feeds the pipeline directly.
+clock, and it wraps the sources' sink: ``wrap_source_sink``); replay feeds the pipeline directly.
 """
 
 from __future__ import annotations
@@ -33,7 +33,7 @@ import time
 from collections import Counter, deque
 from collections.abc import AsyncIterator, Callable, Mapping, Sequence
 from functools import partial
-from typing import TYPE_CHECKING, Any, TypeAlias
+from typing import TYPE_CHECKING, Any, TypeAlias, TypeVar
 
 from guidance.app import ports
 from guidance.app.checkpoint import Checkpointer
@@ -63,6 +63,8 @@ if TYPE_CHECKING:  # the estimator stack (filterpy, scipy, numba) loads on first
     Source: TypeAlias = ports.Source[Message]
     """What every device source offers (``guidance.app.ports.Source``)."""
 
+W = TypeVar("W", bound="Callable[[Message], None]")
+"""A wrapper of the sources' sink (``App.wrap_source_sink``)."""
 log = logging.getLogger(__name__)
 
 LATENCY_SAMPLES = 100_000
@@ -126,9 +128,8 @@ class App:
         self.loop_lag_s: deque[float] = deque(maxlen=LATENCY_SAMPLES)
         self.stop_event = asyncio.Event()
         self._loop: asyncio.AbstractEventLoop | None = None
-        self.source_sink: Callable[[Message], None] = self.sink
-        """What the sources are started with: ``sink``, or a wrapper around it (the simulator's
-        ``hal_sim.lockstep.LockstepSink`` counts what passes, to step the world in lockstep)."""
+        self._source_sink: Callable[[Message], None] = self.sink
+        """What the sources are started with: ``sink``, or a wrapper (``wrap_source_sink``)."""
         self._submitted = 0
         self._processed = 0
         self._sub_lock = threading.Lock()
@@ -232,7 +233,7 @@ class App:
             frame = self._frame
         if frame is None:
             return
-        self.pipeline.health.observe("camera", frame.t_s)
+        self.pipeline.camera_seen(frame.t_s)
         self._frame_ready.set()
         if self.recorder is not None:
             self.recorder.record_camera(frame)
@@ -256,7 +257,7 @@ class App:
         p = self.pipeline
         context = NO_CONTEXT
         if out.state is not None:
-            context = OutputContext(speed_mps=p.st.speed_mps, target=p.target(),
+            context = OutputContext(speed_mps=p.estimate.speed_mps, target=p.target(),
                                     goal=p.navigator.goal, method=self.method,
                                     mode=p.navigator.mode, chance=out.chance)  # fmt: skip
         batch = [
@@ -272,11 +273,7 @@ class App:
             return
         inputs = self.pipeline.statuses(t_s)
         comps: dict[str, Health | Mapping[str, Any]] = {
-            "estimator": {
-                "healthy": self.pipeline.estimator.healthy,
-                "resets": self.pipeline.estimator.resets,
-                "rejections": dict(self.pipeline.estimator.rejections),
-            },
+            "estimator": self.pipeline.localizer.filter_health(),
             "loop": {
                 "lag_p99_s": _percentile(self._recent_lag(), 99),
                 "backlog": self._submitted - self._processed,
@@ -298,6 +295,15 @@ class App:
         if self.recorder is not None and not isinstance(msg, DeviceStatus):
             topic, body = to_record(msg)
             self.recorder.record(topic, msg.t_s, body)
+
+    def wrap_source_sink(self, wrap: Callable[[Callable[[Message], None]], W]) -> W:
+        """Start the sources with ``wrap(sink)`` instead of ``sink``, and return it: the hook the
+        app offers for the simulator's lockstep (``hal_sim.lockstep.LockstepSink`` counts what
+        passes). Only before ``running`` (a source already started keeps its sink)."""
+        if self._started_sources:
+            raise RuntimeError("the sources have started: their sink is set")
+        self._source_sink = wrap(self.sink)
+        return self._source_sink
 
     # -- running --------------------------------------------------------------------------------
     @contextlib.asynccontextmanager
@@ -325,7 +331,7 @@ class App:
                             src.set_status_sink(partial(self._device_status, name))
                         if isinstance(src, ports.BackPressured):
                             src.set_backlog(self.backlog)
-                        src.start(self.source_sink)
+                        src.start(self._source_sink)
                         self._started_sources.append(src)
                         log.info("started %s (%s)", name, getattr(src, "name", name))
                     if self.camera is not None:

@@ -204,8 +204,8 @@ def resume_car(
 
     done = resume_from_checkpoint(path, restore, expected=identity, policy=too_old)
     if done.resumed:
-        spread = pipeline.st.speed_mps * age_s
-        pipeline.estimator.inflate_position(spread)
+        spread = pipeline.estimate.speed_mps * age_s
+        pipeline.localizer.widen(spread)
         log.warning(
             "resumed from checkpoint %s written %.1f s ago; position widened by %.0f m",
             path,

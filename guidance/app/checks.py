@@ -140,6 +140,10 @@ def start_problems(config_path: str | Path, cfg: AppConfig) -> tuple[list[str], 
         for key, name in files:
             if name and not Path(name).is_file():
                 errors.append(f"[telemetry] {key} {name}: no such file")
+        if not errors:
+            from guidance.telemetry.example_passwords import example_password_problem
+
+            warnings += filter(None, [example_password_problem(tel.zenoh_config)])
         if tel.allow_remote_goal and not errors:
             from guidance.telemetry.session import remote_goal_problem
 

@@ -19,7 +19,7 @@ import math
 import tomllib
 import types
 from collections.abc import Mapping
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any
 
@@ -27,24 +27,28 @@ from guidance import files
 from guidance.app.backends import BACKENDS, import_backend
 from guidance.app.landmarks import LandmarkSettings, parse_landmarks_table
 from guidance.app.settings import (
-    HEALTH_RULES,
     CheckpointSettings,
+    DeviceSettings,
+    EstimatorSettings,
+    LandmarkPlace,
     LoopSettings,
-    NavigationSettings,
+    Place,
     SceneSettings,
+    StartSettings,
     VehicleSettings,
     VoiceSettings,
     read_scene,
 )
-from guidance.app.tables import _check_document, _Table
-from guidance.config_tables import field_default, from_table, key_name
-from guidance.core.geo import Origin
+from guidance.app.tables import check_document
+from guidance.config_tables import Rule, field_default, file_keys, from_table, names_where
+from guidance.core.geo import LatLon, Origin
 from guidance.core.health import HealthConfig
 from guidance.core.localize.car_model import car_model
 from guidance.core.localize.estimator import EstimatorConfig
+from guidance.core.localize.gyro import GyroConfig
 from guidance.core.pipeline import PipelineConfig
 from guidance.core.plan.chance import ChanceSettings
-from guidance.core.plan.navigator import Landmark
+from guidance.core.plan.navigator import Landmark, NavigatorConfig
 from guidance.errors import UserError
 from guidance.recording.config import RecordingConfig
 from guidance.telemetry.config import Ros2Config, TelemetryConfig
@@ -122,88 +126,176 @@ def _device(
     default_backend: str,
     default_enabled: bool = True,
 ) -> DeviceConfig | None:
-    """A device table: ``backend``, ``enabled``, ``expected_rate_hz``, then the driver's keys
-    (its config dataclass, read by ``from_table``)."""
-    t = _Table(kind, data)
-    if not t.boolean("enabled", default_enabled):
-        t.used.update(t.data)
+    """A device table: ``DeviceSettings`` (``backend``, ``enabled``, ``expected_rate_hz``),
+    then the driver's keys (its config dataclass, read by ``from_table``). A disabled device's
+    other keys are not read."""
+    if not isinstance(data, Mapping):
+        raise UserError(f"[{kind}] must be a table")
+    common = {k: v for k, v in data.items() if k in _DEVICE_KEYS}
+    base = DeviceSettings(default_enabled, default_backend, DEFAULT_RATES_HZ[kind])
+    enabled = {k: v for k, v in common.items() if k == "enabled"}
+    if not from_table(DeviceSettings, enabled, kind, base=base).enabled:
         return None
-    backend = t.string("backend", default_backend, tuple(BACKENDS[kind]))
-    rate = t.number("expected_rate_hz", DEFAULT_RATES_HZ[kind], positive=True)
-    _, cfg_path = BACKENDS[kind][backend]
+    backends = {"backend": Rule(choices=tuple(BACKENDS[kind]))}
+    dev = from_table(DeviceSettings, common, kind, base=base, rules=backends)
+    _, cfg_path = BACKENDS[kind][dev.backend]
     cfg_cls = import_backend(cfg_path)
     fields = {f.name for f in dataclasses.fields(cfg_cls)}
-    app_keys = {"enabled", "backend", "expected_rate_hz"} | _APP_DEVICE_KEYS.get(kind, set())
-    own = {k: v for k, v in t.data.items() if k not in app_keys}
+    app_keys = _DEVICE_KEYS | _APP_DEVICE_KEYS.get(kind, set())
+    own = {k: v for k, v in data.items() if k not in app_keys}
     for key in own:
         if key not in fields:
             raise UserError(
-                f"[{kind}] unknown key {key!r} for backend {backend!r}; "
+                f"[{kind}] unknown key {key!r} for backend {dev.backend!r}; "
                 f"known: {', '.join(sorted(fields | app_keys))}"
             )
-    return DeviceConfig(kind, backend, from_table(cfg_cls, own, kind, base_dir), rate)
+    cfg = from_table(cfg_cls, own, kind, base_dir)
+    return DeviceConfig(kind, dev.backend, cfg, dev.expected_rate_hz)
 
 
-_APP_DEVICE_KEYS = {
-    "compass": {
-        "mounting_offset_deg",
-        "declination_deg",
-        "date",
-        "deviation_deg",
-        "unusable_after_s",
-    }
-}
+_DEVICE_KEYS = set(file_keys(DeviceSettings))
+_COMPASS_KEYS = set(file_keys(PipelineConfig, "compass"))
+"""``[compass]``'s keys for the pipeline (``PipelineConfig``'s fields the rule puts there)."""
+_APP_DEVICE_KEYS = {"compass": {*_COMPASS_KEYS, "date"}}
 
 
-def _point(
-    t: _Table, origin: tuple[float, float] | None
-) -> tuple[tuple[float, float], tuple[float, float] | None]:
-    """Local (x, y) of a [start]/[goal] table and its (lat, lon) when given."""
-    has_geo = t.has("lat_deg") or t.has("lon_deg")
-    has_xy = t.has("x_m") or t.has("y_m")
-    if has_geo and has_xy:
-        raise UserError(f"[{t.name}] give lat_deg/lon_deg or x_m/y_m, not both")
-    if has_geo:
-        lat = t.req_number("lat_deg", lo=-90.0, hi=90.0)
-        lon = t.req_number("lon_deg", lo=-180.0, hi=180.0)
-        if origin is None:
-            return (0.0, 0.0), (lat, lon)
-        return Origin.of(origin).to_local(lat, lon), (lat, lon)
-    x = t.number("x_m", 0.0)
-    y = t.number("y_m", 0.0)
-    assert x is not None and y is not None
-    if t.name == "goal" and not has_xy:
+def _place(data: object, where: str, origin: LatLon | None, cls: type[Place] = Place) -> Any:
+    """A ``[start]``/``[goal]``/``[[landmarks]]`` table and its local (x, y): from latitude
+    and longitude around ``origin`` (none yet: the place is the origin), or local metres."""
+    p = from_table(cls, data, where)
+    if p.geodetic and p.local:
+        raise UserError(f"[{where}] give lat_deg/lon_deg or x_m/y_m, not both")
+    if where == "goal" and not (p.geodetic or p.local):
         raise UserError("[goal] needs lat_deg/lon_deg or x_m/y_m")
-    return (x, y), None
+    if not p.geodetic:
+        return p, (p.x_m or 0.0, p.y_m or 0.0)
+    lat, lon = p.lat_deg, p.lon_deg
+    if lat is None or lon is None:
+        raise UserError(f"[{where}] {'lat_deg' if lat is None else 'lon_deg'} is required")
+    return p, (0.0, 0.0) if origin is None else Origin.of(origin).to_local(lat, lon)
 
 
-CAR_KEYS = (
-    "wheel_walk_var_m2_per_m",
-    "scale_sigma",
-    "diff_sigma",
-    "diff_walk_var_per_m",
-    "camber_diff_sigma",
-    "camber_length_m",
-    "turn_scale_sigma",
-    "compass_bias_sigma_deg",
-    "compass_bias_walk_deg2_per_s",
-    "compass_bias_turn_deg2_per_rad",
-    "heading_second_order",
-)
-"""The car model's settings in ``[estimator]`` (docs/estimation.md)."""
+@dataclass(frozen=True, slots=True)
+class _Trip:
+    start: StartSettings
+    start_xy: tuple[float, float]
+    goal_xy: tuple[float, float]
+    origin: LatLon | None
+    """The local frame's WGS-84 origin: the start's latitude and longitude (start anywhere:
+    the goal's)."""
+    unknown: bool
+    """Start anywhere: the car starts unplaced, waiting at the goal for its first landmark."""
 
 
-def _deviation(value: object) -> tuple[float, ...]:
+def _trip(data: Mapping[str, Any], require_goal: bool) -> _Trip:
+    """``[start]`` and ``[goal]``. A ``[start]`` with no position (``unknown = true``, or none
+    and a goal on the globe, whose place is then the frame's origin) starts the car unplaced."""
+    start, start_xy = _place(data.get("start", {}), "start", None, StartSettings)
+    placed = start.geodetic or start.local
+    if start.unknown and placed:
+        raise UserError("[start] unknown = true and a position: give one or the other")
+    origin, unknown = _lat_lon(start), start.unknown
+    if "goal" not in data and require_goal:
+        raise UserError("[goal] is required (lat_deg/lon_deg or x_m/y_m)")
+    goal_xy = (0.0, 0.0)
+    if "goal" in data:
+        goal, goal_xy = _place(data["goal"], "goal", origin)
+        if not placed and origin is None and goal.geodetic:
+            origin, unknown = _lat_lon(goal), True  # start anywhere: the frame is the goal's
+    return _Trip(start, goal_xy if unknown else start_xy, goal_xy, origin, unknown)
+
+
+def _lat_lon(p: Place) -> LatLon | None:
+    return None if p.lat_deg is None or p.lon_deg is None else (p.lat_deg, p.lon_deg)
+
+
+def _relocalise(
+    trip: _Trip, camera: DeviceConfig | None, landmark_db: LandmarkSettings | None
+) -> bool:
+    """A car with a camera and a landmark database finds itself again when lost; a car that
+    starts unplaced must."""
+    relocalise = camera is not None and landmark_db is not None
+    if trip.unknown and not relocalise:
+        raise UserError(
+            "[start] gives no position, so the car must find itself: that needs a camera "
+            "([camera] enabled = true) and a landmark database ([landmarks] database = ...)"
+        )
+    return relocalise
+
+
+def _estimator(
+    data: object, track_m: float, *, compass: bool, calibrated: bool, gyro: bool = False
+) -> EstimatorConfig:
+    """``[estimator]``: ``EstimatorConfig``'s offered fields by their rules, ``model`` (car or
+    paper) and ``compass_two_sigma_deg = false`` (no compass). The car model's defaults come
+    first (``car_model``), then the table's car keys and ``initial_position_sigma_m``; its
+    ``wheel_quantum_m`` and ``wheel_slip_frac`` apply to the paper model only (the car model
+    has neither: speeds on CAN are not counts). A car key needs ``model = "car"``."""
+    if not isinstance(data, Mapping):
+        raise UserError("[estimator] must be a table")
+    table = {k: v for k, v in data.items() if k != "model"}
+    picked = {k: v for k, v in data.items() if k == "model"}
+    model = from_table(EstimatorSettings, picked, "estimator", others=tuple(table)).model
+    if table.get("compass_two_sigma_deg") is False:
+        table["compass_two_sigma_deg"] = None
+    given = from_table(EstimatorConfig, table, "estimator", others=("model",))
+    user = {k: getattr(given, k) for k in table}
+    car = set(names_where(EstimatorConfig, group="car"))
+    for key in sorted(car & set(user)) if model != "car" else ():
+        raise UserError(f'[estimator] {key} needs model = "car"')
+    sigma = user.pop("compass_two_sigma_deg", given.compass_two_sigma_deg)
+    sigma = sigma if compass else None
+    paper = {k: v for k, v in user.items() if k not in car}
+    base = replace(EstimatorConfig(), **paper, track_m=track_m, compass_two_sigma_deg=sigma)
+    if model != "car":
+        if gyro:
+            raise UserError('[vehicle] yaw_source = "gyro" needs [estimator] model = "car"')
+        return base
+    overrides = {k: v for k, v in user.items() if k in car or k == "initial_position_sigma_m"}
+    est = car_model(base, calibrated=calibrated, **overrides)
+    return replace(est, gyro=GyroConfig()) if gyro else est  # [vehicle] yaw_source = "gyro"
+
+
+def _compass(
+    pipeline: PipelineConfig,
+    data: object,
+    compass: DeviceConfig | None,
+    origin: LatLon | None,
+    default_date: dt.date | None,
+) -> PipelineConfig:
+    """``[compass]``'s keys for the pipeline (mounting, declination, the deviation card, when
+    it is unusable) by ``PipelineConfig``'s rules; the declination from the World Magnetic
+    Model at the start and ``date`` when not given."""
+    table = data if isinstance(data, Mapping) else {}
+    mine = {k: v for k, v in table.items() if k in _COMPASS_KEYS}
+    out = from_table(PipelineConfig, mine, "compass", part="compass", base=pipeline)
+    if "deviation_deg" in mine:
+        out = replace(out, compass_deviation_deg=_deviation(out.compass_deviation_deg))
+    given = table.get("date")
+    when = default_date if given is None and default_date else _date(given, "[compass] date")
+    if "declination_deg" in mine:
+        return out
+    if compass is not None and origin is None:
+        raise UserError(
+            "[compass] declination_deg is required when [start] has no lat_deg/lon_deg "
+            "(the World Magnetic Model needs the place)"
+        )
+    if origin is None:
+        return out
+    from guidance.app.magnetic import declination_deg
+
+    return replace(out, declination_deg=declination_deg(origin[0], origin[1], when))
+
+
+def _deviation(card: tuple[float, ...]) -> tuple[float, ...]:
     """``[compass] deviation_deg = [A, B, C, D, E]`` (``guidance calibrate`` writes it)."""
-    if value is None:
-        return ()
     from guidance.core.localize.compass_cal import CompassCalibration
 
-    if not isinstance(value, list) or len(value) != 5:
+    if len(card) != 5:
         raise UserError("[compass] deviation_deg must be a list of 5 numbers [A, B, C, D, E]")
     keys = ("a_deg", "b_deg", "c_deg", "d_deg", "e_deg")
     try:
-        cal = CompassCalibration.from_mapping(dict(zip(keys, value, strict=True)))
+        cal = CompassCalibration.from_mapping(dict(zip(keys, card, strict=True)))
     except (TypeError, ValueError) as exc:
         raise UserError(f"[compass] deviation_deg: {exc}") from None
     return (cal.a_deg, cal.b_deg, cal.c_deg, cal.d_deg, cal.e_deg)
@@ -218,6 +310,17 @@ def profile_track_m(profile: str) -> float:
         )
     get_profile = import_backend("drivers.profiles:get_profile")
     return float(get_profile(profile).track_width_m)
+
+
+def _track_m(vehicle: VehicleSettings, odometry: DeviceConfig | None) -> float:
+    """``[vehicle] track_m``, else the ``[odometry] profile``'s (issue 12), else the default."""
+    if vehicle.track_m is not None:
+        return vehicle.track_m
+    profile = getattr(odometry.config, "profile", None) if odometry else None
+    return profile_track_m(profile) if isinstance(profile, str) else _DEFAULT_TRACK_M
+
+
+_DEFAULT_TRACK_M: float = field_default(EstimatorConfig, "track_m")
 
 
 def _date(value: object, where: str) -> dt.date:
@@ -270,207 +373,119 @@ def parse_config(
 
     ``require_goal=False`` (the simulator, which draws its own goal) allows no ``[goal]``.
     """
-    _check_document(data)
-    unknown = sorted(set(data) - set(TABLES))
-    if unknown:
-        raise UserError(f"unknown table(s): {', '.join(f'[{key_name(u)}]' for u in unknown)}")
-
-    vehicle = from_table(VehicleSettings, data.get("vehicle", {}), "vehicle")
-    vehicle_id, track = vehicle.id, vehicle.track_m
-    try:
-        validate_vehicle_id(vehicle_id)
-    except UserError as exc:
-        raise UserError(f"[vehicle] id: {exc}") from None
-
-    start = _Table("start", data.get("start", {}))
-    (sx, sy), origin = _point(start, None)
-    start_heading = start.number("heading_deg", None, lo=0.0, hi=360.0)
-    """True heading, degrees clockwise from north (None: from the first compass reading)."""
-    start.done()
-
-    if "goal" not in data and require_goal:
-        raise UserError("[goal] is required (lat_deg/lon_deg or x_m/y_m)")
-    gx = gy = 0.0
-    if "goal" in data:
-        goal_t = _Table("goal", data["goal"])
-        (gx, gy), _ = _point(goal_t, origin)
-        goal_t.done()
-
-    nav = from_table(NavigationSettings, data.get("navigation", {}), "navigation")
-
-    est = _Table("estimator", data.get("estimator", {}))
-    compass_sigma: float | None
-    default_sigma = field_default(EstimatorConfig, "compass_two_sigma_deg")
-    if est.get("compass_two_sigma_deg", default_sigma) is False:
-        compass_sigma = None
-    else:
-        compass_sigma = est.number("compass_two_sigma_deg", default_sigma, positive=True)
-    noise_model = est.string("model", "car", ("car", "paper"))
-    est_kwargs: dict[str, Any] = {"compass_two_sigma_deg": compass_sigma}
-    for key in (
-        "wheel_quantum_m",
-        "wheel_slip_frac",
-        "lost_major_axis_m",
-        "initial_position_sigma_m",
-        "initial_heading_sigma_deg",
-        "max_wheel_step_m",
-    ):
-        if est.has(key):
-            est_kwargs[key] = est.number(key, positive=True)
-    car_overrides: dict[str, float] = {}
-    if noise_model == "car" and "initial_position_sigma_m" in est_kwargs:
-        car_overrides["initial_position_sigma_m"] = est_kwargs["initial_position_sigma_m"]
-    for key in CAR_KEYS:
-        if est.has(key):
-            if noise_model != "car":
-                raise UserError(f'[estimator] {key} needs model = "car"')
-            car_overrides[key] = est.number(key, lo=0.0) or 0.0
-    est.done()
-
-    odometry = _device("odometry", data.get("odometry", {}), base_dir, default_backend="can")
-    compass_table = data.get("compass", {})
-    compass = _device("compass", compass_table, base_dir, default_backend="nmea_serial")
-    if compass is None:
-        compass_sigma = None
-        est_kwargs["compass_two_sigma_deg"] = None
-    ct = _Table("compass", compass_table)
-    mounting = ct.number("mounting_offset_deg", 0.0, lo=-180.0, hi=180.0) or 0.0
-    declination = ct.number("declination_deg", None, lo=-180.0, hi=180.0)
-    deviation = _deviation(ct.get("deviation_deg"))
-    unusable_default = field_default(PipelineConfig, "compass_unusable_after_s")
-    unusable_after = ct.number("unusable_after_s", unusable_default, positive=True)
-    when = (
-        default_date
-        if ct.get("date") is None and default_date
-        else _date(ct.get("date"), "[compass] date")
+    check_document(data, TABLES)
+    t = {name: data.get(name, {}) for name in TABLES}
+    vehicle = from_table(VehicleSettings, t["vehicle"], "vehicle")
+    trip = _trip(data, require_goal)
+    origin = trip.origin
+    nav_keys = file_keys(PipelineConfig, "navigation")
+    navigator = from_table(NavigatorConfig, t["navigation"], "navigation", others=nav_keys)
+    odometry = _device("odometry", t["odometry"], base_dir, default_backend="can")
+    compass = _device("compass", t["compass"], base_dir, default_backend="nmea_serial")
+    camera = _device("camera", t["camera"], base_dir, default_backend="opencv",
+                     default_enabled=False)  # fmt: skip
+    devices = {"odometry": odometry, "compass": compass, "camera": camera}
+    loop = from_table(LoopSettings, t["loop"], "loop")
+    landmark_db, landmarks = _landmarks(data.get("landmarks", []), origin, base_dir)
+    pipeline = PipelineConfig(
+        estimator=EstimatorConfig(),
+        navigator=navigator,
+        start_xy_m=trip.start_xy,
+        goal_xy_m=trip.goal_xy,
+        start_heading_rad=_heading_rad(trip.start.heading_deg),
+        landmarks=landmarks,
+        state_period_s=1.0 / loop.state_rate_hz,
+        expected_rates_hz={k: d.expected_rate_hz for k, d in devices.items() if d is not None},
+        health=from_table(HealthConfig, t["health"], "health"),
+        chance=from_table(ChanceSettings, t["chance"], "chance"),
+        relocalise=_relocalise(trip, camera, landmark_db),
+        start_unknown=trip.unknown,
     )
-    if declination is None:
-        if compass is not None and origin is None:
-            raise UserError(
-                "[compass] declination_deg is required when [start] has no lat_deg/lon_deg "
-                "(the World Magnetic Model needs the place)"
-            )
-        if origin is not None:
-            from guidance.app.magnetic import declination_deg
-
-            declination = declination_deg(origin[0], origin[1], when)
-    if (compass is None or compass_sigma is None) and start_heading is None:
+    pipeline = from_table(PipelineConfig, t["navigation"], "navigation", part="navigation",
+                          others=file_keys(NavigatorConfig), base=pipeline)  # fmt: skip
+    pipeline = _compass(pipeline, t["compass"], compass, origin, default_date)
+    calibrated = bool(any(pipeline.compass_deviation_deg) or pipeline.mounting_offset_deg)
+    estimator = _estimator(t["estimator"], _track_m(vehicle, odometry), compass=compass is not None,
+                           calibrated=calibrated, gyro=vehicle.yaw_source == "gyro")  # fmt: skip
+    if estimator.compass_two_sigma_deg is None and trip.start.heading_deg is None:
         raise UserError(
             "[start] heading_deg is required when there is no compass (or "
             "compass_two_sigma_deg = false): the heading could never become known"
         )
-    camera = _device("camera", data.get("camera", {}), base_dir, default_backend="opencv",
-                     default_enabled=False)  # fmt: skip
-
-    scene = read_scene(data.get("scene", {}), base_dir)
-
-    voice = from_table(VoiceSettings, data.get("voice", {}), "voice", base_dir)
-    if voice.backend == "wav" and not voice.wav_path:
-        raise UserError("[voice] wav_path is required with backend = 'wav'")
-    health = from_table(HealthConfig, data.get("health", {}), "health", rules=HEALTH_RULES)
-    loop = from_table(LoopSettings, data.get("loop", {}), "loop")
-    chance = from_table(ChanceSettings, data.get("chance", {}), "chance")
-    checkpoint = from_table(CheckpointSettings, data.get("checkpoint", {}), "checkpoint", base_dir)
-
-    # [telemetry] and [recording]: vehicle_id defaults to [vehicle] id; the origin is [start]'s.
-    telemetry = from_table(
-        TelemetryConfig,
-        data.get("telemetry", {}),
-        "telemetry",
-        base_dir,
-        base=TelemetryConfig(vehicle_id=vehicle_id, origin_lat_lon_deg=origin),
-    )
-    recording = from_table(
-        RecordingConfig,
-        data.get("recording", {}),
-        "recording",
-        base_dir,
-        base=RecordingConfig(vehicle_id=vehicle_id, origin_lat_lon_deg=origin),
-    )
-
-    landmark_db = None
-    if isinstance(data.get("landmarks"), Mapping):  # [landmarks]: a database and its matcher
-        landmark_db = parse_landmarks_table(data["landmarks"], base_dir)
-        landmarks: tuple[Landmark, ...] = ()  # read from the database when the car starts
-    else:  # [[landmarks]]: positions only
-        landmarks = _landmarks(data.get("landmarks", []), origin)
-
-    rates: dict[str, float | None] = {}
-    if odometry is not None:
-        rates["odometry"] = odometry.expected_rate_hz
-    if compass is not None:
-        rates["compass"] = compass.expected_rate_hz
-    if camera is not None:
-        rates["camera"] = camera.expected_rate_hz
-    profile_name = getattr(odometry.config, "profile", None) if odometry else None
-    if track is None:  # the vehicle profile knows the car's track (issue 12)
-        track = profile_track_m(profile_name) if isinstance(profile_name, str) else 1.72
-    est_kwargs["track_m"] = track
-    est_config = EstimatorConfig(**est_kwargs)
-    if noise_model == "car":
-        calibrated = bool(any(deviation) or mounting)
-        est_config = car_model(est_config, calibrated=calibrated, **car_overrides)
-    pipeline = PipelineConfig(
-        estimator=est_config,
-        navigator=nav.navigator(),
-        start_xy_m=(sx, sy),
-        goal_xy_m=(gx, gy),
-        start_heading_rad=(None if start_heading is None else math.radians(90.0 - start_heading)),
-        landmarks=landmarks,
-        declination_deg=declination or 0.0,
-        mounting_offset_deg=mounting,
-        compass_deviation_deg=deviation,
-        compass_unusable_after_s=unusable_after or unusable_default,
-        units=nav.units,
-        state_period_s=1.0 / loop.state_rate_hz,
-        expected_rates_hz=rates,
-        health=health,
-        straight_after_m=nav.straight_after_m,
-        uncertain_warn_m=nav.uncertain_warn_m,
-        stop_at_arrival=nav.stop_at_arrival,
-        chance=chance,
-    )
-    sim = data.get("sim", {})
-    if not isinstance(sim, Mapping):
-        raise UserError("[sim] must be a table")
     return AppConfig(
         path=path,
-        vehicle_id=vehicle_id,
-        pipeline=pipeline,
+        vehicle_id=_vehicle_id(vehicle),
+        pipeline=replace(pipeline, estimator=estimator),
         origin_lat_lon_deg=origin,
         odometry=odometry,
         compass=compass,
         camera=camera,
-        scene=scene,
-        voice=voice,
-        telemetry=telemetry,
-        recording=recording,
-        checkpoint=checkpoint,
+        scene=read_scene(t["scene"], base_dir),
+        voice=from_table(VoiceSettings, t["voice"], "voice", base_dir),
+        telemetry=_output(TelemetryConfig, t["telemetry"], "telemetry", base_dir, vehicle, origin),
+        recording=_output(RecordingConfig, t["recording"], "recording", base_dir, vehicle, origin),
+        checkpoint=from_table(CheckpointSettings, t["checkpoint"], "checkpoint", base_dir),
         loop=loop,
-        sim=types.MappingProxyType(dict(sim)),
+        sim=_sim(t["sim"]),
         landmark_db=landmark_db,
-        ros2=from_table(Ros2Config, data.get("ros2", {}), "ros2"),
+        ros2=from_table(Ros2Config, t["ros2"], "ros2"),
     )
 
 
-def _landmarks(items: object, origin: tuple[float, float] | None) -> tuple[Landmark, ...]:
-    """``[[landmarks]]`` entries: id, name, and lat_deg/lon_deg or x_m/y_m."""
-    if not isinstance(items, list):
+def _heading_rad(heading_deg: float | None) -> float | None:
+    """A true heading (degrees clockwise from north) as the local frame's angle."""
+    return None if heading_deg is None else math.radians(90.0 - heading_deg)
+
+
+def _vehicle_id(vehicle: VehicleSettings) -> str:
+    try:
+        validate_vehicle_id(vehicle.id)
+    except UserError as exc:
+        raise UserError(f"[vehicle] id: {exc}") from None
+    return vehicle.id
+
+
+def _output(
+    cls: Any, data: object, where: str, base_dir: Path | None, vehicle: VehicleSettings,
+    origin: LatLon | None,
+) -> Any:  # fmt: skip
+    """``[telemetry]``/``[recording]``: ``vehicle_id`` defaults to ``[vehicle] id``, the origin
+    is ``[start]``'s."""
+    base = cls(vehicle_id=vehicle.id, origin_lat_lon_deg=origin)
+    return from_table(cls, data, where, base_dir, base=base)
+
+
+def _sim(data: object) -> Mapping[str, Any]:
+    """``[sim]``: read by ``guidance sim`` only (``hal_sim.drive_options``)."""
+    if not isinstance(data, Mapping):
+        raise UserError("[sim] must be a table")
+    return types.MappingProxyType(dict(data))
+
+
+def _landmarks(
+    data: object, origin: LatLon | None, base_dir: Path | None
+) -> tuple[LandmarkSettings | None, tuple[Landmark, ...]]:
+    """``[landmarks]`` (a database and its matcher; its landmarks are read when the car
+    starts) or ``[[landmarks]]`` (positions only: id, name, and lat_deg/lon_deg or x_m/y_m)."""
+    if isinstance(data, Mapping):
+        return parse_landmarks_table(data, base_dir), ()
+    if not isinstance(data, list):
         raise UserError("[[landmarks]] must be an array of tables")
     out = []
     seen: set[int] = set()
-    for i, item in enumerate(items):
-        t = _Table(f"landmarks.{i}", item)
-        lid = t.get("id", i)
+    for i, item in enumerate(data):
+        where = f"landmarks.{i}"
+        if not isinstance(item, Mapping):
+            raise UserError(f"[{where}] must be a table")
+        lid = item.get("id", i)
         if not isinstance(lid, int) or isinstance(lid, bool) or lid in seen:
-            raise UserError(f"[landmarks.{i}] id must be a unique integer, not {lid!r}")
+            raise UserError(f"[{where}] id must be a unique integer, not {lid!r}")
         seen.add(lid)
-        name = t.string("name", "")
-        if (t.has("lat_deg") or t.has("lon_deg")) and origin is None:
-            raise UserError(f"[landmarks.{i}] lat_deg/lon_deg need [start] lat_deg/lon_deg")
-        if not (t.has("lat_deg") or t.has("lon_deg")) and not (t.has("x_m") and t.has("y_m")):
-            raise UserError(f"[landmarks.{i}] needs a position: lat_deg/lon_deg or x_m and y_m")
-        (x, y), _ = _point(t, origin)
-        t.done()
-        out.append(Landmark(lid, x, y, name))
-    return tuple(out)
+        geodetic = "lat_deg" in item or "lon_deg" in item
+        if geodetic and origin is None:
+            raise UserError(f"[{where}] lat_deg/lon_deg need [start] lat_deg/lon_deg")
+        if not geodetic and not ("x_m" in item and "y_m" in item):
+            raise UserError(f"[{where}] needs a position: lat_deg/lon_deg or x_m and y_m")
+        p, (x, y) = _place(item, where, origin, LandmarkPlace)
+        out.append(Landmark(lid, x, y, p.name))
+    return None, tuple(out)

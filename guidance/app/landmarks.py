@@ -130,4 +130,16 @@ def landmark_warnings(cfg: Any) -> list[str]:
             "[camera] is enabled but there is no [landmarks] database: its frames can never "
             "produce a landmark fix"
         )
+    if cfg.landmark_db is not None and cfg.camera is not None:
+        from guidance.core.messages import reset_sigma_m
+
+        across = 4.0 * reset_sigma_m(cfg.landmark_db.sighting_range_m, 0.0)
+        lost = cfg.pipeline.estimator.lost_major_axis_m
+        if across >= lost:  # the places' own survey sigma comes on top
+            out.append(
+                f"[landmarks] sighting_range_m = {cfg.landmark_db.sighting_range_m:g}: a place "
+                f"found while lost leaves the position {across:.0f} m across, over [estimator] "
+                f"lost_major_axis_m = {lost:g}, so a lost car can never find itself again; "
+                f"keep it below {lost / 4.0:g} m less the places' survey sigma"
+            )
     return out

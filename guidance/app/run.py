@@ -21,6 +21,7 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Any, TextIO
 
 from guidance.app.app import GIL_SWITCH_INTERVAL_S, App
+from guidance.app.backends import import_backend
 from guidance.app.build import OutputSettings, open_outputs, session_record, start_checkpoints
 from guidance.app.landmarks import landmark_warnings, open_landmarks
 from guidance.app.operator_session import SCREEN_MODES, OperatorSession
@@ -38,15 +39,10 @@ log = logging.getLogger(__name__)
 DeviceRunner = Callable[..., int]
 """``runner(config_path, *, as_json, screen)``: ``guidance run`` on devices the product does
 not build itself; ``screen`` is the ``--screen`` mode (``SCREEN_MODES``), "off" with
-``as_json`` (the prompts and the result as JSON, no operator screen)."""
-DEVICE_RUNNERS: dict[str, DeviceRunner] = {}
-"""Registered by whoever provides them (``register_device_runner``): the simulator registers
-"sim" for a config whose ``[sim]`` table says ``devices = true``, so ``guidance`` itself never
-names the simulator's package (ARCHITECTURE.md: the product does not import the simulator)."""
-
-
-def register_device_runner(name: str, runner: DeviceRunner) -> None:
-    DEVICE_RUNNERS[name] = runner
+``as_json`` (the prompts and the result as JSON, no operator screen). The ``guidance`` command
+names them in its table (``guidance.tools.cli.DEVICE_RUNNERS``: "sim" for a config whose
+``[sim]`` table says ``devices = true``), so the product never names the simulator's package
+(ARCHITECTURE.md: the product does not import the simulator)."""
 
 
 def stdin_problem(stream: TextIO | None) -> str:
@@ -96,6 +92,11 @@ async def run_car(
     from guidance.core.messages import GoalUpdate
 
     cfg = load_config(config_path)
+    if cfg.pipeline.estimator.gyro is not None:  # issue 38: replay only so far
+        raise UserError(
+            '[vehicle] yaw_source = "gyro": the in-car CAN driver does not deliver the yaw rate '
+            'yet (guidance replay does, from a CAN log or a speed and yaw-rate CSV); use "wheels"'
+        )
     sys.setswitchinterval(GIL_SWITCH_INTERVAL_S)
     pipeline, recogniser = await build_pipeline(cfg)
     checkpointer = start_checkpoints(
@@ -111,7 +112,7 @@ async def run_car(
         cfg, pipeline, resumed=checkpointer is not None and checkpointer.resumed
     )
     session = OperatorSession(cfg, pipeline, screen=screen, stream=stdout)
-    sources, camera = build_devices(cfg, session, lambda: pipeline.estimator.heading_rad)
+    sources, camera = build_devices(cfg, session, lambda: pipeline.estimate.heading_rad)
     no_input = co_driver_problem(cfg.scene, sys.stdin)
     settings = output_settings(cfg, pipeline)
     stop = asyncio.Event()
@@ -259,10 +260,10 @@ def _start_learned(cfg: Any, pipeline: Any, *, resumed: bool) -> Any:
         return None
     if resumed:  # the state carries what was learned; the file keeps its distance counter
         return counter_after_resume(
-            Path(cfg.checkpoint.learned_path), cfg.vehicle_id, pipeline.st.odometer_m
+            Path(cfg.checkpoint.learned_path), cfg.vehicle_id, pipeline.estimate.odometer_m
         )
     used, note = start_from_learned(
-        pipeline.estimator, Path(cfg.checkpoint.learned_path), cfg.vehicle_id, time.time()
+        pipeline.localizer.estimator, Path(cfg.checkpoint.learned_path), cfg.vehicle_id, time.time()
     )
     (log.info if used is not None else log.warning)("%s", note)
     return used
@@ -274,7 +275,6 @@ async def _keep_learned(
     """Every ``[checkpoint] learned_interval_s`` while the car drives (and holds the file's
     lock): what it has learned so far (taken on the loop, written off it: the write fsyncs)."""
     from guidance.app.learned_file import save_learned
-    from guidance.core.localize.learned import LearnedParams
 
     if not cfg.checkpoint.learned_path or not held:
         return
@@ -287,8 +287,8 @@ async def _keep_learned(
             return  # the clean stop saves
         except TimeoutError:
             pass
-        params = LearnedParams.from_estimator(
-            pipeline.estimator, cfg.vehicle_id, time.time(), pipeline.st.odometer_m, before
+        params = pipeline.localizer.learned(
+            cfg.vehicle_id, time.time(), pipeline.estimate.odometer_m, before
         )
         if params is None:
             return  # the paper model learns nothing
@@ -306,13 +306,16 @@ async def _keep_learned(
 
 def _save_learned(cfg: Any, pipeline: Any, before: Any) -> None:
     """At a clean stop: what this drive taught the car, for the next one."""
-    from guidance.app.learned_file import save_after
+    from guidance.app.learned_file import save_learned
 
     if not cfg.checkpoint.learned_path:
         return
     try:
-        save_after(pipeline.estimator, Path(cfg.checkpoint.learned_path), cfg.vehicle_id,
-                   time.time(), pipeline.st.odometer_m, before)  # fmt: skip
+        params = pipeline.localizer.learned(
+            cfg.vehicle_id, time.time(), pipeline.estimate.odometer_m, before
+        )
+        if params is not None:  # the paper model learns nothing
+            save_learned(Path(cfg.checkpoint.learned_path), params)
     except OSError as exc:
         log.error("learned parameters not saved to %s: %s", cfg.checkpoint.learned_path, exc)
 
@@ -388,19 +391,18 @@ def _cli_run(args: argparse.Namespace) -> int:
         for line in landmark_warnings(cfg):
             print(f"warning: {line}", file=sys.stderr)  # noqa: T201
         return 0
-    if not args.config.is_file():
-        raise UserError(f"config file not found: {args.config}")
-    from guidance.app.config import load_config
+    from guidance.app.config import load_config  # the file door says what is wrong with it
 
     global _end_without_finalizing
     _end_without_finalizing = True  # the program's entry ends the process (``end_process``)
     if load_config(args.config, require_goal=False).sim.get("devices", False):  # simulated city
-        runner = DEVICE_RUNNERS.get("sim")
-        if runner is None:
+        where = getattr(args, "device_runners", {}).get("sim")
+        if where is None:
             raise UserError(
-                f"{args.config}: [sim] devices = true, but no simulator registered a runner for "
-                "simulated devices (the simulator package registers one when `guidance` starts)"
+                f"{args.config}: [sim] devices = true, but this `guidance` command names no "
+                "runner for simulated devices (guidance.tools.cli.DEVICE_RUNNERS)"
             )
+        runner: DeviceRunner = import_backend(where)
         screen = "off" if args.json else args.screen  # --json: the prompts and the result
         return int(runner(str(args.config), as_json=args.json, screen=screen))
     return asyncio.run(run_car(str(args.config), resume=not args.fresh, screen=args.screen))

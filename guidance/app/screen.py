@@ -383,8 +383,8 @@ class Operator:
             lambda v: v.set_live(
                 inputs=inputs,
                 target=target,
-                heading_known=p.st.heading_known,
-                speed_mps=p.st.speed_mps,
+                heading_known=p.estimate.heading_known,
+                speed_mps=p.estimate.speed_mps,
                 co_driver=desc,
                 co_driver_ok=ok,
             )

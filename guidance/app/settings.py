@@ -1,62 +1,92 @@
-"""The config tables that map 1:1 onto a dataclass, read by ``guidance.config_tables.from_table``
-(``[vehicle]``, ``[navigation]``, ``[scene]``, ``[voice]``, ``[health]``, ``[loop]``,
+"""The config file's tables that the core's own config dataclasses do not hold, read by
+``guidance.config_tables.from_table`` (``[vehicle]``, ``[start]``/``[goal]``/``[[landmarks]]``,
+a device's common keys, ``[estimator] model``, ``[scene]``, ``[voice]``, ``[loop]``,
 ``[checkpoint]``): each field is a key, its type and ``rule`` say what the key takes
-(docs/app.md, "Configuration"). A setting that the core's own config also has takes its default
-from there (``field_default``): each default is written once."""
+(docs/app.md, "Configuration"). A setting the core's config also has is not mirrored here:
+``[navigation]``, ``[health]``, ``[chance]``, ``[estimator]`` and ``[compass]``'s own keys are
+read into the core's dataclasses by their rules; where a table here offers the same quantity
+(``[vehicle] track_m``, a device's ``expected_rate_hz``) it takes the core field's rule
+(``config_tables.like``)."""
 
 from __future__ import annotations
 
-import dataclasses
-import math
 from collections.abc import Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
 
 from guidance.app.backends import SCENE_BACKENDS
-from guidance.config_tables import Rule, field_default, from_table, rule
-from guidance.core.pipeline_config import PipelineConfig
-from guidance.core.plan.navigator import Method, NavigatorConfig
-from guidance.core.speech import Units
+from guidance.config_tables import from_table, like, rule
+from guidance.core.localize.estimator import EstimatorConfig
+from guidance.core.localize.gyro import YAW_SOURCES
+from guidance.core.pipeline_config import (
+    COORDINATE,
+    MAX_STATE_PERIOD_S,
+    MIN_STATE_PERIOD_S,
+    PipelineConfig,
+)
 from guidance.errors import UserError
 from guidance.voice import SPEAKER_KINDS
 
-_NAV = NavigatorConfig()
-_UNITS: Units = field_default(PipelineConfig, "units")
-_STRAIGHT_AFTER_M: float = field_default(PipelineConfig, "straight_after_m")
-_UNCERTAIN_WARN_M: float = field_default(PipelineConfig, "uncertain_warn_m")
-_STOP_AT_ARRIVAL: bool = field_default(PipelineConfig, "stop_at_arrival")
+
+@dataclass(frozen=True, slots=True)
+class Place:
+    """A place in ``[start]``, ``[goal]`` or ``[[landmarks]]``: latitude and longitude, or local
+    metres (east, north of the start)."""
+
+    lat_deg: float | None = field(default=None, metadata=rule(lo=-90.0, hi=90.0))
+    lon_deg: float | None = field(default=None, metadata=rule(lo=-180.0, hi=180.0))
+    x_m: float | None = field(default=None, metadata=COORDINATE)
+    y_m: float | None = field(default=None, metadata=COORDINATE)
+
+    @property
+    def geodetic(self) -> bool:
+        return self.lat_deg is not None or self.lon_deg is not None
+
+    @property
+    def local(self) -> bool:
+        return self.x_m is not None or self.y_m is not None
 
 
 @dataclass(frozen=True, slots=True)
-class NavigationSettings:
-    """``[navigation]``: the navigator's settings and the pipeline's advice distances; the
-    defaults are ``NavigatorConfig``'s and ``PipelineConfig``'s."""
+class StartSettings(Place):
+    """``[start]``."""
 
-    method: Method = _NAV.method
-    units: Units = _UNITS
-    arrival_radius_m: float = field(default=_NAV.arrival_radius_m, metadata=rule(positive=True))
-    hybrid_switch_m: float = field(default=_NAV.hybrid_switch_m, metadata=rule(positive=True))
-    lookahead_m: float = field(default=_NAV.lookahead_m, metadata=rule(positive=True))
-    landmark_pass_radius_m: float = field(
-        default=_NAV.landmark_pass_radius_m, metadata=rule(positive=True)
+    heading_deg: float | None = field(default=None, metadata=rule(lo=0.0, hi=360.0))
+    """True heading, degrees clockwise from north (None: from the first compass reading)."""
+    unknown: bool = False
+    """Start anywhere: no position; the car finds itself at its first landmark (it needs a
+    camera and a landmark database)."""
+
+
+@dataclass(frozen=True, slots=True)
+class LandmarkPlace(Place):
+    """One ``[[landmarks]]`` entry (positions only; ``[landmarks] database`` is the other
+    spelling, ``guidance.app.landmarks``)."""
+
+    id: int | None = None
+    """None: its index in the list."""
+    name: str = ""
+
+
+@dataclass(frozen=True, slots=True)
+class DeviceSettings:
+    """A device table's common keys (``[odometry]``, ``[compass]``, ``[camera]``); the rest
+    are the driver's own (its config dataclass, named in ``guidance.app.backends``)."""
+
+    enabled: bool = True
+    backend: str = ""
+    expected_rate_hz: float = field(
+        default=1.0, metadata=like(PipelineConfig, "expected_rates_hz")
     )
-    tabu_step_deg: float | None = field(default=None, metadata=rule(lo=0.0))
-    """Degrees (the navigator's ``tabu_step_rad``); None: its default."""
-    straight_after_m: float = field(default=_STRAIGHT_AFTER_M, metadata=rule(positive=True))
-    uncertain_warn_m: float = field(default=_UNCERTAIN_WARN_M, metadata=rule(positive=True))
-    stop_at_arrival: bool = _STOP_AT_ARRIVAL
 
-    def navigator(self) -> NavigatorConfig:
-        deg = self.tabu_step_deg
-        return dataclasses.replace(
-            _NAV,
-            tabu_step_rad=_NAV.tabu_step_rad if deg is None else math.radians(deg),
-            method=self.method,
-            arrival_radius_m=self.arrival_radius_m,
-            hybrid_switch_m=self.hybrid_switch_m,
-            lookahead_m=self.lookahead_m,
-            landmark_pass_radius_m=self.landmark_pass_radius_m,
-        )
+
+@dataclass(frozen=True, slots=True)
+class EstimatorSettings:
+    """``[estimator]``'s one key beside ``EstimatorConfig``'s fields."""
+
+    model: str = field(default="car", metadata=rule(choices=("car", "paper")))
+    """``car``: the car model's states and defaults (``estimator.car_model``); ``paper``: the
+    paper's white-noise model, where the car model's keys are refused."""
 
 
 @dataclass(frozen=True, slots=True)
@@ -73,6 +103,10 @@ class VoiceSettings:
     volume: float = field(default=1.0, metadata=rule(lo=0, hi=1))
     device: str = "default"
     """The ALSA playback device (``aplay -D``): default, plughw:1,0, null (plays into nothing)."""
+
+    def __post_init__(self) -> None:
+        if self.backend == "wav" and not self.wav_path:
+            raise UserError("[voice] wav_path is required with backend = 'wav'")
 
 
 @dataclass(frozen=True, slots=True)
@@ -130,8 +164,14 @@ class VehicleSettings:
     """``[vehicle]``."""
 
     id: str = "car1"
-    track_m: float | None = field(default=None, metadata=rule(positive=True))
+    track_m: float | None = field(
+        default=None, metadata=like(EstimatorConfig, "track_m", read=True)
+    )
     """None: the ``[odometry] profile``'s track width."""
+    yaw_source: str = field(default="wheels", metadata=rule(choices=YAW_SOURCES))
+    """What turns the heading: "wheels" (the rear wheels' left/right difference) or "gyro"
+    (the stability control's yaw-rate sensor; the car model with its bias and scale as
+    states, docs/estimation.md)."""
 
 
 @dataclass(frozen=True, slots=True)
@@ -139,18 +179,12 @@ class LoopSettings:
     """``[loop]``."""
 
     tick_hz: float = field(default=20.0, metadata=rule(positive=True))
-    state_rate_hz: float = field(default=10.0, metadata=rule(positive=True))
+    state_rate_hz: float = field(
+        default=10.0, metadata=rule(lo=1.0 / MAX_STATE_PERIOD_S, hi=1.0 / MIN_STATE_PERIOD_S)
+    )
+    """The pipeline's ``state_period_s``, as a rate (its bounds, inverted)."""
     health_publish_period_s: float = field(default=1.0, metadata=rule(positive=True))
     max_lag_s: float = field(default=0.5, metadata=rule(positive=True))
-
-
-HEALTH_RULES = {
-    "silence_periods": Rule(positive=True),
-    "min_timeout_s": Rule(positive=True),
-    "max_reject_fraction": Rule(lo=0, hi=1),
-    "min_reads_for_validity": Rule(read=False),
-}
-"""``[health]`` is ``HealthConfig`` (guidance/core/health.py) without its last field."""
 
 
 def read_scene(data: object, base_dir: Path | None) -> SceneSettings:

@@ -27,6 +27,7 @@ from guidance.core.messages import (
     LandmarkFix,
     TurnCompleted,
     WheelOdometry,
+    YawRate,
 )
 from guidance.errors import checked_number
 
@@ -40,6 +41,7 @@ InputMessage = (
     | CancelReport
     | Approach
     | GoalUpdate
+    | YawRate
 )
 
 TOPICS: dict[type, str] = {
@@ -52,6 +54,7 @@ TOPICS: dict[type, str] = {
     CancelReport: "/scene",
     Approach: "/approach",
     GoalUpdate: "/goal",
+    YawRate: "/yaw_rate",
 }
 """Message type -> the topic it is recorded on (the one table)."""
 
@@ -158,16 +161,59 @@ def from_record(topic: str, data: Mapping[str, Any]) -> InputMessage | None:
 _JSON_TYPES = {float: "number", int: "integer", bool: "boolean", str: "string"}
 
 
-def _field_schema(hint: Any) -> dict[str, Any]:
+@dataclasses.dataclass(frozen=True, slots=True)
+class Doc:
+    """JSON Schema keywords a type cannot say, beside it: ``Annotated[float, doc(minimum=0)]``."""
+
+    keywords: Mapping[str, Any]
+
+
+def doc(**keywords: Any) -> Doc:
+    return Doc(keywords)
+
+
+def json_schema(hint: Any) -> dict[str, Any]:
+    """The JSON Schema of a type: numbers, integers, booleans, strings, ``X | None``, lists and
+    tuples, tables (``dict[str, X]``), ``Literal`` strings, ``TypedDict`` objects (their
+    required keys required) and ``Annotated[X, doc(...)]``. The one generator of the inputs'
+    schemas (``schema``) and the outputs' (``guidance.outputs.schemas``)."""
     origin = typing.get_origin(hint)
     args = typing.get_args(hint)
-    if origin is tuple:
-        return {"type": "array", "items": _field_schema(args[0])}
-    if args and type(None) in args:
+    if origin is typing.Annotated:
+        out = json_schema(args[0])
+        for meta in args[1:]:
+            if isinstance(meta, Doc):
+                out.update(meta.keywords)
+        return out
+    if origin in (typing.Union, types.UnionType) and type(None) in args:
         (inner,) = [a for a in args if a is not type(None)]
-        s = _field_schema(inner)
+        s = json_schema(inner)
         return {**s, "type": [s["type"], "null"]}
+    if origin in (tuple, list):
+        return {"type": "array", "items": json_schema(args[0])}
+    if origin in (dict, Mapping):
+        if args[1] is Any:
+            return {"type": "object"}
+        return {"type": "object", "additionalProperties": json_schema(args[1])}
+    if origin is typing.Literal:
+        return {"type": "string", "enum": list(args)}
+    if typing.is_typeddict(hint):
+        hints = typing.get_type_hints(hint, include_extras=True)
+        props = {k: json_schema(_required_arg(h)) for k, h in hints.items()}
+        out = {"type": "object", "properties": props}
+        required = [k for k in hints if k in hint.__required_keys__]
+        return {**out, "required": required} if required else out
     return {"type": _JSON_TYPES[hint]}
+
+
+def _required_arg(hint: Any) -> Any:
+    """``NotRequired[X]``/``Required[X]`` as ``X`` (the TypedDict says which keys are)."""
+    if typing.get_origin(hint) in (typing.NotRequired, typing.Required):
+        return typing.get_args(hint)[0]
+    return hint
+
+
+_field_schema = json_schema
 
 
 def schema(topic: str) -> dict[str, Any]:

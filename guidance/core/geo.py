@@ -35,6 +35,16 @@ class Origin:
     def of(cls, lat_lon: LatLon) -> Origin:
         return cls(float(lat_lon[0]), float(lat_lon[1]))
 
+    @classmethod
+    def checked(cls, lat_lon: LatLon) -> Origin:
+        """``of`` for a value from a config: ``UserError`` (one line) when out of range."""
+        from guidance.errors import UserError
+
+        try:
+            return cls.of(lat_lon)
+        except ValueError as exc:
+            raise UserError(str(exc)) from None
+
     def to_local(self, lat_deg: float, lon_deg: float) -> tuple[float, float]:
         """Latitude/longitude (degrees) -> local (x east, y north) metres."""
         return _to_local(float(lat_deg), float(lon_deg), self.lat_deg, self.lon_deg, self.alt_m)

@@ -8,8 +8,9 @@ from __future__ import annotations
 import math
 from collections import deque
 from collections.abc import Mapping
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
+from guidance.config_tables import rule
 from guidance.core import speech
 from guidance.core.messages import DeviceStatus, Health, HealthChange, Say, Speech
 
@@ -41,14 +42,17 @@ def garbled(read: int, rejected: int, max_fraction: float = MAX_REJECTED_FRACTIO
 
 @dataclass(frozen=True, slots=True)
 class HealthConfig:
-    silence_periods: float = 5.0
+    silence_periods: float = field(default=5.0, metadata=rule(positive=True))
     """An input is dead after this many expected periods without a message..."""
-    min_timeout_s: float = 1.0
+    min_timeout_s: float = field(default=1.0, metadata=rule(positive=True))
     """...but never sooner than this."""
-    max_reject_fraction: float = MAX_REJECTED_FRACTION
+    max_reject_fraction: float = field(
+        default=MAX_REJECTED_FRACTION, metadata=rule(lo=0.0, hi=1.0)
+    )
     """Invalid when more than this fraction of what a source read was rejected recently
     (``garbled``)."""
-    min_reads_for_validity: int = 5
+    min_reads_for_validity: int = field(default=5, metadata=rule(lo=1, hi=1_000_000, read=False))
+    """Reads before a source's rejections are judged (not offered in ``[health]``)."""
 
 
 class HealthMonitor:

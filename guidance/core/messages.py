@@ -26,6 +26,15 @@ class WheelOdometry:
 
 
 @dataclass(frozen=True, slots=True)
+class YawRate:
+    """The car's yaw-rate sensor (the stability control's gyro, on CAN): rad/s,
+    counter-clockwise positive, as read (bias and scale error included)."""
+
+    t_s: float
+    yaw_rate_rad_s: float
+
+
+@dataclass(frozen=True, slots=True)
 class CompassHeading:
     """A compass reading as it comes off the wire: degrees clockwise from north.
 
@@ -89,7 +98,9 @@ class Ellipse:
 
 @dataclass(frozen=True, slots=True)
 class EstimateState:
-    """The estimator's published state."""
+    """The estimate: what the first stage of the core (``core/localize``) hands the second
+    (``core/plan``), and the state the car publishes. ``covariance`` is the pose block (x, y,
+    heading) of the filter's covariance."""
 
     t_s: float
     x_m: float
@@ -99,6 +110,15 @@ class EstimateState:
     ellipse: Ellipse
     lost: bool
     healthy: bool
+    odometer_m: float = 0.0
+    """Distance driven so far (odometry, and dead reckoning through a CAN gap)."""
+    speed_mps: float = 0.0
+    """The speed of the last odometry increment (held through a gap)."""
+    heading_known: bool = True
+    """False until the first heading (a start heading, or the first compass reading)."""
+    reckoning: bool = False
+    """The distance is being dead-reckoned (odometry overdue): no turn is named for a place on
+    the road, nothing is passed straight by distance alone."""
 
 
 @dataclass(frozen=True, slots=True, eq=False)

@@ -7,7 +7,7 @@ from __future__ import annotations
 from collections.abc import Mapping
 from dataclasses import dataclass, field
 
-from guidance.config_tables import plain
+from guidance.config_tables import plain, rule
 from guidance.core.codec import InputMessage
 from guidance.core.health import HealthConfig
 from guidance.core.localize.estimator import EstimatorConfig
@@ -26,6 +26,7 @@ from guidance.core.messages import (
     Prompt,
     TurnCompleted,
     WheelOdometry,
+    YawRate,
 )
 from guidance.core.plan.chance import ChanceSettings
 from guidance.core.plan.navigator import Decision, Landmark, NavigatorConfig
@@ -38,6 +39,7 @@ status flips."""
 
 INPUT_KINDS: dict[type, str] = {
     WheelOdometry: "odometry",
+    YawRate: "gyro",
     CompassHeading: "compass",
     HeadingFix: "compass",
     LandmarkFix: "landmark",
@@ -71,35 +73,57 @@ class Outputs:
     lost: bool = False
 
 
+COORDINATE = rule(lo=-1e8, hi=1e8)
+"""Local metres: a point farther than 100,000 km is damage, not a place."""
+MIN_STATE_PERIOD_S = 1e-3
+MAX_STATE_PERIOD_S = 60.0
+"""The state is published between 1000 times a second and once a minute."""
+_NAVIGATION_M = rule(positive=True, table="navigation")
+
+
 @dataclass(frozen=True, slots=True)
 class PipelineConfig:
-    """Everything the core needs; built from the TOML config (``guidance.config``) or the sim."""
+    """Everything the core needs; built from the TOML config (``guidance.app.config``) or the
+    sim. Each field's rule is written here once: the config file (``table``/``key``: where it
+    offers the field), the session record and the checkpoint's identity read it alike."""
 
     estimator: EstimatorConfig
     navigator: NavigatorConfig
-    start_xy_m: tuple[float, float]
-    goal_xy_m: tuple[float, float]
-    start_heading_rad: float | None = None
+    start_xy_m: tuple[float, float] = field(metadata=COORDINATE)
+    goal_xy_m: tuple[float, float] = field(metadata=COORDINATE)
+    start_heading_rad: float | None = field(default=None, metadata=rule(lo=-7.0, hi=7.0))
     """None: taken from the first compass reading."""
-    landmarks: tuple[Landmark, ...] = ()
-    declination_deg: float = 0.0
-    mounting_offset_deg: float = 0.0
-    compass_deviation_deg: tuple[float, ...] = ()
+    landmarks: tuple[Landmark, ...] = field(default=(), metadata=rule(max_items=100_000))
+    declination_deg: float = field(default=0.0, metadata=rule(lo=-180.0, hi=180.0, table="compass"))
+    mounting_offset_deg: float = field(
+        default=0.0, metadata=rule(lo=-180.0, hi=180.0, table="compass")
+    )
+    compass_deviation_deg: tuple[float, ...] = field(
+        default=(),
+        metadata=rule(lo=-90.0, hi=90.0, max_items=5, table="compass", key="deviation_deg"),
+    )
     """The compass deviation card A..E (``guidance calibrate``); empty: not calibrated."""
-    compass_unusable_after_s: float = 20.0
+    compass_unusable_after_s: float = field(
+        default=20.0, metadata=rule(lo=0.1, hi=1e6, table="compass", key="unusable_after_s")
+    )
     """A compass whose readings are mostly rejected for this long is reported unusable."""
-    units: Units = Units.METRIC
-    state_period_s: float = 0.1
-    expected_rates_hz: Mapping[str, float | None] = field(default_factory=dict)
+    units: Units = field(default=Units.METRIC, metadata=rule(table="navigation"))
+    state_period_s: float = field(
+        default=0.1, metadata=rule(lo=MIN_STATE_PERIOD_S, hi=MAX_STATE_PERIOD_S)
+    )
+    """Seconds between state publications (``[loop] state_rate_hz``)."""
+    expected_rates_hz: Mapping[str, float | None] = field(
+        default_factory=dict, metadata=rule(positive=True, hi=1e4)
+    )
     """Each input's expected rate, Hz (the device tables say; ``None`` or absent: no
     expectation, so it is never reported silent)."""
     health: HealthConfig = field(default_factory=HealthConfig)
     turn_detector: TurnDetectorConfig = field(default_factory=TurnDetectorConfig)
-    straight_after_m: float = 25.0
+    straight_after_m: float = field(default=25.0, metadata=_NAVIGATION_M)
     """A decision with no turn reported this far past the intersection was 'straight on'."""
-    uncertain_warn_m: float = 50.0
+    uncertain_warn_m: float = field(default=50.0, metadata=_NAVIGATION_M)
     """Say "position uncertain" when the major axis grows past this."""
-    stop_at_arrival: bool = False
+    stop_at_arrival: bool = field(default=False, metadata=rule(table="navigation"))
     """Arrival ends guidance (a simulated trip); otherwise the car waits for a new goal. Being
     lost ends it too, unless the car can find itself again (``relocalise``)."""
     relocalise: bool = False

@@ -1,12 +1,16 @@
-"""The pipeline's own bookkeeping as data (ARCHITECTURE-2.md change 5): ``PipelineState`` is
-everything a checkpoint carries (``asdict`` out, field by field back in, each checked by its
-type), ``Transient`` what a restart rightly forgets. Readers use ``pipeline.st.odometer_m``."""
+"""The core's bookkeeping as data (ARCHITECTURE-2.md change 5, split by stage in issue 37):
+``LocalizeState``, ``PlanState`` and ``PipelineState`` are everything a checkpoint carries
+besides the filter, the navigator and the road ahead (``asdict`` out, field by field back in,
+each checked by its type), ``Transient`` what a restart rightly forgets. Readers use
+``pipeline.estimate.odometer_m``."""
 
 from __future__ import annotations
 
 from collections.abc import Mapping
 from dataclasses import dataclass, field, fields
+from typing import TypeVar
 
+from guidance.config_tables import rule, rule_of
 from guidance.core.messages import WheelOdometry
 from guidance.core.snapshot_check import (
     MAX_ODOMETER_M,
@@ -21,40 +25,18 @@ MAX_WARNED = 64
 MAX_LANDMARKS_SAID = 100_000
 
 
-@dataclass(slots=True)
-class PipelineState:
-    """The pipeline's own bookkeeping: with the estimator, the navigator's memory, the turn
-    detector and the pending decision, everything a checkpoint carries. ``snapshot`` writes it
-    with ``asdict`` and ``restore`` reads it back field by field: nothing is forgotten."""
+class _Checked:
+    """A state read back from a checkpoint field by field (``from_snapshot``)."""
 
-    heading_known: bool = True
-    odometer_m: float = 0.0
-    speed_mps: float = 0.0
-    landmark_updates: int = 0
-    prompt_count: int = 0
-    arrived: bool = False
-    finished: bool = False
-    lost_said: bool = False
-    uncertain_said: bool = False
-    chance_said: bool = False
-    placed: bool = True
-    """The position has been known since the start or found since (False: "start anywhere",
-    until the first landmark)."""
-    waiting_said: bool = False
-    """"Waiting for the first odometry" has been said."""
-    warned: list[str] = field(default_factory=list)
-    """Inputs the driver has been warned about (by the pipeline or in the driver's words)."""
-    landmark_said: dict[str, float] = field(default_factory=dict)
-    """Landmark id (as text: JSON's keys) -> message time its name was last said. Message
-    times: a restore on another clock forgets them (``Pipeline.restore``)."""
+    __slots__ = ()
 
     @classmethod
-    def from_snapshot(cls, snap: Mapping[str, object]) -> PipelineState:
+    def from_snapshot(cls: type[_S], snap: Mapping[str, object]) -> _S:
         """Each field from ``snap``, checked by its own type (a bool is true or false, a count
-        a non-negative integer, a number finite and within its bounds): ``SnapshotError``
+        a non-negative integer, a number finite and within its field's ``rule``): ``SnapshotError``
         names the first bad one. A field added later is checked without another list."""
         out = cls()
-        for f in fields(cls):
+        for f in fields(cls):  # type: ignore[arg-type]
             if f.name not in snap:
                 continue
             v = snap[f.name]
@@ -69,14 +51,61 @@ class PipelineState:
             elif isinstance(default, int):
                 v = integer(v, f.name)
             else:
-                v = number(v, f.name, *_BOUNDS.get(f.name, (-MAX_NUMBER, MAX_NUMBER)))
+                r = rule_of(cls, f.name)  # the field's own bounds, else finite and moderate
+                lo = -MAX_NUMBER if r.lo is None else r.lo
+                v = number(v, f.name, lo, MAX_NUMBER if r.hi is None else r.hi)
             setattr(out, f.name, v)
         return out
 
 
-_BOUNDS = {"odometer_m": (0.0, MAX_ODOMETER_M), "speed_mps": (-MAX_SPEED_MPS, MAX_SPEED_MPS)}
-"""A number field's bounds in a checkpoint (others: finite and at most ``MAX_NUMBER``)."""
+_S = TypeVar("_S", bound=_Checked)
+
+
+@dataclass(slots=True)
+class LocalizeState(_Checked):
+    """What the estimate is read with (``Localizer``): with the filter's x and P, what a
+    checkpoint carries of the first stage."""
+
+    heading_known: bool = True
+    odometer_m: float = field(default=0.0, metadata=rule(lo=0.0, hi=MAX_ODOMETER_M))
+    speed_mps: float = field(default=0.0, metadata=rule(lo=-MAX_SPEED_MPS, hi=MAX_SPEED_MPS))
+    landmark_updates: int = 0
+
+
+@dataclass(slots=True)
+class PlanState(_Checked):
+    """What the planner has said and concluded (``Planner``): with the navigator's memory,
+    the turn detector and the intersections ahead, what a checkpoint carries of the second
+    stage."""
+
+    arrived: bool = False
+    finished: bool = False
+    lost_said: bool = False
+    uncertain_said: bool = False
+    chance_said: bool = False
+    placed: bool = True
+    """The position has been known since the start or found since (False: "start anywhere",
+    until the first landmark)."""
+    waiting_said: bool = False
+    """"Waiting for the first odometry" has been said."""
+    landmark_said: dict[str, float] = field(default_factory=dict)
+    """Landmark id (as text: JSON's keys) -> message time its name was last said. Message
+    times: a restore on another clock forgets them (``Pipeline.restore``)."""
+
+
+@dataclass(slots=True)
+class PipelineState(_Checked):
+    """The sequencer's own bookkeeping (``Pipeline``): the prompts said and the inputs the
+    driver was warned about. A checkpoint holds the three states' fields side by side
+    (``asdict`` out, ``from_snapshot`` back in): nothing is forgotten."""
+
+    prompt_count: int = 0
+    warned: list[str] = field(default_factory=list)
+    """Inputs the driver has been warned about (by the pipeline or in the driver's words)."""
+
+
 MAX_NUMBER = 1e12
+"""A number field without bounds of its own is at most this large in a checkpoint."""
 
 
 def _names(v: object, name: str) -> list[str]:
@@ -100,17 +129,13 @@ def _times(v: object, name: str) -> dict[str, float]:
 
 @dataclass(slots=True)
 class Transient:
-    """What a restart rightly forgets (not in a checkpoint): an odometry message held back for
-    the reorder window, the dead reckoning through a gap, the input times (``restore`` sets
-    them again from the estimator's time on the same clock) and when the next state and
-    health evaluations are due."""
+    """What a restart rightly forgets of the first stage (not in a checkpoint): an odometry
+    message held back after a gap, the dead reckoning through a gap and the last odometry time
+    (``restore`` sets it again from the estimator's time on the same clock)."""
 
     held_odometry: WheelOdometry | None = None
     dr_to_t: float | None = None
     """Dead reckoning through an odometry gap: the time it has reached (None: no gap)..."""
     dr_m: float = 0.0
     """...and the distance it has moved the estimate."""
-    last_t: float | None = None
     last_odo_t: float | None = None
-    next_state_t: float = float("-inf")
-    next_health_t: float = float("-inf")

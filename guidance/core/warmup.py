@@ -11,6 +11,8 @@ from __future__ import annotations
 
 import math
 
+import numpy as np
+
 from guidance.core.localize.car_model import car_model
 from guidance.core.localize.estimator import EstimatorConfig
 from guidance.core.messages import CompassHeading, IntersectionScene, LandmarkFix, WheelOdometry
@@ -38,7 +40,7 @@ def warm_up() -> None:
         p.feed(CompassHeading(0.2, 90.0))
         p.feed(LandmarkFix(0.3, 1, 2.0, 0.0, 5.0))
         p.feed(IntersectionScene(0.4, (0.0, math.pi / 2), 30.0))
-        nav, P = p.navigator, p.estimator.P  # the car's evaluate-then-commit (plan.guide)
+        nav, P = p.navigator, np.array(p.estimate.covariance)  # evaluate-then-commit (guide)
         nav.evaluate(0.5, (30.0, 0.0), P, (0.0, math.pi / 2), 0.0, (0.0, 0.0))
         nav.commit((30.0, 0.0), P[:2, :2], 0.0)
         p.state()

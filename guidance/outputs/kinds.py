@@ -16,9 +16,10 @@ from collections.abc import Callable, Iterable, Mapping, Sequence
 from dataclasses import dataclass, field
 from typing import TYPE_CHECKING, Any, Literal
 
+from guidance.core.geo import LatLon
 from guidance.core.messages import EstimateState, Health, LandmarkFix, Prompt, Target
 from guidance.outputs import messages as m
-from guidance.outputs.messages import LandmarkRejection, Origin
+from guidance.outputs.messages import LandmarkRejection
 from guidance.outputs.schemas import SCHEMAS
 
 if TYPE_CHECKING:
@@ -34,7 +35,7 @@ class OutputContext:
     goal: tuple[float, float] | None = None
     method: str | None = None
     mode: str | None = None
-    origin_lat_lon_deg: Origin | None = None
+    origin_lat_lon_deg: LatLon | None = None
     """The sink's: the local frame's WGS-84 origin (state messages then carry lat/lon)."""
     chance: float | None = None
     """The chance of reaching the goal (``guidance.core.plan.chance``)."""
@@ -59,7 +60,7 @@ class HealthReport:
     components: Mapping[str, Health | Mapping[str, Any]] = field(default_factory=dict)
 
 
-Encoder = Callable[..., dict[str, Any]]
+Encoder = Callable[..., Mapping[str, Any]]
 """``encode(item, context, *, vehicle_id, seq, wall_time_unix_s)`` -> the message."""
 
 
@@ -87,29 +88,29 @@ class OutputKind:
             return float("nan")
 
 
-def _state(s: EstimateState, c: OutputContext, **env: Any) -> dict[str, Any]:
+def _state(s: EstimateState, c: OutputContext, **env: Any) -> Mapping[str, Any]:
     return m.state_message(s, speed_mps=c.speed_mps, target=c.target, goal=c.goal,
                            method=c.method, mode=c.mode, chance=c.chance,
                            origin_lat_lon_deg=c.origin_lat_lon_deg, **env)  # fmt: skip
 
 
-def _prompt(p: Prompt, c: OutputContext, **env: Any) -> dict[str, Any]:
+def _prompt(p: Prompt, c: OutputContext, **env: Any) -> Mapping[str, Any]:
     return m.prompt_message(p.t_s, p.text, kind=p.kind, priority=int(p.priority), **env)
 
 
-def _landmark(r: LandmarkReport, c: OutputContext, **env: Any) -> dict[str, Any]:
+def _landmark(r: LandmarkReport, c: OutputContext, **env: Any) -> Mapping[str, Any]:
     return m.landmark_message(r.t_s, matches=tuple(r.matches), rejections=tuple(r.rejections),
                               gated=r.gated, **env)  # fmt: skip
 
 
-def _health(r: HealthReport, c: OutputContext, **env: Any) -> dict[str, Any]:
+def _health(r: HealthReport, c: OutputContext, **env: Any) -> Mapping[str, Any]:
     return m.health_message(r.t_s, dict(r.inputs), components=dict(r.components), **env)
 
 
-def _plain(encode: Callable[..., dict[str, Any]]) -> Encoder:
+def _plain(encode: Callable[..., Mapping[str, Any]]) -> Encoder:
     """An encoder that needs only its item."""
 
-    def enc(item: Any, c: OutputContext, **env: Any) -> dict[str, Any]:
+    def enc(item: Any, c: OutputContext, **env: Any) -> Mapping[str, Any]:
         return encode(item, **env)
 
     return enc

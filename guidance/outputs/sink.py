@@ -10,7 +10,7 @@ numbers into ``build``. What each output *is* is one row of ``guidance.outputs.k
 from __future__ import annotations
 
 from abc import ABC, abstractmethod
-from collections.abc import Callable
+from collections.abc import Callable, Mapping
 from dataclasses import replace
 from functools import partial
 from typing import Any
@@ -18,7 +18,7 @@ from typing import Any
 from guidance.core.messages import Health
 from guidance.outputs.kinds import HEALTH, HealthReport, OutputContext, OutputKind
 
-Build = Callable[..., dict[str, Any]]
+Build = Callable[..., Mapping[str, Any]]
 """Builds one message; the sink passes ``vehicle_id``, ``seq`` and ``wall_time_unix_s``."""
 NO_CONTEXT = OutputContext()
 

@@ -11,8 +11,8 @@ from typing import Any
 from mcap.writer import CompressionType
 
 from guidance.config_tables import from_table, rule
+from guidance.core.geo import Origin
 from guidance.errors import UserError
-from guidance.outputs.messages import check_origin
 
 # -- configuration --------------------------------------------------------------------------------
 MAX_CHUNK_SIZE_BYTES = 16 << 20
@@ -46,7 +46,8 @@ class RecordingConfig:
     from ``[start]``, the simulator from its city); the Foxglove topics need it for the map."""
 
     def __post_init__(self) -> None:
-        check_origin(self.origin_lat_lon_deg)
+        if self.origin_lat_lon_deg is not None:  # a place on Earth
+            Origin.checked(self.origin_lat_lon_deg)
         if not re.match(r"^[A-Za-z0-9_.-]{1,64}$", self.prefix):
             raise UserError(f"[recording] prefix {self.prefix!r}: use letters, digits, _ . -")
         if self.compression not in ("zstd", "lz4", "none"):

@@ -5,7 +5,7 @@ from __future__ import annotations
 import json
 import os
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Mapping
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -57,7 +57,7 @@ class _DirectFile:
 class _Item:
     topic: str
     t_s: float
-    build: Callable[[], dict[str, Any]]
+    build: Callable[[], Mapping[str, Any]]
     wall_ns: int
 
 

@@ -19,7 +19,8 @@ import math
 from collections.abc import Mapping, Sequence
 from typing import Any
 
-from guidance.outputs.messages import Origin, lat_lon_deg
+from guidance.core.geo import LatLon
+from guidance.outputs.messages import lat_lon_deg
 
 FRAME = "map"
 """The 3D panel's frame: the local frame, x east, y north metres, z up."""
@@ -210,7 +211,7 @@ class _Track:
 class FoxgloveView:
     """Turns recorded messages into Foxglove messages; one per recorder (writer thread)."""
 
-    def __init__(self, origin: Origin | None) -> None:
+    def __init__(self, origin: LatLon | None) -> None:
         self.origin = origin
         self._track = _Track("track", _BLUE)
         self._truth = _Track("truth", _GREEN)

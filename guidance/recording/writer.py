@@ -183,7 +183,7 @@ class Recorder(MessageSink):
     def own_health(self) -> Health:
         return self.health()
 
-    def _put(self, topic: str, t_s: float, build: Callable[..., dict[str, Any]]) -> bool:
+    def _put(self, topic: str, t_s: float, build: Callable[..., Mapping[str, Any]]) -> bool:
         if not self._accepting:
             if self._failed:
                 with self._lock:
@@ -224,7 +224,7 @@ class Recorder(MessageSink):
 
     def _write(self, item: _Item) -> None:
         try:
-            body = item.build()
+            body = dict(item.build())
             thumb = body.pop("_thumbnail", None) if item.topic == "/camera" else None
             data = json.dumps(body, separators=(",", ":"), allow_nan=False).encode()
         except Exception as exc:  # a malformed message must not stop the recording

@@ -9,8 +9,8 @@ from pathlib import Path
 from typing import Any
 
 from guidance.config_tables import from_table, rule
+from guidance.core.geo import Origin
 from guidance.errors import UserError
-from guidance.outputs.messages import check_origin
 from guidance.telemetry.keys import (
     _ENDPOINT_RE,
     _MODES,
@@ -87,7 +87,8 @@ class TelemetryConfig:
 
     def __post_init__(self) -> None:
         validate_vehicle_id(self.vehicle_id)
-        check_origin(self.origin_lat_lon_deg)
+        if self.origin_lat_lon_deg is not None:  # a place on Earth
+            Origin.checked(self.origin_lat_lon_deg)
         if self.mode not in _MODES:
             raise UserError(f"telemetry mode must be one of {_MODES}, not {self.mode!r}")
         for ep in (*self.listen, *self.connect):

@@ -6,7 +6,7 @@ import logging
 import threading
 import time
 from collections import deque
-from collections.abc import Callable
+from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
 from functools import partial
 from typing import TYPE_CHECKING, Any
@@ -52,7 +52,7 @@ TELEMETRY_DOWN_WARNING = "Remote monitoring is offline."
 @dataclass(slots=True)
 class _Pending:
     kind: str
-    build: Callable[[], dict[str, Any]]
+    build: Callable[[], Mapping[str, Any]]
 
 
 @dataclass(slots=True)
@@ -191,7 +191,7 @@ class Telemetry(MessageSink):
     def own_health(self) -> Health:
         return self.health()
 
-    def _put(self, kind: str, build: Callable[..., dict[str, Any]]) -> bool:
+    def _put(self, kind: str, build: Callable[..., Mapping[str, Any]]) -> bool:
         if not self.config.enabled or self._stop.is_set():
             return False
         wall = self._clock()

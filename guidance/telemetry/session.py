@@ -10,18 +10,15 @@ import time
 import weakref
 from collections.abc import Collection, Sequence
 from pathlib import Path
-from typing import TYPE_CHECKING
+from typing import Protocol
 
 import zenoh
 
 from guidance.errors import UserError
 from guidance.telemetry.config import TlsConfig
+from guidance.telemetry.example_passwords import warn_example_passwords
 from guidance.telemetry.keys import GOAL_SCHEMA
 from guidance.telemetry.redact import _zenoh_error_text
-
-if TYPE_CHECKING:
-    from guidance.telemetry.client import MonitorClient
-    from guidance.telemetry.publisher import Telemetry
 
 log = logging.getLogger(__name__)
 
@@ -51,6 +48,7 @@ def session_config(
             if not Path(zenoh_config).is_file():
                 raise UserError(f"zenoh config file not found: {zenoh_config}")
             conf = zenoh.Config.from_file(zenoh_config)
+            warn_example_passwords(zenoh_config)
         else:
             conf = zenoh.Config()
             conf.insert_json5("transport/shared_memory/enabled", json.dumps(SHARED_MEMORY))
@@ -207,7 +205,14 @@ def _quiet_close(
                 log.debug("zenoh callback thread %s still running after close", t.name)
 
 
-_OPEN: weakref.WeakSet[Telemetry | MonitorClient] = weakref.WeakSet()
+class Closable(Protocol):
+    """What holds a zenoh session open (``Telemetry``, ``MonitorClient``): closed at exit.
+    A protocol, so this module imports neither of them (no import circle)."""
+
+    def close(self) -> None: ...
+
+
+_OPEN: weakref.WeakSet[Closable] = weakref.WeakSet()
 _EXIT_HOOK = threading.Lock()
 _exit_hook_installed = False
 
@@ -217,7 +222,7 @@ def _close_all_at_exit() -> None:
         obj.close()
 
 
-def _close_at_exit(obj: Telemetry | MonitorClient) -> None:
+def _close_at_exit(obj: Closable) -> None:
     """Close forgotten sessions before interpreter shutdown.
 
     A zenoh session with Python callbacks still declared makes the interpreter

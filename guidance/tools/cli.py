@@ -31,6 +31,12 @@ _COMMAND_MODULES = (
     "guidance.tools.recording_cli",  # recording repair
     "guidance.tools.voice_cli",  # voice say, voice listen
 )
+DEVICE_RUNNERS = {"sim": "hal_sim.sim_cli:run_on_simulated_devices"}
+"""``guidance run`` on devices the product does not build itself: a name to the
+``module:function`` that runs it, imported on first use (``guidance.app.backends``' way for
+drivers). ``sim``: a config whose ``[sim]`` table says ``devices = true``. The table is the
+command's, beside ``_COMMAND_MODULES``, so the product (``guidance.app``) never names the
+simulator; ``guidance run`` finds it in its parsed arguments (``device_runners``)."""
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -41,6 +47,7 @@ def build_parser() -> argparse.ArgumentParser:
     version = version_text("guidance")
     parser.add_argument("--version", action="version", version=version)
     parser.add_argument("--debug", action="store_true", help="show tracebacks and debug logs")
+    parser.set_defaults(device_runners=DEVICE_RUNNERS)
     sub = parser.add_subparsers(dest="command", metavar="COMMAND")
     for name in _COMMAND_MODULES:
         try:

@@ -29,7 +29,7 @@ from array import array
 from collections.abc import Iterator, Sequence
 from dataclasses import dataclass, fields
 from pathlib import Path
-from typing import Any, TextIO
+from typing import Any, BinaryIO, TextIO
 
 import numpy as np
 import numpy.typing as npt
@@ -140,12 +140,23 @@ def _read_columns(
     """The wanted columns as arrays and the file line of each row; UserError on bad input.
     A ``nullable`` column may be empty or ``nan`` on a row (NaN there: undefined, e.g. the GPS
     course of a car standing still)."""
+    with files.opened(path, "truth_csv") as raw:
+        return columns_from(raw, path, what, required, optional, nullable)
+
+
+def columns_from(
+    raw: BinaryIO,
+    path: Path,
+    what: str,
+    required: Sequence[str],
+    optional: Sequence[str] = (),
+    nullable: Sequence[str] = (),
+) -> tuple[dict[str, FloatArray], list[int]]:
+    """``_read_columns`` on a file already opened through ``guidance.files`` (each reader opens
+    its own kind: a truth CSV here, a speed and yaw-rate CSV in ``guidance.tools.odometry_csv``)."""
     line = 1
     try:
-        with (
-            files.opened(path, "truth_csv") as raw,
-            io.TextIOWrapper(raw, encoding="utf-8-sig", newline="") as f,
-        ):
+        with io.TextIOWrapper(raw, encoding="utf-8-sig", newline="") as f:
             reader = csv.reader(_bounded_lines(f, path, what))
             header = next(reader, None)
             if header is None:

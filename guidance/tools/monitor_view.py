@@ -13,6 +13,7 @@ as rich markup, terminal control characters removed.
 
 from __future__ import annotations
 
+import itertools
 import math
 import re
 import textwrap
@@ -82,14 +83,22 @@ class CarView:
     """Whether the track's last point is the newest position, not yet ``TRACK_STEP_M`` from
     the one before it (replaced by the next)."""
 
-    def track_since(self, generation: int) -> tuple[int, list[tuple[float, float]]]:
+    def track_since(
+        self, generation: int, limit: int | None = None
+    ) -> tuple[int, list[tuple[float, float]]] | None:
         """The track points written after ``generation`` and the car's index of the first of
-        them (``track_total`` when none)."""
-        stamps, n = self.track_stamps, 0
-        while n < len(stamps) and stamps[-1 - n] > generation:
+        them (``track_total`` when none); None when there are more than ``limit``. The cost is
+        that of the points returned (at most ``limit`` + 1 looked at), not of the track."""
+        n = 0
+        for stamp in reversed(self.track_stamps):
+            if stamp <= generation:
+                break
+            if limit is not None and n >= limit:
+                return None
             n += 1
-        track = self.track
-        return self.track_total - n, [track[i] for i in range(len(track) - n, len(track))]
+        tail = list(itertools.islice(reversed(self.track), n))
+        tail.reverse()
+        return self.track_total - n, tail
 
 
 class FleetView:

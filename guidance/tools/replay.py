@@ -33,8 +33,9 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 from guidance import files
-from guidance.core.messages import CompassHeading, WheelOdometry
+from guidance.core.messages import CompassHeading, WheelOdometry, YawRate
 from guidance.errors import UserError
+from guidance.tools.odometry_csv import first_time, is_odometry_csv, odometry_inputs
 from guidance.tools.replay_mcap import (
     PROCESSED_TOPICS,
     RAW_TOPICS,
@@ -67,10 +68,6 @@ _STAMPED = re.compile(r"^\s*([0-9]+(?:\.[0-9]*)?)[\s,;]+(.*)$")
 """A time stamp before an NMEA line: ASCII digits only (``float()`` takes ``1_0_0``)."""
 
 
-MAX_NMEA_LINE_BYTES = 4096
-"""A stamped NMEA line is under 100 bytes; a longer one is cut here and the parser rejects it."""
-
-
 def nmea_inputs(path: Path, start_s: float, rate_hz: float) -> Iterator[CompassHeading]:
     """Headings of an NMEA text file; a leading number on a line is its time (s)."""
     from drivers.compass import NmeaCompassParser
@@ -78,7 +75,7 @@ def nmea_inputs(path: Path, start_s: float, rate_hz: float) -> Iterator[CompassH
     parser = NmeaCompassParser()
     t = start_s
     with files.opened(path, "nmea_log") as f:
-        for raw in files.text_lines(f, MAX_NMEA_LINE_BYTES):
+        for raw in files.text_lines(f, files.MAX_NMEA_LINE_BYTES):
             text = raw.rstrip(b"\r\n").decode("ascii", errors="replace")
             m = _STAMPED.match(text)
             if m:
@@ -103,8 +100,24 @@ def can_inputs(path: Path, profile: str) -> Iterator[WheelOdometry]:
             yield out
 
 
-def _first_can_time(path: Path) -> float:
+def can_yaw_inputs(path: Path, profile: str) -> Iterator[YawRate]:
+    """The stability control's yaw rate of a CAN log (``drivers.can_yaw``): a gyro car's."""
     from drivers.can_odometry import LogReadResult, read_can_log
+    from drivers.can_yaw import YawRateDecoder
+
+    decoder = YawRateDecoder(profile)
+    for msg in read_can_log(path, LogReadResult()):
+        out = decoder.feed(msg)
+        if out is not None:
+            yield out
+
+
+def _first_can_time(path: Path) -> float:
+    """The first time of a CAN log, or of a speed and yaw-rate CSV (``odometry_csv``)."""
+    from drivers.can_odometry import LogReadResult, read_can_log
+
+    if is_odometry_csv(path):
+        return first_time(path)
 
     for msg in read_can_log(path, LogReadResult()):
         return float(msg.timestamp)
@@ -185,16 +198,16 @@ def replay(
         if on_output is not None:
             on_output(msg, out)
     st = pipeline.state()
-    res.odometer_m = pipeline.st.odometer_m
-    res.landmark_updates = pipeline.st.landmark_updates
+    res.odometer_m = pipeline.estimate.odometer_m
+    res.landmark_updates = pipeline.landmark_updates
     res.final = {
         "t_s": st.t_s,
         "x_m": st.x_m,
         "y_m": st.y_m,
         "heading_rad": st.heading_rad,
         "major_axis_m": st.ellipse.major_axis_m,
-        "odometer_m": pipeline.st.odometer_m,
-        "arrived": pipeline.st.arrived,
+        "odometer_m": pipeline.estimate.odometer_m,
+        "arrived": pipeline.arrived,
         "lost": st.lost,
     }
     return res
@@ -300,7 +313,12 @@ def register(sub: Any) -> None:
             "an NMEA text file."
         ),
     )
-    p.add_argument("file", type=Path, help="an .mcap recording (or folder), or a CAN log")
+    p.add_argument(
+        "file",
+        type=Path,
+        help="an .mcap recording (or folder), a CAN log, or a speed and yaw-rate CSV "
+        "(t,speed_mps,yaw_rate_rad_s)",
+    )
     p.add_argument("--nmea", type=Path, default=None, help="an NMEA compass capture to merge")
     p.add_argument(
         "--profile",
@@ -464,6 +482,12 @@ def _replay_raw(
         rates = {k: v for k, v in pcfg.expected_rates_hz.items() if k != "compass"}
         pcfg = replace(pcfg, expected_rates_hz=rates)
     streams: list[Iterator[Any]] = [can_inputs(path, setup.profile)]
+    if pcfg.estimator.gyro is not None and not is_odometry_csv(path):
+        streams.append(can_yaw_inputs(path, setup.profile))  # before the odometry of its time
+        streams.reverse()
+    if is_odometry_csv(path):  # a car's own speed and yaw rate (issue 38)
+        ecfg = pcfg.estimator
+        streams = [odometry_inputs(path, gyro=ecfg.gyro is not None, track_m=ecfg.track_m)]
     if args.nmea is not None:
         streams.append(nmea_inputs(args.nmea, _first_can_time(path), args.nmea_rate))
     merged = heapq.merge(*streams, key=lambda m: m.t_s)
@@ -474,7 +498,7 @@ def _replay_raw(
     from guidance.app.learned_file import save_after, start_from_learned
 
     vid = load_config(args.config, require_goal=False).vehicle_id if args.config else "replay"
-    est = current[-1].estimator
+    est = current[-1].localizer.estimator  # the learned parameters are the filter's
     before, note = start_from_learned(
         est, args.learned, vid, _first_can_time(path), wall_clock=False
     )

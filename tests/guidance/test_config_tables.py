@@ -56,9 +56,9 @@ class Outer:
             raise ValueError("count 14 is not allowed either")
 
 
-def _error(table: object, **kw: Any) -> str:
+def _error(table: object, cls: type = Outer, where: str = "t", **kw: Any) -> str:
     with pytest.raises(UserError) as info:
-        from_table(Outer, table, "t", **kw)
+        from_table(cls, table, where, **kw)
     message = str(info.value)
     assert "\n" not in message
     return message
@@ -234,3 +234,48 @@ def test_it_serves_the_simulators_options(tmp_path: Path) -> None:
 )
 def test_expected_in_words(hint: Any, words: str) -> None:
     assert expected(hint) == words
+
+
+@dataclass(frozen=True)
+class Spread:
+    """A dataclass the config file spreads over its tables (as ``PipelineConfig``)."""
+
+    turn_rad: float = field(default=1.0, metadata=rule(lo=0.0, degrees=True))
+    after_s: float = field(default=20.0, metadata=rule(lo=0.1, table="b", key="after"))
+    units: str = field(default="m", metadata=rule(choices=("m", "ft"), table="a"))
+    sizes: tuple[float, ...] = field(default=(), metadata=rule(max_items=2))
+    fixed: int = field(default=3, metadata=rule(read=False))
+    anything: float = 0.0
+    table: Mapping[str, float] = field(default_factory=dict)
+
+
+def test_degrees_part_key_and_others() -> None:
+    """``degrees``: offered as ``<stem>_deg``, held in radians; ``part``/``key``: only the
+    fields a table offers, by their key there; ``others``: another reader's keys."""
+    assert from_table(Spread, {"turn_deg": 90}, "t").turn_rad == pytest.approx(math.pi / 2)
+    assert "[t] turn_deg must be >= 0.0, not -1.0" in _error({"turn_deg": -1}, cls=Spread)
+    base = Spread()
+    got = from_table(Spread, {"after": 5, "x": 1}, "b", part="b", others=("x",), base=base)
+    assert got == Spread(after_s=5.0)
+    assert "[b] unknown key(s): units (known: after, x)" in _error(
+        {"units": "ft"}, cls=Spread, where="b", part="b", others=("x",), base=base
+    )
+    assert "[t] unknown key(s): fixed" in _error({"fixed": 4}, cls=Spread)
+
+
+def test_a_record_reads_every_field_and_bounds_what_no_rule_bounds() -> None:
+    """``record=True``: every field by its own name (``read=False`` too), a number no rule
+    bounds within ``RECORD_MAX``, a list no rule sizes within ``RECORD_MAX_ITEMS``, an integer
+    within 64 bits; a rule's ``max_items`` holds in a file too."""
+    from guidance.config_tables import RECORD_MAX, RECORD_MAX_ITEMS
+
+    rec = {"turn_rad": 0.5, "after_s": 1.0, "fixed": 7}
+    assert from_table(Spread, rec, "r", record=True) == Spread(0.5, 1.0, fixed=7)
+    big = {"anything": RECORD_MAX * 2}
+    assert "must be within +-1e+09" in _error(big, cls=Spread, record=True)
+    assert from_table(Spread, {"anything": RECORD_MAX * 2}, "t").anything == RECORD_MAX * 2
+    many = {str(i): 1.0 for i in range(RECORD_MAX_ITEMS + 1)}
+    assert f"at most {RECORD_MAX_ITEMS} items" in _error({"table": many}, cls=Spread, record=True)
+    assert "[t] sizes must hold at most 2 items, not 3" in _error({"sizes": [1, 2, 3]}, cls=Spread)
+    assert "must be a 64-bit integer" in _error({"fixed": 2**64}, cls=Spread, record=True)
+    assert "must be finite" in _error({"anything": 10**400}, cls=Spread, record=True)

@@ -8,9 +8,10 @@ import numpy as np
 import pytest
 
 from guidance.core import model
-from guidance.core.localize.estimator import RELOCALISED, PoseEstimator
+from guidance.core.localize.estimator import PoseEstimator
 from guidance.core.messages import LandmarkFix, WheelOdometry, reset_sigma_m
 from guidance.core.plan.navigator import Method, NavigatorConfig
+from guidance.core.stages import RELOCALISED
 from hal_sim import ekf, engine, params, reference, studies
 from hal_sim.params import SimParams
 

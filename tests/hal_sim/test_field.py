@@ -13,7 +13,7 @@ from pathlib import Path
 import numpy as np
 
 from guidance.core.plan.navigator import Method, NavigatorConfig
-from hal_sim import analysis, engine, field, field_study, params, studies, world
+from hal_sim import analysis, engine, field, field_study, params, studies, study_design, world
 from hal_sim.params import SimParams
 from hal_sim.studies import StudyRun
 
@@ -87,7 +87,7 @@ def test_field_study_outputs_and_paper_check(tmp_path: Path) -> None:
     sim = SimParams(field_time_limit_min=15.0)
     summary = StudyRun("field", tmp_path, 6, seed=2, workers=1, sim=sim).run()
     assert [c["method"] for c in summary["conditions"]] == [
-        m.value for m in studies.LANDMARK_METHODS
+        m.value for m in study_design.LANDMARK_METHODS
     ]
     for c in summary["conditions"]:
         assert c["runs"] == 6 and c["density_per_km2"] == 0.55 and c["detection_rate"] == 0.6
@@ -103,7 +103,7 @@ def test_field_study_outputs_and_paper_check(tmp_path: Path) -> None:
     on_disk = json.loads((tmp_path / "summary.json").read_text())
     assert on_disk["provenance"]["versions"]["numba"]
     table = analysis.read_csv_rows(tmp_path / "field_table.csv")
-    assert [r["method"] for r in table] == [m.value for m in studies.LANDMARK_METHODS]
+    assert [r["method"] for r in table] == [m.value for m in study_design.LANDMARK_METHODS]
     assert (tmp_path / "field_table.csv").read_text().startswith("# commit ")
     assert (tmp_path / "fig_field.png").stat().st_size > 20_000
 

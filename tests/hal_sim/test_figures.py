@@ -10,15 +10,15 @@ import matplotlib.figure
 import numpy as np
 import pytest
 
-from hal_sim import analysis, engine, figures, studies
-from hal_sim.studies import StudyData
+from hal_sim import analysis, engine, figures, study_design
+from hal_sim.study_design import StudyData
 
 
 def synthetic_study(trials: int = 400, seed: int = 0) -> StudyData:
     """Landmark-study results whose success falls with distance, later for denser and more
     reliably detected landmarks (only the columns the figures read are filled)."""
     rng = np.random.default_rng(seed)
-    conditions = studies.landmark_conditions()
+    conditions = study_design.landmark_conditions()
     results = {}
     for c in conditions:
         r = np.full((trials, engine.N_RESULT), np.nan)
@@ -74,14 +74,15 @@ def test_success_bins_count_trials_and_skip_thin_bins() -> None:
 def test_range_grid_is_the_summary_range() -> None:
     data = synthetic_study()
     summary = analysis.summarise_landmarks(data)
-    for method in studies.LANDMARK_METHODS:
+    for method in study_design.LANDMARK_METHODS:
         km, censored = figures.range_grid(data, method)
-        assert km.shape == (len(studies.LANDMARK_DENSITIES), len(studies.LANDMARK_DETECTION_RATES))
+        design = study_design
+        assert km.shape == (len(design.LANDMARK_DENSITIES), len(design.LANDMARK_DETECTION_RATES))
         for row in summary["conditions"]:
             if row["method"] != method.value:
                 continue
-            i = studies.LANDMARK_DENSITIES.index(row["density_per_km2"])
-            j = studies.LANDMARK_DETECTION_RATES.index(row["detection_rate"])
+            i = study_design.LANDMARK_DENSITIES.index(row["density_per_km2"])
+            j = study_design.LANDMARK_DETECTION_RATES.index(row["detection_rate"])
             assert km[i, j] == pytest.approx(row["range_km_at_80pct"])
             assert censored[i, j] == row["range_censored"]
         # Denser, better detected landmarks reach further (the synthetic truth).
@@ -99,7 +100,7 @@ def test_fig4_writes_curves_with_bands_and_the_range_heatmap_beside_it(
 
     curves, _ = saved[0]
     panels = curves.axes
-    assert len(panels) == len(studies.LANDMARK_METHODS) * len(studies.LANDMARK_DENSITIES)
+    assert len(panels) == len(study_design.LANDMARK_METHODS) * len(study_design.LANDMARK_DENSITIES)
     for ax in panels:
         # Legible: one line per drawn detection rate plus the 80 % line, each with a band.
         assert len(ax.lines) == len(figures.CURVE_DETECTION_RATES) + 1
@@ -122,7 +123,7 @@ def test_fig4_writes_curves_with_bands_and_the_range_heatmap_beside_it(
     colorbar = next(ax for ax in heat.axes if not ax.images and ax.get_ylabel())
     assert colorbar.get_ylabel() == "Range at 80 % success: Euclidean start-goal distance, km"
     assert "range at 80 % success" in heat.get_suptitle()
-    for ax, method in zip(maps, studies.LANDMARK_METHODS, strict=True):
+    for ax, method in zip(maps, study_design.LANDMARK_METHODS, strict=True):
         km, censored = figures.range_grid(data, method)
         np.testing.assert_allclose(np.asarray(ax.images[0].get_array()), km)
         labels = {t.get_text() for t in ax.texts}

@@ -106,7 +106,7 @@ def test_a_lost_car_finds_itself_again_and_arrives_unless_told_not_to(tmp_path: 
 
     def sim(*extra: str) -> dict[str, object]:
         out = subprocess.run(
-            [sys.executable, "-m", "guidance.tools.cli", "sim", "--seed", "508", "--compass-deg",
+            [sys.executable, "-m", "guidance.tools.cli", "sim", "--seed", "509", "--compass-deg",
              "20", "--density", "3", "--can-silent", "30:90", "--json", "--no-voice", "--no-png",
              "--no-record", "--no-telemetry", "--out", str(tmp_path), *extra],
             capture_output=True, text=True, timeout=600, check=False,

@@ -85,3 +85,33 @@ def test_a_stop_during_the_build_leaves_no_half_built_file_at_the_path(
     assert not [p for p in tmp_path.iterdir() if p.name.startswith(".landmarks.sqlite")]
     monkeypatch.setattr(landmark_cli, "main", real)
     assert len(import_sim_landmark_db(path, xy, seed=3)) == 4  # the next run builds it
+
+
+def test_a_database_of_another_city_of_the_same_size_is_rebuilt_not_reused(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """Issue 40 (noticed): the reuse check compared landmark names only, so a database built
+    for another seed (other photos) or another layout (other positions) with as many
+    landmarks was reused: the camera then saw the other city's photos at this city's places.
+    Each rebuild is checked against the truth: the stored photo of each landmark is this
+    city's facade and its position this city's."""
+    from hal_sim.sim_camera import facade, photo_seed
+    from landmark_db.features import decode_image
+    from landmark_db.store import open_db
+
+    path = tmp_path / "landmarks.sqlite"
+    xy = np.array([[10.0 * i, 5.0 * i] for i in range(4)])
+    import_sim_landmark_db(path, xy, seed=3)
+    capsys.readouterr()
+    for seed, city in ((4, xy), (4, xy + 7.0)):  # another seed; then another layout
+        lms = import_sim_landmark_db(path, city, seed=seed)
+        assert "first use: building" in capsys.readouterr().err, (seed, city[0])
+        with open_db(path, readonly=True) as db:
+            for i, lm in enumerate(lms):
+                rec = db.get(lm.id)
+                assert rec is not None
+                assert (rec.x_m, rec.y_m) == pytest.approx(tuple(city[i]), abs=2e-3)
+                _fmt, data = db.image_bytes(lm.id) or ("", b"")
+                assert np.array_equal(decode_image(data), facade(photo_seed(seed, i))), (seed, i)
+    import_sim_landmark_db(path, xy + 7.0, seed=4)  # this city again: reused, silently
+    assert capsys.readouterr().err == ""

@@ -11,7 +11,7 @@ import numpy as np
 import pytest
 
 from guidance.errors import UserError
-from hal_sim import analysis, engine, provenance, studies
+from hal_sim import analysis, engine, provenance, studies, study_design
 from hal_sim.studies import StudyRun
 
 
@@ -178,7 +178,7 @@ def test_every_output_carries_provenance_parameters_and_intervals(tmp_path: Path
     par = summary["parameters"]
     assert par["trials_per_condition"] == 6 and par["sim"]["range_cap_km"] == 40.0
     assert len(par["conditions"]) == 4 and set(par["estimator"]) == {
-        c.key for c in studies.range_conditions()
+        c.key for c in study_design.range_conditions()
     }
     for c in summary["conditions"]:
         if c["lost_trials"] >= 2:

@@ -171,7 +171,7 @@ def test_migrate_switches_the_extractor(tmp_path: Path, capsys: pytest.CaptureFi
     _write(tmp_path, "a.png", facade(71))
     assert run(capsys, "add", db, str(tmp_path / "a.png"), "--xy", "0", "0")[0] == 0
     code, out, _ = run(capsys, "migrate", db, "--extractor", "rootsift", "--features", "500")
-    assert code == 0 and "features rootsift/1:500@640 (1 photo(s) recomputed)" in out
+    assert code == 0 and "features rootsift/2:500@640 (1 photo(s) recomputed)" in out
     code, out, _ = run(capsys, "migrate", db)
     assert code == 0 and "(0 photo(s) recomputed)" in out
     with open_db(db) as ro:

@@ -100,7 +100,7 @@ def test_plausibility_is_judged_on_the_inliers_region() -> None:
 
 def test_extractor_identity_round_trips_and_is_stored() -> None:
     ext = ExtractorConfig("rootsift", 800, 512)
-    assert ext.ident == "rootsift/1:800@512" and ExtractorConfig.parse(ext.ident) == ext
+    assert ext.ident == "rootsift/2:800@512" and ExtractorConfig.parse(ext.ident) == ext
     with pytest.raises(ValueError):
         ExtractorConfig.parse("surf/1:1000@640")
     with pytest.raises(ValueError):

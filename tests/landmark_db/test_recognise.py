@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import math
-import pickle
 from pathlib import Path
 
 import numpy as np
@@ -22,10 +21,8 @@ from landmark_db.recognise import (
     NO_CANDIDATE,
     NOT_CONSISTENT,
     REPEAT,
-    WORKER_NICE_LEVELS,
     Recogniser,
     RecogniserConfig,
-    RecogniserWorker,
     fix_sigma_m,
 )
 from landmark_db.store import LandmarkDb
@@ -168,57 +165,3 @@ def test_null_recogniser() -> None:
     assert n.process(CameraFrame(0.0, None), _state(0.0, 0.0)).fix is None
     assert n.process(CameraFrame(1.0, None), _state(0.0, 0.0)).reason == NO_CANDIDATE
     assert n.stats()["frames"] == 2 and n.stats()["fixes"] == 0
-
-
-def test_worker_process_gives_the_same_answers(
-    sim_db_path: tuple[Path, list[SimLandmark]],
-) -> None:
-    path, lms = sim_db_path
-    cam = SimCamera(lms, seed=9, config=EASY)
-    lm = lms[3]
-    frames = [cam.frame_at(0.5 * k, lm.x_m, lm.y_m) for k in range(2)]
-    pickle.dumps(frames[0])  # frames cross the process boundary
-    with RecogniserWorker(path) as worker:
-        got = [worker.process(f, _state(lm.x_m, lm.y_m)).result(timeout=60) for f in frames]
-        assert worker.stats()["fixes"] == 1
-    assert got[0].reason == NOT_CONSISTENT and got[1].fix is not None
-    assert got[1].fix.landmark_id == lm.id
-
-
-def test_the_worker_process_yields_to_the_loop(
-    sim_db_path: tuple[Path, list[SimLandmark]],
-) -> None:
-    """Issue 23, item 9: the matcher worker runs 10 nice levels below the app that started it
-    (under the car's unit, Nice=-10: level with other programs, the loop above them) with one
-    OpenCV thread, so the 100 Hz loop beside it comes first; before, the worker ran OpenCV's
-    thread per core (and, as SCHED_IDLE, got no CPU at all beside a busy process)."""
-    import os
-
-    path, _ = sim_db_path
-    mine = os.getpriority(os.PRIO_PROCESS, 0)
-    with RecogniserWorker(path) as worker:
-        got = worker.scheduling()
-    assert got["policy"] == os.SCHED_OTHER, got
-    assert got["nice"] == min(19, mine + WORKER_NICE_LEVELS), got
-    assert got["opencv_threads"] == 1, got
-
-
-def test_a_worker_started_by_a_real_time_loop_is_never_real_time(
-    sim_db_path: tuple[Path, list[SimLandmark]],
-) -> None:
-    """Issue 23, item 9: the car's unit makes the loop's thread SCHED_RR; a matcher worker
-    that inherits it (without the unit's reset-on-fork) would hold a core at the loop's own
-    priority (loaded lateness 22-25 ms): it drops the policy in ``worker_setup``."""
-    import os
-
-    path, _ = sim_db_path
-    try:
-        os.sched_setscheduler(0, os.SCHED_RR, os.sched_param(5))
-    except PermissionError:
-        pytest.skip("real-time scheduling needs root or CAP_SYS_NICE")
-    try:
-        with RecogniserWorker(path) as worker:
-            got = worker.scheduling()
-    finally:
-        os.sched_setscheduler(0, os.SCHED_OTHER, os.sched_param(0))
-    assert got["policy"] == os.SCHED_OTHER, got

@@ -52,6 +52,20 @@ def test_round_trip_positions_photo_and_features(tmp_path: Path) -> None:
         assert ro.check().ok
 
 
+def test_find_reads_only_ascii_digits_as_an_id(tmp_path: Path) -> None:
+    """Issue 40 (noticed): ``find("٣")`` returned landmark 3, since ``int`` reads Arabic-Indic
+    (and full-width) digits; only ASCII digits are an id, and an id beyond SQLite's integers is
+    no landmark (not an OverflowError)."""
+    db = _db(tmp_path, n=4)
+    third = db.get(3)
+    assert third is not None and db.find("3") == third and db.find("lm2") == third
+    # 3 in Arabic-Indic, Persian, full-width and Devanagari digits
+    for key in ("\u0663", "\u06f3", "\uff13", "\u0969"):
+        assert db.find(key) is None, key
+    assert db.find("9" * 30) is None and db.find("0" * 18 + "3") is None
+    db.close()
+
+
 def test_local_frame_matches_pymap3d_over_a_city(tmp_path: Path) -> None:
     for x, y in [(0.0, 0.0), (5000.0, 0.0), (0.0, -5000.0), (7000.0, 7000.0)]:
         lat, lon = ORIGIN.to_geodetic(x, y)
@@ -199,7 +213,7 @@ def test_refresh_features_recomputes_for_a_new_extractor_or_version(tmp_path: Pa
         assert db.refresh_features(ExtractorConfig("rootsift", 500, 640)) == 3
     with open_db(p) as ro:
         f = ro.features(1)
-        assert ro.extractor.ident == "rootsift/1:500@640" and ro.check().ok
+        assert ro.extractor.ident == "rootsift/2:500@640" and ro.check().ok
         assert f is not None and f.kind == "rootsift" and f.descriptors.shape[1] == 128
     with sqlite3.connect(p) as c:  # as if written by an older version of the extractor
         c.execute("UPDATE photo_features SET extractor = 'rootsift/0:500@640' WHERE photo_id = 2")

@@ -193,7 +193,7 @@ def test_a_can_flood_is_coalesced_the_loop_queue_stays_bounded_and_no_distance_i
     # No distance lost: 10 m/s over the span of the first to the last increment (one frame
     # period of the first increment is not in it).
     span = times[-1] - times[0]
-    assert pipeline.st.odometer_m == pytest.approx(SPEED_MPS * span, rel=0.02, abs=0.5)
+    assert pipeline.estimate.odometer_m == pytest.approx(SPEED_MPS * span, rel=0.02, abs=0.5)
 
 
 def _frames_flowed(send_times: list[float], t0: float, t1: float) -> bool:

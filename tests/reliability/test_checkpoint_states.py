@@ -58,7 +58,7 @@ def _pipeline(compass: bool = True) -> Pipeline:
 def _drive(p: Pipeline, steps: int = 100) -> Pipeline:
     for i in range(1, steps + 1):
         p.feed(WheelOdometry(i * 0.1, 1.0, 1.0))
-        if i % 10 == 0 and p.estimator.config.compass_two_sigma_deg is not None:
+        if i % 10 == 0 and p.localizer.estimator.config.compass_two_sigma_deg is not None:
             p.feed(HeadingFix(i * 0.1, 0.0))
     return p
 
@@ -110,10 +110,10 @@ def test_a_learned_state_outside_its_physical_range_is_not_resumed(
         p, writer = _start(ck)
     assert not writer.resumed and len(_aside(ck)) == 1, caplog.text
     assert f"x[{i}]" in caplog.text and "outside" in caplog.text
-    x0 = _pipeline().estimator.x
-    assert np.array_equal(p.estimator.x, x0)  # the priors: nothing of it restored
+    x0 = _pipeline().localizer.estimator.x
+    assert np.array_equal(p.localizer.estimator.x, x0)  # the priors: nothing of it restored
     _drive(p, 50)  # and the estimate moves as it should: 50 m, not 50,000 km or frozen
-    assert 45.0 < p.estimator.x[0] < 55.0
+    assert 45.0 < p.localizer.estimator.x[0] < 55.0
 
 
 def test_a_learned_sigma_beyond_its_bound_is_not_resumed(tmp_path: Path) -> None:
@@ -177,14 +177,15 @@ def test_a_car_without_a_compass_that_crashes_before_its_first_odometry_is_resum
 ) -> None:
     ck = tmp_path / "ck.json"
     before = _pipeline(compass=False)
-    assert before.estimator.n == model.N_STATE_CAR and before.estimator.P[5, 5] == 0.0  # by design
-    assert before.estimator.state_problem() is None
+    est = before.localizer.estimator
+    assert est.n == model.N_STATE_CAR and est.P[5, 5] == 0.0  # by design
+    assert est.state_problem() is None
     _write(ck, before)
     with caplog.at_level(logging.WARNING):
         p, writer = _start(ck, compass=False)
     assert writer.resumed and not _aside(ck), caplog.text
     assert "not positive-definite" not in caplog.text
-    assert np.array_equal(p.estimator.P, before.estimator.P)
+    assert np.array_equal(p.localizer.estimator.P, before.localizer.estimator.P)
 
 
 def test_every_state_the_estimator_reaches_is_one_the_checker_resumes(tmp_path: Path) -> None:
@@ -192,7 +193,7 @@ def test_every_state_the_estimator_reaches_is_one_the_checker_resumes(tmp_path: 
         p = _pipeline(compass)
         for steps in (0, 1, 5, 40):
             _drive(p, steps)
-            assert p.estimator.state_problem() is None
+            assert p.localizer.estimator.state_problem() is None
             ck = tmp_path / f"ck-{compass}-{steps}.json"
             _write(ck, p)
             _, writer = _start(ck, compass)

@@ -50,7 +50,7 @@ def _driven() -> Pipeline:
         p.feed(WheelOdometry(i * 0.1, 1.0, 1.0))
         if i % 10 == 0:
             p.feed(HeadingFix(i * 0.1, 0.0))
-    assert p.estimator.x[0] > 90.0
+    assert p.localizer.estimator.x[0] > 90.0
     return p
 
 
@@ -77,7 +77,7 @@ def test_the_same_vehicle_and_trip_resumes(tmp_path: Path) -> None:
     ck = tmp_path / "ck.json"
     _write(ck, _driven())
     p = _start(ck)
-    assert p.estimator.x[0] > 90.0  # resumed where it was
+    assert p.localizer.estimator.x[0] > 90.0  # resumed where it was
     doc = json.loads(ck.read_bytes())
     assert doc["identity"]["vehicle_id"] == "car-1"
     assert doc["identity"]["software_version"]
@@ -98,7 +98,7 @@ def test_another_vehicle_or_a_changed_goal_starts_afresh_and_the_file_is_moved_a
     _write(ck, _driven())
     with caplog.at_level(logging.WARNING):
         p = _start(ck, goal=goal, vehicle=vehicle)
-    assert p.estimator.x[0] == 0.0  # afresh
+    assert p.localizer.estimator.x[0] == 0.0  # afresh
     assert p.navigator.goal == goal  # the configured goal, not the checkpoint's
     assert not ck.exists() and len(_aside(ck)) == 1
     assert why in caplog.text and "moved aside" in caplog.text
@@ -109,7 +109,7 @@ def test_a_clean_stop_is_not_resumed(tmp_path: Path) -> None:
     _write(ck, _driven(), finished=True)
     assert load_checkpoint(ck, trip_identity("car-1", _pipeline().config.describe())) is None
     p = _start(ck)
-    assert p.estimator.x[0] == 0.0
+    assert p.localizer.estimator.x[0] == 0.0
     assert ck.exists() and not _aside(ck)  # nothing wrong with it: just finished
 
 
@@ -170,7 +170,8 @@ def test_an_invalid_state_is_moved_aside_and_later_writes_work(
     ck.write_text(json.dumps(doc))  # json writes NaN as NaN, which json.loads accepts
     with caplog.at_level(logging.WARNING):
         p = _start(ck)
-    assert p.estimator.x[0] == 0.0 and np.all(np.isfinite(p.estimator.P))  # afresh, untouched
+    est = p.localizer.estimator
+    assert est.x[0] == 0.0 and np.all(np.isfinite(est.P))  # afresh, untouched
     assert p.navigator.goal == GOAL
     assert len(_aside(ck)) == 1, caplog.text
     assert "moved aside" in caplog.text
@@ -187,7 +188,7 @@ def test_a_damaged_or_empty_checkpoint_never_stops_a_start(tmp_path: Path, conte
     ck = tmp_path / "ck.json"
     ck.write_bytes(content)
     p = _start(ck)
-    assert p.estimator.x[0] == 0.0
+    assert p.localizer.estimator.x[0] == 0.0
     assert not ck.exists() and len(_aside(ck)) == 1  # ages out: the next start is clean
     _start(ck)
     assert len(_aside(ck)) == 1
@@ -199,7 +200,7 @@ def test_an_unreadable_wall_time_is_too_old_not_a_crash(tmp_path: Path) -> None:
     doc = json.loads(ck.read_bytes())
     doc["wall_time_unix_s"] = "yesterday"
     ck.write_text(json.dumps(doc))
-    assert _start(ck).estimator.x[0] == 0.0
+    assert _start(ck).localizer.estimator.x[0] == 0.0
 
 
 def test_a_write_on_a_full_disk_leaves_no_temp_file(tmp_path: Path) -> None:

@@ -74,9 +74,9 @@ def test_wall_clock_steps_leave_the_estimate_moving_and_are_reported() -> None:
         odo.stop()
         wheels.close()
     assert odo.stats().get("clock_steps", 0) == len(STEPS)  # each step reported
-    x = pipeline.estimator.x
+    x = pipeline.localizer.estimator.x
     expected = SPEED * driven_s
     assert x[0] == pytest.approx(expected, rel=0.1)  # moving all along, nothing lost
-    assert pipeline.estimator.major_axis_m < 50.0  # and not widened by an hour of driving
-    assert math.hypot(x[0] - expected, x[1]) < pipeline.estimator.major_axis_m
+    assert pipeline.localizer.estimator.major_axis_m < 50.0  # and not widened by an hour of driving
+    assert math.hypot(x[0] - expected, x[1]) < pipeline.localizer.estimator.major_axis_m
     assert rejected.count("out_of_order") <= 2, rejected

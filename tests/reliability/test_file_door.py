@@ -38,6 +38,7 @@ CAN_LOG = REPO / "tests" / "data" / "can" / "rav4_2020-02-03_bus0_wheelspeeds.lo
 NMEA_LOG = REPO / "tests" / "data" / "nmea" / "hemi_head.log"
 GPS_LOG = REPO / "tests" / "data" / "nmea" / "rst39.log"
 TAHOE = REPO / "config" / "tahoe.toml"
+ZENOH_PASSWORDS = REPO / "config" / "zenoh" / "passwords.example.txt"
 CHANCE = REPO / "guidance" / "core" / "plan" / "chance_table.json"
 TIMEOUT_S = 60.0
 """A reader that has not answered in this long hangs (each answers in well under a second)."""
@@ -195,6 +196,17 @@ def _survey_nmea(path: Path) -> object:
     return read_nmea(path)
 
 
+def _odometry_sample() -> bytes:
+    rows = "".join(f"{1500000000 + 0.2 * t:.1f},{5.0 + t * 0.1},{0.01 * t}\n" for t in range(20))
+    return ("t,speed_mps,yaw_rate_rad_s\n" + rows).encode()
+
+
+def _read_odometry_csv(path: Path) -> object:
+    from guidance.tools.odometry_csv import read_odometry_csv
+
+    return read_odometry_csv(path)
+
+
 def _read_columns(path: Path) -> object:
     from guidance.tools.evaluate import read_truth
 
@@ -230,6 +242,12 @@ def _read_wav(path: Path) -> object:
     from drivers.speech_grammar import read_wav_16k
 
     return read_wav_16k(path)
+
+
+def _dictionary_users(path: Path) -> object:
+    from guidance.telemetry.example_passwords import dictionary_users
+
+    return dictionary_users(path)
 
 
 @dataclass(frozen=True)
@@ -277,9 +295,15 @@ ADAPTERS: dict[str, Adapter] = {
     "guidance.tools.replay.nmea_inputs": Adapter(_nmea_inputs, _bytes_of(NMEA_LOG), ".log"),
     "landmark_db.survey.read_nmea": Adapter(_survey_nmea, _bytes_of(GPS_LOG), ".log"),
     "guidance.tools.evaluate._read_columns": Adapter(_read_columns, _truth_sample, ".csv"),
+    "guidance.tools.odometry_csv.read_odometry_csv": Adapter(
+        _read_odometry_csv, _odometry_sample, ".csv"
+    ),
     "landmark_db.inputs.open_csv": Adapter(_open_csv, _truth_sample, ".csv"),
     "landmark_db.inputs.read_photo": Adapter(_read_photo, _photo_sample, ".png"),
     "drivers.speech_grammar.read_wav_16k": Adapter(_read_wav, _wav_sample, ".wav"),
+    "guidance.telemetry.example_passwords.dictionary_users": Adapter(
+        _dictionary_users, _bytes_of(ZENOH_PASSWORDS), ".txt"
+    ),
 }
 
 

@@ -1,7 +1,9 @@
 """Stage 1 of the core, "locationd": sensor inputs in, one estimate out (``EstimateState``).
 
 The estimator and everything that moves its state or reads the car's sensors into it: the
-filter (``estimator``), its measurement functions, dead reckoning through a CAN gap
-(``odometry_gap``), the compass deviation card (``compass_cal``), the parameters a car learns
-(``learned``, ``wheel_cal``) and the bounds a state must keep (``state_limits``).
+filter (``estimator``), its measurement functions, the localizer that drives it
+(``localizer``), the compass deviation card (``compass_cal``), the parameters a car learns
+(``learned``, ``wheel_cal``) and the bounds a state must keep (``state_limits``). Dead
+reckoning through a CAN gap is ``guidance.core.odometry_gap``, shared: the planner reads its
+bound too.
 """

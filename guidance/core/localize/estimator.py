@@ -1,22 +1,22 @@
 """Pose estimator: an extended Kalman filter on filterpy (SPEC section 2).
 
-Plain synchronous code with one entry point, ``process(msg)``, which takes a
-timestamped input and returns what happened. No I/O, no clock reads: time comes
-from the messages, so live driving, accelerated simulation and replay run the
-same code. The math lives in ``guidance.model`` (shared with the study engine);
-this module adds bookkeeping: time ordering, gates, counters, health, resets.
-"""
+One entry point, ``process(msg)``: a timestamped input in, what happened out. No I/O, no
+clock reads (time comes from the messages: live, simulated and replayed drives run the same
+code). The math is ``guidance.core.model``'s (shared with the study engine); this module
+adds time ordering, gates, counters, health, resets."""
 
 from __future__ import annotations
 
 import math
 from collections import Counter
 from collections.abc import Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 
+from guidance.config_tables import rule
 from guidance.core import model
+from guidance.core.localize import gyro as gyro_model
 from guidance.core.localize import state_limits
 from guidance.core.localize.measurements import (
     H_heading,
@@ -26,97 +26,113 @@ from guidance.core.localize.measurements import (
     h_position,
     heading_residual,
 )
-from guidance.core.localize.odometry_gap import dead_reckon
-from guidance.core.messages import Ellipse, EstimateState, HeadingFix, LandmarkFix, WheelOdometry
+from guidance.core.messages import (
+    Ellipse,
+    EstimateState,
+    HeadingFix,
+    LandmarkFix,
+    WheelOdometry,
+    YawRate,
+)
+from guidance.core.odometry_gap import dead_reckon
+from guidance.core.stages import LOST_HYSTERESIS, RELOCALISED
 
-EstimatorInput = WheelOdometry | HeadingFix | LandmarkFix
+EstimatorInput = WheelOdometry | HeadingFix | LandmarkFix | YawRate
+_CAR = rule(lo=0.0, group="car")  # a setting of the car model ([estimator] model = "car")
+_FIXED_POSITIVE = rule(positive=True, read=False)  # > 0; recorded, not offered in [estimator]
 
 
 @dataclass(frozen=True, slots=True)
 class EstimatorConfig:
-    """Sensor noise and gate settings. Defaults: the reference car (2007 Tahoe)."""
+    """Sensor noise and gate settings, each with its config ``rule``. Defaults: the 2007 Tahoe."""
 
-    track_m: float = 1.72
+    track_m: float = field(default=1.72, metadata=rule(positive=True, read=False))
     """Rear track width, m (Tahoe GMT900: 1.72 m)."""
-    wheel_quantum_m: float = 0.02
+    wheel_quantum_m: float = field(default=0.02, metadata=rule(lo=0.0))
     """Distance resolution of one wheel increment, m (one encoder count)."""
-    wheel_slip_frac: float = 0.01
+    wheel_slip_frac: float = field(default=0.01, metadata=rule(lo=0.0))
     """1-sigma slip as a fraction of each wheel increment."""
-    compass_two_sigma_deg: float | None = 30.0
+    compass_two_sigma_deg: float | None = field(default=30.0, metadata=rule(positive=True))
     """Compass 2-sigma error, degrees; None when no compass is fitted."""
-    compass_gate_chi2: float = model.CHI2_1D_P999
+    compass_gate_chi2: float = field(default=model.CHI2_1D_P999, metadata=_FIXED_POSITIVE)
     """Heading gate: residual d^2 above this (1 dof, P = 0.999) is rejected."""
-    landmark_gate_chi2: float = model.CHI2_2D_P99
+    landmark_gate_chi2: float = field(default=model.CHI2_2D_P99, metadata=_FIXED_POSITIVE)
     """Landmark gate: d^2 above this (2 dof, P = 0.99) is rejected."""
-    lost_major_axis_m: float = 100.0
+    lost_major_axis_m: float = field(default=100.0, metadata=rule(positive=True))
     """Lost when the full 2-sigma major axis exceeds this (about one city block)."""
-    initial_position_sigma_m: float = 1.0
-    initial_heading_sigma_deg: float = 1.0
-    max_wheel_step_m: float = 20.0
+    initial_position_sigma_m: float = field(default=1.0, metadata=rule(positive=True))
+    initial_heading_sigma_deg: float = field(default=1.0, metadata=rule(positive=True))
+    max_wheel_step_m: float = field(default=20.0, metadata=rule(positive=True))
     """Sanity limit: a single odometry increment above this is rejected."""
-    reorder_window_s: float = 1.0
+    reorder_window_s: float = field(default=1.0, metadata=rule(lo=0.0, read=False))
     """An input up to this much older than the estimate is applied where it arrives (sources
     race each other and clocks jitter; a sub-second clock step must not freeze the estimate).
     Older inputs are rejected, until ``REANCHOR_AFTER`` in a row make the estimate follow."""
-    interference_detection: bool = True
+    interference_detection: bool = field(default=True, metadata=rule(read=False))
     """Reject compass readings while their innovations say the field is disturbed.
 
     Inflating their variance instead was tried: the heading still converges to
     the biased field over a block (docs/reliability.md has the comparison)."""
-    interference_alpha: float = 0.15
+    interference_alpha: float = field(default=0.15, metadata=rule(lo=0.0, hi=1.0, read=False))
     """Weight of each reading in the NIS level (about 7 readings of memory)."""
-    interference_on_nis: float = 4.0
+    interference_on_nis: float = field(default=4.0, metadata=_FIXED_POSITIVE)
     """Level above which the compass is considered disturbed (modelled value: 1)."""
-    interference_off_nis: float = 2.0
+    interference_off_nis: float = field(default=2.0, metadata=_FIXED_POSITIVE)
     """Level below which it is trusted again."""
     # -- the car model (docs/estimation.md); all zero = the paper's white-noise model ----------
-    wheel_walk_var_m2_per_m: float = 0.0
+    wheel_walk_var_m2_per_m: float = field(default=0.0, metadata=_CAR)
     """Variance per metre of each wheel's distance (a random walk: independent of the rate)."""
-    scale_sigma: float = 0.0
+    scale_sigma: float = field(default=0.0, metadata=_CAR)
     """Prior 1-sigma of the common wheel-speed scale error, a fraction (a state when > 0)."""
-    diff_sigma: float = 0.0
+    diff_sigma: float = field(default=0.0, metadata=_CAR)
     """Prior 1-sigma of the right-minus-left wheel scale difference, a fraction."""
-    diff_walk_var_per_m: float = 0.0
+    diff_walk_var_per_m: float = field(default=0.0, metadata=_CAR)
     """Random-walk variance of that difference per metre: 0 in the car model, whose difference
     changes from street to street but stays bounded (``camber_diff_sigma``)."""
-    camber_diff_sigma: float = 0.0
+    camber_diff_sigma: float = field(default=0.0, metadata=_CAR)
     """1-sigma of the part of the left/right difference that changes from street to street
     (road camber, tyre temperature), a fraction: a Gauss-Markov process of correlation length
     ``camber_length_m``, whose heading is a walk in distance (``model.camber_heading_var``):
     0.016 % in the car model, the same change per street as a walk of 1e-10 per metre over
     250 m, but bounded (docs/estimation.md)."""
-    camber_length_m: float = 250.0
+    camber_length_m: float = field(default=250.0, metadata=_CAR)
     """That process's correlation length: a street between junctions, a few hundred metres."""
-    turn_scale_sigma: float = 0.0
+    turn_scale_sigma: float = field(default=0.0, metadata=_CAR)
     """Prior 1-sigma of the turn scale error, a fraction: the true heading change is the
     wheels' (or the gyro's) x (1 + kt) (effective track; a gyro's sensitivity)."""
-    compass_bias_sigma_deg: float = 0.0
+    compass_bias_sigma_deg: float = field(default=0.0, metadata=_CAR)
     """Prior 1-sigma of the compass bias (uncalibrated: large; calibrated: the fit residual)."""
-    compass_bias_walk_deg2_per_s: float = 0.0
+    compass_bias_walk_deg2_per_s: float = field(default=0.0, metadata=_CAR)
     """Random-walk variance of the compass bias per second (drift of the car's own field)."""
-    compass_bias_turn_deg2_per_rad: float = 0.0
+    compass_bias_turn_deg2_per_rad: float = field(default=0.0, metadata=_CAR)
     """Bias variance added per radian of heading change (the deviation curve left after
     calibration changes with heading)."""
-    heading_second_order: float = 0.0
+    heading_second_order: float = field(default=0.0, metadata=_CAR)
     """The second-order term of a heading error, which a linearised filter leaves out: a
     position lever ``r`` turned by an error ``delta`` also moves ``-r delta^2 / 2`` along
     itself, ``|r| sigma^2 = |P_xy,theta|``. Its second moment about the (uncorrected) estimate
     is ``3/4 |P_xy,theta|^2`` (``E[delta^4] = 3 sigma^4``): this factor times
     ``|P_xy,theta|^2`` is added along the lever as it grows (0.75 in the car model; 0, the
     paper's linear filter). docs/estimation.md, "The second-order heading term"."""
+    gyro: gyro_model.GyroConfig | None = None
+    """The car's yaw-rate sensor turns the heading (``[vehicle] yaw_source = "gyro"``), with
+    its bias and scale as states (``guidance.core.localize.gyro``); None: the wheels do."""
 
     @property
     def car_model(self) -> bool:
-        """True when the persistent errors are states (7-state filter)."""
+        """True when the persistent errors are states (7-state filter, 9 with a gyro)."""
         return (
             self.scale_sigma > 0.0
             or self.diff_sigma > 0.0
             or self.compass_bias_sigma_deg > 0.0
             or self.turn_scale_sigma > 0.0
+            or self.gyro is not None
         )
 
     @property
     def n_state(self) -> int:
+        if self.gyro is not None:
+            return gyro_model.N_STATE_GYRO
         return model.N_STATE_CAR if self.car_model else model.N_STATE
 
 
@@ -134,14 +150,6 @@ odometry): an estimate stamped in the future by a glitch never freezes for good.
 BIAS_TURN_STEP_RAD = math.radians(10.0)
 """The bias grows with heading changes counted in steps of this size, so that the wiggles of a
 straight drive (which cancel) do not add up as if they were turns."""
-
-
-LOST_HYSTERESIS = 0.8
-"""Lost once the 2-sigma major axis passes ``lost_major_axis_m``; found again only once it is
-back below this fraction of it (the pipeline says each once; a relocalisation resets while the
-axis is above it)."""
-RELOCALISED = "relocalised"
-"""``StepResult.reason`` of an accepted landmark fix that reset the position (``_relocalise``)."""
 
 
 @dataclass(frozen=True, slots=True)
@@ -174,6 +182,7 @@ class PoseEstimator:
         self.healthy = True
         self._last_t: float | None = None
         self._turn_rad = 0.0
+        self._gyro = gyro_model.GyroIntegrator()
         self.out_of_order_run = 0
         """Inputs rejected in a row for being older than the estimate (a clock that stepped)."""
         self.interference_level = 1.0
@@ -215,6 +224,8 @@ class PoseEstimator:
         if self.n > model.N_STATE:
             sb = math.radians(cfg.compass_bias_sigma_deg)
             diag += [cfg.scale_sigma**2, cfg.diff_sigma**2, sb * sb, cfg.turn_scale_sigma**2]
+        if cfg.gyro is not None:
+            diag += [cfg.gyro.bias_var, cfg.gyro.scale_sigma**2]
         return np.diag(diag)
 
     def set_state(self, x: np.ndarray, P: np.ndarray) -> None:
@@ -265,7 +276,7 @@ class PoseEstimator:
     def coast(self, speed_mps: float, gap_from_s: float, gap_to_s: float) -> None:
         """Odometry overdue: move on at ``speed_mps`` along the heading from ``gap_from_s`` to
         ``gap_to_s`` seconds into the gap, widened along the road and in heading
-        (``guidance.core.localize.odometry_gap.dead_reckon``, the one definition of that step)."""
+        (``guidance.core.odometry_gap.dead_reckon``, the one definition of that step)."""
         x, P = dead_reckon(self._kf.x, self._kf.P, speed_mps, gap_from_s, gap_to_s)
         self._kf.x = x
         self._kf.x[2] = model.wrap_angle(float(x[2]))
@@ -341,18 +352,30 @@ class PoseEstimator:
     def lost(self) -> bool:
         return self.major_axis_m > self.config.lost_major_axis_m
 
-    def state(self) -> EstimateState:
+    def state(
+        self,
+        odometer_m: float = 0.0,
+        speed_mps: float = 0.0,
+        heading_known: bool = True,
+        reckoning: bool = False,
+    ) -> EstimateState:
+        """The estimate as a value, with what the localizer reads it with (``EstimateState``)."""
         x = self._kf.x
-        P = self._kf.P
+        c = self._kf.P[:3, :3].tolist()
+        ellipse = self.ellipse()
         return EstimateState(
             t_s=self._last_t if self._last_t is not None else 0.0,
             x_m=float(x[0]),
             y_m=float(x[1]),
             heading_rad=float(x[2]),
-            covariance=tuple((float(r[0]), float(r[1]), float(r[2])) for r in P[:3]),
-            ellipse=self.ellipse(),
-            lost=self.lost,
+            covariance=(tuple(c[0]), tuple(c[1]), tuple(c[2])),
+            ellipse=ellipse,
+            lost=ellipse.major_axis_m > self.config.lost_major_axis_m,
             healthy=self.healthy,
+            odometer_m=odometer_m,
+            speed_mps=speed_mps,
+            heading_known=heading_known,
+            reckoning=reckoning,
         )
 
     # -- the one entry point ------------------------------------------------
@@ -379,6 +402,8 @@ class PoseEstimator:
             result = self._update_heading(msg)
         elif isinstance(msg, LandmarkFix):
             result = self._update_landmark(msg)
+        elif isinstance(msg, YawRate):
+            return self._gyro_reading(msg)  # gathered for the next step: moves no state, no time
         else:  # pragma: no cover - typing forbids it
             return self._reject(kind, "unknown_input")
         if result.accepted:
@@ -408,6 +433,7 @@ class PoseEstimator:
         if abs(dl) > cfg.max_wheel_step_m or abs(dr) > cfg.max_wheel_step_m:
             return self._reject(kind, "implausible_odometry")
         car = self.n > model.N_STATE
+        turned = self._gyro_step(msg) if cfg.gyro is not None else None
         x = self._kf.x
         raw_l, raw_r = dl, dr
         track = cfg.track_m
@@ -434,6 +460,8 @@ class PoseEstimator:
             Qc[model.STATE_THETA, model.STATE_THETA] += model.camber_heading_var(
                 d, cfg.camber_diff_sigma, cfg.camber_length_m, cfg.track_m
             )
+            if turned is not None:  # the gyro turns, not the wheels
+                dth, Fc, Qc = gyro_model.gyro_step(x, raw_l, raw_r, d, turned, var_l + var_r)
             dt = 0.0 if self._last_t is None else max(0.0, msg.t_s - self._last_t)
             walk = cfg.compass_bias_walk_deg2_per_s * dt
             self._turn_rad += dth
@@ -460,6 +488,28 @@ class PoseEstimator:
                 P[0, 1] -= g * cx * cy
                 P[1, 0] -= g * cx * cy
         return StepResult(kind, True)
+
+    def _gyro_reading(self, msg: YawRate) -> StepResult:
+        """A yaw-rate reading, gathered until the next odometry step (``gyro.take_reading``)."""
+        cfg = self.config.gyro
+        why = "no_gyro_configured" if cfg is None else None
+        if cfg is not None:
+            why = gyro_model.take_reading(self._gyro, self._kf.P, msg, cfg)
+        if why is not None:
+            return self._reject("YawRate", why)
+        self.accepted["YawRate"] += 1
+        return StepResult("YawRate", True)
+
+    def _gyro_step(self, msg: WheelOdometry) -> tuple[float, float, float] | None:
+        """Before a step: the bias from the standstill readings its wheels confirm, then the
+        gyro's angle or None (``gyro.before_step``)."""
+        assert self.config.gyro is not None
+        out = gyro_model.before_step(self._gyro, self._kf.x, self._kf.P, msg, self.config.gyro)
+        self._kf.x[2] = model.wrap_angle(float(self._kf.x[2]))
+        self.accepted["gyro_standstill"] += out.standstill
+        self.rejections["gyro_standstill_gate"] += out.gated
+        self.accepted["gyro_stale_wheel_turn"] += out.turned is None
+        return out.turned
 
     def _update_heading(self, msg: HeadingFix) -> StepResult:
         cfg = self.config
@@ -523,15 +573,10 @@ class PoseEstimator:
         return StepResult(kind, True, None, d2)
 
     def _relocalise(self, x_m: float, y_m: float, var: float) -> None:
-        """A place found by a whole-database search while lost (outside the estimate's gate an
-        update would be refused; inside it, the lost mean and its correlations would still pull
-        the result: the estimate's mean is what failed). The fix's sigma for a reset is the
-        sighting range plus the place's own sigma (``LandmarkFix.relocalised``), so the
-        2-sigma ellipse holds every point the place can be seen from.
-        The position restarts at the place with the fix's variance on each axis, uncorrelated
-        with every other state (what the odometry said of the position is what is discarded);
-        the heading and the car's error states keep their means and variances (the filter's
-        own account of them: a heading that drifted without a compass is as wide as it was)."""
+        """A place found by a whole-database search while lost: the position restarts there with
+        the fix's variance (its sigma: the sighting range plus the place's, so the 2-sigma
+        ellipse holds every point it is seen from), uncorrelated with the rest; the heading and
+        the error states keep theirs (an update would be gated out, or pulled by the lost mean)."""
         x = np.array(self._kf.x, dtype=float)
         P = np.array(self._kf.P, dtype=float)
         model.reset_position(x, P, x_m, y_m, var)

@@ -17,30 +17,40 @@ versioned) is ``guidance.app.learned_file``.
 from __future__ import annotations
 
 import math
-from collections.abc import Mapping
+from collections.abc import Callable, Mapping
 from dataclasses import asdict, dataclass, fields, replace
 
+import numpy as np
+
 from guidance.core import model
+from guidance.core.localize import gyro
 from guidance.core.localize.estimator import EstimatorConfig, PoseEstimator
 from guidance.core.localize.state_limits import (
     MAX_ABS_BIAS_DEG,
     MAX_ABS_DIFF,
+    MAX_ABS_GYRO_BIAS_DEG_S,
+    MAX_ABS_GYRO_SCALE,
     MAX_ABS_SCALE,
     MAX_ABS_TURN,
     MAX_BIAS_SIGMA_DEG,
     MAX_DIFF_SIGMA,
+    MAX_GYRO_BIAS_SIGMA_DEG_S,
+    MAX_GYRO_SCALE_SIGMA,
     MAX_SCALE_SIGMA,
     MAX_TURN_SIGMA,
     MIN_BIAS_SIGMA_DEG,
     MIN_DIFF_SIGMA,
+    MIN_GYRO_BIAS_SIGMA_DEG_S,
+    MIN_GYRO_SCALE_SIGMA,
     MIN_SCALE_SIGMA,
     MIN_TURN_SIGMA,
 )
 
-SCHEMA = "guidance.learned/2"
+SCHEMA = "guidance.learned/3"
 """Version 2 adds the turn scale (``turn_scale``, ``turn_scale_sigma``, optional); version 1
-files (without it) are read as they were, the turn scale then starting from its prior."""
-READ_SCHEMAS = ("guidance.learned/1", SCHEMA)
+files (without it) are read as they were, the turn scale then starting from its prior.
+Version 3 adds a gyro car's gyro bias and scale (``gyro_*``, optional)."""
+READ_SCHEMAS = ("guidance.learned/1", "guidance.learned/2", SCHEMA)
 SCALE_VAR_PER_DAY = (0.001**2) / 30.0
 """Between drives the scale's variance grows by (0.1 %)^2 a month: tyres lose about 0.1 bar of
 pressure a month and wear about 0.05 % of their rolling radius (2.2 % over a tyre's life)."""
@@ -69,6 +79,11 @@ class LearnedParams:
     turn_scale: float | None = None
     turn_scale_sigma: float | None = None
     """None in a version-1 file (learned before the turn scale was a state)."""
+    gyro_bias_deg_s: float | None = None
+    gyro_bias_sigma_deg_s: float | None = None
+    gyro_scale: float | None = None
+    gyro_scale_sigma: float | None = None
+    """None for a car whose wheels turn its heading (``[vehicle] yaw_source = "wheels"``)."""
 
     @classmethod
     def from_estimator(
@@ -103,6 +118,7 @@ class LearnedParams:
             ),
             turn_scale=float(x[model.STATE_TURN]),
             turn_scale_sigma=sd(model.STATE_TURN, MIN_TURN_SIGMA),
+            **(_gyro_learned(x, sd) if est.n >= gyro.N_STATE_GYRO else {}),
         )
 
     def widened(self, now_unix_s: float, config: EstimatorConfig) -> LearnedParams:
@@ -119,12 +135,21 @@ class LearnedParams:
         if turn is not None:
             turn = min(math.sqrt(turn**2 + TURN_VAR_PER_DAY * days),
                        config.turn_scale_sigma or math.inf)  # fmt: skip
+        gb, gs = self.gyro_bias_sigma_deg_s, self.gyro_scale_sigma
+        if gb is not None and gs is not None and config.gyro is not None:
+            # the bias walks at the filter's own rate (and restarts at each turn-on): within a
+            # day it is back at its prior; the sensitivity ages as the turn scale does
+            gb = min(math.sqrt(gb**2 + config.gyro.bias_walk_deg2_per_s3 * days * 86400.0),
+                     config.gyro.bias_sigma_deg_s)  # fmt: skip
+            gs = min(math.sqrt(gs**2 + TURN_VAR_PER_DAY * days), config.gyro.scale_sigma)
         return replace(
             self,
             scale_sigma=min(scale, config.scale_sigma or math.inf),
             diff_sigma=min(diff, config.diff_sigma or math.inf),
             compass_bias_sigma_deg=bias,
             turn_scale_sigma=turn,
+            gyro_bias_sigma_deg_s=gb,
+            gyro_scale_sigma=gs,
         )
 
     def apply(self, est: PoseEstimator) -> None:
@@ -143,6 +168,12 @@ class LearnedParams:
                            math.radians(self.compass_bias_sigma_deg)))  # fmt: skip
         if self.turn_scale is not None and self.turn_scale_sigma is not None:
             states.append((model.STATE_TURN, self.turn_scale, self.turn_scale_sigma))
+        g = (self.gyro_bias_deg_s, self.gyro_bias_sigma_deg_s, self.gyro_scale,
+             self.gyro_scale_sigma)  # fmt: skip
+        if est.n >= gyro.N_STATE_GYRO and g[0] is not None and g[1] is not None:
+            states.append((gyro.STATE_GYRO_BIAS, math.radians(g[0]), math.radians(g[1])))
+        if est.n >= gyro.N_STATE_GYRO and g[2] is not None and g[3] is not None:
+            states.append((gyro.STATE_GYRO_SCALE, g[2], g[3]))
         est.adopt(states)
 
     def to_dict(self) -> dict[str, object]:
@@ -185,6 +216,9 @@ class LearnedParams:
         if data.get("turn_scale") is not None or data.get("turn_scale_sigma") is not None:
             turn = num("turn_scale", -MAX_ABS_TURN, MAX_ABS_TURN)
             turn_sigma = num("turn_scale_sigma", MIN_TURN_SIGMA, MAX_TURN_SIGMA)
+        gyro_fields: dict[str, float] = {}
+        if any(data.get(k) is not None for k in _GYRO_LIMITS):
+            gyro_fields = {k: num(k, lo, hi) for k, (lo, hi) in _GYRO_LIMITS.items()}
         return cls(
             vehicle_id=vid,
             saved_unix_s=num("saved_unix_s", 0.0, 1e11),
@@ -197,4 +231,25 @@ class LearnedParams:
             compass_bias_sigma_deg=bias_sigma,
             turn_scale=turn,
             turn_scale_sigma=turn_sigma,
+            **gyro_fields,
         )
+
+
+_GYRO_LIMITS = {
+    "gyro_bias_deg_s": (-MAX_ABS_GYRO_BIAS_DEG_S, MAX_ABS_GYRO_BIAS_DEG_S),
+    "gyro_bias_sigma_deg_s": (MIN_GYRO_BIAS_SIGMA_DEG_S, MAX_GYRO_BIAS_SIGMA_DEG_S),
+    "gyro_scale": (-MAX_ABS_GYRO_SCALE, MAX_ABS_GYRO_SCALE),
+    "gyro_scale_sigma": (MIN_GYRO_SCALE_SIGMA, MAX_GYRO_SCALE_SIGMA),
+}
+"""A gyro car's learned fields and their bounds (``state_limits``): all four or none."""
+
+
+def _gyro_learned(x: np.ndarray, sd: Callable[[int, float], float]) -> dict[str, float]:
+    """A gyro car's bias (deg/s) and scale with their 1-sigma, never below what a drive knows."""
+    return {
+        "gyro_bias_deg_s": math.degrees(float(x[gyro.STATE_GYRO_BIAS])),
+        "gyro_bias_sigma_deg_s": max(MIN_GYRO_BIAS_SIGMA_DEG_S,
+                                     math.degrees(sd(gyro.STATE_GYRO_BIAS, 0.0))),
+        "gyro_scale": float(x[gyro.STATE_GYRO_SCALE]),
+        "gyro_scale_sigma": sd(gyro.STATE_GYRO_SCALE, MIN_GYRO_SCALE_SIGMA),
+    }  # fmt: skip

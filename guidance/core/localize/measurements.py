@@ -39,7 +39,7 @@ def h_heading(x: np.ndarray) -> np.ndarray:
 
 def H_heading(x: np.ndarray) -> np.ndarray:
     if x.shape[0] > model.STATE_BIAS:
-        return _H_HEADING_CAR
+        return _padded(_H_HEADING_CAR, x.shape[0])
     return _H_HEADING
 
 
@@ -49,8 +49,15 @@ def h_position(x: np.ndarray) -> np.ndarray:
 
 def H_position(x: np.ndarray) -> np.ndarray:
     if x.shape[0] > model.N_STATE:
-        return _H_POSITION_CAR
+        return _padded(_H_POSITION_CAR, x.shape[0])
     return _H_POSITION
+
+
+def _padded(H: np.ndarray, n: int) -> np.ndarray:
+    """``H`` for a state of ``n`` (the car model's with a gyro's two more: zeros for them)."""
+    if H.shape[1] == n:
+        return H
+    return np.hstack([H, np.zeros((H.shape[0], n - H.shape[1]))])
 
 
 def heading_residual(a: np.ndarray, b: np.ndarray) -> np.ndarray:

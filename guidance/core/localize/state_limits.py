@@ -22,6 +22,7 @@ from collections.abc import Sequence
 import numpy as np
 
 from guidance.core import model
+from guidance.core.localize import gyro
 
 MAX_ABS_SCALE = 0.10
 """Wheel-speed scale error, a fraction: beyond 10 % the DBC or the tyre size is wrong."""
@@ -62,12 +63,29 @@ FUTURE_TOLERANCE_S = 86400.0
 age, which widens it, would be taken as zero for ever. A clock set by hand or off by a time
 zone is within a day, and a day's widening is (0.1 %)^2 / 30 of variance: nothing lost."""
 
+MAX_ABS_GYRO_BIAS_DEG_S = 5.0
+"""A gyro's bias: the ESC sensor sheets' worst offset over life and temperature is 3.75 deg/s;
+beyond 5 deg/s the signal or its unit is wrong, not the sensor."""
+MAX_GYRO_BIAS_SIGMA_DEG_S = 10.0
+MAX_ABS_GYRO_SCALE = 0.25
+"""A gyro's scale error: a quarter off is a wrong DBC factor or unit, not a sensor's
+sensitivity (+-1-3 %)."""
+MAX_GYRO_SCALE_SIGMA = 1.0
+MIN_GYRO_BIAS_SIGMA_DEG_S = 0.001
+"""The smallest 1-sigma a learned gyro bias may claim: the sensor's own in-run instability
+(1.6-10 deg/h, 0.0005-0.003 deg/s) moves it by that much while the car drives."""
+MIN_GYRO_SCALE_SIGMA = 1e-4
+"""A gyro's scale, like the turn scale: 10,000 right-angle turns against a 1-degree reference."""
+
 LEARNED_STATES: tuple[tuple[int, str, float, float], ...] = (
     (model.STATE_SCALE, "wheel scale", MAX_ABS_SCALE, MAX_SCALE_SIGMA),
     (model.STATE_DIFF, "left/right difference", MAX_ABS_DIFF, MAX_DIFF_SIGMA),
     (model.STATE_BIAS, "compass bias (rad)", math.radians(MAX_ABS_BIAS_DEG),
      math.radians(MAX_BIAS_SIGMA_DEG)),
     (model.STATE_TURN, "turn scale", MAX_ABS_TURN, MAX_TURN_SIGMA),
+    (gyro.STATE_GYRO_BIAS, "gyro bias (rad/s)", math.radians(MAX_ABS_GYRO_BIAS_DEG_S),
+     math.radians(MAX_GYRO_BIAS_SIGMA_DEG_S)),
+    (gyro.STATE_GYRO_SCALE, "gyro scale", MAX_ABS_GYRO_SCALE, MAX_GYRO_SCALE_SIGMA),
 )  # fmt: skip
 """(state index, name, largest magnitude, largest 1-sigma) of the car model's learned states,
 in the filter's units."""
@@ -79,6 +97,8 @@ def learned_state_problem(x: Sequence[float], P: np.ndarray) -> str | None:
     if len(x) <= model.N_STATE:
         return None
     for i, name, max_abs, max_sigma in LEARNED_STATES:
+        if i >= len(x):  # a car without a gyro: the last two are not its states
+            break
         if not abs(float(x[i])) <= max_abs:
             return f"x[{i}] ({name}) = {float(x[i]):.6g} is outside +-{max_abs:.6g}"
         var = float(P[i, i])

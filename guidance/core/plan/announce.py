@@ -108,6 +108,22 @@ def announcement_distances_m(speed_mps: float) -> AnnouncementDistances:
     return AnnouncementDistances(early_m=early_m, before_m=before_m)
 
 
+NOTICE_S = 2.5
+"""A driver's perception-reaction time (AASHTO's 2.5 s for stopping sight distance): a first
+instruction for an intersection closer than this at the car's speed comes too late to act on
+(the car is already in the turn it chose; a decision first made there, e.g. right after a
+position found, is held unsaid)."""
+NOTICE_MIN_M = 15.0
+"""Nor closer than this at any speed: a turn begins about two town-corner radii (7 m: the
+corner of ``localize.odometry_gap.GAP_YAW_RATE_RADPS``) before the intersection's centre,
+where the car is already placed for the exit it chose."""
+
+
+def too_late(distance_m: float, speed_mps: float) -> bool:
+    """A first instruction at ``distance_m`` ahead and ``speed_mps`` cannot be acted on."""
+    return distance_m < max(NOTICE_MIN_M, NOTICE_S * max(0.0, speed_mps))
+
+
 def due_announcements(
     distance_to_intersection_m: float,
     speed_mps: float,

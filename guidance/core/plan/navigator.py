@@ -13,10 +13,11 @@ from __future__ import annotations
 
 import math
 from collections.abc import Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 
+from guidance.config_tables import rule
 from guidance.core import law, model
 from guidance.core.messages import Decision, ExitOption, Landmark, Method, Target
 from guidance.core.snapshot_check import integer
@@ -24,27 +25,33 @@ from guidance.core.snapshot_check import integer
 
 @dataclass(frozen=True, slots=True)
 class NavigatorConfig:
-    """The navigator's settings; each default is the car's (``[navigation]`` reads these)."""
+    """The navigator's settings; each default and rule is the car's (``[navigation]`` reads
+    these; ``read=False``: fixed by the program, recorded with the session)."""
 
     method: Method = Method.HYBRID
     """SPEC's best of the three: straight to the goal, landmark to landmark once the 2-sigma
     major axis exceeds ``hybrid_switch_m``."""
-    tabu_step_rad: float = math.radians(60.0)
+    tabu_step_rad: float = field(default=math.radians(60.0), metadata=rule(lo=0.0, degrees=True))
     """Penalty added per earlier use of the same exit at the same intersection."""
-    lookahead_m: float = 10.0
+    lookahead_m: float = field(default=10.0, metadata=rule(positive=True))
     """Bearings are taken from this far along each exit ("after the intersection")."""
-    arrival_radius_m: float = 30.0
-    hybrid_switch_m: float = 50.0
+    arrival_radius_m: float = field(default=30.0, metadata=rule(positive=True))
+    hybrid_switch_m: float = field(default=50.0, metadata=rule(positive=True))
     """Hybrid: landmarks when the major axis exceeds this, goal again after a fix below it."""
-    landmark_pass_radius_m: float = 20.0
+    landmark_pass_radius_m: float = field(default=20.0, metadata=rule(positive=True))
     """A landmark target counts as passed once the estimate comes this close (or it is seen)."""
-    revisit_gate_chi2: float = model.CHI2_2D_2SIGMA
+    revisit_gate_chi2: float = field(
+        default=model.CHI2_2D_2SIGMA, metadata=rule(positive=True, read=False)
+    )
     """Revisit: a remembered intersection inside the current 2-sigma ellipse (86.5%)."""
-    revisit_floor_sigma_m: float = 8.0
+    revisit_floor_sigma_m: float = field(default=8.0, metadata=rule(lo=0.0, read=False))
     """Floor on the revisit ellipse: an intersection is a patch of road, not a point."""
-    exit_match_tol_rad: float = math.radians(30.0)
-    max_intersections: int = 4096
-    max_exits: int = 8
+    exit_match_tol_rad: float = field(
+        default=math.radians(30.0), metadata=rule(lo=0.0, read=False)
+    )
+    max_intersections: int = field(default=4096, metadata=rule(lo=1, hi=100_000, read=False))
+    """Sizes the intersection memory's arrays."""
+    max_exits: int = field(default=8, metadata=rule(lo=1, hi=64, read=False))
 
 
 __all__ = ["Decision", "ExitOption", "Landmark", "Method", "Navigator", "NavigatorConfig"]
@@ -93,7 +100,8 @@ class Navigator:
     def mode(self) -> str:
         return "landmark" if self._mode == law.MODE_LANDMARK else "goal"
 
-    def arrived(self, x: np.ndarray) -> bool:
+    def arrived(self, x: Sequence[float] | np.ndarray) -> bool:
+        """Within the arrival radius of the goal (``x``: the position first, x then y)."""
         return math.hypot(self.goal[0] - x[0], self.goal[1] - x[1]) <= self.config.arrival_radius_m
 
     def update_mode(self, major_axis_m: float, landmark_update: bool = False) -> None:
@@ -113,7 +121,7 @@ class Navigator:
                 self._passed[k] = True
         self.update_mode(major_axis_m, landmark_update=True)
 
-    def target(self, x: np.ndarray) -> Target:
+    def target(self, x: Sequence[float] | np.ndarray) -> Target:
         """The current target (a view: the goal, or the landmark the car aims at from ``x``).
 
         Landmarks within the pass radius of ``x`` count as passed for this answer only: the

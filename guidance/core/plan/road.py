@@ -10,6 +10,9 @@ from collections import deque
 from collections.abc import Mapping
 from dataclasses import asdict, dataclass, field, fields
 
+import numpy as np
+
+from guidance.core.messages import EstimateState
 from guidance.core.model import wrap_angle
 from guidance.core.plan.navigator import Decision, ExitOption
 from guidance.core.snapshot_check import check_decision, integer, number
@@ -54,6 +57,9 @@ class Ahead:
     reached: tuple[float, float, float, float, float] | None = None
     """(x, y, Pxx, Pxy, Pyy) of the estimate when the car got there (the tabu memory's place)."""
     last_eval_odometer_m: float = -math.inf
+    on_taken_road: bool = False
+    """Reported while the car was at the intersection before it (within the guide's same
+    place): on the road the car really takes there, whatever exit it was advised."""
 
     def exits_now(self) -> tuple[float, ...] | None:
         """The exits in the estimate frame, or None while the approach road is unknown."""
@@ -107,6 +113,7 @@ class Ahead:
             said=str(data.get("said", ""))[:40],
             said_exit=integer(data.get("said_exit", -1), "ahead.said_exit", -1, 64),
             frozen=bool(data.get("frozen")),
+            on_taken_road=bool(data.get("on_taken_road", False)),
             passed_odometer_m=opt("passed_odometer_m"),
             passed_heading_rad=opt("passed_heading_rad"),
             reached=(
@@ -149,6 +156,35 @@ def unplaced_after_gap(
         a for a in ahead
         if a.at_odometer_m is not None and resume_s - max(gap_from_s, a.t_s) > placeable_s
     ]  # fmt: skip
+
+
+UNKNOWN_AHEAD_M = 50.0
+"""Where "the next intersection" (distance unknown) is taken to be for the law: a town
+block's least length ahead (never the intersection the car has just left behind)."""
+
+
+def predicted_xy(ahead: list[Ahead], a: Ahead, est: EstimateState) -> tuple[float, float]:
+    """Where the car will be at ``a``: along its approach road from the car, or from the
+    intersection before it."""
+    odometer_m = est.odometer_m
+    base_xy, base_odo = (est.x_m, est.y_m), odometer_m
+    i = ahead.index(a)
+    if i > 0:
+        prev = ahead[i - 1]
+        if prev.at_odometer_m is not None and prev.at_odometer_m > odometer_m:
+            base_xy = predicted_xy(ahead, prev, est)
+            base_odo = prev.at_odometer_m
+    if a.approach_heading_rad is None:
+        return base_xy
+    known = a.at_odometer_m
+    to_go = UNKNOWN_AHEAD_M if known is None else max(0.0, known - base_odo)
+    h = a.approach_heading_rad
+    return base_xy[0] + to_go * math.cos(h), base_xy[1] + to_go * math.sin(h)
+
+
+def pose_covariance(est: EstimateState) -> np.ndarray:
+    """The estimate's pose covariance (x, y, heading) as a matrix."""
+    return np.array(est.covariance, dtype=float)
 
 
 class RoadHistory:
@@ -250,28 +286,6 @@ class RoadHistory:
             if self._s:
                 self._unwrapped = self._s[-1][3]
                 self._last_raw = wrap_angle(self._unwrapped)
-
-
-def predicted_xy(
-    ahead: list[Ahead], a: Ahead, car_xy: tuple[float, float], odometer_m: float,
-    unknown_ahead_m: float,
-) -> tuple[float, float]:
-    """Where the car will be at ``a``: along its approach road from the car (at ``car_xy``),
-    or from the intersection before it; ``unknown_ahead_m`` along it when its distance is
-    not known."""
-    base_xy, base_odo = car_xy, odometer_m
-    i = ahead.index(a)
-    if i > 0:
-        prev = ahead[i - 1]
-        if prev.at_odometer_m is not None and prev.at_odometer_m > odometer_m:
-            base_xy = predicted_xy(ahead, prev, car_xy, odometer_m, unknown_ahead_m)
-            base_odo = prev.at_odometer_m
-    if a.approach_heading_rad is None:
-        return base_xy
-    known = a.at_odometer_m
-    along = unknown_ahead_m if known is None else max(0.0, known - base_odo)
-    h = a.approach_heading_rad
-    return base_xy[0] + along * math.cos(h), base_xy[1] + along * math.sin(h)
 
 
 @dataclass(slots=True)

@@ -9,8 +9,9 @@ from __future__ import annotations
 
 import math
 from collections import deque
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
+from guidance.config_tables import rule
 from guidance.core.messages import TurnCompleted
 from guidance.core.model import wrap_angle
 from guidance.core.snapshot_check import integer, number
@@ -20,13 +21,13 @@ from guidance.core.snapshot_check import integer, number
 
 @dataclass(frozen=True, slots=True)
 class TurnDetectorConfig:
-    min_turn_rad: float = math.radians(45.0)
+    min_turn_rad: float = field(default=math.radians(45.0), metadata=rule(positive=True))
     """A heading change at least this large is a turn (an exit, not a lane change or a bend)."""
-    window_m: float = 40.0
+    window_m: float = field(default=40.0, metadata=rule(positive=True))
     """The change is measured over at most this much travel (a corner takes 10-25 m)."""
-    settle_m: float = 8.0
+    settle_m: float = field(default=8.0, metadata=rule(positive=True))
     """The turn is complete once the heading has been steady over this much travel..."""
-    settle_tol_rad: float = math.radians(8.0)
+    settle_tol_rad: float = field(default=math.radians(8.0), metadata=rule(positive=True))
     """...within this tolerance."""
 
 

@@ -9,9 +9,11 @@ asked without ``since``; the page then asks ``/api/fleet?since=G&epoch=E`` with 
 ``generation`` and ``epoch`` of its last answer, and gets only the track points written since
 (``track_start``: the car's index of the first; the one before may be replaced, as the newest
 position is until the car has moved ``TRACK_STEP_M``). So a poll of 1,000 cars after an hour is
-about a megabyte (their states), not 23 MB of tracks, and is built in milliseconds under the
-lock the folding thread needs. A stale ``epoch`` (another monitor process) or a ``since`` from
-the future gets the whole tracks again.
+about a megabyte (their states), not 23 MB of tracks. A stale ``epoch`` (another monitor
+process) or a ``since`` from the future gets the whole tracks again, and so does a car with
+more than ``TRACK_POINTS_SENT`` new points (``since=0``): no answer carries more than that
+per car. Under the lock the folding thread needs, only those bounded copies are taken; the
+answer is built after it is released.
 
 Security: it binds to loopback unless ``allow_remote`` is given; on loopback it also answers
 only requests whose ``Host`` is a loopback name (a web page elsewhere cannot reach it through
@@ -33,6 +35,7 @@ publishes, dropped).
 from __future__ import annotations
 
 import contextlib
+import copy
 import ipaddress
 import json
 import logging
@@ -162,17 +165,33 @@ def fleet_query(path: str) -> tuple[int | None, str]:
     return (int(since_text) if digits else None), epoch
 
 
-def car_json(car: CarView, now_s: float, since: int | None = None) -> dict[str, Any]:
-    """What the page gets for one car: its whole track (thinned) when ``since`` is None, else
-    the points written after the fleet's generation ``since`` from index ``track_start``."""
-    start: int | None = None
-    if since is None:
-        track = list(car.track)
-        if len(track) > TRACK_POINTS_SENT:
-            step = len(track) / TRACK_POINTS_SENT
-            track = [track[int(i * step)] for i in range(TRACK_POINTS_SENT - 1)] + [track[-1]]
-    else:
-        start, track = car.track_since(since)
+def track_part(car: CarView, since: int | None) -> tuple[int | None, list[tuple[float, float]]]:
+    """``track_start`` and the points the page gets for one car: its whole track thinned to
+    ``TRACK_POINTS_SENT`` when ``since`` is None, else the points written after the fleet's
+    generation ``since`` from index ``track_start``; when those are more than
+    ``TRACK_POINTS_SENT`` (``since=0``, a page back after an hour), the whole track thinned
+    instead (``track_start`` None: the page replaces its copy). So an answer is bounded, and
+    so is what the fold lock is held for (``WebMonitor.fleet``)."""
+    if since is not None:
+        part = car.track_since(since, TRACK_POINTS_SENT)
+        if part is not None:
+            return part
+    track = list(car.track)
+    if len(track) > TRACK_POINTS_SENT:
+        step = len(track) / TRACK_POINTS_SENT
+        track = [track[int(i * step)] for i in range(TRACK_POINTS_SENT - 1)] + [track[-1]]
+    return None, track
+
+
+def car_json(
+    car: CarView,
+    now_s: float,
+    since: int | None = None,
+    part: tuple[int | None, list[tuple[float, float]]] | None = None,
+) -> dict[str, Any]:
+    """What the page gets for one car, with its ``track_part`` (``part``, when taken
+    already)."""
+    start, track = track_part(car, since) if part is None else part
     age = None if car.last_received_s is None else max(0.0, now_s - car.last_received_s)
     health = car.health
     total, reasons = dropped(health)
@@ -302,13 +321,14 @@ class WebMonitor:
         """The page's snapshot; with the ``since`` and ``epoch`` of an earlier one, only the
         track points written after it (the module says why)."""
         now = self._clock()
-        with self.lock:
+        with self.lock:  # only copies, bounded per car: the answer is built after
             generation = self.view.generation
             if since is not None and (epoch != self.epoch or not 0 <= since <= generation):
                 since = None  # another process's, or from the future: the whole tracks
             cars = {**self.view.gone, **self.view.cars}
-            out = [car_json(cars[vid], now, since) for vid in sorted(cars)]
+            taken = [(copy.copy(cars[vid]), track_part(cars[vid], since)) for vid in sorted(cars)]
             messages, bad = self.view.messages, self.view.bad_messages
+        out = [car_json(car, now, part=part) for car, part in taken]
         with self._counters_lock:
             server = dict(self.counters)
         return {

@@ -91,9 +91,9 @@ def test_silent_can_flags_odometry_and_warns_while_the_app_keeps_running(
     assert said.count("odometry") + said.count("Wheel speed") == lost == 1
     # Distance came through CAN decoding (5 m/s for about 2 s of sending), and the 2 s of
     # silence were dead-reckoned at the last speed (issue 20, item 4).
-    assert 17.0 < pipeline.st.odometer_m < 23.0
+    assert 17.0 < pipeline.estimate.odometer_m < 23.0
     assert pipeline.counts["odometry_gaps"] == 1  # dead-reckoned through, not corrupted
-    assert np.all(np.isfinite(pipeline.estimator.P))
+    assert np.all(np.isfinite(pipeline.localizer.estimator.P))
     lag = app.lag_summary()
     assert lag["loop_lag_p99_ms"] is not None and lag["loop_lag_p99_ms"] < 100
 
@@ -119,7 +119,7 @@ def test_co_driver_keyboard_drives_decisions_and_corrects_the_memory(
 
     async def scenario() -> None:
         scene = KeyboardScene(
-            lambda: float(pipeline.estimator.x[2]),
+            lambda: float(pipeline.localizer.estimator.x[2]),
             stream=reader,
             feedback=io.StringIO(),
             clock=lambda: clock_t[0],
@@ -127,7 +127,8 @@ def test_co_driver_keyboard_drives_decisions_and_corrects_the_memory(
         app = App(pipeline, sources={"scene": scene}, speaker=TextSpeaker(speech),
                   clock=lambda: clock_t[0])  # fmt: skip
         app.listeners.append(listen)
-        app.source_sink = lockstep = LockstepSink(app.sink)
+        lockstep = app.wrap_source_sink(LockstepSink)
+        assert isinstance(lockstep, LockstepSink)
         async with app.running():
             for k in range(50):  # drive 50 m east
                 clock_t[0] = 0.1 * (k + 1)
@@ -222,7 +223,7 @@ def test_recogniser_runs_off_the_loop_on_the_latest_frame(
     assert threading.main_thread().name not in recogniser.threads  # never on the loop
     assert 4 <= recogniser.calls <= 13  # paced by the matcher, not by the camera
     assert app.counts["frames_dropped"] > 0  # older frames were overwritten (one-slot ring)
-    assert pipeline.st.landmark_updates == 1
+    assert pipeline.landmark_updates == 1
     assert "Passing church: position confirmed" in speech.getvalue()
     # The loop stayed responsive while matching ran: typical lateness far below the 50 ms
     # a match takes (the figures under load are in benchmarks/loop_latency.py).

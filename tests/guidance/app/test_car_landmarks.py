@@ -5,8 +5,10 @@ from __future__ import annotations
 
 import csv
 import io
+import math
 import re
 from contextlib import redirect_stderr, redirect_stdout
+from dataclasses import replace
 from pathlib import Path
 
 import cv2
@@ -178,3 +180,68 @@ def test_guidance_run_on_the_simulated_devices_reaches_its_goal_with_a_landmark_
     assert said, "docs/app.md no longer says how the seed 3 drive goes"
     assert said.groups() == (f"{summary['driven_km']:.2f}", str(summary["landmark_updates"]),
                              f"{summary['sim_s']:.0f}"), summary  # fmt: skip
+
+
+def _anywhere(city: Path, start: str, camera: bool = True) -> Path:
+    cfg = city / "anywhere.toml"
+    text = CAR.replace("{camera}", "true" if camera else "false")
+    text = text.replace("x_m = 0.0\ny_m = 0.0\nheading_deg = 90.0", start)
+    cfg.write_text(text.replace("sighting_range_m = 25.0", "sighting_range_m = 20.0"))
+    return cfg
+
+
+def test_a_car_that_starts_anywhere_finds_itself_at_a_landmark_then_guides(city: Path) -> None:
+    """Issue 36, "start anywhere": ``[start]`` with no position. The car starts lost, says so,
+    withholds advice, and the real recogniser searches the whole database (``state.lost``);
+    its find resets the position around the place, said by name, and guidance begins."""
+    from guidance.core.messages import HeadingFix, IntersectionScene, WheelOdometry
+    from guidance.core.pipeline import Pipeline
+
+    cfg = load_config(_anywhere(city, "unknown = true\nheading_deg = 90.0"))
+    assert cfg.pipeline.start_unknown and cfg.pipeline.relocalise
+    assert cfg.pipeline.start_xy_m == cfg.pipeline.goal_xy_m  # where it waits, city-wide
+    recogniser, landmarks = open_landmarks(cfg.landmark_db, cfg.origin_lat_lon_deg)
+    pipeline = Pipeline(replace(cfg.pipeline, landmarks=tuple(landmarks)))
+    said = []
+    out = pipeline.feed(WheelOdometry(0.1, 0.5, 0.5))
+    said += [p.text for p in out.prompts]
+    assert said == ["Position unknown. Drive on; looking for a known place"]
+    out = pipeline.feed(IntersectionScene(0.2, (0.0, math.pi / 2), 50.0))
+    assert not out.prompts and not out.decisions  # kept, undecided and unsaid
+    hall = next(lm for lm in landmarks if lm.name == "the town hall")
+    camera = SimCamera([SimLandmark(hall.id, hall.x_m, hall.y_m, photo_seed(SEED, 0))], SEED)
+    t, x = 0.2, 30.0  # the truth: driving east past the town hall (the car does not know)
+    for _ in range(8):
+        t, x = t + 0.5, x + 2.0
+        pipeline.feed(WheelOdometry(t, 2.0, 2.0))
+        pipeline.feed(HeadingFix(t, 0.0))
+        state = pipeline.estimate
+        assert state.lost  # the whole database is searched
+        result = recogniser.process(camera.frame_at(t, x, 0.0), state)
+        if result.fix is not None:
+            out = pipeline.feed(result.fix)
+            said += [p.text for p in out.prompts]
+            break
+    recogniser.close()
+    assert "Position found near the town hall" in said, said
+    est = pipeline.estimate
+    assert est.ellipse.major_axis_m < 100.0
+    assert math.hypot(est.x_m - x, est.y_m) < 40.0
+    out = pipeline.feed(IntersectionScene(t + 0.1, (0.0, math.pi / 2), 80.0))
+    assert out.decisions  # guidance has begun
+
+
+def test_start_anywhere_is_refused_where_the_car_could_never_find_itself(city: Path) -> None:
+    with pytest.raises(UserError, match="must find itself"):
+        load_config(_anywhere(city, "unknown = true\nheading_deg = 90.0", camera=False))
+    with pytest.raises(UserError, match="give one or the other"):
+        load_config(_anywhere(city, "unknown = true\nx_m = 3.0\nheading_deg = 90.0"))
+    geo = city / "geo.toml"  # no position and a goal on the globe: the frame is the goal's
+    text = _anywhere(city, "heading_deg = 90.0").read_text()
+    geo.write_text(text.replace("x_m = 400.0\ny_m = 0.0", "lat_deg = 42.444\nlon_deg = -76.4970"))
+    cfg = load_config(geo)
+    assert cfg.pipeline.start_unknown and cfg.origin_lat_lon_deg == (42.444, -76.4970)
+    assert landmark_warnings(cfg) == []
+    wide = city / "wide.toml"  # a reset as wide as lost: said by --check
+    wide.write_text(geo.read_text().replace("sighting_range_m = 20.0", "sighting_range_m = 25.0"))
+    assert any("can never find itself" in w for w in landmark_warnings(load_config(wide)))

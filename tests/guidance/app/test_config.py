@@ -2,7 +2,10 @@
 
 from __future__ import annotations
 
+import dataclasses
+import json
 import math
+import os
 import tomllib
 from pathlib import Path
 from typing import Any
@@ -178,7 +181,22 @@ def test_cli_reports_toml_syntax_and_missing_file(
     assert main(["run", "--config", str(bad), "--check"]) == 2
     assert "not valid TOML" in capsys.readouterr().err
     assert main(["run", "--config", str(tmp_path / "nope.toml")]) == 2
-    assert "config file not found" in capsys.readouterr().err
+    assert f"config file {tmp_path / 'nope.toml'}: not found" in capsys.readouterr().err
+
+
+def test_a_config_that_is_no_regular_file_is_the_door_s_error_not_not_found(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """Issue 40 (noticed): ``guidance run`` checked ``is_file()`` before the file door, so a
+    FIFO or a folder as the config said "config file not found". Now the door answers, for the
+    run and for ``--check`` alike, at once (the FIFO has no writer: nothing waits on it)."""
+    fifo = tmp_path / "car.toml"
+    os.mkfifo(fifo)
+    for path, why in ((fifo, "not a regular file (a FIFO)"), (tmp_path, "not a regular file")):
+        for check in ([], ["--check"]):
+            assert main(["run", "--config", str(path), *check]) == 2
+            err = capsys.readouterr().err.strip().splitlines()
+            assert len(err) == 1 and f"config file {path}: {why}" in err[0], err
 
 
 def test_cli_check_accepts_the_tahoe_config(capsys: pytest.CaptureFixture[str]) -> None:
@@ -270,3 +288,76 @@ def test_the_camber_process_is_a_setting_and_is_checked() -> None:
     doc["estimator"]["camber_length_m"] = -1.0
     with pytest.raises(UserError, match=r"\[estimator\] camber_length_m"):
         parse_config(doc, base_dir=REPO / "config")
+
+
+def _offered() -> list[tuple[str, str, float]]:
+    """Every numeric setting the config file offers from the core's config dataclasses, and a
+    value just past each bound of its rule: (table, key, value)."""
+    from guidance.config_tables import file_key, rule_of
+    from guidance.core.health import HealthConfig
+    from guidance.core.localize.estimator import EstimatorConfig
+    from guidance.core.pipeline_config import PipelineConfig
+    from guidance.core.plan.chance import ChanceSettings
+    from guidance.core.plan.navigator import NavigatorConfig
+
+    cases = []
+    for cls, table in [(EstimatorConfig, "estimator"), (NavigatorConfig, "navigation"),
+                       (HealthConfig, "health"), (ChanceSettings, "chance"),
+                       (PipelineConfig, "")]:  # fmt: skip
+        for f in dataclasses.fields(cls):
+            r = rule_of(cls, f.name)
+            where = r.table or table
+            if not (r.read and where) or f.name == "compass_deviation_deg":
+                continue  # not offered (the deviation card: its own test above)
+            key = file_key(f.name, r)
+            if r.lo is not None:
+                cases.append((where, key, r.lo - max(1e-6, abs(r.lo) * 1e-6)))
+            if r.hi is not None:
+                cases.append((where, key, r.hi + max(1e-6, abs(r.hi) * 1e-6)))
+            if r.positive:
+                cases.append((where, key, 0.0))
+    return cases
+
+
+OFFERED = _offered()
+
+
+@pytest.mark.parametrize(
+    ("table", "key", "value"), OFFERED, ids=[f"{t}.{k}" for t, k, _ in OFFERED]
+)
+def test_every_rule_of_the_cores_config_holds_in_the_config_file(
+    table: str, key: str, value: float
+) -> None:
+    """The rule written on the core's dataclass is the config file's: a value just past it is
+    refused in one line naming the table, the key, the rule and the value."""
+    doc = _tahoe()
+    doc.setdefault(table, {})[key] = value
+    with pytest.raises(UserError) as info:
+        parse_config(doc, base_dir=REPO / "config")
+    text = str(info.value)
+    assert text.startswith(f"[{table}] {key} must be ") and repr(value) in text, text
+    assert "\n" not in text
+
+
+def test_fixed_settings_are_not_offered_but_are_recorded() -> None:
+    """A field whose rule says ``read=False`` (the gates, the reorder window, the navigator's
+    array sizes) is refused in the config file, yet the session record carries and reads it."""
+    fixed = [("estimator", "compass_gate_chi2"), ("estimator", "track_m"),
+             ("navigation", "max_exits"), ("health", "min_reads_for_validity")]  # fmt: skip
+    for table, key in fixed:
+        doc = _tahoe()
+        doc.setdefault(table, {})[key] = 1
+        with pytest.raises(UserError, match=rf"\[{table}\] unknown key\(s\): {key} "):
+            parse_config(doc, base_dir=REPO / "config")
+
+
+@pytest.mark.parametrize("path", [TAHOE, SIM, REPO / "config" / "sim-landmarks.toml"])
+def test_a_config_the_file_accepts_is_one_the_session_record_replays(path: Path) -> None:
+    """Both boundaries read one set of rules, so the car's configuration recorded in a session
+    is read back whole (before, ``[loop] state_rate_hz`` or a device's rate could pass the
+    file and be refused by the replay)."""
+    from guidance.tools.replay_session import pipeline_config_from_session
+
+    cfg = load_config(path, require_goal=False)
+    record = json.loads(json.dumps({"pipeline": cfg.pipeline.describe()}))
+    assert pipeline_config_from_session(record) == cfg.pipeline

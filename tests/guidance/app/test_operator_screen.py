@@ -90,8 +90,8 @@ def test_view_of_a_drive_next_instruction_uncertainty_heading_exit_and_prompts()
     view.set_live(
         inputs=p.statuses(4.1),
         target=p.target(),
-        heading_known=p.st.heading_known,
-        speed_mps=p.st.speed_mps,
+        heading_known=p.estimate.heading_known,
+        speed_mps=p.estimate.speed_mps,
         co_driver="keypad /dev/x: connected",
         co_driver_ok=True,
     )
@@ -103,12 +103,12 @@ def test_view_of_a_drive_next_instruction_uncertainty_heading_exit_and_prompts()
         r"position good to about \d+ m \(2-sigma major axis \d+ m\)", rows["POSITION"]
     )
     # the chance row is the pipeline's own value, as the table gives it for this car
-    assert p.chance.value is not None and p.chance.value > 0.5
+    assert p.planner.chance.value is not None and p.planner.chance.value > 0.5
     assert rows["CHANCE"] == (
-        f"{chance.shown(p.chance.value)} chance of reaching the goal from here "
+        f"{chance.shown(p.planner.chance.value)} chance of reaching the goal from here "
         "(simulated cars like this one)"
     )
-    assert chance.shown(p.chance.value) in view.status_line()
+    assert chance.shown(p.planner.chance.value) in view.status_line()
     prompt = time.strftime("%H:%M:%S", time.localtime(wall + 4.1))
     assert rows["PROMPT"] == f"{prompt} At the next intersection, turn left"  # wall clock
     turn = TurnCompleted(5.0, -math.pi / 2, source="co-driver")  # the driver went right
@@ -141,8 +141,8 @@ def test_a_low_chance_is_flagged_and_none_after_arrival() -> None:
     msg = WheelOdometry(0.1, 1.0, 1.0)
     view.apply(msg, p.feed(msg), 1.0)
     row = next(r for r in view.rows() if r[0] == "CHANCE")
-    assert row[2] == "warn" and row[1].startswith(chance.shown(p.chance.value))
-    assert p.chance.value is not None and p.chance.value < 0.5
+    assert row[2] == "warn" and row[1].startswith(chance.shown(p.planner.chance.value))
+    assert p.planner.chance.value is not None and p.planner.chance.value < 0.5
     view.arrived = True
     assert not [r for r in view.rows() if r[0] == "CHANCE"]
 

@@ -22,6 +22,7 @@ from guidance.core.messages import (
     LandmarkFix,
     TurnCompleted,
     WheelOdometry,
+    YawRate,
 )
 
 f = st.floats(allow_nan=False, allow_infinity=False, width=64)
@@ -43,6 +44,7 @@ MESSAGES: dict[type, st.SearchStrategy[Any]] = {
     CancelReport: st.builds(CancelReport, f, text),
     Approach: st.builds(Approach, f, f),
     GoalUpdate: st.builds(GoalUpdate, f, f, f, text),
+    YawRate: st.builds(YawRate, f, f),
 }
 
 

@@ -55,7 +55,7 @@ def test_goal_update_and_arrival(make_pipeline: Callable[..., Pipeline]) -> None
         arrived += [pr.text for pr in out.prompts if pr.kind == "arrived"]
     assert arrived == ["You have arrived at your destination"]
     out = p.feed(GoalUpdate(4.1, 500.0, 0.0))
-    assert out.prompts[0].text == "New destination set" and not p.st.arrived
+    assert out.prompts[0].text == "New destination set" and not p.arrived
     out = p.feed(GoalUpdate(4.2, 600.0, 0.0, "remote"))  # from the network: said as such
     assert out.prompts[0].text == "New destination set remotely"
 
@@ -75,8 +75,8 @@ def test_snapshot_restore_gives_the_same_future(make_pipeline: Callable[..., Pip
         oa, ob = a.feed(m), b.feed(m)
         assert [d.exit_index for d in oa.decisions] == [d.exit_index for d in ob.decisions]
         assert [e.exit_index for e in oa.exits_taken] == [e.exit_index for e in ob.exits_taken]
-    assert np.array_equal(a.estimator.x, b.estimator.x)
-    assert np.array_equal(a.estimator.P, b.estimator.P)
+    assert np.array_equal(a.localizer.estimator.x, b.localizer.estimator.x)
+    assert np.array_equal(a.localizer.estimator.P, b.localizer.estimator.P)
     assert a.navigator.memory() == b.navigator.memory()
 
 
@@ -127,13 +127,13 @@ def test_restore_after_a_reboot_does_not_carry_the_old_clock(
     rebooted = make_pipeline()
     rebooted.restore(snap, same_clock=False)
     assert rebooted.feed(WheelOdometry(5.0, 1.0, 1.0)).accepted
-    assert rebooted.st.odometer_m == pytest.approx(31.0)
+    assert rebooted.estimate.odometer_m == pytest.approx(31.0)
     same = make_pipeline()
     same.restore(snap)
     assert same.feed(WheelOdometry(5.0, 1.0, 1.0)).reason == "out_of_order"
-    before = rebooted.estimator.major_axis_m
-    rebooted.estimator.inflate_position(40.0)  # 4 s down at 10 m/s: 40 m more 2-sigma radius
-    major = rebooted.estimator.major_axis_m  # the full axis: twice the 2-sigma radius
+    before = rebooted.estimate.ellipse.major_axis_m
+    rebooted.localizer.widen(40.0)  # 4 s down at 10 m/s: 40 m more 2-sigma radius
+    major = rebooted.estimate.ellipse.major_axis_m  # the full axis: twice the 2-sigma radius
     assert major == pytest.approx(2 * math.hypot(before / 2, 40.0), rel=0.05)
 
 
@@ -161,10 +161,10 @@ def test_a_checkpoint_with_a_bad_state_field_is_refused_and_nothing_changes(
         a.feed(WheelOdometry(0.1 * (k + 1), 1.0, 1.0))
     snap = {**a.snapshot(), key: value}
     b = make_pipeline()
-    before = (b.estimator.x.copy(), b.st.odometer_m)
+    before = (b.localizer.estimator.x.copy(), b.estimate.odometer_m)
     with pytest.raises(SnapshotError, match=message):
         b.restore(snap)
-    assert np.array_equal(b.estimator.x, before[0]) and b.st.odometer_m == before[1]
+    assert np.array_equal(b.localizer.estimator.x, before[0]) and b.estimate.odometer_m == before[1]
 
 
 def test_the_whole_state_is_in_the_checkpoint_and_what_a_restart_forgets_is_named(
@@ -174,20 +174,26 @@ def test_the_whole_state_is_in_the_checkpoint_and_what_a_restart_forgets_is_name
     times) and the waiting notice are checkpointed; the transient part is a ``Transient``."""
     from dataclasses import asdict
 
-    from guidance.core.pipeline_state import PipelineState, Transient
+    from guidance.core.pipeline_state import LocalizeState, PipelineState, PlanState, Transient
 
     a = make_pipeline()
     for k in range(10):
         a.feed(WheelOdometry(0.1 * (k + 1), 1.0, 1.0))
     a.st.warned.append("compass")
-    a.st.landmark_said["4"] = 0.5
+    a.planner.st.landmark_said["4"] = 0.5
     snap = a.snapshot()
-    assert {f: snap[f] for f in asdict(a.st)} == asdict(a.st)
+    states = (a.st, a.localizer.st, a.planner.st)
+    for st in states:
+        assert {f: snap[f] for f in asdict(st)} == asdict(st)
     same = make_pipeline()
     same.restore(snap)
-    assert same.st == a.st and same.st.warned == ["compass"]
+    assert (same.st, same.localizer.st, same.planner.st) == states
+    assert same.st.warned == ["compass"]
     rebooted = make_pipeline()
     rebooted.restore(snap, same_clock=False)
-    assert rebooted.st.landmark_said == {} and rebooted.st.warned == ["compass"]
-    assert isinstance(rebooted.tr, Transient) and rebooted.tr.held_odometry is None
+    assert rebooted.planner.st.landmark_said == {} and rebooted.st.warned == ["compass"]
+    tr = rebooted.localizer.tr
+    assert isinstance(tr, Transient) and tr.held_odometry is None
     assert PipelineState.from_snapshot(snap) == a.st
+    assert LocalizeState.from_snapshot(snap) == a.localizer.st
+    assert PlanState.from_snapshot(snap) == a.planner.st

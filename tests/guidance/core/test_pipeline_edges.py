@@ -7,8 +7,8 @@ import math
 import pytest
 
 from guidance.core.localize.estimator import REANCHOR_AFTER, EstimatorConfig
-from guidance.core.localize.odometry_gap import GAP_ACCEL_MPS2
 from guidance.core.messages import HeadingFix, WheelOdometry
+from guidance.core.odometry_gap import GAP_ACCEL_MPS2
 from guidance.core.pipeline import Pipeline, PipelineConfig
 from guidance.core.plan.navigator import NavigatorConfig
 
@@ -36,21 +36,21 @@ def test_a_5_s_dropout_at_11_mps_is_dead_reckoned_along_the_road_not_widened_as_
     for _ in range(200):  # 10 s at 11 m/s east, 20 Hz
         t += 0.05
         p.feed(WheelOdometry(t, step, step))
-    x_before = float(p.estimator.x[0])
-    before = p.estimator.P[:2, :2].copy()
+    x_before = float(p.localizer.estimator.x[0])
+    before = p.localizer.estimator.P[:2, :2].copy()
     for k in range(30):  # the compass goes on through the gap (6 Hz, heading east)
         p.feed(HeadingFix(t + (k + 1) / 6.0, 0.0))
     p.feed(WheelOdometry(t + 5.0, step, step))  # the first increment after 5 s of silence
     p.feed(WheelOdometry(t + 5.05, step, step))  # confirms the new time base
     assert p.counts["odometry_gaps"] == 1
-    moved = float(p.estimator.x[0]) - x_before
+    moved = float(p.localizer.estimator.x[0]) - x_before
     assert moved == pytest.approx(11.0 * 5.05 + step, abs=1.5)  # the 55 m it could not measure
-    along = 2.0 * math.sqrt(p.estimator.P[0, 0] - before[0, 0])
-    across = 2.0 * math.sqrt(max(0.0, p.estimator.P[1, 1] - before[1, 1]))
+    along = 2.0 * math.sqrt(p.localizer.estimator.P[0, 0] - before[0, 0])
+    across = 2.0 * math.sqrt(max(0.0, p.localizer.estimator.P[1, 1] - before[1, 1]))
     assert along == pytest.approx(0.5 * GAP_ACCEL_MPS2 * 5.05**2, rel=0.1)  # 38 m, not 92 m
     assert across < 0.3 * along
-    assert p.estimator.major_axis_m < 100.0  # not lost
-    assert math.isclose(p.st.speed_mps, 11.0, rel_tol=0.01)  # the speed before the gap is kept
+    assert p.localizer.estimator.major_axis_m < 100.0  # not lost
+    assert math.isclose(p.estimate.speed_mps, 11.0, rel_tol=0.01)  # the speed before the gap
 
 
 def test_without_a_compass_a_dropout_widens_across_too_but_the_car_is_not_lost() -> None:
@@ -64,7 +64,7 @@ def test_without_a_compass_a_dropout_widens_across_too_but_the_car_is_not_lost()
     p.feed(WheelOdometry(t + 5.0, step, step))
     p.feed(WheelOdometry(t + 5.05, step, step))
     assert p.counts["odometry_gaps"] == 1
-    assert p.estimator.major_axis_m < 100.0
+    assert p.localizer.estimator.major_axis_m < 100.0
 
 
 def test_no_turn_advice_until_the_heading_is_known() -> None:
@@ -105,8 +105,9 @@ def test_a_frame_stamped_an_hour_ahead_neither_widens_nor_freezes_the_estimate()
         runs.append(p)
     clean, glitched = runs
     assert glitched.counts["time_glitch_dropped"] == 1 and glitched.counts["odometry_gaps"] == 0
-    assert glitched.estimator.major_axis_m == pytest.approx(clean.estimator.major_axis_m)
-    assert glitched.estimator.x[0] == pytest.approx(clean.estimator.x[0])
+    g, c = glitched.estimate, clean.estimate
+    assert g.ellipse.major_axis_m == pytest.approx(c.ellipse.major_axis_m)
+    assert glitched.localizer.estimator.x[0] == pytest.approx(clean.localizer.estimator.x[0])
 
 
 def test_a_clock_stepped_back_half_a_second_keeps_the_estimate_moving() -> None:
@@ -118,7 +119,7 @@ def test_a_clock_stepped_back_half_a_second_keeps_the_estimate_moving() -> None:
         if k == 100:
             t -= 0.5
         assert p.feed(WheelOdometry(t, step, step)).accepted
-    assert p.estimator.x[0] == pytest.approx(200 * step, rel=1e-6)
+    assert p.localizer.estimator.x[0] == pytest.approx(200 * step, rel=1e-6)
     assert p.statuses(t)["odometry"].valid
 
 
@@ -126,7 +127,7 @@ def test_inputs_the_estimator_cannot_place_in_time_make_the_input_invalid() -> N
     p = _pipeline()
     for k in range(1, 40):
         p.feed(WheelOdometry(0.05 * k, 0.5, 0.5))
-    p.estimator.process(WheelOdometry(100.0, 0.1, 0.1))  # the estimate's time is now ahead
+    p.localizer.estimator.process(WheelOdometry(100.0, 0.1, 0.1))  # the estimate's time: ahead
     out = p.feed(WheelOdometry(2.05, 0.5, 0.5))
     assert out.reason == "out_of_order"
     st = p.statuses(2.05)["odometry"]

@@ -107,7 +107,7 @@ def test_the_car_model_keeps_the_same_compass_usable() -> None:
         pipeline.feed(m)
     st = pipeline.statuses(msgs[-1].t_s)["compass"]
     assert st.valid, st.detail
-    accepted = pipeline.estimator.accepted["HeadingFix"]
+    accepted = pipeline.localizer.estimator.accepted["HeadingFix"]
     assert accepted > 0.9 * sum(isinstance(m, CompassHeading) for m in msgs)
 
 
@@ -128,7 +128,7 @@ def test_noise_grows_with_distance_not_with_the_message_rate() -> None:
         p = Pipeline(setup.pipeline)
         for m in msgs:
             p.feed(m)
-        axes.append(p.estimator.major_axis_m)
+        axes.append(p.localizer.estimator.major_axis_m)
     assert math.isclose(axes[0], axes[1], rel_tol=0.03), axes
 
 
@@ -183,4 +183,4 @@ def test_a_second_replay_starts_from_what_the_first_learned(tmp_path: Path) -> N
     assert second["inside_2sigma_frac"] >= 0.80
     assert second["median_axis_ratio"] < first["median_axis_ratio"]
     doc = json.loads(learned.read_text())
-    assert doc["schema"] == "guidance.learned/2" and doc["vehicle_id"] == "rav4"
+    assert doc["schema"] == "guidance.learned/3" and doc["vehicle_id"] == "rav4"

@@ -79,6 +79,9 @@ def test_the_default_voice_is_understood_over_every_prompt() -> None:
 @pytest.mark.slow
 @pytest.mark.skipif(shutil.which("espeak-ng") is None, reason="espeak-ng missing")
 def test_the_bar_is_one_espeak_fails() -> None:
-    """Every third sentence (the figure for all is in the benchmark): the bar separates."""
-    wer = _wer("espeak:en", prompt_corpus(LANDMARKS)[::3])
+    """Every ninth sentence (13 sentences, 100 words; the figure for all is in the benchmark):
+    the bar separates. espeak-ng's rate is 0.91 over every prompt and 0.84 over these (every
+    third, 37 sentences, cost three times the CPU for no more power: at a rate near 0.9, 100
+    words cannot come out under 0.25)."""
+    wer = _wer("espeak:en", prompt_corpus(LANDMARKS)[::9])
     assert wer > WER_BAR, f"espeak-ng word error rate {wer:.3f}"

@@ -153,6 +153,50 @@ def test_after_the_first_poll_only_new_track_points_are_sent() -> None:
         assert fleet_query(bad)[0] is None, bad
 
 
+def test_an_answer_is_bounded_and_built_outside_the_fold_lock(
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    """Issue 40 (a low): ``/api/fleet?since=0`` returned every car's unthinned track (4.3 MB
+    for 50 cars) and built it while holding the lock the folding thread needs (3.5 s). Now a
+    car with more new points than ``TRACK_POINTS_SENT`` gets its whole track thinned (as
+    without ``since``; ``track_start`` null, the page replaces its copy), under the lock only
+    bounded copies are taken, and the JSON is built after it is released."""
+    from guidance.telemetry.client import TelemetryEvent
+    from guidance.tools.web import server
+    from guidance.tools.web.server import TRACK_POINTS_SENT
+
+    web = WebMonitor(MonitorClient(["tcp/127.0.0.1:9"]), "127.0.0.1", 0)
+    try:
+        n_points = 2 * TRACK_POINTS_SENT + 7
+        for step in range(1, n_points + 1):
+            for i in range(3):
+                msg = {"schema": "guidance.state/1", "vehicle_id": f"car{i}", "seq": step,
+                       "t_s": float(step), "x_m": 3.0 * step, "y_m": float(i)}  # fmt: skip
+                web.view.apply(TelemetryEvent("state", f"car{i}", "k", msg, float(step)))
+        real = server.car_json
+        held: list[bool] = []
+
+        def spy(*args: Any, **kw: Any) -> dict[str, Any]:
+            held.append(web.lock.locked())
+            return real(*args, **kw)
+
+        monkeypatch.setattr(server, "car_json", spy)
+        whole = web.fleet()
+        since_0 = web.fleet(0, whole["epoch"])
+        assert held == [False] * 6  # three cars, two answers: none built under the lock
+        for a, b in zip(whole["cars"], since_0["cars"], strict=True):
+            assert a["track_start"] is None and b["track_start"] is None
+            assert len(a["track"]) == TRACK_POINTS_SENT and b["track"] == a["track"]
+            assert a["track"][0] == [3.0, a["state"]["y_m"]]
+            assert a["track"][-1] == [3.0 * n_points, a["state"]["y_m"]]
+        # a page that is only a little behind still gets only the new points
+        recent = web.fleet(whole["generation"] - 3 * TRACK_POINTS_SENT, whole["epoch"])
+        assert all(c["track_start"] == n_points - TRACK_POINTS_SENT for c in recent["cars"])
+        assert all(len(c["track"]) == TRACK_POINTS_SENT for c in recent["cars"])
+    finally:
+        web.httpd.server_close()
+
+
 def test_page_and_assets_come_from_the_package_with_a_strict_csp(
     car_and_web: tuple[Telemetry, WebMonitor],
 ) -> None:

@@ -354,8 +354,8 @@ def test_a_relocalised_fix_while_lost_resets_the_position_and_keeps_the_heading(
     the position at the place with the fix's sigma (uncorrelated with every other state); the
     heading and its variance are kept. The same fix on a car that is not lost is gated as any
     other, so a wrong find cannot move a good estimate."""
-    from guidance.core.localize.estimator import RELOCALISED
     from guidance.core.messages import LandmarkFix as Fix
+    from guidance.core.stages import RELOCALISED
 
     est = PoseEstimator(car_model(EstimatorConfig(), calibrated=False), 0.0, 0.0, 0.3)
     P = est.P

@@ -137,7 +137,7 @@ def test_pipeline_publishes_the_chance_with_each_state_and_it_falls_with_distanc
     assert vn and all(v is not None and 0.0 <= v <= 1.0 for v in vn)
     assert vn[0] is not None and vf[0] is not None and vn[0] > vf[0]
     # the same as the table says for its inputs
-    est = far.estimator
+    est = far.localizer.estimator
     to_go = math.hypot(12000.0 - est.x[0], -est.x[1])
     expect = ChanceTable.shipped().chance(
         "straight_to_goal", 0.0, 0.6, 30.0, to_go, est.major_axis_m
@@ -153,7 +153,7 @@ def test_pipeline_says_a_low_chance_once_and_again_after_a_new_goal() -> None:
         t += 0.1
         said += [x.text for x in p.feed(WheelOdometry(t, 1.0, 1.0)).prompts if x.kind == "chance"]
     assert len(said) == 1 and "percent" in said[0]
-    assert p.st.chance_said and not p.st.lost_said
+    assert p.planner.st.chance_said and not p.lost
     out = p.feed(GoalUpdate(t + 0.1, 14000.0, 0.0, source="operator"))
     said += [x.text for x in out.prompts if x.kind == "chance"]
     t += 0.1
@@ -189,7 +189,7 @@ def test_a_damaged_shipped_table_costs_the_chance_not_the_car(
     finally:
         chance.shipped_or_none.cache_clear()
     assert values and all(v is None for v in values)
-    assert p.st.odometer_m > 25.0
+    assert p.estimate.odometer_m > 25.0
     assert sum("no chance of success" in r.message for r in caplog.records) == 1
 
 

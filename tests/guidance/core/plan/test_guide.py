@@ -29,7 +29,7 @@ class Drive:
     def __init__(self, p: Pipeline, speed_mps: float = 8.0, dt: float = 0.05) -> None:
         self.p, self.v, self.dt = p, speed_mps, dt
         self.t = 0.0
-        self.heading = float(p.estimator.x[2])
+        self.heading = float(p.localizer.estimator.x[2])
         self.prompts: list[Prompt] = []
         self.taken: list[ExitTaken] = []
 
@@ -69,7 +69,7 @@ class Drive:
     def type(self, line: str) -> None:
         typed = parse_line(line)
         assert typed is not None
-        self.feed(to_scene(typed, self.t, float(self.p.estimator.x[2])))
+        self.feed(to_scene(typed, self.t, float(self.p.localizer.estimator.x[2])))
 
     def said(self) -> list[str]:
         return [p.text for p in self.prompts if p.kind == "turn"]
@@ -292,3 +292,40 @@ def test_a_short_can_gap_keeps_the_intersections_ahead(
     car.drive(12.0, NORTH)
     car.drive(30.0)
     assert len(car.taken) == 1 and car.taken[0].source == "detected" and car.taken[0].followed
+
+
+def test_a_first_instruction_too_close_to_act_on_is_held_unsaid(
+    make_pipeline: Callable[..., Pipeline],
+) -> None:
+    """A decision first made 10 m before the intersection (e.g. right after the position is
+    found) comes too late: the driver is already placed for the exit they chose. Nothing is
+    said for it (announce.too_late: 2.5 s of reaction, at least 15 m), and no change later."""
+    car = Drive(make_pipeline(goal_xy_m=(0.0, 1000.0)), speed_mps=8.0)
+    car.drive(20.0)
+    car.feed(IntersectionScene(car.t, (NORTH, EAST), 10.0))
+    car.drive(8.0)
+    assert car.said() == [] and car.p.counts["too_late_not_said"] == 1
+    car.feed(IntersectionScene(car.t, (NORTH, EAST), 120.0))  # the next one is said as usual
+    car.drive(70.0)
+    assert car.said() and car.said()[-1].startswith("In ")
+
+
+def test_the_next_intersection_seen_from_the_corner_is_on_the_road_the_car_takes(
+    make_pipeline: Callable[..., Pipeline],
+) -> None:
+    """The next intersection comes into view when the car is already at the corner (within
+    the guide's same place). If the driver then turns another way than advised, that report
+    is still on the road really taken: it is kept (not dropped with the advised road's), and
+    its manoeuvre is named against the road the car is on, not the advised exit."""
+    car = Drive(make_pipeline(goal_xy_m=(0.0, 1000.0)), speed_mps=8.0)
+    car.drive(20.0)
+    car.feed(IntersectionScene(car.t, (NORTH, SOUTH), 100.0))  # advised: left (north)
+    car.drive(94.0)
+    car.feed(IntersectionScene(car.t, (WEST, SOUTH), 206.0))  # seen from the corner
+    car.drive(12.0, SOUTH)  # the driver turns right instead
+    car.drive(150.0)
+    assert len(car.taken) == 1 and not car.taken[0].followed
+    ahead = car.p.planner.guide.ahead
+    assert ahead and ahead[0].on_taken_road
+    said = car.said()[1:]
+    assert said and all("left" not in s for s in said), said  # west is right from the south

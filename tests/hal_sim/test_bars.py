@@ -1,0 +1,50 @@
+"""The closed-form bars (hal_sim/bars.py) against a Monte Carlo of the model they solve: cars
+whose whitened error is a persistent draw plus independent samples."""
+
+from __future__ import annotations
+
+import itertools
+import math
+
+import numpy as np
+import pytest
+
+from hal_sim import bars
+
+
+@pytest.mark.parametrize("rho", [0.3, 0.6, 0.85, 1.0])
+def test_the_fraction_below_half_matches_a_monte_carlo_of_persistent_and_white_errors(
+    rho: float,
+) -> None:
+    rng = np.random.default_rng(11)
+    cars, samples = 40_000, 201
+    z = rng.standard_normal((cars, 1, 2))
+    w = rng.standard_normal((cars, samples, 2))
+    e = math.sqrt(rho) * z + math.sqrt(1.0 - rho) * w
+    inside = np.mean(np.sum(e * e, axis=2) <= 4.0, axis=1)
+    measured = float(np.mean(inside < 0.5))
+    expected = bars.below_half_fraction(rho)
+    se = math.sqrt(expected * (1 - expected) / cars)
+    # the closed form is the many-sample limit: 201 samples leave a small finite-sample spread
+    assert measured == pytest.approx(expected, abs=4 * se + 0.004)
+
+
+def test_the_limits_are_zero_and_e_to_the_minus_two() -> None:
+    assert bars.below_half_fraction(1.0) == pytest.approx(math.exp(-2.0))
+    assert bars.below_half_fraction(0.0) == 0.0
+    fractions = [bars.below_half_fraction(r) for r in np.linspace(0.0, 1.0, 21)]
+    assert all(b >= a for a, b in itertools.pairwise(fractions))
+    with pytest.raises(ValueError):
+        bars.below_half_fraction(1.2)
+
+
+def test_the_bars_catch_an_overconfident_and_a_conservative_filter() -> None:
+    lo, hi = bars.nees_band(1000)
+    assert lo < 2.0 < hi
+    assert bars.matched_bars(1000, 2.0, 0.08).ok
+    assert not bars.matched_bars(1000, 2.6, 0.08).ok  # overconfident
+    assert not bars.matched_bars(1000, 1.4, 0.03).ok  # conservative: NEES below the band
+    assert not bars.matched_bars(1000, 2.0, 0.20).ok  # more tail cars than any mix allows
+    assert bars.heavier_bars(1000, 0.92, 0.05, 0.08, 1000).ok
+    assert not bars.heavier_bars(1000, 0.75, 0.05, 0.08, 1000).ok
+    assert not bars.heavier_bars(1000, 0.92, 0.12, 0.08, 1000).ok
