@@ -22,6 +22,7 @@ import numpy as np
 
 from drivers.speech import CHUNK, SpeechInput, SpeechInputConfig
 from drivers.speech_grammar import RATE_HZ, CommandRecogniser, resample
+from guidance.core.messages import Say
 from guidance.tools.voice_corpus import (
     RADIO_TEXT,
     SPOKEN_COMMANDS,
@@ -49,7 +50,7 @@ class _Stream:
     """A speech input fed by hand, collecting what it heard and did."""
 
     def __init__(self, talk: str, recogniser: CommandRecogniser, car_voice: object = None) -> None:
-        self.said: list[str] = []
+        self.said: list[Say] = []
         self.input = SpeechInput(
             SpeechInputConfig(device="none", talk=talk), lambda: 0.0, feedback=lambda _t: None,
             on_command=lambda c: c, read_back=self.said.append, recogniser=recogniser,

@@ -81,14 +81,13 @@ class ThreadedSource(Generic[T]):
         config: SourceTiming,
         *,
         clock: Callable[[], float],
-        warnings: Mapping[str, str],
     ) -> None:
         """``config`` gives ``stale_after_s`` (health) and ``reconnect_max_s`` (backoff)."""
         self.name = name
         self._log = logging.getLogger(type(self).__module__)
         """The driver's own module logger: log configuration and tests select it by name."""
         self._health = HealthTracker(
-            name, stale_after_s=config.stale_after_s, clock=clock, warnings=warnings
+            name, stale_after_s=config.stale_after_s, clock=clock
         )
         self._reconnect_max_s = config.reconnect_max_s
         self._device = name

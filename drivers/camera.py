@@ -67,14 +67,6 @@ class CameraConfig:
         return isinstance(self.source, str) and Path(self.source).is_file()
 
 
-WARNINGS = {
-    "silent": "Camera stopped. Landmarks cannot be recognised.",
-    "invalid": "Camera images are failing. Landmarks cannot be recognised.",
-    "disconnected": "Camera lost. Landmarks cannot be recognised.",
-}
-"""Spoken when ``health()`` turns bad (docs/reliability.md)."""
-
-
 class OpenCvCamera(ThreadedSource[CameraFrame]):
     """``CameraSource`` backed by ``cv2.VideoCapture``.
 
@@ -92,7 +84,7 @@ class OpenCvCamera(ThreadedSource[CameraFrame]):
     ) -> None:
         """``clock`` stamps each frame: ``time.monotonic`` live, the world's clock in simulation."""
         self.config = config or CameraConfig()
-        super().__init__(name, self.config, clock=clock, warnings=WARNINGS)
+        super().__init__(name, self.config, clock=clock)
         self._device = f"camera {self.config.source!r}"
         self._clock = clock
         self._new_frame = threading.Condition(self._lock)

@@ -100,14 +100,6 @@ class CanOdometryConfig:
             raise UserError(f"bitrate must be a positive integer (bit/s), not {self.bitrate!r}")
 
 
-WARNINGS = {
-    "silent": "Wheel speed signal lost. Position is getting less certain.",
-    "invalid": "Wheel speed data is unreliable. Position is getting less certain.",
-    "disconnected": "Wheel speed bus disconnected. Position is getting less certain.",
-}
-"""Spoken when ``health()`` turns bad (docs/reliability.md)."""
-
-
 AUTO = "auto"
 AUTO_LISTEN_S = 3.0
 """``profile = "auto"``: how long the bus is listened to before the rule is applied (every
@@ -164,7 +156,7 @@ class CanOdometry(ThreadedSource[WheelOdometry]):
         self.config = config or CanOdometryConfig()
         if self.config.profile == AUTO:  # the car from the ids on its bus (can_identify)
             self.config = replace(self.config, profile=identify_on_bus(self.config))
-        super().__init__(name, self.config, clock=clock, warnings=WARNINGS)
+        super().__init__(name, self.config, clock=clock)
         self._clock_map = ClockMapper()
         self.decoder = WheelSpeedDecoder(self.config.profile, max_gap_s=self.config.max_gap_s)
         self._bus: can.BusABC | None = None

@@ -384,13 +384,6 @@ class SerialCompassConfig:
             raise UserError(f"max_line_bytes must be an integer >= 82, not {self.max_line_bytes!r}")
 
 
-WARNINGS = {
-    "silent": "Compass silent. Heading is getting less certain.",
-    "invalid": "Compass data is unreliable. Heading is getting less certain.",
-    "disconnected": "Compass disconnected. Heading is getting less certain.",
-}
-"""Spoken when ``health()`` turns bad (docs/reliability.md)."""
-
 NEUTRAL_REASONS = frozenset({"unknown_type"})
 """Rejections that say nothing about the compass: other sentences of a multi-sentence device."""
 
@@ -416,7 +409,7 @@ class SerialCompass(ThreadedSource[CompassHeading]):
         """``clock`` stamps line arrival: ``time.monotonic`` live, the world's clock in an
         accelerated simulation (so compass and CAN frame times share one time base)."""
         self.config = config or SerialCompassConfig()
-        super().__init__(name, self.config, clock=clock, warnings=WARNINGS)
+        super().__init__(name, self.config, clock=clock)
         self._device = self.config.port
         self._clock = clock
         self.parser = NmeaCompassParser(

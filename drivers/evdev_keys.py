@@ -182,7 +182,7 @@ class EvdevKeys(ThreadedSource[SceneMessage]):
         on_command: Callable[[str], str] | None = None,
         name: str = "keypad",
     ) -> None:
-        super().__init__(name, config, clock=clock, warnings={})
+        super().__init__(name, config, clock=clock)
         self.config = config
         self._device = config.device
         self.lines = CoDriverLines(

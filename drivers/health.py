@@ -2,9 +2,10 @@
 
 Every driver answers ``health()`` with a ``guidance.core.messages.Health``: is data arriving
 (``alive``), is what arrives usable (``valid``), a one-word ``status``, the age of the last
-accepted message, its counters, the last error (``detail``), and ``warning``, a sentence the
-app can speak to the driver when the status is not "ok" (empty otherwise). docs/reliability.md
-lists what each fault does to these.
+accepted message, its counters and the last error (``detail``, for the log and the operator).
+Never a sentence for the driver: ``warning`` stays empty, and the pipeline words a bad status
+once, by input (``guidance.core.speech.SENSOR_WORDS``: one event, one sentence, whoever noticed
+it first). docs/reliability.md lists what each fault does to these.
 
 ``HealthTracker`` is the bookkeeping behind it, shared by the drivers: the reader thread reports
 each unit of data (a wheel-speed frame, an NMEA line, a camera frame) as accepted, rejected or
@@ -29,8 +30,7 @@ log = logging.getLogger(__name__)
 class HealthTracker:
     """Arrivals, outcomes and connection state of one input; thread-safe.
 
-    ``warnings`` maps a bad status to the sentence to speak; statuses without an entry get a
-    generic one. Times are on ``clock`` (the driver's clock: monotonic live, simulated or frame
+    Times are on ``clock`` (the driver's clock: monotonic live, simulated or frame
     time in simulation and replay).
     """
 
@@ -40,7 +40,6 @@ class HealthTracker:
         *,
         stale_after_s: float,
         clock: Callable[[], float],
-        warnings: Mapping[str, str] | None = None,
         window: int = VALIDITY_WINDOW,
         max_rejected_fraction: float = MAX_REJECTED_FRACTION,
     ) -> None:
@@ -49,7 +48,6 @@ class HealthTracker:
         self.name = name
         self.stale_after_s = stale_after_s
         self._clock = clock
-        self._warnings = dict(warnings or {})
         self._max_rejected = max_rejected_fraction
         self._lock = threading.Lock()
         self._outcomes: deque[bool] = deque(maxlen=window)
@@ -146,7 +144,6 @@ class HealthTracker:
             age_s=age,
             counters=dict(counters or {}),
             detail=error,
-            warning=self.warning_for(status),
         )
         if status != previous and self.on_flip is not None:
             try:
@@ -154,11 +151,6 @@ class HealthTracker:
             except Exception:  # the app's hook must never break the reader
                 log.exception("%s: the status hook raised; continuing", self.name)
         return health
-
-    def warning_for(self, status: str) -> str:
-        if status not in BAD_STATUSES:
-            return ""
-        return self._warnings.get(status) or f"{self.name} {status}."
 
     def _fresh(self, t: float | None, now: float) -> bool:
         return t is not None and now - t <= self.stale_after_s

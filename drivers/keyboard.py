@@ -2,8 +2,9 @@
 shares (the terminal keyboard here, a USB keypad in ``drivers.evdev_keys``).
 
 ``CoDriverLines`` turns one typed line into what happens next: an ``IntersectionScene`` or a
-``TurnCompleted`` for the sink (parsed by ``guidance.core.co_driver``), a command (help, repeat
-the last prompt, mute), or an answer to a line that does not parse. Every line gets an
+``TurnCompleted`` for the sink (parsed by ``guidance.core.co_driver``), a ``CancelReport`` for
+the sink ("cancel": the last report taken back), a command (help, repeat the last prompt, mute),
+or an answer to a line that does not parse. Every line gets an
 acknowledgement on ``feedback`` (the operator screen, or stderr), so the co-driver knows it was
 taken. ``KeyboardScene`` reads the lines from stdin (or any text stream) on its own thread.
 """
@@ -32,11 +33,11 @@ from guidance.core.co_driver import (
     parse_line,
     to_scene,
 )
-from guidance.core.messages import IntersectionScene, TurnCompleted
+from guidance.core.messages import CancelReport, IntersectionScene, TurnCompleted
 
 log = logging.getLogger(__name__)
 
-SceneMessage = IntersectionScene | TurnCompleted
+SceneMessage = IntersectionScene | TurnCompleted | CancelReport
 Feedback = Callable[[str], None]
 """Where acknowledgements, answers and help go: one line of text each."""
 
@@ -56,7 +57,8 @@ HELP_LINES: tuple[str, ...] = (
     "exits ahead: l s r (left straight right), bl br (bear), hl hr (hard), u (U-turn),"
     " l30 r60 or +30 -120 (degrees, left positive); keypad 8 4 6 7 9 1 3 2",
     "turn taken: tl, turned left, t 4 (keypad: 0 then the exit key, e.g. 0 4)",
-    "commands: ? or help (this help), repeat (keypad *), mute (keypad /)",
+    "commands: ? or help (this help), repeat (keypad *), mute (keypad /), cancel (the last"
+    " report, while the car has not reached it)",
     "report each intersection once, as soon as you see it (right after the previous one is"
     " fine), as seen from the street the car will be on; the next report tells the car the"
     " previous one is behind; turns are seen by the car, a turn report only settles it sooner",
@@ -135,6 +137,12 @@ class CoDriverLines:
             return None
         self._count("lines")
         command = COMMANDS.get(text)
+        if command == "cancel":  # for the pipeline, like a report: it answers in words
+            self._count("cancels")
+            cancel = CancelReport(t_s, source="co-driver")
+            sink(cancel)
+            self.feedback("ok: cancel the last report")
+            return cancel
         if command is not None:
             self._count("commands")
             self._command(command)
@@ -223,7 +231,7 @@ class KeyboardScene(ThreadedSource[SceneMessage]):
         clock: Callable[[], float] = time.monotonic,
         name: str = "keyboard",
     ) -> None:
-        super().__init__(name, KeyboardTiming(), clock=clock, warnings={})
+        super().__init__(name, KeyboardTiming(), clock=clock)
         self._stream = stream
         write = feedback if feedback is None or callable(feedback) else _stream_feedback(feedback)
         self.lines = CoDriverLines(

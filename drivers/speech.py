@@ -5,9 +5,10 @@ same sound system the car's voice plays through (docs/dependencies.md); a WAV fi
 raw samples reads the same way (tests, ``guidance voice listen``). Each utterance goes to
 ``drivers.speech_grammar.CommandRecogniser`` and, when it is a command heard with enough
 confidence, to ``drivers.keyboard.CoDriverLines`` as the line the keypad would have sent: the
-same acknowledgements, help and commands. Every report is read back in a few words through
-``read_back`` ("Left, straight, right."), so a driver alone knows what was heard; a doubtful one
-is answered "Say again.".
+same acknowledgements, help and commands. Every report is read back through ``read_back`` as
+an event (``Say(Speech.READ_BACK, line=...)``: "Left, straight, right." in the sentence table,
+``guidance.core.speech``), so a driver alone knows what was heard; a doubtful one is answered
+``Speech.SAY_AGAIN``.
 
 **When it listens** (``talk``):
 
@@ -46,13 +47,12 @@ from drivers._reader import ThreadedSource
 from drivers.keyboard import CoDriverLines, Feedback, SceneMessage
 from drivers.speech_grammar import (
     RATE_HZ,
-    SAY_AGAIN_TEXT,
     Heard,
     ProcessRecogniser,
     Segmenter,
-    read_back,
     read_wav_16k,
 )
+from guidance.core.messages import Say, Speech
 
 CHUNK = 480
 """Samples read at a time: 30 ms, the voice activity detector's frame."""
@@ -128,14 +128,14 @@ class SpeechInput(ThreadedSource[SceneMessage]):
         feedback: Feedback | None = None,
         echo: Feedback | None = None,
         on_command: Callable[[str], str] | None = None,
-        read_back: Callable[[str], None] | None = None,
+        read_back: Callable[[Say], None] | None = None,
         car_voice: CarVoiceState | None = None,
         recogniser: Recogniser | None = None,
         name: str = "speech",
     ) -> None:
         if config.talk not in ("key", "always"):
             raise ValueError(f"talk must be 'key' or 'always', not {config.talk!r}")
-        super().__init__(name, config, clock=clock, warnings={})
+        super().__init__(name, config, clock=clock)
         self.config = config
         self._device = config.device
         self.lines = CoDriverLines(
@@ -257,8 +257,8 @@ class SpeechInput(ThreadedSource[SceneMessage]):
         self._count("commands_heard")
         self.lines.echo(f"heard {heard.text!r} (confidence {heard.confidence:.2f})")
         self.lines.handle(heard.line, functools.partial(self._deliver_scene, sink))
-        if self.read_back is not None:
-            self.read_back(read_back(heard.line))
+        if self.read_back is not None and heard.line != "cancel":  # the pipeline answers that
+            self.read_back(Say(Speech.READ_BACK, line=heard.line))
 
     def _deliver_scene(self, sink: Callable[[SceneMessage], None], msg: SceneMessage) -> None:
         self._deliver(sink, msg)
@@ -268,7 +268,7 @@ class SpeechInput(ThreadedSource[SceneMessage]):
         what = f"heard {heard.text!r}, confidence {heard.confidence:.2f}" if heard else "no command"
         self.lines.feedback(f"? say again ({what})")
         if self.read_back is not None:
-            self.read_back(SAY_AGAIN_TEXT)
+            self.read_back(Say(Speech.SAY_AGAIN))
 
     # -- the reader -------------------------------------------------------------------------------
     def _run(self, sink: Callable[[SceneMessage], None]) -> None:

@@ -7,7 +7,7 @@ plus the reported distance) and the prompts, and checks, for every turn prompt:
 * **the manoeuvre**: the intersection a prompt is about is the next one along the true path
   after it is spoken (the second for a "..., then ..." part); its true turn is the change of
   the true heading from ``TURN_WINDOW_M`` before it to ``TURN_WINDOW_M`` after it, named by the
-  voice's own ``prompts.manoeuvre``; the spoken words must be exactly that name;
+  voice's own ``speech.manoeuvre``; the spoken words must be exactly that name;
 * **the distance**: "In 250 metres" against the true distance to go, within
   max(``DIST_ABS_M``, ``DIST_REL`` of it);
 * **the margin**: the last prompt before every true turn comes at least ``MIN_MARGIN_S``
@@ -32,7 +32,7 @@ from pathlib import Path
 from typing import Any
 
 from guidance.core.model import wrap_angle
-from guidance.core.prompts import BEARINGS, METRES_PER_FOOT, METRES_PER_MILE, manoeuvre
+from guidance.core.speech import BEARINGS, METRES_PER_FOOT, METRES_PER_MILE, manoeuvre
 
 TURN_WINDOW_M = 25.0
 """The true turn at an intersection: the mean heading over 15 m from this far after it minus
@@ -92,7 +92,7 @@ class ParsedPrompt:
 
 
 def parse_prompt(text: str) -> ParsedPrompt | None:
-    """The voice's turn sentences (``guidance.core.prompts.turn_prompt``) read back; None for
+    """The voice's turn sentences (``guidance.core.speech.turn_prompt``) read back; None for
     any other sentence."""
     t = text.strip()
     changed = t.lower().startswith(_CHANGE)

@@ -662,3 +662,88 @@ def test_every_file_is_read_through_the_door_and_every_reader_is_in_the_table() 
     assert not gone, f"in guidance.files.READERS but reading nothing through the door: {gone}"
     wrong = {fn: k for fn, k in found.items() if k != {files.READERS[fn]}}
     assert not wrong, f"the kinds these read differ from the table: {wrong}"
+
+
+# -- every sentence in one table (issue 37, item 2) ----------------------------------------------
+NOT_FOR_THE_DRIVER = {"log", "_log", "logging", "warnings", "print", "add_argument", "add_parser",
+                      "ArgumentParser"}  # fmt: skip
+"""Calls whose text is for the log, the terminal or ``--help``, never spoken."""
+
+
+def _for_the_driver(text: str) -> bool:
+    """The form of a sentence the car says: capitalised, three words or more, ending in a full
+    stop, "!" or "?" ("Wheel speed signal lost. Position is getting less certain.")."""
+    words = [w for w in text.split() if any(c.isalpha() for c in w)]
+    t = text.strip()
+    return len(words) >= 3 and t[:1].isupper() and t[-1:] in ".!?"
+
+
+def _text_outside_log_and_errors(tree: ast.AST) -> list[tuple[int, str]]:
+    """(line, text) of each string constant (an f-string's constant parts, ``{}`` for each
+    value) that is no docstring and not an argument of a log, print, argparse or exception."""
+    skip: set[int] = set()
+    for node in ast.walk(tree):
+        if isinstance(node, ast.Expr) and isinstance(node.value, ast.Constant):
+            skip.add(id(node.value))  # a docstring, of a module, class, function or attribute
+        if isinstance(node, ast.Raise) and node.exc is not None:
+            skip |= {id(n) for n in ast.walk(node.exc)}
+        if isinstance(node, ast.Call):
+            f = node.func
+            name = f.attr if isinstance(f, ast.Attribute) else getattr(f, "id", "")
+            value = f.value if isinstance(f, ast.Attribute) else None
+            owner = value.id if isinstance(value, ast.Name) else ""
+            if (
+                name in NOT_FOR_THE_DRIVER
+                or owner in NOT_FOR_THE_DRIVER
+                or name.endswith(("Error", "Exception", "Refused"))
+            ):
+                skip |= {id(n) for n in ast.walk(node)}
+    out = []
+    for node in ast.walk(tree):
+        if id(node) in skip:
+            continue
+        if isinstance(node, ast.JoinedStr):
+            parts = [v.value if isinstance(v, ast.Constant) else "{}" for v in node.values]
+            out.append((node.lineno, "".join(str(p) for p in parts)))
+            skip |= {id(v) for v in node.values}
+        elif isinstance(node, ast.Constant) and isinstance(node.value, str):
+            out.append((node.lineno, node.value))
+    return sorted(out)
+
+
+def test_drivers_hold_no_sentences() -> None:
+    """Drivers report health (a status word) and events (``Say``), never a sentence: the words
+    are ``guidance.core.speech``'s, which drivers may not import (``GUIDANCE_VOCABULARY``). The
+    checkable form: no string in ``drivers/`` shaped like a sentence the car says (capitalised,
+    three words or more, ending in a full stop), outside docstrings and the text of the log,
+    of ``print``, of ``--help`` and of exceptions (for the operator and the journal). What this
+    does not see: a sentence assembled from lower-case pieces at run time; the other half of
+    the rule is that a driver's ``Health.warning`` stays empty (tests/reliability)."""
+    assert "guidance.core.speech" not in GUIDANCE_VOCABULARY["drivers"]
+    found = []
+    for path in sorted((ROOT / "drivers").rglob("*.py")):
+        tree = ast.parse(path.read_text(), filename=str(path))
+        for line, text in _text_outside_log_and_errors(tree):
+            if _for_the_driver(text):
+                found.append(f"{path.relative_to(ROOT)}:{line} {text[:60]!r}")
+    assert not found, "words for the driver belong in guidance/core/speech.py:\n" + "\n".join(
+        found
+    )
+
+
+def test_the_sentence_check_sees_the_sentences_the_drivers_used_to_hold() -> None:
+    """The check above, on the three ``WARNINGS`` tables and the read-back the drivers held
+    before the sentence table (so a check that cannot fail would fail here)."""
+    before = '''
+WARNINGS = {"silent": "Wheel speed signal lost. Position is getting less certain."}
+SAY_AGAIN_TEXT = "Please say that again."
+def read_back(line):
+    log.info("heard %s: reading it back to the driver now.", line)
+    return f"Turned {line}, then straight on."
+'''
+    found = [t for _, t in _text_outside_log_and_errors(ast.parse(before)) if _for_the_driver(t)]
+    assert found == [
+        "Wheel speed signal lost. Position is getting less certain.",
+        "Please say that again.",
+        "Turned {}, then straight on.",
+    ]

@@ -22,7 +22,6 @@ from typing import TYPE_CHECKING, Any, TextIO
 
 from guidance.app.operator_view import OperatorView
 from guidance.app.screen import (
-    NO_INPUT_PROMPT,
     MutableSpeaker,
     Operator,
     OperatorScreen,
@@ -33,6 +32,7 @@ if TYPE_CHECKING:
     from guidance.app.app import Source
     from guidance.app.config import AppConfig
     from guidance.app.ports import Speaker
+    from guidance.core.messages import Say
     from guidance.core.pipeline import Pipeline
 
 SCREEN_MODES = ("auto", "live", "plain", "off")
@@ -144,7 +144,7 @@ class OperatorSession:
             clock=self.clock,
         )
 
-    def _read_back(self, text: str) -> None:
+    def _read_back(self, say: Say) -> None:
         """Say what the speech input heard ("Left, straight, right."), from its thread."""
         from guidance.core.messages import Priority
 
@@ -152,7 +152,7 @@ class OperatorSession:
         if loop is None:
             return
         loop.call_soon_threadsafe(
-            lambda: self.operator.say(text, Priority.GUIDANCE, self.clock())
+            lambda: self.operator.speak(say, Priority.GUIDANCE, self.clock())
         )
 
     def attach(self, speaker: Speaker | None) -> MutableSpeaker | None:
@@ -179,14 +179,14 @@ class OperatorSession:
 
     def no_co_driver(self, problem: str) -> None:
         """Say it loudly when the co-driver cannot report intersections: in the log, on the
-        screen and to the driver (``NO_INPUT_PROMPT``)."""
-        from guidance.core.messages import Priority
+        screen and to the driver (``Speech.NO_CO_DRIVER_INPUT``)."""
+        from guidance.core.messages import Priority, Say, Speech
 
         log.warning("NO CO-DRIVER INPUT: %s; intersections cannot be reported", problem)
         self.screen.fold(
             lambda v: v.add(time.time(), "info", f"NO CO-DRIVER INPUT: {problem}", "bad")
         )
-        self.operator.say(NO_INPUT_PROMPT, Priority.SAFETY, time.monotonic())
+        self.operator.speak(Say(Speech.NO_CO_DRIVER_INPUT), Priority.SAFETY, time.monotonic())
 
 
 class _KeysAndMicrophone:

@@ -27,7 +27,7 @@ from guidance.core.messages import (
     Target,
 )
 from guidance.core.plan.chance import shown
-from guidance.core.prompts import manoeuvre
+from guidance.core.speech import manoeuvre
 
 KEYS_LINE = (
     "keypad: 8 straight  4 left  6 right  7/9 bear  1/3 hard  2 U-turn  | Enter ends a line"

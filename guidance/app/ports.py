@@ -21,6 +21,7 @@ from typing import TYPE_CHECKING, Protocol, TypeAlias, TypeVar, runtime_checkabl
 
 from guidance.core.messages import (
     CameraFrame,
+    CancelReport,
     CompassHeading,
     EstimateState,
     Health,
@@ -102,7 +103,7 @@ class CameraSource(Source[CameraFrame], Protocol):
 
 
 @runtime_checkable
-class RoadwayScene(Source[IntersectionScene | TurnCompleted], Protocol):
+class RoadwayScene(Source[IntersectionScene | TurnCompleted | CancelReport], Protocol):
     """Tells the app that an intersection is coming and which exits it has, and what was taken."""
 
 

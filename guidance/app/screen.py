@@ -26,7 +26,8 @@ from collections.abc import Callable, Sequence
 from typing import TYPE_CHECKING, Any, TextIO
 
 from guidance.app.operator_view import OperatorView, clock_text
-from guidance.core.messages import Priority
+from guidance.core import speech
+from guidance.core.messages import Priority, Say, Speech
 
 if TYPE_CHECKING:
     from guidance.app.config import AppConfig
@@ -320,10 +321,6 @@ class MutableSpeaker:
         return getattr(self.inner, name)
 
 
-DIFFERENT_EXIT_PROMPT = "Different exit taken. Guidance continues from here."
-NO_INPUT_PROMPT = "Warning: no co-driver input. Intersections cannot be reported."
-
-
 class Operator:
     """``App.listeners`` entry and co-driver command handler of ``guidance run``."""
 
@@ -350,10 +347,14 @@ class Operator:
         self.screen.fold(lambda v: v.apply(msg, out, now))
         for taken in out.exits_taken:
             if not taken.followed:
-                self.say(DIFFERENT_EXIT_PROMPT, Priority.GUIDANCE, taken.t_s)
+                self.speak(Say(Speech.DIFFERENT_EXIT), Priority.GUIDANCE, taken.t_s)
         if now >= self._next_live:
             self._next_live = now + LIVE_PERIOD_S
             self.refresh()
+
+    def speak(self, say: Say, priority: Priority, t_s: float) -> None:
+        """An event in the sentence table's words, in the car's units (``speech.words``)."""
+        self.say(speech.words(say, self.pipeline.config.units), priority, t_s)
 
     def say(self, text: str, priority: Priority, t_s: float) -> None:
         """Speak (when there is a voice) and show it with the pipeline's prompts (on the loop)."""
@@ -407,8 +408,6 @@ class Operator:
                     lambda: self.say(text, Priority.GUIDANCE, self.clock())
                 )
             return f"repeating: {text}"
-        if command == "cancel":  # spoken: a report already went to the navigator
-            return "nothing to cancel: a report is taken at once"
         return f"unknown command {command}"
 
 

@@ -19,6 +19,7 @@ from typing import Any
 
 from guidance.core.messages import (
     Approach,
+    CancelReport,
     CompassHeading,
     GoalUpdate,
     HeadingFix,
@@ -37,6 +38,7 @@ InputMessage = (
     | LandmarkFix
     | IntersectionScene
     | TurnCompleted
+    | CancelReport
     | Approach
     | GoalUpdate
     | YawRate
@@ -49,13 +51,18 @@ TOPICS: dict[type, str] = {
     LandmarkFix: "/landmark_fix",
     IntersectionScene: "/scene",
     TurnCompleted: "/scene",
+    CancelReport: "/scene",
     Approach: "/approach",
     GoalUpdate: "/goal",
     YawRate: "/yaw_rate",
 }
 """Message type -> the topic it is recorded on (the one table)."""
 
-SCENE_KINDS: dict[str, type] = {"intersection": IntersectionScene, "turn": TurnCompleted}
+SCENE_KINDS: dict[str, type] = {
+    "intersection": IntersectionScene,
+    "turn": TurnCompleted,
+    "cancel": CancelReport,
+}
 _SCENE_EMPTY: dict[str, Any] = {
     "exit_headings_rad": [],
     "distance_m": None,

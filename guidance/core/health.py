@@ -11,7 +11,8 @@ from collections.abc import Mapping
 from dataclasses import dataclass, field
 
 from guidance.config_tables import rule
-from guidance.core.messages import DeviceStatus, Health, HealthChange
+from guidance.core import speech
+from guidance.core.messages import DeviceStatus, Health, HealthChange, Say, Speech
 
 # ----------------------------------------------------------------------------- health
 
@@ -155,12 +156,13 @@ class HealthMonitor:
                 valid = False
                 detail = f"{detail}; {why}" if detail else why
         if device is not None and device_bad:
-            status, warning = device.status, device.warning
+            status = device.status
         else:
-            warning = ""
             status = "silent" if not alive else "invalid" if not valid else "ok"
             if status == "ok" and starting:
                 status = "starting"  # in its grace period: nothing received yet
+        bad = status in BAD_STATUSES  # the sentence the driver hears, for the health message
+        warning = speech.words(Say(Speech.SENSOR, input=name, status=status)) if bad else ""
         counts = self._counts.get(name)
         counters = {} if counts is None else {"read": counts[0], "rejected": counts[1]}
         return Health(

@@ -140,6 +140,15 @@ class TurnCompleted:
 
 
 @dataclass(frozen=True, slots=True)
+class CancelReport:
+    """The co-driver withdraws the last intersection report (a mistake): taken back while the
+    car has not yet reached it, else answered that there is nothing to cancel."""
+
+    t_s: float
+    source: str = "co-driver"
+
+
+@dataclass(frozen=True, slots=True)
 class HeadingFix:
     """A heading measurement already in the filter frame (rad, CCW from east).
 
@@ -188,15 +197,81 @@ class Approach:
     distance_m: float
 
 
+class Speech(StrEnum):
+    """What the driver is told, as an event (openpilot's event names): its words are made in
+    one place, ``guidance.core.speech.SPEECH``, from a ``Say``'s numbers and the units."""
+
+    TURN = "turn"
+    LANDMARK = "landmark"
+    FOUND = "found"
+    UNCERTAIN = "uncertain"
+    NEW_DESTINATION = "new_destination"
+    ARRIVED = "arrived"
+    LOST = "lost"
+    POSITION_UNKNOWN = "position_unknown"
+    WAITING_FOR_HEADING = "waiting_for_heading"
+    SENSOR = "sensor"
+    COMPASS_UNUSABLE = "compass_unusable"
+    CHANCE = "chance"
+    DIFFERENT_EXIT = "different_exit"
+    NO_CO_DRIVER_INPUT = "no_co_driver_input"
+    READ_BACK = "read_back"
+    SAY_AGAIN = "say_again"
+    REPORT_CANCELLED = "report_cancelled"
+    CANNOT_CANCEL = "cannot_cancel"
+
+
+@dataclass(frozen=True, slots=True)
+class Say:
+    """One thing to tell the driver: its kind and its numbers, no words (those are
+    ``guidance.core.speech.words(say, units)``). Fields a kind does not use keep their defaults."""
+
+    speech: Speech
+    turn_rad: float = 0.0
+    """TURN: the manoeuvre (CCW positive = left)."""
+    distance_m: float | None = None
+    """TURN: to the intersection (None: "at the next intersection"); UNCERTAIN: the major axis."""
+    then_turn_rad: float | None = None
+    then_gap_m: float | None = None
+    """TURN: the turn after it and the distance between the two ("..., then turn right")."""
+    band_rad: float = 0.0
+    """TURN: +- the approach heading's uncertainty: the manoeuvre is named only as truly as it
+    is known (``speech.manoeuvre_within``)."""
+    exit_heading_rad: float = 0.0
+    """TURN: the exit road's heading, for "take the road towards the north-east"."""
+    changed: bool = False
+    """TURN: a new instruction for an intersection already announced ("Change of plan: ...")."""
+    again: bool = False
+    """TURN: the same words for another intersection right after ("... again"); FOUND: found
+    *again* (False: the first place of a car that started anywhere)."""
+    name: str = ""
+    """LANDMARK, FOUND: the place's name (an id-like name is not read out)."""
+    input: str = ""
+    status: str = ""
+    """SENSOR: the input ("odometry", "compass", "camera", "scene") and its bad status
+    ("silent", "invalid", "disconnected"); COMPASS_UNUSABLE: ``status`` is the judge's reason."""
+    chance: float = 0.0
+    """CHANCE: of reaching the destination, 0-1."""
+    remote: bool = False
+    """NEW_DESTINATION: set by a remote monitor."""
+    searching: bool = False
+    """LOST: the car looks for a known place again."""
+    line: str = ""
+    """READ_BACK: the co-driver line heard ("l s r", "t l", "repeat")."""
+
+
 @dataclass(frozen=True, slots=True)
 class Prompt:
-    """Something to tell the driver."""
+    """Something to tell the driver: the words (made once, by ``guidance.core.speech``) and
+    what they say as data (``say``: its kind and numbers)."""
 
     t_s: float
     text: str
     priority: int
     kind: str
-    """"turn", "landmark", "uncertain", "arrived", "lost", "sensor", "info"."""
+    """"turn", "landmark", "found", "uncertain", "arrived", "lost", "sensor", "chance", "info"
+    (``speech.KIND``: the published category)."""
+    say: Say | None = None
 
 
 def _finite(value: float | None) -> float | None:

@@ -1,12 +1,12 @@
 """The in-car core as a pure, message-driven object: timestamped messages in, outputs out.
 
 ``Pipeline.feed(msg)`` takes one input (wheel odometry, compass reading, heading fix,
-landmark fix, intersection scene, turn report, new goal, a driver's status flip) and returns
-what it caused: decisions, prompts, landmark updates, turns, health changes, and the state when
-it is due. No I/O, no clock reads, no asyncio: the time is the message's ``t_s``. The live app
-(``guidance.app``), the accelerated simulation (``hal_sim.drive``), replay
-(``guidance.tools.replay``) and the tests all drive this same object, so they compute the same
-thing.
+landmark fix, intersection scene, turn report, cancel of the last report, new goal, a driver's
+status flip) and returns what it caused: decisions, prompts, landmark updates, turns, health
+changes, and the state when it is due. No I/O, no clock reads, no asyncio: the time is the
+message's ``t_s``. The live app (``guidance.app``), the accelerated simulation
+(``hal_sim.drive``), replay (``guidance.tools.replay``) and the tests all drive this same
+object, so they compute the same thing.
 
 It is a sequencer of the core's two stages (``../shared/ARCHITECTURE-3.md`` section 5), in the
 order of the reference trial (``hal_sim.reference``)::
@@ -26,10 +26,19 @@ from collections import Counter
 from collections.abc import Mapping
 from dataclasses import asdict
 
-from guidance.core import prompts
-from guidance.core.health import DeviceStatus, HealthMonitor
+from guidance.core import speech
+from guidance.core.health import BAD_STATUSES, DeviceStatus, HealthMonitor
 from guidance.core.localize.localizer import Localizer, LocalizerConfig
-from guidance.core.messages import EstimateState, GoalUpdate, Health, Priority, Prompt, Target
+from guidance.core.messages import (
+    EstimateState,
+    GoalUpdate,
+    Health,
+    Priority,
+    Prompt,
+    Say,
+    Speech,
+    Target,
+)
 from guidance.core.pipeline_config import INPUT_KINDS, Input, Outputs, PipelineConfig
 from guidance.core.pipeline_state import LocalizeState, PipelineState, PlanState
 from guidance.core.plan.navigator import Decision, Navigator
@@ -100,13 +109,20 @@ class Pipeline:
 
     # -- health ---------------------------------------------------------------------------------
     def _device_status(self, msg: DeviceStatus, out: Outputs) -> None:
-        """A driver's status flip: its own sentence is what the driver hears ("Wheel speed bus
-        disconnected. Position is getting less certain."), once per flip to bad."""
+        """A driver's status flip: the input's sentence for that status is what the driver
+        hears ("Wheel speed bus disconnected. Position is getting less certain."), once per
+        episode, whether the driver or the pipeline's clock noticed first."""
         went_bad = self.health.report(msg)
-        if went_bad and msg.health.warning and msg.input not in self.st.warned:
+        if went_bad and msg.input not in self.st.warned:
             self.st.warned.append(msg.input)
-            out.prompts.append(Prompt(msg.t_s, msg.health.warning, Priority.SAFETY, "sensor"))
+            say = Say(Speech.SENSOR, input=msg.input, status=msg.health.status)
+            out.prompts.append(self._prompt(msg.t_s, say))
         self._health(msg.t_s, out, force=True)
+
+    def _prompt(self, t: float, say: Say) -> Prompt:
+        """A sensor prompt, worded by the table (``speech.words``, ``[navigation] units``)."""
+        text = speech.words(say, self.config.units)
+        return Prompt(t, text, Priority.SAFETY, speech.kind(say), say)
 
     def _health(self, t: float, out: Outputs, force: bool) -> None:
         if not force and t < self._next_health_t:
@@ -122,6 +138,8 @@ class Pipeline:
                 log.warning("%s is back (%.1f Hz)", st.name, st.rate_hz)
                 continue
             problem = "is silent" if not st.alive else "sends bad data"
+            bad = "silent" if not st.alive else "invalid"
+            status = st.status if st.status in BAD_STATUSES else bad
             judged = st.name == "compass" and st.alive and judge.unusable
             if judged:  # its readings arrive and parse; the filter rejects most of them
                 log.warning("compass is unusable (%s): the filter rejected most of its "
@@ -132,10 +150,10 @@ class Pipeline:
             if st.name in self.st.warned:
                 continue  # one warning per input and episode (its driver may have said it)
             self.st.warned.append(st.name)
-            text = prompts.sensor_warning(st.name, problem)
+            say = Say(Speech.SENSOR, input=st.name, status=status)
             if judged:
-                text = prompts.compass_unusable(judge.reason)
-            out.prompts.append(Prompt(t, text, Priority.SAFETY, "sensor"))
+                say = Say(Speech.COMPASS_UNUSABLE, status=judge.reason)
+            out.prompts.append(self._prompt(t, say))
 
     # -- views ----------------------------------------------------------------------------------
     @property

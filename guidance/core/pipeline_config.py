@@ -13,6 +13,7 @@ from guidance.core.health import HealthConfig
 from guidance.core.localize.estimator import EstimatorConfig
 from guidance.core.messages import (
     Approach,
+    CancelReport,
     CompassHeading,
     DeviceStatus,
     EstimateState,
@@ -30,7 +31,7 @@ from guidance.core.messages import (
 from guidance.core.plan.chance import ChanceSettings
 from guidance.core.plan.navigator import Decision, Landmark, NavigatorConfig
 from guidance.core.plan.turns import TurnDetectorConfig
-from guidance.core.prompts import Units
+from guidance.core.speech import Units
 
 Input = InputMessage | DeviceStatus
 """Everything the pipeline is fed: the recorded inputs (``codec.InputMessage``) and the drivers'
@@ -44,6 +45,7 @@ INPUT_KINDS: dict[type, str] = {
     LandmarkFix: "landmark",
     IntersectionScene: "scene",
     TurnCompleted: "scene",
+    CancelReport: "scene",
     GoalUpdate: "goal",
     Approach: "scene",
 }

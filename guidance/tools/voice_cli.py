@@ -46,6 +46,9 @@ def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
     listen.add_argument("wav", metavar="F.wav")
     listen.add_argument("--json", action="store_true",
                         help="one JSON object per line: t_s, line, confidence, heard")  # fmt: skip
+    listen.add_argument("--accept", type=float, default=None, metavar="C",
+                        help="take phrases from this confidence (default: the car's, "
+                        "drivers.speech_grammar.ACCEPT)")  # fmt: skip
     listen.set_defaults(func=_listen)
 
 
@@ -76,13 +79,16 @@ def _say(args: argparse.Namespace) -> int:
 
 
 def _listen(args: argparse.Namespace) -> int:
-    from drivers.speech_grammar import CommandRecogniser, read_wav_16k
+    from drivers.speech_grammar import ACCEPT, SAY_AGAIN, CommandRecogniser, read_wav_16k
 
     try:
         pcm = read_wav_16k(args.wav)
     except (OSError, ValueError) as exc:
         raise UserError(f"{args.wav}: {exc}") from None
-    rec = CommandRecogniser()
+    accept = ACCEPT if args.accept is None else args.accept
+    if not 0.0 <= accept <= 1.0:
+        raise UserError(f"--accept must be between 0 and 1, not {accept}")
+    rec = CommandRecogniser(accept, min(SAY_AGAIN, accept))
     for heard in rec.recognise(pcm):
         if args.json:
             row = {"t_s": round(heard.t_s, 2), "line": heard.line,

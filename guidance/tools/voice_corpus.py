@@ -1,11 +1,14 @@
 """Every prompt the product can say, and the word error rate of a voice over them (issue 39).
 
-``prompt_corpus`` enumerates the sentences through the functions that write them today
-(``guidance.core.prompts``, ``guidance.core.plan.chance.spoken``, the drivers' spoken warnings, the
-operator's and the speech input's sentences), so the intelligibility figure follows any change of
-wording. ``word_error_rate`` compares what a recogniser wrote with what was meant, after
-``normalise``: numbers as words, British spellings as the recogniser's dictionary writes them
-("metres" -> "meters": spelling, not hearing), punctuation and hyphens out.
+``prompt_corpus`` reads the sentence table (``guidance.core.speech.SPEECH``): ``corpus_events``
+gives every event (``Speech``) with the numbers that make each form of its sentence (every
+manoeuvre, "then", each way a distance is said, landmark names, every input and status, the
+chance, the operator's and the speech input's sentences), and each is worded in metric and in
+imperial; an event without an entry here is an error, so the intelligibility figure follows any
+change of wording or any new sentence. ``word_error_rate`` compares what a recogniser wrote with
+what was meant, after ``normalise``: numbers as words, British spellings as the recogniser's
+dictionary writes them ("metres" -> "meters": spelling, not hearing), punctuation and hyphens
+out.
 """
 
 from __future__ import annotations
@@ -16,59 +19,63 @@ from collections.abc import Iterable, Sequence
 
 import numpy as np
 
-from guidance.core import prompts
-from guidance.core.plan.chance import spoken as chance_spoken
-from guidance.core.prompts import Units
+from guidance.core.messages import Say, Speech
+from guidance.core.speech import BEARINGS, SENSOR_WORDS, Units, words
 from guidance.voice.wav import Renderer
 
 MANOEUVRE_DEG = (0.0, 45.0, -45.0, 90.0, -90.0, 150.0, -150.0, 180.0)
 """continue straight, bear left/right, turn left/right, turn sharp left/right, U-turn."""
 DISTANCES_M = (30.0, 80.0, 150.0, 300.0, 650.0, 1200.0, 1500.0, 4000.0, 12000.0)
 """One of each way a distance is said, metric and imperial (tens, fifties, decimals, whole)."""
+READ_BACK_LINES = ("l s r", "bl br", "hl hr u", "t l", "repeat", "mute")
+
+
+def _turn_events() -> list[Say]:
+    rad = [math.radians(d) for d in MANOEUVRE_DEG]
+    out = [Say(Speech.TURN, a) for a in rad]
+    out += [Say(Speech.TURN, rad[k % len(rad)], d) for k, d in enumerate(DISTANCES_M)]
+    for i, a in enumerate(rad[1:]):  # each manoeuvre as the second of two
+        out.append(Say(Speech.TURN, rad[1 + (i + 3) % 7], 120.0 + 10 * i, a, 80.0))
+    out += [Say(Speech.TURN, rad[4], 120.0, changed=True), Say(Speech.TURN, rad[3], changed=True),
+            Say(Speech.TURN, rad[3], again=True)]  # fmt: skip
+    # a manoeuvre said by its side or its road's direction (the heading too uncertain)
+    wide = math.radians(40.0)
+    out += [Say(Speech.TURN, rad[3], 200.0, band_rad=wide),
+            Say(Speech.TURN, rad[4], band_rad=wide)]  # fmt: skip
+    out += [Say(Speech.TURN, 0.0, 90.0, band_rad=math.pi, exit_heading_rad=math.radians(90 - b))
+            for b in range(0, 360, 45 * 3)]  # fmt: skip
+    assert len(BEARINGS) == 8
+    return out
+
+
+def corpus_events(landmark_names: Sequence[str]) -> list[Say]:
+    """Every event of the sentence table, with the numbers that make each form of its words."""
+    names = list(dict.fromkeys(landmark_names))
+    out = _turn_events()
+    out += [Say(Speech.LANDMARK, name=n) for n in [*names, ""]]
+    out += [Say(Speech.FOUND, name=n, again=True) for n in [*names[:: max(1, len(names) // 4)], ""]]
+    out += [Say(Speech.FOUND, name=n) for n in (names[0], "")]  # a car that started anywhere
+    out += [Say(Speech.UNCERTAIN, distance_m=d) for d in (80.0, 350.0)]
+    out += [Say(Speech.NEW_DESTINATION, remote=r) for r in (False, True)]
+    out += [Say(Speech.LOST, searching=s) for s in (False, True)]
+    out += [Say(Speech.ARRIVED), Say(Speech.WAITING_FOR_HEADING), Say(Speech.POSITION_UNKNOWN)]
+    out += [Say(Speech.SENSOR, input=i, status=st) for i, t in SENSOR_WORDS.items() for st in t]
+    out += [Say(Speech.COMPASS_UNUSABLE, status=r) for r in ("interference", "uncalibrated")]
+    out += [Say(Speech.CHANCE, chance=p) for p in (0.05, 0.1, 0.2, 0.3, 0.4, 0.5, 0.6, 0.7, 0.8,
+                                                   0.9)]  # fmt: skip
+    out += [Say(Speech.READ_BACK, line=line) for line in READ_BACK_LINES]
+    out += [Say(s) for s in (Speech.DIFFERENT_EXIT, Speech.NO_CO_DRIVER_INPUT, Speech.SAY_AGAIN,
+                             Speech.REPORT_CANCELLED, Speech.CANNOT_CANCEL)]  # fmt: skip
+    missing = set(Speech) - {say.speech for say in out}
+    if missing:
+        raise ValueError(f"the voice corpus says nothing of {sorted(missing)}")
+    return out
+
 
 def prompt_corpus(landmark_names: Sequence[str]) -> list[str]:
-    """Every kind of sentence the car says, each distance form and landmark name once."""
-    from drivers.camera import WARNINGS as CAMERA
-    from drivers.can_odometry import WARNINGS as ODOMETRY
-    from drivers.compass import WARNINGS as COMPASS
-    from drivers.speech_grammar import SAY_AGAIN_TEXT, read_back
-    from guidance.app.screen import DIFFERENT_EXIT_PROMPT, NO_INPUT_PROMPT
-
-    rad = [math.radians(d) for d in MANOEUVRE_DEG]
-    out = [prompts.turn_prompt(a) for a in rad]
-    k = 0
-    for units in Units:
-        for d in DISTANCES_M:
-            out.append(prompts.turn_prompt(rad[k % len(rad)], d, units))
-            k += 1
-    for i, a in enumerate(rad[1:]):  # each manoeuvre as the second of two
-        out.append(prompts.turn_prompt(rad[1 + (i + 3) % 7], 120.0 + 10 * i, then_turn_rad=a,
-                                       then_gap_m=80.0))  # fmt: skip
-    out.append(prompts.changed(prompts.turn_prompt(rad[4], 120.0)))
-    out.append(prompts.changed(prompts.turn_prompt(rad[3])))
-    names = list(dict.fromkeys(landmark_names))
-    out += [prompts.landmark_confirmed(n) for n in names]
-    out.append(prompts.landmark_confirmed(""))
-    out += [prompts.position_found(n) for n in names[:: max(1, len(names) // 4)]]
-    # a manoeuvre said by its side or its road's direction (the heading too uncertain)
-    out += [prompts.turn_prompt(0.0, 200.0, action="go left"),
-            prompts.turn_prompt(0.0, None, action="go right")]  # fmt: skip
-    out += [prompts.turn_prompt(0.0, 90.0, action=f"take the road towards the {b}")
-            for b in prompts.BEARINGS[::3]]  # fmt: skip
-    out += [prompts.position_uncertain(d, u) for d, u in ((80.0, Units.METRIC),
-            (350.0, Units.METRIC), (350.0, Units.IMPERIAL))]  # fmt: skip
-    out += [prompts.new_destination(False), prompts.new_destination(True), prompts.arrived()]
-    out += [prompts.lost(), prompts.lost(searching=True), prompts.waiting_for_heading()]
-    out += [prompts.compass_unusable("interference"), prompts.compass_unusable("uncalibrated")]
-    for sensor in ("odometry", "compass", "camera"):
-        out += [prompts.sensor_warning(sensor, "is silent"),
-                prompts.sensor_warning(sensor, "sends bad data")]  # fmt: skip
-    for table in (ODOMETRY, COMPASS, CAMERA):
-        out += list(table.values())
-    out += [chance_spoken(p) for p in (0.05, 0.1, 0.2, 0.3, 0.4, 0.5, 0.6, 0.7, 0.8, 0.9)]
-    out += [DIFFERENT_EXIT_PROMPT, NO_INPUT_PROMPT, SAY_AGAIN_TEXT]
-    out += [read_back(line) for line in ("l s r", "bl br", "hl hr u", "t l", "repeat", "mute")]
-    return list(dict.fromkeys(out))
+    """Every sentence the car says (``corpus_events``), in metric and in imperial, once each."""
+    events = corpus_events(landmark_names)
+    return list(dict.fromkeys(words(say, units) for say in events for units in Units))
 
 
 _ONES = (
@@ -221,6 +228,40 @@ RADIO_TEXT = (
 )
 """Radio-like talk for the false-command test, with command words inside ordinary sentences
 ("right back", "left lane", "straight into town", "turn the dial")."""
+
+RADIO_TEXT_2 = (
+    "And that was the last song of the hour. You are listening to the afternoon show, with me "
+    "until six. A caller asked whether the new bridge will open before the winter; the answer "
+    "from the city is maybe, if the weather holds. Our reporter is standing right outside the "
+    "station, where a long queue has formed for the concert tonight. If you missed the start, "
+    "you can hear it again tomorrow. Help us choose the next record: send a message, and we will "
+    "repeat the best ones at the end of the programme. Please do not mute us yet, the quiz is "
+    "coming up straight after the travel news. Roads are clear in the north, the ring road is "
+    "slow near the hospital, and there is a hard shoulder closed on the way to the airport. "
+    "The match has been cancelled because of the rain, and the players went home early. We "
+    "turned the studio lights down and kept the music on."
+)
+"""Other radio-like talk (the held-out set of the confidence threshold: not used to choose
+it), with every control word and exit word inside ordinary sentences."""
+
+
+def short_phrases(text: str, seed: int) -> list[str]:
+    """``text`` cut into runs of one to four words (a command is one to four): what a radio,
+    a passenger or the driver says that is as short as a command but is not one (a run that
+    is itself a phrase of the co-driver grammar, "right" alone, is left out: no recogniser can
+    tell it from the command)."""
+    from drivers.speech_grammar import to_line
+
+    rng = np.random.default_rng(seed)
+    words = re.findall(r"[A-Za-z']+", text)
+    out, k = [], 0
+    while k < len(words):
+        n = int(rng.integers(1, 5))
+        phrase = " ".join(words[k : k + n])
+        if to_line(phrase.lower()) is None:
+            out.append(phrase)
+        k += n
+    return out
 
 
 def cabin_noise(n: int, seed: int = 0, rate_hz: int = 16000) -> np.ndarray:

@@ -14,6 +14,7 @@ import sys
 import threading
 import time
 import wave
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -22,15 +23,35 @@ import pytest
 from drivers.speech import CHUNK, SpeechInput, SpeechInputConfig, is_echo
 from drivers.speech_grammar import (
     RATE_HZ,
-    SAY_AGAIN_TEXT,
     CommandRecogniser,
-    read_back,
+    read_wav_16k,
     resample,
     to_line,
 )
-from guidance.core.messages import IntersectionScene, TurnCompleted
-from guidance.tools.voice_corpus import SPOKEN_COMMANDS, cabin_noise, mix_at_snr, voice_renderer
+from guidance.core.localize.estimator import EstimatorConfig
+from guidance.core.messages import (
+    CancelReport,
+    IntersectionScene,
+    Prompt,
+    Say,
+    Speech,
+    TurnCompleted,
+    WheelOdometry,
+)
+from guidance.core.pipeline import Pipeline
+from guidance.core.pipeline_config import PipelineConfig
+from guidance.core.plan.navigator import Method, NavigatorConfig
+from guidance.core.speech import words
+from guidance.tools.voice_corpus import (
+    RADIO_TEXT_2,
+    SPOKEN_COMMANDS,
+    cabin_noise,
+    mix_at_snr,
+    short_phrases,
+    voice_renderer,
+)
 from guidance.voice.activity import CarVoice
+from guidance.voice.pico import pico_available
 
 ESPEAK = shutil.which("espeak-ng") is not None
 FLITE = shutil.which("flite") is not None
@@ -43,6 +64,16 @@ PAD = np.zeros(int(0.3 * RATE_HZ))
 @pytest.fixture(scope="module")
 def recogniser() -> CommandRecogniser:
     return CommandRecogniser()
+
+
+LENIENT = 0.3
+"""The always-listening threshold before the null model: for tests of the reader, the WAV end
+and deafness (what they test is not the threshold; clean synthetic commands score 0.3-0.6)."""
+
+
+@pytest.fixture(scope="module")
+def lenient() -> CommandRecogniser:
+    return CommandRecogniser(accept=LENIENT, say_again=0.2)
 
 
 def render(voice: str, text: str) -> np.ndarray:
@@ -67,7 +98,8 @@ def make_input(talk: str, recogniser: CommandRecogniser, **kw: object) -> tuple[
 
     inp = SpeechInput(
         SpeechInputConfig(device=str(kw.pop("device", "none")), talk=talk), lambda: 0.0,
-        feedback=got["feedback"].append, on_command=command, read_back=got["said"].append,
+        feedback=got["feedback"].append, on_command=command,
+        read_back=lambda say: got["said"].append(words(say)),
         recogniser=recogniser, **kw,  # type: ignore[arg-type]
     )  # fmt: skip
     return inp, got
@@ -88,15 +120,12 @@ def say_with_key(inp: SpeechInput, x: np.ndarray, got: dict) -> None:
 # ------------------------------------------------------------------------------ the words
 
 
-def test_phrases_become_the_keypads_lines_and_are_read_back() -> None:
+def test_phrases_become_the_keypads_lines() -> None:
     assert to_line("left straight right") == "l s r"
     assert to_line("bear left hard right u turn") == "bl hr u"
     assert to_line("turned left") == "t l" and to_line("repeat") == "repeat"
     assert to_line("turned bear") is None and to_line("turned left right") is None
     assert to_line("u") is None and to_line("") is None
-    assert read_back("l s r") == "Left, straight, right."
-    assert read_back("t hr") == "Turned hard right."
-    assert read_back("u") == "U-turn." and read_back("mute") == "Mute."
 
 
 def test_a_phrase_the_car_just_said_is_an_echo() -> None:
@@ -105,6 +134,50 @@ def test_a_phrase_the_car_just_said_is_an_echo() -> None:
     assert is_echo("turn left", said)
     assert not is_echo("bear left", said) and not is_echo("right straight", said)
     assert not is_echo("left", ()) and not is_echo("", said)
+
+
+@pytest.mark.skipif(not pico_available(), reason="py-nanotts (Pico) not installed")
+def test_cancel_said_into_the_microphone_withdraws_the_last_report(
+    recogniser: CommandRecogniser, tmp_path: Path
+) -> None:
+    """Issue 39, "cancel", end to end: Pico says the reports into WAV files, the speech input
+    (push-to-talk) hears them through pocketsphinx, and the pipeline acts on what it delivers.
+    "left straight right", then "left right" by mistake, then "cancel": the mistake is taken
+    back (the first intersection is still ahead and not taken as passed) and the car says
+    "The last report is cancelled."; a second "cancel" is answered "Nothing to cancel.". The
+    co-driver's own "cancel" is not read back (the pipeline's answer is)."""
+    p = Pipeline(PipelineConfig(
+        estimator=EstimatorConfig(compass_two_sigma_deg=20.0),
+        navigator=NavigatorConfig(method=Method.STRAIGHT_TO_GOAL), start_xy_m=(0.0, 0.0),
+        goal_xy_m=(1000.0, 0.0), start_heading_rad=0.0,
+    ))  # fmt: skip
+    prompts: list[Prompt] = []
+    inp, got = make_input("key", recogniser)
+    inp.start_stream(t0=0.0)
+    rng = np.random.default_rng(7)
+    t = 0.0
+    for k, text in enumerate(("left straight right", "left right", "cancel", "cancel")):
+        for _ in range(40 if k < 2 else 4):  # 20 m between the reports; cancel said at once
+            t += 0.05
+            prompts += p.feed(WheelOdometry(t, 0.5, 0.5)).prompts
+        wav = tmp_path / f"{k}.wav"
+        clip = np.concatenate([PAD, render("pico:en-US", text), PAD])
+        write_wav(wav, clip + rng.normal(0.0, 30.0, clip.size))  # a 40 dB floor, no silence
+        before = len(got["msgs"])
+        say_with_key(inp, read_wav_16k(wav), got)
+        for msg in got["msgs"][before:]:
+            prompts += p.feed(replace(msg, t_s=t)).prompts
+    kinds = [type(m).__name__ for m in got["msgs"]]
+    assert kinds == ["IntersectionScene", "IntersectionScene", "CancelReport", "CancelReport"]
+    assert isinstance(got["msgs"][2], CancelReport)
+    info = [pr.text for pr in prompts if pr.kind == "info"]
+    assert info == ["The last report is cancelled.", "Nothing to cancel."]
+    assert got["said"] == ["Left, straight, right.", "Left, right."]  # no "Cancel." read back
+    assert p.planned_exit(1) is not None  # the first is still ahead, decided
+    for _ in range(400):  # 20 m more: not resolved "passed" by the withdrawn report
+        t += 0.05
+        p.feed(WheelOdometry(t, 0.05, 0.05))
+    assert p.planned_exit(1) is not None
 
 
 # ------------------------------------------------------------- speech the product did not make
@@ -138,6 +211,36 @@ def test_commands_by_three_other_voices_in_cabin_noise_at_10_db(
 
 
 @needs_voices
+@pytest.mark.slow
+def test_always_listening_takes_no_command_from_talk_it_was_not_tuned_on(
+    recogniser: CommandRecogniser,
+) -> None:
+    """0 false commands: always listening (the rules of ``ACCEPT``), short phrases of talk
+    that are not commands (``RADIO_TEXT_2``, every control and exit word inside ordinary
+    sentences) said by two voices the threshold was not chosen on, at 10 dB of cabin noise,
+    one continuous stream. The phrases must reach the recogniser (most are decoded), so the
+    test can fail (benchmarks/voice_confidence.py prints the distribution)."""
+    parts, n = [], 0
+    for v, voice in enumerate(("flite:awb", "espeak:en+m3")):
+        for text in short_phrases(RADIO_TEXT_2, 50 + v):
+            speech = render(voice, text)
+            gap = np.zeros(int(1.2 * RATE_HZ))
+            parts += [speech, gap]
+            n += 1
+    x = np.concatenate(parts)
+    x = mix_at_snr(x, cabin_noise(x.size, seed=123), 10.0)
+    inp, got = make_input("always", recogniser)
+    inp.start_stream(t0=0.0)
+    feed(inp, x, got)
+    inp.end_stream(got["msgs"].append)
+    stats = inp.stats()
+    assert stats.get("utterances", 0) >= 0.5 * n, stats
+    assert got["msgs"] == [] and stats.get("commands_heard", 0) == 0, [
+        (h.text, round(h.confidence, 2)) for h in inp.heard if h.line
+    ]
+
+
+@needs_voices
 def test_push_to_talk_delivers_the_report_reads_it_back_and_says_again_when_unsure(
     recogniser: CommandRecogniser,
 ) -> None:
@@ -155,7 +258,7 @@ def test_push_to_talk_delivers_the_report_reads_it_back_and_says_again_when_unsu
     # a cough under the key: not a phrase of the grammar, so the driver is asked again
     cough = np.random.default_rng(1).normal(0, 3000, int(0.4 * RATE_HZ))
     say_with_key(inp, np.concatenate([PAD, cough, PAD]), got)
-    assert got["said"][-1] == SAY_AGAIN_TEXT and len(got["msgs"]) == 2
+    assert got["said"][-1] == words(Say(Speech.SAY_AGAIN)) and len(got["msgs"]) == 2
     # nothing is decoded while the key is up
     before = inp.stats().get("utterances", 0)
     feed(inp, render("flite:slt", "hard left"), got)
@@ -166,12 +269,12 @@ def test_push_to_talk_delivers_the_report_reads_it_back_and_says_again_when_unsu
 
 
 @needs_voices
-def test_deaf_while_the_car_speaks_and_for_a_tail_after(recogniser: CommandRecogniser) -> None:
+def test_deaf_while_the_car_speaks_and_for_a_tail_after(lenient: CommandRecogniser) -> None:
     """Audio time is the car voice's clock here: the car speaks from 0 to 2 s."""
     now = [0.0]
     car = CarVoice(clock=lambda: now[0])
     car.started("At the next intersection, turn left", 2.0)
-    inp, got = make_input("always", recogniser, car_voice=car)
+    inp, got = make_input("always", lenient, car_voice=car)
     inp.start_stream(t0=0.0)
     clip = np.concatenate([render("flite:slt", "left"), np.zeros(int(0.8 * RATE_HZ))])
     feed(inp, clip, got)  # 0 to ~1.4 s: the car is speaking
@@ -204,12 +307,12 @@ def test_a_phrase_matching_what_the_car_just_said_is_refused(recogniser: Command
 
 @needs_voices
 def test_the_reader_hears_a_wav_and_ends_with_it(
-    tmp_path: Path, recogniser: CommandRecogniser
+    tmp_path: Path, lenient: CommandRecogniser
 ) -> None:
     wav = tmp_path / "driver.wav"
     quiet = np.zeros(RATE_HZ)
     write_wav(wav, np.concatenate([quiet, render("flite:slt", "bear left"), quiet]))
-    inp, got = make_input("always", recogniser, device=str(wav))
+    inp, got = make_input("always", lenient, device=str(wav))
     done = threading.Event()
     inp.start(lambda m: (got["msgs"].append(m), done.set()))
     assert done.wait(30)
@@ -281,7 +384,8 @@ def test_guidance_voice_listen_prints_the_lines_as_json(tmp_path: Path) -> None:
     write_wav(wav, np.concatenate([quiet, render("flite:slt", "bear left"), quiet,
                                    render("flite:awb", "turned left"), quiet]))  # fmt: skip
     r = subprocess.run([sys.executable, "-m", "guidance.tools.cli", "voice", "listen", str(wav),
-                        "--json"], capture_output=True, text=True, timeout=120)  # fmt: skip
+                        "--json", "--accept", str(LENIENT)], capture_output=True, text=True,
+                       timeout=120)  # fmt: skip
     assert r.returncode == 0, r.stderr
     rows = [json.loads(line) for line in r.stdout.splitlines()]
     assert [row["line"] for row in rows] == ["bl", "t l"]
@@ -324,11 +428,11 @@ def test_the_car_recognises_in_a_worker_process() -> None:
 
 @needs_voices
 def test_a_wav_that_ends_mid_phrase_is_still_heard(
-    tmp_path: Path, recogniser: CommandRecogniser
+    tmp_path: Path, lenient: CommandRecogniser
 ) -> None:
     wav = tmp_path / "abrupt.wav"
     write_wav(wav, np.concatenate([np.zeros(RATE_HZ), render("flite:awb", "bear left")]))
-    inp, got = make_input("always", recogniser, device=str(wav))
+    inp, got = make_input("always", lenient, device=str(wav))
     done = threading.Event()
     inp.start(lambda m: (got["msgs"].append(m), done.set()))
     assert done.wait(30)

@@ -4,7 +4,7 @@ Each test drives the simulated wheels at a constant 10 m/s straight ahead (the G
 2007 Tahoe reference car: 0x348 front and 0x34A rear at 20 Hz), injects one fault with a second
 bus on the same virtual channel, and checks the three things docs/reliability.md promises:
 
-* the health record (status, alive/valid, counters, a warning to speak);
+* the health record (status, alive/valid, counters; the pipeline words a bad status);
 * the estimate is not corrupted: every increment the driver lets through is fed into the real
   ``PoseEstimator``, and its position equals the distance actually driven while data was good;
 * the driver keeps running (frames after the fault are decoded again).
@@ -26,7 +26,7 @@ import can
 import pytest
 from reliability_helpers import HEALTH_KEYS, FakeClock, wait_until
 
-from drivers.can_odometry import WARNINGS, CanOdometry, CanOdometryConfig
+from drivers.can_odometry import CanOdometry, CanOdometryConfig
 from drivers.profiles import get_profile, load_dbc
 from guidance.core.localize.estimator import PoseEstimator
 from guidance.core.messages import WheelOdometry
@@ -131,7 +131,7 @@ def test_silent_for_5_s_is_flagged_not_integrated_and_recovers(
         wait_until(lambda: any("silent" in r.getMessage() for r in caplog.records))
         h = rig.odo.health()
         assert (h.status, h.alive) == ("silent", False)
-        assert h.warning == WARNINGS["silent"]
+        assert h.warning == ""
         assert h.age_s is not None and h.age_s >= 5.0
 
         rig.drive(t + 5.0, t + 7.0)  # the bus comes back
@@ -183,7 +183,7 @@ def test_wrong_dlc_is_rejected_counted_and_a_storm_is_invalid(rig: Rig) -> None:
     rig.settle()
     h = rig.odo.health()
     assert (h.status, h.alive, h.valid) == ("invalid", True, False)
-    assert h.warning == WARNINGS["invalid"]
+    assert h.warning == ""
     assert h.counters["rejected_dlc"] == 32
     # Good frames again: bridged (0.85 s < max_gap_s) and the window refills with good frames.
     rig.drive(t + 16 * PERIOD_S, t + 16 * PERIOD_S + 1.0)
@@ -257,7 +257,7 @@ def test_missing_bus_is_disconnected_with_a_warning_and_keeps_trying() -> None:
         wait_until(lambda: odo.stats().get("bus_errors", 0) >= 3)
         h = odo.health()
         assert (h.status, h.alive, h.valid) == ("disconnected", False, False)
-        assert h.warning == WARNINGS["disconnected"] and "nocan7" in h.detail
+        assert h.warning == "" and "nocan7" in h.detail
     finally:
         odo.stop()
     assert odo.health().status == "stopped"

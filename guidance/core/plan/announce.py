@@ -18,7 +18,7 @@ ARRIVE_MARGIN_M = 15.0
 least this far before it (a spoken distance's tolerance: the oracle's 15 m)."""
 WORD_SIGMAS = 3.0
 """A manoeuvre is named only when every turn within this many heading sigmas of the estimate
-gets the same name (``prompts.manoeuvre_within``): for a Gaussian heading error the name is
+gets the same name (``speech.manoeuvre_within``): for a Gaussian heading error the name is
 then wrong about once in 370 announcements, where 2 sigmas would be once in 22. Exits typed
 relative to the car (the co-driver's) and approach roads taken from the scene's exits are
 exact and never coarsened."""

@@ -11,9 +11,10 @@ within ``REPEAT_S``, and nothing for an intersection the car arrives before
 from __future__ import annotations
 
 from collections import Counter
+from dataclasses import replace
 
-from guidance.core import prompts
-from guidance.core.messages import EstimateState, Priority, Prompt
+from guidance.core import speech
+from guidance.core.messages import EstimateState, Priority, Prompt, Say, Speech
 from guidance.core.pipeline_config import Outputs, PipelineConfig
 from guidance.core.plan.announce import (
     WORD_SIGMAS,
@@ -58,7 +59,7 @@ class Announcer:
             return
         d = a.decision
         band = WORD_SIGMAS * heading_sd(pose_covariance(est)) if a.approach_estimated else 0.0
-        action = prompts.manoeuvre_within(d.turn_rad, band, d.exit_heading_rad)
+        action = speech.manoeuvre_within(d.turn_rad, band, d.exit_heading_rad)
         changed = a.said_exit >= 0 and a.said_exit != d.exit_index
         straight = action == "continue straight"
         if a.at_odometer_m is None:
@@ -70,8 +71,8 @@ class Announcer:
                 a.said, a.said_exit = action, d.exit_index
                 return
             then = self._then(ahead, i, a, est)
-            text = prompts.turn_prompt(d.turn_rad, None, self.config.units, *then, action=action)
-            self._speak(ahead, a, out, t_s, text, action, changed)
+            say = Say(Speech.TURN, d.turn_rad, None, *then, band, d.exit_heading_rad, changed)
+            self._speak(ahead, a, out, t_s, say, action)
             return
         distance = max(0.0, a.at_odometer_m - odometer_m)
         if a.said_exit < 0 and too_late(distance, est.speed_mps):  # (a decision just made)
@@ -94,8 +95,8 @@ class Announcer:
             a.said, a.said_exit = action, d.exit_index
             return
         then = self._then(ahead, i, a, est)
-        text = prompts.turn_prompt(d.turn_rad, distance, self.config.units, *then, action=action)
-        self._speak(ahead, a, out, t_s, text, action, changed)
+        say = Say(Speech.TURN, d.turn_rad, distance, *then, band, d.exit_heading_rad, changed)
+        self._speak(ahead, a, out, t_s, say, action)
 
     def _arrives_before(self, ahead: list[Ahead], a: Ahead, est: EstimateState) -> bool:
         """The car will be told it has arrived ``ARRIVE_MARGIN_M`` before it gets to ``a``:
@@ -131,34 +132,28 @@ class Announcer:
         return b.decision.turn_rad, b.at_odometer_m - a.at_odometer_m
 
     def _speak(
-        self,
-        ahead: list[Ahead],
-        a: Ahead,
-        out: Outputs,
-        t_s: float,
-        text: str,
-        action: str,
-        changed: bool,
+        self, ahead: list[Ahead], a: Ahead, out: Outputs, t_s: float, say: Say, action: str
     ) -> None:
+        """Say ``say`` (a turn; a change said as one, "again" for another intersection with
+        the same words right after), worded here by the table to compare with what was said."""
         assert a.decision is not None
-        exit_index = a.decision.exit_index
-        if changed:
-            text = prompts.changed(text)
-            a.frozen = True  # one change at most
+        a.frozen = a.frozen or say.changed  # one change at most
+        text = speech.words(say, self.config.units)  # compared with what was said last
         last_t = self._said_at.get(text)
-        if last_t is not None and t_s - last_t < REPEAT_S and not changed:
+        if last_t is not None and t_s - last_t < REPEAT_S and not say.changed:
             if a.said_exit >= 0:  # the same words again so soon tell nothing
                 self.counts["repeat_not_said"] += 1
                 return
-            text += " again"  # another intersection with the same manoeuvre, right after
+            say = replace(say, again=True)  # another intersection, same manoeuvre, right after
+            text = speech.words(say, self.config.units)
         self._said_at = {k: v for k, v in self._said_at.items() if t_s - v < REPEAT_S}
         self._said_at[text] = t_s
-        a.said, a.said_exit = action, exit_index
+        a.said, a.said_exit = action, a.decision.exit_index
         self.last_said = action
-        out.prompts.append(Prompt(t_s, text, Priority.GUIDANCE, "turn"))
+        out.prompts.append(Prompt(t_s, text, Priority.GUIDANCE, speech.kind(say), say))
         i = ahead.index(a)
         if i + 1 < len(ahead) and ", then " in text:
             nxt = ahead[i + 1]
             if nxt.decision is not None:
-                nxt.said = prompts.manoeuvre(nxt.decision.turn_rad)
+                nxt.said = speech.manoeuvre(nxt.decision.turn_rad)
                 nxt.said_exit = nxt.decision.exit_index

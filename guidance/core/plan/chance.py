@@ -28,6 +28,7 @@ from typing import TYPE_CHECKING, Any, TypeVar
 
 from guidance import files
 from guidance.config_tables import rule
+from guidance.core.messages import Say, Speech
 
 if TYPE_CHECKING:
     import numpy as np
@@ -320,8 +321,8 @@ class ChanceWatch:
         *,
         said: bool,
         quiet: bool,
-    ) -> tuple[str | None, bool]:
-        """Recompute ``value``; (the sentence to say now or None, whether it is said). It is
+    ) -> tuple[Say | None, bool]:
+        """Recompute ``value``; (what to say now or None, whether it is said). It is
         said when the chance has just fallen below the threshold, never while ``quiet`` (lost
         already said, arrived), and again only after it has risen ``REARM_MARGIN`` above."""
         if self.table is None:
@@ -337,14 +338,7 @@ class ChanceWatch:
             said = False
         if quiet or said or p >= warn:
             return None, said
-        return spoken(p), True
-
-
-def spoken(p: float) -> str:
-    """The sentence: rounded to 10 % above 10 %, so a number is not read as precise."""
-    if p < 0.1:
-        return "Chance of reaching the destination is now below 10 percent."
-    return f"Chance of reaching the destination is now about {round(p * 10) * 10:.0f} percent."
+        return Say(Speech.CHANCE, chance=p), True
 
 
 def shown(p: float | None) -> str:

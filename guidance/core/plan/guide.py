@@ -25,7 +25,7 @@ ahead when it is known (the simulator, a detector), or "the next intersection" w
   Only then is the intersection remembered for the tabu law, at the estimate where the car got
   to it, with the exit it really took (``Navigator.commit``).
 * **"Then".** When the next intersection after the announced one is decided and within
-  ``prompts.THEN_MAX_GAP_M`` of it, its manoeuvre is appended ("..., then turn right").
+  ``speech.THEN_MAX_GAP_M`` of it, its manoeuvre is appended ("..., then turn right").
 """
 
 from __future__ import annotations
@@ -48,6 +48,7 @@ from guidance.core.plan.exits import ExitResolver
 from guidance.core.plan.navigator import Decision, Navigator
 from guidance.core.plan.road import (
     Ahead,
+    LastReport,
     RoadHistory,
     announce_target,
     pose_covariance,
@@ -97,6 +98,7 @@ class Guide:
         self.exits = ExitResolver(config, navigator, counts, self.history)
         """The exit taken at each intersection, from what the car did."""
         self.silent = False  # the car does not know where it is (started anywhere): no advice
+        self._undo: LastReport | None = None  # what ``cancel`` undoes
 
     # -- inputs ---------------------------------------------------------------------------------
     def report(self, scene: IntersectionScene, est: EstimateState, out: Outputs) -> None:
@@ -120,7 +122,8 @@ class Guide:
                 self._evaluate(same, est, scene.t_s, out)
                 self.announcer.announce(self.ahead, scene.t_s, est, out)
                 return
-        else:
+        undo = LastReport.of(self.reports, self.ahead)
+        if at is None:
             for a in self.ahead:  # the co-driver reports the next one: the earlier are behind
                 if a.at_odometer_m is None and a.passed_odometer_m is None:
                     a.passed_odometer_m = odometer_m
@@ -128,6 +131,7 @@ class Guide:
         for a in self.ahead:
             a.frozen = True  # the car is committed to the exits before this one
         self.last_seq = self.reports
+        self._undo = undo
         at_one = any(a.at_odometer_m is not None and abs(a.at_odometer_m - odometer_m)
                      <= SAME_PLACE_M for a in self.ahead)  # fmt: skip
         item = Ahead(self.reports, scene.t_s, tuple(scene.exit_headings_rad), heading,
@@ -139,6 +143,16 @@ class Guide:
             self.ahead.pop(0)
             self.counts["ahead_dropped"] += 1
         self._update(scene.t_s, est, out, force=True)
+
+    def cancel(self, odometer_m: float) -> bool:
+        """Withdraw the last new report (``LastReport.withdraw``); False when there is none
+        the car has not acted on. One level (and none after a restart from a checkpoint)."""
+        undo, self._undo = self._undo, None
+        if undo is None or not undo.withdraw(self.ahead, odometer_m):
+            return False
+        self.last_decision = next((b.decision for b in reversed(self.ahead) if b.decision), None)
+        self.counts["reports_cancelled"] += 1
+        return True
 
     def approach(self, msg: Approach, est: EstimateState, out: Outputs) -> None:
         """The distance to an intersection ahead: re-anchors the one it matches, re-evaluates."""
@@ -339,5 +353,6 @@ class Guide:
         self.reports = integer(snap.get("reports", 0), "guide.reports")
         self.last_seq = integer(snap.get("last_seq", 0), "guide.last_seq")
         self.announcer.last_said = str(snap.get("last_said", ""))[:40]
+        self._undo = None  # a cancel withdraws only what was reported since
         decided = [a.decision for a in self.ahead if a.decision is not None]
         self.last_decision = decided[-1] if decided else None

@@ -5,8 +5,8 @@
 a ``PlanStep``. In the order of the reference trial (``hal_sim.reference``): after each move
 of the estimate, the turn detector, the road ahead (``Guide.step``), the navigator's mode, the
 uncertain / lost / arrival checks and the state publication with the chance of reaching the
-goal; then the scene inputs (intersections, approaches, co-driver turns, goals). It never
-imports the estimator (``tests/test_layers.py``).
+goal; then the scene inputs (intersections, approaches, co-driver turns and cancels, goals).
+It never imports the estimator (``tests/test_layers.py``).
 """
 
 from __future__ import annotations
@@ -17,9 +17,10 @@ from collections import Counter
 from collections.abc import Mapping
 from dataclasses import asdict
 
-from guidance.core import prompts
+from guidance.core import speech
 from guidance.core.messages import (
     Approach,
+    CancelReport,
     CompassHeading,
     EstimateState,
     GoalUpdate,
@@ -28,6 +29,8 @@ from guidance.core.messages import (
     LandmarkFix,
     Priority,
     Prompt,
+    Say,
+    Speech,
     Target,
     TurnCompleted,
 )
@@ -104,6 +107,8 @@ class Planner:
             self._intersection(msg, est, out)
         elif isinstance(msg, TurnCompleted):
             self._turn(msg, est, out)
+        elif isinstance(msg, CancelReport):
+            self._cancel(msg, est, out)
         elif isinstance(msg, Approach):
             self.guide.approach(msg, est, out)
         return out
@@ -140,11 +145,11 @@ class Planner:
             how = "reset there" if step.relocalised else "inside the lost ellipse"
             log.warning("position found again near landmark %d %r (%s)",
                         fix.landmark_id, name, how)  # fmt: skip
-            text = prompts.position_found(name, again=not first)
-            self._say(out, fix.t_s, text, Priority.SAFETY, "found")
+            say = Say(Speech.FOUND, name=name, again=not first)
+            self._say(out, fix.t_s, say, Priority.SAFETY)
         elif fix.t_s - last >= LANDMARK_REPEAT_S:  # a second fix from the same pass: silent
             self.st.landmark_said[str(fix.landmark_id)] = fix.t_s
-            self._say(out, fix.t_s, prompts.landmark_confirmed(name), Priority.INFO, "landmark")
+            self._say(out, fix.t_s, Say(Speech.LANDMARK, name=name), Priority.INFO)
         self._after_step(fix.t_s, est, step, out, mode_done=True)
         self.guide.replan(fix.t_s, est, out)
 
@@ -157,7 +162,7 @@ class Planner:
             self.counts["advice_withheld"] += 1
             if not self.st.waiting_said:
                 self.st.waiting_said = True
-                self._say(out, scene.t_s, prompts.waiting_for_heading(), Priority.SAFETY, "info")
+                self._say(out, scene.t_s, Say(Speech.WAITING_FOR_HEADING), Priority.SAFETY)
             return
         self.guide.report(scene, est, out)
 
@@ -167,6 +172,15 @@ class Planner:
             log.info("turn of %.0f deg reported with no intersection ahead",
                      math.degrees(turn.heading_change_rad))  # fmt: skip
         self.turns.reset()  # the co-driver's report replaces what the heading would show
+
+    def _cancel(self, msg: CancelReport, est: EstimateState, out: Outputs) -> None:
+        """The co-driver takes the last report back: withdrawn while the car has not reached
+        it ("The last report is cancelled."), else "Nothing to cancel."."""
+        done = self.guide.cancel(est.odometer_m)
+        if not done:
+            out.accepted, out.reason = False, "nothing_to_cancel"
+        said = Speech.REPORT_CANCELLED if done else Speech.CANNOT_CANCEL
+        self._say(out, msg.t_s, Say(said), Priority.GUIDANCE)
 
     def _set_goal(self, goal: GoalUpdate, est: EstimateState, out: Outputs) -> None:
         if not (math.isfinite(goal.x_m) and math.isfinite(goal.y_m)):
@@ -178,8 +192,8 @@ class Planner:
         self.st.finished = False
         self.st.chance_said = False
         # a goal from the network is said as such: the driver hears who changed the route
-        text = prompts.new_destination(remote=goal.source == "remote")
-        self._say(out, goal.t_s, text, Priority.INFO, "info")
+        say = Say(Speech.NEW_DESTINATION, remote=goal.source == "remote")
+        self._say(out, goal.t_s, say, Priority.INFO)
         self.guide.replan(goal.t_s, est, out)
 
     # -- after every estimator step -------------------------------------------------------------
@@ -199,20 +213,19 @@ class Planner:
         warn = self.config.uncertain_warn_m
         if not self.st.uncertain_said and major > warn and not lost:
             self.st.uncertain_said = True
-            self._say(out, t, prompts.position_uncertain(major, self.config.units), Priority.SAFETY,
-                      "uncertain")  # fmt: skip
+            self._say(out, t, Say(Speech.UNCERTAIN, distance_m=major), Priority.SAFETY)
         elif self.st.uncertain_said and major < UNCERTAIN_HYSTERESIS * warn:
             self.st.uncertain_said = False
         if lost:
             out.lost = True
             if not self.st.lost_said and not self.st.placed:  # started anywhere: not lost
                 self.st.lost_said = True
-                self._say(out, t, prompts.position_unknown(), Priority.SAFETY, "lost")
+                self._say(out, t, Say(Speech.POSITION_UNKNOWN), Priority.SAFETY)
             elif not self.st.lost_said:
                 self.st.lost_said = True
                 self.counts["lost_episodes"] += 1
                 searching = self.config.relocalise
-                self._say(out, t, prompts.lost(searching), Priority.SAFETY, "lost")
+                self._say(out, t, Say(Speech.LOST, searching=searching), Priority.SAFETY)
                 if self.config.stop_at_arrival and not searching:
                     self.st.finished = True
         elif self.st.lost_said and major < LOST_HYSTERESIS * lost_axis:
@@ -220,7 +233,7 @@ class Planner:
         if not lost and not self.st.arrived and self.navigator.arrived((est.x_m, est.y_m)):
             self.st.arrived = True
             out.arrived = True
-            self._say(out, t, prompts.arrived(), Priority.GUIDANCE, "arrived")
+            self._say(out, t, Say(Speech.ARRIVED), Priority.GUIDANCE)
             if self.config.stop_at_arrival:
                 self.st.finished = True
         if t >= self.next_state_t:
@@ -238,20 +251,21 @@ class Planner:
         if compass_unusable:
             sigma = None  # the compass is not helping: the table's no-compass slice
         quiet = self.st.lost_said or self.st.arrived or self.st.finished
-        text, self.st.chance_said = self.chance.update(
+        say, self.st.chance_said = self.chance.update(
             to_go, major, self.config.estimator.lost_major_axis_m, sigma,
             said=self.st.chance_said, quiet=quiet,
         )  # fmt: skip
         out.chance = self.chance.value
-        if text is not None:
-            self._say(out, t, text, Priority.INFO, "chance")
+        if say is not None:
+            self._say(out, t, say, Priority.INFO)
 
     def _landmarks_xy(self) -> list[tuple[float, float]]:
         return [(lm.x_m, lm.y_m) for lm in self.navigator.landmarks]
 
-    @staticmethod
-    def _say(out: Outputs, t: float, text: str, priority: Priority, kind: str) -> None:
-        out.prompts.append(Prompt(t, text, priority, kind))
+    def _say(self, out: Outputs, t: float, say: Say, priority: Priority) -> None:
+        """One prompt, its words made by the table (``speech.words``, ``[navigation] units``)."""
+        text = speech.words(say, self.config.units)
+        out.prompts.append(Prompt(t, text, priority, speech.kind(say), say))
 
     # -- views ----------------------------------------------------------------------------------
     def target(self, est: EstimateState) -> Target:

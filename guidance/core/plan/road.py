@@ -286,3 +286,32 @@ class RoadHistory:
             if self._s:
                 self._unwrapped = self._s[-1][3]
                 self._last_raw = wrap_angle(self._unwrapped)
+
+
+@dataclass(slots=True)
+class LastReport:
+    """The last new intersection report and what it did to the ones before it (taken as behind
+    the car, frozen): what the co-driver's "cancel" undoes."""
+
+    seq: int
+    before: dict[int, tuple[float | None, float | None, bool]]
+
+    @classmethod
+    def of(cls, seq: int, ahead: list[Ahead]) -> LastReport:
+        """Report ``seq``, about to be queued behind ``ahead``."""
+        return cls(seq, {a.seq: (a.passed_odometer_m, a.passed_heading_rad, a.frozen)
+                         for a in ahead})  # fmt: skip
+
+    def withdraw(self, ahead: list[Ahead], odometer_m: float) -> bool:
+        """Take the report out of ``ahead`` and undo what it did, unless the car has acted on
+        it (resolved: gone from ``ahead``; or reached). True when withdrawn."""
+        a = next((x for x in ahead if x.seq == self.seq), None)
+        if a is None or a.reached is not None:
+            return False
+        if a.at_odometer_m is not None and odometer_m >= a.at_odometer_m:
+            return False
+        ahead.remove(a)
+        for b in ahead:
+            if b.seq in self.before:
+                b.passed_odometer_m, b.passed_heading_rad, b.frozen = self.before[b.seq]
+        return True

@@ -1,6 +1,8 @@
 """One health record from the driver to the driver's ear and the monitor (issue 11, change 3):
 a status only the driver knows ("disconnected") reaches the pipeline through the ordinary
-message path, is spoken in the driver's own words, once, and shows in the input's health."""
+message path, is spoken once in the sentence table's words for that input and status
+(guidance.core.speech: the driver reports a status, never a sentence), and shows in the
+input's health."""
 
 from __future__ import annotations
 
@@ -12,7 +14,7 @@ from drivers.compass import SerialCompass, SerialCompassConfig
 from guidance.app.app import App
 from guidance.app.settings import LoopSettings
 from guidance.core.localize.estimator import EstimatorConfig
-from guidance.core.messages import DeviceStatus, Health
+from guidance.core.messages import DeviceStatus, Health, Say, Speech
 from guidance.core.pipeline import Pipeline, PipelineConfig
 from guidance.core.plan.navigator import NavigatorConfig
 from guidance.outputs.messages import health_message
@@ -57,9 +59,10 @@ def test_a_compass_whose_port_is_gone_is_said_disconnected_in_its_own_words(
 def test_a_driver_flip_back_to_ok_clears_it() -> None:
     p = _pipeline()
     warning = "Compass disconnected. Heading is getting less certain."
-    bad = Health("serial_compass", "disconnected", False, False, detail="gone", warning=warning)
+    bad = Health("serial_compass", "disconnected", False, False, detail="gone")
     out = p.feed(DeviceStatus(1.0, "compass", bad))
-    assert [pr.text for pr in out.prompts] == [bad.warning]
+    assert [pr.text for pr in out.prompts] == [warning]
+    assert out.prompts[0].say == Say(Speech.SENSOR, input="compass", status="disconnected")
     assert p.feed(DeviceStatus(1.5, "compass", bad)).prompts == []  # once per episode
     # the same record, as it is, from the driver through the pipeline to the health message
     st = p.statuses(1.5)["compass"]

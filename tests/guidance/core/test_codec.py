@@ -14,6 +14,7 @@ from guidance.core import codec
 from guidance.core.codec import CodecError, from_record, schema, to_record
 from guidance.core.messages import (
     Approach,
+    CancelReport,
     CompassHeading,
     GoalUpdate,
     HeadingFix,
@@ -40,6 +41,7 @@ MESSAGES: dict[type, st.SearchStrategy[Any]] = {
         st.lists(text, max_size=6).map(tuple),
     ),
     TurnCompleted: st.builds(TurnCompleted, f, f, text),
+    CancelReport: st.builds(CancelReport, f, text),
     Approach: st.builds(Approach, f, f),
     GoalUpdate: st.builds(GoalUpdate, f, f, f, text),
     YawRate: st.builds(YawRate, f, f),

@@ -25,7 +25,7 @@ from guidance.core.pipeline_config import PipelineConfig
 from guidance.core.plan.chance import ChanceSettings
 from guidance.core.plan.navigator import Landmark, Method, NavigatorConfig
 from guidance.core.plan.turns import TurnDetectorConfig
-from guidance.core.prompts import Units
+from guidance.core.speech import Units
 from guidance.errors import UserError
 from guidance.tools.replay import pipeline_config_from_session, replay
 

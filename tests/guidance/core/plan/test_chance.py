@@ -10,12 +10,13 @@ from pathlib import Path
 import pytest
 
 from guidance.core.localize.estimator import EstimatorConfig
-from guidance.core.messages import GoalUpdate, WheelOdometry
+from guidance.core.messages import GoalUpdate, Say, Speech, WheelOdometry
 from guidance.core.pipeline import Pipeline
 from guidance.core.pipeline_config import PipelineConfig
 from guidance.core.plan import chance
 from guidance.core.plan.chance import ChanceSettings, ChanceTable, ChanceTableError, ChanceWatch
 from guidance.core.plan.navigator import Method, NavigatorConfig
+from guidance.core.speech import words
 
 
 def test_shipped_table_reads_and_covers_every_method_and_compass() -> None:
@@ -77,7 +78,8 @@ def test_the_warning_is_said_once_and_rearms_above_the_margin() -> None:
         text, said = w.update(5000, axis, 100.0, 30.0, said=said, quiet=False)
         texts.append(text)
     spoken = [t for t in texts if t]
-    assert len(spoken) == 1 and "Chance of reaching the destination is now" in spoken[0]
+    assert len(spoken) == 1 and spoken[0] is not None and spoken[0].speech is Speech.CHANCE
+    assert "Chance of reaching the destination is now" in words(spoken[0])
     assert w.value is not None and w.value < 0.5
     # near the goal with a small ellipse (a landmark fix): high again, re-armed
     text, said = w.update(300, 5.0, 100.0, 30.0, said=said, quiet=False)
@@ -88,8 +90,12 @@ def test_the_warning_is_said_once_and_rearms_above_the_margin() -> None:
 
 
 def test_spoken_and_shown_forms() -> None:
-    assert chance.spoken(0.42) == "Chance of reaching the destination is now about 40 percent."
-    assert chance.spoken(0.03) == "Chance of reaching the destination is now below 10 percent."
+    assert words(Say(Speech.CHANCE, chance=0.42)) == (
+        "Chance of reaching the destination is now about 40 percent."
+    )
+    assert words(Say(Speech.CHANCE, chance=0.03)) == (
+        "Chance of reaching the destination is now below 10 percent."
+    )
     assert chance.shown(0.42) == "40 %" and chance.shown(0.999) == ">95 %"
     assert chance.shown(0.001) == "<5 %" and chance.shown(None) == "-"
     assert chance.shown(float("nan")) == "-"

@@ -1,5 +1,6 @@
 """The intersections ahead (guidance/core/plan/guide.py), fed by hand: the co-driver who reports
-early, a report during a turn, a changed instruction said as a change, "then", checkpoints."""
+early, a report during a turn, a changed instruction said as a change, "then", checkpoints, a
+report taken back ("cancel")."""
 
 from __future__ import annotations
 
@@ -9,6 +10,7 @@ from collections.abc import Callable
 from guidance.core.co_driver import parse_line, to_scene
 from guidance.core.messages import (
     Approach,
+    CancelReport,
     ExitTaken,
     GoalUpdate,
     HeadingFix,
@@ -182,6 +184,53 @@ def test_a_checkpoint_mid_approach_gives_the_same_future(
         car.drive(150.0, 0.0)
         runs.append((car.said()[-3:], [t.exit_index for t in car.taken]))
     assert runs[0] == runs[1]
+
+
+def _info(car: Drive) -> list[str]:
+    return [p.text for p in car.prompts if p.kind == "info"]
+
+
+def test_cancel_withdraws_the_last_report_and_undoes_what_it_did(
+    make_pipeline: Callable[..., Pipeline],
+) -> None:
+    """Issue 39: the co-driver reports the next intersection by mistake (the car is not through
+    the first): "cancel" takes it back, and the first is no longer taken as behind the car (it
+    would have been resolved "passed" after a few metres of straight road). Once withdrawn,
+    there is nothing more to cancel."""
+    car = Drive(make_pipeline(goal_xy_m=(1000.0, 0.0)))
+    car.type("l s r")
+    car.drive(20.0)
+    car.type("l r")  # the mistake
+    car.feed(CancelReport(car.t))
+    assert _info(car) == ["The last report is cancelled."]
+    assert car.p.planned_exit(1) is not None
+    car.drive(30.0)
+    assert car.taken == []  # the first is still ahead: not "passed" by the withdrawn report
+    car.feed(CancelReport(car.t))
+    assert _info(car)[-1] == "Nothing to cancel."
+    car.type("l r")  # the real next one
+    car.drive(12.0)
+    assert len(car.taken) == 1 and car.taken[0].source == "passed"
+
+
+def test_a_report_the_car_has_acted_on_cannot_be_cancelled(
+    make_pipeline: Callable[..., Pipeline],
+) -> None:
+    car = Drive(make_pipeline(goal_xy_m=(0.0, 1000.0)))
+    car.feed(CancelReport(car.t))  # nothing reported yet
+    car.type("l s r")
+    car.drive(20.0)
+    car.drive(12.0, NORTH)  # turned left, as advised: the report is resolved
+    car.drive(20.0)
+    assert len(car.taken) == 1
+    out = car.p.feed(CancelReport(car.t))
+    assert [p.text for p in out.prompts] == ["Nothing to cancel."]
+    assert (out.accepted, out.reason) == (False, "nothing_to_cancel")
+    assert _info(car) == ["Nothing to cancel."]
+    far = IntersectionScene(car.t, (NORTH, WEST), distance_m=30.0)  # a scene with a distance
+    car.feed(far)
+    car.drive(35.0)  # reached: too late
+    assert [p.text for p in car.p.feed(CancelReport(car.t)).prompts] == ["Nothing to cancel."]
 
 
 def test_a_turn_made_in_a_can_gap_is_resolved_from_the_compass_and_credited_once(

@@ -1,4 +1,4 @@
-"""Table-driven tests of prompt phrasing, rounding and units."""
+"""The sentence table (guidance.core.speech): phrasing, rounding, units, one sentence per event."""
 
 from __future__ import annotations
 
@@ -6,8 +6,9 @@ import math
 
 import pytest
 
-from guidance.core import prompts
-from guidance.core.prompts import Units
+from guidance.core import speech as prompts
+from guidance.core.messages import Say, Speech
+from guidance.core.speech import SENSOR_WORDS, SPEECH, Units, words
 
 M, IMP = Units.METRIC, Units.IMPERIAL
 
@@ -74,16 +75,52 @@ def test_then_form_for_two_close_turns(gap_m: float, text: str) -> None:
 
 def test_event_phrases() -> None:
     hall = "Passing the town hall: position confirmed"
-    assert prompts.landmark_confirmed("the town hall") == hall
-    assert prompts.landmark_confirmed() == "Landmark passed: position confirmed"
+    assert words(Say(Speech.LANDMARK, name="the town hall")) == hall
+    assert words(Say(Speech.LANDMARK)) == "Landmark passed: position confirmed"
     for internal in ("57", "landmark 57", "sim-00057", "lm_3"):  # never read out an id
-        assert prompts.landmark_confirmed(internal) == "Landmark passed: position confirmed"
-    assert prompts.landmark_confirmed("Gate 5") == "Passing Gate 5: position confirmed"
-    assert prompts.position_uncertain(83.0) == "Position uncertain, within 80 metres"
-    assert prompts.position_uncertain(83.0, IMP) == "Position uncertain, within 250 feet"
-    assert prompts.arrived() == "You have arrived at your destination"
-    assert prompts.lost().startswith("Position lost")
-    assert prompts.sensor_warning("compass", "is silent") == "Warning: compass is silent"
+        assert words(Say(Speech.LANDMARK, name=internal)) == "Landmark passed: position confirmed"
+        assert words(Say(Speech.FOUND, name=internal)).endswith("at a known landmark")
+    assert words(Say(Speech.LANDMARK, name="Gate 5")) == "Passing Gate 5: position confirmed"
+    assert words(Say(Speech.UNCERTAIN, distance_m=83.0)) == "Position uncertain, within 80 metres"
+    assert words(Say(Speech.UNCERTAIN, distance_m=83.0), IMP) == (
+        "Position uncertain, within 250 feet"
+    )
+    assert words(Say(Speech.ARRIVED)) == "You have arrived at your destination"
+    assert words(Say(Speech.LOST)).startswith("Position lost")
+    assert words(Say(Speech.CHANCE, chance=0.42)) == (
+        "Chance of reaching the destination is now about 40 percent."
+    )
+    assert words(Say(Speech.READ_BACK, line="l s r")) == "Left, straight, right."
+    assert words(Say(Speech.READ_BACK, line="t hr")) == "Turned hard right."
+    assert words(Say(Speech.READ_BACK, line="u")) == "U-turn."
+    assert words(Say(Speech.READ_BACK, line="mute")) == "Mute."
+
+
+def test_a_turn_is_worded_from_its_numbers_with_the_units_applied_once() -> None:
+    left, right = math.pi / 2, -math.pi / 2
+    turn = Say(Speech.TURN, left, 180.0, right, 80.0)
+    assert words(turn, M) == "In 200 metres, turn left, then turn right"
+    assert words(turn, IMP) == "In 600 feet, turn left, then turn right"
+    changed = Say(Speech.TURN, right, 150.0, changed=True)
+    assert words(changed) == "Change of plan: in 150 metres, turn right"
+    assert words(Say(Speech.TURN, left, again=True)) == "At the next intersection, turn left again"
+    fuzzy = Say(Speech.TURN, math.radians(90), 90.0, band_rad=math.radians(40))
+    assert words(fuzzy) == "In 90 metres, go left"
+
+
+def test_every_event_has_words_and_one_sentence_per_input_and_status() -> None:
+    assert set(SPEECH) == set(Speech)
+    for speech in Speech:
+        for units in Units:
+            assert words(Say(speech), units).strip()
+    # an odometry dropout is one sentence whoever noticed it (driver flip or pipeline clock)
+    silent = Say(Speech.SENSOR, input="odometry", status="silent")
+    assert words(silent) == SENSOR_WORDS["odometry"]["silent"] == (
+        "Wheel speed signal lost. Position is getting less certain."
+    )
+    sentences = [w for table in SENSOR_WORDS.values() for w in table.values()]
+    assert len(sentences) == len(set(sentences))
+    assert words(Say(Speech.SENSOR, input="gyro", status="silent")) == "Warning: gyro is silent"
 
 
 @pytest.mark.parametrize("bad", [-1.0, math.nan, math.inf])
@@ -95,7 +132,7 @@ def test_bad_distance_is_an_error(bad: float) -> None:
 def test_a_manoeuvre_is_named_only_when_the_heading_band_keeps_its_name() -> None:
     """Issue 36: with the approach heading known to +-band, the name when every turn in the
     band has it; else the side; else the road's direction (which the scene gives exactly)."""
-    from guidance.core.prompts import bearing_word, manoeuvre_within
+    from guidance.core.speech import bearing_word, manoeuvre_within
 
     east, north = 0.0, math.pi / 2
     assert manoeuvre_within(math.radians(90), 0.0, north) == "turn left"
