@@ -65,7 +65,7 @@ def test_the_worker_process_yields_to_the_loop(
 
 
 def test_the_worker_caps_its_blas_and_opencv_threads(
-    sim_db_path: tuple[Path, list[SimLandmark]],
+    sim_db_path: tuple[Path, list[SimLandmark]], monkeypatch: pytest.MonkeyPatch
 ) -> None:
     """Issue 36: numpy's and OpenCV's OpenBLAS (the XFeat cosines, the whole-database search,
     OpenCV's DNN) ran a thread per core in the worker; capped, every pool reads back one
@@ -77,7 +77,9 @@ def test_the_worker_caps_its_blas_and_opencv_threads(
     assert capped["blas_threads"] == 1, capped
     if (os.cpu_count() or 1) < 2:
         return
-    with RecogniserWorker(path, threads=None) as worker:
+    for var in ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS"):
+        monkeypatch.delenv(var, raising=False)  # an in-process cap earlier in the suite sets them
+    with RecogniserWorker(path, threads=None) as worker:  # (a spawned worker reads them)
         free = worker.scheduling()
     assert free["blas_threads"] > 1 and free["opencv_threads"] > 1, free
 

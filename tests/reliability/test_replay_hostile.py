@@ -153,7 +153,7 @@ CASES: dict[str, tuple[Callable[[list[Any]], list[Any]], str]] = {
         _session(_est("track_m", float("nan"))),
         "track_m: NaN is not a finite number",
     ),
-    "zero track": (_session(_est("track_m", 0)), "[pipeline.estimator] track_m must be a finite"),
+    "zero track": (_session(_est("track_m", 0)), "[pipeline.estimator] track_m must be > 0"),
     "text sigma": (_session(_est("wheel_slip_frac", "0.01")), "must be a number"),
     "unknown setting": (_session(_est("warp", 9.0)), "[pipeline.estimator] unknown key(s): warp"),
     "goal 1e400": (
@@ -171,7 +171,7 @@ CASES: dict[str, tuple[Callable[[list[Any]], list[Any]], str]] = {
     ),
     "huge memory": (
         _session(lambda d: d["pipeline"]["navigator"].__setitem__("max_intersections", 10**12)),
-        "max_intersections must be an integer",
+        "max_intersections must be within [1, 100000]",
     ),
     "method fly": (
         _session(lambda d: d["pipeline"]["navigator"].__setitem__("method", "fly")),
