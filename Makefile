@@ -26,8 +26,14 @@ lint: $(STAMP)
 	$(BIN)/ruff check .
 	$(BIN)/mypy
 
+# Two pytest workers (pytest-xdist): the suite uses both cores, so it finishes well inside CI's
+# 30 minutes also with other work beside it (docs/reliability.md, "The suite under load").
+# Tests that share a resource carry an xdist_group mark and run on one worker (loadgroup).
+# PYTEST_WORKERS=0 runs it in one process.
+PYTEST_WORKERS ?= 2
+
 test: $(STAMP) lint
-	$(BIN)/python -m pytest -q
+	$(BIN)/python -m pytest -q -n $(PYTEST_WORKERS) --dist loadgroup
 
 clean:
 	rm -rf $(VENV) .pytest_cache .mypy_cache .ruff_cache

@@ -53,3 +53,12 @@ def sim_landmarks_home(request: pytest.FixtureRequest) -> Path:
     (home / "config").mkdir(exist_ok=True)
     shutil.copy(ROOT / "config" / "sim-landmarks.toml", home / "config" / "sim-landmarks.toml")
     return home
+
+
+def pytest_collection_modifyitems(items: list[pytest.Item]) -> None:
+    """Under pytest-xdist (``make test``: two workers, ``--dist loadgroup``) the tests that run
+    from ``sim_landmarks_home`` go to one worker, in order: the first builds the database in
+    the shared folder, and two builds at once would write the same files."""
+    for item in items:
+        if "sim_landmarks_home" in getattr(item, "fixturenames", ()):
+            item.add_marker(pytest.mark.xdist_group("sim-landmarks"))
