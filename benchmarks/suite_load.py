@@ -7,7 +7,8 @@ processes that spin (``python3 -c 'while 1: pass'``, nice 0), runs ``bash .ci/ru
 ends the spinners. Printed per run: the exit status, the wall time against the developers'
 30-minute bar, the load average seen (sampled every 15 s: mean and maximum) and the failed
 tests' names (pytest's ``FAILED`` lines). The runs' output is kept in ``--keep`` (default: a
-temporary folder, named at the start). The load average counts other work on the machine too:
+temporary folder, named at the start), with each run's JUnit report (``PYTEST_ADDOPTS``) for
+``benchmarks/suite_time.py``. The load average counts other work on the machine too:
 on a shared machine it is the figure that says how loaded the run was, so it is printed.
 """
 
@@ -45,9 +46,11 @@ def one_run(repo: Path, hogs: int, log: Path) -> tuple[int, float, list[float], 
         t0 = time.monotonic()
         try:
             with log.open("w") as f:
+                env = {**os.environ, "PYTEST_ADDOPTS": f"--junitxml={log.with_suffix('.xml')}"}
                 done = subprocess.run(
                     ["bash", ".ci/run"],
                     cwd=clone,
+                    env=env,
                     stdout=f,
                     stderr=subprocess.STDOUT,
                     stdin=subprocess.DEVNULL,
