@@ -12,9 +12,9 @@ about time (the loop's lag, no false "odometry silent") are judged against what 
 did, measured, not assumed. Each thread's run-queue wait (``/proc/self/task/TID/schedstat``:
 the time it was ready to run and the kernel ran something else) and the sender's own send
 times are recorded; a lag is the app's only beyond what the kernel withheld from the loop's
-thread, and "silent" is false only while frames were being sent and neither the reader nor the
-loop was held off the CPU. On an idle machine the waits are a few ms and the bounds are the old
-ones.
+thread or, through the GIL, from any thread of the process, and "silent" is false only while
+frames were being sent and neither the reader nor the loop was held off the CPU. On an idle
+machine the waits are a few ms and the bounds are the old ones.
 """
 
 from __future__ import annotations
@@ -121,9 +121,9 @@ def test_a_can_flood_is_coalesced_the_loop_queue_stays_bounded_and_no_distance_i
     waits: list[tuple[float, dict[str, float]]] = []  # (monotonic, run-queue wait per role)
 
     def sample_waits() -> None:
-        waits.append(
-            (time.monotonic(), {r: sum(_run_delay_s(t) for t in ts) for r, ts in tids.items()})
-        )
+        roles = {r: sum(_run_delay_s(t) for t in ts) for r, ts in tids.items()}
+        roles["process"] = sum(_run_delay_s(int(t)) for t in os.listdir("/proc/self/task"))
+        waits.append((time.monotonic(), roles))
 
     async def scenario() -> App:
         app = App(pipeline, sources={"odometry": odo}, loop=LoopSettings(tick_hz=50, max_lag_s=0.5))
@@ -175,10 +175,15 @@ def test_a_can_flood_is_coalesced_the_loop_queue_stays_bounded_and_no_distance_i
     assert stats.get("clock_steps", 0) == 0 and stats["rejected"] == gaps, stats
     assert gaps == 0 or machine, (stats, send_gap, reader_held)
     lag = app.lag_summary()
+    # The loop's thread is held off by the kernel directly (its own run-queue wait) or through
+    # the GIL: a thread of this process preempted while it holds the GIL stops the loop too,
+    # and the loop then sleeps on the GIL, not on a run queue (a full make test at load 17:
+    # a lag of 1.83 s while the loop's own wait was 0.16 s). The sum of every thread's wait
+    # over the interval bounds both.
     withheld_s = max(
-        (b[1]["loop"] - a[1]["loop"] for a, b in itertools.pairwise(waits)), default=0.0
+        (b[1]["process"] - a[1]["process"] for a, b in itertools.pairwise(waits)), default=0.0
     )
-    print(f"longest run-queue wait of the loop's thread between samples: {withheld_s * 1e3:.0f} ms")
+    print(f"longest run-queue wait of the process between samples: {withheld_s * 1e3:.0f} ms")
     assert lag["loop_lag_max_ms"] is not None
     assert lag["loop_lag_max_ms"] < 500 + 1000 * withheld_s, (lag, withheld_s)
     # Never a false "odometry silent" while frames arrive (it is true once the flood ended).
