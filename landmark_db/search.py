@@ -14,8 +14,8 @@
 
 **Why one frame, and why 17 decades (RootSIFT).** Frames of one scene are not independent
 evidence: a look-alike that verifies a wrong place in one frame does so again in the next
-view of it far more often than chance (measured: in 1 of 6 cases the next frame verified the
-same wrong place past the level, against a per-frame rate of 0.028 for any wrong place), so
+view of it far more often than chance (measured: of 6 such frames with a next frame, the next
+verified the same wrong place once, against a per-frame rate of 0.028 for any wrong place), so
 the second of two agreeing frames does not divide the false rate by the per-frame rate, and
 the rule gives it no credit (consecutive frames counted as fully dependent). What is left is
 how often the best wrong place of *one* frame reaches a level: the search's wrong pairs are
