@@ -28,7 +28,8 @@ a lost car's search over 24 places): the best wrong place of 74 frames (0.257) c
 about 4 searched frames (a 40 m stretch in the sighting range at 10 m/s and the matcher
 worker's 1 frame a second), so the rule is set for a false relocalisation per look-alike
 pass of at most ``FALSE_PER_PASS`` (1e-3): ``4 * 0.257 * exp(-0.306 (D + 6)) <= 1e-3`` gives
-D = 16.7, rounded up to the half decade: 17.
+D = 16.7, rounded up to the half decade: 17. XFeat's own look-alike tail (the same frames)
+gives 46.5.
 """
 
 from __future__ import annotations
@@ -64,25 +65,23 @@ class Tail:
     rate: float
 
 
-LOOKALIKE_TAIL = {"rootsift": Tail(start=-6.0, fraction=74 / 288, rate=0.306)}
+LOOKALIKE_TAIL = {
+    "rootsift": Tail(start=-6.0, fraction=74 / 288, rate=0.306),
+    "xfeat": Tail(start=-6.0, fraction=31 / 288, rate=0.116),
+}
 """Fitted on look-alike passes of a lost car (module docstring; seeds 11, 21, 31 of
-``benchmarks/search_lookalikes.py --choose``, RootSIFT 2). XFeat's is not measured."""
-RANDOM_TAIL_RATE = {"rootsift": 0.56, "xfeat": 0.30}
-"""The random wrong pairs' tail rate per decade of each calibration (docs/landmarks.md, "The
-decision rule"): only used to carry RootSIFT's look-alike tail over to XFeat (below)."""
+``benchmarks/search_lookalikes.py --choose [--extractor xfeat]``). XFeat's log NFA spreads
+wider: fewer wrong frames come near its level (31 of 288), but its tail is long (wrong places
+20.8 and 25.3 decades past the level; rate 0.179 by maximum likelihood, 0.116 at the bound)."""
 
 
 def scene_decades(kind: str) -> float:
     """How far below the search level one frame relocalises a lost car: the margin ``D`` at
     which ``FRAMES_PER_PASS * P(x > D) <= FALSE_PER_PASS`` under the kind's look-alike tail,
-    rounded up to the half decade (RootSIFT: 17). XFeat's look-alike tail is not measured:
-    RootSIFT's margin is scaled by the ratio of the two calibrations' random-pair tail rates
-    (0.56 / 0.30: XFeat's log NFA spreads wider), an assumption (docs/landmarks.md). ORB
+    rounded up to the half decade (RootSIFT 17, XFeat 46.5). ORB's tail is not measured: it
     takes RootSIFT's."""
-    tail = LOOKALIKE_TAIL["rootsift"]
+    tail = LOOKALIKE_TAIL.get(kind, LOOKALIKE_TAIL["rootsift"])
     d = tail.start + math.log(FRAMES_PER_PASS * tail.fraction / FALSE_PER_PASS) / tail.rate
-    if kind == "xfeat":
-        d *= RANDOM_TAIL_RATE["rootsift"] / RANDOM_TAIL_RATE["xfeat"]
     return math.ceil(2.0 * d) / 2.0
 
 
