@@ -50,7 +50,6 @@ from landmark_db.recognise import Recogniser, RecogniserConfig, RecognitionResul
 from landmark_db.search import (
     FALSE_PER_PASS,
     FRAMES_PER_PASS,
-    SCENE_DECADES,
     SearchConfig,
     scene_decades,
 )
@@ -209,7 +208,7 @@ def main() -> None:
     q = np.percentile(strength, [0, 5, 50])
     print(
         f"  true passes, the place's best frame in decades past the level: min {q[0]:.1f}, 5 %"
-        f" {q[1]:.1f}, median {q[2]:.1f} (today's rule needs {SCENE_DECADES:g})"
+        f" {q[1]:.1f}, median {q[2]:.1f} (today's rule needs {scene_decades(args.extractor):g})"
     )
 
 
