@@ -3,9 +3,10 @@
 An estimator's honesty is a property of many cars, not of one drive (issue 21). Each car here
 gets persistent errors drawn from the distributions below (``draw_car``), drives a random route
 through a simulated city (the world of ``hal_sim.world``; at each intersection a random exit),
-and its wheel increments and compass readings are made from the true motion with *its* errors,
-then fed to the car's real ``Pipeline`` with the car model as a car nobody calibrated is
-configured (``guidance.core.localize.estimator.car_model``, no deviation card). Per car: the truth
+and its wheel increments and compass readings are made from the true motion with *its* errors
+(``hal_sim.car.CarSensors``: the simulated car's one sensor-error model), then fed to the car's
+``Localizer`` with the car model as a car nobody calibrated is configured
+(``guidance.core.localize.car_model``, no deviation card). Per car: the truth
 inside the 2-sigma ellipse, the NEES, the along/across split, the true error when "lost" is
 declared.
 
@@ -43,6 +44,7 @@ from guidance.core.messages import EstimateState, HeadingFix, LandmarkFix, Wheel
 from guidance.core.model import CHI2_2D_2SIGMA, mahalanobis_sq_2d, wrap_angle
 from guidance.core.plan.navigator import NavigatorConfig
 from hal_sim import world as world_mod
+from hal_sim.car import CarSensors, hard_iron_rad
 from hal_sim.gyro_cars import (
     GYRO_BIAS_T4,
     GYRO_SCALE_T4,
@@ -96,8 +98,7 @@ class CarErrors:
 
     def deviation_rad(self, heading_rad: float) -> float:
         """The compass error at a true heading: the offset plus the hard-iron curve."""
-        r, phi = self.hard_iron_ratio, self.hard_iron_dir_rad
-        curve = math.atan2(r * math.sin(heading_rad - phi), 1.0 + r * math.cos(heading_rad - phi))
+        curve = hard_iron_rad(self.hard_iron_ratio, self.hard_iron_dir_rad, heading_rad)
         return math.radians(self.compass_offset_deg) + curve
 
 
@@ -267,11 +268,7 @@ def drive_car(
         p.adopt(learned)
     res = CarResult(errors, compass)
     left = right = 0.0
-    drift = 0.0
-    diff = errors.diff
-    camber, camber_rng = 0.0, np.random.default_rng([seed, 98])
-    if errors.camber_sigma > 0.0:
-        camber = errors.camber_sigma * float(camber_rng.normal())
+    sensors = CarSensors(errors, rng, np.random.default_rng([seed, 98]), TRACK_M)
     prev = world.truth
     gyro = None if errors.gyro is None else GyroSim(errors.gyro, np.random.default_rng([seed, 97]))
     stop_rng = np.random.default_rng([seed, 96])
@@ -290,21 +287,9 @@ def drive_car(
         d = math.hypot(x - prev[0], y - prev[1])
         dth = wrap_angle(th - prev[2])
         prev = (x, y, th)
-        if errors.diff_walk_var_per_m > 0.0:
-            diff += float(rng.normal()) * math.sqrt(errors.diff_walk_var_per_m * d)
-        if errors.camber_sigma > 0.0:  # exact Gauss-Markov step over d
-            a = math.exp(-d / errors.camber_length_m)
-            camber = a * camber + errors.camber_sigma * math.sqrt(1.0 - a * a) * float(
-                camber_rng.normal()
-            )
-        for side, sign in ((0, -1.0), (1, 1.0)):
-            true = d + sign * 0.5 * TRACK_M * (1.0 + errors.turn_scale) * dth
-            err = true * (errors.scale + sign * 0.5 * (diff + camber))
-            err += float(rng.normal()) * math.sqrt(errors.walk_m2_per_m * abs(true))
-            if side == 0:
-                left += true + err
-            else:
-                right += true + err
+        dl, dr = sensors.wheels(d, dth)
+        left += dl
+        right += dr
         step = world.step_count
         if gyro is not None:
             p.handle(YawRate(t, gyro.reading(dth, dt)))
@@ -312,15 +297,7 @@ def drive_car(
             p.handle(WheelOdometry(t, left, right))
             left = right = 0.0
         if compass and step % COMPASS_EVERY == 0:
-            drift += float(rng.normal()) * math.sqrt(
-                errors.compass_drift_deg2_per_s * COMPASS_EVERY * dt
-            )
-            reading = (
-                th
-                + errors.deviation_rad(th)
-                + math.radians(drift + float(rng.normal()) * errors.compass_noise_deg)
-            )
-            p.handle(HeadingFix(t, wrap_angle(reading)))
+            p.handle(HeadingFix(t, sensors.compass(th, COMPASS_EVERY * dt)))
         if ev.landmark is not None:
             fx = x + float(rng.normal()) * FIX_SIGMA_M
             fy = y + float(rng.normal()) * FIX_SIGMA_M
