@@ -17,7 +17,6 @@ have had, without a bus, a pty or threads.
 
 from __future__ import annotations
 
-import math
 from collections.abc import Iterator
 
 import can
@@ -95,9 +94,3 @@ class CarInputs:
         line, _ = self.wire.compass_line(t_s, heading_rad)
         return self.compass.feed_line(line, t_s)
 
-
-def increments_to_speeds(d_left_m: float, d_right_m: float, dt_s: float) -> tuple[float, float]:
-    """A step's wheel distances as the mean wheel speeds over it (what the ECU reports)."""
-    if not (dt_s > 0.0 and math.isfinite(dt_s)):
-        raise ValueError(f"a step must last > 0 s, not {dt_s!r}")
-    return d_left_m / dt_s, d_right_m / dt_s
