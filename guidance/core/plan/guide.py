@@ -43,7 +43,6 @@ from guidance.core.messages import (
 )
 from guidance.core.model import wrap_angle
 from guidance.core.pipeline_config import Outputs, PipelineConfig
-from guidance.core.plan.announce import heading_sd, heads_along
 from guidance.core.plan.announcer import Announcer
 from guidance.core.plan.exits import ExitResolver
 from guidance.core.plan.navigator import Decision, Navigator
@@ -53,6 +52,7 @@ from guidance.core.plan.road import (
     LastReport,
     RoadHistory,
     announce_target,
+    past,
     pose_covariance,
     predicted_xy,
 )
@@ -258,20 +258,7 @@ class Guide:
         the road, must not name the manoeuvre), else the exit chosen at the intersection
         before it (not for one reported once the car was there: ``Ahead.on_taken_road``)."""
         odometer_m = est.odometer_m
-        on_its_road = prev is None or (
-            prev.at_odometer_m is not None
-            and odometer_m > prev.at_odometer_m + 5.0
-            and (
-                prev.decision is None
-                or heads_along(
-                    est.heading_rad,
-                    prev.decision.exit_heading_rad,
-                    heading_sd(pose_covariance(est)),
-                    self.history.steady_tol_rad,
-                )
-            )
-        )  # (past the one before by its reported distance, and out of its turn: one reported
-        # short must not give the car's road before the turn as the road after it)
+        on_its_road = past(prev, est, self.history.steady_tol_rad)
         if a.relative:
             # Typed relative to the car: fixed once, against the road after any turn.
             if a.approach_heading_rad is None:

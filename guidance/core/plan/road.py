@@ -14,6 +14,7 @@ import numpy as np
 
 from guidance.core.messages import EstimateState
 from guidance.core.model import wrap_angle
+from guidance.core.plan.announce import heading_sd, heads_along
 from guidance.core.plan.navigator import Decision, ExitOption
 from guidance.core.snapshot_check import check_decision, integer, number
 
@@ -155,6 +156,21 @@ def announce_target(ahead: list[Ahead], odometer_m: float) -> tuple[int, Ahead |
         elif a.passed_odometer_m is None:
             return (i, a) if i == 0 else (-1, None)
     return -1, None
+
+
+def past(prev: Ahead | None, est: EstimateState, tol_rad: float) -> bool:
+    """The car is on the road after ``prev`` (the intersection before the one it approaches):
+    there is none, or the car is past its place by its reported distance and out of its turn
+    (heading along its chosen exit: one reported short must not give the car's road before
+    the turn as the road after it)."""
+    if prev is None:
+        return True
+    if prev.at_odometer_m is None or est.odometer_m <= prev.at_odometer_m + 5.0:
+        return False
+    if prev.decision is None:
+        return True
+    sd = heading_sd(pose_covariance(est))
+    return heads_along(est.heading_rad, prev.decision.exit_heading_rad, sd, tol_rad)
 
 
 def unplaced_after_gap(
