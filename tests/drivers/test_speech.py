@@ -325,6 +325,29 @@ def test_the_reader_hears_a_wav_and_ends_with_it(
     assert inp.health().status in ("ended", "stopped") and inp.stats()["read"] >= 1
 
 
+@needs_voices
+def test_the_car_input_hears_through_its_worker_process(tmp_path: Path) -> None:
+    """No recogniser given (the car's way): the input starts its worker process, feeds it the
+    reader's blocks, hears a held key's phrase at the end of the audio, and stops the worker."""
+    wav = tmp_path / "held.wav"
+    write_wav(wav, np.concatenate([PAD, render("flite:awb", "hard left"), PAD]))
+    got: list = []
+    inp = SpeechInput(SpeechInputConfig(device=str(wav), talk="key"), lambda: 0.0,
+                      feedback=lambda _t: None)  # fmt: skip
+    inp.set_talking(True)
+    done = threading.Event()
+    inp.start(lambda m: (got.append(m), done.set()))
+    assert done.wait(90)
+    deadline = time.monotonic() + 10
+    while inp.health().status != "ended" and time.monotonic() < deadline:
+        time.sleep(0.05)
+    worker = inp._listener
+    inp.stop()
+    assert [m.labels for m in got] == [("hl",)] and inp.stats()["utterances"] == 1
+    assert worker is not None and inp._listener is None  # the worker went with the input
+    assert not worker._process.is_alive()  # type: ignore[attr-defined]
+
+
 @pytest.mark.skipif(shutil.which("arecord") is None, reason="arecord (alsa-utils) missing")
 def test_the_microphone_through_alsa_null_device(recogniser: CommandRecogniser) -> None:
     """ALSA's null capture device: arecord runs, silence arrives, nothing is heard."""
@@ -398,32 +421,37 @@ def test_guidance_voice_listen_prints_the_lines_as_json(tmp_path: Path) -> None:
 
 
 @needs_voices
-def test_the_car_recognises_in_a_worker_process() -> None:
-    """``ProcessRecogniser`` (what the car uses: pocketsphinx holds the GIL) answers as the
-    in-process recogniser does, and a thread waiting for it leaves the GIL to others."""
-    from drivers.speech_grammar import ProcessRecogniser
+def test_the_car_cuts_and_decodes_in_a_worker_process() -> None:
+    """``ProcessListener`` (what the car uses: the detector and pocketsphinx hold the GIL): the
+    app's side only writes blocks into a pipe and never waits for a decode; the answers come
+    back with later blocks, as the in-process stream gives them; a dead worker is an
+    ``OSError`` (the reader reconnects), not a hang."""
+    from drivers.speech_worker import ProcessListener
 
     clip = np.concatenate([PAD, render("flite:slt", "bear right straight"), PAD])
-    worker = ProcessRecogniser()
+    pcm = np.clip(np.round(clip), -32768, 32767).astype("<i2")
+    worker = ProcessListener("key")
     try:
-        heard = worker.hear(clip, 1.5, push_to_talk=True)
-        ticks = 0
-        done = threading.Event()
-
-        def wait_for_it() -> None:
-            worker.hear(np.tile(clip, 4), push_to_talk=True)
-            done.set()
-
-        t = threading.Thread(target=wait_for_it)
-        t.start()
-        while not done.is_set():
-            time.sleep(0.001)
-            ticks += 1
-        t.join()
+        out = []
+        for k in range(0, pcm.size, CHUNK):
+            out += worker.feed(pcm[k : k + CHUNK], talking=True)
+        released = time.monotonic()
+        out += worker.feed(pcm[:CHUNK] * 0)  # the key is up: the worker decodes
+        returned = time.monotonic()
+        deadline = time.monotonic() + 60
+        while not out and time.monotonic() < deadline:
+            time.sleep(0.03)
+            out += worker.feed(pcm[:CHUNK] * 0)
+        assert len(out) == 1 and out[0].heard is not None and out[0].heard.line == "br s"
+        assert released <= out[0].decode_start and returned < out[0].decode_end  # not waited for
+        assert worker.pid is not None
+        os.kill(worker.pid, 9)
+        with pytest.raises(OSError, match="recogniser process"):
+            for _ in range(1000):
+                worker.feed(pcm[:CHUNK])
+                time.sleep(0.01)
     finally:
         worker.close()
-    assert heard is not None and heard.line == "br s" and heard.t_s == 1.5
-    assert ticks > 10  # this thread ran while the worker decoded
 
 
 @needs_voices
