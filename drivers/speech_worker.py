@@ -7,11 +7,12 @@ filter and pocketsphinx's endpointer) cuts them, in ``key`` mode the key does; e
 through ``CommandRecogniser.hear``. Every sample-by-sample step is here.
 
 ``ProcessListener`` runs one in a worker process (what the car uses), so the app's process only
-moves audio blocks: the reader thread writes each 30 ms block of 16-bit samples into a pipe as
-it came from ``arecord`` and picks up the answers when there are some, never waiting for a
-decode. pocketsphinx and the detector hold the GIL while they run; in the app they delayed the
-100 Hz loop (docs/voice.md, "Speed"). The worker runs ``WORKER_NICE_LEVELS`` below the app.
-In the same process (tests, benchmarks, tools) the stream is used directly.
+moves audio blocks: the reader thread writes the 30 ms blocks of 16-bit samples into a pipe as
+they came from ``arecord`` (``BATCH_S`` at a time) and picks up the answers when there are
+some, never waiting for a decode. pocketsphinx and the detector hold the GIL while they run; in
+the app they delayed the 100 Hz loop (docs/voice.md, "Speed"). The worker runs
+``WORKER_NICE_LEVELS`` below the app. In the same process (tests, benchmarks, tools) the stream
+is used directly.
 """
 
 from __future__ import annotations
@@ -42,6 +43,11 @@ WORKER_NICE_LEVELS = 19
 nice 19): it must not delay the 100 Hz loop, and a report waits for it only when both cores
 are busy. benchmarks/voice_loop.py, always listening, 6 pairs of 10 s on a 2-core machine at
 load 19: the loop's p99 while decoding 16 ms at 19 levels, 79 ms at 5 (docs/voice.md)."""
+BATCH_S = 0.24
+"""Blocks are sent to the worker this much at a time (each with its own flags): a message per
+30 ms block would fill the pipe's socket buffer (counted per message, not per byte) after a
+second or two of a busy worker, and the reader would then wait. Batched, the buffer holds about
+6 s of audio before the reader waits for the worker (as it waited for every decode before)."""
 START_TIMEOUT_S = 60.0
 """The worker loads pocketsphinx's model (a second or two; more on a loaded machine)."""
 
@@ -129,7 +135,8 @@ class Listener(Protocol):
 # ------------------------------------------------------------------------- the worker process
 
 _AUDIO, _RESET, _FLUSH = b"a", b"r", b"f"
-_FLAGS = struct.Struct("<cB")  # kind, flags (1: deaf, 2: talking); then the 16-bit samples
+_HEAD = struct.Struct("<cH")  # kind, number of blocks
+_BLOCK = struct.Struct("<BI")  # per block: flags (1: deaf, 2: talking), samples; then the PCM
 
 
 def lower_priority(nice_levels: int = WORKER_NICE_LEVELS) -> None:
@@ -156,10 +163,15 @@ def _serve(
             msg = conn.recv_bytes()
         except (EOFError, OSError):
             return
-        kind, flags = _FLAGS.unpack_from(msg)
+        kind, n = _HEAD.unpack_from(msg)
         if kind == _AUDIO:
-            x = np.frombuffer(msg, dtype="<i2", offset=_FLAGS.size)
-            out = stream.feed(x, deaf=bool(flags & 1), talking=bool(flags & 2))
+            out = []
+            pos = _HEAD.size + n * _BLOCK.size
+            for k in range(n):
+                flags, size = _BLOCK.unpack_from(msg, _HEAD.size + k * _BLOCK.size)
+                x = np.frombuffer(msg, dtype="<i2", count=size, offset=pos)
+                pos += 2 * size
+                out += stream.feed(x, deaf=bool(flags & 1), talking=bool(flags & 2))
             if out:
                 conn.send(("heard", out))
         elif kind == _FLUSH:
@@ -187,6 +199,8 @@ class ProcessListener:
                                     args=(child, talk, nice_levels, accept, say_again))  # fmt: skip
         self._process.start()
         child.close()
+        self._blocks: list[tuple[int, bytes]] = []
+        self._pending = 0
         if not self._conn.poll(START_TIMEOUT_S):
             self.close()
             raise OSError(f"the recogniser process did not start within {START_TIMEOUT_S:.0f} s")
@@ -206,9 +220,13 @@ class ProcessListener:
             raise OSError(f"the recogniser process stopped ({exc or 'pipe closed'})") from None
         return kind, out
 
-    def _send(self, kind: bytes, flags: int = 0, pcm: bytes = b"") -> None:
+    def _send(self, kind: bytes) -> None:
+        blocks = self._blocks if kind == _AUDIO else []
+        head = _HEAD.pack(kind, len(blocks))
+        head += b"".join(_BLOCK.pack(flags, len(pcm) // 2) for flags, pcm in blocks)
+        self._blocks, self._pending = [], 0
         try:
-            self._conn.send_bytes(_FLAGS.pack(kind, flags) + pcm)
+            self._conn.send_bytes(head + b"".join(pcm for _, pcm in blocks))
         except (BrokenPipeError, ConnectionError) as exc:
             raise OSError(f"the recogniser process stopped ({exc})") from None
 
@@ -219,17 +237,23 @@ class ProcessListener:
         return out
 
     def reset(self) -> None:
+        self._blocks, self._pending = [], 0  # what was not sent is of the stream before
         self._send(_RESET)
 
     def feed(
         self, samples: np.ndarray, *, deaf: bool = False, talking: bool = False
     ) -> list[Outcome]:
         pcm = samples.tobytes() if samples.dtype == np.dtype("<i2") else to_pcm16(samples)
-        self._send(_AUDIO, int(deaf) | 2 * int(talking), pcm)
+        self._blocks.append((int(deaf) | 2 * int(talking), pcm))
+        self._pending += samples.size
+        if self._pending >= BATCH_S * RATE_HZ:
+            self._send(_AUDIO)
         return self._answers()
 
     def flush(self, timeout_s: float = 60.0) -> list[Outcome]:
         """Everything the worker still has, the utterance in progress included (waits)."""
+        if self._blocks:
+            self._send(_AUDIO)
         self._send(_FLUSH)
         out: list[Outcome] = []
         deadline = time.monotonic() + timeout_s
