@@ -249,8 +249,8 @@ COMPONENT_WORDS: dict[str, dict[str, str]] = {
     "voice": {"text_fallback": "Voice prompts failed. Prompts are shown as text."},
     "telemetry": {"down": "Remote monitoring is offline."},
     "recorder": {
-        "disk_full": "Recording stopped. The disk is full.",
-        "failed": "Recording stopped after a write error.",
+        "disk_full": "The disk is full: recording has stopped.",
+        "failed": "The disk failed: recording has stopped.",
     },
 }
 """A component of the car's own gone bad (its ``Health.warning``, docs/reliability.md), one

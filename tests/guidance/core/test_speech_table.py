@@ -127,7 +127,7 @@ def test_the_components_warnings_are_in_the_table_once() -> None:
     """Issue 37 item 2: the voice's, telemetry's and the recorder's warnings are events of the
     table like the inputs', one sentence per component and status, none shared with an input."""
     disk = Say(Speech.COMPONENT, input="recorder", status="disk_full")
-    assert words(disk) == words(disk, IMP) == "Recording stopped. The disk is full."
+    assert words(disk) == words(disk, IMP) == "The disk is full: recording has stopped."
     sentences = [w for table in COMPONENT_WORDS.values() for w in table.values()]
     inputs = [w for table in SENSOR_WORDS.values() for w in table.values()]
     assert len(sentences) == len(set(sentences)) and not set(sentences) & set(inputs)
