@@ -20,8 +20,12 @@ an event (``Say(Speech.READ_BACK, line=...)``: "Left, straight, right." in the s
   Cars put the voice button on the steering wheel for the same reasons: no false command from
   the radio, a passenger or the car itself, no wake word to say before every report, and the
   recogniser runs only while the key is down.
-* ``always``: voice activity cuts the audio into utterances and every one is tried; for a car
-  with no keypad. Its false-command rate is measured (docs/voice.md) and is not zero.
+* ``wake``: voice activity cuts the audio into utterances, and one is a command only after the
+  wake word (``drivers.speech_grammar.WAKE_WORD``, "navigator": "navigator, left straight
+  right", or the wake word alone and the command within 4 s), spotted by pocketsphinx's
+  keyword search; what follows it is heard as a held key's. For a car with no keypad.
+* ``always``: voice activity cuts the audio into utterances and every one is tried, the
+  confidence threshold alone keeping talk out: it takes few commands (docs/voice.md).
 
 **The car's own voice is never a command**: the input is deaf while the car speaks and for
 ``deaf_tail_s`` after (``car_voice.busy``: what ``guidance.voice.activity.CarVoice`` reports),
@@ -48,8 +52,14 @@ import numpy as np
 
 from drivers._reader import ThreadedSource
 from drivers.keyboard import CoDriverLines, Feedback, SceneMessage
-from drivers.speech_grammar import RATE_HZ, CommandRecogniser, Heard, read_wav_16k
-from drivers.speech_worker import Listener, Outcome, ProcessListener, UtteranceStream
+from drivers.speech_grammar import RATE_HZ, WAKE_WORD, CommandRecogniser, Heard, read_wav_16k
+from drivers.speech_worker import (
+    TALK_MODES,
+    Listener,
+    Outcome,
+    ProcessListener,
+    UtteranceStream,
+)
 from guidance.core.messages import Say, Speech
 
 CHUNK = 480
@@ -70,7 +80,8 @@ class SpeechInputConfig:
     device: str = "default"
     """The ALSA capture device (``arecord -D``), or a WAV file or FIFO of raw 16 kHz samples."""
     talk: str = "key"
-    """``key``: push-to-talk on the keypad's talk key; ``always``: voice activity."""
+    """``key``: push-to-talk on the keypad's talk key; ``wake``: a command after the wake word
+    ("navigator, left straight right"); ``always``: every stretch of voice is tried."""
     deaf_tail_s: float = 0.7
     """Deaf this long after the car stops speaking (its echo in the cabin, the read-back)."""
     echo_window_s: float = 8.0
@@ -122,8 +133,8 @@ class SpeechInput(ThreadedSource[SceneMessage]):
         listener: Listener | None = None,
         name: str = "speech",
     ) -> None:
-        if config.talk not in ("key", "always"):
-            raise ValueError(f"talk must be 'key' or 'always', not {config.talk!r}")
+        if config.talk not in TALK_MODES:
+            raise ValueError(f"talk must be one of {', '.join(TALK_MODES)}, not {config.talk!r}")
         super().__init__(name, config, clock=clock)
         self.config = config
         self._device = config.device
@@ -159,7 +170,9 @@ class SpeechInput(ThreadedSource[SceneMessage]):
 
     def describe(self) -> str:
         """What the operator screen shows for this input."""
-        how = "hold 5 to talk" if self.config.talk == "key" else "always listening"
+        how = {"key": "hold 5 to talk", "wake": f"say {WAKE_WORD!r} first"}.get(
+            self.config.talk, "always listening"
+        )
         what = f"microphone {self.config.device} ({how})"
         if self._connected:
             last = self.heard[-1] if self.heard else None

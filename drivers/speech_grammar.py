@@ -57,6 +57,20 @@ SAY_AGAIN = 0.5
 """Confidence from which, below ``ACCEPT``, the speaker is asked to say it again (the null
 model's highest score): below this the sound is ignored, as talk not meant for the car."""
 
+WAKE_WORD = "navigator"
+"""Said before a command when the input listens for it (``talk = "wake"``): four syllables in
+pocketsphinx's dictionary, unlike any word of the grammar, and not a word of radio talk or of
+the car's own sentences (a short everyday word, "car" or "okay", is said all the time)."""
+WAKE_THRESHOLD = 1e-20
+"""pocketsphinx's keyword-spotting threshold for ``WAKE_WORD`` (the keyphrase's path score
+against its phone-loop garbage model; smaller spots more). From benchmarks/voice_wake.py's
+choosing set (Pico en-US and espeak-ng en-us; radio-like talk at 20 dB and the wake word before
+each command at 10 dB): the loosest step of a ladder of thresholds (1e-5 .. 1e-40) at which no
+talk is spotted, one step stricter for a margin; measured on other voices and talk
+(docs/voice.md)."""
+WAKE_WINDOW_S = 4.0
+"""After the wake word said alone, the next utterance starting within this is the command."""
+
 EXIT_WORDS: dict[str, str] = {
     "left": "l",
     "right": "r",
@@ -184,6 +198,24 @@ class CommandRecogniser:
             allphone=get_model_path("en-us/en-us-phone.lm.bin"),
         )  # fmt: skip
         self._lock = threading.Lock()
+        self._wake: Any = None
+        self.wake_threshold = WAKE_THRESHOLD
+
+    def wake_end(self, samples: np.ndarray) -> int | None:
+        """Where ``WAKE_WORD`` ends in the utterance (a sample index), or None when it is not
+        spotted (pocketsphinx's keyword search at ``wake_threshold``)."""
+        from pocketsphinx import Decoder
+
+        with self._lock:
+            if self._wake is None:
+                self._wake = Decoder(samprate=RATE_HZ, loglevel="FATAL", lm=None,
+                                     keyphrase=WAKE_WORD, kws_threshold=self.wake_threshold)
+            d = self._wake
+            d.start_utt()
+            d.process_raw(to_pcm16(samples), full_utt=True)
+            d.end_utt()
+            segs = [s for s in (d.seg() or []) if s.word == WAKE_WORD]
+        return None if not segs else min(samples.size, (int(segs[0].end_frame) + 1) * 160)
 
     def _words(self, decoder: Any, pcm: bytes) -> list[str]:
         decoder.start_utt()

@@ -28,8 +28,10 @@ import numpy as np
 
 from drivers.speech_grammar import (
     ACCEPT,
+    MIN_COMMAND_S,
     RATE_HZ,
     SAY_AGAIN,
+    WAKE_WINDOW_S,
     CommandRecogniser,
     Heard,
     Segmenter,
@@ -62,27 +64,53 @@ class Outcome:
     decode_end: float
 
 
+TALK_MODES = ("key", "wake", "always")
+"""``key``: push-to-talk; ``wake``: the voice activity detector cuts utterances and one is a
+command only after ``WAKE_WORD`` (in it, or alone just before it); ``always``: every utterance
+is tried, the confidence threshold alone keeps talk out."""
+
+
 class UtteranceStream:
     """Blocks of 16 kHz audio in, ``Outcome``s out (see the module docstring). Not
     thread-safe: one per stream."""
 
     def __init__(self, recogniser: CommandRecogniser, talk: str) -> None:
-        if talk not in ("key", "always"):
-            raise ValueError(f"talk must be 'key' or 'always', not {talk!r}")
+        if talk not in TALK_MODES:
+            raise ValueError(f"talk must be one of {', '.join(TALK_MODES)}, not {talk!r}")
         self.recogniser = recogniser
         self.talk = talk
         self.reset()
 
     def reset(self) -> None:
         """A new stream: its first sample is at 0 s."""
-        self._segmenter = Segmenter() if self.talk == "always" else None
+        self._segmenter = Segmenter() if self.talk != "key" else None
         self._ptt: list[np.ndarray] = []
         self._audio_s = 0.0
+        self._armed_until = -1.0
+        """``wake``: the wake word was said alone; an utterance starting before this is heard."""
 
-    def _hear(self, samples: np.ndarray, t_s: float) -> Outcome:
+    def _hear(self, samples: np.ndarray, t_s: float, push_to_talk: bool | None = None) -> Outcome:
         t0 = time.monotonic()
-        heard = self.recogniser.hear(samples, t_s, push_to_talk=self.talk == "key")
+        ptt = self.talk == "key" if push_to_talk is None else push_to_talk
+        heard = self.recogniser.hear(samples, t_s, push_to_talk=ptt)
         return Outcome(heard, t0, time.monotonic())
+
+    def _utterance(self, t_s: float, samples: np.ndarray) -> Outcome:
+        """One utterance the detector cut: tried (``always``), or heard as a held key's when it
+        follows the wake word (``wake``: the rest of it, or the next one)."""
+        if self.talk == "always":
+            return self._hear(samples, t_s)
+        t0 = time.monotonic()
+        if t_s <= self._armed_until:
+            self._armed_until = -1.0
+            return self._hear(samples, t_s, push_to_talk=True)
+        end = self.recogniser.wake_end(samples)
+        if end is None:
+            return Outcome(None, t0, time.monotonic())
+        if samples.size - end >= MIN_COMMAND_S * RATE_HZ:
+            return self._hear(samples[end:], t_s + end / RATE_HZ, push_to_talk=True)
+        self._armed_until = t_s + samples.size / RATE_HZ + WAKE_WINDOW_S
+        return Outcome(None, t0, time.monotonic())
 
     def feed(
         self, samples: np.ndarray, *, deaf: bool = False, talking: bool = False
@@ -95,9 +123,10 @@ class UtteranceStream:
             self._ptt = []  # the car talked over it: nothing of it is a report
             if self._segmenter is not None:
                 self._segmenter = Segmenter()
+            self._armed_until = -1.0
             return []
         if self._segmenter is not None:
-            return [self._hear(u, t) for t, u in self._segmenter.feed(x)]
+            return [self._utterance(t, u) for t, u in self._segmenter.feed(x)]
         if talking:
             if sum(h.size for h in self._ptt) < MAX_HELD_S * RATE_HZ:
                 self._ptt.append(x)
@@ -114,7 +143,7 @@ class UtteranceStream:
     def flush(self) -> list[Outcome]:
         """The audio ended: the utterance in progress is heard (a WAV that ends mid-phrase)."""
         if self._segmenter is not None:
-            return [self._hear(u, t) for t, u in self._segmenter.flush()]
+            return [self._utterance(t, u) for t, u in self._segmenter.flush()]
         return self._release()
 
     def close(self) -> None:

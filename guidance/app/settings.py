@@ -124,7 +124,7 @@ class SceneSettings:
     """The microphone beside the keypad or keyboard (docs/app.md, "Driving alone")."""
     microphone: str = "default"
     """The ALSA capture device of the speech input (``arecord -D``)."""
-    talk: str = field(default="auto", metadata=rule(choices=("auto", "key", "always")))
+    talk: str = field(default="auto", metadata=rule(choices=("auto", "key", "wake", "always")))
     """When the speech input listens: ``key`` while the keypad's 5 is held, ``always`` (voice
     activity), ``auto``: ``key`` with a keypad (input = "evdev"), else ``always``."""
 

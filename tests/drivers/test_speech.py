@@ -241,6 +241,36 @@ def test_always_listening_takes_no_command_from_talk_it_was_not_tuned_on(
 
 
 @needs_voices
+def test_after_the_wake_word_a_command_is_taken_and_talk_is_not(
+    recogniser: CommandRecogniser,
+) -> None:
+    """``talk = "wake"``: a command is taken after "navigator" (in the same breath, or the wake
+    word alone and the command after a pause); the same command without it is not, nor talk
+    with the command words inside (``RADIO_TEXT_2``'s phrases by voices the wake threshold was
+    not chosen on, 10 dB). benchmarks/voice_wake.py measures the rates."""
+    gap = np.zeros(int(1.5 * RATE_HZ))
+    parts = [gap, render("flite:awb", "Navigator, bear left."), gap,
+             render("flite:slt", "hard right"), gap,  # no wake word: talk
+             render("flite:slt", "Navigator."), np.zeros(int(0.8 * RATE_HZ)),
+             render("flite:slt", "turned right"), gap]  # fmt: skip
+    n = 0
+    for v, voice in enumerate(("flite:rms", "espeak:en+m3")):
+        for text in short_phrases(RADIO_TEXT_2, 60 + v)[:20]:
+            parts += [render(voice, text), np.zeros(int(1.2 * RATE_HZ))]
+            n += 1
+    x = np.concatenate(parts)
+    x = mix_at_snr(x, cabin_noise(x.size, seed=321), 10.0)
+    inp, got = make_input("wake", recogniser)
+    inp.start_stream(t0=0.0)
+    feed(inp, x, got)
+    inp.end_stream(got["msgs"].append)
+    stats = inp.stats()
+    assert stats.get("utterances", 0) >= 0.5 * n + 3, stats
+    assert [getattr(m, "labels", None) for m in got["msgs"]] == [("bl",), None], got["msgs"]
+    assert isinstance(got["msgs"][1], TurnCompleted) and stats["commands_heard"] == 2
+
+
+@needs_voices
 def test_push_to_talk_delivers_the_report_reads_it_back_and_says_again_when_unsure(
     recogniser: CommandRecogniser,
 ) -> None:
