@@ -2,9 +2,10 @@
 by side in one run (issue 39: "the 100 Hz loop's lateness p99 unchanged with the microphone on").
 
 One asyncio ticker on absolute deadlines (as ``App``'s, with its GIL switch interval) runs for
-the whole benchmark. The run is cut into rounds of three blocks: **off** (no speech input),
+the whole benchmark. The run is cut into rounds of four blocks: **off** (no speech input),
 **key** (``drivers.speech.SpeechInput`` in push-to-talk, the talk key held 2.5 s of every 5 s,
-so utterances are decoded) and **always** (always listening), each reading a FIFO that another
+so utterances are decoded), **wake** (listening for the wake word) and **always** (every
+utterance tried), each reading a FIFO that another
 process fills in real time, as ``arecord`` does in the car, with the 20 spoken commands and
 radio-like talk in cabin noise at 20 dB. The input's per-sample work (the voice activity
 detector, the rumble filter, decoding) runs in its worker process (``ProcessListener``, one per
@@ -12,11 +13,11 @@ mode, started once as at the car's start); the app's side only moves blocks. The
 drifts (two cores shared with other jobs), so the comparison is within a round, and the first
 ``SETTLE_S`` of each block (the input starting or stopping) is left out.
 
-Printed: each round's p99 (off, key, always), the pooled p50 / p99 / max of each condition (and
-of the "on" ticks while an utterance was being decoded), and for each mode against off: the
-median difference within rounds beside the range of differences between consecutive off blocks
-(what the drift alone does), and how many rounds had the mode above off (a one-sided sign test:
-a consistent small cost shows there even when the drift hides it).
+Printed: each round's p99 (off, key, wake, always), the pooled p50 / p99 / max of each
+condition (and of the "on" ticks while an utterance was being decoded), and for each mode
+against off: the median difference within rounds beside the range of differences between
+consecutive off blocks (what the drift alone does), and how many rounds had the mode above off
+(a one-sided sign test: a consistent small cost shows there even when the drift hides it).
 
     .venv/bin/python benchmarks/voice_loop.py [--rounds 6] [--block 10] [--nice 19]
 """
@@ -107,7 +108,7 @@ class Timed:
         self.inner.close()
 
 
-MODES = ("off", "key", "always")
+MODES = ("off", "key", "wake", "always")
 HOLD_S = 2.5
 """Push-to-talk blocks: the talk key is down this long, then up as long, in turn."""
 
@@ -223,14 +224,15 @@ def report(args: argparse.Namespace, samples: list[tuple[int, float, float]],
     by_block = {b: np.array([s for k, _t, s in samples if k == b]) * 1e3
                 for b in range(n_modes * args.rounds)}  # fmt: skip
     print(f"100 Hz loop lateness (ms): {args.rounds} rounds of {args.block:.0f} s blocks "
-          f"(off, key, always; recogniser {args.nice} nice levels down); load average "
+          f"(off, key, wake, always; recogniser {args.nice} nice levels down); load average "
           f"{load0:.1f} -> {os.getloadavg()[0]:.1f} on {os.cpu_count()} cores; utterances "
-          f"decoded: key {mic.utterances['key']}, always {mic.utterances['always']}")  # fmt: skip
-    print("  round   off p99   key p99   always p99")
+          f"decoded: key {mic.utterances['key']}, wake {mic.utterances['wake']}, always "
+          f"{mic.utterances['always']}")  # fmt: skip
+    print("  round   off p99   key p99   wake p99   always p99")
     table = np.array([[p99(by_block[n_modes * i + m]) for m in range(n_modes)]
                       for i in range(args.rounds)])  # fmt: skip
     for i, row in enumerate(table):
-        print(f"  {i + 1:5}   {row[0]:7.2f}   {row[1]:7.2f}   {row[2]:10.2f}")
+        print(f"  {i + 1:5}   {row[0]:7.2f}   {row[1]:7.2f}   {row[2]:8.2f}   {row[3]:10.2f}")
     for m, label in enumerate(MODES):
         a = np.concatenate([by_block[b] for b in by_block if b % n_modes == m])
         print(f"  pooled {label:6}  p50 {np.percentile(a, 50):6.2f}  p99 {p99(a):6.2f}  "
@@ -242,7 +244,7 @@ def report(args: argparse.Namespace, samples: list[tuple[int, float, float]],
         print(f"  on, while decoding  p50 {np.percentile(busy, 50):6.2f}  p99 {p99(busy):6.2f}  "
               f"max {busy.max():7.2f}  (n={busy.size})")  # fmt: skip
     drift = np.diff(table[:, 0])
-    for m in (1, 2):
+    for m in range(1, n_modes):
         _compare(MODES[m], list(table[:, m] - table[:, 0]), drift)
 
 

@@ -187,9 +187,13 @@ class SpeechInput(ThreadedSource[SceneMessage]):
 
     def _on_stop(self) -> None:
         """The recogniser process this input started goes with it."""
+        self._drop_worker()
+
+    def _drop_worker(self) -> None:
+        """Close the worker process this input started (the next stream starts another)."""
         if self._own and self._listener is not None:
-            self._listener.close()
-            self._listener = None
+            listener, self._listener = self._listener, None
+            listener.close()
 
     # -- audio -------------------------------------------------------------------------------------
     def start_stream(self, t0: float | None = None) -> None:
@@ -273,21 +277,25 @@ class SpeechInput(ThreadedSource[SceneMessage]):
                 continue
             self.error = ""
             self._set_connected(True)
-            self.start_stream()
             try:
+                self.start_stream()
                 ended = stream.pump(lambda x: self.feed(x, sink), self._stop)
                 why = stream.why_ended() if ended else ""
                 if self._audio_s > 1.0:  # it worked for a while: retry soon after a failure
                     delay = 0.25
-            except OSError as exc:
+                if ended and not self._stop.is_set() and stream.process is None:
+                    self.end_stream(sink)  # a file or FIFO: nothing more will come
+            except OSError as exc:  # the device, or the recogniser's worker process
                 self.error = str(exc)
                 self._set_connected(False, self.error)
+                self._drop_worker()
+                self._stop.wait(delay)
+                delay = self._backoff(delay)
                 continue
             finally:
                 stream.close()
             if ended and not self._stop.is_set():
-                if stream.process is None:  # a file or FIFO: nothing more will come
-                    self.end_stream(sink)
+                if stream.process is None:
                     self._log.info("%s: end of audio on %s", self.name, self.config.device)
                     self._health.ended()
                     return

@@ -65,7 +65,7 @@ WAKE_THRESHOLD = 1e-20
 """pocketsphinx's keyword-spotting threshold for ``WAKE_WORD`` (the keyphrase's path score
 against its phone-loop garbage model; smaller spots more). From benchmarks/voice_wake.py's
 choosing set (Pico en-US and espeak-ng en-us; radio-like talk at 20 dB and the wake word before
-each command at 10 dB): the loosest step of a ladder of thresholds (1e-5 .. 1e-40) at which no
+each command at 10 dB): the loosest step of a ladder of thresholds (1e-10 .. 1e-40) at which no
 talk is spotted, one step stricter for a margin; measured on other voices and talk
 (docs/voice.md)."""
 WAKE_WINDOW_S = 4.0

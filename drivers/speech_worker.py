@@ -108,7 +108,10 @@ class UtteranceStream:
         if end is None:
             return Outcome(None, t0, time.monotonic())
         if samples.size - end >= MIN_COMMAND_S * RATE_HZ:
-            return self._hear(samples[end:], t_s + end / RATE_HZ, push_to_talk=True)
+            rest = self._hear(samples[end:], t_s + end / RATE_HZ, push_to_talk=True)
+            if rest.heard is not None and rest.heard.line:
+                return rest
+        # the wake word alone (or with no complete phrase after it): the command may follow
         self._armed_until = t_s + samples.size / RATE_HZ + WAKE_WINDOW_S
         return Outcome(None, t0, time.monotonic())
 
@@ -180,9 +183,10 @@ def _serve(
     conn: Connection, talk: str, nice_levels: int, accept: float, say_again: float
 ) -> None:
     """The worker: audio blocks in, ("heard" | "flushed", outcomes) out, until the pipe closes."""
-    try:
-        lower_priority(nice_levels)
+    try:  # the model loads at the app's priority (at its start), then the worker steps down
         stream = UtteranceStream(CommandRecogniser(accept, say_again), talk)
+        stream.recogniser.wake_end(np.zeros(RATE_HZ // 10))  # the wake word's search too
+        lower_priority(nice_levels)
     except Exception as exc:  # reported to the app, which says so
         conn.send(("error", f"{type(exc).__name__}: {exc}"))
         return

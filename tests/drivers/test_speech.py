@@ -244,30 +244,40 @@ def test_always_listening_takes_no_command_from_talk_it_was_not_tuned_on(
 def test_after_the_wake_word_a_command_is_taken_and_talk_is_not(
     recogniser: CommandRecogniser,
 ) -> None:
-    """``talk = "wake"``: a command is taken after "navigator" (in the same breath, or the wake
-    word alone and the command after a pause); the same command without it is not, nor talk
-    with the command words inside (``RADIO_TEXT_2``'s phrases by voices the wake threshold was
-    not chosen on, 10 dB). benchmarks/voice_wake.py measures the rates."""
+    """``talk = "wake"``, on voices the wake threshold was not chosen on: commands after
+    "navigator" in one breath (flite slt, 10 dB: here 6 of 8, none wrong; the benchmark takes
+    18 of 20), and "navigator"
+    alone with the command after a pause (flite awb, 20 dB), are taken; the same commands
+    without it are not, nor short talk with the command words inside (``RADIO_TEXT_2``'s
+    phrases by flite rms and espeak-ng en+m3). benchmarks/voice_wake.py measures the rates."""
     gap = np.zeros(int(1.5 * RATE_HZ))
-    parts = [gap, render("flite:awb", "Navigator, bear left."), gap,
-             render("flite:slt", "hard right"), gap,  # no wake word: talk
-             render("flite:slt", "Navigator."), np.zeros(int(0.8 * RATE_HZ)),
-             render("flite:slt", "turned right"), gap]  # fmt: skip
+    commands = SPOKEN_COMMANDS[:8]
+    parts = [gap]
+    for text, _line in commands:
+        parts += [render("flite:slt", f"Navigator, {text}."), gap]
+    parts += [render("flite:awb", "Navigator."), np.zeros(RATE_HZ), render("flite:awb",
+              "turned right"), gap]  # fmt: skip
+    for text, _line in commands:
+        parts += [render("flite:slt", text), gap]  # no wake word: talk
     n = 0
     for v, voice in enumerate(("flite:rms", "espeak:en+m3")):
         for text in short_phrases(RADIO_TEXT_2, 60 + v)[:20]:
             parts += [render(voice, text), np.zeros(int(1.2 * RATE_HZ))]
             n += 1
     x = np.concatenate(parts)
-    x = mix_at_snr(x, cabin_noise(x.size, seed=321), 10.0)
+    split = sum(p.size for p in parts[: 2 * len(commands) + 1])
     inp, got = make_input("wake", recogniser)
     inp.start_stream(t0=0.0)
-    feed(inp, x, got)
+    noise = cabin_noise(x.size, seed=321)
+    feed(inp, mix_at_snr(x[:split], noise[:split], 10.0), got)
+    taken = [h.line for h in inp.heard if h.line]
+    said = [line for _t, line in commands]
+    assert len(taken) >= 6 and all(line in said for line in taken), taken  # none wrong
+    feed(inp, mix_at_snr(x[split:], noise[split:], 20.0), got)
     inp.end_stream(got["msgs"].append)
-    stats = inp.stats()
-    assert stats.get("utterances", 0) >= 0.5 * n + 3, stats
-    assert [getattr(m, "labels", None) for m in got["msgs"]] == [("bl",), None], got["msgs"]
-    assert isinstance(got["msgs"][1], TurnCompleted) and stats["commands_heard"] == 2
+    lines = [h.line for h in inp.heard if h.line]
+    assert lines[len(taken) :] == ["t r"], lines  # the pause form; nothing from talk
+    assert inp.stats().get("utterances", 0) >= 0.5 * n + 2 * len(commands)
 
 
 @needs_voices
