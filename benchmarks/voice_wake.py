@@ -176,17 +176,19 @@ def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--choose-only", action="store_true")
     ap.add_argument("--held-out-only", action="store_true")
+    ap.add_argument("--false-only", action="store_true", help="held out: non-command audio only")
     ap.add_argument("--threshold", type=float, default=WAKE_THRESHOLD,
                     help="measure the held-out sets at this threshold, not the code's (to see "
                     "what another choice would have done)")  # fmt: skip
     args = ap.parse_args()
     c0 = time.process_time()
-    if not args.held_out_only:
+    if not (args.held_out_only or args.false_only):
         choose()
     if not args.choose_only:
         rec = CommandRecogniser()
         rec.wake_threshold = args.threshold
-        held_out_recall(rec)
+        if not args.false_only:
+            held_out_recall(rec)
         held_out_false(rec)
     print(f"\n{time.process_time() - c0:.0f} s CPU")
 

@@ -206,6 +206,8 @@ class CommandRecogniser:
         spotted (pocketsphinx's keyword search at ``wake_threshold``)."""
         from pocketsphinx import Decoder
 
+        if samples.size == 0:  # pocketsphinx refuses an empty buffer (IndexError)
+            return None
         with self._lock:
             if self._wake is None:
                 self._wake = Decoder(samprate=RATE_HZ, loglevel="FATAL", lm=None,
@@ -233,6 +235,8 @@ class CommandRecogniser:
 
     def decode(self, samples: np.ndarray) -> tuple[str, float]:
         """One utterance (16 kHz samples) -> (the grammar's phrase, confidence 0-1)."""
+        if samples.size == 0:  # pocketsphinx refuses an empty buffer (IndexError)
+            return "", 0.0
         pcm = to_pcm16(samples)
         with self._lock:
             words = [w.split("(")[0] for w in self._words(self._grammar, pcm)]

@@ -240,6 +240,21 @@ def test_always_listening_takes_no_command_from_talk_it_was_not_tuned_on(
     ]
 
 
+def test_an_empty_utterance_is_no_command(recogniser: CommandRecogniser) -> None:
+    """The detector can cut an empty stretch; pocketsphinx raises on an empty buffer, which in
+    the worker process would have stopped the input (found by benchmarks/voice_wake.py)."""
+    from drivers.speech_worker import UtteranceStream
+
+    empty = np.zeros(0)
+    assert recogniser.wake_end(empty) is None and recogniser.decode(empty) == ("", 0.0)
+    heard = recogniser.hear(empty, push_to_talk=True)
+    assert heard is not None and heard.line == ""
+    stream = UtteranceStream(recogniser, "wake")
+    stream._armed_until = 10.0  # right after the wake word said alone
+    assert stream._utterance(1.0, empty).heard is not None
+    assert stream._utterance(20.0, empty).heard is None
+
+
 @needs_voices
 def test_after_the_wake_word_a_command_is_taken_and_talk_is_not(
     recogniser: CommandRecogniser,
