@@ -121,7 +121,6 @@ class Microphone:
         self.writer: subprocess.Popen[bytes] | None = None
         self.input: SpeechInput | None = None
         self.mode = "off"
-        self.utterances = dict.fromkeys(MODES, 0)
         self._key: threading.Thread | None = None
 
     def on(self, mode: str) -> None:
@@ -149,7 +148,6 @@ class Microphone:
             inp, self.input = self.input, None
             inp.stop()
             self.listeners[self.mode].flush()  # the worker idle again before the next block
-            self.utterances[self.mode] += inp.stats().get("utterances", 0)
         if self._key is not None:
             self._key.join()
             self._key = None
@@ -226,8 +224,8 @@ def report(args: argparse.Namespace, samples: list[tuple[int, float, float]],
     print(f"100 Hz loop lateness (ms): {args.rounds} rounds of {args.block:.0f} s blocks "
           f"(off, key, wake, always; recogniser {args.nice} nice levels down); load average "
           f"{load0:.1f} -> {os.getloadavg()[0]:.1f} on {os.cpu_count()} cores; utterances "
-          f"decoded: key {mic.utterances['key']}, wake {mic.utterances['wake']}, always "
-          f"{mic.utterances['always']}")  # fmt: skip
+          f"the workers cut: key {len(mic.listeners['key'].spans)}, wake "
+          f"{len(mic.listeners['wake'].spans)}, always {len(mic.listeners['always'].spans)}")
     print("  round   off p99   key p99   wake p99   always p99")
     table = np.array([[p99(by_block[n_modes * i + m]) for m in range(n_modes)]
                       for i in range(args.rounds)])  # fmt: skip
