@@ -5,6 +5,7 @@ the car's own voice never taken as a command."""
 
 from __future__ import annotations
 
+import contextlib
 import json
 import math
 import os
@@ -507,6 +508,60 @@ def test_the_car_cuts_and_decodes_in_a_worker_process() -> None:
                 time.sleep(0.01)
     finally:
         worker.close()
+
+
+def test_a_dead_recogniser_process_is_a_disconnection_and_another_starts(
+    tmp_path: Path, caplog: pytest.LogCaptureFixture
+) -> None:
+    """The worker process killed under a live microphone (a FIFO fed in real time): the input
+    reports itself disconnected with the reason, starts another worker and reads on."""
+    fifo = tmp_path / "mic"
+    os.mkfifo(fifo)
+    stop = threading.Event()
+
+    def write() -> None:  # the microphone: 30 ms of quiet noise at a time, reopened if closed
+        block = (np.random.default_rng(1).normal(size=CHUNK) * 30).astype("<i2").tobytes()
+        while not stop.is_set():
+            try:
+                with open(fifo, "wb") as f:
+                    while not stop.is_set():
+                        f.write(block)
+                        f.flush()
+                        time.sleep(0.03)
+            except BrokenPipeError:
+                continue
+
+    writer = threading.Thread(target=write, daemon=True)
+    writer.start()
+    inp = SpeechInput(SpeechInputConfig(device=str(fifo), talk="key"), lambda: 0.0,
+                      feedback=lambda _t: None)  # fmt: skip
+    inp.start(lambda _m: None)
+
+    def worker_pid(timeout_s: float = 120.0) -> int:
+        deadline = time.monotonic() + timeout_s
+        while time.monotonic() < deadline:
+            pid = getattr(inp._listener, "pid", None)
+            if pid is not None and inp.connected:
+                return int(pid)
+            time.sleep(0.1)
+        raise AssertionError(f"no worker: {inp.health()}")
+
+    try:
+        first = worker_pid()
+        os.kill(first, 9)
+        deadline = time.monotonic() + 60
+        while inp.stats().get("disconnects", 0) == 0 and time.monotonic() < deadline:
+            time.sleep(0.05)
+        assert inp.stats().get("disconnects", 0) == 1
+        assert any("recogniser process" in r.getMessage() for r in caplog.records)
+        second = worker_pid()
+        assert second != first and inp.health().status not in ("disconnected", "stopped")
+    finally:
+        inp.stop()
+        stop.set()
+        with contextlib.suppress(OSError):  # unblock a writer waiting for a reader
+            os.close(os.open(fifo, os.O_RDONLY | os.O_NONBLOCK))
+        writer.join(5)
 
 
 @needs_voices
