@@ -462,8 +462,8 @@ class PoseEstimator:
             )
             if turned is not None and cfg.gyro is not None:  # the gyro turns ("both": measured)
                 dth, Fc, Qc, what = turn_fusion.gyro_turn_step(
-                    cfg.gyro, x, self._kf.P, (Fc, Qc, dth), (raw_l, raw_r, d), turned, var_l + var_r
-                )
+                    cfg.gyro, x, self._kf.P, (cfg.track_m, float(Qc[2, 2])), (raw_l, raw_r, d),
+                    turned, var_l + var_r)  # fmt: skip
                 if what is not None:  # the wheels' turn used or gated ("both")
                     (self.accepted if what == turn_fusion.USED else self.rejections)[what] += 1
             dt = 0.0 if self._last_t is None else max(0.0, msg.t_s - self._last_t)

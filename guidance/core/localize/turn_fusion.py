@@ -10,11 +10,12 @@ turn-rate state with a process model for the driver's steering, a prior nobody c
 for a car; here nothing is added but the step's own noise.
 
 The true turn ``delta`` of one step is, by the gyro, ``G(x) + e`` (``gyro.gyro_turn``: its
-bias and scale states, ``e`` the gyro's white noise over the step, variance ``angle_var``),
-and by the wheels ``W(x) + w`` (the corrected wheel difference over the effective track:
-the scale, left/right and turn-scale states; ``w`` the wheels' walk and the street-to-street
-camber, exactly the heading noise the wheel model adds). So ``0 = G(x) + e - W(x) - w``: a
-measurement of zero whose noise is ``w``, on the state augmented by ``e`` for the step. The
+bias and scale states, ``e`` the gyro's white noise over the step, variance ``angle_var``).
+The wheels read their raw difference over the track, ``z = h(x, delta) + w``
+(``wheel_turn_model``: the scale, left/right and turn-scale states; ``w`` the wheels' walk
+and the street-to-street camber, exactly the heading noise the wheel model adds): a
+measurement of the state augmented by ``e`` for the step, whose Jacobian is taken at the
+gyro's turn (the wheels' reading is the measurement, never the point of linearisation). The
 update (Joseph form) learns the bias against the left/right difference (one turns the heading
 with time, the other with distance, so stops and changes of speed tell them apart), the gyro's
 scale against the effective track (visible in every turn; their common part needs a compass
@@ -48,38 +49,52 @@ GATED = "wheel_turn_gate"
 """Counted (rejected) for each step whose wheel turn was refused by the gate."""
 
 
-def turn_row(F_wheels: np.ndarray, angle_rad: float, span_s: float, x: np.ndarray) -> np.ndarray:
-    """The Jacobian of ``G(x) + e - W(x)`` over the state augmented by ``e`` (last): the
-    wheels' turn Jacobian is row ``STATE_THETA`` of the wheel step's ``F`` (identity on the
-    heading itself, which neither turn depends on)."""
+def wheel_turn_model(
+    x: np.ndarray, delta: float, d_raw_m: float, track_m: float
+) -> tuple[float, np.ndarray]:
+    """The raw wheel turn ``(raw right - raw left) / track`` the wheels read for a true turn
+    ``delta`` and a raw mean distance ``d_raw_m``, and its Jacobian over the state and
+    ``delta`` (last). From the car model's wheels (``model.corrected_wheels``,
+    ``model.effective_track``): ``delta = ((1 + k) D + kd S / 2)(1 + kt) / track`` with ``D``
+    the raw difference and ``S = 2 d_raw`` the raw sum, so
+    ``D / track = (delta / (1 + kt) - kd d_raw / track) / (1 + k)``. The Jacobian is taken at
+    the gyro's turn, never at the wheels' own reading: a scale's Jacobian that carried the
+    reading's noise would correlate with the innovation and walk the scales off (errors in
+    variables)."""
     n = x.shape[0]
-    H = np.zeros(n + 1)
-    H[:n] = -F_wheels[model.STATE_THETA, :n]
-    H[model.STATE_THETA] = 0.0
-    bias, scale = float(x[STATE_GYRO_BIAS]), float(x[STATE_GYRO_SCALE])
-    H[STATE_GYRO_BIAS] += -span_s * (1.0 + scale)
-    H[STATE_GYRO_SCALE] += angle_rad - bias * span_s
-    H[n] = 1.0
-    return H
+    k, kd, kt = float(x[model.STATE_SCALE]), float(x[model.STATE_DIFF]), float(x[model.STATE_TURN])
+    a = 1.0 / ((1.0 + kt) * (1.0 + k))
+    h = (delta / (1.0 + kt) - kd * d_raw_m / track_m) / (1.0 + k)
+    J = np.zeros(n + 1)
+    J[model.STATE_SCALE] = -h / (1.0 + k)
+    J[model.STATE_DIFF] = -d_raw_m / (track_m * (1.0 + k))
+    J[model.STATE_TURN] = -delta * a / (1.0 + kt)
+    J[n] = a  # d h / d delta
+    return h, J
 
 
 def fuse_turn(
     x: np.ndarray,
     P: np.ndarray,
-    F_wheels: np.ndarray,
+    raw: tuple[float, float, float],
     var_wheel_turn: float,
-    wheel_turn: float,
     turned: tuple[float, float, float],
     gate_chi2: float,
 ) -> tuple[float, float, np.ndarray, float] | None:
-    """Update ``x`` and ``P`` in place with one step's wheel turn (module doc). Returns the
-    gyro noise's posterior mean and variance, its covariance with the state and the d^2; or
-    None (nothing changed) when the gate refuses the step."""
+    """Update ``x`` and ``P`` in place with one step's wheel turn (module doc; ``raw``: the
+    raw left and right increments and the track). Returns the gyro noise's posterior mean and
+    variance, its covariance with the state and the d^2; or None (nothing changed) when the
+    gate refuses the step."""
+    raw_l, raw_r, track = raw
     angle, span, angle_var = turned
     n = x.shape[0]
     bias, scale = float(x[STATE_GYRO_BIAS]), float(x[STATE_GYRO_SCALE])
-    y = wheel_turn - gyro_turn(angle, span, bias, scale)  # z = 0, h = G + e - W
-    H = turn_row(F_wheels, angle, span, x)
+    delta = gyro_turn(angle, span, bias, scale)  # the turn by the gyro, its noise e = 0
+    h, J = wheel_turn_model(x, delta, 0.5 * (raw_l + raw_r), track)
+    H = J.copy()  # delta = G(x) + e: through the gyro's bias and scale, and e itself
+    H[STATE_GYRO_BIAS] += J[n] * -span * (1.0 + scale)
+    H[STATE_GYRO_SCALE] += J[n] * (angle - bias * span)
+    y = (raw_r - raw_l) / track - h
     Pa = np.zeros((n + 1, n + 1))
     Pa[:n, :n] = P
     Pa[n, n] = angle_var * (1.0 + scale) ** 2
@@ -104,22 +119,22 @@ def gyro_turn_step(
     cfg: GyroConfig,
     x: np.ndarray,
     P: np.ndarray,
-    wheels: tuple[np.ndarray, np.ndarray, float],
+    wheels: tuple[float, float],
     raw: tuple[float, float, float],
     turned: tuple[float, float, float],
     var_wheels_m2: float,
 ) -> tuple[float, np.ndarray, np.ndarray, str | None]:
     """An odometry step turned by the gyro: with ``cfg.with_wheels`` its wheel turn first
     measures the turn (``fuse_turn``; ``x`` and ``P`` updated in place), then the heading
-    change, state Jacobian and process noise (``gyro.gyro_step``). ``wheels``: the wheel
-    step's Jacobian, process noise and turn; ``raw``: the raw left and right increments and
-    the corrected distance. Also returns what to count (``USED``, ``GATED``) or None."""
+    change, state Jacobian and process noise (``gyro.gyro_step``). ``wheels``: the configured
+    track and the variance of the wheels' turn over the step (their walk and the camber, as
+    the wheel model adds it); ``raw``: the raw left and right increments and the corrected
+    distance. Also returns what to count (``USED``, ``GATED``) or None."""
     raw_l, raw_r, d = raw
-    F_w, Q_w, wheel_turn = wheels
+    track, var_wheel_turn = wheels
     if not cfg.with_wheels or d == 0.0:
         return (*gyro_step(x, raw_l, raw_r, d, turned, var_wheels_m2), None)
-    fused = fuse_turn(x, P, F_w, float(Q_w[model.STATE_THETA, model.STATE_THETA]), wheel_turn,
-                      turned, cfg.gate_chi2)  # fmt: skip
+    fused = fuse_turn(x, P, (raw_l, raw_r, track), var_wheel_turn, turned, cfg.gate_chi2)
     if fused is None:
         return (*gyro_step(x, raw_l, raw_r, d, turned, var_wheels_m2), GATED)
     e, var_e, c, _ = fused
