@@ -212,7 +212,8 @@ def test_guidance_run_turns_a_gyro_car_by_its_can_yaw_rate(tmp_path: Path, sourc
     from guidance.app.learned_file import load_learned
 
     by_wheels = math.degrees(sum(dd for _, dd in wheels) / profile_track_m("toyota"))
-    assert abs(turned - by_wheels) < 0.5 * abs(turned - integral)
     learned, _ = load_learned(tmp_path / "learned.json", "g1")
     assert learned is not None and learned.gyro_bias_deg_s is not None
-    assert learned.gyro_bias_deg_s < -0.15
+    said = f"turned {turned:.2f}, wheels {by_wheels:.2f}, gyro {integral:.2f}, {learned}"
+    assert abs(turned - by_wheels) < 0.5 * abs(turned - integral), said
+    assert learned.gyro_bias_deg_s < -0.15, said
