@@ -260,7 +260,7 @@ def _start_learned(cfg: Any, pipeline: Any, *, resumed: bool) -> Any:
     used, note = start_from_learned(
         pipeline.localizer.estimator, Path(cfg.checkpoint.learned_path), cfg.vehicle_id, time.time()
     )
-    (log.info if used is not None else log.warning)("%s", note)
+    (log.info if used is not None and "MOVES" not in note else log.warning)("%s", note)
     return used
 
 

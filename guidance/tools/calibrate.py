@@ -123,9 +123,29 @@ def _cli(args: argparse.Namespace) -> int:
             sys.stdout.write("wheel scale not written: add --write to put it into the car's "
                              "learned parameters\n")  # fmt: skip
         doc["wheel_scale"]["written"] = bool(args.write)
+    moving = compass_mount_note(args)
+    if moving:
+        sys.stdout.write(f"note: {moving}\n")
+    doc["compass_offset_moves"] = bool(moving)
     if args.json:
         sys.stdout.write(json.dumps(doc) + "\n")
     return 0
+
+
+def compass_mount_note(args: argparse.Namespace) -> str:
+    """The learned file's word on the compass mount (``compass_mount.warning``), or ""."""
+    from guidance.app.config import load_config
+    from guidance.app.learned_file import load_learned
+    from guidance.core.localize.compass_mount import warning
+
+    cfg = load_config(args.config, require_goal=False)
+    path = getattr(args, "learned", None)
+    if path is None and cfg.checkpoint.learned_path:
+        path = Path(cfg.checkpoint.learned_path)
+    if path is None:
+        return ""
+    params, _ = load_learned(Path(path), cfg.vehicle_id)
+    return "" if params is None else warning(params.compass_drives)
 
 
 def _card_cli(args: argparse.Namespace) -> dict[str, Any]:
