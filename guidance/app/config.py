@@ -43,7 +43,7 @@ from guidance.app.tables import check_document
 from guidance.config_tables import Rule, field_default, file_keys, from_table, names_where
 from guidance.core.geo import LatLon, Origin
 from guidance.core.health import HealthConfig
-from guidance.core.localize.car_model import car_model
+from guidance.core.localize.car_model import PROFILE_TRACK_TURN_SIGMA, car_model
 from guidance.core.localize.estimator import EstimatorConfig
 from guidance.core.localize.gyro import GyroConfig
 from guidance.core.pipeline import PipelineConfig
@@ -224,7 +224,13 @@ def _relocalise(
 
 
 def _estimator(
-    data: object, track_m: float, *, compass: bool, calibrated: bool, yaw_source: str = "wheels"
+    data: object,
+    track_m: float,
+    *,
+    compass: bool,
+    calibrated: bool,
+    yaw_source: str = "wheels",
+    track_given: bool = True,
 ) -> EstimatorConfig:
     """``[estimator]``: ``EstimatorConfig``'s offered fields by their rules, ``model`` (car or
     paper) and ``compass_two_sigma_deg = false`` (no compass). The car model's defaults come
@@ -254,6 +260,8 @@ def _estimator(
             )
         return base
     overrides = {k: v for k, v in user.items() if k in car or k == "initial_position_sigma_m"}
+    if not track_given:  # a profile's track, not the car's own (docs/estimation.md)
+        overrides.setdefault("turn_scale_sigma", PROFILE_TRACK_TURN_SIGMA)
     est = car_model(base, calibrated=calibrated, **overrides)
     if yaw_source == "wheels":
         return est
@@ -435,7 +443,8 @@ def parse_config(
     pipeline = _compass(pipeline, t["compass"], compass, origin, default_date)
     calibrated = bool(any(pipeline.compass_deviation_deg) or pipeline.mounting_offset_deg)
     estimator = _estimator(t["estimator"], _track_m(vehicle, odometry), compass=compass is not None,
-                           calibrated=calibrated, yaw_source=vehicle.yaw_source)  # fmt: skip
+                           calibrated=calibrated, yaw_source=vehicle.yaw_source,
+                           track_given=vehicle.track_m is not None)  # fmt: skip
     if estimator.compass_two_sigma_deg is None and trip.start.heading_deg is None:
         raise UserError(
             "[start] heading_deg is required when there is no compass (or "
