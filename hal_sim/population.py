@@ -232,6 +232,7 @@ def drive_car(
     filter_overrides: dict[str, float] | None = None,
     duration_s: float | None = None,
     stops: bool = False,
+    both: bool = False,
 ) -> CarResult:
     """One car, ``distance_m`` of random route in the city of ``seed`` (module doc); with
     ``landmarks_per_km2``, fixes where the world has sightings (60 % detected); with
@@ -240,7 +241,8 @@ def drive_car(
     filter's calibrated compass prior; ``errors`` are then the card's residuals);
     ``filter_overrides``: car-model settings other than the shipped ones (a sensitivity);
     ``duration_s``: drive for this long (stops included) instead of ``distance_m``;
-    ``stops``: start from a parked car and stand at intersections (``hal_sim.gyro_cars``)."""
+    ``stops``: start from a parked car and stand at intersections (``hal_sim.gyro_cars``);
+    ``both``: a gyro car's filter weighs its wheels' turn too (``yaw_source = "both"``)."""
     rng = np.random.default_rng([seed, 99])
     sim = SimParams()
     est0 = estimator_config(sim, 20.0 if compass else None)
@@ -250,7 +252,7 @@ def drive_car(
         EstimatorConfig(
             track_m=TRACK_M,
             compass_two_sigma_deg=None if not compass else 30.0,
-            gyro=None if errors.gyro is None else GyroConfig(),
+            gyro=None if errors.gyro is None else GyroConfig(with_wheels=both),
         ),
         calibrated=calibrated,
         **(filter_overrides or {}),

@@ -170,9 +170,9 @@ class VehicleSettings:
     )
     """None: the ``[odometry] profile``'s track width."""
     yaw_source: str = field(default="wheels", metadata=rule(choices=YAW_SOURCES))
-    """What turns the heading: "wheels" (the rear wheels' left/right difference) or "gyro"
+    """What turns the heading: "wheels" (the rear wheels' left/right difference), "gyro"
     (the stability control's yaw-rate sensor; the car model with its bias and scale as
-    states, docs/estimation.md)."""
+    states) or "both" (the gyro turns, the wheels' turn measures it), docs/estimation.md."""
 
 
 @dataclass(frozen=True, slots=True)
