@@ -3,14 +3,15 @@
 First the closed form (``hal_sim.bars``): the fraction of cars below 50 % inside a matched
 filter's 2-sigma ellipse as a function of the persistent share of the error, the interval it
 gives for the number of cars, and the mean NEES band. Then four populations per kind of car
-(wheel cars, gyro cars), each driven 1.5 km and, with ``--minutes``, that long, from a parked
-start and with stops at intersections (a gyro's error grows with time, stops included): cars
+(wheel cars, gyro cars, gyro cars whose filter weighs the wheels too: "both"), each driven
+1.5 km and, with ``--minutes``, that long, from a parked start and with stops at
+intersections (a gyro's error grows with time, stops included): cars
 drawn from the filter's own priors (the yardstick: mean NEES in its band, cars below 50 % in
 the closed form's interval) and the heavier-tailed cars (t4: inside 80-95 %, no more cars
 below 50 % than the matched filter). Every line prints the measured figure beside its bar.
 
     .venv/bin/python benchmarks/honest_bars.py [--cars 200] [--seed 1] [--minutes 20]
-        [--kinds wheels,gyro] [--closed-form-only]
+        [--kinds wheels,gyro,both] [--closed-form-only]
 """
 
 from __future__ import annotations
@@ -46,7 +47,8 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--seed", type=int, default=1, help="draws the cars (default 1)")
     ap.add_argument("--minutes", type=float, default=20.0,
                     help="the long drives, with stops (0: only the 1.5 km drives)")  # fmt: skip
-    ap.add_argument("--kinds", default="wheels,gyro", help="wheels, gyro or both (comma)")
+    ap.add_argument("--kinds", default="wheels,gyro,both",
+                    help="wheels, gyro, both (comma; both: wheels and gyro weighed)")  # fmt: skip
     ap.add_argument("--closed-form-only", action="store_true", help="no cars driven")
     args = ap.parse_args(argv)
     logging.basicConfig(level=logging.ERROR)
@@ -90,17 +92,20 @@ def _cars(kind: str, matched: bool, n: int, seed: int) -> list[CarErrors]:
         car = draw_matched_car(rng) if matched else draw_car(rng)
         if matched:  # the filter's own street-to-street process too
             car = with_camber(car, camber_rng)
-        if kind == "gyro":
+        if kind in ("gyro", "both"):
             car = draw_matched_gyro(car, gyro_rng) if matched else draw_gyro(car, gyro_rng)
         out.append(car)
     return out
 
 
-def _run(cars: list[CarErrors], how: dict[str, float | bool], label: str) -> PopulationFigures:
+def _run(
+    cars: list[CarErrors], how: dict[str, float | bool], label: str, kind: str
+) -> PopulationFigures:
     t0 = time.monotonic()
     results = []
     for i, car in enumerate(cars):
-        results.append(drive_car(20_000 + i, car, compass=False, **how))  # type: ignore[arg-type]
+        results.append(drive_car(20_000 + i, car, compass=False, both=kind == "both",
+                                 **how))  # type: ignore[arg-type]  # fmt: skip
         if (i + 1) % 25 == 0 or i + 1 == len(cars):
             print(f"\r  {label}: {i + 1}/{len(cars)} cars, {time.monotonic() - t0:.0f} s",
                   end="", file=sys.stderr, flush=True)  # fmt: skip
@@ -116,9 +121,10 @@ def _run(cars: list[CarErrors], how: dict[str, float | bool], label: str) -> Pop
 
 def _pair(kind: str, name: str, how: dict[str, float | bool], args: argparse.Namespace) -> bool:
     print(f"{kind} cars, {name}:")
-    matched = _run(_cars(kind, True, args.cars, args.seed), how, "matched (the filter's priors)")
+    matched = _run(_cars(kind, True, args.cars, args.seed), how,
+                   "matched (the filter's priors)", kind)  # fmt: skip
     m = bars.matched_bars(matched.cars, matched.mean_nees, matched.cars_below_half)
-    heavy = _run(_cars(kind, False, args.cars, args.seed), how, "heavier-tailed (t4)")
+    heavy = _run(_cars(kind, False, args.cars, args.seed), how, "heavier-tailed (t4)", kind)
     h = bars.heavier_bars(heavy.cars, heavy.inside, heavy.cars_below_half,
                           matched.cars_below_half, matched.cars)  # fmt: skip
     for line in (*m.lines, *h.lines):

@@ -125,6 +125,7 @@ def _run_case(
         "p90": float(np.percentile(ms, 90)),
         "max": float(ms.max()),
         "cpu": float(np.median(cpu) * 1e3),
+        "cpu_p90": float(np.percentile(cpu, 90) * 1e3),
         "features": t_feat * 1e3,
         "stretch": t_stretch * 1e3,
         "per_photo": t_pair * 1e3,
@@ -157,10 +158,11 @@ def part1(tmp: Path, n_frames: int) -> None:
     )
     print(f"{'':<34}" + "".join(f"{label:>14}" for label in cols))
     rows = [
-        ("wall median ms (target <= 60)", "median", "{:.1f}"),
-        ("wall p90 ms", "p90", "{:.1f}"),
+        ("wall median ms", "median", "{:.1f}"),
+        ("wall p90 ms (target <= 60)", "p90", "{:.1f}"),
         ("wall max ms", "max", "{:.1f}"),
         ("CPU ms median (all threads)", "cpu", "{:.1f}"),
+        ("CPU ms p90", "cpu_p90", "{:.1f}"),
         ("frame features ms", "features", "{:.1f}"),
         ("of which contrast stretch ms", "stretch", "{:.2f}"),
         ("per photo ms (kNN, ratio, MAGSAC)", "per_photo", "{:.1f}"),

@@ -44,6 +44,7 @@ from landmark_db.features import (
     encode_image,
     extract,
 )
+from landmark_db.search import scene_decades
 from landmark_db.store import open_db
 from landmark_db.threads import cap_threads
 from landmark_db.wrong_pairs import DEGRADATIONS, LabelledImage, degrade, shared_images, wilson
@@ -173,18 +174,30 @@ def locate(
     )
     found = false = 0
     by: dict[str, list[int]] = defaultdict(lambda: [0, 0])
-    ms = []
+    ms: list[float] = []
+    past: list[float] = []
     _code, out = run("locate", str(city), *[str(q.path) for q in queries], "--json")
     for q, line in zip(queries, out.splitlines(), strict=True):
         rec = json.loads(line)
         ms.append(rec.get("ms", 0.0))
         got = rec.get("landmark")
         found += got == q.place
+        if got == q.place:
+            nfa = min(e["log10_nfa"] for e in rec["evidence"] if e["name"] == got)
+            past.append(rec["level_log10_nfa"] - nfa)
         false += got is not None and got != q.place
         by[q.condition or "-"][0] += got == q.place
         by[q.condition or "-"][1] += 1
     cond = ", ".join(f"{c} {a}/{b}" for c, (a, b) in sorted(by.items()))
     print(f"  located {_rate(found, len(queries))}; wrong place {false}; {cond}")
+    if past:
+        # what a lost car needs beyond the level to act on one frame (search.scene_level)
+        margin = scene_decades(ext.kind)
+        print(
+            f"  located queries, decades past the level: min {min(past):.1f}, median"
+            f" {float(np.median(past)):.1f}; past the lost car's margin ({margin:g}):"
+            f" {sum(p >= margin for p in past)} of {len(past)}"
+        )
     loo_false = loo_n = 0
     for p in places:
         qs = [q for q in queries if q.place == p]

@@ -4,32 +4,23 @@
   car does it (Pico, the default; espeak-ng's command line beside), p50 / p90 / max
   (target: p90 <= 50 ms);
 * recognition cost: CPU seconds per second of audio on one core (target <= 0.10): push-to-talk
-  commands in cabin noise, and always listening on radio-like talk;
-* the 100 Hz loop's lateness with the microphone off and on: an asyncio ticker on absolute
-  deadlines (as ``App``'s, with its GIL switch interval) while, for "on", the speech input
-  (``drivers.speech.SpeechInput`` with its recogniser process) reads commands in cabin noise
-  from a FIFO in real time, push-to-talk with the key up (reading only) and always listening
-  (every utterance decoded: the heavier mode) (target: p99 unchanged).
+  commands in cabin noise, always listening and the wake word's mode on radio-like talk.
 
-    .venv/bin/python benchmarks/voice_speed.py [--seconds 20]
+The 100 Hz loop's lateness with the microphone off and on is benchmarks/voice_loop.py's.
+
+    .venv/bin/python benchmarks/voice_speed.py
 """
 
 from __future__ import annotations
 
 import argparse
-import asyncio
 import os
-import sys
-import tempfile
-import threading
 import time
-from pathlib import Path
 
 import numpy as np
 
-from drivers.speech import SpeechInput, SpeechInputConfig
-from drivers.speech_grammar import RATE_HZ, CommandRecogniser, resample, to_pcm16
-from guidance.app.app import GIL_SWITCH_INTERVAL_S
+from drivers.speech_grammar import RATE_HZ, CommandRecogniser, resample
+from drivers.speech_worker import UtteranceStream
 from guidance.tools.voice_corpus import (
     RADIO_TEXT,
     SPOKEN_COMMANDS,
@@ -62,8 +53,9 @@ def _speech(voice: str, text: str) -> np.ndarray:
     return resample(np.frombuffer(pcm, dtype="<i2").astype(np.float64), rate)
 
 
-def recognition_cost() -> tuple[float, float]:
-    """(push-to-talk commands, always listening on talk): CPU s per audio s, in this process."""
+def recognition_cost() -> tuple[float, float, float]:
+    """(push-to-talk commands, always listening on talk, the wake word's mode on talk): CPU s
+    per audio s, in this process (the voice activity detector included in the last two)."""
     rec = CommandRecogniser()
     cpu = audio = 0.0
     for i, (text, _) in enumerate(SPOKEN_COMMANDS):
@@ -77,67 +69,17 @@ def recognition_cost() -> tuple[float, float]:
     talk = mix_at_snr(talk, cabin_noise(talk.size, 99), 20.0)
     t0 = time.process_time()
     rec.recognise(talk)
-    return cpu / audio, (time.process_time() - t0) / (talk.size / RATE_HZ)
-
-
-def lateness(seconds: float, mic: bool, talk: str = "always") -> dict[str, float]:
-    """p50/p99/max lateness (ms) of a 100 Hz asyncio ticker, with the speech input reading
-    real-time speech from a FIFO when ``mic``."""
-    sys.setswitchinterval(GIL_SWITCH_INTERVAL_S)
-    late: list[float] = []
-    stop = threading.Event()
-    speech = writer = None
-    with tempfile.TemporaryDirectory() as d:
-        fifo = Path(d) / "mic"
-        if mic:
-            os.mkfifo(fifo)
-            clips = [_speech("flite:awb", t) for t, _ in SPOKEN_COMMANDS[:8]]
-            tape = np.concatenate([np.concatenate([c, np.zeros(RATE_HZ * 2)]) for c in clips])
-            tape = mix_at_snr(tape, cabin_noise(tape.size, 5), 20.0)
-
-            def write() -> None:
-                with open(fifo, "wb") as f:
-                    t0, k = time.monotonic(), 0
-                    while not stop.is_set():
-                        chunk = tape[(k * 480) % (tape.size - 480):][:480]
-                        f.write(to_pcm16(chunk))
-                        f.flush()
-                        k += 1
-                        time.sleep(max(0.0, t0 + k * 0.03 - time.monotonic()))
-
-            writer = threading.Thread(target=write, daemon=True)
-            writer.start()
-            speech = SpeechInput(SpeechInputConfig(device=str(fifo), talk=talk),
-                                 lambda: 0.0, feedback=lambda _t: None)  # fmt: skip
-            speech.start(lambda _m: None)
-
-        async def tick() -> None:
-            loop = asyncio.get_running_loop()
-            t0 = loop.time()
-            k = 0
-            while loop.time() - t0 < seconds:
-                k += 1
-                deadline = t0 + k * 0.01
-                await asyncio.sleep(max(0.0, deadline - loop.time()))
-                late.append(loop.time() - deadline)
-
-        asyncio.run(tick())
-        stop.set()
-        heard = 0
-        if speech is not None:
-            heard = speech.stats().get("utterances", 0)
-            speech.stop()
-        if writer is not None:
-            writer.join(2)
-    a = np.array(late[100:]) * 1e3
-    return {"p50": float(np.percentile(a, 50)), "p99": float(np.percentile(a, 99)),
-            "max": float(a.max()), "utterances": heard}  # fmt: skip
+    always = (time.process_time() - t0) / (talk.size / RATE_HZ)
+    stream = UtteranceStream(rec, "wake")
+    t0 = time.process_time()
+    stream.feed(talk)
+    stream.flush()
+    return cpu / audio, always, (time.process_time() - t0) / (talk.size / RATE_HZ)
 
 
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    ap.add_argument("--seconds", type=float, default=20.0)
-    args = ap.parse_args()
+    ap.parse_args()
     print("Prompt render + level (ms over every prompt)")
     print(f"  load average {os.getloadavg()[0]:.1f} on {os.cpu_count()} cores")
     for engine in ("pico", "espeak"):
@@ -145,16 +87,10 @@ def main() -> None:
         print(f"  {engine:7} wall p50 {np.percentile(wall, 50):5.1f}  p90 "
               f"{np.percentile(wall, 90):5.1f}  max {wall.max():5.1f};  CPU p90 "
               f"{np.percentile(cpu, 90):5.1f}  (n={wall.size})")  # fmt: skip
-    ptt, always = recognition_cost()
+    ptt, always, wake = recognition_cost()
     print(f"\nRecognition, CPU s per audio s on one core: push-to-talk {ptt:.3f}, "
-          f"always listening on talk {always:.3f}")  # fmt: skip
-    print(f"\n100 Hz loop lateness (ms), {args.seconds:.0f} s each")
-    cases = (("microphone off", False, "always"), ("on, key up", True, "key"),
-             ("on, always", True, "always"), ("off again", False, "always"))  # fmt: skip
-    for label, mic, talk in cases:
-        r = lateness(args.seconds, mic, talk)
-        extra = f"  ({r['utterances']:.0f} utterances heard)" if mic else ""
-        print(f"  {label:15} p50 {r['p50']:6.2f}  p99 {r['p99']:6.2f}  max {r['max']:7.2f}{extra}")
+          f"always listening on talk {always:.3f}, the wake word's mode on talk "
+          f"{wake:.3f}")  # fmt: skip
 
 
 if __name__ == "__main__":

@@ -22,11 +22,12 @@ import can
 
 from drivers._reader import ThreadedSource
 from drivers.can_decode import MAX_GAP_S, REJECT_REASONS, WheelSpeedDecoder
+from drivers.can_yaw import YawRateDecoder
 from drivers.candump import read_candump
 from drivers.clock import ClockMapper
 from drivers.profiles import VehicleProfile, get_profile
 from guidance import files
-from guidance.core.messages import RawCanFrame, WheelOdometry
+from guidance.core.messages import RawCanFrame, WheelOdometry, YawRate
 from guidance.errors import UserError
 
 log = logging.getLogger(__name__)
@@ -74,6 +75,10 @@ class CanOdometryConfig:
     """Extra keyword arguments for ``can.Bus`` (e.g. ``preserve_timestamps`` for virtual)."""
     stale_after_s: float = MAX_GAP_S
     """No wheel-speed frame for this long: ``health()`` says 'silent' (not alive)."""
+    yaw_rate: bool = False
+    """Deliver the stability control's yaw rate too (``YawRate``, decoded by
+    ``drivers.can_yaw`` from the signal the profile names): set by the app for a car whose
+    ``[vehicle] yaw_source`` is "gyro" or "both"; a profile without the signal is refused."""
 
     def __post_init__(self) -> None:
         """Reject bad values at start, naming the field (the app prefixes its config section)."""
@@ -98,6 +103,9 @@ class CanOdometryConfig:
                 raise UserError(f"{name} must be a positive number of seconds, not {value!r}")
         if self.bitrate is not None and not (isinstance(self.bitrate, int) and self.bitrate > 0):
             raise UserError(f"bitrate must be a positive integer (bit/s), not {self.bitrate!r}")
+        if self.yaw_rate and self.profile != AUTO and get_profile(self.profile).yaw_rate is None:
+            raise UserError(f"vehicle profile {self.profile!r} names no yaw-rate signal: "
+                            '[vehicle] yaw_source "gyro" or "both" needs one')  # fmt: skip
 
 
 AUTO = "auto"
@@ -136,8 +144,10 @@ def identify_on_bus(config: CanOdometryConfig, listen_s: float = AUTO_LISTEN_S) 
     return str(found.profile)
 
 
-class CanOdometry(ThreadedSource[WheelOdometry]):
+class CanOdometry(ThreadedSource[WheelOdometry | YawRate]):
     """``OdometrySource`` on a python-can bus: reader thread, decoder, reconnect with backoff.
+    With ``yaw_rate`` it delivers the stability control's ``YawRate`` readings too, from the
+    same bus (``drivers.can_yaw``; counted apart: ``yaw_read``, ``yaw_rejected``).
 
     Bad frames (wrong length, checksum, fault bits, implausible speeds, spikes, time going
     backwards) are counted and never reach the sink; a silence longer than ``max_gap_s`` is not
@@ -159,6 +169,9 @@ class CanOdometry(ThreadedSource[WheelOdometry]):
         super().__init__(name, self.config, clock=clock)
         self._clock_map = ClockMapper()
         self.decoder = WheelSpeedDecoder(self.config.profile, max_gap_s=self.config.max_gap_s)
+        self.yaw: YawRateDecoder | None = None
+        if self.config.yaw_rate:
+            self.yaw = YawRateDecoder(self.config.profile)
         self._bus: can.BusABC | None = None
         self._device = f"CAN bus {self.config.interface}/{self.config.channel}"
 
@@ -167,7 +180,11 @@ class CanOdometry(ThreadedSource[WheelOdometry]):
     # internals ---------------------------------------------------------------------------------
 
     def _source_stats(self) -> dict[str, int]:
-        return {**self.decoder.stats(), "gap_ms": round(self.decoder.gap_s * 1000.0)}
+        out = {**self.decoder.stats(), "gap_ms": round(self.decoder.gap_s * 1000.0)}
+        if self.yaw is not None:  # the gyro's own counts: its health apart from the wheels'
+            out["yaw_read"] = self.yaw.frames
+            out["yaw_rejected"] = sum(self.yaw.rejected.values())
+        return out
 
     def _on_start(self) -> None:
         """Open the bus; a bus that is down now is retried by the reader, not fatal."""
@@ -192,12 +209,12 @@ class CanOdometry(ThreadedSource[WheelOdometry]):
         if cfg.bitrate is not None:
             kwargs.setdefault("bitrate", cfg.bitrate)
         if cfg.hardware_filters:
+            ids = set(self.decoder.profile.frame_ids)
+            if self.yaw is not None:
+                ids.add(self.yaw.signal.frame_id)
             kwargs.setdefault(
                 "can_filters",
-                [
-                    {"can_id": fid, "can_mask": 0x7FF, "extended": False}
-                    for fid in self.decoder.profile.frame_ids
-                ],
+                [{"can_id": fid, "can_mask": 0x7FF, "extended": False} for fid in sorted(ids)],
             )
         return can.Bus(interface=cfg.interface, channel=cfg.channel, **kwargs)
 
@@ -226,11 +243,34 @@ class CanOdometry(ThreadedSource[WheelOdometry]):
             + (f" ({hint})" if hint else ""),
         )
 
-    def _merge(self, held: WheelOdometry, new: WheelOdometry) -> WheelOdometry:
-        """Back-pressure: one increment for both (distances summed, the later time)."""
+    def _merge(
+        self, held: WheelOdometry | YawRate, new: WheelOdometry | YawRate
+    ) -> WheelOdometry | YawRate | None:
+        """Back-pressure: one increment for both (distances summed, the later time). Yaw
+        readings are never held (``_deliver_yaw``), so both are increments."""
+        if not (isinstance(held, WheelOdometry) and isinstance(new, WheelOdometry)):
+            return None  # pragma: no cover - yaw readings are not held
         return WheelOdometry(new.t_s, held.d_left_m + new.d_left_m, held.d_right_m + new.d_right_m)
 
-    def _run(self, sink: Callable[[WheelOdometry], None]) -> None:
+    def _deliver_yaw(
+        self, sink: Callable[[WheelOdometry | YawRate], None], msg: can.Message
+    ) -> None:
+        """A yaw-rate frame, decoded (``drivers.can_yaw``; refused frames counted there). While
+        the consumer is behind, or an increment is held, the reading is dropped (counted,
+        ``yaw_dropped_behind``): a reading is a rate, not an amount, and the estimator turns
+        a step whose readings stopped by the wheels (``gyro.max_hold_s``), so losing one costs
+        a little noise where holding it would reorder it against the distances."""
+        assert self.yaw is not None
+        with self._lock:
+            reading = self.yaw.feed(msg)
+        if reading is None:
+            return
+        if self._held is not None or self._behind():
+            self._count("yaw_dropped_behind")
+            return
+        self._deliver(sink, reading)
+
+    def _run(self, sink: Callable[[WheelOdometry | YawRate], None]) -> None:
         delay = self.config.reconnect_initial_s
         while not self._stop.is_set():
             if self._bus is None:
@@ -280,6 +320,9 @@ class CanOdometry(ThreadedSource[WheelOdometry]):
                             str(self.config.channel),
                         )
                     )
+                if self.yaw is not None and msg.arbitration_id == self.yaw.signal.frame_id:
+                    self._deliver_yaw(sink, msg)
+                    continue
                 with self._lock:
                     out = self.decoder.feed(msg)
                     outcome = self.decoder.last_outcome

@@ -41,10 +41,13 @@ class YawRateDecoder:
         self._to_rad = UNIT_TO_RAD_S[self.signal.unit]
         self._message: Any = load_dbc(p.dbc_file).get_message_by_frame_id(self.signal.frame_id)
         self.rejected: Counter[str] = Counter()
+        self.frames = 0
+        """Frames of the yaw-rate id read (decoded or refused): the gyro's health counts."""
 
     def feed(self, msg: can.Message) -> YawRate | None:
         if msg.arbitration_id != self.signal.frame_id or msg.is_extended_id:
             return None
+        self.frames += 1
         if msg.is_error_frame or msg.is_remote_frame or len(msg.data) != self._message.length:
             self.rejected["dlc"] += 1
             return None

@@ -2,8 +2,11 @@
 
 The microphone is read with ALSA's ``arecord`` (16 kHz mono, 16-bit) on a reader thread, the
 same sound system the car's voice plays through (docs/dependencies.md); a WAV file or a FIFO of
-raw samples reads the same way (tests, ``guidance voice listen``). Each utterance goes to
-``drivers.speech_grammar.CommandRecogniser`` and, when it is a command heard with enough
+raw samples reads the same way (tests, ``guidance voice listen``). The reader thread only moves
+audio blocks: cutting utterances and decoding them (``drivers.speech_worker.UtteranceStream``,
+``drivers.speech_grammar.CommandRecogniser``) run in a worker process (``ProcessListener``), or
+in this one when a recogniser is given (tests, tools). Each utterance, when it is a command
+heard with enough
 confidence, to ``drivers.keyboard.CoDriverLines`` as the line the keypad would have sent: the
 same acknowledgements, help and commands. Every report is read back through ``read_back`` as
 an event (``Say(Speech.READ_BACK, line=...)``: "Left, straight, right." in the sentence table,
@@ -17,8 +20,12 @@ an event (``Say(Speech.READ_BACK, line=...)``: "Left, straight, right." in the s
   Cars put the voice button on the steering wheel for the same reasons: no false command from
   the radio, a passenger or the car itself, no wake word to say before every report, and the
   recogniser runs only while the key is down.
-* ``always``: voice activity cuts the audio into utterances and every one is tried; for a car
-  with no keypad. Its false-command rate is measured (docs/voice.md) and is not zero.
+* ``wake``: voice activity cuts the audio into utterances, and one is a command only after the
+  wake word (``drivers.speech_grammar.WAKE_WORD``, "navigator": "navigator, left straight
+  right", or the wake word alone and the command within 4 s), spotted by pocketsphinx's
+  keyword search; what follows it is heard as a held key's. For a car with no keypad.
+* ``always``: voice activity cuts the audio into utterances and every one is tried, the
+  confidence threshold alone keeping talk out: it takes few commands (docs/voice.md).
 
 **The car's own voice is never a command**: the input is deaf while the car speaks and for
 ``deaf_tail_s`` after (``car_voice.busy``: what ``guidance.voice.activity.CarVoice`` reports),
@@ -45,27 +52,18 @@ import numpy as np
 
 from drivers._reader import ThreadedSource
 from drivers.keyboard import CoDriverLines, Feedback, SceneMessage
-from drivers.speech_grammar import (
-    RATE_HZ,
-    Heard,
-    ProcessRecogniser,
-    Segmenter,
-    read_wav_16k,
+from drivers.speech_grammar import RATE_HZ, WAKE_WORD, CommandRecogniser, Heard, read_wav_16k
+from drivers.speech_worker import (
+    TALK_MODES,
+    Listener,
+    Outcome,
+    ProcessListener,
+    UtteranceStream,
 )
 from guidance.core.messages import Say, Speech
 
 CHUNK = 480
 """Samples read at a time: 30 ms, the voice activity detector's frame."""
-MAX_HELD_S = 8.0
-"""Push-to-talk audio beyond this is not kept (a key stuck down must not fill memory)."""
-
-
-class Recogniser(Protocol):
-    """``CommandRecogniser`` (in this process: tests, tools) or ``ProcessRecogniser`` (the car)."""
-
-    def hear(
-        self, samples: np.ndarray, t_s: float = 0.0, *, push_to_talk: bool = False
-    ) -> Heard | None: ...
 
 
 class CarVoiceState(Protocol):
@@ -82,7 +80,8 @@ class SpeechInputConfig:
     device: str = "default"
     """The ALSA capture device (``arecord -D``), or a WAV file or FIFO of raw 16 kHz samples."""
     talk: str = "key"
-    """``key``: push-to-talk on the keypad's talk key; ``always``: voice activity."""
+    """``key``: push-to-talk on the keypad's talk key; ``wake``: a command after the wake word
+    ("navigator, left straight right"); ``always``: every stretch of voice is tried."""
     deaf_tail_s: float = 0.7
     """Deaf this long after the car stops speaking (its echo in the cabin, the read-back)."""
     echo_window_s: float = 8.0
@@ -130,11 +129,12 @@ class SpeechInput(ThreadedSource[SceneMessage]):
         on_command: Callable[[str], str] | None = None,
         read_back: Callable[[Say], None] | None = None,
         car_voice: CarVoiceState | None = None,
-        recogniser: Recogniser | None = None,
+        recogniser: CommandRecogniser | None = None,
+        listener: Listener | None = None,
         name: str = "speech",
     ) -> None:
-        if config.talk not in ("key", "always"):
-            raise ValueError(f"talk must be 'key' or 'always', not {config.talk!r}")
+        if config.talk not in TALK_MODES:
+            raise ValueError(f"talk must be one of {', '.join(TALK_MODES)}, not {config.talk!r}")
         super().__init__(name, config, clock=clock)
         self.config = config
         self._device = config.device
@@ -143,14 +143,16 @@ class SpeechInput(ThreadedSource[SceneMessage]):
         )
         self.read_back = read_back
         self.car_voice = car_voice
-        self.recogniser = recogniser
         self.error = ""
         self._talking = threading.Event()
-        self._ptt: list[np.ndarray] = []
-        self._segmenter: Segmenter | None = None
         self._audio_s = 0.0
         self._t0 = 0.0
-        self._own: ProcessRecogniser | None = None
+        self._listener: Listener | None = listener
+        """Where utterances are cut and decoded: given (a benchmark), in this process when a
+        ``recogniser`` is given (tests, tools), else a worker process this input starts."""
+        if listener is None and recogniser is not None:
+            self._listener = UtteranceStream(recogniser, config.talk)
+        self._own = listener is None and recogniser is None
         self.heard: list[Heard] = []
         """Every utterance taken or answered (the operator screen shows the last)."""
 
@@ -168,7 +170,9 @@ class SpeechInput(ThreadedSource[SceneMessage]):
 
     def describe(self) -> str:
         """What the operator screen shows for this input."""
-        how = "hold 5 to talk" if self.config.talk == "key" else "always listening"
+        how = {"key": "hold 5 to talk", "wake": f"say {WAKE_WORD!r} first"}.get(
+            self.config.talk, "always listening"
+        )
         what = f"microphone {self.config.device} ({how})"
         if self._connected:
             last = self.heard[-1] if self.heard else None
@@ -183,67 +187,56 @@ class SpeechInput(ThreadedSource[SceneMessage]):
 
     def _on_stop(self) -> None:
         """The recogniser process this input started goes with it."""
-        if self._own is not None:
-            self._own.close()
-            self._own = None
-            self.recogniser = None
+        self._drop_worker()
+
+    def _drop_worker(self) -> None:
+        """Close the worker process this input started (the next stream starts another)."""
+        if self._own and self._listener is not None:
+            listener, self._listener = self._listener, None
+            listener.close()
 
     # -- audio -------------------------------------------------------------------------------------
     def start_stream(self, t0: float | None = None) -> None:
         """A new stream of audio whose first sample is at ``t0`` (monotonic; default now)."""
-        if self.recogniser is None:  # the car's: a worker process, off the loop's GIL
-            self._own = ProcessRecogniser()
-            self.recogniser = self._own
-        self._segmenter = Segmenter() if self.config.talk == "always" else None
-        self._ptt = []
+        if self._listener is None:  # the car's: a worker process, off the loop's GIL
+            self._listener = ProcessListener(self.config.talk)
+        else:
+            self._listener.reset()
         self._audio_s = 0.0
         self._t0 = time.monotonic() if t0 is None else t0
 
     def feed(self, samples: np.ndarray, sink: Callable[[SceneMessage], None]) -> None:
-        """One chunk of 16 kHz audio, in order (the reader calls this; tests may too)."""
-        if self.recogniser is None:
+        """One chunk of 16 kHz audio, in order (the reader calls this; tests may too): 16-bit
+        samples as read, or floats. Here it is only passed on, with whether the car's voice
+        covered it and whether the talk key is down; what comes back is acted on."""
+        if self._listener is None:
             self.start_stream()
+        assert self._listener is not None
         at_s = self._t0 + self._audio_s
         self._audio_s += samples.size / RATE_HZ
         self._health.data(True)
         voice = self.car_voice
-        if voice is not None and voice.busy(self.config.deaf_tail_s, at_s=at_s):
+        deaf = voice is not None and voice.busy(self.config.deaf_tail_s, at_s=at_s)
+        if deaf:
             self._count("deaf_chunks")
-            self._ptt = []  # the car talked over it: nothing of it is a report
-            if self._segmenter is not None:
-                self._segmenter = Segmenter()
-            return
-        if self._segmenter is not None:
-            for t, utterance in self._segmenter.feed(samples):
-                self._utterance(utterance, t, sink)
-            return
-        if self._talking.is_set():
-            if sum(h.size for h in self._ptt) < MAX_HELD_S * RATE_HZ:
-                self._ptt.append(samples)
-        elif self._ptt:
-            utterance = np.concatenate(self._ptt)
-            self._ptt = []
-            self._utterance(utterance, self._audio_s - utterance.size / RATE_HZ, sink)
+        for outcome in self._listener.feed(samples, deaf=deaf, talking=self._talking.is_set()):
+            self._outcome(outcome, sink)
 
     def end_stream(self, sink: Callable[[SceneMessage], None]) -> None:
         """The audio ended: the utterance in progress is heard (a WAV that ends mid-phrase)."""
-        if self._segmenter is not None:
-            for t, utterance in self._segmenter.flush():
-                self._utterance(utterance, t, sink)
-        elif self._ptt:
-            utterance = np.concatenate(self._ptt)
-            self._ptt = []
-            self._utterance(utterance, self._audio_s - utterance.size / RATE_HZ, sink)
+        if self._listener is not None:
+            for outcome in self._listener.flush():
+                self._outcome(outcome, sink)
 
-    def _utterance(
-        self, samples: np.ndarray, t_s: float, sink: Callable[[SceneMessage], None]
-    ) -> None:
-        assert self.recogniser is not None
+    def _outcome(self, outcome: Outcome, sink: Callable[[SceneMessage], None]) -> None:
         self._count("utterances")
-        heard = self.recogniser.hear(samples, t_s, push_to_talk=self.config.talk == "key")
+        heard = outcome.heard
         if heard is None:
             self._count("not_commands")
             return
+        self._utterance(heard, sink)
+
+    def _utterance(self, heard: Heard, sink: Callable[[SceneMessage], None]) -> None:
         self.heard.append(heard)
         del self.heard[:-20]
         if not heard.line:
@@ -284,21 +277,25 @@ class SpeechInput(ThreadedSource[SceneMessage]):
                 continue
             self.error = ""
             self._set_connected(True)
-            self.start_stream()
             try:
+                self.start_stream()
                 ended = stream.pump(lambda x: self.feed(x, sink), self._stop)
                 why = stream.why_ended() if ended else ""
                 if self._audio_s > 1.0:  # it worked for a while: retry soon after a failure
                     delay = 0.25
-            except OSError as exc:
+                if ended and not self._stop.is_set() and stream.process is None:
+                    self.end_stream(sink)  # a file or FIFO: nothing more will come
+            except OSError as exc:  # the device, or the recogniser's worker process
                 self.error = str(exc)
                 self._set_connected(False, self.error)
+                self._drop_worker()
+                self._stop.wait(delay)
+                delay = self._backoff(delay)
                 continue
             finally:
                 stream.close()
             if ended and not self._stop.is_set():
-                if stream.process is None:  # a file or FIFO: nothing more will come
-                    self.end_stream(sink)
+                if stream.process is None:
                     self._log.info("%s: end of audio on %s", self.name, self.config.device)
                     self._health.ended()
                     return
@@ -357,7 +354,7 @@ class _Audio:
             n = len(data) // (2 * CHUNK) * 2 * CHUNK
             data, rest = data[:n], data[n:]
             for k in range(0, n, 2 * CHUNK):
-                feed(np.frombuffer(data[k : k + 2 * CHUNK], dtype="<i2").astype(np.float64))
+                feed(np.frombuffer(data[k : k + 2 * CHUNK], dtype="<i2"))
         return False
 
     def why_ended(self) -> str:

@@ -57,6 +57,20 @@ SAY_AGAIN = 0.5
 """Confidence from which, below ``ACCEPT``, the speaker is asked to say it again (the null
 model's highest score): below this the sound is ignored, as talk not meant for the car."""
 
+WAKE_WORD = "navigator"
+"""Said before a command when the input listens for it (``talk = "wake"``): four syllables in
+pocketsphinx's dictionary, unlike any word of the grammar, and not a word of radio talk or of
+the car's own sentences (a short everyday word, "car" or "okay", is said all the time)."""
+WAKE_THRESHOLD = 1e-20
+"""pocketsphinx's keyword-spotting threshold for ``WAKE_WORD`` (the keyphrase's path score
+against its phone-loop garbage model; smaller spots more). From benchmarks/voice_wake.py's
+choosing set (Pico en-US and espeak-ng en-us; radio-like talk at 20 dB and the wake word before
+each command at 10 dB): the loosest step of a ladder of thresholds (1e-10 .. 1e-40) at which no
+talk is spotted, one step stricter for a margin; measured on other voices and talk
+(docs/voice.md)."""
+WAKE_WINDOW_S = 4.0
+"""After the wake word said alone, the next utterance starting within this is the command."""
+
 EXIT_WORDS: dict[str, str] = {
     "left": "l",
     "right": "r",
@@ -184,6 +198,26 @@ class CommandRecogniser:
             allphone=get_model_path("en-us/en-us-phone.lm.bin"),
         )  # fmt: skip
         self._lock = threading.Lock()
+        self._wake: Any = None
+        self.wake_threshold = WAKE_THRESHOLD
+
+    def wake_end(self, samples: np.ndarray) -> int | None:
+        """Where ``WAKE_WORD`` ends in the utterance (a sample index), or None when it is not
+        spotted (pocketsphinx's keyword search at ``wake_threshold``)."""
+        from pocketsphinx import Decoder
+
+        if samples.size == 0:  # pocketsphinx refuses an empty buffer (IndexError)
+            return None
+        with self._lock:
+            if self._wake is None:
+                self._wake = Decoder(samprate=RATE_HZ, loglevel="FATAL", lm=None,
+                                     keyphrase=WAKE_WORD, kws_threshold=self.wake_threshold)
+            d = self._wake
+            d.start_utt()
+            d.process_raw(to_pcm16(samples), full_utt=True)
+            d.end_utt()
+            segs = [s for s in (d.seg() or []) if s.word == WAKE_WORD]
+        return None if not segs else min(samples.size, (int(segs[0].end_frame) + 1) * 160)
 
     def _words(self, decoder: Any, pcm: bytes) -> list[str]:
         decoder.start_utt()
@@ -201,6 +235,8 @@ class CommandRecogniser:
 
     def decode(self, samples: np.ndarray) -> tuple[str, float]:
         """One utterance (16 kHz samples) -> (the grammar's phrase, confidence 0-1)."""
+        if samples.size == 0:  # pocketsphinx refuses an empty buffer (IndexError)
+            return "", 0.0
         pcm = to_pcm16(samples)
         with self._lock:
             words = [w.split("(")[0] for w in self._words(self._grammar, pcm)]
@@ -356,59 +392,3 @@ class Transcriber:
         d.end_utt()
         hyp = d.hyp()
         return str(hyp.hypstr) if hyp is not None else ""
-
-
-# ------------------------------------------------------------------------- a worker process
-
-WORKER_NICE_LEVELS = 19
-"""The recogniser process runs this many nice levels below the app (never real-time; capped at
-nice 19): it must not delay the 100 Hz loop, and a report waits for it only when both cores
-are busy. benchmarks/voice_loop.py, always listening, 6 pairs of 10 s on a 2-core machine at
-load 19: the loop's p99 while decoding 16 ms at 19 levels, 79 ms at 5 (docs/voice.md)."""
-
-_worker: CommandRecogniser | None = None
-
-
-def _worker_init(nice_levels: int = WORKER_NICE_LEVELS) -> None:
-    import os
-
-    global _worker
-    if os.sched_getscheduler(0) & ~os.SCHED_RESET_ON_FORK in (os.SCHED_RR, os.SCHED_FIFO):
-        os.sched_setscheduler(0, os.SCHED_OTHER, os.sched_param(0))
-    os.setpriority(os.PRIO_PROCESS, 0, min(19, os.getpriority(os.PRIO_PROCESS, 0)
-                                           + nice_levels))  # fmt: skip
-    _worker = CommandRecogniser()
-
-
-def _worker_hear(pcm: bytes, t_s: float, push_to_talk: bool) -> Heard | None:
-    assert _worker is not None
-    samples = np.frombuffer(pcm, dtype="<i2").astype(np.float64)
-    return _worker.hear(samples, t_s, push_to_talk=push_to_talk)
-
-
-class ProcessRecogniser:
-    """``CommandRecogniser.hear`` in a worker process (what the car uses).
-
-    pocketsphinx holds the GIL for the whole of each call: decoding a 3 s utterance in the app's
-    process kept its 100 Hz loop waiting for seconds (measured: p99 lateness 2.6 s on this
-    machine). In a process of its own it takes nothing from the loop but a core; the reader
-    thread waits for the answer with the GIL released."""
-
-    def __init__(self, nice_levels: int = WORKER_NICE_LEVELS) -> None:
-        from concurrent.futures import ProcessPoolExecutor
-        from multiprocessing import get_context
-
-        self._pool = ProcessPoolExecutor(
-            max_workers=1, mp_context=get_context("spawn"), initializer=_worker_init,
-            initargs=(nice_levels,),
-        )  # fmt: skip
-
-    def hear(
-        self, samples: np.ndarray, t_s: float = 0.0, *, push_to_talk: bool = False
-    ) -> Heard | None:
-        future = self._pool.submit(_worker_hear, to_pcm16(samples), t_s, push_to_talk)
-        result: Heard | None = future.result(timeout=60.0)
-        return result
-
-    def close(self) -> None:
-        self._pool.shutdown(wait=True, cancel_futures=True)

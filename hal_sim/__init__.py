@@ -9,6 +9,7 @@ NUMBA_SOURCES = (
     "trial.py",
     "field.py",
     "rng.py",
+    "car.py",
 )
 """hal_sim's compiled sources, for numba's cache key (``guidance/_numba_cache.py``): every
 module with ``@njit`` functions and every module whose constants they compile in."""

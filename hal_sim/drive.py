@@ -36,12 +36,12 @@ from guidance.app.build import OpenOutputs, open_outputs, session_record
 from guidance.app.checkpoint import INVALID, Checkpointer, resume_from_checkpoint
 from guidance.app.magnetic import declination_deg
 from guidance.core.messages import GoalUpdate
-from guidance.core.model import heading_to_compass
 from guidance.core.pipeline import Input, Pipeline, PipelineConfig
 from guidance.core.pipeline import Outputs as PipelineOutputs
 from guidance.core.plan.chance import ChanceSettings
 from guidance.core.plan.navigator import Landmark, Method, NavigatorConfig
 from guidance.errors import UserError
+from hal_sim.car_inputs import DeviceWire
 from hal_sim.drive_options import DriveOptions, DriveResult, output_settings, wav_has_speech
 from hal_sim.lockstep import LockstepClock, LockstepSink, recognise_now
 from hal_sim.params import SimParams, estimator_config
@@ -65,10 +65,6 @@ ELLIPSE_EVERY_M = 150.0
 TRACK_EVERY_S = 1.0
 
 
-def _in(window: tuple[float, float] | None, t: float) -> bool:
-    return window is not None and window[0] <= t < window[0] + window[1]
-
-
 class SimDrive:
     """One simulated drive: the world and the pipeline (built and, from a checkpoint, resumed
     here), the devices and the car's outputs and ``App`` (opened by ``run``), and the trace of
@@ -77,6 +73,7 @@ class SimDrive:
     app: App
     lockstep: LockstepSink
     dev: SimDevices
+    wire: DeviceWire
     outputs: OpenOutputs
 
     def __init__(
@@ -104,7 +101,7 @@ class SimDrive:
         self.origin = SIM_ORIGIN_LAT_LON
         if app_config is not None and app_config.origin_lat_lon_deg is not None:
             self.origin = app_config.origin_lat_lon_deg
-        self.decl = declination_deg(self.origin[0], self.origin[1], _date(SIM_DATE))
+        self.decl = sim_declination_deg(self.origin)
         self.camera: SimCamera | None = None
         self.recogniser: Recogniser | None = None
         landmarks: tuple[Landmark, ...] = world.landmarks()
@@ -141,6 +138,9 @@ class SimDrive:
             with open_sim_devices(self.world, self.opts.profile, self.clock, compass=compass,
                                   drive_on_seed=self.opts.seed) as d:  # fmt: skip
                 self.dev = d
+                self.wire = DeviceWire(self.decl, can_silent=self.opts.can_silent,
+                                       compass_garbage=self.opts.compass_garbage,
+                                       wheels=d.wheels)  # fmt: skip
                 sim = {"seed": self.opts.seed, "method": self.method.value}
                 session = session_record(self.pipeline, self.opts.config or "", sim=sim)
                 settings = output_settings(self.opts, self.app_config, self.origin, session)
@@ -215,10 +215,10 @@ class SimDrive:
     async def _send_wheels(self, ev: StepEvents) -> None:
         """Wheel speeds -> CAN frames -> CanOdometry -> pipeline (unless CAN is silenced)."""
         t = ev.t_s
-        if _in(self.opts.can_silent, t):
+        frames = self.wire.can_frames(t, ev.left_mps, ev.right_mps)
+        if not frames:
             return
-        self.dev.wheels.set_speeds(ev.left_mps, ev.right_mps)
-        self.dev.wheels.send(t)
+        self.dev.wheels.send_frames(frames)
         if self.last_can_t is not None and t - self.last_can_t <= MAX_GAP_S:
             self.expect_odo += 1
             counts, n = self.app.counts, self.expect_odo
@@ -233,11 +233,9 @@ class SimDrive:
         if pty is None or compass is None or ev.heading_rad is None:
             return
         self.expect_lines += 1
-        if _in(self.opts.compass_garbage, ev.t_s):
-            pty.write_raw(b"$HCHDG,12x.4,,,,*7Z\r\n")
-        else:
-            pty.write_heading(float(heading_to_compass(ev.heading_rad, self.decl)))
-            self.expect_heading += 1
+        line, heading = self.wire.compass_line(ev.t_s, ev.heading_rad)
+        pty.write_line(line, sentence=heading)
+        self.expect_heading += heading
         counts, headings, lines = self.app.counts, self.expect_heading, self.expect_lines
         if not await self.lockstep.wait_until(
             lambda: counts["CompassHeading"] >= headings and compass.parser.lines >= lines, 2.0
@@ -458,6 +456,12 @@ class SimDrive:
             frames_sent=self.dev.wheels.frames_sent,
             compass_lines=self.dev.pty.sentences_written if self.dev.pty is not None else 0,
         )
+
+
+def sim_declination_deg(origin: tuple[float, float] = SIM_ORIGIN_LAT_LON) -> float:
+    """The magnetic declination of a simulated drive at ``origin`` (the simulated city's
+    place unless a car TOML names another), on ``SIM_DATE``."""
+    return declination_deg(origin[0], origin[1], _date(SIM_DATE))
 
 
 def make_world(opts: DriveOptions, navigator: NavigatorConfig | None = None) -> SimWorld:

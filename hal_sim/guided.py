@@ -3,8 +3,11 @@
 ``guided_drive`` steps the same world as ``guidance sim`` (``hal_sim.drive.make_world``, the
 same pipeline configuration) and the same simulated co-driver (``SimScene``: reports once in
 view, the next one behind it, ``Approach`` distances, the driver following the car's plan),
-but feeds the pipeline its messages directly instead of through CAN frames and a serial
-pseudo-terminal: a trip takes a fraction of a second, so the test suite and
+and the same device wire (``hal_sim.car_inputs``: the wheel speeds as the car's CAN frames,
+the compass as NMEA sentences with the drive's declination, the same fault windows), decoded
+in-process by the car's own decoders (``WheelSpeedDecoder``: its trapezoid rule and gap
+bridging; ``NmeaCompassParser``) instead of through a virtual bus, a pseudo-terminal and the
+drivers' threads: a trip takes a fraction of a second, so the test suite and
 ``benchmarks/guidance_truth.py`` can check hundreds of them. With ``codriver`` the reports are
 typed lines instead (``drivers.keyboard.CoDriverLines``: exits relative to the road, no
 distance, reported as soon as the previous intersection is behind), the case of a real car.
@@ -21,21 +24,19 @@ import math
 from collections.abc import Callable
 from dataclasses import dataclass, field, replace
 
-from drivers.can_odometry import MAX_GAP_S
 from drivers.keyboard import CoDriverLines
 from guidance.core.messages import (
     Approach,
     EstimateState,
-    HeadingFix,
     LandmarkFix,
     Prompt,
-    WheelOdometry,
 )
 from guidance.core.model import CHI2_2D_2SIGMA, mahalanobis_sq_2d, wrap_angle
-from guidance.core.pipeline import Input, Pipeline
+from guidance.core.pipeline import Input, Outputs, Pipeline
 from guidance.core.stages import RELOCALISED
 from hal_sim import world as world_mod
-from hal_sim.drive import drive_cap_m, drive_pipeline_config, make_world
+from hal_sim.car_inputs import CarInputs, DeviceWire
+from hal_sim.drive import drive_cap_m, drive_pipeline_config, make_world, sim_declination_deg
 from hal_sim.drive_options import DriveOptions
 from hal_sim.oracle import CheckResult, Report, SpokenPrompt, TruthSample, check
 from hal_sim.sim_scene import SimScene, sighting_fix
@@ -72,10 +73,6 @@ class GuidedTrip:
         return sum(sel) / len(sel) if sel else 1.0
 
 
-def _in(window: tuple[float, float] | None, t: float) -> bool:
-    return window is not None and window[0] <= t < window[0] + window[1]
-
-
 def guided_drive(
     opts: DriveOptions,
     *,
@@ -87,10 +84,13 @@ def guided_drive(
     ``can_silent`` and ``compass_garbage`` too: no odometry, or no compass, in that window)."""
     opts = replace(opts, camera_hz=None)
     world = make_world(opts)
-    pipeline = Pipeline(drive_pipeline_config(world, opts, world.landmarks(), 0.0))
+    decl = sim_declination_deg()
+    pipeline = Pipeline(drive_pipeline_config(world, opts, world.landmarks(), decl))
+    wire = DeviceWire(decl, profile=opts.profile, can_silent=opts.can_silent,
+                      compass_garbage=opts.compass_garbage)  # fmt: skip
+    car = CarInputs(wire)  # the wire through the car's own decoders
     trip = GuidedTrip(opts, codriver)
     scene = SimScene(world, report_next=report_next and not codriver, drive_on_seed=opts.seed)
-    dt = world.dt_s
 
     def feed(msg: Input) -> None:
         if isinstance(msg, Approach):  # the co-driver's distances place it for the oracle too
@@ -102,6 +102,9 @@ def guided_drive(
             tx, ty, _ = world.truth
             d2 = _d2(tx, ty, pipeline.estimate)
             trip.relocalisations.append((msg.t_s, d2 <= CHI2_2D_2SIGMA))
+        said(out)
+
+    def said(out: Outputs) -> None:  # an input's outputs, or the clock's (the sensors' health)
         for pr in out.prompts:
             if pr.kind == "lost":
                 trip.lost_at.append(pr.t_s)
@@ -120,7 +123,6 @@ def guided_drive(
         feedback=lambda _text: None,
     )  # fmt: skip
     cap = drive_cap_m(world, opts)
-    missed: list[tuple[float, float, float]] = []  # increments lost in a CAN silence
     at_node: dict[int, int] = {}  # node -> index in trip.reports, until the car is through
     while True:
         seg_before = float(world.ts[world_mod.T_SEG_H])
@@ -131,21 +133,15 @@ def guided_drive(
                 turn = wrap_angle(float(world.ts[world_mod.T_SEG_H]) - seg_before)
                 trip.reports[k] = replace(trip.reports[k], true_turn_rad=turn)
         t = ev.t_s
-        dl, dr = ev.left_mps * dt, ev.right_mps * dt
-        if _in(opts.can_silent, t):
-            missed.append((t, dl, dr))
-        else:
-            if missed and t - missed[0][0] <= MAX_GAP_S:  # the decoder bridges a short gap
-                dl += sum(m[1] for m in missed)
-                dr += sum(m[2] for m in missed)
-            missed.clear()
-            feed(WheelOdometry(t, dl, dr))
-        compass = ev.heading_rad is not None and opts.compass_deg is not None
-        if compass and ev.heading_rad is not None and not _in(opts.compass_garbage, t):
-            feed(HeadingFix(t, ev.heading_rad))
+        for odometry in car.wheels(t, ev.left_mps, ev.right_mps):
+            feed(odometry)
+        if ev.heading_rad is not None and opts.compass_deg is not None:
+            heading = car.heading(t, ev.heading_rad)
+            if heading is not None:
+                feed(heading)
         if ev.landmark is not None:
             feed(sighting_fix(world, t, ev.landmark, pipeline.searching))
-        pipeline.tick(t)
+        said(pipeline.tick(t))  # the car's clock: a silent sensor is said as the app says it
         if world.step_count % TRUTH_EVERY == 0:
             _sample(trip, world.truth, t, pipeline)
         if pipeline.finished:

@@ -5,7 +5,9 @@ reported on it (each at a known place along the true path: where the car was at 
 plus the reported distance) and the prompts, and checks, for every turn prompt:
 
 * **the manoeuvre**: the intersection a prompt is about is the next one along the true path
-  after it is spoken (the second for a "..., then ..." part); its true turn is the change of
+  after it is spoken (the second for a "..., then ..." part), or the one after that when the
+  car is already in the next one's corner and the prompt names a distance well past it
+  (``_about``); its true turn is the change of
   the true heading from ``TURN_WINDOW_M`` before it to ``TURN_WINDOW_M`` after it, named by the
   voice's own ``speech.manoeuvre``; the spoken words must be exactly that name;
 * **the distance**: "In 250 metres" against the true distance to go, within
@@ -42,6 +44,8 @@ SAME_PLACE_M = 20.0
 """Reports placing an intersection within this of each other are one intersection (streets
 are at least 50 m apart; a first sight measured along the streets is off by a few metres)."""
 DIST_ABS_M = 15.0
+CORNER_M = 7.0
+"""A corner's arc starts this far before its intersection's place (a town corner's radius)."""
 DIST_REL = 0.20
 MIN_MARGIN_S = 3.0
 REPEAT_S = 5.0
@@ -298,7 +302,7 @@ def check(
             res.repeats.append(Finding(p.t_s, p.text, f"also said {p.t_s - prev:.1f} s before"))
         last_text[p.text] = p.t_s
         s_now = path.s_at(p.t_s)
-        k = bisect.bisect_right(merged, s_now)
+        k = _about(merged, s_now, parsed.distance_m)
         for part, action, dist in ((0, parsed.action, parsed.distance_m), (1, parsed.then, None)):
             if action is None:
                 continue
@@ -338,6 +342,22 @@ def check(
         if margin < MIN_MARGIN_S:
             res.late.append(Finding(said, "", f"last prompt {margin:.1f} s before the turn"))
     return res
+
+
+def _about(merged: Sequence[float], s_now: float, distance_m: float | None) -> int:
+    """The index of the intersection a prompt spoken at ``s_now`` is about: the next one along
+    the true path, unless the car is already in its corner (within ``CORNER_M`` of it) and the
+    prompt names a distance well beyond it (by more than ``DIST_ABS_M``): a driver turning at
+    one intersection hears "In 50 metres, ..." as the next one."""
+    k = bisect.bisect_right(merged, s_now)
+    if (
+        distance_m is not None
+        and k + 1 < len(merged)
+        and merged[k] - s_now <= CORNER_M
+        and distance_m > merged[k] - s_now + DIST_ABS_M
+    ):
+        return k + 1
+    return k
 
 
 def _words_true(action: str, truth_action: str, after_rad: float | None) -> bool:

@@ -3,9 +3,12 @@
 An estimator's honesty is a property of many cars, not of one drive (issue 21). Each car here
 gets persistent errors drawn from the distributions below (``draw_car``), drives a random route
 through a simulated city (the world of ``hal_sim.world``; at each intersection a random exit),
-and its wheel increments and compass readings are made from the true motion with *its* errors,
-then fed to the car's real ``Pipeline`` with the car model as a car nobody calibrated is
-configured (``guidance.core.localize.estimator.car_model``, no deviation card). Per car: the truth
+and its wheel increments and compass readings are made from the true motion with *its* errors
+(``hal_sim.car.CarSensors``: the simulated car's one sensor-error model), sent as the car's
+devices send them and decoded by the car's own decoders (``hal_sim.car_inputs``: CAN frames
+through ``WheelSpeedDecoder``, NMEA through the compass parser), then fed to the car's
+``Localizer`` with the car model as a car nobody calibrated is configured
+(``guidance.core.localize.car_model``, no deviation card). Per car: the truth
 inside the 2-sigma ellipse, the NEES, the along/across split, the true error when "lost" is
 declared.
 
@@ -39,10 +42,12 @@ from guidance.core.localize.estimator import EstimatorConfig
 from guidance.core.localize.gyro import GyroConfig
 from guidance.core.localize.learned import LearnedParams
 from guidance.core.localize.localizer import Localizer, LocalizerConfig
-from guidance.core.messages import EstimateState, HeadingFix, LandmarkFix, WheelOdometry, YawRate
+from guidance.core.messages import EstimateState, LandmarkFix, YawRate
 from guidance.core.model import CHI2_2D_2SIGMA, mahalanobis_sq_2d, wrap_angle
 from guidance.core.plan.navigator import NavigatorConfig
 from hal_sim import world as world_mod
+from hal_sim.car import CarSensors, hard_iron_rad
+from hal_sim.car_inputs import CarInputs, DeviceWire
 from hal_sim.gyro_cars import (
     GYRO_BIAS_T4,
     GYRO_SCALE_T4,
@@ -96,8 +101,7 @@ class CarErrors:
 
     def deviation_rad(self, heading_rad: float) -> float:
         """The compass error at a true heading: the offset plus the hard-iron curve."""
-        r, phi = self.hard_iron_ratio, self.hard_iron_dir_rad
-        curve = math.atan2(r * math.sin(heading_rad - phi), 1.0 + r * math.cos(heading_rad - phi))
+        curve = hard_iron_rad(self.hard_iron_ratio, self.hard_iron_dir_rad, heading_rad)
         return math.radians(self.compass_offset_deg) + curve
 
 
@@ -228,6 +232,7 @@ def drive_car(
     filter_overrides: dict[str, float] | None = None,
     duration_s: float | None = None,
     stops: bool = False,
+    both: bool = False,
 ) -> CarResult:
     """One car, ``distance_m`` of random route in the city of ``seed`` (module doc); with
     ``landmarks_per_km2``, fixes where the world has sightings (60 % detected); with
@@ -236,7 +241,8 @@ def drive_car(
     filter's calibrated compass prior; ``errors`` are then the card's residuals);
     ``filter_overrides``: car-model settings other than the shipped ones (a sensitivity);
     ``duration_s``: drive for this long (stops included) instead of ``distance_m``;
-    ``stops``: start from a parked car and stand at intersections (``hal_sim.gyro_cars``)."""
+    ``stops``: start from a parked car and stand at intersections (``hal_sim.gyro_cars``);
+    ``both``: a gyro car's filter weighs its wheels' turn too (``yaw_source = "both"``)."""
     rng = np.random.default_rng([seed, 99])
     sim = SimParams()
     est0 = estimator_config(sim, 20.0 if compass else None)
@@ -246,7 +252,7 @@ def drive_car(
         EstimatorConfig(
             track_m=TRACK_M,
             compass_two_sigma_deg=None if not compass else 30.0,
-            gyro=None if errors.gyro is None else GyroConfig(),
+            gyro=None if errors.gyro is None else GyroConfig(with_wheels=both),
         ),
         calibrated=calibrated,
         **(filter_overrides or {}),
@@ -267,17 +273,14 @@ def drive_car(
         p.adopt(learned)
     res = CarResult(errors, compass)
     left = right = 0.0
-    drift = 0.0
-    diff = errors.diff
-    camber, camber_rng = 0.0, np.random.default_rng([seed, 98])
-    if errors.camber_sigma > 0.0:
-        camber = errors.camber_sigma * float(camber_rng.normal())
+    sensors = CarSensors(errors, rng, np.random.default_rng([seed, 98]), TRACK_M)
+    car = CarInputs(DeviceWire(0.0))  # what the car's own decoders make of the sensors' wire
     prev = world.truth
     gyro = None if errors.gyro is None else GyroSim(errors.gyro, np.random.default_rng([seed, 97]))
     stop_rng = np.random.default_rng([seed, 96])
     t_off = 0.0  # time stood still: the world's clock does not run while the car stands
     if stops:  # the drive starts from a parked car (the operator sets the start there)
-        t_off = _stand(p, gyro, 0.0, float(stop_rng.uniform(*STOP_S)), dt)
+        t_off = _stand(p, car, gyro, 0.0, float(stop_rng.uniform(*STOP_S)), dt)
     while (world.driven_m < distance_m) if duration_s is None else (world.t_s + t_off < duration_s):
         ev = world.step()
         wait = 0.0
@@ -290,37 +293,20 @@ def drive_car(
         d = math.hypot(x - prev[0], y - prev[1])
         dth = wrap_angle(th - prev[2])
         prev = (x, y, th)
-        if errors.diff_walk_var_per_m > 0.0:
-            diff += float(rng.normal()) * math.sqrt(errors.diff_walk_var_per_m * d)
-        if errors.camber_sigma > 0.0:  # exact Gauss-Markov step over d
-            a = math.exp(-d / errors.camber_length_m)
-            camber = a * camber + errors.camber_sigma * math.sqrt(1.0 - a * a) * float(
-                camber_rng.normal()
-            )
-        for side, sign in ((0, -1.0), (1, 1.0)):
-            true = d + sign * 0.5 * TRACK_M * (1.0 + errors.turn_scale) * dth
-            err = true * (errors.scale + sign * 0.5 * (diff + camber))
-            err += float(rng.normal()) * math.sqrt(errors.walk_m2_per_m * abs(true))
-            if side == 0:
-                left += true + err
-            else:
-                right += true + err
+        dl, dr = sensors.wheels(d, dth)
+        left += dl
+        right += dr
         step = world.step_count
         if gyro is not None:
             p.handle(YawRate(t, gyro.reading(dth, dt)))
         if step % ODO_EVERY == 0:
-            p.handle(WheelOdometry(t, left, right))
+            for odometry in car.wheels(t, left / (ODO_EVERY * dt), right / (ODO_EVERY * dt)):
+                p.handle(odometry)
             left = right = 0.0
         if compass and step % COMPASS_EVERY == 0:
-            drift += float(rng.normal()) * math.sqrt(
-                errors.compass_drift_deg2_per_s * COMPASS_EVERY * dt
-            )
-            reading = (
-                th
-                + errors.deviation_rad(th)
-                + math.radians(drift + float(rng.normal()) * errors.compass_noise_deg)
-            )
-            p.handle(HeadingFix(t, wrap_angle(reading)))
+            heading = car.heading(t, sensors.compass(th, COMPASS_EVERY * dt))
+            if heading is not None:
+                p.handle(heading)
         if ev.landmark is not None:
             fx = x + float(rng.normal()) * FIX_SIGMA_M
             fy = y + float(rng.normal()) * FIX_SIGMA_M
@@ -333,7 +319,7 @@ def drive_car(
                 res.lost_at_m = world.driven_m
                 if stop_when_lost:
                     break
-        t_off += _stand(p, gyro, t, wait, dt)
+        t_off += _stand(p, car, gyro, t, wait, dt)
     res.driven_m = world.driven_m
     res.duration_s = world.t_s + t_off
     now = p.estimate()
@@ -343,14 +329,17 @@ def drive_car(
     return res
 
 
-def _stand(p: Localizer, gyro: GyroSim | None, t0: float, seconds: float, dt: float) -> float:
+def _stand(
+    p: Localizer, car: CarInputs, gyro: GyroSim | None, t0: float, seconds: float, dt: float
+) -> float:
     """The car stands still from ``t0`` for ``seconds``: its wheels read zero, its gyro its
     bias and noise. Returns the time stood (whole steps)."""
     n = round(seconds / dt)
     for k in range(1, n + 1):
         if gyro is not None:
             p.handle(YawRate(t0 + k * dt, gyro.reading(0.0, dt)))
-        p.handle(WheelOdometry(t0 + k * dt, 0.0, 0.0))
+        for odometry in car.wheels(t0 + k * dt, 0.0, 0.0):
+            p.handle(odometry)
     return n * dt
 
 

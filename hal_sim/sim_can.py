@@ -115,11 +115,17 @@ class SimCanWheels:
 
     def send(self, t_s: float | None = None) -> None:
         """Send one set of frames now, stamped ``t_s`` (default: ``time.time()``, like a bus)."""
+        stamp = time.time() if t_s is None else t_s
+        frames = self.encode()
+        for msg in frames:
+            msg.timestamp = stamp
+        self.send_frames(frames)
+
+    def send_frames(self, frames: list[can.Message]) -> None:
+        """Send frames as they are (stamped by the caller: ``hal_sim.car_inputs.DeviceWire``)."""
         bus = self.open()._bus
         assert bus is not None
-        stamp = time.time() if t_s is None else t_s
-        for msg in self.encode():
-            msg.timestamp = stamp
+        for msg in frames:
             try:
                 bus.send(msg)
                 self.frames_sent += 1

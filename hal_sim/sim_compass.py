@@ -150,9 +150,12 @@ class SimCompassPty:
     def write_sentence(
         self, body: str, *, checksum: bool = True, corrupt_checksum: bool = False
     ) -> None:
-        if self.write_raw(
-            nmea_sentence(body, checksum=checksum, corrupt_checksum=corrupt_checksum)
-        ):
+        self.write_line(nmea_sentence(body, checksum=checksum, corrupt_checksum=corrupt_checksum))
+
+    def write_line(self, line: bytes, *, sentence: bool = True) -> None:
+        """Write one whole line (``hal_sim.car_inputs.DeviceWire.compass_line``); a
+        ``sentence`` written is counted in ``sentences_written``."""
+        if self.write_raw(line) and sentence:
             self.sentences_written += 1
 
     def write_heading(

@@ -20,7 +20,7 @@ import numpy as np
 from numba import njit
 
 from guidance.core.model import wrap_angle
-from hal_sim import city, rng
+from hal_sim import car, city, rng
 from hal_sim.params import (
     I_CRUISE,
     I_DECISION_DIST,
@@ -68,7 +68,6 @@ CROSS_TRACK_GAIN = 0.8
 SPEED_KP = 0.8
 SWITCH_RADIUS_M = 7.0
 """The controller starts following the next street this far before the corner."""
-SQRT12 = math.sqrt(12.0)
 N_EVENTS = 16
 """``world_step``'s events vector: [0..6] the sensors and the route (see ``world_step``),
 [EV_N_SIGHTED] how many landmarks came into sight this step, from [EV_SIGHTED] their indices."""
@@ -320,20 +319,12 @@ def _set_segment(ts: np.ndarray, xs: np.ndarray, ys: np.ndarray, a: int, b: int)
 def _encoder(
     ts: np.ndarray, cum: int, cnt: int, d_true: float, u: float, inv_q: float, p: np.ndarray
 ) -> float:
-    """One wheel: slip and tyre error on the true distance, then whole counts (``inv_q`` is
-    1 / ``p[I_TRUE_QUANTUM]``: a product, where a division would hold up the step's chain:
-    the arc's turn, the wheel's distance, its counts, the predict).
-
-    Slip is uniform with the documented standard deviation, from the uniform draw ``u``
-    (a uniform draw costs a fifth of a normal one; over the hundreds of steps in a block
-    the sum is Gaussian anyway, and the filter models only the variance).
-    """
-    q = p[I_TRUE_QUANTUM]
-    slip = (u - 0.5) * SQRT12 * p[I_TRUE_SLIP] * abs(d_true)
-    ts[cum] += d_true * (1.0 + ts[T_TYRE]) + slip
-    count = np.floor(ts[cum] * inv_q)  # a float: no round trip through an integer
-    inc = (count - ts[cnt]) * q
-    ts[cnt] = count
+    """One wheel of the paper's car, by the one sensor-error model (``hal_sim.car``): slip
+    (from the uniform draw ``u``) and tyre error on the true distance, then whole counts
+    (``inv_q`` is 1 / ``p[I_TRUE_QUANTUM]``: a product, where a division would hold up the
+    step's chain: the arc's turn, the wheel's distance, its counts, the predict)."""
+    ts[cum] += car.wheel_travel(d_true, ts[T_TYRE], car.slip_noise(u, p[I_TRUE_SLIP], d_true))
+    ts[cnt], inc = car.quantise(ts[cum], ts[cnt], inv_q, p[I_TRUE_QUANTUM])
     return inc
 
 
@@ -443,7 +434,7 @@ def step_core(
     events[1] = _encoder(ts, T_CUM_R, T_CNT_R, d + half, u_right, inv_q, p)
     sigma = p[I_TRUE_COMPASS_SIGMA]
     if compass_due and sigma > 0.0:
-        events[2] = wrap_angle(ts[T_TH] + gauss * sigma)
+        events[2] = car.compass_reading(ts[T_TH], 0.0, gauss, sigma)
     else:
         events[2] = math.nan
     # Landmarks near either end of the current street, once per pass of the car.

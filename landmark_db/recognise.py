@@ -18,10 +18,11 @@
    filter does not count the same sighting many times).
 
 **Lost** (``state.lost``): no gate; the whole database is searched (``landmark_db.search``:
-a global shortlist, then the same check at a Bonferroni level), and a place verified in two
-frames within ``confirm_window_s`` (or one far past the level) gives a fix with
-``relocalised=True``. ``locate(image)`` is the same search for one image, without temporal
-state (``landmark-db locate``).
+a global shortlist, then the same check at a Bonferroni level), and one frame that verifies
+a place ``search.SCENE_DECADES`` past that level gives a fix with ``relocalised=True`` (frames
+of one scene are not independent, so a second agreeing frame earns no credit).
+``locate(image)`` is the same search for one image, without temporal state
+(``landmark-db locate``).
 
 A confirmed match becomes a ``LandmarkFix`` at the landmark's surveyed position with
 ``sigma_m = sqrt((sighting_range_m / 2)^2 + position_sigma_m^2)``: the car is somewhere
@@ -411,8 +412,8 @@ class Recogniser:
         return RecognitionResult(t, None, reason, lid, (), ev, n, 0.0, short, level)
 
     def _process_lost(self, frame: CameraFrame) -> RecognitionResult:
-        """A lost car's frame: the whole-database search, confirmed over two frames (or
-        one far past the level); the fix is ``relocalised``."""
+        """A lost car's frame: the whole-database search; a place verified past the scene
+        level (``WholeDbSearch.scene_level``) gives a ``relocalised`` fix."""
         t = float(frame.t_s)
         image = frame.image
         if not isinstance(image, np.ndarray) or image.size == 0 or not math.isfinite(t):
@@ -424,7 +425,12 @@ class Recogniser:
             self._break_streak()
             return res
         best = next(e for e in res.evidence if e.landmark_id == lid)
-        strong = best.log_nfa <= self._search.single_frame_level()
+        strong = best.log_nfa <= self._search.scene_level()
+        if not strong and not self.config.search.pair_at_level:
+            # verified at the search level, not past the scene level: no credit (a second
+            # view of the same scene is not independent evidence; landmark_db.search)
+            self._break_streak()
+            return replace(res, reason=NOT_CONSISTENT)
         fix, reason = self._confirm(lid, t, strong, relocalised=True)
         return replace(res, fix=fix, reason=reason)
 

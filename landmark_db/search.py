@@ -9,15 +9,27 @@
    compared, multiplied by the number of places that *could* have been shortlisted
    (Bonferroni over the database, not over the shortlist, because the shortlist is chosen
    by looking at the frame). With 300 places that is 2.5 decades, with 10,000 four.
-3. The recogniser acts on two frames that verify the same place within its
-   ``confirm_window_s``, or on one frame whose log10 NFA is a further
-   ``SINGLE_FRAME_DECADES`` below that level (``single_frame_level``).
+3. A lost car acts on **one frame whose log10 NFA is ``SCENE_DECADES`` below that level**
+   (``WholeDbSearch.scene_level``); further frames of the same scene earn no credit.
 
-**Why 12.5 decades for one frame.** A second agreeing frame would divide the false-alarm
-rate by about the per-frame rate (1e-3) if consecutive frames were independent. The wrong
-pairs' measured tail falls by a factor ``exp(-0.56)`` per decade of NFA at its pessimistic
-bound (docs/landmarks.md, "The decision rule": 0.56 is the lower bound of the fitted rate),
-so dividing the rate by 1000 takes ``ln(1000) / 0.56 = 12.3`` decades; rounded up.
+**Why one frame, and why 17 decades (RootSIFT).** Frames of one scene are not independent
+evidence: a look-alike that verifies a wrong place in one frame does so again in the next
+view of it far more often than chance (measured: of 6 such frames with a next frame, the next
+verified the same wrong place once, against a per-frame rate of 0.028 for any wrong place), so
+the second of two agreeing frames does not divide the false rate by the per-frame rate, and
+the rule gives it no credit (consecutive frames counted as fully dependent). What is left is
+how often the best wrong place of *one* frame reaches a level: the search's wrong pairs are
+the shortlist's, the places most similar to the frame, whose tail is heavier than the random
+wrong pairs the level was calibrated on. Measured on look-alike passes (``LOOKALIKE_TAIL``:
+``benchmarks/search_lookalikes.py --choose --seeds 11 21 31``, 288 frames of 72 look-alikes,
+a lost car's search over 24 places): the best wrong place of 74 frames (0.257) came within
+6 decades of the level, and beyond that the tail falls by ``exp(-0.397)`` per decade
+(maximum likelihood; 0.306 at the lower 95 % bound, used here). A pass of a look-alike gives
+about 4 searched frames (a 40 m stretch in the sighting range at 10 m/s and the matcher
+worker's 1 frame a second), so the rule is set for a false relocalisation per look-alike
+pass of at most ``FALSE_PER_PASS`` (1e-3): ``4 * 0.257 * exp(-0.306 (D + 6)) <= 1e-3`` gives
+D = 16.7, rounded up to the half decade: 17. XFeat's own look-alike tail (the same frames)
+gives 46.5.
 """
 
 from __future__ import annotations
@@ -35,38 +47,64 @@ SHORTLIST = 20
 """Places verified geometrically after the global ranking."""
 SEARCH_MAX_PHOTOS = 20
 """Photos compared per searched frame at most (the time budget of a lost car's frame)."""
-TAIL_RATE_PER_DECADE = {"rootsift": 0.56, "orb": 0.56, "xfeat": 0.30}
-"""The wrong pairs' tail, ``P(-log10 NFA > t) ~ exp(-rate t)``: the pessimistic fitted rate
-of each calibration (docs/landmarks.md; ORB takes RootSIFT's, its own fit was not kept).
-RootSIFT 2 (contrast-stretched) fitted 0.57: the 0.56 of the first fit is kept, the more
-cautious of the two."""
-PER_FRAME_FALSE = 1e-3
-"""The false-match rate per frame the rule is set for (docs/landmarks.md)."""
+FALSE_PER_PASS = 1e-3
+"""The false-relocalisation rate per look-alike passed while lost that the rule is set for."""
+FRAMES_PER_PASS = 4
+"""Searched frames per pass of a scene (40 m in the 20 m sighting range at 10 m/s, at the
+matcher worker's frame a second): the union bound's count of chances per pass."""
 
 
-def single_frame_decades(kind: str) -> float:
-    """How far below the search level one frame alone confirms a search:
-    ``ln(1 / PER_FRAME_FALSE) / rate``, rounded up to the half decade (RootSIFT 12.5,
-    XFeat 23.5; module docstring)."""
-    d = math.log(1.0 / PER_FRAME_FALSE) / TAIL_RATE_PER_DECADE[kind]
+@dataclass(frozen=True, slots=True)
+class Tail:
+    """The measured tail of the best wrong place's log10 NFA per searched frame, in decades
+    past the search level ``x``: ``P(x > t) = fraction * exp(-rate (t - start))`` for
+    ``t >= start`` (``rate``: the pessimistic, lower 95 % bound of the fit)."""
+
+    start: float
+    fraction: float
+    rate: float
+
+
+LOOKALIKE_TAIL = {
+    "rootsift": Tail(start=-6.0, fraction=74 / 288, rate=0.306),
+    "xfeat": Tail(start=-6.0, fraction=31 / 288, rate=0.116),
+}
+"""Fitted on look-alike passes of a lost car (module docstring; seeds 11, 21, 31 of
+``benchmarks/search_lookalikes.py --choose [--extractor xfeat]``). XFeat's log NFA spreads
+wider: fewer wrong frames come near its level (31 of 288), but its tail is long (wrong places
+20.8 and 25.3 decades past the level; rate 0.179 by maximum likelihood, 0.116 at the bound)."""
+
+
+def scene_decades(kind: str) -> float:
+    """How far below the search level one frame relocalises a lost car: the margin ``D`` at
+    which ``FRAMES_PER_PASS * P(x > D) <= FALSE_PER_PASS`` under the kind's look-alike tail,
+    rounded up to the half decade (RootSIFT 17, XFeat 46.5). ORB's tail is not measured: it
+    takes RootSIFT's."""
+    tail = LOOKALIKE_TAIL.get(kind, LOOKALIKE_TAIL["rootsift"])
+    d = tail.start + math.log(FRAMES_PER_PASS * tail.fraction / FALSE_PER_PASS) / tail.rate
     return math.ceil(2.0 * d) / 2.0
 
 
-SINGLE_FRAME_DECADES = single_frame_decades("rootsift")
+SCENE_DECADES = scene_decades("rootsift")
 
 
 @dataclass(frozen=True, slots=True)
 class SearchConfig:
     shortlist: int = SHORTLIST
     max_photos: int = SEARCH_MAX_PHOTOS
-    single_frame_decades: float | None = None
-    """None: ``single_frame_decades`` of the file's extractor."""
+    scene_decades: float | None = None
+    """None: ``scene_decades`` of the file's extractor."""
+    pair_at_level: bool = False
+    """The rule before ``scene_decades``: two agreeing frames within the recogniser's
+    ``confirm_window_s`` at the search level also relocalise (consecutive frames taken as
+    independent). Off; kept so ``benchmarks/search_lookalikes.py`` can show both rules on
+    the same frames."""
 
     def __post_init__(self) -> None:
         if self.shortlist < 1 or self.max_photos < 1:
             raise ValueError("shortlist and max_photos must be >= 1")
-        if self.single_frame_decades is not None and not self.single_frame_decades >= 0.0:
-            raise ValueError("single_frame_decades must be >= 0")
+        if self.scene_decades is not None and not self.scene_decades >= 0.0:
+            raise ValueError("scene_decades must be >= 0")
 
 
 def bonferroni_decades(places: int) -> float:
@@ -119,10 +157,10 @@ class WholeDbSearch:
         idx = self.index()
         return 0 if idx is None else idx.places()
 
-    def single_frame_level(self) -> float:
-        """The log10 NFA at or below which one frame alone confirms a search."""
+    def scene_level(self) -> float:
+        """The log10 NFA at or below which one frame relocalises a lost car."""
         self.index()
-        margin = self.config.single_frame_decades
+        margin = self.config.scene_decades
         if margin is None:
-            margin = single_frame_decades(self.extractor.kind)
+            margin = scene_decades(self.extractor.kind)
         return self.level - margin

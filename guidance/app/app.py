@@ -193,6 +193,9 @@ class App:
                     self.failures.failed(f"{name}: stats()")
                     continue
                 self.pipeline.update_source_counts(name, read, rejected)
+                if "yaw_read" in stats:  # a gyro car's yaw rate from the same bus: its own record
+                    yaw = int(stats["yaw_read"]), int(stats.get("yaw_rejected", 0))
+                    self.pipeline.update_source_counts("gyro", *yaw)
         out = self.pipeline.tick(now_s)
         self._handle(None, out)
         if now_s >= self._next_health_pub:

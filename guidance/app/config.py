@@ -43,7 +43,7 @@ from guidance.app.tables import check_document
 from guidance.config_tables import Rule, field_default, file_keys, from_table, names_where
 from guidance.core.geo import LatLon, Origin
 from guidance.core.health import HealthConfig
-from guidance.core.localize.car_model import car_model
+from guidance.core.localize.car_model import PROFILE_TRACK_TURN_SIGMA, car_model
 from guidance.core.localize.estimator import EstimatorConfig
 from guidance.core.localize.gyro import GyroConfig
 from guidance.core.pipeline import PipelineConfig
@@ -224,7 +224,13 @@ def _relocalise(
 
 
 def _estimator(
-    data: object, track_m: float, *, compass: bool, calibrated: bool, gyro: bool = False
+    data: object,
+    track_m: float,
+    *,
+    compass: bool,
+    calibrated: bool,
+    yaw_source: str = "wheels",
+    track_given: bool = True,
 ) -> EstimatorConfig:
     """``[estimator]``: ``EstimatorConfig``'s offered fields by their rules, ``model`` (car or
     paper) and ``compass_two_sigma_deg = false`` (no compass). The car model's defaults come
@@ -248,12 +254,42 @@ def _estimator(
     paper = {k: v for k, v in user.items() if k not in car}
     base = replace(EstimatorConfig(), **paper, track_m=track_m, compass_two_sigma_deg=sigma)
     if model != "car":
-        if gyro:
-            raise UserError('[vehicle] yaw_source = "gyro" needs [estimator] model = "car"')
+        if yaw_source != "wheels":
+            raise UserError(
+                f'[vehicle] yaw_source = "{yaw_source}" needs [estimator] model = "car"'
+            )
         return base
     overrides = {k: v for k, v in user.items() if k in car or k == "initial_position_sigma_m"}
+    if not track_given:  # a profile's track, not the car's own (docs/estimation.md)
+        overrides.setdefault("turn_scale_sigma", PROFILE_TRACK_TURN_SIGMA)
     est = car_model(base, calibrated=calibrated, **overrides)
-    return replace(est, gyro=GyroConfig()) if gyro else est  # [vehicle] yaw_source = "gyro"
+    if yaw_source == "wheels":
+        return est
+    return replace(est, gyro=GyroConfig(with_wheels=yaw_source == "both"))
+
+
+GYRO_RATE_HZ = 10.0
+"""The rate the gyro's health expects at least (``[vehicle] yaw_source`` "gyro" or "both"):
+a stability control runs its yaw loop at 50-100 Hz and sends the rate as often (the RAV4's
+``KINEMATICS`` at 83 Hz); silent after max(1 s, 5 periods) like every input."""
+
+
+def _with_yaw_rate(vehicle: VehicleSettings, odometry: DeviceConfig | None) -> DeviceConfig | None:
+    """The CAN odometry of a gyro car also delivers the yaw rate (``CanOdometryConfig.yaw_rate``,
+    refused at start when the profile names no yaw-rate signal)."""
+    if vehicle.yaw_source == "wheels" or odometry is None or odometry.backend != "can":
+        return odometry
+    return replace(odometry, config=replace(odometry.config, yaw_rate=True))
+
+
+def _rates(
+    devices: Mapping[str, DeviceConfig | None], vehicle: VehicleSettings
+) -> dict[str, float | None]:
+    """The inputs the health monitor expects, at their rates: the devices, and the gyro."""
+    rates = {k: d.expected_rate_hz for k, d in devices.items() if d is not None}
+    if vehicle.yaw_source != "wheels" and "odometry" in rates:  # read from the same bus
+        rates["gyro"] = GYRO_RATE_HZ
+    return rates
 
 
 def _compass(
@@ -380,7 +416,8 @@ def parse_config(
     origin = trip.origin
     nav_keys = file_keys(PipelineConfig, "navigation")
     navigator = from_table(NavigatorConfig, t["navigation"], "navigation", others=nav_keys)
-    odometry = _device("odometry", t["odometry"], base_dir, default_backend="can")
+    odometry = _with_yaw_rate(vehicle, _device("odometry", t["odometry"], base_dir,
+                                               default_backend="can"))  # fmt: skip
     compass = _device("compass", t["compass"], base_dir, default_backend="nmea_serial")
     camera = _device("camera", t["camera"], base_dir, default_backend="opencv",
                      default_enabled=False)  # fmt: skip
@@ -395,7 +432,7 @@ def parse_config(
         start_heading_rad=_heading_rad(trip.start.heading_deg),
         landmarks=landmarks,
         state_period_s=1.0 / loop.state_rate_hz,
-        expected_rates_hz={k: d.expected_rate_hz for k, d in devices.items() if d is not None},
+        expected_rates_hz=_rates(devices, vehicle),
         health=from_table(HealthConfig, t["health"], "health"),
         chance=from_table(ChanceSettings, t["chance"], "chance"),
         relocalise=_relocalise(trip, camera, landmark_db),
@@ -406,7 +443,8 @@ def parse_config(
     pipeline = _compass(pipeline, t["compass"], compass, origin, default_date)
     calibrated = bool(any(pipeline.compass_deviation_deg) or pipeline.mounting_offset_deg)
     estimator = _estimator(t["estimator"], _track_m(vehicle, odometry), compass=compass is not None,
-                           calibrated=calibrated, gyro=vehicle.yaw_source == "gyro")  # fmt: skip
+                           calibrated=calibrated, yaw_source=vehicle.yaw_source,
+                           track_given=vehicle.track_m is not None)  # fmt: skip
     if estimator.compass_two_sigma_deg is None and trip.start.heading_deg is None:
         raise UserError(
             "[start] heading_deg is required when there is no compass (or "

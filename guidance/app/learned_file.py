@@ -25,6 +25,7 @@ from pathlib import Path
 
 from guidance import files
 from guidance.app.checkpoint import remove_stale_temps, write_atomic
+from guidance.core.localize import compass_mount
 from guidance.core.localize.estimator import PoseEstimator
 from guidance.core.localize.learned import LearnedParams
 from guidance.core.localize.state_limits import FUTURE_TOLERANCE_S
@@ -162,11 +163,12 @@ def start_from_learned(
         if used.turn_scale is None or used.turn_scale_sigma is None
         else f", turn scale {100 * used.turn_scale:+.2f} +- {100 * used.turn_scale_sigma:.2f} %"
     )
+    moving = compass_mount.warning(params.compass_drives) if bias else ""
     return used, (
         f"{path}: starting from learned parameters ({params.distance_m / 1000:.1f} km, "
         f"{days:.1f} days old): wheel scale {100 * used.scale:+.2f} +- "
         f"{100 * used.scale_sigma:.2f} %, left/right {100 * used.diff:+.3f} +- "
-        f"{100 * used.diff_sigma:.3f} %{bias}{turn}"
+        f"{100 * used.diff_sigma:.3f} %{bias}{turn}" + (f"; {moving}" if moving else "")
     )
 
 

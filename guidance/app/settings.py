@@ -124,9 +124,10 @@ class SceneSettings:
     """The microphone beside the keypad or keyboard (docs/app.md, "Driving alone")."""
     microphone: str = "default"
     """The ALSA capture device of the speech input (``arecord -D``)."""
-    talk: str = field(default="auto", metadata=rule(choices=("auto", "key", "always")))
-    """When the speech input listens: ``key`` while the keypad's 5 is held, ``always`` (voice
-    activity), ``auto``: ``key`` with a keypad (input = "evdev"), else ``always``."""
+    talk: str = field(default="auto", metadata=rule(choices=("auto", "key", "wake", "always")))
+    """When the speech input listens: ``key`` while the keypad's 5 is held, ``wake`` (a command
+    after the wake word "navigator"), ``always`` (every stretch of voice tried), ``auto``:
+    ``key`` with a keypad (input = "evdev"), else ``wake`` (docs/voice.md, "The wake word")."""
 
     @property
     def listens(self) -> bool:
@@ -135,10 +136,10 @@ class SceneSettings:
 
     @property
     def talk_mode(self) -> str:
-        """``key`` or ``always`` (``auto`` resolved)."""
+        """``key``, ``wake`` or ``always`` (``auto`` resolved)."""
         if self.talk != "auto":
             return self.talk
-        return "key" if self.input == "evdev" else "always"
+        return "key" if self.input == "evdev" else "wake"
 
 
 @dataclass(frozen=True, slots=True)
@@ -169,9 +170,9 @@ class VehicleSettings:
     )
     """None: the ``[odometry] profile``'s track width."""
     yaw_source: str = field(default="wheels", metadata=rule(choices=YAW_SOURCES))
-    """What turns the heading: "wheels" (the rear wheels' left/right difference) or "gyro"
+    """What turns the heading: "wheels" (the rear wheels' left/right difference), "gyro"
     (the stability control's yaw-rate sensor; the car model with its bias and scale as
-    states, docs/estimation.md)."""
+    states) or "both" (the gyro turns, the wheels' turn measures it), docs/estimation.md."""
 
 
 @dataclass(frozen=True, slots=True)
@@ -208,6 +209,6 @@ def read_scene(data: object, base_dir: Path | None) -> SceneSettings:
     if scene.talk == "key" and scene.listens and scene.input != "evdev":
         raise UserError(
             "[scene] talk = 'key' is push-to-talk on the keypad's 5: it needs input = 'evdev'; "
-            "without a keypad use talk = 'always'"
+            "without a keypad use talk = 'wake'"
         )
     return scene

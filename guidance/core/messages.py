@@ -219,6 +219,7 @@ class Speech(StrEnum):
     SAY_AGAIN = "say_again"
     REPORT_CANCELLED = "report_cancelled"
     CANNOT_CANCEL = "cannot_cancel"
+    COMPONENT = "component"
 
 
 @dataclass(frozen=True, slots=True)
@@ -249,7 +250,8 @@ class Say:
     input: str = ""
     status: str = ""
     """SENSOR: the input ("odometry", "compass", "camera", "scene") and its bad status
-    ("silent", "invalid", "disconnected"); COMPASS_UNUSABLE: ``status`` is the judge's reason."""
+    ("silent", "invalid", "disconnected"); COMPASS_UNUSABLE: ``status`` is the judge's reason;
+    COMPONENT: the component ("voice", "telemetry", "recorder") and its bad status."""
     chance: float = 0.0
     """CHANCE: of reaching the destination, 0-1."""
     remote: bool = False

@@ -245,6 +245,26 @@ def _sensor(p: Say, units: Units) -> str:
     return f"Warning: {p.input} {_PROBLEM.get(p.status, p.status)}"  # an input not listed
 
 
+COMPONENT_WORDS: dict[str, dict[str, str]] = {
+    "voice": {"text_fallback": "Voice prompts failed. Prompts are shown as text."},
+    "telemetry": {"down": "Remote monitoring is offline."},
+    "recorder": {
+        "disk_full": "The disk is full: recording has stopped.",
+        "failed": "The disk failed: recording has stopped.",
+    },
+}
+"""A component of the car's own gone bad (its ``Health.warning``, docs/reliability.md), one
+sentence per component and status: the voice's is shown, since it cannot be spoken; telemetry's
+and the recorder's are for the operator (the car drives on without them)."""
+
+
+def _component(p: Say, units: Units) -> str:
+    words = COMPONENT_WORDS.get(p.input, {}).get(p.status)
+    if words is not None:
+        return words
+    return f"Warning: {p.input or 'a component'} is {p.status or 'failing'}"  # one not listed
+
+
 def _compass_unusable(p: Say, units: Units) -> str:
     """The compass readings cannot be used (``CompassJudge.reason``: uncalibrated,
     interference or gated)."""
@@ -303,6 +323,7 @@ SPEECH: dict[Speech, Callable[[Say, Units], str]] = {
     Speech.SAY_AGAIN: lambda p, u: "Please say that again.",
     Speech.REPORT_CANCELLED: lambda p, u: "The last report is cancelled.",
     Speech.CANNOT_CANCEL: lambda p, u: "Nothing to cancel.",
+    Speech.COMPONENT: _component,
 }
 """Every sentence the product says: an event's words from its numbers and the units."""
 
@@ -311,7 +332,7 @@ KIND: dict[Speech, str] = {
     Speech.UNCERTAIN: "uncertain", Speech.ARRIVED: "arrived", Speech.LOST: "lost",
     Speech.POSITION_UNKNOWN: "lost",
     Speech.SENSOR: "sensor", Speech.COMPASS_UNUSABLE: "sensor", Speech.CHANCE: "chance",
-    Speech.NO_CO_DRIVER_INPUT: "sensor",
+    Speech.NO_CO_DRIVER_INPUT: "sensor", Speech.COMPONENT: "sensor",
 }  # fmt: skip
 """The published prompt's category (``Prompt.kind``); every other event is "info"."""
 

@@ -5,11 +5,10 @@ from __future__ import annotations
 
 from collections.abc import Mapping
 
-from guidance.core.messages import Health
+from guidance.core.messages import Health, Say, Speech
+from guidance.core.speech import words
 
 # -- health ----------------------------------------------------------------------------------------
-DISK_FULL_WARNING = "Recording stopped. The disk is full."
-RECORDING_FAILED_WARNING = "Recording stopped after a write error."
 
 
 def recorder_health(
@@ -26,11 +25,13 @@ def recorder_health(
     unless it failed. ``counters``: written, dropped (refused: queue full or stopped), errors,
     files_deleted, bytes_written; ``info``: current_file."""
     if disk_full:
-        status, warning = "disk_full", DISK_FULL_WARNING
+        status = "disk_full"
     elif failed:
-        status, warning = "failed", RECORDING_FAILED_WARNING
+        status = "failed"
     else:
-        status, warning = ("recording" if recording else "stopped"), ""
+        status = "recording" if recording else "stopped"
+    bad = disk_full or failed
+    warning = words(Say(Speech.COMPONENT, input="recorder", status=status)) if bad else ""
     return Health(
         "recorder",
         status,

@@ -13,7 +13,8 @@ from typing import TYPE_CHECKING, Any
 
 import zenoh
 
-from guidance.core.messages import Health
+from guidance.core.messages import Health, Say, Speech
+from guidance.core.speech import words
 from guidance.errors import UserError
 from guidance.outputs.messages import encode, schema_tag
 from guidance.outputs.sink import Build, MessageSink
@@ -46,7 +47,6 @@ if TYPE_CHECKING:
 log = logging.getLogger(__name__)
 
 # -- the car side ---------------------------------------------------------------------------------
-TELEMETRY_DOWN_WARNING = "Remote monitoring is offline."
 
 
 @dataclass(slots=True)
@@ -238,7 +238,7 @@ class Telemetry(MessageSink):
             alive,
             valid,
             detail=self._last_error,
-            warning=TELEMETRY_DOWN_WARNING if down else "",
+            warning=words(Say(Speech.COMPONENT, input="telemetry", status="down")) if down else "",
             counters={
                 "peers": self._peers,
                 "routers": self._routers,

@@ -30,7 +30,7 @@ from guidance.core.localize.compass_cal import (
 )
 from guidance.core.model import heading_to_compass
 from guidance.errors import UserError, number
-from guidance.tools import calibrate_scale
+from guidance.tools import calibrate_scale, calibrate_track
 from guidance.tools.car_toml import write_card
 from guidance.tools.replay import can_inputs, nmea_inputs, raw_setup
 
@@ -101,15 +101,22 @@ def register(sub: Any) -> None:
         help="write the card into the config, the wheel scale into the learned file",
     )
     calibrate_scale.add_arguments(p)
+    calibrate_track.add_arguments(p)
     p.add_argument("--json", action="store_true", help="last stdout line: the result as JSON")
     p.set_defaults(func=_cli)
 
 
 def _cli(args: argparse.Namespace) -> int:
     scale = calibrate_scale.wanted(args)
-    if args.nmea is None and not scale:
-        raise UserError("give --nmea (the compass card) or --distance-m/--points (wheel scale)")
+    track = args.turned_deg is not None
+    if args.nmea is None and not scale and not track:
+        raise UserError("give --nmea (the compass card), --distance-m/--points (wheel scale) "
+                        "or --turned-deg (effective track)")  # fmt: skip
     doc: dict[str, Any] = {}
+    if track:  # checked (and refused) before anything is written
+        res_track = calibrate_track.track_calibration(args.log, args)
+        text, doc["turn_scale"] = calibrate_track.summary(res_track)
+        sys.stdout.write(text)
     if scale:  # checked (and refused) before anything is written
         res_scale = calibrate_scale.scale_calibration(args.log, args)
         text, doc["wheel_scale"] = calibrate_scale.summary(res_scale)
@@ -123,9 +130,36 @@ def _cli(args: argparse.Namespace) -> int:
             sys.stdout.write("wheel scale not written: add --write to put it into the car's "
                              "learned parameters\n")  # fmt: skip
         doc["wheel_scale"]["written"] = bool(args.write)
+    if track:
+        if args.write:
+            sys.stdout.write(calibrate_track.write_track(res_track, args) + "\n")
+        else:
+            sys.stdout.write("turn scale not written: add --write to put it into the car's "
+                             "learned parameters\n")  # fmt: skip
+        doc["turn_scale"]["written"] = bool(args.write)
+    moving = compass_mount_note(args)
+    if moving:
+        sys.stdout.write(f"note: {moving}\n")
+    doc["compass_offset_moves"] = bool(moving)
     if args.json:
         sys.stdout.write(json.dumps(doc) + "\n")
     return 0
+
+
+def compass_mount_note(args: argparse.Namespace) -> str:
+    """The learned file's word on the compass mount (``compass_mount.warning``), or ""."""
+    from guidance.app.config import load_config
+    from guidance.app.learned_file import load_learned
+    from guidance.core.localize.compass_mount import warning
+
+    cfg = load_config(args.config, require_goal=False)
+    path = getattr(args, "learned", None)
+    if path is None and cfg.checkpoint.learned_path:
+        path = Path(cfg.checkpoint.learned_path)
+    if path is None:
+        return ""
+    params, _ = load_learned(Path(path), cfg.vehicle_id)
+    return "" if params is None else warning(params.compass_drives)
 
 
 def _card_cli(args: argparse.Namespace) -> dict[str, Any]:

@@ -487,6 +487,9 @@ def _replay_raw(
         streams.reverse()
     if is_odometry_csv(path):  # a car's own speed and yaw rate (issue 38)
         ecfg = pcfg.estimator
+        if ecfg.gyro is not None and ecfg.gyro.with_wheels:
+            raise UserError(f'{path}: a speed and yaw-rate file has no wheel difference of its '
+                            'own: yaw_source = "both" needs the wheels (a CAN log)')  # fmt: skip
         streams = [odometry_inputs(path, gyro=ecfg.gyro is not None, track_m=ecfg.track_m)]
     if args.nmea is not None:
         streams.append(nmea_inputs(args.nmea, _first_can_time(path), args.nmea_rate))

@@ -49,6 +49,9 @@ def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
     listen.add_argument("--accept", type=float, default=None, metavar="C",
                         help="take phrases from this confidence (default: the car's, "
                         "drivers.speech_grammar.ACCEPT)")  # fmt: skip
+    listen.add_argument("--talk", choices=("always", "wake"), default="always",
+                        help="always: every stretch of voice is tried (the confidence decides); "
+                        "wake: only what follows the wake word 'navigator'")  # fmt: skip
     listen.set_defaults(func=_listen)
 
 
@@ -80,6 +83,7 @@ def _say(args: argparse.Namespace) -> int:
 
 def _listen(args: argparse.Namespace) -> int:
     from drivers.speech_grammar import ACCEPT, SAY_AGAIN, CommandRecogniser, read_wav_16k
+    from drivers.speech_worker import UtteranceStream
 
     try:
         pcm = read_wav_16k(args.wav)
@@ -88,8 +92,8 @@ def _listen(args: argparse.Namespace) -> int:
     accept = ACCEPT if args.accept is None else args.accept
     if not 0.0 <= accept <= 1.0:
         raise UserError(f"--accept must be between 0 and 1, not {accept}")
-    rec = CommandRecogniser(accept, min(SAY_AGAIN, accept))
-    for heard in rec.recognise(pcm):
+    stream = UtteranceStream(CommandRecogniser(accept, min(SAY_AGAIN, accept)), args.talk)
+    for heard in [o.heard for o in stream.feed(pcm) + stream.flush() if o.heard is not None]:
         if args.json:
             row = {"t_s": round(heard.t_s, 2), "line": heard.line,
                    "confidence": round(heard.confidence, 3), "heard": heard.text}  # fmt: skip

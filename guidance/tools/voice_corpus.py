@@ -20,7 +20,7 @@ from collections.abc import Iterable, Sequence
 import numpy as np
 
 from guidance.core.messages import Say, Speech
-from guidance.core.speech import BEARINGS, SENSOR_WORDS, Units, words
+from guidance.core.speech import BEARINGS, COMPONENT_WORDS, SENSOR_WORDS, Units, words
 from guidance.voice.wav import Renderer
 
 MANOEUVRE_DEG = (0.0, 45.0, -45.0, 90.0, -90.0, 150.0, -150.0, 180.0)
@@ -60,6 +60,8 @@ def corpus_events(landmark_names: Sequence[str]) -> list[Say]:
     out += [Say(Speech.LOST, searching=s) for s in (False, True)]
     out += [Say(Speech.ARRIVED), Say(Speech.WAITING_FOR_HEADING), Say(Speech.POSITION_UNKNOWN)]
     out += [Say(Speech.SENSOR, input=i, status=st) for i, t in SENSOR_WORDS.items() for st in t]
+    out += [Say(Speech.COMPONENT, input=c, status=st) for c, t in COMPONENT_WORDS.items()
+            for st in t]  # fmt: skip
     out += [Say(Speech.COMPASS_UNUSABLE, status=r) for r in ("interference", "uncalibrated")]
     out += [Say(Speech.CHANCE, chance=p) for p in (0.05, 0.1, 0.2, 0.3, 0.4, 0.5, 0.6, 0.7, 0.8,
                                                    0.9)]  # fmt: skip

@@ -15,7 +15,8 @@ import wave
 from collections.abc import Callable, Mapping
 from typing import Protocol, TextIO
 
-from guidance.core.messages import Health, Priority
+from guidance.core.messages import Health, Priority, Say, Speech
+from guidance.core.speech import words
 from guidance.voice.queue import (
     DEFAULT_QUEUE_SIZE,
     DEFAULT_RATE_WPM,
@@ -33,9 +34,6 @@ class SpeechEngineError(RuntimeError):
 
 
 # ------------------------------------------------------------------------ health
-
-SPEECH_FAILED_WARNING = "Voice prompts failed. Prompts are shown as text."
-"""Shown (it cannot be spoken) when the speech engine is missing or fails."""
 
 
 def _speaker_health(
@@ -55,7 +53,7 @@ def _speaker_health(
             valid=False,
             counters=counters,
             detail=failed_reason,
-            warning=SPEECH_FAILED_WARNING,
+            warning=words(Say(Speech.COMPONENT, input="voice", status="text_fallback")),
         )
     return Health(
         name, "stopped" if closed else "ok", alive=not closed, valid=not closed, counters=counters

@@ -5,6 +5,7 @@ the car's own voice never taken as a command."""
 
 from __future__ import annotations
 
+import contextlib
 import json
 import math
 import os
@@ -240,6 +241,61 @@ def test_always_listening_takes_no_command_from_talk_it_was_not_tuned_on(
     ]
 
 
+def test_an_empty_utterance_is_no_command(recogniser: CommandRecogniser) -> None:
+    """The detector can cut an empty stretch; pocketsphinx raises on an empty buffer, which in
+    the worker process would have stopped the input (found by benchmarks/voice_wake.py)."""
+    from drivers.speech_worker import UtteranceStream
+
+    empty = np.zeros(0)
+    assert recogniser.wake_end(empty) is None and recogniser.decode(empty) == ("", 0.0)
+    heard = recogniser.hear(empty, push_to_talk=True)
+    assert heard is not None and heard.line == ""
+    stream = UtteranceStream(recogniser, "wake")
+    stream._armed_until = 10.0  # right after the wake word said alone
+    assert stream._utterance(1.0, empty).heard is not None
+    assert stream._utterance(20.0, empty).heard is None
+
+
+@needs_voices
+def test_after_the_wake_word_a_command_is_taken_and_talk_is_not(
+    recogniser: CommandRecogniser,
+) -> None:
+    """``talk = "wake"``, on voices the wake threshold was not chosen on: commands after
+    "navigator" in one breath (flite slt, 10 dB: here 6 of 8, none wrong; the benchmark takes
+    18 of 20), and "navigator"
+    alone with the command after a pause (flite awb, 20 dB), are taken; the same commands
+    without it are not, nor short talk with the command words inside (``RADIO_TEXT_2``'s
+    phrases by flite rms and espeak-ng en+m3). benchmarks/voice_wake.py measures the rates."""
+    gap = np.zeros(int(1.5 * RATE_HZ))
+    commands = SPOKEN_COMMANDS[:8]
+    parts = [gap]
+    for text, _line in commands:
+        parts += [render("flite:slt", f"Navigator, {text}."), gap]
+    parts += [render("flite:awb", "Navigator."), np.zeros(RATE_HZ), render("flite:awb",
+              "turned right"), gap]  # fmt: skip
+    for text, _line in commands:
+        parts += [render("flite:slt", text), gap]  # no wake word: talk
+    n = 0
+    for v, voice in enumerate(("flite:rms", "espeak:en+m3")):
+        for text in short_phrases(RADIO_TEXT_2, 60 + v)[:20]:
+            parts += [render(voice, text), np.zeros(int(1.2 * RATE_HZ))]
+            n += 1
+    x = np.concatenate(parts)
+    split = sum(p.size for p in parts[: 2 * len(commands) + 1])
+    inp, got = make_input("wake", recogniser)
+    inp.start_stream(t0=0.0)
+    noise = cabin_noise(x.size, seed=321)
+    feed(inp, mix_at_snr(x[:split], noise[:split], 10.0), got)
+    taken = [h.line for h in inp.heard if h.line]
+    said = [line for _t, line in commands]
+    assert len(taken) >= 6 and all(line in said for line in taken), taken  # none wrong
+    feed(inp, mix_at_snr(x[split:], noise[split:], 20.0), got)
+    inp.end_stream(got["msgs"].append)
+    lines = [h.line for h in inp.heard if h.line]
+    assert lines[len(taken) :] == ["t r"], lines  # the pause form; nothing from talk
+    assert inp.stats().get("utterances", 0) >= 0.5 * n + 2 * len(commands)
+
+
 @needs_voices
 def test_push_to_talk_delivers_the_report_reads_it_back_and_says_again_when_unsure(
     recogniser: CommandRecogniser,
@@ -325,6 +381,29 @@ def test_the_reader_hears_a_wav_and_ends_with_it(
     assert inp.health().status in ("ended", "stopped") and inp.stats()["read"] >= 1
 
 
+@needs_voices
+def test_the_car_input_hears_through_its_worker_process(tmp_path: Path) -> None:
+    """No recogniser given (the car's way): the input starts its worker process, feeds it the
+    reader's blocks, hears a held key's phrase at the end of the audio, and stops the worker."""
+    wav = tmp_path / "held.wav"
+    write_wav(wav, np.concatenate([PAD, render("flite:awb", "hard left"), PAD]))
+    got: list = []
+    inp = SpeechInput(SpeechInputConfig(device=str(wav), talk="key"), lambda: 0.0,
+                      feedback=lambda _t: None)  # fmt: skip
+    inp.set_talking(True)
+    done = threading.Event()
+    inp.start(lambda m: (got.append(m), done.set()))
+    assert done.wait(90)
+    deadline = time.monotonic() + 10
+    while inp.health().status != "ended" and time.monotonic() < deadline:
+        time.sleep(0.05)
+    worker = inp._listener
+    inp.stop()
+    assert [m.labels for m in got] == [("hl",)] and inp.stats()["utterances"] == 1
+    assert worker is not None and inp._listener is None  # the worker went with the input
+    assert not worker._process.is_alive()  # type: ignore[attr-defined]
+
+
 @pytest.mark.skipif(shutil.which("arecord") is None, reason="arecord (alsa-utils) missing")
 def test_the_microphone_through_alsa_null_device(recogniser: CommandRecogniser) -> None:
     """ALSA's null capture device: arecord runs, silence arrives, nothing is heard."""
@@ -398,32 +477,91 @@ def test_guidance_voice_listen_prints_the_lines_as_json(tmp_path: Path) -> None:
 
 
 @needs_voices
-def test_the_car_recognises_in_a_worker_process() -> None:
-    """``ProcessRecogniser`` (what the car uses: pocketsphinx holds the GIL) answers as the
-    in-process recogniser does, and a thread waiting for it leaves the GIL to others."""
-    from drivers.speech_grammar import ProcessRecogniser
+def test_the_car_cuts_and_decodes_in_a_worker_process() -> None:
+    """``ProcessListener`` (what the car uses: the detector and pocketsphinx hold the GIL): the
+    app's side only writes blocks into a pipe and never waits for a decode; the answers come
+    back with later blocks, as the in-process stream gives them; a dead worker is an
+    ``OSError`` (the reader reconnects), not a hang."""
+    from drivers.speech_worker import ProcessListener
 
     clip = np.concatenate([PAD, render("flite:slt", "bear right straight"), PAD])
-    worker = ProcessRecogniser()
+    pcm = np.clip(np.round(clip), -32768, 32767).astype("<i2")
+    worker = ProcessListener("key")
     try:
-        heard = worker.hear(clip, 1.5, push_to_talk=True)
-        ticks = 0
-        done = threading.Event()
-
-        def wait_for_it() -> None:
-            worker.hear(np.tile(clip, 4), push_to_talk=True)
-            done.set()
-
-        t = threading.Thread(target=wait_for_it)
-        t.start()
-        while not done.is_set():
-            time.sleep(0.001)
-            ticks += 1
-        t.join()
+        out = []
+        for k in range(0, pcm.size, CHUNK):
+            out += worker.feed(pcm[k : k + CHUNK], talking=True)
+        released = time.monotonic()
+        out += worker.feed(pcm[:CHUNK] * 0)  # the key is up: the worker decodes
+        returned = time.monotonic()
+        deadline = time.monotonic() + 60
+        while not out and time.monotonic() < deadline:
+            time.sleep(0.03)
+            out += worker.feed(pcm[:CHUNK] * 0)
+        assert len(out) == 1 and out[0].heard is not None and out[0].heard.line == "br s"
+        assert released <= out[0].decode_start and returned < out[0].decode_end  # not waited for
+        assert worker.pid is not None
+        os.kill(worker.pid, 9)
+        with pytest.raises(OSError, match="recogniser process"):
+            for _ in range(1000):
+                worker.feed(pcm[:CHUNK])
+                time.sleep(0.01)
     finally:
         worker.close()
-    assert heard is not None and heard.line == "br s" and heard.t_s == 1.5
-    assert ticks > 10  # this thread ran while the worker decoded
+
+
+def test_a_dead_recogniser_process_is_a_disconnection_and_another_starts(
+    tmp_path: Path, caplog: pytest.LogCaptureFixture
+) -> None:
+    """The worker process killed under a live microphone (a FIFO fed in real time): the input
+    reports itself disconnected with the reason, starts another worker and reads on."""
+    fifo = tmp_path / "mic"
+    os.mkfifo(fifo)
+    stop = threading.Event()
+
+    def write() -> None:  # the microphone: 30 ms of quiet noise at a time, reopened if closed
+        block = (np.random.default_rng(1).normal(size=CHUNK) * 30).astype("<i2").tobytes()
+        while not stop.is_set():
+            try:
+                with open(fifo, "wb") as f:
+                    while not stop.is_set():
+                        f.write(block)
+                        f.flush()
+                        time.sleep(0.03)
+            except BrokenPipeError:
+                continue
+
+    writer = threading.Thread(target=write, daemon=True)
+    writer.start()
+    inp = SpeechInput(SpeechInputConfig(device=str(fifo), talk="key"), lambda: 0.0,
+                      feedback=lambda _t: None)  # fmt: skip
+    inp.start(lambda _m: None)
+
+    def worker_pid(timeout_s: float = 120.0) -> int:
+        deadline = time.monotonic() + timeout_s
+        while time.monotonic() < deadline:
+            pid = getattr(inp._listener, "pid", None)
+            if pid is not None and inp.connected:
+                return int(pid)
+            time.sleep(0.1)
+        raise AssertionError(f"no worker: {inp.health()}")
+
+    try:
+        first = worker_pid()
+        os.kill(first, 9)
+        deadline = time.monotonic() + 60
+        while inp.stats().get("disconnects", 0) == 0 and time.monotonic() < deadline:
+            time.sleep(0.05)
+        assert inp.stats().get("disconnects", 0) == 1
+        assert any("recogniser process" in r.getMessage() for r in caplog.records)
+        second = worker_pid()
+        assert second != first and inp.health().status not in ("disconnected", "stopped")
+    finally:
+        inp.stop()
+        stop.set()
+        with contextlib.suppress(OSError):  # unblock a writer waiting for a reader
+            os.close(os.open(fifo, os.O_RDONLY | os.O_NONBLOCK))
+        writer.join(5)
 
 
 @needs_voices

@@ -106,3 +106,31 @@ def test_the_exact_turn_from_the_simulator_wins_over_the_track() -> None:
         truth, [Report(0.0, 200.0)], [SpokenPrompt(5.0, "In 150 metres, make a U-turn")]
     )
     assert len(measured.wrong) == 1  # the track alone says sharp right/left
+
+
+def test_a_prompt_heard_in_a_corner_with_a_distance_past_it_is_about_the_next_one() -> None:
+    """Corner 1 at 200 m (left onto north), corner 2 at 300 m (left onto west). "In 95 metres,
+    turn left" spoken 4 m before corner 1, the car already in its arc, is about corner 2 (a
+    driver turning there hears it so); without a distance, or with one that fits corner 1, it
+    is about corner 1; and a wrong manoeuvre for corner 2 is still caught."""
+    truth, t = [], 0.0
+    for k in range(500):
+        s = float(k)
+        if s <= 200:
+            x, y, h = s, 0.0, 0.0
+        elif s <= 300:
+            x, y, h = 200.0, s - 200.0, math.pi / 2
+        else:
+            x, y, h = 200.0 - (s - 300.0), 100.0, math.pi
+        truth.append(TruthSample(t, x, y, h))
+        t += 0.1
+    reports = [Report(0.0, 200.0), Report(0.0, 300.0)]
+    in_corner = 19.6  # 196 m along
+    ok = check(truth, reports, [SpokenPrompt(in_corner, "In 95 metres, turn left")])
+    assert not ok.wrong and ok.distances_ok == 1
+    bad = check(truth, reports, [SpokenPrompt(in_corner, "In 95 metres, turn right")])
+    assert len(bad.wrong) == 1
+    near = check(truth, reports, [SpokenPrompt(in_corner, "In 5 metres, continue straight")])
+    assert len(near.wrong) == 1  # that distance fits corner 1, where the car turns left
+    before = check(truth, reports, [SpokenPrompt(15.0, "In 145 metres, turn left")])
+    assert before.distances_ok == 0  # 50 m before corner 1, a distance is not re-read

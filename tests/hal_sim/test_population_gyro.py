@@ -7,6 +7,7 @@ from __future__ import annotations
 import math
 
 import numpy as np
+import pytest
 
 from hal_sim import bars
 from hal_sim.gyro_cars import GyroErrors, GyroSim
@@ -36,10 +37,13 @@ def _cars(matched: bool) -> list:
     return out
 
 
-def test_gyro_cars_meet_the_bars_an_honest_filter_can_meet() -> None:
+@pytest.mark.parametrize("both", [False, True], ids=["gyro", "both"])
+def test_gyro_cars_meet_the_bars_an_honest_filter_can_meet(both: bool) -> None:
+    """Gyro cars, and the same cars whose filter weighs their wheels too (``both``)."""
     runs = {}
     for matched in (True, False):
-        results = [drive_car(20_000 + i, car, compass=False, distance_m=1500.0, stops=True)
+        results = [drive_car(20_000 + i, car, compass=False, distance_m=1500.0, stops=True,
+                             both=both)
                    for i, car in enumerate(_cars(matched))]  # fmt: skip
         assert all(r.errors.gyro is not None for r in results)
         assert min(r.duration_s for r in results) > 150.0  # stops and a parked start

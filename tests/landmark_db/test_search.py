@@ -1,6 +1,6 @@
 """The whole-database search: the global index kept in the file, ``Recogniser.locate``, and a
-lost car's relocalisation (two agreeing frames, a ``relocalised`` fix), on real OpenCV with
-simulated facades and their look-alikes."""
+lost car's relocalisation (one frame past the scene level, a ``relocalised`` fix), on real
+OpenCV with simulated facades and their look-alikes."""
 
 from __future__ import annotations
 
@@ -22,7 +22,12 @@ from hal_sim.sim_camera import (
 from landmark_db import global_index
 from landmark_db.matcher import MAX_LOG10_NFA
 from landmark_db.recognise import NO_CANDIDATE, NOT_CONSISTENT, Recogniser, RecogniserConfig
-from landmark_db.search import SINGLE_FRAME_DECADES, SearchConfig, bonferroni_decades
+from landmark_db.search import (
+    SCENE_DECADES,
+    SearchConfig,
+    bonferroni_decades,
+    scene_decades,
+)
 from landmark_db.store import open_db
 
 N_PLACES = 24
@@ -75,8 +80,8 @@ def test_locate_finds_places_and_seldom_lookalikes(city: tuple[Path, list[SimLan
     as another place; a look-alike of each place (same style and window grid, other details)
     locates another place at most once in 24 single images. (The shortlist picks the most
     similar places, so its wrong pairs are harder than random ones: this seed gives one, a
-    look-alike matched to a third place at log10 NFA -14.2 with 9 inliers; the car acts on
-    two agreeing frames, below.)"""
+    look-alike matched to a third place at log10 NFA -14.2 with 9 inliers; a lost car acts
+    only past the scene level, below.)"""
     path, lms = city
     rec = Recogniser.from_path(path)
     cam = SimCamera(lms, seed=5, config=EASY)
@@ -96,39 +101,67 @@ def test_locate_finds_places_and_seldom_lookalikes(city: tuple[Path, list[SimLan
     assert found >= 0.75 * len(lms), found
 
 
-@pytest.mark.xfail(
-    strict=True,
-    reason="issue 36, second round: with RootSIFT 2 (the contrast stretch) the look-alike of "
-    "place 3 verifies place 5 in two consecutive frames (log10 NFA -13.6, -13.3; level -10.9) "
-    "and relocalises the car. Over 3 seeds x 24 look-alikes x 4 frames, RootSIFT 2 verified a "
-    "wrong place in 8 of 288 lost frames (1 relocalisation in 72 passes), RootSIFT 1 in 7 of "
-    "288 (0): consecutive frames of one scene are not independent evidence. Open: a rule for "
-    "the lost search's confirmation (docs/landmarks.md, 'The whole-database search').",
-)
+LOOKALIKE_SEEDS = (11, 43)
+"""11: the seed whose look-alike of place 3 verified place 5 in two consecutive frames (log10
+NFA -13.6, -13.3 at a level of -10.9) and relocalised the car under the rule before; it was
+among the seeds the margin was chosen on (11, 21, 31). 43 was not."""
+
+
+def _lookalike_passes(
+    path: Path, lms: list[SimLandmark], config: RecogniserConfig | None, seeds: tuple[int, ...]
+) -> tuple[int, int, int]:
+    """A lost car passing a look-alike of every place, once per seed (4 frames 0.5 s apart,
+    4-12 m, other views; the frames of ``benchmarks/search_lookalikes.py``): (passes, passes
+    relocalised, frames that verified a wrong place)."""
+    n = relocalised = verified = 0
+    for seed in seeds:
+        rec = Recogniser.from_path(path, config)
+        rng = np.random.default_rng(seed)
+        cam = SimCamera(lms, seed=seed + 1, config=EASY)
+        t = 0.0
+        for lm in lms:
+            look = facade(lm.photo_seed + seed, family_seed=lm.photo_seed)
+            fixes = 0
+            for _k in range(4):
+                t += 0.5
+                r = rec.process(CameraFrame(t, cam.view(look, float(rng.uniform(4.0, 12.0)))),
+                                _lost_state(t))  # fmt: skip
+                fixes += r.fix is not None
+                verified += r.landmark_id is not None
+            n += 1
+            relocalised += fixes > 0
+            t += 60.0
+        rec.close()
+    return n, relocalised, verified
+
+
 def test_lookalikes_never_relocalise_a_lost_car(city: tuple[Path, list[SimLandmark]]) -> None:
-    """A lost car passing a look-alike of each place (4 frames each, 0.5 s apart, other
-    views) is never relocalised."""
+    """A lost car passing a look-alike of each place, over two seeds (48 passes, 192 frames,
+    several of which verify a wrong place), is never relocalised; the rule before (two
+    agreeing frames at the search level) was, on seed 11's frames: the population tells the
+    two rules apart."""
     path, lms = city
-    rec = Recogniser.from_path(path)
-    rng = np.random.default_rng(11)
-    cam = SimCamera(lms, seed=12, config=EASY)
-    fixes = 0
-    t = 0.0
-    for lm in lms:
-        look = facade(lm.photo_seed + 11, family_seed=lm.photo_seed)
-        for _k in range(4):
-            t += 0.5
-            image = cam.view(look, float(rng.uniform(4.0, 12.0)))
-            fixes += rec.process(CameraFrame(t, image), _lost_state(t)).fix is not None
-        t += 60.0
-    rec.close()
-    assert fixes == 0
+    n, relocalised, verified = _lookalike_passes(path, lms, None, LOOKALIKE_SEEDS)
+    assert n == 2 * N_PLACES and verified >= 2 and relocalised == 0, (relocalised, verified)
+    before = RecogniserConfig(search=SearchConfig(scene_decades=12.5, pair_at_level=True))
+    _n, relocalised_before, _v = _lookalike_passes(path, lms, before, (11,))
+    assert relocalised_before >= 1
 
 
-def test_lost_car_relocalises_on_two_agreeing_frames(city: tuple[Path, list[SimLandmark]]) -> None:
-    """While lost, the gate is not used (the estimate is 70 km away): two frames of one place
-    give one fix, marked relocalised, its sigma the sighting range plus the landmark's
-    (``reset_sigma_m``: the reset's ellipse holds every point the place can be seen from)."""
+def test_scene_margin_follows_the_measured_tail() -> None:
+    """17 decades for RootSIFT, 46.5 for XFeat: 4 frames a pass at each look-alike tail's
+    lower-bound rate keep a pass under 1e-3 false (landmark_db.search's docstring)."""
+    assert SCENE_DECADES == 17.0 == scene_decades("rootsift") == scene_decades("orb")
+    assert scene_decades("xfeat") == 46.5
+
+
+def test_lost_car_relocalises_on_one_frame_past_the_scene_level(
+    city: tuple[Path, list[SimLandmark]],
+) -> None:
+    """While lost, the gate is not used (the estimate is 70 km away): the first frame that
+    verifies the place past the scene level gives one fix (the next frames are repeats),
+    marked relocalised, its sigma the sighting range plus the landmark's (``reset_sigma_m``:
+    the reset's ellipse holds every point the place can be seen from)."""
     path, lms = city
     rec = Recogniser.from_path(path)
     cam = SimCamera(lms, seed=6, config=EASY)
@@ -139,11 +172,10 @@ def test_lost_car_relocalises_on_two_agreeing_frames(city: tuple[Path, list[SimL
         r = rec.process(cam.frame_at(t, lm.x_m + 6.0, lm.y_m), _lost_state(t))
         if r.fix is not None:
             fixes.append(r.fix)
-            if not fixes[1:] and k == 0:  # one frame alone: only far past the level
-                best = min(e.log_nfa for e in r.evidence if e.landmark_id == lm.id)
-                assert best <= r.level - SINGLE_FRAME_DECADES
-        elif k == 0:
-            assert r.reason in (NOT_CONSISTENT, "failed_geometry", "few_matches")
+            best = min(e.log_nfa for e in r.evidence if e.landmark_id == lm.id)
+            assert best <= r.level - SCENE_DECADES
+        elif r.landmark_id == lm.id:  # before: not past the scene level; after: repeats
+            assert r.reason in ({"repeat", NOT_CONSISTENT} if fixes else {NOT_CONSISTENT})
     assert len(fixes) == 1, fixes
     f = fixes[0]
     want = reset_sigma_m(rec.config.sighting_range_m, 0.0)  # the city's places are exact
@@ -158,22 +190,23 @@ def test_lost_car_relocalises_on_two_agreeing_frames(city: tuple[Path, list[SimL
     rec.close()
 
 
-def test_one_frame_far_past_the_level_is_enough(city: tuple[Path, list[SimLandmark]]) -> None:
-    """With no extra margin a single verified frame relocalises; with an unreachable margin
-    it never does on one frame."""
+def test_the_scene_margin_decides(city: tuple[Path, list[SimLandmark]]) -> None:
+    """With no margin a single frame verified at the search level relocalises; with an
+    unreachable one no frame does, however many agree."""
     path, lms = city
     lm = lms[3]
     for decades, want_first in ((0.0, True), (math.inf, False)):
-        cfg = RecogniserConfig(search=SearchConfig(single_frame_decades=decades))
+        cfg = RecogniserConfig(search=SearchConfig(scene_decades=decades))
         rec = Recogniser.from_path(path, cfg)
         cam = SimCamera(lms, seed=8, config=EASY)
-        r = None
+        got = []
         for k in range(4):
             r = rec.process(cam.frame_at(float(k), lm.x_m, lm.y_m + 5.0), _lost_state(float(k)))
-            if r.landmark_id == lm.id:
-                break
-        assert r is not None and r.landmark_id == lm.id
-        assert (r.fix is not None) is want_first
+            got.append((r.landmark_id, r.fix is not None))
+        verified = [k for k, (lid, _f) in enumerate(got) if lid == lm.id]
+        assert len(verified) >= 2, got
+        assert got[verified[0]][1] is want_first
+        assert any(f for _l, f in got) is want_first
         rec.close()
 
 

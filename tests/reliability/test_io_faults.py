@@ -22,16 +22,21 @@ import pytest
 from reliability_helpers import HEALTH_KEYS, REPO, closed_port, wait_until
 
 from drivers.camera import CameraConfig, OpenCvCamera
-from guidance.core.messages import CameraFrame, Ellipse, EstimateState, Health, Prompt
+from guidance.core.messages import CameraFrame, Ellipse, EstimateState, Health, Prompt, Say, Speech
+from guidance.core.speech import words
 from guidance.outputs.kinds import HEALTH, PROMPT, STATE, HealthReport
 from guidance.recording.config import RecordingConfig
-from guidance.recording.health import DISK_FULL_WARNING
 from guidance.recording.writer import Recorder
 from guidance.telemetry.config import TelemetryConfig
-from guidance.telemetry.publisher import TELEMETRY_DOWN_WARNING, Telemetry
+from guidance.telemetry.publisher import Telemetry
 from guidance.voice import make_speaker
-from guidance.voice.speakers import SPEECH_FAILED_WARNING, TextSpeaker
+from guidance.voice.speakers import TextSpeaker
 from guidance.voice.wav import EspeakNgRenderer, WavSpeaker
+
+SPEECH_FAILED = words(Say(Speech.COMPONENT, input="voice", status="text_fallback"))
+TELEMETRY_DOWN = words(Say(Speech.COMPONENT, input="telemetry", status="down"))
+DISK_FULL = words(Say(Speech.COMPONENT, input="recorder", status="disk_full"))
+"""The components' warnings, from the sentence table (one event, one sentence)."""
 
 ESPEAK = pytest.mark.skipif(
     not any(
@@ -108,7 +113,7 @@ def test_zenoh_unreachable_degrades_to_a_flag_and_publishing_never_blocks() -> N
             took.append(time.perf_counter() - t0)
         h = tel.health()
         assert (h.status, h.alive, h.valid, h.ok) == ("down", False, False, False)
-        assert h.warning == TELEMETRY_DOWN_WARNING and "connect" in h.detail.lower()
+        assert h.warning == TELEMETRY_DOWN and "connect" in h.detail.lower()
         assert set(h.as_dict()) >= HEALTH_KEYS
         assert h.counters["dropped"] > 1500  # superseded or pushed out: counted
         assert h.counters["dropped"] == sum(
@@ -143,7 +148,7 @@ def test_missing_speech_engine_falls_back_to_text_and_says_so(
     speaker.close()
     h = speaker.health()
     assert (h.status, h.alive, h.valid) == ("text_fallback", True, False)
-    assert h.warning == SPEECH_FAILED_WARNING and "espeak-ng not found" in h.detail
+    assert h.warning == SPEECH_FAILED and "espeak-ng not found" in h.detail
     assert h.counters["shown"] == 3 and shown.getvalue().count("[prompt") == 3
     assert not (tmp_path / "p.wav").exists()
     assert sum("no speech engine" in r.getMessage() for r in caplog.records) == 1
@@ -177,7 +182,7 @@ def test_speech_engine_failing_mid_drive_keeps_the_wav_and_goes_to_text(
         speaker.close()
     h = speaker.health()
     assert (h.status, h.alive, h.valid) == ("text_fallback", True, False)
-    assert h.warning == SPEECH_FAILED_WARNING and "exit status 3" in h.detail
+    assert h.warning == SPEECH_FAILED and "exit status 3" in h.detail
     assert h.counters["spoken"] == 1 and h.counters["shown_as_text"] == 3
     text = shown.getvalue()
     assert all(p in text for p in ("Go straight", "Turn right", "You have arrived"))
@@ -226,7 +231,7 @@ def test_disk_full_stops_the_recording_flags_it_and_the_process_goes_on(tmp_path
     h = out["health"]
     assert set(h) >= HEALTH_KEYS
     assert (h["status"], h["alive"], h["valid"]) == ("disk_full", False, False)
-    assert h["warning"] == DISK_FULL_WARNING and "File too large" in h["detail"]
+    assert h["warning"] == DISK_FULL and "File too large" in h["detail"]
     assert h["counters"]["dropped"] >= 2000 and out["went_on"] == 2000 and out["p99_s"] < 0.001
     assert out["worst_s"] < 0.5
     assert r.stderr.count("recording stopped") == 1

@@ -32,6 +32,12 @@ rolling radius) are states, the difference also changing from street to street b
 (road camber, tyre temperature: a bounded Gauss-Markov process over 250 m, not a walk); the
 compass bias drifts 3 degrees a minute (real RAV4: about 3
 degrees after the first 20 s); the operator's start is a point picked on a map, 3 m (1 sigma)."""
+PROFILE_TRACK_TURN_SIGMA = 0.04
+"""The turn scale's prior when the track is a vehicle profile's (no ``[vehicle] track_m``):
+the profile's is one reference car's rear track for every model sharing its DBC (Toyota's
+run from about 1.53 to 1.72 m against 1.62: about 3.4 % 1-sigma), on top of the 2 % of the
+effective track against a spec (load transfer, the tyres' lateral deflection):
+sqrt(2^2 + 3.4^2) = 4 % (docs/estimation.md, "The effective track")."""
 CAR_COMPASS_UNCALIBRATED = {"compass_bias_sigma_deg": 60.0, "compass_bias_turn_deg2_per_rad": 250.0}
 """No deviation card: real in-car magnetometers read 40-90 degrees off, and the uncorrected
 deviation changes by about 20 degrees over a quarter turn."""

@@ -17,7 +17,7 @@ import numpy as np
 from guidance.config_tables import rule
 from guidance.core import model
 from guidance.core.localize import gyro as gyro_model
-from guidance.core.localize import state_limits
+from guidance.core.localize import state_limits, turn_fusion
 from guidance.core.localize.measurements import (
     H_heading,
     H_position,
@@ -115,8 +115,8 @@ class EstimatorConfig:
     ``|P_xy,theta|^2`` is added along the lever as it grows (0.75 in the car model; 0, the
     paper's linear filter). docs/estimation.md, "The second-order heading term"."""
     gyro: gyro_model.GyroConfig | None = None
-    """The car's yaw-rate sensor turns the heading (``[vehicle] yaw_source = "gyro"``), with
-    its bias and scale as states (``guidance.core.localize.gyro``); None: the wheels do."""
+    """The car's yaw-rate sensor turns the heading (``[vehicle] yaw_source = "gyro"`` or
+    "both"), its bias and scale states (``localize.gyro``); None: the wheels do."""
 
     @property
     def car_model(self) -> bool:
@@ -460,8 +460,12 @@ class PoseEstimator:
             Qc[model.STATE_THETA, model.STATE_THETA] += model.camber_heading_var(
                 d, cfg.camber_diff_sigma, cfg.camber_length_m, cfg.track_m
             )
-            if turned is not None:  # the gyro turns, not the wheels
-                dth, Fc, Qc = gyro_model.gyro_step(x, raw_l, raw_r, d, turned, var_l + var_r)
+            if turned is not None and cfg.gyro is not None:  # the gyro turns ("both": measured)
+                dth, Fc, Qc, what = turn_fusion.gyro_turn_step(
+                    cfg.gyro, x, self._kf.P, (cfg.track_m, float(Qc[2, 2])), (raw_l, raw_r, d),
+                    turned, var_l + var_r)  # fmt: skip
+                if what is not None:  # the wheels' turn used or gated ("both")
+                    (self.accepted if what == turn_fusion.USED else self.rejections)[what] += 1
             dt = 0.0 if self._last_t is None else max(0.0, msg.t_s - self._last_t)
             walk = cfg.compass_bias_walk_deg2_per_s * dt
             self._turn_rad += dth
@@ -492,17 +496,15 @@ class PoseEstimator:
     def _gyro_reading(self, msg: YawRate) -> StepResult:
         """A yaw-rate reading, gathered until the next odometry step (``gyro.take_reading``)."""
         cfg = self.config.gyro
-        why = "no_gyro_configured" if cfg is None else None
-        if cfg is not None:
-            why = gyro_model.take_reading(self._gyro, self._kf.P, msg, cfg)
+        why = "no_gyro_configured" if cfg is None else gyro_model.take_reading(
+            self._gyro, self._kf.P, msg, cfg)  # fmt: skip
         if why is not None:
             return self._reject("YawRate", why)
         self.accepted["YawRate"] += 1
         return StepResult("YawRate", True)
 
     def _gyro_step(self, msg: WheelOdometry) -> tuple[float, float, float] | None:
-        """Before a step: the bias from the standstill readings its wheels confirm, then the
-        gyro's angle or None (``gyro.before_step``)."""
+        """Before a step: the standstill readings' bias update, the gyro's angle or None."""
         assert self.config.gyro is not None
         out = gyro_model.before_step(self._gyro, self._kf.x, self._kf.P, msg, self.config.gyro)
         self._kf.x[2] = model.wrap_angle(float(self._kf.x[2]))
@@ -544,12 +546,8 @@ class PoseEstimator:
     def _update_landmark(self, msg: LandmarkFix) -> StepResult:
         cfg = self.config
         kind = "LandmarkFix"
-        if not (
-            math.isfinite(msg.x_m)
-            and math.isfinite(msg.y_m)
-            and math.isfinite(msg.sigma_m)
-            and msg.sigma_m > 0.0
-        ):
+        if not (math.isfinite(msg.x_m) and math.isfinite(msg.y_m)
+                and math.isfinite(msg.sigma_m) and msg.sigma_m > 0.0):  # fmt: skip
             return self._reject(kind, "non_finite_input")
         if not (
             MIN_LANDMARK_SIGMA_M <= msg.sigma_m <= MAX_LANDMARK_SIGMA_M

@@ -40,9 +40,10 @@ MAX_RATE_RAD_S = 5.0
 """About 290 deg/s, beyond the measuring range of ESC yaw-rate sensors (100-300 deg/s): a
 larger reading is a unit mistake or a damaged frame, refused."""
 
-YAW_SOURCES = ("wheels", "gyro")
-"""``[vehicle] yaw_source``: where the heading change comes from. "both" (each a measurement
-of the turn, weighed by the filter) is not built yet (issue 38 note)."""
+YAW_SOURCES = ("wheels", "gyro", "both")
+"""``[vehicle] yaw_source``: where the heading change comes from: the wheels' left/right
+difference, the gyro, or both, each a measurement of the turn the filter weighs
+(``guidance.core.localize.turn_fusion``)."""
 
 
 @dataclass(frozen=True, slots=True)
@@ -82,6 +83,9 @@ class GyroConfig:
     gate_chi2: float = model.CHI2_1D_P999
     """A standstill reading further than this (d^2, 1 dof, P = 0.999) from the bias is not
     used: the car was turning while its wheels read zero."""
+    with_wheels: bool = False
+    """``yaw_source = "both"``: the gyro turns the heading and each step's wheel difference
+    measures the same turn (``turn_fusion``), gated at ``gate_chi2`` (a wheel that slips)."""
 
     def __post_init__(self) -> None:
         for name in ("bias_sigma_deg_s", "scale_sigma", "noise_density_deg_rt_s"):

@@ -23,7 +23,7 @@ from dataclasses import asdict, dataclass, fields, replace
 import numpy as np
 
 from guidance.core import model
-from guidance.core.localize import gyro
+from guidance.core.localize import compass_mount, gyro
 from guidance.core.localize.estimator import EstimatorConfig, PoseEstimator
 from guidance.core.localize.state_limits import (
     MAX_ABS_BIAS_DEG,
@@ -46,11 +46,12 @@ from guidance.core.localize.state_limits import (
     MIN_TURN_SIGMA,
 )
 
-SCHEMA = "guidance.learned/3"
+SCHEMA = "guidance.learned/4"
 """Version 2 adds the turn scale (``turn_scale``, ``turn_scale_sigma``, optional); version 1
 files (without it) are read as they were, the turn scale then starting from its prior.
-Version 3 adds a gyro car's gyro bias and scale (``gyro_*``, optional)."""
-READ_SCHEMAS = ("guidance.learned/1", "guidance.learned/2", SCHEMA)
+Version 3 adds a gyro car's gyro bias and scale (``gyro_*``, optional); version 4 the last
+drives' compass end offsets (``compass_drives``, ``compass_mount``)."""
+READ_SCHEMAS = ("guidance.learned/1", "guidance.learned/2", "guidance.learned/3", SCHEMA)
 SCALE_VAR_PER_DAY = (0.001**2) / 30.0
 """Between drives the scale's variance grows by (0.1 %)^2 a month: tyres lose about 0.1 bar of
 pressure a month and wear about 0.05 % of their rolling radius (2.2 % over a tyre's life)."""
@@ -84,6 +85,9 @@ class LearnedParams:
     gyro_scale: float | None = None
     gyro_scale_sigma: float | None = None
     """None for a car whose wheels turn its heading (``[vehicle] yaw_source = "wheels"``)."""
+    compass_drives: tuple[tuple[float, float], ...] = ()
+    """The compass offset (deg) and its 1-sigma at the end of each of the last drives
+    (``compass_mount``: a compass whose offset keeps moving between drives is flagged)."""
 
     @classmethod
     def from_estimator(
@@ -104,6 +108,10 @@ class LearnedParams:
             return max(floor, math.sqrt(max(0.0, float(P[i, i]))))
 
         bias = est.config.compass_two_sigma_deg is not None
+        b_deg = math.degrees(float(x[model.STATE_BIAS]))
+        b_sd = max(MIN_BIAS_SIGMA_DEG, math.degrees(sd(model.STATE_BIAS, 0.0)))
+        earlier = before.compass_drives if before is not None else ()
+        drives = compass_mount.with_drive(earlier, b_deg, b_sd) if bias else earlier
         return cls(
             vehicle_id=vehicle_id,
             saved_unix_s=float(now_unix_s),
@@ -112,10 +120,9 @@ class LearnedParams:
             scale_sigma=sd(model.STATE_SCALE, MIN_SCALE_SIGMA),
             diff=float(x[model.STATE_DIFF]),
             diff_sigma=sd(model.STATE_DIFF, MIN_DIFF_SIGMA),
-            compass_bias_deg=math.degrees(float(x[model.STATE_BIAS])) if bias else None,
-            compass_bias_sigma_deg=(
-                max(MIN_BIAS_SIGMA_DEG, math.degrees(sd(model.STATE_BIAS, 0.0))) if bias else None
-            ),
+            compass_bias_deg=b_deg if bias else None,
+            compass_bias_sigma_deg=b_sd if bias else None,
+            compass_drives=drives,
             turn_scale=float(x[model.STATE_TURN]),
             turn_scale_sigma=sd(model.STATE_TURN, MIN_TURN_SIGMA),
             **(_gyro_learned(x, sd) if est.n >= gyro.N_STATE_GYRO else {}),
@@ -177,7 +184,9 @@ class LearnedParams:
         est.adopt(states)
 
     def to_dict(self) -> dict[str, object]:
-        return {"schema": SCHEMA, **asdict(self)}
+        out = {"schema": SCHEMA, **asdict(self)}
+        out["compass_drives"] = [list(pair) for pair in self.compass_drives]  # JSON's lists
+        return out
 
     @classmethod
     def from_dict(cls, data: Mapping[str, object]) -> LearnedParams:
@@ -221,6 +230,7 @@ class LearnedParams:
             gyro_fields = {k: num(k, lo, hi) for k, (lo, hi) in _GYRO_LIMITS.items()}
         return cls(
             vehicle_id=vid,
+            compass_drives=_compass_drives(data.get("compass_drives", [])),
             saved_unix_s=num("saved_unix_s", 0.0, 1e11),
             distance_m=num("distance_m", 0.0, 1e9),
             scale=num("scale", -MAX_ABS_SCALE, MAX_ABS_SCALE),
@@ -253,3 +263,20 @@ def _gyro_learned(x: np.ndarray, sd: Callable[[int, float], float]) -> dict[str,
         "gyro_scale": float(x[gyro.STATE_GYRO_SCALE]),
         "gyro_scale_sigma": sd(gyro.STATE_GYRO_SCALE, MIN_GYRO_SCALE_SIGMA),
     }  # fmt: skip
+
+
+def _compass_drives(value: object) -> tuple[tuple[float, float], ...]:
+    """``compass_drives`` read back: at most ``compass_mount.KEPT`` pairs (offset within
+    +-180 deg, sigma within the bias's bounds), or ``ValueError``."""
+    if not isinstance(value, list | tuple) or len(value) > compass_mount.KEPT:
+        raise ValueError(f"compass_drives must be a list of at most {compass_mount.KEPT} pairs")
+    out = []
+    for pair in value:
+        if not (isinstance(pair, list | tuple) and len(pair) == 2
+                and all(isinstance(v, int | float) and not isinstance(v, bool) for v in pair)):
+            raise ValueError("compass_drives must hold [offset_deg, sigma_deg] pairs")
+        b, s = float(pair[0]), float(pair[1])
+        if not (abs(b) <= MAX_ABS_BIAS_DEG and MIN_BIAS_SIGMA_DEG <= s <= MAX_BIAS_SIGMA_DEG):
+            raise ValueError(f"compass_drives pair {pair} is outside its bounds")
+        out.append((b, s))
+    return tuple(out)

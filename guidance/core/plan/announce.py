@@ -58,6 +58,13 @@ def heading_cannot_tell(d: Decision, heading_sd_rad: float) -> bool:
     return bool(gaps) and WORD_SIGMAS * heading_sd_rad > 0.5 * min(gaps)
 
 
+def heads_along(heading_rad: float, road_rad: float, heading_sd_rad: float, tol_rad: float) -> bool:
+    """A car heading ``heading_rad`` is on a road along ``road_rad``: within the turn
+    detector's tolerance ``tol_rad`` or ``WORD_SIGMAS`` of its heading's uncertainty (more
+    than that is a turn, not the noise)."""
+    return abs(wrap_angle(heading_rad - road_rad)) <= max(tol_rad, WORD_SIGMAS * heading_sd_rad)
+
+
 # --------------------------------------------------------------------- prompt timing
 
 Announcement = Literal["early", "before"]

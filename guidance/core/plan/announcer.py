@@ -21,6 +21,7 @@ from guidance.core.plan.announce import (
     arrives_before,
     due_announcements,
     heading_sd,
+    heads_along,
     too_late,
 )
 from guidance.core.plan.navigator import Navigator
@@ -28,8 +29,6 @@ from guidance.core.plan.road import Ahead, announce_target, pose_covariance, pre
 
 REPEAT_S = 5.0
 """The same sentence is not said twice within this time (unless it says a change)."""
-PASS_MARGIN_M = 5.0
-"""The next intersection is announced once the car is this far past the one before it."""
 
 
 class Announcer:
@@ -47,7 +46,7 @@ class Announcer:
     def announce(self, ahead: list[Ahead], t_s: float, est: EstimateState, out: Outputs) -> None:
         """What is due for the next intersection still ahead of the car."""
         odometer_m = est.odometer_m
-        i, a = announce_target(ahead, odometer_m, PASS_MARGIN_M)
+        i, a = announce_target(ahead, odometer_m)
         if a is None or a.decision is None:
             return
         if self._arrives_before(ahead, a, est):
@@ -56,6 +55,9 @@ class Announcer:
             return
         if est.reckoning and a.at_odometer_m is not None:
             self.counts["words_withheld_gap"] += 1  # said once the wheels speak again
+            return
+        if self._turning_off(a, est):
+            self.counts["words_withheld_turning"] += 1  # its road is not known yet
             return
         d = a.decision
         band = WORD_SIGMAS * heading_sd(pose_covariance(est)) if a.approach_estimated else 0.0
@@ -98,6 +100,19 @@ class Announcer:
         say = Say(Speech.TURN, d.turn_rad, distance, *then, band, d.exit_heading_rad, changed)
         self._speak(ahead, a, out, t_s, say, action)
 
+    def _turning_off(self, a: Ahead, est: EstimateState) -> bool:
+        """The road ``a`` is approached on was taken from the car's own heading, and the car
+        has left that heading by more than the heading's noise explains (the turn detector's
+        tolerance, or ``WORD_SIGMAS`` of the estimate): it is turning, e.g. at a corner the car
+        could not place (after a CAN gap) or one reported short. The road it will approach on
+        is the one it settles on: nothing is named against the old one (the guide sets the
+        road again once the car is steady on it)."""
+        if not a.approach_estimated or a.approach_heading_rad is None:
+            return False
+        sd = heading_sd(pose_covariance(est))
+        tol = self.config.turn_detector.settle_tol_rad
+        return not heads_along(est.heading_rad, a.approach_heading_rad, sd, tol)
+
     def _arrives_before(self, ahead: list[Ahead], a: Ahead, est: EstimateState) -> bool:
         """The car will be told it has arrived ``ARRIVE_MARGIN_M`` before it gets to ``a``:
         its road to ``a`` (from the car, or from the intersection before it) enters the arrival
@@ -122,6 +137,11 @@ class Announcer:
         self, ahead: list[Ahead], i: int, a: Ahead, est: EstimateState
     ) -> tuple[float | None, float | None]:
         if i + 1 >= len(ahead):
+            return None, None
+        if est.ellipse.major_axis_m > self.config.uncertain_warn_m:
+            # Uncertain (or lost): the next fix may replan beyond the next intersection (a
+            # "then" said and then changed is a wrong word); its own prompt comes when next.
+            self.counts["then_withheld_uncertain"] += 1
             return None, None
         b = ahead[i + 1]
         if b.decision is None or a.at_odometer_m is None or b.at_odometer_m is None:

@@ -43,14 +43,16 @@ from guidance.core.messages import (
 )
 from guidance.core.model import wrap_angle
 from guidance.core.pipeline_config import Outputs, PipelineConfig
-from guidance.core.plan.announcer import PASS_MARGIN_M, Announcer
+from guidance.core.plan.announcer import Announcer
 from guidance.core.plan.exits import ExitResolver
 from guidance.core.plan.navigator import Decision, Navigator
 from guidance.core.plan.road import (
+    PLACE_REL,
     Ahead,
     LastReport,
     RoadHistory,
     announce_target,
+    past,
     pose_covariance,
     predicted_xy,
 )
@@ -117,6 +119,7 @@ class Guide:
             )  # fmt: skip
             if same is not None and same.exits_rad == tuple(scene.exit_headings_rad):
                 same.at_odometer_m = at  # the same intersection again: a better distance
+                same.placed_from_m = at - odometer_m
                 self.counts["report_repeated"] += 1
                 self.last_seq = same.seq
                 self._evaluate(same, est, scene.t_s, out)
@@ -135,7 +138,8 @@ class Guide:
         at_one = any(a.at_odometer_m is not None and abs(a.at_odometer_m - odometer_m)
                      <= SAME_PLACE_M for a in self.ahead)  # fmt: skip
         item = Ahead(self.reports, scene.t_s, tuple(scene.exit_headings_rad), heading,
-                     relative=not known, at_odometer_m=at, on_taken_road=at_one)  # fmt: skip
+                     relative=not known, at_odometer_m=at, on_taken_road=at_one,
+                     placed_from_m=0.0 if at is None else at - odometer_m)  # fmt: skip
         self.ahead.append(item)
         if at is not None:
             self.ahead.sort(key=lambda a: math.inf if a.at_odometer_m is None else a.at_odometer_m)
@@ -164,8 +168,11 @@ class Guide:
         if cands:
             a = min(cands, key=lambda a: abs((a.at_odometer_m or 0.0) - odometer_m - d))
             assert a.at_odometer_m is not None
-            if abs(a.at_odometer_m - odometer_m - d) <= max(15.0, 0.2 * d):
+            # each place is off by up to a share of the distance it was judged from
+            tol = max(15.0, 2.0 * PLACE_REL * max(d, a.placed_from_m))
+            if abs(a.at_odometer_m - odometer_m - d) <= tol:
                 a.at_odometer_m = odometer_m + max(0.0, d)
+                a.placed_from_m = max(0.0, d)
         self._update(msg.t_s, est, out, force=True)
 
     def co_driver_turn(self, turn: TurnCompleted, est: EstimateState, out: Outputs) -> bool:
@@ -224,8 +231,13 @@ class Guide:
         on_road = steady_for >= ROAD_STEADY_M
         for i, a in enumerate(self.ahead[:2]):
             if i == 0 or (prev is not None and prev.decision is not None):
+                was = a.approach_heading_rad
                 self._set_approach(a, prev, est, steady, on_road)
                 due = force or odometer_m - a.last_eval_odometer_m >= EVAL_EVERY_M
+                if was is not None and a.approach_heading_rad is not None:
+                    # a new road (the car settled on another after a turn): a new turn
+                    moved = abs(wrap_angle(a.approach_heading_rad - was))
+                    due = due or moved > self.history.steady_tol_rad
                 if a.at_odometer_m is None and a.decision is not None:
                     due = jumped
                 if a.approach_heading_rad is not None and due:
@@ -246,9 +258,7 @@ class Guide:
         the road, must not name the manoeuvre), else the exit chosen at the intersection
         before it (not for one reported once the car was there: ``Ahead.on_taken_road``)."""
         odometer_m = est.odometer_m
-        on_its_road = prev is None or (
-            prev.at_odometer_m is not None and odometer_m > prev.at_odometer_m + 5.0
-        )
+        on_its_road = past(prev, est, self.history.steady_tol_rad)
         if a.relative:
             # Typed relative to the car: fixed once, against the road after any turn.
             if a.approach_heading_rad is None:
@@ -329,7 +339,7 @@ class Guide:
 
     def next_ahead(self, odometer_m: float) -> tuple[Decision | None, float | None]:
         """The decision for the next intersection still ahead and its distance (None: unknown)."""
-        _i, a = announce_target(self.ahead, odometer_m, PASS_MARGIN_M)
+        _i, a = announce_target(self.ahead, odometer_m)
         if a is None:
             return None, None
         dist = None if a.at_odometer_m is None else max(0.0, a.at_odometer_m - odometer_m)

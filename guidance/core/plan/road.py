@@ -14,6 +14,7 @@ import numpy as np
 
 from guidance.core.messages import EstimateState
 from guidance.core.model import wrap_angle
+from guidance.core.plan.announce import heading_sd, heads_along
 from guidance.core.plan.navigator import Decision, ExitOption
 from guidance.core.snapshot_check import check_decision, integer, number
 
@@ -60,6 +61,9 @@ class Ahead:
     on_taken_road: bool = False
     """Reported while the car was at the intersection before it (within the guide's same
     place): on the road the car really takes there, whatever exit it was advised."""
+    placed_from_m: float = 0.0
+    """The distance it was last placed from (a report's or an approach's): its place is
+    uncertain by a share of that (``PLACE_REL``)."""
 
     def exits_now(self) -> tuple[float, ...] | None:
         """The exits in the estimate frame, or None while the approach road is unknown."""
@@ -114,6 +118,7 @@ class Ahead:
             said_exit=integer(data.get("said_exit", -1), "ahead.said_exit", -1, 64),
             frozen=bool(data.get("frozen")),
             on_taken_road=bool(data.get("on_taken_road", False)),
+            placed_from_m=number(data.get("placed_from_m", 0.0), "ahead.placed_from_m"),
             passed_odometer_m=opt("passed_odometer_m"),
             passed_heading_rad=opt("passed_heading_rad"),
             reached=(
@@ -124,9 +129,20 @@ class Ahead:
         )
 
 
-def announce_target(
-    ahead: list[Ahead], odometer_m: float, pass_margin_m: float
-) -> tuple[int, Ahead | None]:
+PASS_MARGIN_M = 5.0
+"""The next intersection is announced once the car is this far past the one before it..."""
+PLACE_REL = 0.1
+"""...or this share of the distance it was placed from, if more: a distance judged from afar
+is off by up to about a tenth (the simulated co-driver's first sight, measured along the
+streets, by 7 %), and the driver must not hear the next manoeuvre at the one before."""
+
+
+def pass_margin_m(a: Ahead) -> float:
+    """How far past ``a``'s place the car must be to be sure it is through it."""
+    return max(PASS_MARGIN_M, PLACE_REL * a.placed_from_m)
+
+
+def announce_target(ahead: list[Ahead], odometer_m: float) -> tuple[int, Ahead | None]:
     """The next intersection still ahead and its index (-1, None: none now): the first one the
     car has not reached, once it is ``pass_margin_m`` past every one before it (a distance is
     a few metres off; the driver must not hear the next manoeuvre while still at the previous
@@ -135,11 +151,26 @@ def announce_target(
         if a.at_odometer_m is not None:
             if a.at_odometer_m > odometer_m:
                 return i, a
-            if odometer_m < a.at_odometer_m + pass_margin_m:
+            if odometer_m < a.at_odometer_m + pass_margin_m(a):
                 return -1, None
         elif a.passed_odometer_m is None:
             return (i, a) if i == 0 else (-1, None)
     return -1, None
+
+
+def past(prev: Ahead | None, est: EstimateState, tol_rad: float) -> bool:
+    """The car is on the road after ``prev`` (the intersection before the one it approaches):
+    there is none, or the car is past its place by its reported distance and out of its turn
+    (heading along its chosen exit: one reported short must not give the car's road before
+    the turn as the road after it)."""
+    if prev is None:
+        return True
+    if prev.at_odometer_m is None or est.odometer_m <= prev.at_odometer_m + 5.0:
+        return False
+    if prev.decision is None:
+        return True
+    sd = heading_sd(pose_covariance(est))
+    return heads_along(est.heading_rad, prev.decision.exit_heading_rad, sd, tol_rad)
 
 
 def unplaced_after_gap(

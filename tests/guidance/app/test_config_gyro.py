@@ -29,12 +29,16 @@ def test_a_gyro_car_gets_the_gyro_states(tmp_path: Path) -> None:
     assert est.gyro == gyro.GyroConfig() and est.n_state == gyro.N_STATE_GYRO
     wheels = load_config(BERLIN, require_goal=False).pipeline.estimator
     assert wheels.gyro is None and wheels.n_state == gyro.N_STATE_GYRO - 2
+    both = load_config(_car(tmp_path, 'yaw_source = "both"'), require_goal=False)
+    assert both.pipeline.estimator.gyro == gyro.GyroConfig(with_wheels=True)
+    assert both.pipeline.expected_rates_hz["gyro"] > 0  # its health is judged like the wheels'
 
 
 @pytest.mark.parametrize(
     ("line", "model", "why"),
     [
-        ('yaw_source = "both"', "", r"yaw_source.*both"),
+        ('yaw_source = "compass"', "", r"yaw_source"),
+        ('yaw_source = "both"', "paper", r'needs \[estimator\] model = "car"'),
         ('yaw_source = "gyro"', "paper", r'needs \[estimator\] model = "car"'),
     ],
 )

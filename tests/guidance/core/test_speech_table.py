@@ -8,7 +8,7 @@ import pytest
 
 from guidance.core import speech as prompts
 from guidance.core.messages import Say, Speech
-from guidance.core.speech import SENSOR_WORDS, SPEECH, Units, words
+from guidance.core.speech import COMPONENT_WORDS, SENSOR_WORDS, SPEECH, Units, words
 
 M, IMP = Units.METRIC, Units.IMPERIAL
 
@@ -121,6 +121,17 @@ def test_every_event_has_words_and_one_sentence_per_input_and_status() -> None:
     sentences = [w for table in SENSOR_WORDS.values() for w in table.values()]
     assert len(sentences) == len(set(sentences))
     assert words(Say(Speech.SENSOR, input="gyro", status="silent")) == "Warning: gyro is silent"
+
+
+def test_the_components_warnings_are_in_the_table_once() -> None:
+    """Issue 37 item 2: the voice's, telemetry's and the recorder's warnings are events of the
+    table like the inputs', one sentence per component and status, none shared with an input."""
+    disk = Say(Speech.COMPONENT, input="recorder", status="disk_full")
+    assert words(disk) == words(disk, IMP) == "The disk is full: recording has stopped."
+    sentences = [w for table in COMPONENT_WORDS.values() for w in table.values()]
+    inputs = [w for table in SENSOR_WORDS.values() for w in table.values()]
+    assert len(sentences) == len(set(sentences)) and not set(sentences) & set(inputs)
+    assert words(Say(Speech.COMPONENT, input="gps", status="down")) == "Warning: gps is down"
 
 
 @pytest.mark.parametrize("bad", [-1.0, math.nan, math.inf])

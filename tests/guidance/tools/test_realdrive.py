@@ -183,4 +183,4 @@ def test_a_second_replay_starts_from_what_the_first_learned(tmp_path: Path) -> N
     assert second["inside_2sigma_frac"] >= 0.80
     assert second["median_axis_ratio"] < first["median_axis_ratio"]
     doc = json.loads(learned.read_text())
-    assert doc["schema"] == "guidance.learned/3" and doc["vehicle_id"] == "rav4"
+    assert doc["schema"] == "guidance.learned/4" and doc["vehicle_id"] == "rav4"

@@ -7,7 +7,10 @@ from __future__ import annotations
 import math
 from collections.abc import Callable
 
+import pytest
+
 from guidance.core.co_driver import parse_line, to_scene
+from guidance.core.localize.estimator import EstimatorConfig
 from guidance.core.messages import (
     Approach,
     CancelReport,
@@ -19,6 +22,7 @@ from guidance.core.messages import (
     WheelOdometry,
 )
 from guidance.core.pipeline import Pipeline
+from guidance.core.plan.road import Ahead, announce_target
 
 NORTH, EAST, SOUTH, WEST = math.pi / 2, 0.0, -math.pi / 2, math.pi
 
@@ -329,3 +333,58 @@ def test_the_next_intersection_seen_from_the_corner_is_on_the_road_the_car_takes
     assert ahead and ahead[0].on_taken_road
     said = car.said()[1:]
     assert said and all("left" not in s for s in said), said  # west is right from the south
+
+
+def test_a_report_made_as_the_car_turns_is_named_against_the_road_it_settles_on(
+    make_pipeline: Callable[..., Pipeline],
+) -> None:
+    """An intersection reported just as the car begins a turn the guide did not expect (a
+    corner it could not place after a CAN gap, or one reported short): its road was taken
+    from the car's heading, east. Nothing is named against that road while the car turns,
+    and once it is steady on the road north the turn is named against that one: right, not
+    straight on."""
+    car = Drive(make_pipeline(goal_xy_m=(1000.0, 300.0)), speed_mps=8.0)
+    car.drive(40.0)
+    car.feed(IntersectionScene(car.t, (NORTH, EAST), 110.0))  # north ahead, or right (east)
+    car.drive(14.0, NORTH)  # the car turns left at a corner it did not know of
+    assert car.said() == [] and car.p.counts["words_withheld_turning"] > 0
+    car.drive(50.0)
+    assert car.p.planned_exit(car.p.reports) == 1  # east, towards the goal
+    assert car.said() == ["In 60 metres, turn right"], car.said()
+
+
+def test_no_then_while_the_position_is_uncertain(make_pipeline: Callable[..., Pipeline]) -> None:
+    """Two manoeuvres close together, but the position is uncertain past the warning (the next
+    fix may replan beyond the next intersection): only the first is said; the second gets its
+    own prompt when it is next."""
+    uncertain = EstimatorConfig(compass_two_sigma_deg=20.0, initial_position_sigma_m=15.0)
+    car = Drive(make_pipeline(goal_xy_m=(-1000.0, 300.0), estimator=uncertain), speed_mps=8.0)
+    assert car.p.config.uncertain_warn_m < car.p.estimate.ellipse.major_axis_m
+    assert not car.p.estimate.lost
+    car.feed(IntersectionScene(car.t, (NORTH, EAST), 120.0))
+    car.feed(IntersectionScene(car.t, (WEST, NORTH), 220.0))
+    car.drive(70.0)
+    assert car.said() and all(", then" not in s for s in car.said()), car.said()
+    assert car.p.counts["then_withheld_uncertain"] > 0
+
+
+def test_a_place_judged_from_afar_is_passed_only_past_its_uncertainty(
+    make_pipeline: Callable[..., Pipeline],
+) -> None:
+    """An intersection reported 216 m ahead is truly 16 m further (a first sight is off by up
+    to a tenth). The next one is not announced while the car may still be before it; and a
+    distance given on the way re-places it (16 m off from 216 m is that intersection)."""
+    first = Ahead(1, 0.0, (EAST, SOUTH), EAST, False, at_odometer_m=216.0, placed_from_m=216.0)
+    second = Ahead(2, 0.0, (EAST, SOUTH), EAST, False, at_odometer_m=266.0, placed_from_m=266.0)
+    assert announce_target([first, second], 222.0) == (-1, None)  # maybe still before it
+    assert announce_target([first, second], 238.0) == (1, second)  # 21.6 m past: through it
+    near = Ahead(1, 0.0, (EAST, SOUTH), EAST, False, at_odometer_m=216.0, placed_from_m=20.0)
+    assert announce_target([near, second], 222.0) == (1, second)  # placed from close by
+
+    car = Drive(make_pipeline(goal_xy_m=(400.0, -1000.0)), speed_mps=8.0)
+    car.feed(IntersectionScene(car.t, (EAST, SOUTH), 216.0))  # truly at 232 m
+    car.drive(180.0)
+    car.feed(Approach(car.t, 52.0))  # the scene's distance to it: re-placed
+    ahead = car.p.planner.guide.ahead
+    assert ahead[0].at_odometer_m == pytest.approx(232.0, abs=0.5)
+    assert ahead[0].placed_from_m == pytest.approx(52.0, abs=0.5)
