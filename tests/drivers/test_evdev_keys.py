@@ -108,8 +108,10 @@ class Collect:
             self.feedback.append(text)
             self.changed.notify_all()
 
-    def wait(self, predicate: Callable[[], bool], timeout_s: float = 5.0) -> bool:
-        """Poll: some conditions (connected) change without a notification."""
+    def wait(self, predicate: Callable[[], bool], timeout_s: float = 120.0) -> bool:
+        """Poll: some conditions (connected) change without a notification. The bound only
+        ends a test that would hang: it returns as soon as the condition holds (a loaded
+        machine may take seconds; tests are not timed)."""
         deadline = time.monotonic() + timeout_s
         while not predicate():
             if time.monotonic() > deadline:

@@ -16,7 +16,7 @@ from drivers.keyboard import HELP_LINES, KeyboardScene
 from guidance.core.messages import IntersectionScene
 
 
-def _wait(predicate: Callable[[], bool], timeout_s: float = 5.0) -> bool:
+def _wait(predicate: Callable[[], bool], timeout_s: float = 120.0) -> bool:
     deadline = time.monotonic() + timeout_s
     while not predicate():
         if time.monotonic() > deadline:
