@@ -7,11 +7,12 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from recognise_helpers import EASY, state_at
 
 from guidance.app.ports import NullRecogniser
 from guidance.app.ports import Recogniser as RecogniserPort
 from guidance.core.localize.estimator import PoseEstimator
-from guidance.core.messages import CameraFrame, Ellipse, EstimateState, WheelOdometry
+from guidance.core.messages import CameraFrame, WheelOdometry
 from hal_sim.sim_camera import SimCamera, SimCameraConfig, SimLandmark
 from landmark_db.recognise import (
     AMBIGUOUS,
@@ -26,17 +27,6 @@ from landmark_db.recognise import (
     fix_sigma_m,
 )
 from landmark_db.store import LandmarkDb
-
-COV = ((15.0**2, 0.0), (0.0, 15.0**2))
-# A gentle camera: these tests check the pipeline's logic, not its detection rate.
-EASY = SimCameraConfig(
-    perspective=0.08, occlusion=(0.0, 0.1), blur_sigma_px=(0.0, 0.8), motion_blur_px=(0.0, 1.0)
-)
-
-
-def _state(x: float, y: float, cov: tuple = COV, t: float = 0.0) -> EstimateState:
-    c = ((cov[0][0], cov[0][1], 0.0), (cov[1][0], cov[1][1], 0.0), (0.0, 0.0, 0.01))
-    return EstimateState(t, x, y, 0.0, c, Ellipse(30.0, 30.0, 0.0, 60.0), False, True)
 
 
 @pytest.fixture
@@ -56,9 +46,9 @@ def test_confirmed_over_two_frames_then_one_fix_per_pass(
     rec = Recogniser(sim_db)
     lm = lms[2]
     x, y = lm.x_m + 8.0, lm.y_m - 5.0
-    r1 = rec.process(cam.frame_at(10.0, x, y), _state(x, y))
+    r1 = rec.process(cam.frame_at(10.0, x, y), state_at(x, y))
     assert r1.reason == NOT_CONSISTENT and r1.landmark_id == lm.id and r1.fix is None
-    r2 = rec.process(cam.frame_at(10.5, x, y), _state(x, y))
+    r2 = rec.process(cam.frame_at(10.5, x, y), state_at(x, y))
     assert r2.fix is not None and r2.reason is None
     assert r2.fix.landmark_id == lm.id
     assert (r2.fix.x_m, r2.fix.y_m) == pytest.approx((lm.x_m, lm.y_m), abs=0.01)
@@ -66,7 +56,7 @@ def test_confirmed_over_two_frames_then_one_fix_per_pass(
     assert r2.fix.t_s == 10.5
     ev = {e.landmark_id: e for e in r2.evidence}
     assert ev[lm.id].verified and ev[lm.id].inliers >= 12
-    r3 = rec.process(cam.frame_at(11.0, x, y), _state(x, y))
+    r3 = rec.process(cam.frame_at(11.0, x, y), state_at(x, y))
     assert r3.reason == REPEAT and r3.fix is None
     s = rec.stats()
     assert s["frames"] == 3 and s["fixes"] == 1 and s[NOT_CONSISTENT] == 1 and s[REPEAT] == 1
@@ -78,7 +68,7 @@ def test_streak_breaks_on_a_gap_or_a_failed_frame(
     cam = SimCamera(lms, seed=4, config=EASY)
     rec = Recogniser(sim_db, RecogniserConfig(confirm_frames=2, confirm_window_s=2.0))
     lm = lms[0]
-    st = _state(lm.x_m, lm.y_m)
+    st = state_at(lm.x_m, lm.y_m)
     assert rec.process(cam.frame_at(0.0, lm.x_m, lm.y_m), st).reason == NOT_CONSISTENT
     # too late: a new streak
     assert rec.process(cam.frame_at(5.0, lm.x_m, lm.y_m), st).reason == NOT_CONSISTENT
@@ -93,11 +83,11 @@ def test_no_candidate_means_no_image_work(sim_db: LandmarkDb, lms: list[SimLandm
     rec = Recogniser(sim_db)
     lm = lms[1]
     # The camera sees the landmark, but the estimate is 200 m off with a 30 m ellipse.
-    r = rec.process(cam.frame_at(1.0, lm.x_m, lm.y_m), _state(lm.x_m - 200.0, lm.y_m))
+    r = rec.process(cam.frame_at(1.0, lm.x_m, lm.y_m), state_at(lm.x_m - 200.0, lm.y_m))
     assert r.reason == NO_CANDIDATE and r.frame_features == 0 and not r.evidence
     # A large ellipse reaches it: then it is compared.
     big = ((150.0**2, 0.0), (0.0, 20.0**2))
-    r = rec.process(cam.frame_at(1.5, lm.x_m, lm.y_m), _state(lm.x_m - 200.0, lm.y_m, big))
+    r = rec.process(cam.frame_at(1.5, lm.x_m, lm.y_m), state_at(lm.x_m - 200.0, lm.y_m, big))
     assert lm.id in [c.id for c in r.candidates] and r.landmark_id == lm.id
 
 
@@ -112,7 +102,7 @@ def test_lookalikes_and_other_scenes_are_rejected(
         # The car is out of sight of lm; the estimate says it is at lm; the camera sees kin.
         frame = cam.frame_at(float(k), lm.x_m + 70.0, lm.y_m)
         assert cam.last_truth == ("lookalike", lm.id)
-        r = rec.process(frame, _state(lm.x_m, lm.y_m))
+        r = rec.process(frame, state_at(lm.x_m, lm.y_m))
         assert r.fix is None and r.landmark_id is None
         reasons.append(r.reason)
     assert set(reasons) <= {FEW_MATCHES, FAILED_GEOMETRY, AMBIGUOUS}
@@ -123,12 +113,12 @@ def test_bad_inputs_are_counted_not_raised(sim_db: LandmarkDb, lms: list[SimLand
     lm = lms[0]
     ok = np.zeros((100, 100, 3), np.uint8)
     for frame, state in [
-        (CameraFrame(0.0, None), _state(lm.x_m, lm.y_m)),
-        (CameraFrame(0.0, np.zeros((0, 0), np.uint8)), _state(lm.x_m, lm.y_m)),
-        (CameraFrame(0.0, np.zeros((50, 50), np.float32)), _state(lm.x_m, lm.y_m)),
-        (CameraFrame(0.0, ok), _state(math.nan, 0.0)),
-        (CameraFrame(0.0, ok), _state(lm.x_m, lm.y_m, ((math.inf, 0.0), (0.0, 1.0)))),
-        (CameraFrame(0.0, ok), _state(lm.x_m, lm.y_m, ((-5.0, 0.0), (0.0, 1.0)))),
+        (CameraFrame(0.0, None), state_at(lm.x_m, lm.y_m)),
+        (CameraFrame(0.0, np.zeros((0, 0), np.uint8)), state_at(lm.x_m, lm.y_m)),
+        (CameraFrame(0.0, np.zeros((50, 50), np.float32)), state_at(lm.x_m, lm.y_m)),
+        (CameraFrame(0.0, ok), state_at(math.nan, 0.0)),
+        (CameraFrame(0.0, ok), state_at(lm.x_m, lm.y_m, ((math.inf, 0.0), (0.0, 1.0)))),
+        (CameraFrame(0.0, ok), state_at(lm.x_m, lm.y_m, ((-5.0, 0.0), (0.0, 1.0)))),
     ]:
         assert rec.process(frame, state).reason == BAD_INPUT
     assert rec.stats()[BAD_INPUT] == 6
@@ -162,6 +152,6 @@ def test_fix_sigma_documented_value() -> None:
 
 def test_null_recogniser() -> None:
     n = NullRecogniser()
-    assert n.process(CameraFrame(0.0, None), _state(0.0, 0.0)).fix is None
-    assert n.process(CameraFrame(1.0, None), _state(0.0, 0.0)).reason == NO_CANDIDATE
+    assert n.process(CameraFrame(0.0, None), state_at(0.0, 0.0)).fix is None
+    assert n.process(CameraFrame(1.0, None), state_at(0.0, 0.0)).reason == NO_CANDIDATE
     assert n.stats()["frames"] == 2 and n.stats()["fixes"] == 0

@@ -10,11 +10,11 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from recognise_helpers import EASY
 
 from guidance.core.messages import CameraFrame, Ellipse, EstimateState, reset_sigma_m
 from hal_sim.sim_camera import (
     SimCamera,
-    SimCameraConfig,
     SimLandmark,
     build_sim_landmark_db,
     facade,
@@ -31,9 +31,6 @@ from landmark_db.search import (
 from landmark_db.store import open_db
 
 N_PLACES = 24
-EASY = SimCameraConfig(
-    perspective=0.08, occlusion=(0.0, 0.1), blur_sigma_px=(0.0, 0.8), motion_blur_px=(0.0, 1.0)
-)
 
 
 @pytest.fixture(scope="module")

@@ -10,9 +10,9 @@ from pathlib import Path
 import cv2
 import numpy as np
 import pytest
+from recognise_helpers import EASY, state_at
 
-from guidance.core.messages import Ellipse, EstimateState
-from hal_sim.sim_camera import SimCamera, SimCameraConfig, SimLandmark
+from hal_sim.sim_camera import SimCamera, SimLandmark
 from landmark_db.recognise import NOT_CONSISTENT
 from landmark_db.threads import (
     blas_threads,
@@ -21,16 +21,6 @@ from landmark_db.threads import (
     loaded_blas_libraries,
 )
 from landmark_db.worker import WORKER_NICE_LEVELS, WORKER_THREADS, RecogniserWorker
-
-COV = ((15.0**2, 0.0), (0.0, 15.0**2))
-EASY = SimCameraConfig(
-    perspective=0.08, occlusion=(0.0, 0.1), blur_sigma_px=(0.0, 0.8), motion_blur_px=(0.0, 1.0)
-)
-
-
-def _state(x: float, y: float, cov: tuple = COV, t: float = 0.0) -> EstimateState:
-    c = ((cov[0][0], cov[0][1], 0.0), (cov[1][0], cov[1][1], 0.0), (0.0, 0.0, 0.01))
-    return EstimateState(t, x, y, 0.0, c, Ellipse(30.0, 30.0, 0.0, 60.0), False, True)
 
 
 def test_worker_process_gives_the_same_answers(
@@ -42,7 +32,7 @@ def test_worker_process_gives_the_same_answers(
     frames = [cam.frame_at(0.5 * k, lm.x_m, lm.y_m) for k in range(2)]
     pickle.dumps(frames[0])  # frames cross the process boundary
     with RecogniserWorker(path) as worker:
-        got = [worker.process(f, _state(lm.x_m, lm.y_m)).result(timeout=60) for f in frames]
+        got = [worker.process(f, state_at(lm.x_m, lm.y_m)).result(timeout=60) for f in frames]
         assert worker.stats()["fixes"] == 1
     assert got[0].reason == NOT_CONSISTENT and got[1].fix is not None
     assert got[1].fix.landmark_id == lm.id

@@ -165,7 +165,7 @@ def past(prev: Ahead | None, est: EstimateState, tol_rad: float) -> bool:
     the turn as the road after it)."""
     if prev is None:
         return True
-    if prev.at_odometer_m is None or est.odometer_m <= prev.at_odometer_m + 5.0:
+    if prev.at_odometer_m is None or est.odometer_m <= prev.at_odometer_m + PASS_MARGIN_M:
         return False
     if prev.decision is None:
         return True
