@@ -216,6 +216,9 @@ def test_figures_carry_the_caption_and_the_lost_interval(
         real(self, *a, **k)  # type: ignore[arg-type]
 
     monkeypatch.setattr(matplotlib.figure.Figure, "savefig", spy)
+    # drawn in this process, where the spy sees them (with no other thread alive the study
+    # draws its figures in forked children: the test then saw nothing, run alone)
+    monkeypatch.setattr(studies, "_can_fork", lambda: False)
     StudyRun("range", tmp_path, 4, seed=2, workers=1).run()
     assert any(t.startswith("commit ") and "N = 16 (4 per condition)" in t for t in texts)
     no_compass = next(t for t in texts if t.startswith("no compass"))
