@@ -428,6 +428,32 @@ def test_the_planner_never_imports_the_localizer() -> None:
     assert not bad, "\n".join(bad)
 
 
+def test_the_planner_loads_nothing_of_the_localizer_even_through_another_module() -> None:
+    """Not even transitively (``PlannerConfig``, ``Outputs`` beside the stages): every
+    ``core/plan`` module imported in a fresh interpreter leaves ``guidance.core.localize``
+    unloaded (before: ``plan.planner`` loaded the filter through ``pipeline_config``)."""
+    plan = ROOT / "guidance" / "core" / "plan"
+    modules = sorted(
+        "guidance.core.plan" + ("" if p.stem == "__init__" else f".{p.stem}")
+        for p in plan.glob("*.py")
+    )
+    assert "guidance.core.plan.planner" in modules and "guidance.core.plan.guide" in modules
+    code = (
+        f"import importlib, sys\nfor m in {modules!r}: importlib.import_module(m)\n"
+        "print(sorted(m for m in sys.modules if m == 'guidance.core.localize'"
+        " or m.startswith('guidance.core.localize.')))"
+    )
+    out = subprocess.run(
+        [sys.executable, "-c", code], capture_output=True, text=True, check=True, cwd=ROOT
+    ).stdout.strip()
+    assert out == "[]", f"importing core/plan loads {out}"
+
+
+def test_the_load_check_sees_the_localizer_where_it_is_loaded() -> None:
+    """The check above can fail: the pipeline, which runs both stages, loads the filter."""
+    assert _loads("guidance.core.pipeline", "guidance.core.localize.estimator")
+
+
 def _estimator_config_names() -> set[str]:
     from dataclasses import fields
 

@@ -29,6 +29,7 @@ from dataclasses import asdict
 from guidance.core import speech
 from guidance.core.health import BAD_STATUSES, DeviceStatus, HealthMonitor
 from guidance.core.localize.localizer import Localizer, LocalizerConfig
+from guidance.core.localize.state_limits import state_problem
 from guidance.core.messages import (
     EstimateState,
     GoalUpdate,
@@ -39,7 +40,13 @@ from guidance.core.messages import (
     Speech,
     Target,
 )
-from guidance.core.pipeline_config import INPUT_KINDS, Input, Outputs, PipelineConfig
+from guidance.core.pipeline_config import (
+    INPUT_KINDS,
+    Input,
+    Outputs,
+    PipelineConfig,
+    planner_config,
+)
 from guidance.core.pipeline_state import LocalizeState, PipelineState, PlanState
 from guidance.core.plan.navigator import Decision, Navigator
 from guidance.core.plan.planner import Planner
@@ -60,7 +67,7 @@ class Pipeline:
         """One table for the three parts' counts (a checkpoint's ``counts``)."""
         self.health = HealthMonitor(config.expected_rates_hz, config.health)
         self.localizer = Localizer(LocalizerConfig.of(config), self.health, self.counts)
-        self.planner = Planner(config, self.counts)
+        self.planner = Planner(planner_config(config), self.counts)
         self.st = PipelineState()
         self._last_t: float | None = None
         self._next_health_t = -math.inf
@@ -253,6 +260,7 @@ class Pipeline:
             n_landmarks=len(nav.landmarks),
             mem_capacity=nav.config.max_intersections,
             mem_width=nav.config.max_exits,
+            state_problem=state_problem,
             prior_variances=self.localizer.prior_variances(),
         )
         # every state checked too, before anything changes

@@ -1,41 +1,35 @@
-"""What the pipeline takes and gives: the ``Input`` union, which health record each input feeds,
-``Outputs`` (what one input caused) and ``PipelineConfig`` (built from the TOML config by
-``guidance.app.config``, or by the simulator)."""
+"""What the pipeline takes and gives: which health record each input feeds, ``PipelineConfig``
+(built from the TOML config by ``guidance.app.config``, or by the simulator) and the second
+stage's part of it (``planner_config``); the ``Input`` union and ``Outputs`` (what one input
+caused), defined in ``guidance.core.stages``, are named here too."""
 
 from __future__ import annotations
 
 from collections.abc import Mapping
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, fields
 
 from guidance.config_tables import plain, rule
-from guidance.core.codec import InputMessage
 from guidance.core.health import HealthConfig
 from guidance.core.localize.estimator import EstimatorConfig
 from guidance.core.messages import (
     Approach,
     CancelReport,
     CompassHeading,
-    DeviceStatus,
-    EstimateState,
-    ExitTaken,
     GoalUpdate,
     HeadingFix,
-    HealthChange,
     IntersectionScene,
     LandmarkFix,
-    Prompt,
     TurnCompleted,
     WheelOdometry,
     YawRate,
 )
 from guidance.core.plan.chance import ChanceSettings
-from guidance.core.plan.navigator import Decision, Landmark, NavigatorConfig
+from guidance.core.plan.config import PlannerConfig
+from guidance.core.plan.navigator import Landmark, NavigatorConfig
 from guidance.core.plan.turns import TurnDetectorConfig
 from guidance.core.speech import Units
-
-Input = InputMessage | DeviceStatus
-"""Everything the pipeline is fed: the recorded inputs (``codec.InputMessage``) and the drivers'
-status flips."""
+from guidance.core.stages import Input as Input  # the pipeline's, defined beside the stages
+from guidance.core.stages import Outputs as Outputs
 
 INPUT_KINDS: dict[type, str] = {
     WheelOdometry: "odometry",
@@ -50,27 +44,6 @@ INPUT_KINDS: dict[type, str] = {
     Approach: "scene",
 }
 """Which health record an input type feeds."""
-
-
-@dataclass(slots=True)
-class Outputs:
-    """What one input (or tick) caused."""
-
-    accepted: bool = True
-    reason: str | None = None
-    decisions: list[Decision] = field(default_factory=list)
-    prompts: list[Prompt] = field(default_factory=list)
-    landmark_updates: list[LandmarkFix] = field(default_factory=list)
-    landmark_rejections: list[tuple[LandmarkFix, str]] = field(default_factory=list)
-    turns: list[TurnCompleted] = field(default_factory=list)
-    exits_taken: list[ExitTaken] = field(default_factory=list)
-    health: list[HealthChange] = field(default_factory=list)
-    state: EstimateState | None = None
-    """The estimate, when a state publication is due (``state_period_s`` of message time)."""
-    chance: float | None = None
-    """With ``state``: the chance of reaching the goal from here (``guidance.core.plan.chance``)."""
-    arrived: bool = False
-    lost: bool = False
 
 
 COORDINATE = rule(lo=-1e8, hi=1e8)
@@ -146,3 +119,14 @@ class PipelineConfig:
         exactly this car (``guidance.tools.replay_session``)."""
         out: dict[str, object] = plain(self)
         return out
+
+
+def planner_config(config: PipelineConfig) -> PlannerConfig:
+    """The car's settings for the second stage, taken here once: each ``PlannerConfig`` field
+    of the same name, and the two numbers of the estimator's it judges the estimate by."""
+    own = {f.name for f in fields(PlannerConfig)} - {"lost_major_axis_m", "compass_two_sigma_deg"}
+    return PlannerConfig(
+        **{name: getattr(config, name) for name in own},
+        lost_major_axis_m=config.estimator.lost_major_axis_m,
+        compass_two_sigma_deg=config.estimator.compass_two_sigma_deg,
+    )

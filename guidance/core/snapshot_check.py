@@ -5,7 +5,8 @@ version or written by a process that had already gone wrong. ``check_snapshot`` 
 value ``Pipeline.restore`` reads and raises ``SnapshotError`` (one line, naming the field) unless
 each is of the right type (numbers are JSON numbers, never text or booleans), finite, within the
 bounds the consumer needs (a covariance as the estimator judges one and the learned states
-within their physical range, ``state_limits``; a position within
+within their physical range: the first stage's ``state_limits.state_problem``, handed in by
+the pipeline, so that the planner's checks here load nothing of ``core/localize``; a position within
 ``MAX_OFFSET_M`` of the trip's start, a speed a car can drive) and of a bounded size (the
 navigator's memory fits its arrays). Nothing is changed: ``restore`` runs only after it passed.
 """
@@ -13,12 +14,15 @@ navigator's memory fits its arrays). Nothing is changed: ``restore`` runs only a
 from __future__ import annotations
 
 import math
-from collections.abc import Mapping, Sequence
+from collections.abc import Callable, Mapping, Sequence
 
 import numpy as np
 
-from guidance.core.localize.state_limits import state_problem
 from guidance.errors import checked_number
+
+StateJudge = Callable[[Sequence[float], np.ndarray, Sequence[float] | None], str | None]
+"""Why an estimator state ``(x, P)`` with its ``prior_variances`` is not valid, or None
+(``guidance.core.localize.state_limits.state_problem``)."""
 
 MAX_OFFSET_M = 200_000.0
 """A restored position farther than this from the trip's start is not believed (an urban trip)."""
@@ -82,10 +86,11 @@ def check_state(
     P: object,
     n_state: int,
     start_xy: tuple[float, float],
+    state_problem: StateJudge,
     prior_variances: Sequence[float] | None = None,
 ) -> None:
     """The estimator state: a vector of 3 or ``n_state`` numbers and its covariance, valid as
-    the estimator judges one (``state_limits.state_problem``: positive-definite but for the
+    the estimator judges one (``state_problem``: positive-definite but for the
     states whose ``prior_variances`` are zero by design, the learned states within their
     physical range)."""
     xs = _list(x, "x", n_state)
@@ -211,13 +216,14 @@ def check_snapshot(
     n_landmarks: int,
     mem_capacity: int,
     mem_width: int,
+    state_problem: StateJudge,
     prior_variances: Sequence[float] | None = None,
 ) -> None:
     """Raise ``SnapshotError`` unless every value ``Pipeline.restore`` reads is usable;
-    ``prior_variances``: the estimator's (``check_state``)."""
+    ``state_problem`` and ``prior_variances``: the estimator's (``check_state``)."""
     if not isinstance(snap, dict):
         raise SnapshotError(f"the snapshot must be a table, not {type(snap).__name__}")
-    check_state(snap.get("x"), snap.get("P"), n_state, start_xy, prior_variances)
+    check_state(snap.get("x"), snap.get("P"), n_state, start_xy, state_problem, prior_variances)
     if snap.get("last_t_s") is not None:
         _number(snap, "last_t_s", -1e12, 1e12, 0.0)
     check_navigator(snap.get("navigator"), n_landmarks, mem_capacity, mem_width)

@@ -15,7 +15,6 @@ from dataclasses import replace
 
 from guidance.core import speech
 from guidance.core.messages import EstimateState, Priority, Prompt, Say, Speech
-from guidance.core.pipeline_config import Outputs, PipelineConfig
 from guidance.core.plan.announce import (
     WORD_SIGMAS,
     arrives_before,
@@ -24,8 +23,10 @@ from guidance.core.plan.announce import (
     heads_along,
     too_late,
 )
+from guidance.core.plan.config import PlannerConfig
 from guidance.core.plan.navigator import Navigator
 from guidance.core.plan.road import Ahead, announce_target, pose_covariance, predicted_xy
+from guidance.core.stages import Outputs
 
 REPEAT_S = 5.0
 """The same sentence is not said twice within this time (unless it says a change)."""
@@ -35,7 +36,7 @@ class Announcer:
     """What is said of the intersections ahead (see the module doc); the guide hands it its
     queue at each call."""
 
-    def __init__(self, config: PipelineConfig, navigator: Navigator, counts: Counter[str]) -> None:
+    def __init__(self, config: PlannerConfig, navigator: Navigator, counts: Counter[str]) -> None:
         self.config = config
         self.navigator = navigator
         self.counts = counts

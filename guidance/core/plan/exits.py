@@ -19,10 +19,11 @@ import numpy as np
 
 from guidance.core.messages import EstimateState, ExitTaken, TurnCompleted
 from guidance.core.model import wrap_angle
-from guidance.core.pipeline_config import Outputs, PipelineConfig
 from guidance.core.plan.announce import heading_cannot_tell, heading_sd
+from guidance.core.plan.config import PlannerConfig
 from guidance.core.plan.navigator import Navigator
 from guidance.core.plan.road import Ahead, RoadHistory, pose_covariance, unplaced_after_gap
+from guidance.core.stages import Outputs
 
 PASSED_STRAIGHT_M = 10.0
 """No distance: once the next intersection is reported (so the car is at or in this one), a
@@ -36,7 +37,7 @@ class ExitResolver:
 
     def __init__(
         self,
-        config: PipelineConfig,
+        config: PlannerConfig,
         navigator: Navigator,
         counts: Counter[str],
         history: RoadHistory,

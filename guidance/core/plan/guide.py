@@ -42,8 +42,8 @@ from guidance.core.messages import (
     TurnCompleted,
 )
 from guidance.core.model import wrap_angle
-from guidance.core.pipeline_config import Outputs, PipelineConfig
 from guidance.core.plan.announcer import Announcer
+from guidance.core.plan.config import PlannerConfig
 from guidance.core.plan.exits import ExitResolver
 from guidance.core.plan.navigator import Decision, Navigator
 from guidance.core.plan.road import (
@@ -57,6 +57,7 @@ from guidance.core.plan.road import (
     predicted_xy,
 )
 from guidance.core.snapshot_check import integer
+from guidance.core.stages import Outputs
 
 log = logging.getLogger(__name__)
 
@@ -83,7 +84,7 @@ class Guide:
     distance driven, the speed, whether the distance is dead-reckoned) and writes what it
     decides and says into ``out``."""
 
-    def __init__(self, config: PipelineConfig, navigator: Navigator, counts: Counter[str]) -> None:
+    def __init__(self, config: PlannerConfig, navigator: Navigator, counts: Counter[str]) -> None:
         self.config = config
         self.navigator = navigator
         self.counts = counts

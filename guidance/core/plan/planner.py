@@ -35,14 +35,14 @@ from guidance.core.messages import (
     TurnCompleted,
 )
 from guidance.core.odometry_gap import placeable_s
-from guidance.core.pipeline_config import Input, Outputs, PipelineConfig
 from guidance.core.pipeline_state import PlanState
 from guidance.core.plan.chance import ChanceWatch, shipped_or_none
+from guidance.core.plan.config import PlannerConfig
 from guidance.core.plan.guide import SAME_PLACE_M, Guide
 from guidance.core.plan.navigator import Navigator
 from guidance.core.plan.turns import TurnDetector
 from guidance.core.snapshot_check import integer
-from guidance.core.stages import LOST_HYSTERESIS, LocalizeStep
+from guidance.core.stages import LOST_HYSTERESIS, Input, LocalizeStep, Outputs
 
 log = logging.getLogger(__name__)
 
@@ -59,7 +59,7 @@ LANDMARK_REPEAT_S = 30.0
 class Planner:
     """Navigator + guide + turn detector + chance, driven by estimates and scene inputs."""
 
-    def __init__(self, config: PipelineConfig, counts: Counter[str] | None = None) -> None:
+    def __init__(self, config: PlannerConfig, counts: Counter[str] | None = None) -> None:
         self.config = config
         self.counts: Counter[str] = Counter() if counts is None else counts
         self.st = PlanState(placed=not config.start_unknown)
@@ -126,7 +126,7 @@ class Planner:
         self.navigator.on_landmark_fix(fix.landmark_id, est.ellipse.major_axis_m)
         name = next((lm.name for lm in self.config.landmarks if lm.id == fix.landmark_id), "")
         last = self.st.landmark_said.get(str(fix.landmark_id), -math.inf)
-        still_lost = est.ellipse.major_axis_m > self.config.estimator.lost_major_axis_m
+        still_lost = est.ellipse.major_axis_m > self.config.lost_major_axis_m
         if (step.relocalised or was_lost) and still_lost:
             # a reset as wide as lost itself (a sighting range over a quarter of the lost
             # axis: ``landmark_warnings``) finds nothing the driver can use: no "found"
@@ -206,7 +206,7 @@ class Planner:
         mode_done: bool = False,
     ) -> None:
         major = est.ellipse.major_axis_m
-        lost_axis = self.config.estimator.lost_major_axis_m
+        lost_axis = self.config.lost_major_axis_m
         lost = major > lost_axis  # the estimator's lost, axis computed once
         if not mode_done:
             self.navigator.update_mode(major)
@@ -247,12 +247,12 @@ class Planner:
         """The chance of reaching the goal, at each state publication; said once when low."""
         goal = self.navigator.goal
         to_go = math.hypot(goal[0] - est.x_m, goal[1] - est.y_m)
-        sigma = self.config.estimator.compass_two_sigma_deg
+        sigma = self.config.compass_two_sigma_deg
         if compass_unusable:
             sigma = None  # the compass is not helping: the table's no-compass slice
         quiet = self.st.lost_said or self.st.arrived or self.st.finished
         say, self.st.chance_said = self.chance.update(
-            to_go, major, self.config.estimator.lost_major_axis_m, sigma,
+            to_go, major, self.config.lost_major_axis_m, sigma,
             said=self.st.chance_said, quiet=quiet,
         )  # fmt: skip
         out.chance = self.chance.value
