@@ -4,7 +4,9 @@ The real ``App``, ``Pipeline`` and ``CanOdometry`` (python-can virtual bus, wall
 with wheel-speed frames at 100 Hz from ``SimCanWheels`` on its own thread, while a camera
 thread delivers 640x480 frames at full rate (30 Hz) and ORB landmark matching (OpenCV
 detect + describe + brute-force kNN ratio test against a reference photo) runs on every frame
-the matcher can take, in a worker thread (OpenCV releases the GIL).
+the matcher can take, in a worker thread (OpenCV releases the GIL). The pipeline has no goal
+(``PipelineConfig.goal_xy_m`` None): it estimates, publishes the state and health and judges
+the inputs as a car does, and makes no decision and no chance (there are no intersections).
 
 Two cases, side by side with their ratio: ``idle`` (nothing else running) and ``loaded``: one
 CPU-bound process beside the app (``--busy N`` for more), a program at the default priority
@@ -217,8 +219,7 @@ async def _run(
         PipelineConfig(
             estimator=EstimatorConfig(compass_two_sigma_deg=20.0),
             navigator=NavigatorConfig(method=Method.HYBRID),
-            start_xy_m=(0.0, 0.0),
-            goal_xy_m=(1e6, 0.0),
+            start_xy_m=(0.0, 0.0),  # no goal: the car estimates, publishes and warns
             start_heading_rad=0.0,
             expected_rates_hz={"odometry": 100.0, "camera": 30.0}
             if camera

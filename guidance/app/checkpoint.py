@@ -60,11 +60,16 @@ def trip_identity(vehicle_id: str, pipeline_config: Mapping[str, Any]) -> dict[s
         "vehicle_id": vehicle_id,
         "software_version": version(),
         "trip": {
-            "goal_xy_m": list(pipeline_config.get("goal_xy_m", [])),
+            "goal_xy_m": _listed(pipeline_config.get("goal_xy_m", [])),
             "start_xy_m": list(pipeline_config.get("start_xy_m", [])),
             "config_digest": hashlib.sha256(text.encode()).hexdigest()[:16],
         },
     }
+
+
+def _listed(xy: Any) -> list[Any] | None:
+    """A point as the identity holds it; None: no goal."""
+    return None if xy is None else list(xy)
 
 
 class Checkpointer:

@@ -179,7 +179,8 @@ def _place(data: object, where: str, origin: LatLon | None, cls: type[Place] = P
 class _Trip:
     start: StartSettings
     start_xy: tuple[float, float]
-    goal_xy: tuple[float, float]
+    goal_xy: tuple[float, float] | None
+    """None: no ``[goal]`` (allowed where ``require_goal`` is false)."""
     origin: LatLon | None
     """The local frame's WGS-84 origin: the start's latitude and longitude (start anywhere:
     the goal's)."""
@@ -197,12 +198,13 @@ def _trip(data: Mapping[str, Any], require_goal: bool) -> _Trip:
     origin, unknown = _lat_lon(start), start.unknown
     if "goal" not in data and require_goal:
         raise UserError("[goal] is required (lat_deg/lon_deg or x_m/y_m)")
-    goal_xy = (0.0, 0.0)
+    goal_xy: tuple[float, float] | None = None
     if "goal" in data:
         goal, goal_xy = _place(data["goal"], "goal", origin)
         if not placed and origin is None and goal.geodetic:
             origin, unknown = _lat_lon(goal), True  # start anywhere: the frame is the goal's
-    return _Trip(start, goal_xy if unknown else start_xy, goal_xy, origin, unknown)
+    waits = goal_xy if unknown and goal_xy is not None else start_xy  # start anywhere: at the goal
+    return _Trip(start, waits, goal_xy, origin, unknown)
 
 
 def _lat_lon(p: Place) -> LatLon | None:

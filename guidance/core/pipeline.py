@@ -206,7 +206,8 @@ class Pipeline:
         recognised now is a whole-database find (``LandmarkFix.relocalised``)."""
         return self.config.relocalise and self.planner.st.lost_said
 
-    def target(self) -> Target:
+    def target(self) -> Target | None:
+        """What the car aims at now (None: no goal)."""
         return self.planner.target(self.localizer.estimate())
 
     @property

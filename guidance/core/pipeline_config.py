@@ -63,7 +63,9 @@ class PipelineConfig:
     estimator: EstimatorConfig
     navigator: NavigatorConfig
     start_xy_m: tuple[float, float] = field(metadata=COORDINATE)
-    goal_xy_m: tuple[float, float] = field(metadata=COORDINATE)
+    goal_xy_m: tuple[float, float] | None = field(default=None, metadata=COORDINATE)
+    """None: no goal (``[goal]`` left out: a raw-log replay, a bench). The car still estimates,
+    publishes and warns; it makes no decision, no chance and no arrival until a ``GoalUpdate``."""
     start_heading_rad: float | None = field(default=None, metadata=rule(lo=-7.0, hi=7.0))
     """None: taken from the first compass reading."""
     landmarks: tuple[Landmark, ...] = field(default=(), metadata=rule(max_items=100_000))

@@ -116,11 +116,14 @@ def check_state(
 def check_navigator(nav: object, n_landmarks: int, capacity: int, width: int) -> None:
     if not isinstance(nav, dict):
         raise SnapshotError(f"navigator must be a table, not {type(nav).__name__}")
-    goal = _list(nav.get("goal"), "navigator.goal", 2)
-    if len(goal) != 2:
-        raise SnapshotError("navigator.goal must be [x, y]")
-    for i, v in enumerate(goal):
-        number(v, f"navigator.goal[{i}]", -1e9, 1e9)
+    if "goal" not in nav:
+        raise SnapshotError("navigator.goal is missing")
+    if nav["goal"] is not None:  # null: no goal yet
+        goal = _list(nav.get("goal"), "navigator.goal", 2)
+        if len(goal) != 2:
+            raise SnapshotError("navigator.goal must be [x, y] or null")
+        for i, v in enumerate(goal):
+            number(v, f"navigator.goal[{i}]", -1e9, 1e9)
     integer(nav.get("mode"), "navigator.mode", 0, 1)
     passed = _list(nav.get("passed"), "navigator.passed", n_landmarks)
     if len(passed) != n_landmarks or not all(isinstance(p, bool) for p in passed):

@@ -12,7 +12,9 @@ Two kinds of input:
   python-can's readers and the car's ``WheelSpeedDecoder``) and optionally an NMEA text file
   (each line optionally prefixed by its time in seconds; otherwise spread at ``--nmea-rate``
   from the start of the CAN log), merged by time. Start, goal and method come from
-  ``--config`` (the car's TOML) or sensible defaults.
+  ``--config`` (the car's TOML) or sensible defaults. With no ``[goal]`` (and with no
+  ``--config``) the pipeline has no goal: it publishes the estimate, its health and the
+  warnings, and makes no decision, no chance and no arrival.
 
 ``--speed X`` paces the replay at X times the recorded rate; by default it runs flat out.
 """
@@ -275,9 +277,8 @@ def raw_setup(
         if start_heading_deg is not None:
             pcfg = replace(pcfg, start_heading_rad=math.radians(90.0 - start_heading_deg))
         notes = (f"declination {pcfg.declination_deg:+.2f} deg for {date}",) if date else ()
-        if pcfg.goal_xy_m == pcfg.start_xy_m:  # no [goal]: evaluate the estimate, never arrive
-            pcfg = replace(pcfg, goal_xy_m=(pcfg.start_xy_m[0] + 1e7, pcfg.start_xy_m[1]),
-                           stop_at_arrival=False)  # fmt: skip
+        if pcfg.goal_xy_m is None:  # no [goal]: the estimate, its health and warnings only
+            pcfg = replace(pcfg, stop_at_arrival=False)  # being lost does not end the replay
         return RawSetup(pcfg, profile or cfg_profile or DEFAULT_PROFILE, notes)
     note = "no --config: no declination, no calibration, the paper's noise model"
     return RawSetup(_default_pipeline(start_heading_deg), profile or DEFAULT_PROFILE, (note,))
@@ -292,7 +293,6 @@ def _default_pipeline(start_heading_deg: float | None) -> PipelineConfig:
         estimator=EstimatorConfig(),
         navigator=NavigatorConfig(),
         start_xy_m=(0.0, 0.0),
-        goal_xy_m=(1e7, 0.0),
         start_heading_rad=(
             None if start_heading_deg is None else math.radians(90.0 - start_heading_deg)
         ),

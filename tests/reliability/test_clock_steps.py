@@ -35,7 +35,6 @@ def test_wall_clock_steps_leave_the_estimate_moving_and_are_reported() -> None:
             estimator=EstimatorConfig(compass_two_sigma_deg=20.0),
             navigator=NavigatorConfig(),
             start_xy_m=(0.0, 0.0),
-            goal_xy_m=(1e6, 0.0),
             start_heading_rad=0.0,
             expected_rates_hz={"odometry": 50.0, "compass": 10.0},
             stop_at_arrival=False,

@@ -118,7 +118,8 @@ class Announcer:
         """The car will be told it has arrived ``ARRIVE_MARGIN_M`` before it gets to ``a``:
         its road to ``a`` (from the car, or from the intersection before it) enters the arrival
         circle that far before ``a`` (a turn made before arriving is announced as any other)."""
-        if a.at_odometer_m is None or a.approach_heading_rad is None:
+        goal = self.navigator.goal
+        if a.at_odometer_m is None or a.approach_heading_rad is None or goal is None:
             return False
         odometer_m = est.odometer_m
         start, start_odo = (est.x_m, est.y_m), odometer_m
@@ -132,7 +133,7 @@ class Announcer:
                 start_odo = prev.at_odometer_m
         radius = self.navigator.config.arrival_radius_m
         to_go = a.at_odometer_m - start_odo
-        return arrives_before(self.navigator.goal, radius, start, a.approach_heading_rad, to_go)
+        return arrives_before(goal, radius, start, a.approach_heading_rad, to_go)
 
     def _then(
         self, ahead: list[Ahead], i: int, a: Ahead, est: EstimateState

@@ -26,7 +26,9 @@ class PlannerConfig:
 
     navigator: NavigatorConfig
     start_xy_m: tuple[float, float]
-    goal_xy_m: tuple[float, float]
+    goal_xy_m: tuple[float, float] | None
+    """None: no goal (yet). The planner still publishes the state and says the uncertainty
+    and the loss, but makes no decision, no chance and no arrival until a ``GoalUpdate``."""
     landmarks: tuple[Landmark, ...]
     lost_major_axis_m: float
     """The estimator's: lost past this 2-sigma major axis."""

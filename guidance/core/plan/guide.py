@@ -301,8 +301,8 @@ class Guide:
         than ``CHANGE_MARGIN_RAD``: the target the law picks drifts as the car drives, and a
         driver told one way must not hear the other for that."""
         exits = a.exits_now()
-        if exits is None or a.approach_heading_rad is None:
-            return
+        if exits is None or a.approach_heading_rad is None or self.navigator.goal is None:
+            return  # (no goal: the planner takes no report, but a checkpoint may hold one)
         a.last_eval_odometer_m = est.odometer_m
         at = predicted_xy(self.ahead, a, est)
         new = self.navigator.evaluate(

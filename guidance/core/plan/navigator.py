@@ -58,16 +58,18 @@ __all__ = ["Decision", "ExitOption", "Landmark", "Method", "Navigator", "Navigat
 
 
 class Navigator:
-    """Holds the goal, the landmarks, the intersection memory and the method's mode."""
+    """Holds the goal, the landmarks, the intersection memory and the method's mode. With no
+    goal (None, until ``set_goal``) it never arrives and has nothing to decide for: ``target``,
+    ``decide`` and ``evaluate`` raise ``ValueError`` (the planner asks none of them then)."""
 
     def __init__(
         self,
-        goal_xy: tuple[float, float],
+        goal_xy: tuple[float, float] | None,
         config: NavigatorConfig | None = None,
         landmarks: Sequence[Landmark] = (),
     ) -> None:
         self.config = config or NavigatorConfig()
-        self.goal = (float(goal_xy[0]), float(goal_xy[1]))
+        self.goal = _point(goal_xy)
         self.landmarks = tuple(landmarks)
         self._lm_xy = np.array([[lm.x_m, lm.y_m] for lm in self.landmarks], dtype=float).reshape(
             -1, 2
@@ -93,7 +95,7 @@ class Navigator:
     # -- goal and landmarks ---------------------------------------------------
     def set_goal(self, goal_xy: tuple[float, float]) -> None:
         """A new goal (field protocol or a remote command): forget passed landmarks."""
-        self.goal = (float(goal_xy[0]), float(goal_xy[1]))
+        self.goal = _point(goal_xy)
         self._passed[:] = False
 
     @property
@@ -101,7 +103,10 @@ class Navigator:
         return "landmark" if self._mode == law.MODE_LANDMARK else "goal"
 
     def arrived(self, x: Sequence[float] | np.ndarray) -> bool:
-        """Within the arrival radius of the goal (``x``: the position first, x then y)."""
+        """Within the arrival radius of the goal (``x``: the position first, x then y); never
+        with no goal."""
+        if self.goal is None:
+            return False
         return math.hypot(self.goal[0] - x[0], self.goal[1] - x[1]) <= self.config.arrival_radius_m
 
     def update_mode(self, major_axis_m: float, landmark_update: bool = False) -> None:
@@ -127,17 +132,16 @@ class Navigator:
         Landmarks within the pass radius of ``x`` count as passed for this answer only: the
         navigator marks them passed at the next decision (``law.decide_exit``), as the study
         engine does, so showing the target never changes what the car decides."""
+        gx, gy = self._goal()
         if self._mode == law.MODE_LANDMARK and len(self.landmarks):
             passed = self._passed.copy()
             law.mark_passed(float(x[0]), float(x[1]), self._lm_xy, passed,
                             self.config.landmark_pass_radius_m)  # fmt: skip
-            k = law.landmark_target(
-                float(x[0]), float(x[1]), self.goal[0], self.goal[1], self._lm_xy, passed
-            )
+            k = law.landmark_target(float(x[0]), float(x[1]), gx, gy, self._lm_xy, passed)
             if k >= 0:
                 lm = self.landmarks[k]
                 return Target(lm.x_m, lm.y_m, "landmark", lm.id)
-        return Target(self.goal[0], self.goal[1], "goal", None)
+        return Target(gx, gy, "goal", None)
 
     # -- the decision -------------------------------------------------------
     def decide(
@@ -147,13 +151,14 @@ class Navigator:
         and record it as taken (``law.decide_exit``: the study engine's step, for a car that
         decides at the intersection and always follows)."""
         headings = self._headings(exit_headings)
+        gx, gy = self._goal()
         self.update_mode(float(model.major_axis_m(P)))
         penalties = np.zeros(len(headings))
         costs = np.zeros(len(headings))
         best, k, revisit, self._n_mem, target = law.decide_exit(
             float(x[0]), float(x[1]), float(P[0, 0]), float(P[0, 1]), float(P[1, 1]),
             headings, self._mem_xy, self._mem_headings, self._mem_counts, self._n_mem,
-            self._passed, self._lm_xy, self.goal[0], self.goal[1], self._mode, self._params,
+            self._passed, self._lm_xy, gx, gy, self._mode, self._params,
             penalties, costs,
         )  # fmt: skip
         self.decisions += 1
@@ -176,6 +181,7 @@ class Navigator:
         is remembered (``law.evaluate_exit``): the car re-evaluates as it approaches and
         ``commit`` records the exit it took once it is through."""
         headings = self._headings(exit_headings)
+        gx, gy = self._goal()
         penalties = np.zeros(len(headings))
         costs = np.zeros(len(headings))
         passed = self._passed.copy()
@@ -186,7 +192,7 @@ class Navigator:
         best, k, target = law.evaluate_exit(
             float(at_xy[0]), float(at_xy[1]), float(P[0, 0]), float(P[0, 1]), float(P[1, 1]),
             headings, self._mem_xy, self._mem_headings, self._mem_counts, self._n_mem,
-            passed, self._lm_xy, self.goal[0], self.goal[1], self._mode,
+            passed, self._lm_xy, gx, gy, self._mode,
             self._params, penalties, costs,
         )  # fmt: skip
         return self._decision(t_s, approach_heading_rad, headings, penalties, costs, best, k,
@@ -206,6 +212,11 @@ class Navigator:
             law.mark_passed(x, y, self._lm_xy, self._passed, self.config.landmark_pass_radius_m)
         self.decisions += 1
         return int(k)
+
+    def _goal(self) -> tuple[float, float]:
+        if self.goal is None:
+            raise ValueError("the navigator has no goal: nothing to aim or decide for")
+        return self.goal
 
     @staticmethod
     def _headings(exit_headings: Sequence[float]) -> np.ndarray:
@@ -229,7 +240,7 @@ class Navigator:
             lm = self.landmarks[target]
             tx, ty, kind, tid = lm.x_m, lm.y_m, "landmark", lm.id
         else:
-            tx, ty, kind, tid = self.goal[0], self.goal[1], "goal", None
+            (tx, ty), kind, tid = self._goal(), "goal", None
         options = tuple(
             ExitOption(
                 index=i,
@@ -274,7 +285,7 @@ class Navigator:
         """The navigator's memory as plain data (for checkpoints)."""
         n = self._n_mem
         return {
-            "goal": list(self.goal),
+            "goal": None if self.goal is None else list(self.goal),
             "mode": self._mode,
             "passed": self._passed.tolist(),
             "mem_xy": self._mem_xy[:n].tolist(),
@@ -284,8 +295,8 @@ class Navigator:
 
     def restore(self, memory: dict[str, object]) -> None:
         goal = memory["goal"]
-        assert isinstance(goal, list)
-        self.goal = (float(goal[0]), float(goal[1]))
+        assert goal is None or isinstance(goal, list)
+        self.goal = None if goal is None else (float(goal[0]), float(goal[1]))
         self._mode = integer(memory["mode"], "navigator.mode", hi=1)
         self._passed[:] = np.asarray(memory["passed"], dtype=np.bool_)
         xy = np.asarray(memory["mem_xy"], dtype=float).reshape(-1, 2)
@@ -296,3 +307,7 @@ class Navigator:
         self._mem_headings[:n] = np.asarray(memory["mem_headings"], dtype=float).reshape(n, width)
         self._mem_counts[:n] = np.asarray(memory["mem_counts"], dtype=np.int64).reshape(n, width)
         self._mem_counts[n:] = 0
+
+
+def _point(xy: tuple[float, float] | None) -> tuple[float, float] | None:
+    return None if xy is None else (float(xy[0]), float(xy[1]))

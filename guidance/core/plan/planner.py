@@ -70,7 +70,8 @@ class Planner:
             shipped_or_none() if config.chance.enabled else None,
             config.navigator.method.value,
         )
-        self.chance.set_trip(self._landmarks_xy(), config.start_xy_m, config.goal_xy_m)
+        if config.goal_xy_m is not None:  # else: counted when a goal comes (``_set_goal``)
+            self.chance.set_trip(self._landmarks_xy(), config.start_xy_m, config.goal_xy_m)
         self.turns = TurnDetector(config.turn_detector)
         self.guide = Guide(config, self.navigator, self.counts)
         self.guide.silent = not self.st.placed  # kept, undecided and unsaid, until placed
@@ -156,6 +157,10 @@ class Planner:
     def _intersection(self, scene: IntersectionScene, est: EstimateState, out: Outputs) -> None:
         if not scene.exit_headings_rad:
             out.accepted, out.reason = False, "no_exits"
+            return
+        if self.navigator.goal is None:  # nowhere to go: nothing to decide until a goal comes
+            out.accepted, out.reason = False, "no_goal"
+            self.counts["reports_without_goal"] += 1
             return
         if not est.heading_known:  # no advice out of a heading the car does not have
             out.accepted, out.reason = False, "heading_unknown"
@@ -244,8 +249,11 @@ class Planner:
     def _chance(
         self, t: float, est: EstimateState, compass_unusable: bool, out: Outputs, major: float
     ) -> None:
-        """The chance of reaching the goal, at each state publication; said once when low."""
+        """The chance of reaching the goal, at each state publication; said once when low.
+        With no goal there is none (the state's ``chance`` is null)."""
         goal = self.navigator.goal
+        if goal is None:
+            return
         to_go = math.hypot(goal[0] - est.x_m, goal[1] - est.y_m)
         sigma = self.config.compass_two_sigma_deg
         if compass_unusable:
@@ -268,7 +276,10 @@ class Planner:
         out.prompts.append(Prompt(t, text, priority, speech.kind(say), say))
 
     # -- views ----------------------------------------------------------------------------------
-    def target(self, est: EstimateState) -> Target:
+    def target(self, est: EstimateState) -> Target | None:
+        """What the car aims at now (the goal, or a landmark on the way); None: no goal."""
+        if self.navigator.goal is None:
+            return None
         return self.navigator.target((est.x_m, est.y_m))
 
     # -- checkpoints ----------------------------------------------------------------------------

@@ -18,7 +18,6 @@ def _pipeline() -> Pipeline:
         estimator=EstimatorConfig(compass_two_sigma_deg=20.0),
         navigator=NavigatorConfig(),
         start_xy_m=(0.0, 0.0),
-        goal_xy_m=(1e6, 0.0),
         start_heading_rad=0.0,
         expected_rates_hz={"odometry": 20.0},
         stop_at_arrival=False,
@@ -73,7 +72,7 @@ def test_no_turn_advice_until_the_heading_is_known() -> None:
 
     from guidance.core.messages import CompassHeading, IntersectionScene
 
-    p = Pipeline(replace(_pipeline().config, start_heading_rad=None,
+    p = Pipeline(replace(_pipeline().config, start_heading_rad=None, goal_xy_m=(0.0, 1000.0),
                          estimator=EstimatorConfig(compass_two_sigma_deg=20.0)))  # fmt: skip
     exits = (0.0, math.pi / 2, -math.pi / 2)
     said = []

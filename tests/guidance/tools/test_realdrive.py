@@ -18,7 +18,7 @@ from pathlib import Path
 
 import pytest
 
-from guidance.core.messages import CompassHeading, WheelOdometry
+from guidance.core.messages import CompassHeading, Speech, WheelOdometry
 from guidance.core.pipeline import Pipeline
 from guidance.tools.cli import main
 from guidance.tools.replay import can_inputs, nmea_inputs, raw_setup
@@ -109,6 +109,45 @@ def test_the_car_model_keeps_the_same_compass_usable() -> None:
     assert st.valid, st.detail
     accepted = pipeline.localizer.estimator.accepted["HeadingFix"]
     assert accepted > 0.9 * sum(isinstance(m, CompassHeading) for m in msgs)
+
+
+ROUTE_SPEECH = {Speech.TURN, Speech.ARRIVED, Speech.CHANCE, Speech.DIFFERENT_EXIT}
+"""What the driver hears only of a trip to a goal."""
+
+
+@pytest.mark.parametrize("model", ["paper", "car"])
+def test_a_replay_without_a_goal_reports_all_but_the_route(model: str) -> None:
+    """A car TOML with no ``[goal]``: the raw replay's pipeline has no goal (before: one
+    10,000 km away, whose chance the states carried: 99.95 %, then 0 %). It publishes the same
+    states, health changes and warnings as with the drive's real destination (the truth's
+    last point) for a goal, and nothing of a route: no decision, chance, arrival or target."""
+    runs = {}
+    for goal in (None, _truth_end()):
+        pipeline, msgs = _pipeline(model)
+        assert pipeline.config.goal_xy_m is None  # the TOML has none
+        if goal is not None:
+            pipeline = Pipeline(replace(pipeline.config, goal_xy_m=goal))
+        states, said, health, chances, route = [], [], [], [], 0
+        for m in msgs:
+            out = pipeline.feed(m)
+            if out.state is not None:
+                states.append(out.state)
+                chances.append(out.chance)
+            said += [(p.t_s, p.text) for p in out.prompts
+                     if p.say is None or p.say.speech not in ROUTE_SPEECH]  # fmt: skip
+            health += [(h.t_s, h.status) for h in out.health]
+            route += len(out.decisions) + len(out.exits_taken) + out.arrived
+        runs[goal] = (states, said, health, chances, route, pipeline.target())
+    (states, said, health, chances, route, target), with_goal = runs[None], runs[_truth_end()]
+    assert len(states) > 500 and (states, said, health) == with_goal[:3]
+    assert {"Position uncertain, within 50 metres"} <= {t for _, t in said}  # said all the same
+    assert all(c is None for c in chances) and route == 0 and target is None
+    assert all(c is not None for c in with_goal[3]) and with_goal[5] is not None
+
+
+def _truth_end() -> tuple[float, float]:
+    last = COMMA_TRUTH.read_text().strip().splitlines()[-1].split(",")
+    return float(last[1]), float(last[2])
 
 
 def test_noise_grows_with_distance_not_with_the_message_rate() -> None:
