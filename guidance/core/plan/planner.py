@@ -6,7 +6,10 @@ a ``PlanStep``. In the order of the reference trial (``hal_sim.reference``): aft
 of the estimate, the turn detector, the road ahead (``Guide.step``), the navigator's mode, the
 uncertain / lost / arrival checks and the state publication with the chance of reaching the
 goal; then the scene inputs (intersections, approaches, co-driver turns and cancels, goals).
-It never imports the estimator (``tests/test_layers.py``).
+It takes its own ``PlannerConfig`` and never imports the estimator (``tests/test_layers.py``).
+With no goal (``PlannerConfig.goal_xy_m`` None) it publishes the state and says the
+uncertainty and the loss as ever, and decides nothing: a report is refused (``no_goal``), no
+chance, no arrival, until a ``GoalUpdate``.
 """
 
 from __future__ import annotations

@@ -58,6 +58,19 @@ def test_sim_config_loads_without_a_goal() -> None:
     assert Path(cfg.recording.directory).is_absolute()  # relative to the file's folder
 
 
+@pytest.mark.parametrize("start", [{"x_m": 0.0, "y_m": 0.0}, {"x_m": 300.0, "y_m": -40.0},
+                                   {"lat_deg": 42.444, "lon_deg": -76.5019}])  # fmt: skip
+def test_no_goal_is_no_goal_and_guidance_run_still_needs_one(start: dict[str, float]) -> None:
+    """Without ``[goal]`` (a raw-log replay) the car has no goal: not one at the frame's origin
+    (before: (0, 0), a real goal 300 m from a start given in local metres)."""
+    doc = {"start": {**start, "heading_deg": 0.0}, "compass": {"declination_deg": 0.0},
+           "telemetry": {"enabled": False}, "recording": {"enabled": False}}  # fmt: skip
+    cfg = parse_config(doc, require_goal=False)
+    assert cfg.pipeline.goal_xy_m is None
+    with pytest.raises(UserError, match=r"\[goal\] is required"):
+        parse_config(doc)
+
+
 def test_local_metres_and_explicit_declination() -> None:
     cfg = parse_config(
         {
