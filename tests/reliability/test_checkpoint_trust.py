@@ -31,7 +31,7 @@ from guidance.core.plan.navigator import Method, NavigatorConfig
 GOAL = (800.0, 300.0)
 
 
-def _pipeline(goal: tuple[float, float] = GOAL) -> Pipeline:
+def _pipeline(goal: tuple[float, float] | None = GOAL) -> Pipeline:
     return Pipeline(
         PipelineConfig(
             estimator=EstimatorConfig(compass_two_sigma_deg=20.0),
@@ -43,9 +43,9 @@ def _pipeline(goal: tuple[float, float] = GOAL) -> Pipeline:
     )
 
 
-def _driven() -> Pipeline:
+def _driven(goal: tuple[float, float] | None = GOAL) -> Pipeline:
     """A pipeline that has driven 100 m east, so a resumed state differs from a fresh one."""
-    p = _pipeline()
+    p = _pipeline(goal)
     for i in range(1, 101):
         p.feed(WheelOdometry(i * 0.1, 1.0, 1.0))
         if i % 10 == 0:
@@ -60,7 +60,9 @@ def _write(path: Path, pipeline: Pipeline, vehicle: str = "car-1", **kw: Any) ->
     return ck
 
 
-def _start(path: Path, goal: tuple[float, float] = GOAL, vehicle: str = "car-1") -> Pipeline:
+def _start(
+    path: Path, goal: tuple[float, float] | None = GOAL, vehicle: str = "car-1"
+) -> Pipeline:
     p = _pipeline(goal)
     ck = start_checkpoints(
         p, str(path), interval_s=5.0, max_age_s=600.0, vehicle_id=vehicle, resume=True
@@ -89,6 +91,7 @@ def test_the_same_vehicle_and_trip_resumes(tmp_path: Path) -> None:
     [
         ("car-2", GOAL, "from vehicle 'car-1'"),
         ("car-1", (-500.0, 900.0), "the goal changed"),
+        ("car-1", None, "the goal changed"),  # a car with no goal now
     ],
 )
 def test_another_vehicle_or_a_changed_goal_starts_afresh_and_the_file_is_moved_aside(
@@ -102,6 +105,14 @@ def test_another_vehicle_or_a_changed_goal_starts_afresh_and_the_file_is_moved_a
     assert p.navigator.goal == goal  # the configured goal, not the checkpoint's
     assert not ck.exists() and len(_aside(ck)) == 1
     assert why in caplog.text and "moved aside" in caplog.text
+
+
+def test_a_car_without_a_goal_resumes_its_own_checkpoint(tmp_path: Path) -> None:
+    ck = tmp_path / "ck.json"
+    _write(ck, _driven(goal=None))
+    assert json.loads(ck.read_bytes())["identity"]["trip"]["goal_xy_m"] is None
+    p = _start(ck, goal=None)
+    assert p.localizer.estimator.x[0] > 90.0 and p.navigator.goal is None
 
 
 def test_a_clean_stop_is_not_resumed(tmp_path: Path) -> None:

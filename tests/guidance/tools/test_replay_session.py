@@ -77,7 +77,7 @@ CONFIGS = st.builds(
     estimator=_values(EstimatorConfig),
     navigator=_values(NavigatorConfig),
     start_xy_m=XY,
-    goal_xy_m=XY,
+    goal_xy_m=st.none() | XY,  # None: no goal (a raw-log replay)
     start_heading_rad=st.none() | st.floats(-math.pi, math.pi),
     landmarks=st.lists(
         st.builds(
