@@ -137,7 +137,8 @@ def _pair(kind: str, name: str, how: dict[str, float | bool], args: argparse.Nam
     m = bars.matched_bars(matched.cars, matched.mean_nees, matched.cars_below_half)
     heavy = _run(_cars(kind, False, args.cars, args.seed), how, "heavier-tailed (t4)", kind)
     h = bars.heavier_bars(heavy.cars, heavy.inside, heavy.cars_below_half,
-                          matched.cars_below_half, matched.cars)  # fmt: skip
+                          matched.cars_below_half, matched.cars,
+                          heavy.per_car_inside)  # fmt: skip
     for line in (*m.lines, *h.lines):
         print(f"    bar: {line}")
     return m.ok and h.ok

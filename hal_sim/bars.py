@@ -29,6 +29,7 @@ filter matched to its cars' errors is conservative against them, whatever its pr
 from __future__ import annotations
 
 import math
+from collections.abc import Sequence
 from dataclasses import dataclass
 
 import numpy as np
@@ -102,22 +103,46 @@ def matched_bars(cars: int, mean_nees: float, below_half: float) -> Verdict:
     )
 
 
+def inside_interval(per_car_inside: Sequence[float], seed: int = 0) -> tuple[float, float]:
+    """The 95 % interval of the truth-inside fraction over a population of cars, from its
+    cars (a bootstrap over cars, 4,000 resamples): a car's samples are one draw of its
+    persistent errors, so the cars, not the samples, are what was sampled."""
+    vals = np.asarray(per_car_inside, dtype=float)
+    if len(vals) < 2:
+        return float(np.mean(vals)), float(np.mean(vals))
+    rng = np.random.default_rng(seed)
+    means = vals[rng.integers(0, len(vals), (4000, len(vals)))].mean(axis=1)
+    lo, hi = np.percentile(means, [2.5, 97.5])
+    return float(lo), float(hi)
+
+
 def heavier_bars(
-    cars: int, inside: float, below_half: float, matched_below_half: float, matched_cars: int
+    cars: int,
+    inside: float,
+    below_half: float,
+    matched_below_half: float,
+    matched_cars: int,
+    per_car_inside: Sequence[float] = (),
 ) -> Verdict:
     """A heavier-tailed population: inside within ``INSIDE_BAND``, and no more cars below
     50 % than the matched filter leaves (its fraction, widened by the two populations' own
     sampling: the 97.5 % binomial quantile of ``cars`` at the matched fraction, or of the
-    matched count when it is the larger sample)."""
+    matched count when it is the larger sample). The verdict is on the measured fraction;
+    with ``per_car_inside`` its line also gives the interval over cars
+    (``inside_interval``), which says whether a miss is more than the sample of cars."""
     ilo, ihi = INSIDE_BAND
     inside_ok = ilo <= inside <= ihi
+    ci = ""
+    if len(per_car_inside) >= 2:
+        clo, chi = inside_interval(per_car_inside)
+        ci = f" (95 % interval over cars {100 * clo:.1f}-{100 * chi:.1f} %)"
     p = max(matched_below_half, 0.5 / max(matched_cars, 1))
     limit = float(binom.ppf(0.975, cars, p)) / cars
     below_ok = below_half <= limit
     return Verdict(
         inside_ok and below_ok,
         (
-            f"inside {100 * inside:.1f} % in [{100 * ilo:.0f}, {100 * ihi:.0f}] %: "
+            f"inside {100 * inside:.1f} %{ci} in [{100 * ilo:.0f}, {100 * ihi:.0f}] %: "
             f"{_yes(inside_ok)}",
             f"cars below 50 % {100 * below_half:.1f} % <= {100 * limit:.1f} % (matched "
             f"{100 * matched_below_half:.1f} % of {matched_cars}): {_yes(below_ok)}",

@@ -69,3 +69,18 @@ def test_a_matched_linearised_filter_is_honest_while_the_heading_is_tight_wide_o
     # a filter without the second-order term would be overconfident along the road instead
     bare = bars.linearised_heading(76.0, 0.0, scale, cars=8000)
     assert bare.along_ratio > 10.0
+
+
+def test_the_inside_interval_is_over_cars_and_covers_a_known_population() -> None:
+    """Cars whose inside fractions are drawn around 93 %: the interval over 60 of them covers
+    the population's mean in about 95 % of draws, and it is printed with the verdict."""
+    rng = np.random.default_rng(5)
+    truth = float(np.mean(np.clip(rng.normal(0.93, 0.08, 1_000_000), 0.0, 1.0)))
+    covered = 0
+    for _ in range(200):
+        per_car = np.clip(rng.normal(0.93, 0.08, 60), 0.0, 1.0)
+        lo, hi = bars.inside_interval(per_car, seed=int(rng.integers(1 << 30)))
+        covered += lo <= truth <= hi
+    assert 0.89 <= covered / 200 <= 0.99
+    verdict = bars.heavier_bars(60, 0.953, 0.017, 0.067, 60, per_car_inside=[0.9, 1.0] * 30)
+    assert not verdict.ok and "interval over cars" in verdict.lines[0]
