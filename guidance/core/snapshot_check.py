@@ -6,9 +6,10 @@ value ``Pipeline.restore`` reads and raises ``SnapshotError`` (one line, naming 
 each is of the right type (numbers are JSON numbers, never text or booleans), finite, within the
 bounds the consumer needs (a covariance as the estimator judges one and the learned states
 within their physical range: the first stage's ``state_limits.state_problem``, handed in by
-the pipeline, so that the planner's checks here load nothing of ``core/localize``; a position within
-``MAX_OFFSET_M`` of the trip's start, a speed a car can drive) and of a bounded size (the
-navigator's memory fits its arrays). Nothing is changed: ``restore`` runs only after it passed.
+the pipeline, so that the planner's checks here load nothing of ``core/localize``; a
+position within ``MAX_OFFSET_M`` of the trip's start, a speed a car can drive) and of a
+bounded size (the navigator's memory fits its arrays). Nothing is changed: ``restore`` runs
+only after it passed.
 """
 
 from __future__ import annotations
