@@ -27,18 +27,15 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from hal_sim import bars
-from hal_sim.population import (
+from hal_sim.car_errors import (
     CarErrors,
-    PopulationFigures,
     draw_car,
     draw_gyro,
     draw_matched_car,
     draw_matched_gyro,
-    drive_car,
-    persistent_limit,
-    population,
     with_camber,
 )
+from hal_sim.population import PopulationFigures, drive_car, persistent_limit, population
 
 
 def main(argv: list[str] | None = None) -> int:

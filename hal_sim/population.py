@@ -1,38 +1,27 @@
 """A population of simulated cars with the errors real cars have, for the estimator's honesty.
 
 An estimator's honesty is a property of many cars, not of one drive (issue 21). Each car here
-gets persistent errors drawn from the distributions below (``draw_car``), drives a random route
+gets persistent errors drawn as a real car's (``hal_sim.car_errors``), drives a random route
 through a simulated city (the world of ``hal_sim.world``; at each intersection a random exit),
 and its wheel increments and compass readings are made from the true motion with *its* errors
-(``hal_sim.car.CarSensors``: the simulated car's one sensor-error model), sent as the car's
-devices send them and decoded by the car's own decoders (``hal_sim.car_inputs``: CAN frames
+(``hal_sim.car_errors.CarSensors``: the simulated car's one sensor-error model), sent as the
+car's devices send them and decoded by the car's own decoders (``hal_sim.car_inputs``: CAN frames
 through ``WheelSpeedDecoder``, NMEA through the compass parser), then fed to the car's
 ``Localizer`` with the car model as a car nobody calibrated is configured
 (``guidance.core.localize.car_model``, no deviation card). Per car: the truth
 inside the 2-sigma ellipse, the NEES, the along/across split, the true error when "lost" is
 declared.
 
-The car errors, with heavier tails than the filter's priors (Student t, 4 degrees of freedom):
-
-* wheel-speed scale: t4 x 1.2 % (standard deviation 1.7 %; the filter's prior is 2 %), within
-  +-8 % (beyond that a wrong DBC scale, not a tyre);
-* right-minus-left scale difference: t4 x 0.02 % (sd 0.028 %; the prior is 0.03 %), within
-  +-0.3 % (a flat tyre);
-* turn scale (the effective track over the configured one, or a gyro's sensitivity): t4 x
-  1.2 % (sd 1.7 %; the prior is 2 %), within +-8 %;
-* each wheel's random walk: the filter's own 2.2 mm per root metre;
-* compass: a mounting offset N(0, 40 deg), a hard-iron field of r x the earth's horizontal
-  field (r uniform 0-0.4, direction uniform) giving the heading-dependent deviation
-  atan2(r sin(h - phi), 1 + r cos(h - phi)), a bias drift of 0.1 deg^2/s, white noise 3 deg;
-* start: the operator's heading N(0, 1 deg) off, the position N(0, 3 m) off per axis;
-* gyro cars (``draw_gyro``, ``hal_sim.gyro_cars``): the yaw-rate sensor's bias, its walk with
-  time, its scale and noise; with ``stops``, stops at intersections of realistic length.
+The cars' errors and their draws are the car model's (``hal_sim.car_errors``: ``CarErrors``,
+``draw_car`` heavier-tailed than the filter's priors, ``draw_matched_car`` from them, gyro
+cars' ``draw_gyro``); with ``stops``, a car stops at intersections for realistic lengths
+(``hal_sim.gyro_cars``).
 """
 
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, field, replace
+from dataclasses import dataclass, field
 
 import numpy as np
 from scipy.stats import chi2
@@ -46,16 +35,9 @@ from guidance.core.messages import EstimateState, LandmarkFix, YawRate
 from guidance.core.model import CHI2_2D_2SIGMA, mahalanobis_sq_2d, wrap_angle
 from guidance.core.plan.navigator import NavigatorConfig
 from hal_sim import world as world_mod
-from hal_sim.car import CarSensors, hard_iron_rad
+from hal_sim.car_errors import CarErrors, CarSensors
 from hal_sim.car_inputs import CarInputs, DeviceWire
-from hal_sim.gyro_cars import (
-    GYRO_BIAS_T4,
-    GYRO_SCALE_T4,
-    STOP_S,
-    GyroErrors,
-    GyroSim,
-    stop_for,
-)
+from hal_sim.gyro_cars import STOP_S, GyroSim, stop_for
 from hal_sim.params import SimParams, estimator_config
 from hal_sim.provenance import wilson_pair
 from hal_sim.sim_world import SimWorld, WorldSpec
@@ -67,125 +49,6 @@ COMPASS_EVERY = 2
 """World steps per compass reading (5 Hz)."""
 SAMPLE_EVERY = 10
 """World steps per consistency sample (1 s)."""
-
-
-@dataclass(frozen=True, slots=True)
-class CarErrors:
-    scale: float
-    diff: float
-    walk_m2_per_m: float
-    compass_offset_deg: float
-    hard_iron_ratio: float
-    hard_iron_dir_rad: float
-    compass_drift_deg2_per_s: float
-    compass_noise_deg: float
-    start_heading_deg: float
-    start_dx_m: float
-    start_dy_m: float
-    diff_walk_var_per_m: float = 0.0
-    """The left/right difference's random walk along the road (road camber from street to
-    street, tyre temperature): 0 keeps it constant."""
-    turn_scale: float = 0.0
-    """The car's effective track over the track the filter is configured with, minus 1 (tyre
-    scrub and load transfer in turns, a profile's track for another model): every turn's
-    left/right distance difference, so its heading change, is this much larger than the
-    filter's. 0: none. The car model's state ``kt`` (docs/estimation.md)."""
-    camber_sigma: float = 0.0
-    """1-sigma of the part of the left/right difference that changes from street to street
-    (road camber, each side's tyre temperature): a Gauss-Markov process of correlation length
-    ``camber_length_m`` added to ``diff`` (``with_camber``). 0: none."""
-    camber_length_m: float = 250.0
-    gyro: GyroErrors | None = None
-    """A gyro car's yaw-rate sensor (its filter then turns the heading by it); None: a car
-    whose heading comes from its wheels."""
-
-    def deviation_rad(self, heading_rad: float) -> float:
-        """The compass error at a true heading: the offset plus the hard-iron curve."""
-        curve = hard_iron_rad(self.hard_iron_ratio, self.hard_iron_dir_rad, heading_rad)
-        return math.radians(self.compass_offset_deg) + curve
-
-
-HARD_IRON = (0.0, 0.4)
-"""The population's hard-iron ratio, uniform between these (module doc). A compass on a
-dashboard near steel, speakers or wiring can see a car field of 0.8-0.9 of the earth's
-horizontal field (issue 21's circle drive): ``draw_car(rng, hard_iron=(0.6, 0.9))`` draws such
-cars, whose deviation curve no bias walk can follow (docs/estimation.md)."""
-
-
-def draw_car(rng: np.random.Generator, *, hard_iron: tuple[float, float] = HARD_IRON) -> CarErrors:
-    """One car's persistent errors (module doc); ``hard_iron``: the range of its hard-iron
-    ratio (the same draws otherwise)."""
-    return CarErrors(
-        scale=t4_draw(rng, 0.012, 0.08),
-        diff=t4_draw(rng, 0.0002, 0.003),
-        walk_m2_per_m=5e-6,
-        compass_offset_deg=float(rng.normal(0.0, 40.0)),
-        hard_iron_ratio=float(rng.uniform(*hard_iron)),
-        hard_iron_dir_rad=float(rng.uniform(-math.pi, math.pi)),
-        compass_drift_deg2_per_s=0.1,
-        compass_noise_deg=3.0,
-        start_heading_deg=float(rng.normal(0.0, 1.0)),
-        start_dx_m=float(rng.normal(0.0, 3.0)),
-        start_dy_m=float(rng.normal(0.0, 3.0)),
-        turn_scale=t4_draw(rng, 0.012, 0.08),
-    )
-
-
-CAMBER_SIGMA = (5e-5, 3e-4)
-"""The street-to-street part of the left/right difference: its 1-sigma log-uniform between
-0.005 % and 0.03 % (road cross slope from street to street and each side's tyre temperature,
-docs/estimation.md; rms 0.016 %, the filter's own), its correlation length uniform 150-400 m
-(a street between junctions)."""
-
-
-def with_camber(car: CarErrors, rng: np.random.Generator) -> CarErrors:
-    """``car`` with its own street-to-street left/right process (``CAMBER_SIGMA``), drawn from
-    ``rng`` (a stream of its own, so the cars' other draws stay those of ``draw_car``)."""
-    lo, hi = CAMBER_SIGMA
-    sigma = float(math.exp(rng.uniform(math.log(lo), math.log(hi))))
-    return replace(car, camber_sigma=sigma, camber_length_m=float(rng.uniform(150.0, 400.0)))
-
-
-def draw_matched_car(rng: np.random.Generator) -> CarErrors:
-    """A car whose wheel errors are drawn from the filter's own Gaussian priors (scale 2 %,
-    left/right 0.03 %, turn scale 2 %; the start and the wheel walk are the filter's already):
-    the yardstick of a perfectly matched filter for the per-car figures (docs/estimation.md)."""
-    car = draw_car(rng)
-    return replace(
-        car,
-        scale=float(rng.normal(0.0, 0.02)),
-        diff=float(rng.normal(0.0, 3e-4)),
-        turn_scale=float(rng.normal(0.0, 0.02)),
-    )
-
-
-def draw_gyro(car: CarErrors, rng: np.random.Generator) -> CarErrors:
-    """``car`` as a gyro car, its sensor heavier-tailed than the filter's priors
-    (``hal_sim.gyro_cars``), drawn from ``rng`` (a stream of its own)."""
-    return replace(car, gyro=GyroErrors(t4_draw(rng, *GYRO_BIAS_T4), t4_draw(rng, *GYRO_SCALE_T4)))
-
-
-def draw_matched_gyro(car: CarErrors, rng: np.random.Generator) -> CarErrors:
-    """``car`` as a gyro car whose sensor is drawn from the filter's own priors."""
-    from guidance.core.localize.gyro import GyroConfig
-
-    g = GyroConfig()
-    errors = GyroErrors(
-        float(rng.normal(0.0, g.bias_sigma_deg_s)),
-        float(rng.normal(0.0, g.scale_sigma)),
-        g.bias_walk_deg2_per_s3,
-        g.noise_density_deg_rt_s,
-    )
-    return replace(car, gyro=errors)
-
-
-def t4_draw(rng: np.random.Generator, scale: float, limit: float) -> float:
-    """A Student-t (4 dof) draw times ``scale``, redrawn beyond ``limit`` (a wheel scale 25 %
-    off is a wrong DBC, not a tyre)."""
-    while True:
-        v = scale * float(rng.standard_t(4))
-        if abs(v) <= limit:
-            return v
 
 
 @dataclass(slots=True)

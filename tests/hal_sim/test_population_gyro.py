@@ -10,16 +10,9 @@ import numpy as np
 import pytest
 
 from hal_sim import bars
+from hal_sim.car_errors import draw_car, draw_gyro, draw_matched_car, draw_matched_gyro, with_camber
 from hal_sim.gyro_cars import GyroErrors, GyroSim
-from hal_sim.population import (
-    draw_car,
-    draw_gyro,
-    draw_matched_car,
-    draw_matched_gyro,
-    drive_car,
-    population,
-    with_camber,
-)
+from hal_sim.population import drive_car, population
 
 CARS = 30
 
