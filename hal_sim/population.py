@@ -6,11 +6,10 @@ through a simulated city (the world of ``hal_sim.world``; at each intersection a
 and its wheel increments and compass readings are made from the true motion with *its* errors
 (``hal_sim.car_errors.CarSensors``: the simulated car's one sensor-error model), sent as the
 car's devices send them and decoded by the car's own decoders (``hal_sim.car_inputs``: CAN frames
-through ``WheelSpeedDecoder``, NMEA through the compass parser), then fed to the car's
-``Localizer`` with the car model as a car nobody calibrated is configured
-(``guidance.core.localize.car_model``, no deviation card). Per car: the truth
-inside the 2-sigma ellipse, the NEES, the along/across split, the true error when "lost" is
-declared.
+through ``WheelSpeedDecoder`` and, a gyro car's, ``YawRateDecoder``, NMEA through the compass
+parser), then fed to the car's ``Localizer`` with the car model as a car nobody calibrated is
+configured (``guidance.core.localize.car_model``, no deviation card). Per car: the truth inside
+the 2-sigma ellipse, the NEES, the along/across split, the true error when "lost" is declared.
 
 The cars' errors and their draws are the car model's (``hal_sim.car_errors``: ``CarErrors``,
 ``draw_car`` heavier-tailed than the filter's priors, ``draw_matched_car`` from them, gyro
@@ -31,7 +30,7 @@ from guidance.core.localize.estimator import EstimatorConfig
 from guidance.core.localize.gyro import GyroConfig
 from guidance.core.localize.learned import LearnedParams
 from guidance.core.localize.localizer import Localizer, LocalizerConfig
-from guidance.core.messages import EstimateState, LandmarkFix, YawRate
+from guidance.core.messages import EstimateState, LandmarkFix
 from guidance.core.model import CHI2_2D_2SIGMA, mahalanobis_sq_2d, wrap_angle
 from guidance.core.plan.navigator import NavigatorConfig
 from hal_sim import world as world_mod
@@ -43,6 +42,20 @@ from hal_sim.provenance import wilson_pair
 from hal_sim.sim_world import SimWorld, WorldSpec
 
 TRACK_M = 1.72
+WHEEL_PROFILE = "gm_global_a"
+"""The DBC a wheel car's wire speaks (``car_inputs.DeviceWire``; its track is ``TRACK_M``)."""
+GYRO_PROFILE = "ford_lincoln_base_pt"
+"""The DBC a gyro car's wire speaks: its yaw rate (Yaw_Data_FD1.VehYaw_W_Actl) in steps of
+0.0002 rad/s (0.011 deg/s) within +-6.5 rad/s. Most profiles' stability controls report
+0.005-0.01 deg/s (VW, Chrysler, Hyundai, Hyundai CAN FD), a tenth of one reading's noise
+(``gyro_cars``: 0.1 deg/s); Ford's range also holds the simulated city's sharpest turns (70-102
+deg/s at the fastest step of a 1.5 km drive, seeds 20000-20009), which Hyundai's ESP12
+(+-41 deg/s) clips. Two profiles report far coarser steps, which the filter does not model
+(docs/layout.md "One simulated car"): Toyota's KINEMATICS (0.244 deg/s, no step at zero) and
+the signal ``gm_global_a`` names (EBCMVehicleDynamic.YawRate: 0.625 deg/s, declared without
+a unit in [0, 1]; the same message's YawRate2 is 0.0625 deg/s, "grad/s").
+``drive_car(profile=...)`` drives a gyro car on another DBC (benchmarks/honest_bars.py
+--gyro-profile)."""
 ODO_EVERY = 1
 """World steps per odometry message (the world's 10 Hz; the car model does not depend on it)."""
 COMPASS_EVERY = 2
@@ -96,6 +109,7 @@ def drive_car(
     duration_s: float | None = None,
     stops: bool = False,
     both: bool = False,
+    profile: str | None = None,
 ) -> CarResult:
     """One car, ``distance_m`` of random route in the city of ``seed`` (module doc); with
     ``landmarks_per_km2``, fixes where the world has sightings (60 % detected); with
@@ -105,7 +119,8 @@ def drive_car(
     ``filter_overrides``: car-model settings other than the shipped ones (a sensitivity);
     ``duration_s``: drive for this long (stops included) instead of ``distance_m``;
     ``stops``: start from a parked car and stand at intersections (``hal_sim.gyro_cars``);
-    ``both``: a gyro car's filter weighs its wheels' turn too (``yaw_source = "both"``)."""
+    ``both``: a gyro car's filter weighs its wheels' turn too (``yaw_source = "both"``);
+    ``profile``: the DBC of the car's wire (``WHEEL_PROFILE``, a gyro car's ``GYRO_PROFILE``)."""
     rng = np.random.default_rng([seed, 99])
     sim = SimParams()
     est0 = estimator_config(sim, 20.0 if compass else None)
@@ -137,7 +152,10 @@ def drive_car(
     res = CarResult(errors, compass)
     left = right = 0.0
     sensors = CarSensors(errors, rng, np.random.default_rng([seed, 98]), TRACK_M)
-    car = CarInputs(DeviceWire(0.0))  # what the car's own decoders make of the sensors' wire
+    # what the car's own decoders make of the sensors' wire (a gyro car's yaw rate included)
+    gyro_car = errors.gyro is not None
+    wire = DeviceWire(0.0, profile=profile or (GYRO_PROFILE if gyro_car else WHEEL_PROFILE))
+    car = CarInputs(wire, yaw_rate=gyro_car)
     prev = world.truth
     gyro = None if errors.gyro is None else GyroSim(errors.gyro, np.random.default_rng([seed, 97]))
     stop_rng = np.random.default_rng([seed, 96])
@@ -161,7 +179,8 @@ def drive_car(
         right += dr
         step = world.step_count
         if gyro is not None:
-            p.handle(YawRate(t, gyro.reading(dth, dt)))
+            for rate in car.yaw_rate(t, gyro.reading(dth, dt)):
+                p.handle(rate)
         if step % ODO_EVERY == 0:
             for odometry in car.wheels(t, left / (ODO_EVERY * dt), right / (ODO_EVERY * dt)):
                 p.handle(odometry)
@@ -200,7 +219,8 @@ def _stand(
     n = round(seconds / dt)
     for k in range(1, n + 1):
         if gyro is not None:
-            p.handle(YawRate(t0 + k * dt, gyro.reading(0.0, dt)))
+            for rate in car.yaw_rate(t0 + k * dt, gyro.reading(0.0, dt)):
+                p.handle(rate)
         for odometry in car.wheels(t0 + k * dt, 0.0, 0.0):
             p.handle(odometry)
     return n * dt
