@@ -136,27 +136,14 @@ def drive_car(
         calibrated=calibrated,
         **(filter_overrides or {}),
     )
-    sx, sy, th0 = world.start_pose
     dt = world.dt_s
-    cfg = LocalizerConfig(
-        estimator=est,
-        start_xy_m=(sx + errors.start_dx_m, sy + errors.start_dy_m),
-        start_heading_rad=th0 + math.radians(errors.start_heading_deg),
-        expected_rates_hz={
-            "odometry": 1.0 / (dt * ODO_EVERY),
-            **({"compass": 1.0 / (dt * COMPASS_EVERY)} if compass else {}),
-        },
-    )
-    p = Localizer(cfg)  # the estimate alone: no goal, no navigator
+    p = _localizer(est, errors, world.start_pose, dt, compass)
     if learned is not None:
         p.adopt(learned)
     res = CarResult(errors, compass)
     left = right = 0.0
     sensors = CarSensors(errors, rng, np.random.default_rng([seed, 98]), TRACK_M)
-    # what the car's own decoders make of the sensors' wire (a gyro car's yaw rate included)
-    gyro_car = errors.gyro is not None
-    wire = DeviceWire(0.0, profile=profile or (GYRO_PROFILE if gyro_car else WHEEL_PROFILE))
-    car = CarInputs(wire, yaw_rate=gyro_car)
+    car = _car_inputs(errors, profile)
     prev = world.truth
     gyro = None if errors.gyro is None else GyroSim(errors.gyro, np.random.default_rng([seed, 97]))
     stop_rng = np.random.default_rng([seed, 96])
@@ -210,6 +197,36 @@ def drive_car(
     res.final_major_axis_m = now.ellipse.major_axis_m
     res.learned = p.learned("sim", world.t_s, world.driven_m, learned)
     return res
+
+
+def _localizer(
+    est: EstimatorConfig,
+    errors: CarErrors,
+    start_pose: tuple[float, float, float],
+    dt: float,
+    compass: bool,
+) -> Localizer:
+    """The car's estimate alone (no goal, no navigator), started where the operator puts it:
+    the true start pose with the car's start errors."""
+    sx, sy, th0 = start_pose
+    cfg = LocalizerConfig(
+        estimator=est,
+        start_xy_m=(sx + errors.start_dx_m, sy + errors.start_dy_m),
+        start_heading_rad=th0 + math.radians(errors.start_heading_deg),
+        expected_rates_hz={
+            "odometry": 1.0 / (dt * ODO_EVERY),
+            **({"compass": 1.0 / (dt * COMPASS_EVERY)} if compass else {}),
+        },
+    )
+    return Localizer(cfg)
+
+
+def _car_inputs(errors: CarErrors, profile: str | None) -> CarInputs:
+    """What the car's own decoders make of its sensors' wire (a gyro car's yaw rate too), on
+    ``profile``'s DBC (default ``WHEEL_PROFILE``, a gyro car's ``GYRO_PROFILE``)."""
+    gyro_car = errors.gyro is not None
+    wire = DeviceWire(0.0, profile=profile or (GYRO_PROFILE if gyro_car else WHEEL_PROFILE))
+    return CarInputs(wire, yaw_rate=gyro_car)
 
 
 def _stand(
