@@ -60,7 +60,7 @@ class DeviceWire:
         self.wheels = wheels if wheels is not None else SimCanWheels(profile=profile)
         self.can_silent = can_silent
         self.compass_garbage = compass_garbage
-        self._yaw: tuple[Any, str, float, tuple[float, float]] | None = None
+        self._yaw: tuple[Any, str, str | None, float, tuple[float, float]] | None = None
 
     def can_frames(self, t_s: float, left_mps: float, right_mps: float) -> list[can.Message]:
         """The wheel-speed frames sent at ``t_s`` (stamped), none while CAN is silent."""
@@ -80,15 +80,19 @@ class DeviceWire:
         yaw-rate signal is refused (``UserError``, as ``drivers.can_yaw`` refuses it)."""
         if in_window(self.can_silent, t_s):
             return []
-        spec, name, per_rad, (lo, hi) = self._yaw_encoding()
+        spec, name, sign, per_rad, (lo, hi) = self._yaw_encoding()
         values = {s.name: 0.0 for s in spec.signals}
-        values[name] = min(max(rate_rad_s * per_rad, lo), hi)
+        value = rate_rad_s * per_rad
+        if sign is not None:  # a magnitude and its sign bit (Volkswagen's)
+            values[sign], value = float(value < 0.0), abs(value)
+        values[name] = min(max(value, lo), hi)
         msg = can.Message(arbitration_id=spec.frame_id, data=spec.encode(values, strict=False),
                           is_extended_id=False, timestamp=t_s)  # fmt: skip
         return [msg]
 
-    def _yaw_encoding(self) -> tuple[Any, str, float, tuple[float, float]]:
-        """(the DBC message, the signal's name, its units per rad/s, its physical range)."""
+    def _yaw_encoding(self) -> tuple[Any, str, str | None, float, tuple[float, float]]:
+        """(the DBC message, the signal's name, its sign bit's, its units per rad/s, its
+        physical range)."""
         if self._yaw is None:
             p = self.wheels.profile
             YawRateDecoder(p.name)  # the car's own refusal of a profile without the signal
@@ -96,7 +100,7 @@ class DeviceWire:
             spec = load_dbc(p.dbc_file).get_message_by_frame_id(p.yaw_rate.frame_id)
             signal = spec.get_signal_by_name(p.yaw_rate.signal)
             unit = 1.0 / UNIT_TO_RAD_S[p.yaw_rate.unit]
-            self._yaw = (spec, p.yaw_rate.signal, unit, physical_range(signal))
+            self._yaw = (spec, p.yaw_rate.signal, p.yaw_rate.sign, unit, physical_range(signal))
         return self._yaw
 
     def compass_line(self, t_s: float, heading_rad: float) -> tuple[bytes, bool]:

@@ -50,11 +50,11 @@ GYRO_PROFILE = "ford_lincoln_base_pt"
 0.005-0.01 deg/s (VW, Chrysler, Hyundai, Hyundai CAN FD), a tenth of one reading's noise
 (``gyro_cars``: 0.1 deg/s); Ford's range also holds the simulated city's sharpest turns (70-102
 deg/s at the fastest step of a 1.5 km drive, seeds 20000-20009), which Hyundai's ESP12
-(+-41 deg/s) clips. Two profiles report far coarser steps, which the filter does not model
-(docs/layout.md "One simulated car"): Toyota's KINEMATICS (0.244 deg/s, no step at zero:
-the noise still dithers it, and its gyro cars meet the bars) and the signal ``gm_global_a``
-names (EBCMVehicleDynamic.YawRate: 0.625 deg/s, declared without a unit in [0, 1]; the same
-message's YawRate2 is 0.0625 deg/s, "grad/s"), on which they do not.
+(+-41 deg/s) clips. The coarsest step any profile sends is Toyota's KINEMATICS (0.244
+deg/s, no step at zero: the reading noise dithers it, and its gyro cars meet the bars);
+``gm_global_a`` reads EBCMVehicleDynamic.YawRate2 (0.0625 deg/s), not YawRate (0.625 deg/s,
+on which a standing reading rounds to 0 and the filter, which does not model the step, was
+overconfident: drivers/profiles.py says why YawRate2 is the sensor).
 ``drive_car(profile=...)`` drives a gyro car on another DBC (benchmarks/honest_bars.py
 --gyro-profile)."""
 ODO_EVERY = 1

@@ -54,7 +54,13 @@ def test_a_silence_is_bridged_up_to_the_decoders_gap_and_not_beyond(silent_s: fl
 
 @pytest.mark.parametrize(
     ("profile", "step_deg_s"),
-    [("ford_lincoln_base_pt", math.degrees(0.0002)), ("gm_global_a", 0.625), ("toyota", 0.244)],
+    [
+        ("ford_lincoln_base_pt", math.degrees(0.0002)),
+        ("gm_global_a", 0.0625),
+        ("toyota", 0.244),
+        ("vw_mqb", 0.01),
+        ("vw_pq", 0.01),
+    ],
 )
 def test_the_yaw_rate_reads_back_in_whole_steps_of_the_dbc(profile: str, step_deg_s: float) -> None:
     """A gyro car's yaw rate on its stability control's frame, decoded by ``guidance run``'s
@@ -74,9 +80,12 @@ def test_the_yaw_rate_reads_back_in_whole_steps_of_the_dbc(profile: str, step_de
     for k, rate in enumerate(rates):
         (got,) = car.yaw_rate(0.1 * k, rate)
         assert got.t_s == 0.1 * k
-        steps = round((rate / to_rad - spec.offset) / spec.scale)
-        assert got.yaw_rate_rad_s == pytest.approx((spec.offset + steps * spec.scale) * to_rad,
-                                                   abs=1e-12)  # fmt: skip
+        if sig.sign is None:
+            steps = round((rate / to_rad - spec.offset) / spec.scale)
+            want = (spec.offset + steps * spec.scale) * to_rad
+        else:  # a magnitude and a sign bit (Volkswagen's): the sign comes back
+            want = math.copysign(round(abs(rate) / to_rad / spec.scale) * spec.scale * to_rad, rate)
+        assert got.yaw_rate_rad_s == pytest.approx(want, abs=1e-12)
         assert abs(math.degrees(got.yaw_rate_rad_s - rate)) <= 0.5 * step_deg_s + 1e-9
     assert list(car.yaw_rate(10.5, 0.3)) == []
     assert car.yaw is not None and car.yaw.frames == len(rates)
