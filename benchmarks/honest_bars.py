@@ -26,6 +26,7 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
+from guidance.core.localize.car_model import CAR_MODEL
 from hal_sim import bars
 from hal_sim.population import (
     CarErrors,
@@ -81,6 +82,16 @@ def _closed_form(cars: int) -> None:
     print(f"  for {cars} cars: below 50 % within [{100 * lo:.1f}, {100 * hi:.1f}] % (any rho, "
           f"95 % binomial), mean NEES within [{nlo:.2f}, {nhi:.2f}]; t4 persistent draws: "
           f"{100 * t4.outside_matched:.1f} % outside a matched ellipse")  # fmt: skip
+    print(
+        "what a linearised filter matched to its cars gives once the heading spreads "
+        "(hal_sim/bars.py linearised_heading; an exact filter: NEES 2, 86.5 % inside)"
+    )
+    print("  heading sd at the end   mean NEES   inside   true/filter variance across, along")
+    for deg in (5.0, 10.0, 20.0, 30.0, 45.0, 60.0, 76.0, 90.0):
+        lin = bars.linearised_heading(deg, CAR_MODEL["heading_second_order"],
+                                      CAR_MODEL["scale_sigma"])  # fmt: skip
+        print(f"  {deg:19.0f} deg   {lin.mean_nees:9.2f}   {100 * lin.inside:5.1f} %   "
+              f"{lin.across_ratio:.2f}, {lin.along_ratio:.2f}")  # fmt: skip
 
 
 def _cars(kind: str, matched: bool, n: int, seed: int) -> list[CarErrors]:
@@ -126,7 +137,8 @@ def _pair(kind: str, name: str, how: dict[str, float | bool], args: argparse.Nam
     m = bars.matched_bars(matched.cars, matched.mean_nees, matched.cars_below_half)
     heavy = _run(_cars(kind, False, args.cars, args.seed), how, "heavier-tailed (t4)", kind)
     h = bars.heavier_bars(heavy.cars, heavy.inside, heavy.cars_below_half,
-                          matched.cars_below_half, matched.cars)  # fmt: skip
+                          matched.cars_below_half, matched.cars,
+                          heavy.per_car_inside)  # fmt: skip
     for line in (*m.lines, *h.lines):
         print(f"    bar: {line}")
     return m.ok and h.ok

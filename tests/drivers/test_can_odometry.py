@@ -410,7 +410,8 @@ def test_can_odometry_survives_a_missing_device(caplog: pytest.LogCaptureFixture
         time.sleep(0.3)
         t0 = time.monotonic()
         odo.stop()
-        assert time.monotonic() - t0 < 1.0
+        # woken, not abandoned at the reader's 5 s join timeout (a loaded machine's delays fit)
+        assert time.monotonic() - t0 < 4.0
     assert odo.stats()["bus_errors"] >= 3
     assert sum("unavailable" in r.getMessage() for r in caplog.records) == 1
 

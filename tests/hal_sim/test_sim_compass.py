@@ -165,13 +165,15 @@ def test_compass_started_before_the_device_appears(sim: SimCompassPty) -> None:
 
 def test_stop_is_prompt_while_unplugged(sim: SimCompassPty) -> None:
     sim.unplug()
-    cfg = SerialCompassConfig(port=sim.port, reconnect_initial_s=5.0, reconnect_max_s=5.0)
+    cfg = SerialCompassConfig(port=sim.port, reconnect_initial_s=60.0, reconnect_max_s=60.0)
     compass = SerialCompass(cfg)
     compass.start(lambda h: None)
     time.sleep(0.1)
     t0 = time.monotonic()
     compass.stop()
-    assert time.monotonic() - t0 < 0.5
+    # The reader sleeps out a 60 s backoff unless stop() wakes it; the bound leaves a loaded
+    # machine its scheduling delays and still tells the two apart.
+    assert time.monotonic() - t0 < 10.0
 
 
 def test_a_failing_sink_does_not_stop_reading(sim: SimCompassPty) -> None:

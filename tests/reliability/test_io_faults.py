@@ -86,7 +86,7 @@ def test_camera_gone_is_a_flag_with_a_warning_and_never_a_crash(tmp_path: Path) 
         t0 = time.monotonic()
     finally:
         cam.stop()
-    assert time.monotonic() - t0 < 1.0
+    assert time.monotonic() - t0 < 4.0  # woken, not abandoned at the 5 s join timeout
     assert cam.health().status == "stopped"
 
 

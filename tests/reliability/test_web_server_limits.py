@@ -54,8 +54,9 @@ def closed_within(sock: socket.socket, seconds: float) -> float | None:
 def test_a_half_sent_request_is_closed_after_the_timeout(web: WebMonitor) -> None:
     with socket.create_connection(("127.0.0.1", port_of(web))) as s:
         s.sendall(b"GET /api/fleet HTTP/1.1\r\nHost: 127.0.0.1")  # never finished
-        took = closed_within(s, 6.0)
-    assert took is not None and took < 3.0, took
+        took = closed_within(s, 30.0)
+    # closed at its 1 s read timeout; the bound leaves a loaded machine its delays
+    assert took is not None and took < 15.0, took
     assert web.counters["timeouts"] >= 1
 
 
@@ -80,10 +81,10 @@ def test_a_trickled_request_is_closed_at_its_deadline(web: WebMonitor) -> None:
             except ConnectionError:
                 closed = True
                 break
-            if time.monotonic() - t0 > 8.0:
+            if time.monotonic() - t0 > 30.0:  # the whole trickle would take 60 s
                 break
         took = time.monotonic() - t0
-    assert closed and took < 5.0, took
+    assert closed and took < 20.0, took  # the 2.5 s deadline, with a loaded machine's delays
     assert web.counters["timeouts"] >= 1
 
 

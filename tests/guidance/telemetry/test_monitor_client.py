@@ -139,7 +139,7 @@ def test_an_unopened_client_waits_and_returns_nothing() -> None:
     client = MonitorClient([f"tcp/127.0.0.1:{free_port()}"])
     t0 = time.monotonic()
     assert client.get(0.1) is None and client.get(0) is None
-    assert 0.09 < time.monotonic() - t0 < 1.0
+    assert 0.09 < time.monotonic() - t0 < 10.0  # waits its 0.1 s, not for a car
     with pytest.raises(UserError):
         MonitorClient(ring_size=0)
 

@@ -299,7 +299,7 @@ class FakeEngine:
 
     def runAndWait(self) -> None:
         if self.gate is not None:
-            self.gate.wait(5.0)
+            self.gate.wait(60.0)
         if self.fail_on is not None and len(self.spoken) + 1 == self.fail_on:
             raise RuntimeError("espeak died")
         self.spoken.append(self._text)
@@ -310,14 +310,14 @@ def test_pyttsx3_speaker_speaks_on_its_own_thread_highest_priority_first() -> No
     engine = FakeEngine(gate=gate)
     sp = Pyttsx3Speaker(engine_factory=lambda: engine, clock=FakeClock())
     sp.say("first", G)
-    deadline = time.monotonic() + 2.0
+    deadline = time.monotonic() + 30.0
     while sp.stats()["popped"] < 1 and time.monotonic() < deadline:
         time.sleep(0.005)
     t0 = time.perf_counter()
     sp.say("landmark", INFO)
     sp.say("warning", S)
     sp.say("warning", S)
-    assert time.perf_counter() - t0 < 1.0  # say never waits for speech (gate: 5 s)
+    assert time.perf_counter() - t0 < 10.0  # say never waits for speech (gate: 60 s)
     gate.set()
     sp.close()
     assert engine.spoken == ["first", "warning", "landmark"]
@@ -354,6 +354,9 @@ def test_hung_engine_is_detected_and_prompts_go_to_text(caplog: pytest.LogCaptur
         hang_timeout_s=0.2,
     )
     sp.say("stuck", G)
+    deadline = time.monotonic() + 30.0  # the speaking thread has taken it (a loaded machine)
+    while sp.stats()["popped"] < 1 and time.monotonic() < deadline:
+        time.sleep(0.005)
     time.sleep(0.35)
     sp.say("next", G)
     assert sp.failed
