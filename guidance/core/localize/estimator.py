@@ -11,7 +11,8 @@ time ordering, counters, health and resets, and runs the filter's roles, each in
   compass's interference judge); the update is filterpy's with ``measurements``' h and H;
 * ``covariance_edits``: the edits outside predict and update (a pose put in place, the
   heading forgotten or taken from the compass, the position widened, learned values adopted,
-  the "lost" reset); dead reckoning through a gap is ``guidance.core.odometry_gap``'s;
+  the relocalisation, the "lost" reset); dead reckoning through a gap is
+  ``guidance.core.odometry_gap``'s;
 * ``gyro``: a gyro car's readings gathered between steps, its standstill update.
 
 The math is ``guidance.core.model``'s (shared with the study engine). The settings,
