@@ -10,16 +10,9 @@ import numpy as np
 import pytest
 
 from hal_sim import bars
+from hal_sim.car_errors import draw_car, draw_gyro, draw_matched_car, draw_matched_gyro, with_camber
 from hal_sim.gyro_cars import GyroErrors, GyroSim
-from hal_sim.population import (
-    draw_car,
-    draw_gyro,
-    draw_matched_car,
-    draw_matched_gyro,
-    drive_car,
-    population,
-    with_camber,
-)
+from hal_sim.population import drive_car, population
 
 CARS = 30
 
@@ -64,3 +57,25 @@ def test_the_simulated_gyro_reads_its_bias_and_scale() -> None:
     turning = [sim.reading(0.05, 0.1) for _ in range(20_000)]
     rate = float(np.mean(turning)) - math.radians(0.2)
     assert abs(rate - 0.5 / 1.05) < 0.002
+
+
+def test_a_gyro_cars_filter_sees_its_yaw_rate_as_the_dbc_steps_it() -> None:
+    """A gyro car's reading reaches its filter as its DBC's frame decoded (``car_inputs``): a
+    sensor biased by 0.15 deg/s (no walk), standing at lights, teaches its bias to within the
+    filter's sigma on the population's DBC (0.0002 rad/s steps); on the signal ``gm_global_a``
+    names (0.625 deg/s steps) every standing reading rounds to 0, the filter learns 0 with the
+    same confidence, and the truth leaves its ellipse (docs/layout.md "One simulated car":
+    the filter does not model the step)."""
+    from dataclasses import replace
+
+    car = replace(draw_car(np.random.default_rng(3)), gyro=GyroErrors(0.15, 0.0, 0.0))
+    fine = drive_car(20_000, car, compass=False, distance_m=1500.0, stops=True)
+    coarse = drive_car(20_000, car, compass=False, distance_m=1500.0, stops=True,
+                       profile="gm_global_a")  # fmt: skip
+    assert fine.learned is not None and coarse.learned is not None
+    bias, sigma = fine.learned.gyro_bias_deg_s, fine.learned.gyro_bias_sigma_deg_s
+    assert bias is not None and sigma is not None and abs(bias - 0.15) < 3.0 * sigma < 0.1
+    assert fine.inside == 1.0
+    learned = coarse.learned.gyro_bias_deg_s  # the standing readings, all rounded to 0
+    assert learned is not None and abs(learned) < 0.03
+    assert coarse.inside < 0.8 and coarse.final_error_m > 2.0 * fine.final_error_m

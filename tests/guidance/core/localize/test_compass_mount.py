@@ -17,7 +17,8 @@ from guidance.core.localize.car_model import car_model
 from guidance.core.localize.estimator import EstimatorConfig
 from guidance.core.localize.learned import LearnedParams
 from guidance.core.localize.localizer import Localizer, LocalizerConfig
-from hal_sim.population import draw_car, drive_car
+from hal_sim.car_errors import draw_car
+from hal_sim.population import drive_car
 
 
 def test_the_flag_is_a_chi_square_of_the_drives_against_their_mean() -> None:
