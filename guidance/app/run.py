@@ -258,7 +258,7 @@ def _start_learned(cfg: Any, pipeline: Any, *, resumed: bool) -> Any:
             Path(cfg.checkpoint.learned_path), cfg.vehicle_id, pipeline.estimate.odometer_m
         )
     used, note = start_from_learned(
-        pipeline.localizer.estimator, Path(cfg.checkpoint.learned_path), cfg.vehicle_id, time.time()
+        pipeline.localizer, Path(cfg.checkpoint.learned_path), cfg.vehicle_id, time.time()
     )
     (log.info if used is not None and "MOVES" not in note else log.warning)("%s", note)
     return used

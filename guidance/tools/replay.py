@@ -485,13 +485,13 @@ def _replay_raw(
     from guidance.app.learned_file import save_after, start_from_learned
 
     vid = load_config(args.config, require_goal=False).vehicle_id if args.config else "replay"
-    est = current[-1].localizer.estimator  # the learned parameters are the filter's
+    loc = current[-1].localizer  # the learned parameters are the first stage's
     before, note = start_from_learned(
-        est, args.learned, vid, _first_can_time(path), wall_clock=False
+        loc, args.learned, vid, _first_can_time(path), wall_clock=False
     )
     sys.stderr.write(f"guidance replay: {note}\n")
     res = replay(current[-1], merged, speed=args.speed, on_output=on_output)
-    save_after(est, args.learned, vid, res.last_t_s or 0.0, res.odometer_m, before)
+    save_after(loc, args.learned, vid, res.last_t_s or 0.0, res.odometer_m, before)
     return res
 
 
