@@ -333,7 +333,8 @@ def register(sub: Any) -> None:
     p.add_argument(
         "--raw",
         action="store_true",
-        help="MCAP: decode the raw /can frames and /nmea lines again (with --profile)",
+        help="MCAP: decode the raw /can frames and /nmea lines again (with --profile; "
+        "default: the profile the recording was made with)",
     )
     p.add_argument(
         "--learned",
@@ -414,7 +415,7 @@ def _replay_mcap(
     session, inputs = mcap_inputs(
         files,
         raw=args.raw,
-        profile=args.profile or DEFAULT_PROFILE,
+        profile=args.profile,
         skipped=skipped,
         damage=damage,
     )

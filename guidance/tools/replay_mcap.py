@@ -72,14 +72,15 @@ def mcap_inputs(
     path: str | Path | list[Path],
     *,
     raw: bool = False,
-    profile: str = "gm_global_a",
+    profile: str | None = None,
     skipped: list[str] | None = None,
     damage: Damage | None = None,
 ) -> tuple[dict[str, Any], Iterator[Input]]:
     """The session record and the recorded inputs (in processing order) of a recording.
 
     ``raw=True`` decodes the raw ``/can`` frames and ``/nmea`` lines again with the car's
-    decoders (``profile``; ``replay_can.CarCanDecoders``: the yaw rate too when the session's
+    decoders (``profile``, else the one the session was recorded with, ``can_profile``, else
+    ``gm_global_a``; ``replay_can.CarCanDecoders``: the yaw rate too when the session's
     car turns by its gyro, ``[vehicle] yaw_source`` "gyro" or "both") and compass parser
     instead of taking the decoded ``/odometry``, ``/yaw_rate`` and ``/compass`` the app
     recorded: the drivers' decoding is then part of what is replayed.
@@ -137,7 +138,21 @@ def mcap_inputs(
     from guidance.tools.replay_session import pipeline_config_from_session
 
     gyro = pipeline_config_from_session(session).estimator.gyro is not None
-    return session, raw_inputs(CarCanDecoders(profile, yaw_rate=gyro))
+    return session, raw_inputs(CarCanDecoders(profile or session_profile(session), yaw_rate=gyro))
+
+
+def session_profile(session: Mapping[str, Any]) -> str:
+    """The CAN profile a ``/session`` record says the car decoded with (a known profile's
+    name, else a ``UserError``), ``gm_global_a`` for a record without one (recorded before
+    it was kept)."""
+    from drivers.profiles import get_profile
+
+    name = session.get("can_profile")
+    if name is None:
+        return "gm_global_a"
+    if not isinstance(name, str) or len(name) > 100:
+        raise UserError("the recording's /session record: can_profile is not a profile name")
+    return get_profile(name).name
 
 
 def _raw_input(

@@ -178,7 +178,8 @@ def test_a_gyro_cars_raw_recording_replays_its_yaw_rate_frames_exactly(
                     "or dropped yaw readings, which a replay of raw frames cannot repeat")
     assert decoded == recorded  # exactly: the same decoder on the same frames
 
-    assert main(["replay", str(stripped), "--raw", "--profile", "toyota", "--json"]) == 0
+    # the session record names the car's profile: no --profile needed
+    assert main(["replay", str(stripped), "--raw", "--json"]) == 0
     summary = json.loads(capsys.readouterr().out.strip().splitlines()[-1])
     assert summary["matches_recording"] is True, summary["differences"][:3]
     assert summary["damaged_records"] == 0
@@ -240,3 +241,16 @@ def _read(odo: CanOdometry) -> int:
     """Frames the driver read: the wheels' and the yaw rate's."""
     stats = odo.stats()
     return stats["read"] + stats["yaw_read"]
+
+
+def test_the_session_names_the_profile_a_raw_replay_decodes_with() -> None:
+    """``/session``'s ``can_profile`` (a file from outside): a known name is used, anything
+    else is one clear error, and a record from before it was kept decodes as it did."""
+    from guidance.errors import UserError
+    from guidance.tools.replay_mcap import session_profile
+
+    assert session_profile({"can_profile": "toyota"}) == "toyota"
+    assert session_profile({}) == "gm_global_a"
+    for bad in ("no_such_car", 5, "x" * 10_000, ["toyota"]):
+        with pytest.raises(UserError):
+            session_profile({"can_profile": bad})
