@@ -35,18 +35,8 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from hal_sim.population import (
-    HARD_IRON,
-    CarResult,
-    draw_car,
-    draw_matched_car,
-    drive_car,
-    learn_then_drive,
-    persistent_limit,
-    population,
-    t4_draw,
-    with_camber,
-)
+from hal_sim.car_errors import HARD_IRON, draw_car, draw_matched_car, t4_draw, with_camber
+from hal_sim.population import CarResult, drive_car, learn_then_drive, persistent_limit, population
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -66,7 +56,7 @@ def main(argv: list[str] | None = None) -> int:
                          "per metre (the filter's own: 1e-10; default 0, constant)")  # fmt: skip
     ap.add_argument("--camber", action="store_true",
                     help="each car's left/right difference also changes from street to street "
-                         "(population.with_camber: a Gauss-Markov process, 0.005-0.03 %%, "
+                         "(car_errors.with_camber: a Gauss-Markov process, 0.005-0.03 %%, "
                          "150-400 m)")  # fmt: skip
     ap.add_argument("--landmarks", type=float, default=0.0, metavar="PER_KM2",
                     help="landmark fixes where the city has landmarks at this density, 60 %% "

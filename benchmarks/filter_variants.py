@@ -32,7 +32,8 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from hal_sim.population import draw_car, drive_car, t4_draw
+from hal_sim.car_errors import draw_car, t4_draw
+from hal_sim.population import drive_car
 
 WALK = {"camber_diff_sigma": 0.0, "diff_walk_var_per_m": 1e-10}
 """The left/right difference walking, as before the bounded street-to-street process."""

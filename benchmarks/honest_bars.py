@@ -11,7 +11,7 @@ the closed form's interval) and the heavier-tailed cars (t4: inside 80-95 %, no 
 below 50 % than the matched filter). Every line prints the measured figure beside its bar.
 
     .venv/bin/python benchmarks/honest_bars.py [--cars 200] [--seed 1] [--minutes 20]
-        [--kinds wheels,gyro,both] [--closed-form-only]
+        [--kinds wheels,gyro,both] [--gyro-profile PROFILE] [--closed-form-only]
 """
 
 from __future__ import annotations
@@ -28,18 +28,15 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from guidance.core.localize.car_model import CAR_MODEL
 from hal_sim import bars
-from hal_sim.population import (
+from hal_sim.car_errors import (
     CarErrors,
-    PopulationFigures,
     draw_car,
     draw_gyro,
     draw_matched_car,
     draw_matched_gyro,
-    drive_car,
-    persistent_limit,
-    population,
     with_camber,
 )
+from hal_sim.population import PopulationFigures, drive_car, persistent_limit, population
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -50,6 +47,8 @@ def main(argv: list[str] | None = None) -> int:
                     help="the long drives, with stops (0: only the 1.5 km drives)")  # fmt: skip
     ap.add_argument("--kinds", default="wheels,gyro,both",
                     help="wheels, gyro, both (comma; both: wheels and gyro weighed)")  # fmt: skip
+    ap.add_argument("--gyro-profile", default=None,
+                    help="a gyro car's DBC (default: population.GYRO_PROFILE)")  # fmt: skip
     ap.add_argument("--closed-form-only", action="store_true", help="no cars driven")
     args = ap.parse_args(argv)
     logging.basicConfig(level=logging.ERROR)
@@ -57,7 +56,7 @@ def main(argv: list[str] | None = None) -> int:
     if args.closed_form_only:
         return 0
     ok = True
-    drives: list[tuple[str, dict[str, float | bool]]] = [
+    drives: list[tuple[str, Drive]] = [
         ("1.5 km with stops", {"distance_m": 1500.0, "stops": True})
     ]
     if args.minutes > 0:
@@ -65,6 +64,8 @@ def main(argv: list[str] | None = None) -> int:
                        {"duration_s": 60.0 * args.minutes, "stops": True}))  # fmt: skip
     for kind in args.kinds.split(","):
         for name, how in drives:
+            if args.gyro_profile and kind.strip() != "wheels":
+                how = {**how, "profile": args.gyro_profile}
             ok &= _pair(kind.strip(), name, how, args)
     print("all bars met" if ok else "SOME BARS NOT MET")
     return 0 if ok else 1
@@ -110,7 +111,7 @@ def _cars(kind: str, matched: bool, n: int, seed: int) -> list[CarErrors]:
 
 
 def _run(
-    cars: list[CarErrors], how: dict[str, float | bool], label: str, kind: str
+    cars: list[CarErrors], how: Drive, label: str, kind: str
 ) -> PopulationFigures:
     t0 = time.monotonic()
     results = []
@@ -130,7 +131,11 @@ def _run(
     return fig
 
 
-def _pair(kind: str, name: str, how: dict[str, float | bool], args: argparse.Namespace) -> bool:
+Drive = dict[str, float | bool | str]
+"""``drive_car``'s keyword arguments for one kind of drive."""
+
+
+def _pair(kind: str, name: str, how: Drive, args: argparse.Namespace) -> bool:
     print(f"{kind} cars, {name}:")
     matched = _run(_cars(kind, True, args.cars, args.seed), how,
                    "matched (the filter's priors)", kind)  # fmt: skip

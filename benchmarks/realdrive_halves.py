@@ -122,7 +122,7 @@ def learn_first_half(log: Path, car: Path, truth: list[dict[str, str]], learned:
         p.feed(msg)
         last = msg.t_s
     vid = load_config(str(car), require_goal=False).vehicle_id
-    params = save_after(p.localizer.estimator, learned, vid, last, p.estimate.odometer_m, None)
+    params = save_after(p.localizer, learned, vid, last, p.estimate.odometer_m, None)
     assert params is not None, "the car model learns; the paper model has nothing to keep"
     return {"fixes_used": p.landmark_updates, "scale": params.scale,
             "scale_sigma": params.scale_sigma, "diff": params.diff,

@@ -3,7 +3,8 @@ names (``VehicleProfile.yaw_rate``, from opendbc), decoded with the profile's DB
 estimator's ``YawRate`` (rad/s, counter-clockwise positive).
 
 The sign: the profiles' signals read counter-clockwise (left turn) positive as opendbc
-documents them; checked on the shared Toyota RAV4 log, whose ``KINEMATICS.YAW_RATE``
+documents them (Volkswagen's magnitude with its sign bit, ``YawRateSignal.sign``, as openpilot
+reads it); checked on the shared Toyota RAV4 log, whose ``KINEMATICS.YAW_RATE``
 follows the truth's yaw rate (correlation +0.85 over 1 s means on a straight drive). Frames
 that do not decode, or whose rate is beyond ``MAX_RATE_RAD_S``, are counted and dropped.
 """
@@ -54,6 +55,8 @@ class YawRateDecoder:
         try:
             value = self._message.decode(bytes(msg.data), decode_choices=False)
             rate = float(value[self.signal.signal]) * self._to_rad
+            if self.signal.sign is not None and int(value[self.signal.sign]):
+                rate = -rate
         except Exception:  # cantools raises several types on odd payloads
             self.rejected["decode"] += 1
             return None

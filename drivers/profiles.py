@@ -40,13 +40,16 @@ class WheelSignals:
 
 @dataclass(frozen=True, slots=True)
 class YawRateSignal:
-    """Where the stability control's yaw rate is (recorded for the gyro work; the estimator
-    does not read it)."""
+    """Where the stability control's yaw rate is (``drivers.can_yaw`` decodes it for a gyro
+    car), counter-clockwise positive once decoded."""
 
     frame_id: int
     message: str
     signal: str
     unit: str
+    sign: str | None = None
+    """A separate sign bit of the same message (Volkswagen's): set, the unsigned magnitude
+    is negative, as openpilot reads it (``yawRate = magnitude x (1, -1)[bit]``)."""
 
 
 @dataclass(frozen=True, slots=True)
@@ -294,7 +297,12 @@ PROFILES: dict[str, VehicleProfile] = {
         # VAL_ 842 RLWheelDir: 0 Stationary, 1 Forward, 2 Reverse, 3 Unsupported, 4 Fault.
         reverse_values=frozenset({2}),
         fault_direction_values=frozenset({4}),
-        yaw=YawRateSignal(0x1E9, "EBCMVehicleDynamic", "YawRate", "deg/s"),
+        # Two yaw rates in the frame: YawRate (12 bits signed x 0.625: +-1,280 deg/s,
+        # declared in [0, 1] without a unit) and YawRate2 (12 bits signed x 0.0625 "grad/s":
+        # +-128 deg/s). An ESC yaw-rate sensor measures +-100-300 deg/s to a few hundredths
+        # (docs/estimation.md, "The car's gyro"): YawRate2 is that sensor; not checked on a
+        # GM drive (the shared Camaro log stands still).
+        yaw=YawRateSignal(0x1E9, "EBCMVehicleDynamic", "YawRate2", "deg/s"),
     ),
     # Hyundai / Kia / Genesis: WHL_SPD11 0x386 (CAN), WHEEL_SPEEDS 0xA0 (CAN FD, 24 bytes);
     # yaw rate ESP12 0x220 YAW_RATE, ESC_02_10ms 0xE5 ESC_YawRtVal (deg/s).
@@ -427,7 +435,7 @@ PROFILES: dict[str, VehicleProfile] = {
     ),
     # Volkswagen group: MQB ESP_19 0xB2, MLB ESP_03 0x103, PQ Bremse_3 0x4A0 (HL/HR rear,
     # VL/VR front); yaw rate ESP_02 0x101 ESP_Gierrate (MQB, MLB), Bremse_5 0x4A8 (PQ), deg/s
-    # unsigned with a separate sign bit: recorded, not decoded here.
+    # unsigned with a separate sign bit (ESP_VZ_Gierrate, BR5_Vorzeichen; set: negative).
     **_family(
         "volkswagen",
         {"vw_mqb": ("vw_mqb", 1.51, "VW MQB (Golf 7, Passat B8, Tiguan, Audi A3, Skoda, Seat...)")},
@@ -436,7 +444,7 @@ PROFILES: dict[str, VehicleProfile] = {
         resolution_kph=0.0075,
         period_s=0.01,
         tyre_radius_m=0.32,
-        yaw=YawRateSignal(0x101, "ESP_02", "ESP_Gierrate", "deg/s"),
+        yaw=YawRateSignal(0x101, "ESP_02", "ESP_Gierrate", "deg/s", sign="ESP_VZ_Gierrate"),
     ),
     **_family(
         "volkswagen",
@@ -446,7 +454,7 @@ PROFILES: dict[str, VehicleProfile] = {
         resolution_kph=0.1,
         period_s=0.02,
         tyre_radius_m=0.35,
-        yaw=YawRateSignal(0x101, "ESP_02", "ESP_Gierrate", "deg/s"),
+        yaw=YawRateSignal(0x101, "ESP_02", "ESP_Gierrate", "deg/s", sign="ESP_VZ_Gierrate"),
     ),
     **_family(
         "volkswagen",
@@ -456,7 +464,7 @@ PROFILES: dict[str, VehicleProfile] = {
         resolution_kph=0.01,
         period_s=0.01,
         tyre_radius_m=0.32,
-        yaw=YawRateSignal(0x4A8, "Bremse_5", "BR5_Giergeschw", "deg/s"),
+        yaw=YawRateSignal(0x4A8, "Bremse_5", "BR5_Giergeschw", "deg/s", sign="BR5_Vorzeichen"),
     ),
     # Chrysler / Jeep / Ram: ESP_6 (0x158, Ram 1500 0x8B) in wheel rpm (x 0.5); distance
     # needs the tyre radius (speed_scale from a calibration drive). Yaw rate ESP_4 0x89

@@ -14,15 +14,16 @@ What a wheel-speed sensor and a compass report for the car's true motion, writte
 
 The compiled world (``hal_sim.world._encoder`` and its compass, inlined in the study engine's
 step and in ``world_step``, which ``SimDrive`` and ``guided`` step) computes the paper's car
-with these functions; ``CarSensors`` computes a population car's (``hal_sim.population``:
-scale, left/right difference, road camber, turn scale, wheel walk, compass offset, hard iron,
-drift, noise) with the same functions, called from Python.
+with these functions; ``hal_sim.car_errors.CarSensors`` computes a population car's (its
+``CarErrors``: scale, left/right difference, road camber, turn scale, wheel walk, compass
+offset, hard iron, drift, noise) with the same functions, called from Python.
+``hard_iron_rad`` is the compass deviation a car field gives (Python: the population's
+compass curve).
 """
 
 from __future__ import annotations
 
 import math
-from typing import Protocol
 
 import numpy as np
 from numba import njit
@@ -71,89 +72,3 @@ def hard_iron_rad(ratio: float, direction_rad: float, heading_rad: float) -> flo
     phi))."""
     r, phi = ratio, direction_rad
     return math.atan2(r * math.sin(heading_rad - phi), 1.0 + r * math.cos(heading_rad - phi))
-
-
-class SensorErrors(Protocol):
-    """What ``CarSensors`` reads of a car's persistent errors (``population.CarErrors``)."""
-
-    @property
-    def scale(self) -> float: ...
-    @property
-    def diff(self) -> float: ...
-    @property
-    def walk_m2_per_m(self) -> float: ...
-    @property
-    def compass_drift_deg2_per_s(self) -> float: ...
-    @property
-    def compass_noise_deg(self) -> float: ...
-    @property
-    def diff_walk_var_per_m(self) -> float: ...
-    @property
-    def turn_scale(self) -> float: ...
-    @property
-    def camber_sigma(self) -> float: ...
-    @property
-    def camber_length_m(self) -> float: ...
-
-    def deviation_rad(self, heading_rad: float) -> float: ...
-
-
-class CarSensors:
-    """One population car's wheel sensors and compass, from its true motion step by step.
-
-    Draws, in order, from ``rng`` (shared with the caller's other draws: the random route's
-    exits): per wheel step the left/right difference's walk (when it walks), then each
-    wheel's walk; per compass reading the bias drift, then the noise. The road camber draws
-    from ``camber_rng``, a stream of its own (so the cars' other draws stay the same with
-    and without it)."""
-
-    def __init__(
-        self,
-        errors: SensorErrors,
-        rng: np.random.Generator,
-        camber_rng: np.random.Generator,
-        track_m: float,
-    ) -> None:
-        self.errors = errors
-        self.rng = rng
-        self.camber_rng = camber_rng
-        self.track_m = track_m
-        self.diff = errors.diff
-        self.camber = 0.0
-        if errors.camber_sigma > 0.0:
-            self.camber = errors.camber_sigma * float(camber_rng.normal())
-        self.drift_deg = 0.0
-
-    def wheels(self, d_m: float, dth_rad: float) -> tuple[float, float]:
-        """The left and right wheels' distances for a step of ``d_m`` along the path turning
-        ``dth_rad``: each wheel's true travel over the car's effective track (``turn_scale``)
-        counted with its side's scale (``scale`` and half the left/right difference, road
-        camber included) and its own walk."""
-        e, rng = self.errors, self.rng
-        if e.diff_walk_var_per_m > 0.0:
-            self.diff += float(rng.normal()) * math.sqrt(e.diff_walk_var_per_m * d_m)
-        if e.camber_sigma > 0.0:  # exact Gauss-Markov step over d
-            a = math.exp(-d_m / e.camber_length_m)
-            self.camber = a * self.camber + e.camber_sigma * math.sqrt(1.0 - a * a) * float(
-                self.camber_rng.normal()
-            )
-        out = [0.0, 0.0]
-        for side, sign in ((0, -1.0), (1, 1.0)):
-            true = d_m + sign * 0.5 * self.track_m * (1.0 + e.turn_scale) * dth_rad
-            walk = float(rng.normal()) * math.sqrt(e.walk_m2_per_m * abs(true))
-            out[side] = float(
-                wheel_travel(true, e.scale + sign * 0.5 * (self.diff + self.camber), walk)
-            )
-        return out[0], out[1]
-
-    def compass(self, heading_rad: float, since_s: float) -> float:
-        """The compass's reading at the true heading, ``since_s`` after its last one (its
-        bias drifts by a random walk over that time)."""
-        e, rng = self.errors, self.rng
-        self.drift_deg += float(rng.normal()) * math.sqrt(e.compass_drift_deg2_per_s * since_s)
-        error = e.deviation_rad(heading_rad) + math.radians(self.drift_deg)
-        return float(
-            compass_reading(
-                heading_rad, error, float(rng.normal()), math.radians(e.compass_noise_deg)
-            )
-        )

@@ -36,7 +36,8 @@ import numpy as np
 
 from guidance.core.localize.car_model import car_model
 from guidance.core.localize.estimator import EstimatorConfig
-from hal_sim.population import CarErrors, CarResult, draw_car, drive_car
+from hal_sim.car_errors import CarErrors, draw_car
+from hal_sim.population import CarResult, drive_car
 
 CONDITIONS: tuple[tuple[str, bool, bool], ...] = (
     ("odometry only, uncalibrated", False, False),

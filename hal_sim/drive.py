@@ -142,7 +142,8 @@ class SimDrive:
                                        compass_garbage=self.opts.compass_garbage,
                                        wheels=d.wheels)  # fmt: skip
                 sim = {"seed": self.opts.seed, "method": self.method.value}
-                session = session_record(self.pipeline, self.opts.config or "", sim=sim)
+                session = session_record(self.pipeline, self.opts.config or "", sim=sim,
+                                         can_profile=self.opts.profile)  # fmt: skip
                 settings = output_settings(self.opts, self.app_config, self.origin, session)
                 async with open_outputs(settings, self.clock, on_goal=self._remote_goal) as outputs:
                     self.outputs = outputs

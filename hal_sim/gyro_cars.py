@@ -10,7 +10,7 @@ A gyro car turns its heading by its yaw-rate sensor's reading (``[vehicle] yaw_s
 * scale: t4 x 1.2 % (sd 1.7 %; the prior is 2 %), within +-8 %;
 * white noise: the filter's own 0.015 deg/s per root Hz over a 50 Hz band.
 
-``population.draw_gyro`` draws them; ``population.draw_matched_gyro`` from the filter's own
+``car_errors.draw_gyro`` draws them; ``car_errors.draw_matched_gyro`` from the filter's own
 Gaussian priors (the yardstick).
 
 Stops: a time-grown error needs time standing still as well as driving. At each intersection

@@ -1,38 +1,26 @@
 """A population of simulated cars with the errors real cars have, for the estimator's honesty.
 
 An estimator's honesty is a property of many cars, not of one drive (issue 21). Each car here
-gets persistent errors drawn from the distributions below (``draw_car``), drives a random route
+gets persistent errors drawn as a real car's (``hal_sim.car_errors``), drives a random route
 through a simulated city (the world of ``hal_sim.world``; at each intersection a random exit),
 and its wheel increments and compass readings are made from the true motion with *its* errors
-(``hal_sim.car.CarSensors``: the simulated car's one sensor-error model), sent as the car's
-devices send them and decoded by the car's own decoders (``hal_sim.car_inputs``: CAN frames
-through ``WheelSpeedDecoder``, NMEA through the compass parser), then fed to the car's
-``Localizer`` with the car model as a car nobody calibrated is configured
-(``guidance.core.localize.car_model``, no deviation card). Per car: the truth
-inside the 2-sigma ellipse, the NEES, the along/across split, the true error when "lost" is
-declared.
+(``hal_sim.car_errors.CarSensors``: the simulated car's one sensor-error model), sent as the
+car's devices send them and decoded by the car's own decoders (``hal_sim.car_inputs``: CAN frames
+through ``WheelSpeedDecoder`` and, a gyro car's, ``YawRateDecoder``, NMEA through the compass
+parser), then fed to the car's ``Localizer`` with the car model as a car nobody calibrated is
+configured (``guidance.core.localize.car_model``, no deviation card). Per car: the truth inside
+the 2-sigma ellipse, the NEES, the along/across split, the true error when "lost" is declared.
 
-The car errors, with heavier tails than the filter's priors (Student t, 4 degrees of freedom):
-
-* wheel-speed scale: t4 x 1.2 % (standard deviation 1.7 %; the filter's prior is 2 %), within
-  +-8 % (beyond that a wrong DBC scale, not a tyre);
-* right-minus-left scale difference: t4 x 0.02 % (sd 0.028 %; the prior is 0.03 %), within
-  +-0.3 % (a flat tyre);
-* turn scale (the effective track over the configured one, or a gyro's sensitivity): t4 x
-  1.2 % (sd 1.7 %; the prior is 2 %), within +-8 %;
-* each wheel's random walk: the filter's own 2.2 mm per root metre;
-* compass: a mounting offset N(0, 40 deg), a hard-iron field of r x the earth's horizontal
-  field (r uniform 0-0.4, direction uniform) giving the heading-dependent deviation
-  atan2(r sin(h - phi), 1 + r cos(h - phi)), a bias drift of 0.1 deg^2/s, white noise 3 deg;
-* start: the operator's heading N(0, 1 deg) off, the position N(0, 3 m) off per axis;
-* gyro cars (``draw_gyro``, ``hal_sim.gyro_cars``): the yaw-rate sensor's bias, its walk with
-  time, its scale and noise; with ``stops``, stops at intersections of realistic length.
+The cars' errors and their draws are the car model's (``hal_sim.car_errors``: ``CarErrors``,
+``draw_car`` heavier-tailed than the filter's priors, ``draw_matched_car`` from them, gyro
+cars' ``draw_gyro``); with ``stops``, a car stops at intersections for realistic lengths
+(``hal_sim.gyro_cars``).
 """
 
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, field, replace
+from dataclasses import dataclass, field
 
 import numpy as np
 from scipy.stats import chi2
@@ -42,150 +30,39 @@ from guidance.core.localize.estimator import EstimatorConfig
 from guidance.core.localize.gyro import GyroConfig
 from guidance.core.localize.learned import LearnedParams
 from guidance.core.localize.localizer import Localizer, LocalizerConfig
-from guidance.core.messages import EstimateState, LandmarkFix, YawRate
+from guidance.core.messages import EstimateState, LandmarkFix
 from guidance.core.model import CHI2_2D_2SIGMA, mahalanobis_sq_2d, wrap_angle
 from guidance.core.plan.navigator import NavigatorConfig
 from hal_sim import world as world_mod
-from hal_sim.car import CarSensors, hard_iron_rad
+from hal_sim.car_errors import CarErrors, CarSensors
 from hal_sim.car_inputs import CarInputs, DeviceWire
-from hal_sim.gyro_cars import (
-    GYRO_BIAS_T4,
-    GYRO_SCALE_T4,
-    STOP_S,
-    GyroErrors,
-    GyroSim,
-    stop_for,
-)
+from hal_sim.gyro_cars import STOP_S, GyroSim, stop_for
 from hal_sim.params import SimParams, estimator_config
 from hal_sim.provenance import wilson_pair
 from hal_sim.sim_world import SimWorld, WorldSpec
 
 TRACK_M = 1.72
+WHEEL_PROFILE = "gm_global_a"
+"""The DBC a wheel car's wire speaks (``car_inputs.DeviceWire``; its track is ``TRACK_M``)."""
+GYRO_PROFILE = "ford_lincoln_base_pt"
+"""The DBC a gyro car's wire speaks: its yaw rate (Yaw_Data_FD1.VehYaw_W_Actl) in steps of
+0.0002 rad/s (0.011 deg/s) within +-6.5 rad/s. Most profiles' stability controls report
+0.005-0.01 deg/s (VW, Chrysler, Hyundai, Hyundai CAN FD), a tenth of one reading's noise
+(``gyro_cars``: 0.1 deg/s); Ford's range also holds the simulated city's sharpest turns (70-102
+deg/s at the fastest step of a 1.5 km drive, seeds 20000-20009), which Hyundai's ESP12
+(+-41 deg/s) clips. The coarsest step any profile sends is Toyota's KINEMATICS (0.244
+deg/s, no step at zero: the reading noise dithers it, and its gyro cars meet the bars);
+``gm_global_a`` reads EBCMVehicleDynamic.YawRate2 (0.0625 deg/s), not YawRate (0.625 deg/s,
+on which a standing reading rounds to 0 and the filter, which does not model the step, was
+overconfident: drivers/profiles.py says why YawRate2 is the sensor).
+``drive_car(profile=...)`` drives a gyro car on another DBC (benchmarks/honest_bars.py
+--gyro-profile)."""
 ODO_EVERY = 1
 """World steps per odometry message (the world's 10 Hz; the car model does not depend on it)."""
 COMPASS_EVERY = 2
 """World steps per compass reading (5 Hz)."""
 SAMPLE_EVERY = 10
 """World steps per consistency sample (1 s)."""
-
-
-@dataclass(frozen=True, slots=True)
-class CarErrors:
-    scale: float
-    diff: float
-    walk_m2_per_m: float
-    compass_offset_deg: float
-    hard_iron_ratio: float
-    hard_iron_dir_rad: float
-    compass_drift_deg2_per_s: float
-    compass_noise_deg: float
-    start_heading_deg: float
-    start_dx_m: float
-    start_dy_m: float
-    diff_walk_var_per_m: float = 0.0
-    """The left/right difference's random walk along the road (road camber from street to
-    street, tyre temperature): 0 keeps it constant."""
-    turn_scale: float = 0.0
-    """The car's effective track over the track the filter is configured with, minus 1 (tyre
-    scrub and load transfer in turns, a profile's track for another model): every turn's
-    left/right distance difference, so its heading change, is this much larger than the
-    filter's. 0: none. The car model's state ``kt`` (docs/estimation.md)."""
-    camber_sigma: float = 0.0
-    """1-sigma of the part of the left/right difference that changes from street to street
-    (road camber, each side's tyre temperature): a Gauss-Markov process of correlation length
-    ``camber_length_m`` added to ``diff`` (``with_camber``). 0: none."""
-    camber_length_m: float = 250.0
-    gyro: GyroErrors | None = None
-    """A gyro car's yaw-rate sensor (its filter then turns the heading by it); None: a car
-    whose heading comes from its wheels."""
-
-    def deviation_rad(self, heading_rad: float) -> float:
-        """The compass error at a true heading: the offset plus the hard-iron curve."""
-        curve = hard_iron_rad(self.hard_iron_ratio, self.hard_iron_dir_rad, heading_rad)
-        return math.radians(self.compass_offset_deg) + curve
-
-
-HARD_IRON = (0.0, 0.4)
-"""The population's hard-iron ratio, uniform between these (module doc). A compass on a
-dashboard near steel, speakers or wiring can see a car field of 0.8-0.9 of the earth's
-horizontal field (issue 21's circle drive): ``draw_car(rng, hard_iron=(0.6, 0.9))`` draws such
-cars, whose deviation curve no bias walk can follow (docs/estimation.md)."""
-
-
-def draw_car(rng: np.random.Generator, *, hard_iron: tuple[float, float] = HARD_IRON) -> CarErrors:
-    """One car's persistent errors (module doc); ``hard_iron``: the range of its hard-iron
-    ratio (the same draws otherwise)."""
-    return CarErrors(
-        scale=t4_draw(rng, 0.012, 0.08),
-        diff=t4_draw(rng, 0.0002, 0.003),
-        walk_m2_per_m=5e-6,
-        compass_offset_deg=float(rng.normal(0.0, 40.0)),
-        hard_iron_ratio=float(rng.uniform(*hard_iron)),
-        hard_iron_dir_rad=float(rng.uniform(-math.pi, math.pi)),
-        compass_drift_deg2_per_s=0.1,
-        compass_noise_deg=3.0,
-        start_heading_deg=float(rng.normal(0.0, 1.0)),
-        start_dx_m=float(rng.normal(0.0, 3.0)),
-        start_dy_m=float(rng.normal(0.0, 3.0)),
-        turn_scale=t4_draw(rng, 0.012, 0.08),
-    )
-
-
-CAMBER_SIGMA = (5e-5, 3e-4)
-"""The street-to-street part of the left/right difference: its 1-sigma log-uniform between
-0.005 % and 0.03 % (road cross slope from street to street and each side's tyre temperature,
-docs/estimation.md; rms 0.016 %, the filter's own), its correlation length uniform 150-400 m
-(a street between junctions)."""
-
-
-def with_camber(car: CarErrors, rng: np.random.Generator) -> CarErrors:
-    """``car`` with its own street-to-street left/right process (``CAMBER_SIGMA``), drawn from
-    ``rng`` (a stream of its own, so the cars' other draws stay those of ``draw_car``)."""
-    lo, hi = CAMBER_SIGMA
-    sigma = float(math.exp(rng.uniform(math.log(lo), math.log(hi))))
-    return replace(car, camber_sigma=sigma, camber_length_m=float(rng.uniform(150.0, 400.0)))
-
-
-def draw_matched_car(rng: np.random.Generator) -> CarErrors:
-    """A car whose wheel errors are drawn from the filter's own Gaussian priors (scale 2 %,
-    left/right 0.03 %, turn scale 2 %; the start and the wheel walk are the filter's already):
-    the yardstick of a perfectly matched filter for the per-car figures (docs/estimation.md)."""
-    car = draw_car(rng)
-    return replace(
-        car,
-        scale=float(rng.normal(0.0, 0.02)),
-        diff=float(rng.normal(0.0, 3e-4)),
-        turn_scale=float(rng.normal(0.0, 0.02)),
-    )
-
-
-def draw_gyro(car: CarErrors, rng: np.random.Generator) -> CarErrors:
-    """``car`` as a gyro car, its sensor heavier-tailed than the filter's priors
-    (``hal_sim.gyro_cars``), drawn from ``rng`` (a stream of its own)."""
-    return replace(car, gyro=GyroErrors(t4_draw(rng, *GYRO_BIAS_T4), t4_draw(rng, *GYRO_SCALE_T4)))
-
-
-def draw_matched_gyro(car: CarErrors, rng: np.random.Generator) -> CarErrors:
-    """``car`` as a gyro car whose sensor is drawn from the filter's own priors."""
-    from guidance.core.localize.gyro import GyroConfig
-
-    g = GyroConfig()
-    errors = GyroErrors(
-        float(rng.normal(0.0, g.bias_sigma_deg_s)),
-        float(rng.normal(0.0, g.scale_sigma)),
-        g.bias_walk_deg2_per_s3,
-        g.noise_density_deg_rt_s,
-    )
-    return replace(car, gyro=errors)
-
-
-def t4_draw(rng: np.random.Generator, scale: float, limit: float) -> float:
-    """A Student-t (4 dof) draw times ``scale``, redrawn beyond ``limit`` (a wheel scale 25 %
-    off is a wrong DBC, not a tyre)."""
-    while True:
-        v = scale * float(rng.standard_t(4))
-        if abs(v) <= limit:
-            return v
 
 
 @dataclass(slots=True)
@@ -233,6 +110,7 @@ def drive_car(
     duration_s: float | None = None,
     stops: bool = False,
     both: bool = False,
+    profile: str | None = None,
 ) -> CarResult:
     """One car, ``distance_m`` of random route in the city of ``seed`` (module doc); with
     ``landmarks_per_km2``, fixes where the world has sightings (60 % detected); with
@@ -242,7 +120,8 @@ def drive_car(
     ``filter_overrides``: car-model settings other than the shipped ones (a sensitivity);
     ``duration_s``: drive for this long (stops included) instead of ``distance_m``;
     ``stops``: start from a parked car and stand at intersections (``hal_sim.gyro_cars``);
-    ``both``: a gyro car's filter weighs its wheels' turn too (``yaw_source = "both"``)."""
+    ``both``: a gyro car's filter weighs its wheels' turn too (``yaw_source = "both"``);
+    ``profile``: the DBC of the car's wire (``WHEEL_PROFILE``, a gyro car's ``GYRO_PROFILE``)."""
     rng = np.random.default_rng([seed, 99])
     sim = SimParams()
     est0 = estimator_config(sim, 20.0 if compass else None)
@@ -257,24 +136,14 @@ def drive_car(
         calibrated=calibrated,
         **(filter_overrides or {}),
     )
-    sx, sy, th0 = world.start_pose
     dt = world.dt_s
-    cfg = LocalizerConfig(
-        estimator=est,
-        start_xy_m=(sx + errors.start_dx_m, sy + errors.start_dy_m),
-        start_heading_rad=th0 + math.radians(errors.start_heading_deg),
-        expected_rates_hz={
-            "odometry": 1.0 / (dt * ODO_EVERY),
-            **({"compass": 1.0 / (dt * COMPASS_EVERY)} if compass else {}),
-        },
-    )
-    p = Localizer(cfg)  # the estimate alone: no goal, no navigator
+    p = _localizer(est, errors, world.start_pose, dt, compass)
     if learned is not None:
         p.adopt(learned)
     res = CarResult(errors, compass)
     left = right = 0.0
     sensors = CarSensors(errors, rng, np.random.default_rng([seed, 98]), TRACK_M)
-    car = CarInputs(DeviceWire(0.0))  # what the car's own decoders make of the sensors' wire
+    car = _car_inputs(errors, profile)
     prev = world.truth
     gyro = None if errors.gyro is None else GyroSim(errors.gyro, np.random.default_rng([seed, 97]))
     stop_rng = np.random.default_rng([seed, 96])
@@ -298,7 +167,8 @@ def drive_car(
         right += dr
         step = world.step_count
         if gyro is not None:
-            p.handle(YawRate(t, gyro.reading(dth, dt)))
+            for rate in car.yaw_rate(t, gyro.reading(dth, dt)):
+                p.handle(rate)
         if step % ODO_EVERY == 0:
             for odometry in car.wheels(t, left / (ODO_EVERY * dt), right / (ODO_EVERY * dt)):
                 p.handle(odometry)
@@ -329,6 +199,36 @@ def drive_car(
     return res
 
 
+def _localizer(
+    est: EstimatorConfig,
+    errors: CarErrors,
+    start_pose: tuple[float, float, float],
+    dt: float,
+    compass: bool,
+) -> Localizer:
+    """The car's estimate alone (no goal, no navigator), started where the operator puts it:
+    the true start pose with the car's start errors."""
+    sx, sy, th0 = start_pose
+    cfg = LocalizerConfig(
+        estimator=est,
+        start_xy_m=(sx + errors.start_dx_m, sy + errors.start_dy_m),
+        start_heading_rad=th0 + math.radians(errors.start_heading_deg),
+        expected_rates_hz={
+            "odometry": 1.0 / (dt * ODO_EVERY),
+            **({"compass": 1.0 / (dt * COMPASS_EVERY)} if compass else {}),
+        },
+    )
+    return Localizer(cfg)
+
+
+def _car_inputs(errors: CarErrors, profile: str | None) -> CarInputs:
+    """What the car's own decoders make of its sensors' wire (a gyro car's yaw rate too), on
+    ``profile``'s DBC (default ``WHEEL_PROFILE``, a gyro car's ``GYRO_PROFILE``)."""
+    gyro_car = errors.gyro is not None
+    wire = DeviceWire(0.0, profile=profile or (GYRO_PROFILE if gyro_car else WHEEL_PROFILE))
+    return CarInputs(wire, yaw_rate=gyro_car)
+
+
 def _stand(
     p: Localizer, car: CarInputs, gyro: GyroSim | None, t0: float, seconds: float, dt: float
 ) -> float:
@@ -337,7 +237,8 @@ def _stand(
     n = round(seconds / dt)
     for k in range(1, n + 1):
         if gyro is not None:
-            p.handle(YawRate(t0 + k * dt, gyro.reading(0.0, dt)))
+            for rate in car.yaw_rate(t0 + k * dt, gyro.reading(0.0, dt)):
+                p.handle(rate)
         for odometry in car.wheels(t0 + k * dt, 0.0, 0.0):
             p.handle(odometry)
     return n * dt

@@ -156,7 +156,7 @@ class SimCanWheels:
         values: dict[str, float] = {}
         for name, speed in ((sig.left, left), (sig.right, right)):
             raw = speed * to_unit if p.signed_speeds else abs(speed) * to_unit
-            lo, hi = _physical_range(spec.get_signal_by_name(name))
+            lo, hi = physical_range(spec.get_signal_by_name(name))
             top = 0.99 * MAX_SPEED_MPS * to_unit  # never what the decoder calls implausible
             values[name] = min(max(raw, lo, -top), hi, top)
         for dir_name, speed in ((sig.left_direction, left), (sig.right_direction, right)):
@@ -178,8 +178,9 @@ class SimCanWheels:
         return can.Message(arbitration_id=spec.frame_id, data=data, is_extended_id=False)
 
 
-def _physical_range(signal: Any) -> tuple[float, float]:
-    """What the signal's bits can carry. opendbc's declared [min|max] are not used: they are
+def physical_range(signal: Any) -> tuple[float, float]:
+    """What the signal's bits can carry (a cantools signal; also the simulated yaw rate's,
+    ``hal_sim.car_inputs``). opendbc's declared [min|max] are not used: they are
     not reliable for wheel speeds (Mazda's says 0-15 km/h; Toyota's 0-250 though its offset
     carries reverse speeds)."""
     if signal.is_signed:

@@ -2,7 +2,7 @@
 ``import``, ``survey``), when the car opens a file read-only, and by ``landmark-db check``.
 
 The limits keep every value a landmark fix can carry inside what the estimator accepts
-(``guidance.core.localize.estimator``: a fix sigma of 0.01-1000 m, coordinates within 1e7 m;
+(``guidance.core.localize.gates``: a fix sigma of 0.01-1000 m, coordinates within 1e7 m;
 ``tests/landmark_db/test_limits.py`` checks that they agree), and every photo small enough
 to decode in bounded memory.
 """

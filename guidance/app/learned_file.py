@@ -22,13 +22,16 @@ import os
 import stat
 from dataclasses import replace
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 from guidance import files
 from guidance.app.checkpoint import remove_stale_temps, write_atomic
 from guidance.core.localize import compass_mount
-from guidance.core.localize.estimator import PoseEstimator
 from guidance.core.localize.learned import LearnedParams
 from guidance.core.localize.state_limits import FUTURE_TOLERANCE_S
+
+if TYPE_CHECKING:  # the car's first stage; what reads the file alone does not load it
+    from guidance.core.localize.localizer import Localizer
 
 MAX_BYTES = files.KINDS["learned"].max_bytes
 """The file is a few hundred bytes; a larger one (or ``/dev/zero``) is not read."""
@@ -141,17 +144,23 @@ def save_learned(path: Path, params: LearnedParams) -> None:
 
 
 def start_from_learned(
-    est: PoseEstimator, path: Path, vehicle_id: str, now_unix_s: float, *, wall_clock: bool = True
+    localizer: Localizer,
+    path: Path,
+    vehicle_id: str,
+    now_unix_s: float,
+    *,
+    wall_clock: bool = True,
 ) -> tuple[LearnedParams | None, str]:
-    """Start a fresh car-model filter from the file (widened for the time since): what was
-    used, and one line saying so (or why not). ``wall_clock``: ``now_unix_s`` is the wall
-    clock (the car), so a file saved in the future is refused; a replay's is the log's."""
+    """Start a fresh car's first stage from the file (widened for the time since, adopted by
+    ``Localizer.adopt``): what was used, and one line saying so (or why not). ``wall_clock``:
+    ``now_unix_s`` is the wall clock (the car), so a file saved in the future is refused; a
+    replay's is the log's."""
     remove_stale_temps(path)  # a save a SIGKILL cut short
     params, refused = load_learned(path, vehicle_id, now_unix_s if wall_clock else None)
     if params is None:
         return None, refused or f"{path}: no learned parameters yet: starting from the priors"
-    used = params.widened(now_unix_s, est.config)
-    used.apply(est)
+    used = params.widened(now_unix_s, localizer.config.estimator)
+    localizer.adopt(used)
     days = max(0.0, now_unix_s - params.saved_unix_s) / 86400.0
     bias = (
         ""
@@ -188,15 +197,16 @@ def counter_after_resume(
 
 
 def save_after(
-    est: PoseEstimator,
+    localizer: Localizer,
     path: Path,
     vehicle_id: str,
     now_unix_s: float,
     driven_m: float,
     before: LearnedParams | None,
 ) -> LearnedParams | None:
-    """Save what the filter knows now (nothing for the paper model)."""
-    params = LearnedParams.from_estimator(est, vehicle_id, now_unix_s, driven_m, before)
+    """Save what the first stage knows now (``Localizer.learned``; nothing for the paper
+    model)."""
+    params = localizer.learned(vehicle_id, now_unix_s, driven_m, before)
     if params is not None:
         save_learned(path, params)
     return params

@@ -120,8 +120,11 @@ async def run_car(
     async with open_outputs(settings, time.monotonic, on_goal=on_goal) as out:
         speaker = session.attach(out.speaker)
         voice = type(out.speaker).__name__ if out.speaker is not None else "none"
-        co_driver = {"evdev": f"keypad {cfg.scene.device}", "keyboard": "keyboard (stdin)",
-                     "speech": f"microphone {cfg.scene.microphone}"}.get(cfg.scene.input, "none")
+        co_driver = {
+            "evdev": f"keypad {cfg.scene.device}",
+            "keyboard": "keyboard (stdin)",
+            "speech": f"microphone {cfg.scene.microphone}",
+        }.get(cfg.scene.input, "none")
         if cfg.scene.speech:
             co_driver += f" + microphone {cfg.scene.microphone} (talk: {cfg.scene.talk_mode})"
         if no_input:
@@ -213,8 +216,15 @@ def output_settings(cfg: AppConfig, pipeline: Pipeline) -> OutputSettings:
         telemetry=cfg.telemetry,
         recording=cfg.recording,
         ros2=cfg.ros2,
-        session=session_record(pipeline, cfg.path),
+        session=session_record(pipeline, cfg.path, can_profile=_can_profile(cfg)),
     )
+
+
+def _can_profile(cfg: AppConfig) -> str | None:
+    """The CAN profile the car's odometry decodes with (``/session``: what ``replay --raw``
+    decodes the recorded frames with), None without CAN odometry."""
+    profile = getattr(cfg.odometry.config, "profile", None) if cfg.odometry else None
+    return profile if isinstance(profile, str) else None
 
 
 def stop_line(lag: dict[str, float | None]) -> str:
@@ -258,7 +268,7 @@ def _start_learned(cfg: Any, pipeline: Any, *, resumed: bool) -> Any:
             Path(cfg.checkpoint.learned_path), cfg.vehicle_id, pipeline.estimate.odometer_m
         )
     used, note = start_from_learned(
-        pipeline.localizer.estimator, Path(cfg.checkpoint.learned_path), cfg.vehicle_id, time.time()
+        pipeline.localizer, Path(cfg.checkpoint.learned_path), cfg.vehicle_id, time.time()
     )
     (log.info if used is not None and "MOVES" not in note else log.warning)("%s", note)
     return used

@@ -10,7 +10,7 @@ from dataclasses import dataclass, field, fields
 
 from guidance.config_tables import plain, rule
 from guidance.core.health import HealthConfig
-from guidance.core.localize.estimator import EstimatorConfig
+from guidance.core.localize.estimator_config import EstimatorConfig
 from guidance.core.messages import (
     Approach,
     CancelReport,

@@ -30,8 +30,8 @@ LOST_HYSTERESIS = 0.8
 back below this fraction of it (the planner says each once; a relocalisation resets while the
 axis is above it)."""
 RELOCALISED = "relocalised"
-"""The reason of an accepted landmark fix that reset the position (the estimator's
-``_relocalise``: a whole-database find while lost)."""
+"""The reason of an accepted landmark fix that reset the position (a whole-database find while
+lost: ``localize.covariance_edits.relocalised``, applied by the estimator)."""
 
 
 @dataclass(frozen=True, slots=True)

@@ -9,7 +9,8 @@ Two kinds of input:
   pure and the recorded floats round-trip exactly through JSON, the replay reproduces the
   recorded estimates and decisions bit for bit; ``compare_with_recording`` checks that;
 * raw logs from elsewhere: a CAN log (candump ``.log``, ``.asc``, ``.blf``... through
-  python-can's readers and the car's ``WheelSpeedDecoder``) and optionally an NMEA text file
+  python-can's readers and the car's decoders, ``replay_can``: the wheel speeds and, on a car
+  whose ``[vehicle] yaw_source`` is "gyro" or "both", the yaw rate) and optionally an NMEA text file
   (each line optionally prefixed by its time in seconds; otherwise spread at ``--nmea-rate``
   from the start of the CAN log), merged by time. Start, goal and method come from
   ``--config`` (the car's TOML) or sensible defaults. With no ``[goal]`` (and with no
@@ -35,9 +36,10 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 from guidance import files
-from guidance.core.messages import CompassHeading, WheelOdometry, YawRate
+from guidance.core.messages import CompassHeading, WheelOdometry
 from guidance.errors import UserError
 from guidance.tools.odometry_csv import first_time, is_odometry_csv, odometry_inputs
+from guidance.tools.replay_can import can_log_inputs
 from guidance.tools.replay_mcap import (
     PROCESSED_TOPICS,
     RAW_TOPICS,
@@ -92,26 +94,9 @@ def nmea_inputs(path: Path, start_s: float, rate_hz: float) -> Iterator[CompassH
 
 def can_inputs(path: Path, profile: str) -> Iterator[WheelOdometry]:
     """Wheel odometry of a CAN log through the car's decoder (python-can readers)."""
-    from drivers.can_decode import WheelSpeedDecoder
-    from drivers.can_odometry import LogReadResult, read_can_log
-
-    decoder = WheelSpeedDecoder(profile)
-    for msg in read_can_log(path, LogReadResult()):
-        out = decoder.feed(msg)
-        if out is not None:
-            yield out
-
-
-def can_yaw_inputs(path: Path, profile: str) -> Iterator[YawRate]:
-    """The stability control's yaw rate of a CAN log (``drivers.can_yaw``): a gyro car's."""
-    from drivers.can_odometry import LogReadResult, read_can_log
-    from drivers.can_yaw import YawRateDecoder
-
-    decoder = YawRateDecoder(profile)
-    for msg in read_can_log(path, LogReadResult()):
-        out = decoder.feed(msg)
-        if out is not None:
-            yield out
+    for out in can_log_inputs(path, profile, yaw_rate=False):
+        assert isinstance(out, WheelOdometry)  # no yaw-rate decoder: increments only
+        yield out
 
 
 def _first_can_time(path: Path) -> float:
@@ -348,7 +333,8 @@ def register(sub: Any) -> None:
     p.add_argument(
         "--raw",
         action="store_true",
-        help="MCAP: decode the raw /can frames and /nmea lines again (with --profile)",
+        help="MCAP: decode the raw /can frames and /nmea lines again (with --profile; "
+        "default: the profile the recording was made with)",
     )
     p.add_argument(
         "--learned",
@@ -429,7 +415,7 @@ def _replay_mcap(
     session, inputs = mcap_inputs(
         files,
         raw=args.raw,
-        profile=args.profile or DEFAULT_PROFILE,
+        profile=args.profile,
         skipped=skipped,
         damage=damage,
     )
@@ -481,10 +467,9 @@ def _replay_raw(
     if args.nmea is None and "compass" in pcfg.expected_rates_hz:  # not replayed: not silent
         rates = {k: v for k, v in pcfg.expected_rates_hz.items() if k != "compass"}
         pcfg = replace(pcfg, expected_rates_hz=rates)
-    streams: list[Iterator[Any]] = [can_inputs(path, setup.profile)]
-    if pcfg.estimator.gyro is not None and not is_odometry_csv(path):
-        streams.append(can_yaw_inputs(path, setup.profile))  # before the odometry of its time
-        streams.reverse()
+    # a gyro car's yaw-rate frames decoded as guidance run decodes them, in the log's order
+    gyro = pcfg.estimator.gyro is not None
+    streams: list[Iterator[Any]] = [can_log_inputs(path, setup.profile, yaw_rate=gyro)]
     if is_odometry_csv(path):  # a car's own speed and yaw rate (issue 38)
         ecfg = pcfg.estimator
         if ecfg.gyro is not None and ecfg.gyro.with_wheels:
@@ -501,13 +486,13 @@ def _replay_raw(
     from guidance.app.learned_file import save_after, start_from_learned
 
     vid = load_config(args.config, require_goal=False).vehicle_id if args.config else "replay"
-    est = current[-1].localizer.estimator  # the learned parameters are the filter's
+    loc = current[-1].localizer  # the learned parameters are the first stage's
     before, note = start_from_learned(
-        est, args.learned, vid, _first_can_time(path), wall_clock=False
+        loc, args.learned, vid, _first_can_time(path), wall_clock=False
     )
     sys.stderr.write(f"guidance replay: {note}\n")
     res = replay(current[-1], merged, speed=args.speed, on_output=on_output)
-    save_after(est, args.learned, vid, res.last_t_s or 0.0, res.odometer_m, before)
+    save_after(loc, args.learned, vid, res.last_t_s or 0.0, res.odometer_m, before)
     return res
 
 

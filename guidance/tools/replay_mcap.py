@@ -20,6 +20,7 @@ if TYPE_CHECKING:
     from guidance.core.pipeline import Input
     from guidance.recording.reader import Reader
     from guidance.recording.scan import Damage
+    from guidance.tools.replay_can import CarCanDecoders
 
 PROCESSED_TOPICS = tuple(dict.fromkeys(TOPICS.values()))
 """Every processed-input topic, from the codec's one table: a new input type is replayed."""
@@ -58,23 +59,31 @@ def skipped_messages(reader: Reader, bad: list[str]) -> None:
     bad.extend(["a message that is no usable JSON"] * (reader.skipped - len(reader.skipped_why)))
 
 
-RAW_TOPICS = ("/can", "/nmea", *(t for t in PROCESSED_TOPICS if t not in ("/odometry", "/compass")))
-"""With ``raw``: the CAN frames and NMEA lines instead of the odometry and compass they gave."""
+RAW_TOPICS = (
+    "/can",
+    "/nmea",
+    *(t for t in PROCESSED_TOPICS if t not in ("/odometry", "/compass", "/yaw_rate")),
+)
+"""With ``raw``: the CAN frames and NMEA lines instead of the odometry, yaw rates and compass
+readings they gave."""
 
 
 def mcap_inputs(
     path: str | Path | list[Path],
     *,
     raw: bool = False,
-    profile: str = "gm_global_a",
+    profile: str | None = None,
     skipped: list[str] | None = None,
     damage: Damage | None = None,
 ) -> tuple[dict[str, Any], Iterator[Input]]:
     """The session record and the recorded inputs (in processing order) of a recording.
 
     ``raw=True`` decodes the raw ``/can`` frames and ``/nmea`` lines again with the car's
-    decoder (``profile``) and compass parser instead of taking the decoded ``/odometry`` and
-    ``/compass`` the app recorded: the drivers' decoding is then part of what is replayed.
+    decoders (``profile``, else the one the session was recorded with, ``can_profile``, else
+    ``gm_global_a``; ``replay_can.CarCanDecoders``: the yaw rate too when the session's
+    car turns by its gyro, ``[vehicle] yaw_source`` "gyro" or "both") and compass parser
+    instead of taking the decoded ``/odometry``, ``/yaw_rate`` and ``/compass`` the app
+    recorded: the drivers' decoding is then part of what is replayed.
     Records that do not decode are left out and described in ``skipped``; chunks and records
     the file's damage made unreadable are counted in ``damage`` once the inputs are read.
     """
@@ -108,11 +117,9 @@ def mcap_inputs(
             if msg is not None:
                 yield msg
 
-    def raw_inputs() -> Iterator[Input]:
-        from drivers.can_decode import WheelSpeedDecoder
+    def raw_inputs(decoder: CarCanDecoders) -> Iterator[Input]:
         from drivers.compass import NmeaCompassParser
 
-        decoder = WheelSpeedDecoder(profile)
         parser = NmeaCompassParser()
         for rec in read(RAW_TOPICS):
             d = rec.data
@@ -125,13 +132,33 @@ def mcap_inputs(
                 if msg is not None:
                     yield msg
 
-    return session, raw_inputs() if raw else inputs()
+    if not raw:
+        return session, inputs()
+    from guidance.tools.replay_can import CarCanDecoders
+    from guidance.tools.replay_session import pipeline_config_from_session
+
+    gyro = pipeline_config_from_session(session).estimator.gyro is not None
+    return session, raw_inputs(CarCanDecoders(profile or session_profile(session), yaw_rate=gyro))
+
+
+def session_profile(session: Mapping[str, Any]) -> str:
+    """The CAN profile a ``/session`` record says the car decoded with (a known profile's
+    name, else a ``UserError``), ``gm_global_a`` for a record without one (recorded before
+    it was kept)."""
+    from drivers.profiles import get_profile
+
+    name = session.get("can_profile")
+    if name is None:
+        return "gm_global_a"
+    if not isinstance(name, str) or len(name) > 100:
+        raise UserError("the recording's /session record: can_profile is not a profile name")
+    return get_profile(name).name
 
 
 def _raw_input(
-    topic: str, d: Mapping[str, Any], decoder: Any, parser: Any, bad: list[str]
+    topic: str, d: Mapping[str, Any], decoder: CarCanDecoders, parser: Any, bad: list[str]
 ) -> Input | None:
-    """A recorded ``/can`` frame or ``/nmea`` line through the car's decoder; a malformed
+    """A recorded ``/can`` frame or ``/nmea`` line through the car's decoders; a malformed
     record is described in ``bad`` and left out."""
     import can
 

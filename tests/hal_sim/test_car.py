@@ -11,7 +11,8 @@ import pytest
 
 from guidance.core.model import wrap_angle
 from guidance.core.plan.navigator import NavigatorConfig
-from hal_sim import car, rng, world
+from hal_sim import car, car_errors, rng, world
+from hal_sim.car_errors import CarErrors, draw_car
 from hal_sim.params import (
     I_COMPASS_PERIOD,
     I_TRUE_COMPASS_SIGMA,
@@ -20,7 +21,6 @@ from hal_sim.params import (
     SimParams,
     estimator_config,
 )
-from hal_sim.population import CarErrors, draw_car
 from hal_sim.sim_world import SimWorld, WorldSpec
 
 
@@ -79,7 +79,7 @@ def test_a_cars_wheels_count_its_scale_its_difference_and_its_effective_track() 
     """No walk: each wheel's count is its true travel (over the effective track) times its
     side's scale, exactly as the model is written."""
     e = _car(scale=0.012, diff=0.002, turn_scale=0.05)
-    s = car.CarSensors(e, np.random.default_rng(1), np.random.default_rng(2), 1.72)
+    s = car_errors.CarSensors(e, np.random.default_rng(1), np.random.default_rng(2), 1.72)
     dl, dr = s.wheels(1.0, 0.1)
     true_l = 1.0 - 0.5 * 1.72 * 1.05 * 0.1
     true_r = 1.0 + 0.5 * 1.72 * 1.05 * 0.1
@@ -89,7 +89,7 @@ def test_a_cars_wheels_count_its_scale_its_difference_and_its_effective_track() 
 
 def test_a_cars_wheel_walk_has_the_variance_per_metre_it_is_drawn_with() -> None:
     e = _car(walk_m2_per_m=5e-6)
-    s = car.CarSensors(e, np.random.default_rng(1), np.random.default_rng(2), 1.72)
+    s = car_errors.CarSensors(e, np.random.default_rng(1), np.random.default_rng(2), 1.72)
     errors = [s.wheels(4.0, 0.0)[0] - 4.0 for _ in range(20000)]
     # 20,000 draws: the sample variance is within 3 % of the true one (sd 1 %)
     assert np.var(errors) == pytest.approx(5e-6 * 4.0, rel=0.03)
@@ -100,7 +100,7 @@ def test_a_cars_compass_reads_its_deviation_curve_and_noise() -> None:
     spread is the noise."""
     e = _car(compass_offset_deg=12.0, hard_iron_ratio=0.3, hard_iron_dir_rad=0.7,
              compass_noise_deg=3.0)  # fmt: skip
-    s = car.CarSensors(e, np.random.default_rng(1), np.random.default_rng(2), 1.72)
+    s = car_errors.CarSensors(e, np.random.default_rng(1), np.random.default_rng(2), 1.72)
     for heading in (-2.5, 0.0, 1.2):
         errs = [wrap_angle(s.compass(heading, 0.2) - heading) for _ in range(4000)]
         # 4000 draws of 3 deg: the mean within 0.15 deg (3 sigma), the sd within 5 %

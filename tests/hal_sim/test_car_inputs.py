@@ -52,6 +52,58 @@ def test_a_silence_is_bridged_up_to_the_decoders_gap_and_not_beyond(silent_s: fl
         assert driven == pytest.approx(10.0 * (5.9 - silent_s - 0.1), abs=0.05)
 
 
+@pytest.mark.parametrize(
+    ("profile", "step_deg_s"),
+    [
+        ("ford_lincoln_base_pt", math.degrees(0.0002)),
+        ("gm_global_a", 0.0625),
+        ("toyota", 0.244),
+        ("vw_mqb", 0.01),
+        ("vw_pq", 0.01),
+    ],
+)
+def test_the_yaw_rate_reads_back_in_whole_steps_of_the_dbc(profile: str, step_deg_s: float) -> None:
+    """A gyro car's yaw rate on its stability control's frame, decoded by ``guidance run``'s
+    decoder: the DBC's nearest whole step (its offset included: Toyota's has no step at zero),
+    stamped; nothing while CAN is silent, like the wheels."""
+    from drivers.can_yaw import UNIT_TO_RAD_S
+    from drivers.profiles import get_profile, load_dbc
+
+    sig = get_profile(profile).yaw_rate
+    assert sig is not None
+    dbc = load_dbc(get_profile(profile).dbc_file).get_message_by_frame_id(sig.frame_id)
+    spec = dbc.get_signal_by_name(sig.signal)
+    to_rad = UNIT_TO_RAD_S[sig.unit]
+    assert math.degrees(spec.scale * to_rad) == pytest.approx(step_deg_s)
+    car = CarInputs(DeviceWire(0.0, profile=profile, can_silent=(10.0, 1.0)), yaw_rate=True)
+    rates = [-1.3, -0.2, -0.004, 0.0, 0.00313, 0.05, 0.7]  # rad/s (none halfway between steps)
+    for k, rate in enumerate(rates):
+        (got,) = car.yaw_rate(0.1 * k, rate)
+        assert got.t_s == 0.1 * k
+        if sig.sign is None:
+            steps = round((rate / to_rad - spec.offset) / spec.scale)
+            want = (spec.offset + steps * spec.scale) * to_rad
+        else:  # a magnitude and a sign bit (Volkswagen's): the sign comes back
+            want = math.copysign(round(abs(rate) / to_rad / spec.scale) * spec.scale * to_rad, rate)
+        assert got.yaw_rate_rad_s == pytest.approx(want, abs=1e-12)
+        assert abs(math.degrees(got.yaw_rate_rad_s - rate)) <= 0.5 * step_deg_s + 1e-9
+    assert list(car.yaw_rate(10.5, 0.3)) == []
+    assert car.yaw is not None and car.yaw.frames == len(rates)
+
+
+def test_a_profile_without_a_yaw_rate_signal_and_a_car_without_a_gyro_are_refused() -> None:
+    from drivers.profiles import PROFILES
+    from guidance.errors import UserError
+
+    without = next(name for name, p in PROFILES.items() if p.yaw_rate is None)
+    with pytest.raises(UserError, match="no yaw-rate signal"):
+        CarInputs(DeviceWire(0.0, profile=without), yaw_rate=True)
+    with pytest.raises(UserError, match="no yaw-rate signal"):
+        DeviceWire(0.0, profile=without).yaw_frames(0.0, 0.1)
+    with pytest.raises(ValueError, match="no yaw rate"):
+        list(CarInputs(DeviceWire(0.0)).yaw_rate(0.0, 0.1))
+
+
 def test_the_compass_line_reads_back_as_the_heading_and_garbage_is_rejected() -> None:
     decl = -12.3
     car = CarInputs(DeviceWire(decl, compass_garbage=(5.0, 1.0)))

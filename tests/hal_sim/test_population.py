@@ -11,7 +11,8 @@ import pytest
 from scipy.stats import chi2
 
 from guidance.core.model import CHI2_2D_2SIGMA
-from hal_sim.population import CarResult, draw_car, drive_car, persistent_limit, population
+from hal_sim.car_errors import draw_car
+from hal_sim.population import CarResult, drive_car, persistent_limit, population
 
 
 @pytest.mark.parametrize(("compass", "cars"), [(False, 200), (True, 100)])
@@ -41,7 +42,7 @@ def test_a_perfectly_matched_filter_has_few_cars_below_half_inside() -> None:
     term (``heading_second_order = 0``) the same cars were 11.5 % below 50 % with a mean NEES of
     2.10: the linearised ellipse, thin along the road, missed the along-road part of a heading
     error."""
-    from hal_sim.population import draw_matched_car
+    from hal_sim.car_errors import draw_matched_car
 
     rng = np.random.default_rng(20261203)
     fig = population([drive_car(8000 + i, draw_matched_car(rng), compass=False)
@@ -173,13 +174,13 @@ def test_a_compass_brings_the_estimate_nearer_the_truth_and_a_strong_hard_iron_s
 
 
 def test_a_left_right_difference_that_changes_from_street_to_street_is_drawn_and_driven() -> None:
-    """``population.with_camber`` (benchmarks/estimator_population.py --camber): each car's own
+    """``car_errors.with_camber`` (benchmarks/estimator_population.py --camber): each car's own
     Gauss-Markov process, its sigma within ``CAMBER_SIGMA`` (rms near the 0.016 % of the
     physical range's middle) and its length 150-400 m, from a stream of its own (the car's other
     draws unchanged); driven, it turns the heading of a car whose constant difference is 0."""
     from dataclasses import replace
 
-    from hal_sim.population import CAMBER_SIGMA, with_camber
+    from hal_sim.car_errors import CAMBER_SIGMA, with_camber
 
     rng = np.random.default_rng(4)
     cars = [with_camber(draw_car(np.random.default_rng(2)), rng) for _ in range(2000)]

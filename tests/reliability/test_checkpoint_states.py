@@ -269,11 +269,11 @@ def test_a_temp_file_left_by_sigkill_is_removed_at_the_next_start(
 def test_a_temp_file_of_the_learned_parameters_is_removed_at_the_next_start(
     tmp_path: Path,
 ) -> None:
-    from guidance.core.localize.estimator import PoseEstimator
+    from guidance.core.localize.localizer import Localizer, LocalizerConfig
 
     learned = tmp_path / "learned.json"
     stale = _killed_mid_write(learned)
     learned.unlink(missing_ok=True)
-    est = PoseEstimator(car_model(EstimatorConfig(), calibrated=False))
-    used, note = start_from_learned(est, learned, "car-1", 0.0)
+    car = LocalizerConfig(car_model(EstimatorConfig(), calibrated=False), start_xy_m=(0.0, 0.0))
+    used, note = start_from_learned(Localizer(car), learned, "car-1", 0.0)
     assert not stale.exists() and used is None and "no learned parameters yet" in note

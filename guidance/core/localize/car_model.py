@@ -6,7 +6,7 @@ from __future__ import annotations
 from dataclasses import replace
 from typing import Any
 
-from guidance.core.localize.estimator import EstimatorConfig
+from guidance.core.localize.estimator_config import EstimatorConfig
 
 CAR_MODEL: dict[str, float] = {
     "wheel_quantum_m": 0.0,

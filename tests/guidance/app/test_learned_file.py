@@ -17,9 +17,23 @@ from guidance.app.learned_file import load_learned, save_learned, start_from_lea
 from guidance.core.localize.car_model import car_model
 from guidance.core.localize.estimator import EstimatorConfig, PoseEstimator
 from guidance.core.localize.learned import LearnedParams
+from guidance.core.localize.localizer import Localizer, LocalizerConfig
 
 REPO = Path(__file__).resolve().parents[3]
 GOOD = LearnedParams("car1", 1000.0, 2500.0, -0.011, 0.003, 0.0002, 0.0001, 38.0, 3.0)
+
+
+def _car() -> Localizer:
+    """A fresh car-model first stage (no compass card), as the car starts."""
+    cfg = car_model(EstimatorConfig(), calibrated=False)
+    return Localizer(LocalizerConfig(cfg, start_xy_m=(0.0, 0.0), start_heading_rad=0.0))
+
+
+def _scale(loc: Localizer) -> float:
+    """The wheel scale the first stage starts from (its learned values, read back)."""
+    now = loc.learned("car1", 0.0, 0.0)
+    assert now is not None
+    return now.scale
 
 
 def test_saved_and_read_back(tmp_path: Path) -> None:
@@ -27,10 +41,10 @@ def test_saved_and_read_back(tmp_path: Path) -> None:
     assert load_learned(path, "car1") == (None, None)
     save_learned(path, GOOD)
     assert load_learned(path, "car1") == (GOOD, None)
-    est = PoseEstimator(car_model(EstimatorConfig(), calibrated=False), 0.0, 0.0, 0.0)
-    used, note = start_from_learned(est, path, "car1", 1000.0 + 86400.0)
+    loc = _car()
+    used, note = start_from_learned(loc, path, "car1", 1000.0 + 86400.0)
     assert used is not None and "starting from learned parameters (2.5 km, 1.0 days old)" in note
-    assert est.x[3] == pytest.approx(-0.011)
+    assert _scale(loc) == pytest.approx(-0.011)
 
 
 @pytest.mark.parametrize(
@@ -52,9 +66,9 @@ def test_a_damaged_or_tampered_file_is_refused_with_one_line(tmp_path: Path, dam
     params, why = load_learned(path, "car1")
     assert params is None and why is not None and "\n" not in why
     assert "starting from the priors" in why
-    est = PoseEstimator(car_model(EstimatorConfig(), calibrated=False), 0.0, 0.0, 0.0)
-    used, _ = start_from_learned(est, path, "car1", 0.0)
-    assert used is None and est.x[3] == 0.0  # the priors, untouched
+    loc = _car()
+    used, _ = start_from_learned(loc, path, "car1", 0.0)
+    assert used is None and _scale(loc) == 0.0  # the priors, untouched
 
 
 def test_a_sigkill_while_saving_leaves_the_old_file_or_the_new_one(tmp_path: Path) -> None:
@@ -98,8 +112,7 @@ def test_a_number_too_large_for_a_float_is_refused_with_one_line(
     path.write_text(json.dumps({**doc, key: huge}))
     params, why = load_learned(path, "car1")
     assert params is None and why is not None and "\n" not in why and key in why
-    est = PoseEstimator(car_model(EstimatorConfig(), calibrated=False), 0.0, 0.0, 0.0)
-    used, note = start_from_learned(est, path, "car1", 0.0)
+    used, note = start_from_learned(_car(), path, "car1", 0.0)
     assert used is None and "starting from the priors" in note
 
 
@@ -189,13 +202,13 @@ def test_a_save_time_in_the_future_is_refused_by_the_car_not_by_a_replay(tmp_pat
     path = tmp_path / "learned.json"
     now = time.time()
     save_learned(path, LearnedParams("car1", now + 10 * 86400.0, 2500.0, -0.011, 0.003, 0.0, 1e-4))
-    est = PoseEstimator(car_model(EstimatorConfig(), calibrated=False), 0.0, 0.0, 0.0)
-    used, note = start_from_learned(est, path, "car1", now)
-    assert used is None and "saved 10.0 days after this clock" in note and est.x[3] == 0.0
-    used, _ = start_from_learned(est, path, "car1", now, wall_clock=False)
-    assert used is not None
+    loc = _car()
+    used, note = start_from_learned(loc, path, "car1", now)
+    assert used is None and "saved 10.0 days after this clock" in note and _scale(loc) == 0.0
+    used, _ = start_from_learned(loc, path, "car1", now, wall_clock=False)
+    assert used is not None and _scale(loc) == pytest.approx(-0.011)
     save_learned(path, LearnedParams("car1", now + 3600.0, 2500.0, -0.011, 0.003, 0.0, 1e-4))
-    assert start_from_learned(est, path, "car1", now)[0] is not None  # a clock an hour off
+    assert start_from_learned(_car(), path, "car1", now)[0] is not None  # a clock an hour off
 
 
 def test_a_resumed_trip_keeps_the_file_s_distance_and_removes_stale_temps(tmp_path: Path) -> None:

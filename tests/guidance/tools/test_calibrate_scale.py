@@ -20,7 +20,8 @@ import pytest
 
 from guidance.app.learned_file import load_learned, start_from_learned
 from guidance.core.localize.car_model import car_model
-from guidance.core.localize.estimator import EstimatorConfig, PoseEstimator
+from guidance.core.localize.estimator import EstimatorConfig
+from guidance.core.localize.localizer import Localizer, LocalizerConfig
 from guidance.core.localize.wheel_cal import fuse, scale_from_distance
 from guidance.tools.cli import main
 from hal_sim.sim_can import SimCanWheels
@@ -249,8 +250,8 @@ def test_what_calibrate_writes_passes_the_car_s_loader(tmp_path: Path) -> None:
     out = _cli("calibrate", str(log), "--config", str(car), "--distance-m", "600",
                "--distance-sigma-m", "0.02", "--write")  # fmt: skip
     assert "+- 0.01 %" in out
-    est = PoseEstimator(car_model(EstimatorConfig(), calibrated=False), 0.0, 0.0, 0.0)
-    used, note = start_from_learned(est, tmp_path / "learned.json", "cal", time.time())
+    first = LocalizerConfig(car_model(EstimatorConfig(), calibrated=False), start_xy_m=(0.0, 0.0))
+    used, note = start_from_learned(Localizer(first), tmp_path / "learned.json", "cal", time.time())
     assert used is not None and used.scale_sigma >= MIN_SCALE_SIGMA, note
     future = tmp_path / "future.log"  # the same drive stamped 1.7e11 s (about 5,000 years on)
     ahead = 168_300_000_000  # every stamp after 1e11 s

@@ -14,9 +14,11 @@ import pytest
 from guidance.app.learned_file import save_learned, start_from_learned
 from guidance.core.localize import compass_mount
 from guidance.core.localize.car_model import car_model
-from guidance.core.localize.estimator import EstimatorConfig, PoseEstimator
+from guidance.core.localize.estimator import EstimatorConfig
 from guidance.core.localize.learned import LearnedParams
-from hal_sim.population import draw_car, drive_car
+from guidance.core.localize.localizer import Localizer, LocalizerConfig
+from hal_sim.car_errors import draw_car
+from hal_sim.population import drive_car
 
 
 def test_the_flag_is_a_chi_square_of_the_drives_against_their_mean() -> None:
@@ -56,7 +58,8 @@ def test_a_compass_mounted_at_88_degrees_is_learned_and_one_that_moves_is_flagge
     path = tmp_path / "learned.json"
     save_learned(path, replace(learned, vehicle_id="car1"))
     cfg = car_model(EstimatorConfig(compass_two_sigma_deg=30.0), calibrated=False)
-    used, note = start_from_learned(PoseEstimator(cfg), path, "car1", learned.saved_unix_s + 60)
+    loc = Localizer(LocalizerConfig(cfg, start_xy_m=(0.0, 0.0)))
+    used, note = start_from_learned(loc, path, "car1", learned.saved_unix_s + 60)
     assert used is not None and used.compass_drives == learned.compass_drives
     assert "COMPASS OFFSET MOVES BETWEEN DRIVES" in note
     assert math.isclose(used.compass_bias_deg or 0.0, learned.compass_bias_deg or 1.0)

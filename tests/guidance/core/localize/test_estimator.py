@@ -198,14 +198,6 @@ def test_ellipse_geometry() -> None:
     assert est.lost  # 2 * 2 * sqrt(700) = 105.8 m > 100 m
 
 
-def test_reset_forgets_time_order() -> None:
-    est = PoseEstimator()
-    est.process(WheelOdometry(5.0, 1.0, 1.0))
-    est.reset(10.0, 20.0, 1.0)
-    assert est.process(WheelOdometry(1.0, 1.0, 1.0)).accepted
-    assert est.x[0] == pytest.approx(10.0 + math.cos(1.0))
-
-
 def _zone_drive(detect: bool, seed: int) -> tuple[PoseEstimator, list[bool], float]:
     """Straight east 1.5 km; compass 2-sigma 20 deg at 6 Hz; 35 deg bias from 500 to 800 m."""
     rng = np.random.default_rng(seed)
