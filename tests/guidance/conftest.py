@@ -62,3 +62,68 @@ def pytest_collection_modifyitems(items: list[pytest.Item]) -> None:
     for item in items:
         if "sim_landmarks_home" in getattr(item, "fixturenames", ()):
             item.add_marker(pytest.mark.xdist_group("sim-landmarks"))
+
+
+RAV4_LOGS = tuple(
+    ROOT / "tests" / "data" / "realdrives" / name
+    for name in ("comma2k19_ex1_kinematics.log", "comma2k19_ex1_wheelspeeds.log")
+)
+"""The comma2k19 RAV4's real ``KINEMATICS`` 0x24 (yaw rate) and ``WHEEL_SPEEDS`` 0xAA frames."""
+RAV4_YAW_ID = 0x24
+
+GYRO_CAR = """
+[vehicle]
+id = "g1"
+yaw_source = "{source}"
+[start]
+x_m = 0.0
+y_m = 0.0
+heading_deg = 90.0
+[goal]
+x_m = 0.0
+y_m = 5000.0
+[estimator]
+compass_two_sigma_deg = false
+[odometry]
+interface = "virtual"
+channel = "{channel}"
+profile = "toyota"
+expected_rate_hz = 80.0
+[compass]
+enabled = false
+[scene]
+keyboard = false
+[voice]
+backend = "none"
+[checkpoint]
+path = "ck.json"
+learned_path = "learned.json"
+[telemetry]
+enabled = false
+[recording]
+directory = "rec"
+"""
+"""A gyro car on those frames (``GYRO_CAR.format(source=..., channel=...)``): the Toyota
+profile on a python-can virtual bus, no compass, a checkpoint, a learned file, a recording."""
+
+
+@pytest.fixture
+def rav4_frames() -> Callable[[float], list[Any]]:
+    """``rav4_frames(span_s)``: the first ``span_s`` of both RAV4 logs, in time order."""
+    import heapq
+
+    from drivers.can_odometry import LogReadResult, read_can_log
+
+    def frames(span_s: float) -> list[Any]:
+        logs = [list(read_can_log(p, LogReadResult())) for p in RAV4_LOGS]
+        merged = list(heapq.merge(*logs, key=lambda m: m.timestamp))
+        t0 = merged[0].timestamp
+        return [m for m in merged if m.timestamp - t0 < span_s]
+
+    return frames
+
+
+@pytest.fixture
+def gyro_car() -> str:
+    """``GYRO_CAR``: a gyro car's TOML on the RAV4's frames."""
+    return GYRO_CAR

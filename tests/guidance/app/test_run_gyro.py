@@ -10,7 +10,6 @@ throughout."""
 from __future__ import annotations
 
 import asyncio
-import heapq
 import itertools
 import math
 import os
@@ -24,31 +23,20 @@ from pathlib import Path
 import can
 import pytest
 
-from drivers.can_odometry import CanOdometry, CanOdometryConfig, LogReadResult, read_can_log
+from drivers.can_odometry import CanOdometry, CanOdometryConfig
 from drivers.can_yaw import YawRateDecoder
 from guidance.app.config import profile_track_m
 from guidance.core.localize.gyro import GyroConfig
 from guidance.core.messages import WheelOdometry, YawRate
 from guidance.errors import UserError
 
-DATA = Path(__file__).resolve().parents[2] / "data" / "realdrives"
-KINEMATICS = DATA / "comma2k19_ex1_kinematics.log"
-WHEELS = DATA / "comma2k19_ex1_wheelspeeds.log"
-YAW_ID = 0x24
+YAW_ID = 0x24  # KINEMATICS, the RAV4 frames' yaw rate (conftest.rav4_frames)
 
 
 @pytest.fixture(autouse=True)
 def no_leaks(leak_check: Callable[..., AbstractContextManager[None]]) -> Iterator[None]:
     with leak_check(grace_s=3.0, ignore_threads=("asyncio_",), ptys=False):
         yield
-
-
-def _frames(span_s: float) -> list[can.Message]:
-    """The first ``span_s`` of both logs, in time order."""
-    logs = [list(read_can_log(p, LogReadResult())) for p in (KINEMATICS, WHEELS)]
-    merged = list(heapq.merge(*logs, key=lambda m: m.timestamp))
-    t0 = merged[0].timestamp
-    return [m for m in merged if m.timestamp - t0 < span_s]
 
 
 def _send(channel: str, frames: list[can.Message], phases: Callable[[float], str]) -> None:
@@ -72,9 +60,11 @@ def _send(channel: str, frames: list[can.Message], phases: Callable[[float], str
                                 is_extended_id=False))  # fmt: skip
 
 
-def test_the_driver_delivers_the_yaw_rate_of_real_frames_and_counts_damaged_ones() -> None:
+def test_the_driver_delivers_the_yaw_rate_of_real_frames_and_counts_damaged_ones(
+    rav4_frames: Callable[[float], list[can.Message]],
+) -> None:
     channel = f"gyro-drv-{os.getpid()}"
-    frames = _frames(1.5)
+    frames = rav4_frames(1.5)
     decoder = YawRateDecoder("toyota")
     expected = [r for m in frames if (r := decoder.feed(m)) is not None]
     got: list[WheelOdometry | YawRate] = []
@@ -107,50 +97,18 @@ def test_a_profile_without_a_yaw_rate_signal_is_refused() -> None:
         CanOdometryConfig(interface="virtual", channel="x", profile=without, yaw_rate=True)
 
 
-CAR = """
-[vehicle]
-id = "g1"
-yaw_source = "{source}"
-[start]
-x_m = 0.0
-y_m = 0.0
-heading_deg = 90.0
-[goal]
-x_m = 0.0
-y_m = 5000.0
-[estimator]
-compass_two_sigma_deg = false
-[odometry]
-interface = "virtual"
-channel = "{channel}"
-profile = "toyota"
-expected_rate_hz = 80.0
-[compass]
-enabled = false
-[scene]
-keyboard = false
-[voice]
-backend = "none"
-[checkpoint]
-path = "ck.json"
-learned_path = "learned.json"
-[telemetry]
-enabled = false
-[recording]
-directory = "rec"
-"""
-
-
 @pytest.mark.parametrize("source", ["gyro", "both"])
-def test_guidance_run_turns_a_gyro_car_by_its_can_yaw_rate(tmp_path: Path, source: str) -> None:
+def test_guidance_run_turns_a_gyro_car_by_its_can_yaw_rate(
+    tmp_path: Path, source: str, gyro_car: str, rav4_frames: Callable[[float], list[can.Message]]
+) -> None:
     """4 s of good frames, 2 s of damaged yaw frames, 2 s without them (the wheels go on)."""
     from guidance.app.run import run_car
     from guidance.recording.reader import Reader
 
     channel = f"gyro-run-{source}-{os.getpid()}"
     cfg = tmp_path / "car.toml"
-    cfg.write_text(CAR.format(source=source, channel=channel))
-    frames = _frames(8.0)
+    cfg.write_text(gyro_car.format(source=source, channel=channel))
+    frames = rav4_frames(8.0)
 
     def phases(t: float) -> str:
         return "ok" if t < 4.0 else "damaged" if t < 6.0 else "gone"
@@ -190,8 +148,8 @@ def test_guidance_run_turns_a_gyro_car_by_its_can_yaw_rate(tmp_path: Path, sourc
     # damaged frames deliver nothing (silent) and are counted (garbled), as the wheels' are
     assert "ok" in gyro_status and gyro_status.index("ok") < gyro_status.index("silent")
     assert any("garbled" in d for d in gyro_detail)
-    assert set(gyro_status[gyro_status.index("silent"):]) == {"silent"}
-    assert set(odo_status[gyro_status.index("ok"):]) == {"ok"}
+    assert set(gyro_status[gyro_status.index("silent") :]) == {"silent"}
+    assert set(odo_status[gyro_status.index("ok") :]) == {"ok"}
     # the heading turned by the gyro's readings while they came (no stop: its bias is the
     # prior's zero), then by the wheels' difference once they were older than max_hold_s
     import json

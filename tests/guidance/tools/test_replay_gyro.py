@@ -8,7 +8,6 @@ Real frames: the comma2k19 RAV4's ``KINEMATICS`` 0x24 (yaw rate) and ``WHEEL_SPE
 from __future__ import annotations
 
 import asyncio
-import heapq
 import json
 import os
 import signal
@@ -25,10 +24,6 @@ from drivers.can_odometry import CanOdometry, CanOdometryConfig, LogReadResult, 
 from guidance.core.messages import WheelOdometry, YawRate
 from guidance.tools.replay_can import can_log_inputs
 
-DATA = Path(__file__).resolve().parents[2] / "data" / "realdrives"
-LOGS = (DATA / "comma2k19_ex1_kinematics.log", DATA / "comma2k19_ex1_wheelspeeds.log")
-YAW_ID = 0x24
-
 
 @pytest.fixture(autouse=True)
 def no_leaks(leak_check: Callable[..., AbstractContextManager[None]]) -> Iterator[None]:
@@ -36,51 +31,10 @@ def no_leaks(leak_check: Callable[..., AbstractContextManager[None]]) -> Iterato
         yield
 
 
-def _frames(span_s: float) -> list[can.Message]:
-    """The first ``span_s`` of both logs, in time order."""
-    logs = [list(read_can_log(p, LogReadResult())) for p in LOGS]
-    merged = list(heapq.merge(*logs, key=lambda m: m.timestamp))
-    return [m for m in merged if m.timestamp - merged[0].timestamp < span_s]
-
-
 def _candump(frames: list[can.Message], path: Path) -> Path:
     path.write_text("".join(f"({m.timestamp:.6f}) can0 {m.arbitration_id:03X}#{m.data.hex()}\n"
                             for m in frames))  # fmt: skip
     return path
-
-
-CAR = """
-[vehicle]
-id = "g1"
-yaw_source = "{source}"
-[start]
-x_m = 0.0
-y_m = 0.0
-heading_deg = 90.0
-[goal]
-x_m = 0.0
-y_m = 5000.0
-[estimator]
-compass_two_sigma_deg = false
-[odometry]
-interface = "virtual"
-channel = "{channel}"
-profile = "toyota"
-expected_rate_hz = 80.0
-[compass]
-enabled = false
-[scene]
-keyboard = false
-[voice]
-backend = "none"
-[checkpoint]
-path = "ck.json"
-learned_path = "learned.json"
-[telemetry]
-enabled = false
-[recording]
-directory = "rec"
-"""
 
 
 def _send(channel: str, frames: list[can.Message]) -> None:
@@ -95,13 +49,13 @@ def _send(channel: str, frames: list[can.Message]) -> None:
                                 is_extended_id=False))  # fmt: skip
 
 
-def _run(tmp_path: Path, source: str, frames: list[can.Message]) -> Path:
+def _run(tmp_path: Path, car: str, source: str, frames: list[can.Message]) -> Path:
     """``guidance run`` of the car on the frames; its recording's folder."""
     from guidance.app.run import run_car
 
     channel = f"gyro-replay-{source}-{os.getpid()}"
     cfg = tmp_path / "car.toml"
-    cfg.write_text(CAR.format(source=source, channel=channel))
+    cfg.write_text(car.format(source=source, channel=channel))
 
     async def scenario() -> int:
         task = asyncio.create_task(run_car(str(cfg), screen="off"))
@@ -147,7 +101,11 @@ def _without_topic(src: Path, dest: Path, topic: str) -> None:
 
 @pytest.mark.parametrize("source", ["gyro", "both"])
 def test_a_gyro_cars_raw_recording_replays_its_yaw_rate_frames_exactly(
-    tmp_path: Path, source: str, capsys: pytest.CaptureFixture[str]
+    tmp_path: Path,
+    source: str,
+    capsys: pytest.CaptureFixture[str],
+    gyro_car: str,
+    rav4_frames: Callable[[float], list[can.Message]],
 ) -> None:
     """``guidance run`` on 4 s of the RAV4's frames, then ``guidance replay --raw`` of its
     recording with the decoded ``/yaw_rate`` taken out: the yaw rates come from the ``/can``
@@ -157,7 +115,7 @@ def test_a_gyro_cars_raw_recording_replays_its_yaw_rate_frames_exactly(
     from guidance.tools.cli import main
     from guidance.tools.replay_mcap import mcap_inputs
 
-    rec = _run(tmp_path, source, _frames(4.0))
+    rec = _run(tmp_path, gyro_car, source, rav4_frames(4.0))
     (original,) = sorted(rec.glob("*.mcap"))
     recorded = [(m.data["t_s"], m.data["yaw_rate_rad_s"])
                 for m in Reader(original, topics=["/yaw_rate"], log_time_order=False)]  # fmt: skip
@@ -174,8 +132,10 @@ def test_a_gyro_cars_raw_recording_replays_its_yaw_rate_frames_exactly(
             for m in Reader(original, topics=["/odometry"], log_time_order=False)]  # fmt: skip
     if odometry != took or decoded != recorded:  # only as the driver's back-pressure does
         _assert_behind(odometry, took, decoded, recorded)
-        pytest.skip("the run's loop fell behind (load): the driver coalesced increments "
-                    "or dropped yaw readings, which a replay of raw frames cannot repeat")
+        pytest.skip(
+            "the run's loop fell behind (load): the driver coalesced increments "
+            "or dropped yaw readings, which a replay of raw frames cannot repeat"
+        )
     assert decoded == recorded  # exactly: the same decoder on the same frames
 
     # the session record names the car's profile: no --profile needed
@@ -210,11 +170,13 @@ def _assert_behind(
     assert set(recorded) <= set(decoded)
 
 
-def test_a_gyro_cars_can_log_replays_as_the_cars_can_driver_delivers_it(tmp_path: Path) -> None:
+def test_a_gyro_cars_can_log_replays_as_the_cars_can_driver_delivers_it(
+    tmp_path: Path, rav4_frames: Callable[[float], list[can.Message]]
+) -> None:
     """The frames of a CAN log through ``guidance run``'s CAN driver (a python-can virtual
     bus, the frames' own stamps) and through the replay's decoders: the same increments and
     yaw rates, in the same order."""
-    log = _candump(_frames(1.5), tmp_path / "rav4.log")
+    log = _candump(rav4_frames(1.5), tmp_path / "rav4.log")
     frames = list(read_can_log(log, LogReadResult()))
     channel = f"gyro-log-{os.getpid()}"
     got: list[WheelOdometry | YawRate] = []
