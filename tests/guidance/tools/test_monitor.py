@@ -418,7 +418,7 @@ def test_live_view_table_and_sigusr1_snapshot(
             "--connect",
             f"tcp/127.0.0.1:{port}",
             "--timeout",
-            "4",
+            "15",
             "--snapshot",
             str(png),
         ],
@@ -435,8 +435,10 @@ def test_live_view_table_and_sigusr1_snapshot(
         while not catches_sigusr1(proc.pid):
             assert time.monotonic() < deadline and proc.poll() is None, "monitor did not start"
             time.sleep(0.05)
-        time.sleep(1.0)  # let some messages arrive (the monitor runs 4 s from here)
-        deadline = time.monotonic() + 2.5
+        time.sleep(1.0)  # let some messages arrive (the monitor runs 15 s from here)
+        # a snapshot is a matplotlib figure drawn and saved: about a second here, several on a
+        # loaded machine (a CI run beside two spinning processes waited out 2.5 s)
+        deadline = time.monotonic() + 10.0
         while time.monotonic() < deadline and not png.exists():
             os.kill(proc.pid, signal.SIGUSR1)  # ask for a snapshot while it runs
             time.sleep(0.3)
