@@ -769,3 +769,11 @@ def read_back(line):
         "Please say that again.",
         "Turned {}, then straight on.",
     ]
+
+
+def test_parse_config_reads_the_rules_it_does_not_write() -> None:
+    """Issue 37: the rules a setting obeys live on the dataclasses (``rule(...)``), so the
+    TOML's reader is a short composition: at most 80 lines."""
+    tree = ast.parse((ROOT / "guidance" / "app" / "config.py").read_text())
+    (fn,) = [n for n in tree.body if isinstance(n, ast.FunctionDef) and n.name == "parse_config"]
+    assert fn.end_lineno is not None and fn.end_lineno - fn.lineno + 1 <= 80
