@@ -49,7 +49,7 @@ def get(url_port: int, path: str, host: str | None = None) -> tuple[int, dict[st
         conn.close()
 
 
-def wait_until(cond: Callable[[], Any], timeout_s: float = 10.0) -> Any:
+def wait_until(cond: Callable[[], Any], timeout_s: float = 30.0) -> Any:
     deadline = time.monotonic() + timeout_s
     while time.monotonic() < deadline:
         value = cond()
@@ -70,6 +70,10 @@ def car_and_web() -> Iterator[tuple[Telemetry, WebMonitor]]:
     client = MonitorClient([f"tcp/127.0.0.1:{port}"]).open()
     web = WebMonitor(client, "127.0.0.1", 0).start()
     try:
+        # zenoh keeps nothing for a subscriber not yet linked: the tests send once the car
+        # sees the monitor (about a second here; a CI run beside two spinning processes sent
+        # into the void and waited out 10 s)
+        assert wait_until(lambda: tel.health().counters.get("peers", 0) >= 1, 60.0)
         yield tel, web
     finally:
         web.close()
