@@ -70,12 +70,11 @@ def synthetic(seed: int = 37, seconds: float = 240.0) -> list[Input]:
         yaw = 0.25 if 0.4 < phase < 0.5 else (-0.2 if 0.7 < phase < 0.75 else 0.0)
         d, dth = speed * 0.02, yaw * 0.02 if speed > 0 else 0.0
         x, y, th = x + d * math.cos(th + dth / 2), y + d * math.sin(th + dth / 2), th + dth
-        if 100.0 < t < 102.5 or 150.0 < t < 190.0:  # CAN gaps (the second one loses it)
-            pass
-        elif 200.0 < t < 200.5:  # a clock stepped back: the filter follows after a while
+        can_gap = 100.0 < t < 102.5 or 150.0 < t < 190.0  # no wheels (the second loses it)
+        if not can_gap and 200.0 < t < 200.5:  # a clock stepped back: followed after a while
             out.append(WheelOdometry(t - 5.0, d, d))
             continue
-        else:
+        if not can_gap:
             slip = rng.normal(0.0, 0.002, 2) * d
             half = 0.5 * 1.6 * dth
             out.append(WheelOdometry(t, d - half + slip[0], d + half + slip[1]))
